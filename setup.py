@@ -1,0 +1,48 @@
+"""ament_python package train_localization (DESIGN.md section 2)."""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "train_localization"
+
+# One executable per node, installed under lib/train_localization/ (setup.cfg) so
+# that `ros2 run train_localization <name>` finds it.
+NODES = {
+    "simulator": "train_localization.nodes.simulator:main",
+    "fusion": "train_localization.nodes.fusion:main",
+    "recorder": "train_localization.nodes.recorder:main",
+    "replayer": "train_localization.nodes.replayer:main",
+}
+SENSOR_NODES = [
+    "doppler_radar", "wheel_sensor", "eurobalise_reader", "lrl_scanner",
+    "inpo_receiver", "pattern_belt", "mmwave_ranging", "axle_counter",
+]
+TOOLS = {
+    "tl_demo": "train_localization.tools.demo:main",
+    "tl_replay": "train_localization.tools.replay:main",
+    "tl_bench": "train_localization.tools.bench:main",
+}
+
+console_scripts = [f"{name} = {target}" for name, target in NODES.items()]
+console_scripts += [f"{name} = train_localization.nodes.sensor:main_{name}" for name in SENSOR_NODES]
+console_scripts += [f"{name} = {target}" for name, target in TOOLS.items()]
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + PACKAGE]),
+        ("share/" + PACKAGE, ["package.xml"]),
+        ("share/" + PACKAGE + "/launch", glob("launch/*.py")),
+        ("share/" + PACKAGE + "/config", glob("config/*.yaml")),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="train_localization developers",
+    maintainer_email="dev@train-localization.invalid",
+    description="Along-track train localisation: physics-level sensor nodes, Kalman fusion, MCAP replay.",
+    license="Apache-2.0",
+    tests_require=["pytest"],
+    entry_points={"console_scripts": console_scripts},
+)

@@ -1,0 +1,1 @@
+"""train_localization: along-track localisation of maglev and railway vehicles."""

@@ -1,0 +1,1 @@
+"""Functional core: pure Python + numpy + filterpy. Nothing below imports rclpy."""

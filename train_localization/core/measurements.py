@@ -1,0 +1,107 @@
+"""Decoded measurements: what sensor decoders produce and the fusion consumes.
+
+They mirror the messages of train_localization_msgs one to one (field names and
+units are the same); ``stamp`` is the time of validity [s].
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from .signals import InputRejected
+
+
+def _require_finite(kind: str, **values: float) -> None:
+    for name, value in values.items():
+        if not math.isfinite(value):
+            raise InputRejected("nan", f"{kind}.{name} is {value!r}")
+
+
+@dataclass(frozen=True)
+class PositionFix:
+    """Absolute chainage of the train front [m] with 1-sigma [m], valid at ``stamp``."""
+
+    stamp: float
+    sensor: str
+    unit_id: str
+    track_id: str
+    reference_id: str
+    position: float
+    position_stddev: float
+    direction: int = 0
+    residuals: tuple[float, ...] = field(default=())
+
+    def validate(self) -> None:
+        _require_finite("PositionFix", stamp=self.stamp, position=self.position,
+                        position_stddev=self.position_stddev)
+        if self.position_stddev <= 0.0:
+            raise InputRejected("stddev", f"PositionFix stddev {self.position_stddev} must be > 0")
+
+
+@dataclass(frozen=True)
+class SpeedMeasurement:
+    """Signed speed [m/s] with 1-sigma [m/s], valid at ``stamp``."""
+
+    stamp: float
+    sensor: str
+    unit_id: str
+    speed: float
+    speed_stddev: float
+
+    def validate(self) -> None:
+        _require_finite("SpeedMeasurement", stamp=self.stamp, speed=self.speed,
+                        speed_stddev=self.speed_stddev)
+        if self.speed_stddev <= 0.0:
+            raise InputRejected("stddev", f"SpeedMeasurement stddev {self.speed_stddev} must be > 0")
+
+
+@dataclass(frozen=True)
+class DistanceIncrement:
+    """Signed distance [m] over ``duration`` [s] ending at ``stamp``, and mean speed."""
+
+    stamp: float
+    sensor: str
+    unit_id: str
+    duration: float
+    distance: float
+    distance_stddev: float
+    speed: float
+    speed_stddev: float
+
+    def validate(self) -> None:
+        _require_finite("DistanceIncrement", stamp=self.stamp, duration=self.duration,
+                        distance=self.distance, distance_stddev=self.distance_stddev,
+                        speed=self.speed, speed_stddev=self.speed_stddev)
+        if self.duration <= 0.0 or self.distance_stddev <= 0.0 or self.speed_stddev <= 0.0:
+            raise InputRejected("stddev", "DistanceIncrement duration and stddevs must be > 0")
+
+
+CLEAR, OCCUPIED, DISTURBED = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class SectionState:
+    """Occupancy of one section between two chainages [m]."""
+
+    section_id: str
+    start: float
+    end: float
+    state: int
+    axle_count: int
+    axles_in: int
+    axles_out: int
+
+
+@dataclass(frozen=True)
+class SectionOccupancy:
+    """Occupancy of every section of one wayside system at ``stamp``."""
+
+    stamp: float
+    source: str
+    sections: tuple[SectionState, ...]
+
+    def validate(self) -> None:
+        _require_finite("SectionOccupancy", stamp=self.stamp)
+
+
+Measurement = PositionFix | SpeedMeasurement | DistanceIncrement | SectionOccupancy

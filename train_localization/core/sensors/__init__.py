@@ -1,0 +1,27 @@
+"""Registry of the sensor kinds: node name -> SensorSpec (imported lazily)."""
+from __future__ import annotations
+
+import importlib
+
+from .base import SensorSpec
+
+# node name -> module defining SPEC
+_MODULES = {
+    "doppler_radar": "doppler",
+    "wheel_sensor": "wheel",
+    "eurobalise_reader": "eurobalise",
+    "lrl_scanner": "lrl",
+    "inpo_receiver": "inpo",
+    "pattern_belt": "pattern_belt",
+    "mmwave_ranging": "mmwave",
+    "axle_counter": "axle_counter",
+}
+
+NODE_NAMES = tuple(_MODULES)
+
+
+def spec(node: str) -> SensorSpec:
+    """The SensorSpec of a sensor node name; KeyError lists the known ones."""
+    if node not in _MODULES:
+        raise KeyError(f"unknown sensor {node!r}; known: {', '.join(NODE_NAMES)}")
+    return importlib.import_module(f"{__name__}.{_MODULES[node]}").SPEC

@@ -1,0 +1,152 @@
+"""The two halves of every sensor: a device simulator and a decoder.
+
+``Simulator`` turns ground truth into raw blocks the way the device does (physics
+from the seed papers), ``Decoder`` turns raw blocks into measurements. The decoder
+never sees the truth: it gets the same blocks whether they come from the simulator,
+a device driver or a bag. Both are plain objects driven block by block, with no
+ROS: the sensor node (nodes/sensor.py), the offline replay and the tests drive
+them the same way.
+
+Parameters: every sensor module declares ``PARAMS``, a dict name -> Param(default,
+description). The description carries the unit and where the default comes from
+(seed file or datasheet). Nodes declare them as ROS parameters; scenarios override
+them per sensor.
+"""
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..measurements import Measurement
+from ..scenario import TruthBuffer, Vehicle
+from ..signals import RawBlock
+from ..track import Track
+
+
+@dataclass(frozen=True)
+class Param:
+    default: Any
+    description: str
+
+
+COMMON_PARAMS = {
+    "unit_id": Param("", "device instance name; empty = the sensor name"),
+    "sample_rate": Param(0.0, "raw sample rate [Hz]; 0 = the sensor's default"),
+    "block_duration": Param(0.05, "length of one raw block [s] (DESIGN.md section 4)"),
+}
+
+
+def resolve_params(declared: dict[str, Param], overrides: dict | None) -> dict[str, Any]:
+    """Defaults of ``declared`` (plus the common ones) updated by ``overrides``.
+
+    Unknown names raise ValueError so that a typo in a scenario or YAML file is not
+    silently ignored; values are cast to the type of the default.
+    """
+    params = {name: p.default for name, p in {**COMMON_PARAMS, **declared}.items()}
+    for name, value in (overrides or {}).items():
+        if name not in params:
+            raise ValueError(f"unknown parameter {name!r}; known: {', '.join(sorted(params))}")
+        default = params[name]
+        if isinstance(default, bool):
+            params[name] = bool(value)
+        elif isinstance(default, float):
+            params[name] = float(value)
+        elif isinstance(default, int):
+            params[name] = int(value)
+        elif isinstance(default, list):
+            params[name] = list(value)
+        else:
+            params[name] = value
+    return params
+
+
+class Simulator(ABC):
+    """Simulates one device: raw blocks of consecutive, gap-free intervals.
+
+    Subclasses set ``sensor``, ``channels``, ``units``, ``default_sample_rate`` and
+    implement ``samples``. ``rng`` is the device's own random stream.
+    """
+
+    sensor: str = ""
+    channels: tuple[str, ...] = ()
+    units: tuple[str, ...] = ()
+    default_sample_rate: float = 100.0
+
+    def __init__(self, params: dict, track: Track, vehicle: Vehicle, rng: np.random.Generator):
+        self.params = params
+        self.track = track
+        self.vehicle = vehicle
+        self.rng = rng
+        self.unit_id = params.get("unit_id") or self.sensor
+        self.sample_rate = float(params.get("sample_rate") or self.default_sample_rate)
+        self.samples_per_block = max(1, int(round(params.get("block_duration", 0.05) * self.sample_rate)))
+        self.seq = 0
+        self._next_t0: float | None = None
+
+    def start(self, t0: float) -> None:
+        """Set the time of the first sample [s] (default: the first truth stamp)."""
+        self._next_t0 = t0
+
+    def simulate(self, truth: TruthBuffer) -> list[RawBlock]:
+        """All blocks that the truth received so far covers completely."""
+        if truth.latest is None:
+            return []
+        if self._next_t0 is None:
+            self._next_t0 = truth.earliest
+        blocks = []
+        block_len = self.samples_per_block / self.sample_rate
+        while self._next_t0 + block_len <= truth.latest + 1e-9:
+            n0 = self._sample_index(self._next_t0)
+            times = (n0 + np.arange(self.samples_per_block)) / self.sample_rate
+            s, v, a = truth.sample(times)
+            data = self.samples(times, s, v, a)
+            blocks.append(RawBlock.from_samples(self.sensor, self.unit_id, self.seq, float(times[0]),
+                                                self.sample_rate, self.channels, self.units, data))
+            self.seq += 1
+            self._next_t0 = (n0 + self.samples_per_block) / self.sample_rate
+        return blocks
+
+    def _sample_index(self, t: float) -> int:
+        return int(round(t * self.sample_rate))
+
+    @abstractmethod
+    def samples(self, times: np.ndarray, position: np.ndarray, speed: np.ndarray,
+                acceleration: np.ndarray) -> np.ndarray:
+        """Raw samples, shape (len(times), len(channels)), for the true motion given."""
+
+
+class Decoder(ABC):
+    """Decodes raw blocks of one device into measurements; keeps state between blocks.
+
+    ``decode`` raises signals.InputRejected for a block it cannot use (unknown code,
+    implausible signal); the caller counts it and goes on with the next block.
+    """
+
+    sensor: str = ""
+    channels: tuple[str, ...] = ()
+
+    def __init__(self, params: dict, track: Track):
+        self.params = params
+        self.track = track
+        self.unit_id = params.get("unit_id") or self.sensor
+        self.stats: dict[str, float] = {}
+
+    @abstractmethod
+    def decode(self, block: RawBlock) -> list[Measurement]:
+        """Measurements contained in one block (possibly none)."""
+
+
+@dataclass(frozen=True)
+class SensorSpec:
+    """Everything a node or the offline replay needs to run one kind of sensor."""
+
+    node: str                      # executable / node name, e.g. "doppler_radar"
+    sensor: str                    # topic key: sensors/<sensor>/...
+    simulator: type[Simulator]
+    decoder: type[Decoder]
+    params: dict[str, Param]
+    description: str
+    seeds: tuple[str, ...] = field(default=())

@@ -1,0 +1,132 @@
+"""Raw signal blocks: the one representation of raw sensor data in the core.
+
+A block holds ``n_samples x n_channels`` samples taken at a fixed sample rate from
+one device, starting at ``t0``. Simulated devices produce blocks, device drivers and
+bags deliver them (train_localization_msgs/RawBlock), and every decoder consumes
+them, so simulated, recorded and ingested data go through the same code
+(DESIGN.md section 4: raw signals travel in blocks).
+
+Samples are stored as float32, like the message: a simulated block is rounded to
+float32 when it is made, so decoding it live or after a bag round trip is identical.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+class InputRejected(ValueError):
+    """Raised for input that must not reach a decoder or the filter.
+
+    ``reason`` is a short machine-readable key used for counting in diagnostics
+    (e.g. ``"nan"``, ``"shape"``, ``"stamp_back"``, ``"duplicate"``, ``"channels"``).
+    """
+
+    def __init__(self, reason: str, message: str):
+        super().__init__(f"{reason}: {message}")
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class RawBlock:
+    """``n_samples`` samples of ``len(channels)`` channels from one device.
+
+    t0: time of the first sample [s]; sample_rate [Hz]; data: float32 array of shape
+    (n_samples, n_channels); seq: per-device block counter.
+    """
+
+    sensor: str
+    unit_id: str
+    seq: int
+    t0: float
+    sample_rate: float
+    channels: tuple[str, ...]
+    units: tuple[str, ...]
+    data: np.ndarray = field(repr=False)
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.data.shape[0])
+
+    @property
+    def duration(self) -> float:
+        """Time covered by the block [s] (n_samples / sample_rate)."""
+        return self.n_samples / self.sample_rate
+
+    @property
+    def t_end(self) -> float:
+        """Time of the sample after the last one [s]."""
+        return self.t0 + self.duration
+
+    def times(self) -> np.ndarray:
+        """Sample times [s]."""
+        return self.t0 + np.arange(self.n_samples) / self.sample_rate
+
+    def channel(self, name: str) -> np.ndarray:
+        """Samples of one channel, by name."""
+        return self.data[:, self.channels.index(name)]
+
+    @classmethod
+    def from_flat(cls, sensor, unit_id, seq, t0, sample_rate, channels, units, flat) -> "RawBlock":
+        """Build from the message layout (row-major flat samples), validating it.
+
+        Raises InputRejected for NaN/inf samples, a length that is not a multiple of
+        the channel count, a non-positive or non-finite sample rate, or a units list
+        that does not match the channels.
+        """
+        channels = tuple(channels)
+        units = tuple(units)
+        flat = np.asarray(flat, dtype=np.float32)
+        if not channels:
+            raise InputRejected("channels", "block has no channels")
+        if len(units) != len(channels):
+            raise InputRejected("shape", f"{len(units)} units for {len(channels)} channels")
+        if not (np.isfinite(sample_rate) and sample_rate > 0.0):
+            raise InputRejected("sample_rate", f"sample rate {sample_rate!r} Hz is not a positive number")
+        if not np.isfinite(t0):
+            raise InputRejected("stamp", f"first-sample stamp {t0!r} is not finite")
+        if flat.size == 0 or flat.size % len(channels):
+            raise InputRejected(
+                "shape", f"{flat.size} samples cannot be split into {len(channels)} channels")
+        if not np.all(np.isfinite(flat)):
+            raise InputRejected("nan", f"{int(np.count_nonzero(~np.isfinite(flat)))} samples are NaN or inf")
+        return cls(sensor, unit_id, int(seq), float(t0), float(sample_rate), channels, units,
+                   flat.reshape(-1, len(channels)))
+
+    @classmethod
+    def from_samples(cls, sensor, unit_id, seq, t0, sample_rate, channels, units, samples) -> "RawBlock":
+        """Build from a (n_samples, n_channels) array, rounding to float32."""
+        samples = np.asarray(samples, dtype=np.float32)
+        return cls.from_flat(sensor, unit_id, seq, t0, sample_rate, channels, units, samples.reshape(-1))
+
+
+class BlockSequenceGuard:
+    """Checks that the blocks of one device arrive in order and are not repeated.
+
+    A block is rejected if its seq was already seen (``duplicate``), if it starts
+    before the end of the previous accepted block by more than half a sample
+    (``stamp_back``), or if its channel layout differs from the expected one
+    (``channels``). Gaps (lost blocks) are accepted and counted in ``gaps``.
+    """
+
+    def __init__(self, expected_channels: tuple[str, ...] | None = None):
+        self.expected_channels = tuple(expected_channels) if expected_channels else None
+        self._last: dict[str, RawBlock] = {}
+        self.gaps = 0
+
+    def check(self, block: RawBlock) -> None:
+        if self.expected_channels is not None and block.channels != self.expected_channels:
+            raise InputRejected(
+                "channels", f"channels {block.channels} differ from expected {self.expected_channels}")
+        last = self._last.get(block.unit_id)
+        if last is not None:
+            if block.seq <= last.seq:
+                raise InputRejected("duplicate", f"{block.unit_id}: seq {block.seq} after {last.seq}")
+            if block.t0 < last.t_end - 0.5 / block.sample_rate:
+                raise InputRejected(
+                    "stamp_back", f"{block.unit_id}: block starts at {block.t0:.6f} s, "
+                    f"before the end of the previous one at {last.t_end:.6f} s")
+            if block.seq != last.seq + 1:
+                self.gaps += block.seq - last.seq - 1
+        self._last[block.unit_id] = block

@@ -1,0 +1,131 @@
+"""Track description: chainage, 2-D alignment and wayside equipment (config/*.yaml).
+
+Chainage runs from 0 to ``length`` [m] in the track's reference direction
+(DESIGN.md section 4). The alignment is a chain of segments of constant curvature
+(straight: 0, arc: 1/R [1/m], sign = to the left) starting at ``origin``; it is used
+only to place the train in ``map`` for visualisation and odometry messages.
+
+Equipment is listed per kind. Each entry is a dict with at least ``id`` and
+``position`` [m]; a generator entry ``{every: d, start: s0, end: s1, id: "BG{n:03d}"}``
+expands to one item every ``d`` metres. Extra keys (a balise telegram, an LRL code,
+a base station's lateral offset, ...) stay in the dict for the sensor models.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+
+class TrackError(ValueError):
+    """A track file that cannot be used, with the reason."""
+
+
+def _expand(kind: str, entries: list) -> list[dict]:
+    items: list[dict] = []
+    for entry in entries or []:
+        if not isinstance(entry, dict):
+            raise TrackError(f"equipment '{kind}': entry {entry!r} is not a mapping")
+        if "every" in entry:
+            every, start, end = float(entry["every"]), float(entry.get("start", 0.0)), float(entry["end"])
+            if every <= 0:
+                raise TrackError(f"equipment '{kind}': 'every' must be > 0")
+            template = str(entry.get("id", kind + "{n:03d}"))
+            extra = {k: v for k, v in entry.items() if k not in ("every", "start", "end", "id")}
+            for n, pos in enumerate(np.arange(start, end + 1e-9, every)):
+                items.append({**extra, "id": template.format(n=n), "position": float(pos)})
+        else:
+            if "position" not in entry:
+                raise TrackError(f"equipment '{kind}': entry {entry!r} has no 'position'")
+            items.append({**entry, "id": str(entry.get("id", f"{kind}{len(items):03d}")),
+                          "position": float(entry["position"])})
+    items.sort(key=lambda item: item["position"])
+    return items
+
+
+@dataclass
+class Track:
+    """A named track: length [m], alignment polyline and equipment by kind."""
+
+    track_id: str
+    length: float
+    equipment: dict[str, list[dict]] = field(default_factory=dict)
+    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    segments: list[tuple[float, float]] = field(default_factory=list)  # (length [m], curvature [1/m])
+    resolution: float = 10.0  # polyline step [m]
+
+    def __post_init__(self):
+        if not (self.length > 0 and math.isfinite(self.length)):
+            raise TrackError(f"track '{self.track_id}': length must be a positive number")
+        for kind, items in self.equipment.items():
+            for item in items:
+                if not 0.0 <= item["position"] <= self.length:
+                    raise TrackError(f"{kind} '{item['id']}' at {item['position']} m is off the track "
+                                     f"(0..{self.length} m)")
+        self._build_polyline()
+
+    def _build_polyline(self):
+        segments = list(self.segments) or [(self.length, 0.0)]
+        covered = sum(seg[0] for seg in segments)
+        if covered < self.length:  # the rest of the track is straight
+            segments.append((self.length - covered, 0.0))
+        s_pts, x_pts, y_pts, h_pts = [0.0], [self.origin[0]], [self.origin[1]], [self.origin[2]]
+        s = 0.0
+        for seg_len, curvature in segments:
+            n = max(1, int(math.ceil(seg_len / self.resolution)))
+            ds = seg_len / n
+            for _ in range(n):
+                h0 = h_pts[-1]
+                h1 = h0 + curvature * ds
+                hm = 0.5 * (h0 + h1)
+                x_pts.append(x_pts[-1] + ds * math.cos(hm))
+                y_pts.append(y_pts[-1] + ds * math.sin(hm))
+                h_pts.append(h1)
+                s += ds
+                s_pts.append(s)
+        self._s = np.array(s_pts)
+        self._x = np.array(x_pts)
+        self._y = np.array(y_pts)
+        self._h = np.array(h_pts)
+
+    def pose(self, chainage: float) -> tuple[float, float, float]:
+        """(x [m], y [m], heading [rad]) of a chainage in ``map`` (clamped to the polyline)."""
+        return (float(np.interp(chainage, self._s, self._x)),
+                float(np.interp(chainage, self._s, self._y)),
+                float(np.interp(chainage, self._s, self._h)))
+
+    def items(self, kind: str) -> list[dict]:
+        """Equipment of one kind, sorted by position (empty if the track has none)."""
+        return self.equipment.get(kind, [])
+
+    def item(self, kind: str, item_id: str) -> dict:
+        """One piece of equipment by id; KeyError if unknown."""
+        for it in self.items(kind):
+            if it["id"] == item_id:
+                return it
+        raise KeyError(f"unknown {kind} id {item_id!r} on track {self.track_id}")
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "Track":
+        try:
+            origin = data.get("origin", {}) or {}
+            return cls(
+                track_id=str(data["track_id"]),
+                length=float(data["length"]),
+                origin=(float(origin.get("x", 0.0)), float(origin.get("y", 0.0)),
+                        float(origin.get("heading", 0.0))),
+                segments=[(float(s["length"]), float(s.get("curvature", 0.0)))
+                          for s in data.get("alignment", []) or []],
+                equipment={kind: _expand(kind, entries)
+                           for kind, entries in (data.get("equipment", {}) or {}).items()},
+            )
+        except KeyError as exc:
+            raise TrackError(f"track description lacks the key {exc}") from None
+
+    @classmethod
+    def from_yaml(cls, path: str | Path) -> "Track":
+        with open(path, encoding="utf-8") as fh:
+            return cls.from_dict(yaml.safe_load(fh))

@@ -91,7 +91,8 @@ class RawBlock:
                 "shape", f"{flat.size} samples cannot be split into {len(channels)} channels")
         if not np.all(np.isfinite(flat)):
             raise InputRejected("nan", f"{int(np.count_nonzero(~np.isfinite(flat)))} samples are NaN or inf")
-        return cls(sensor, unit_id, int(seq), float(t0), float(sample_rate), channels, units,
+        t0 = round(float(t0) * 1_000_000_000) / 1_000_000_000  # whole ns: survives a stamp round trip
+        return cls(sensor, unit_id, int(seq), t0, float(sample_rate), channels, units,
                    flat.reshape(-1, len(channels)))
 
     @classmethod

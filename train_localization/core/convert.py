@@ -1,0 +1,168 @@
+"""Message <-> core conversions, shared by the nodes and the offline (bag) tools.
+
+Reading uses attribute access only, so it works for rclpy messages and for the
+objects rosbags deserialises from a bag alike. Writing needs the message classes:
+``MsgClasses`` holds them, built either from the generated rclpy modules
+(nodes/common.py) or from a rosbags typestore (core/bagio.py).
+
+Stamps are handled in integer nanoseconds: ``stamp_to_sec`` and ``sec_to_stamp``
+are exact inverses for canonical times (``canonical``), so a value that goes
+through a message and back is bit-identical.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from .measurements import (DistanceIncrement, PositionFix, SectionOccupancy, SectionState,
+                           SpeedMeasurement)
+from .scenario import TruthState
+from .signals import InputRejected, RawBlock
+
+NS = 1_000_000_000
+
+
+def canonical(t: float) -> float:
+    """A time rounded to whole nanoseconds [s]: survives a round trip through a stamp."""
+    return round(t * NS) / NS
+
+
+def stamp_to_sec(stamp) -> float:
+    return (int(stamp.sec) * NS + int(stamp.nanosec)) / NS
+
+
+def sec_to_ns(t: float) -> int:
+    return int(round(t * NS))
+
+
+@dataclass
+class MsgClasses:
+    """Constructors of the message types used; ``array`` makes a primitive array field."""
+
+    Time: Callable
+    Header: Callable
+    TrainState: Callable
+    RawBlock: Callable
+    PositionFix: Callable
+    SpeedMeasurement: Callable
+    DistanceIncrement: Callable
+    SectionState: Callable
+    SectionOccupancy: Callable
+    array: Callable[[np.ndarray, str], Any]
+
+    def header(self, t: float, frame_id: str = ""):
+        sec, nanosec = divmod(sec_to_ns(t), NS)
+        return self.Header(stamp=self.Time(sec=sec, nanosec=nanosec), frame_id=frame_id)
+
+
+# ---- raw blocks ---------------------------------------------------------------
+
+def raw_block_from_msg(msg) -> RawBlock:
+    """Validated RawBlock from a RawBlock message; raises InputRejected."""
+    return RawBlock.from_flat(msg.sensor, msg.unit_id, msg.seq, stamp_to_sec(msg.header.stamp),
+                              msg.sample_rate, list(msg.channels), list(msg.units),
+                              np.asarray(msg.data, dtype=np.float32))
+
+
+def raw_block_to_msg(block: RawBlock, mc: MsgClasses, frame_id: str = ""):
+    return mc.RawBlock(header=mc.header(block.t0, frame_id or block.unit_id), sensor=block.sensor,
+                       unit_id=block.unit_id, seq=block.seq, sample_rate=block.sample_rate,
+                       channels=list(block.channels), units=list(block.units),
+                       data=mc.array(block.data.reshape(-1), "float32"))
+
+
+# ---- measurements -------------------------------------------------------------
+
+def measurement_to_msg(m, mc: MsgClasses):
+    """Message of a core measurement (type chosen by the measurement's type)."""
+    h = mc.header(m.stamp, "map")
+    if isinstance(m, PositionFix):
+        return mc.PositionFix(header=h, sensor=m.sensor, unit_id=m.unit_id, track_id=m.track_id,
+                              reference_id=m.reference_id, position=m.position,
+                              position_stddev=m.position_stddev, direction=int(m.direction),
+                              residuals=mc.array(np.asarray(m.residuals, dtype=np.float64), "float64"))
+    if isinstance(m, SpeedMeasurement):
+        return mc.SpeedMeasurement(header=h, sensor=m.sensor, unit_id=m.unit_id, speed=m.speed,
+                                   speed_stddev=m.speed_stddev)
+    if isinstance(m, DistanceIncrement):
+        return mc.DistanceIncrement(header=h, sensor=m.sensor, unit_id=m.unit_id, duration=m.duration,
+                                    distance=m.distance, distance_stddev=m.distance_stddev,
+                                    speed=m.speed, speed_stddev=m.speed_stddev)
+    if isinstance(m, SectionOccupancy):
+        return mc.SectionOccupancy(header=h, source=m.source, sections=[
+            mc.SectionState(section_id=s.section_id, start=s.start, end=s.end, state=s.state,
+                            axle_count=s.axle_count, axles_in=s.axles_in, axles_out=s.axles_out)
+            for s in m.sections])
+    raise TypeError(f"no message for {type(m).__name__}")
+
+
+def position_fix_from_msg(msg) -> PositionFix:
+    m = PositionFix(stamp_to_sec(msg.header.stamp), msg.sensor, msg.unit_id, msg.track_id,
+                    msg.reference_id, float(msg.position), float(msg.position_stddev),
+                    int(msg.direction), tuple(float(r) for r in msg.residuals))
+    m.validate()
+    return m
+
+
+def speed_from_msg(msg) -> SpeedMeasurement:
+    m = SpeedMeasurement(stamp_to_sec(msg.header.stamp), msg.sensor, msg.unit_id, float(msg.speed),
+                         float(msg.speed_stddev))
+    m.validate()
+    return m
+
+
+def distance_from_msg(msg) -> DistanceIncrement:
+    m = DistanceIncrement(stamp_to_sec(msg.header.stamp), msg.sensor, msg.unit_id, float(msg.duration),
+                          float(msg.distance), float(msg.distance_stddev), float(msg.speed),
+                          float(msg.speed_stddev))
+    m.validate()
+    return m
+
+
+def occupancy_from_msg(msg) -> SectionOccupancy:
+    m = SectionOccupancy(stamp_to_sec(msg.header.stamp), msg.source, tuple(
+        SectionState(s.section_id, float(s.start), float(s.end), int(s.state), int(s.axle_count),
+                     int(s.axles_in), int(s.axles_out)) for s in msg.sections))
+    m.validate()
+    return m
+
+
+# measurement topic suffix (sensors/<sensor>/<suffix>) -> (message type name, parser)
+MEASUREMENT_TOPICS = {
+    "position": ("PositionFix", position_fix_from_msg),
+    "speed": ("SpeedMeasurement", speed_from_msg),
+    "distance": ("DistanceIncrement", distance_from_msg),
+}
+SUFFIX_OF = {PositionFix: "position", SpeedMeasurement: "speed", DistanceIncrement: "distance"}
+SECTIONS_TOPIC = "wayside/sections"
+
+
+def measurement_topic(m) -> str:
+    """Relative topic of a measurement: sensors/<sensor>/<kind>, or wayside/sections."""
+    if isinstance(m, SectionOccupancy):
+        return SECTIONS_TOPIC
+    return f"sensors/{m.sensor}/{SUFFIX_OF[type(m)]}"
+
+
+# ---- train state --------------------------------------------------------------
+
+def truth_from_msg(msg) -> TruthState:
+    t = stamp_to_sec(msg.header.stamp)
+    values = (float(msg.position), float(msg.speed), float(msg.acceleration))
+    if not all(np.isfinite(values)):
+        raise InputRejected("nan", "ground truth state has NaN/inf fields")
+    return TruthState(t, *values)
+
+
+def train_state_to_msg(mc: MsgClasses, stamp: float, track_id: str, position: float, speed: float,
+                       acceleration: float, position_stddev: float = 0.0, speed_stddev: float = 0.0,
+                       position_min: float | None = None, position_max: float | None = None,
+                       confidence: float = 1.0, mode: int = 1, sensors=()):
+    return mc.TrainState(
+        header=mc.header(stamp, "map"), track_id=track_id, position=position, speed=speed,
+        acceleration=acceleration, position_stddev=position_stddev, speed_stddev=speed_stddev,
+        position_min=position if position_min is None else position_min,
+        position_max=position if position_max is None else position_max,
+        confidence=confidence, mode=mode, sensors=list(sensors))

@@ -1,0 +1,150 @@
+"""What every node shares: start-up and shutdown, QoS, diagnostics, parameters.
+
+QoS (DESIGN.md section 4): measurement and raw streams are published RELIABLE with a
+deep history so that a recorder gets every message; our own subscribers use the
+same profile. A subscriber that prefers the sensor-data profile (best effort) is
+compatible with these publishers. State and occupancy topics that a late joiner
+needs are reliable + transient-local.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import time
+from collections import Counter
+
+os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")  # DDS stays on this machine
+
+import numpy as np  # noqa: E402
+import rclpy  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+
+from ..core.convert import MsgClasses  # noqa: E402
+
+STREAM_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=500, reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.VOLATILE)
+LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.VOLATILE)
+
+
+def rclpy_classes() -> MsgClasses:
+    """MsgClasses backed by the generated rclpy message modules."""
+    from builtin_interfaces.msg import Time
+    from std_msgs.msg import Header
+    from train_localization_msgs import msg as m
+
+    def array(values: np.ndarray, kind: str):
+        return np.ascontiguousarray(values, dtype=np.float32 if kind == "float32" else np.float64)
+
+    return MsgClasses(Time=Time, Header=Header, TrainState=m.TrainState, RawBlock=m.RawBlock,
+                      PositionFix=m.PositionFix, SpeedMeasurement=m.SpeedMeasurement,
+                      DistanceIncrement=m.DistanceIncrement, SectionState=m.SectionState,
+                      SectionOccupancy=m.SectionOccupancy, array=array)
+
+
+class Diagnostics:
+    """Counts accepted / rejected input by reason and publishes /diagnostics at 1 Hz.
+
+    Every rejection is also logged (throttled) with its reason, so bad input is
+    visible without crashing anything.
+    """
+
+    def __init__(self, node: Node, name: str, period: float = 1.0):
+        self.node = node
+        self.name = f"{node.get_name()}: {name}"
+        self.accepted: Counter[str] = Counter()
+        self.rejected: Counter[str] = Counter()
+        self.values: dict[str, str] = {}
+        self.last_error = ""
+        self.level = 0  # 0 OK, 1 WARN, 2 ERROR, 3 STALE (diagnostic_msgs/DiagnosticStatus)
+        self.message = "starting"
+        self.pub = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        node.create_timer(period, self.publish)
+
+    def accept(self, stream: str, n: int = 1) -> None:
+        self.accepted[stream] += n
+
+    def reject(self, stream: str, reason: str, message: str) -> None:
+        self.rejected[f"{stream}/{reason}"] += 1
+        self.last_error = f"{stream}: {message}"
+        self.node.get_logger().warn(f"rejected input on {stream}: {message}", throttle_duration_sec=1.0)
+
+    def set_status(self, level: int, message: str) -> None:
+        self.level, self.message = level, message
+
+    def publish(self) -> None:
+        status = DiagnosticStatus(name=self.name, hardware_id=self.node.get_fully_qualified_name())
+        level = self.level
+        if self.rejected and level == 0:
+            level = 1
+        status.level = bytes([level])
+        status.message = self.message if not self.rejected else f"{self.message}; {sum(self.rejected.values())} inputs rejected"
+        kv = [KeyValue(key=f"accepted/{k}", value=str(v)) for k, v in sorted(self.accepted.items())]
+        kv += [KeyValue(key=f"rejected/{k}", value=str(v)) for k, v in sorted(self.rejected.items())]
+        kv += [KeyValue(key=k, value=v) for k, v in sorted(self.values.items())]
+        if self.last_error:
+            kv.append(KeyValue(key="last_error", value=self.last_error))
+        status.values = kv
+        arr = DiagnosticArray(status=[status])
+        arr.header.stamp = self.node.get_clock().now().to_msg()
+        self.pub.publish(arr)
+
+
+def declare(node: Node, name: str, default, description: str = ""):
+    """Declare a parameter with a description and return its value."""
+    from rcl_interfaces.msg import ParameterDescriptor
+    return node.declare_parameter(name, default, ParameterDescriptor(description=description)).value
+
+
+def now_sec(node: Node) -> float:
+    return node.get_clock().now().nanoseconds * 1e-9
+
+
+def spin(node_factory, args=None) -> int:
+    """Create the node, spin it until SIGINT/SIGTERM or it asks to stop, shut down cleanly.
+
+    The node may define ``finished`` (bool attribute) to end the spin by itself and
+    ``close()`` for final work (flushing files) that must run on every exit path.
+    """
+    rclpy.init(args=args, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    stop = {"flag": False}
+
+    def _on_signal(signum, frame):
+        stop["flag"] = True
+
+    signal.signal(signal.SIGINT, _on_signal)
+    signal.signal(signal.SIGTERM, _on_signal)
+    node = None
+    code = 0
+    try:
+        node = node_factory()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        while not stop["flag"] and not getattr(node, "finished", False) and rclpy.ok():
+            executor.spin_once(timeout_sec=0.05)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception as exc:  # noqa: BLE001 - report and exit non-zero, never a traceback storm
+        import traceback
+        traceback.print_exc()
+        print(f"[fatal] {exc}", flush=True)
+        code = 1
+    finally:
+        if node is not None:
+            if hasattr(node, "close"):
+                node.close()
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return code
+
+
+def wall_sleep_until(t_wall: float) -> None:
+    dt = t_wall - time.monotonic()
+    if dt > 0:
+        time.sleep(dt)

@@ -1,0 +1,129 @@
+"""Sensor node: one device of one sensor kind, simulated or ingested.
+
+The same node serves every sensor kind of core/sensors (one executable per kind,
+e.g. ``ros2 run train_localization doppler_radar``). It wraps a
+core.pipeline.SensorPipeline:
+
+  mode = sim     subscribes ground_truth/state, simulates the device, publishes the
+                 raw blocks on sensors/<sensor>/raw AND decodes them;
+  mode = ingest  subscribes sensors/<sensor>/raw (a device driver or a bag) and
+                 decodes it.
+
+Decoded output: sensors/<sensor>/position | speed | distance, and wayside/sections
+for occupancy. Common parameters: mode, scenario (YAML: track, vehicle, seed and
+this sensor's parameter overrides), track (track YAML, used when no scenario is
+given), plus every parameter of the sensor kind (README and core/sensors/*.py list
+them with units and sources). Bad raw blocks or truth states are rejected with a
+diagnostic and counted; the node keeps running.
+"""
+from __future__ import annotations
+
+import sys
+
+from rclpy.node import Node
+
+from ..core import convert
+from ..core.pipeline import SensorPipeline
+from ..core.scenario import Scenario, Vehicle
+from ..core.sensors import NODE_NAMES, spec as sensor_spec
+from ..core.signals import InputRejected
+from ..core.track import Track
+from ..core import paths
+from .common import LATCHED_QOS, STREAM_QOS, Diagnostics, declare, rclpy_classes, spin
+
+
+class SensorNode(Node):
+    def __init__(self, node_name: str):
+        super().__init__(node_name)
+        self.spec = sensor_spec(node_name)
+        mode = declare(self, "mode", "sim", "sim: simulate from ground_truth/state; ingest: decode sensors/<sensor>/raw")
+        scenario_path = declare(self, "scenario", "", "scenario YAML (track, vehicle, seed, sensor overrides)")
+        track_path = declare(self, "track", "config/track_conventional.yaml", "track YAML when no scenario is given")
+        if mode not in ("sim", "ingest"):
+            raise ValueError(f"parameter mode must be 'sim' or 'ingest', not {mode!r}")
+        overrides: dict = {}
+        if scenario_path:
+            scenario = Scenario.from_yaml(scenario_path)
+            track, vehicle = scenario.track, scenario.vehicle
+            overrides = dict(scenario.sensors.get(node_name, {}))
+        else:
+            scenario, track, vehicle = None, Track.from_yaml(paths.resolve(track_path)), Vehicle()
+        # every sensor parameter is a ROS parameter; the scenario gives the defaults
+        from ..core.sensors.base import COMMON_PARAMS
+        for name, p in {**COMMON_PARAMS, **self.spec.params}.items():
+            default = overrides.get(name, p.default)
+            if isinstance(p.default, float):
+                default = float(default)
+            if isinstance(p.default, list) and not default:
+                continue  # empty lists have no ROS parameter type; keep the default
+            overrides[name] = declare(self, name, default, p.description)
+        unit = overrides.get("unit_id") or self.spec.sensor
+        rng = scenario.rng(node_name, unit) if scenario else None
+        if mode == "sim" and rng is None:
+            import numpy as np
+            rng = np.random.default_rng(0)
+        self.pipe = SensorPipeline(self.spec, overrides, track, vehicle, rng, simulate=(mode == "sim"))
+        self.mc = rclpy_classes()
+        self.diag = Diagnostics(self, f"{self.spec.sensor} {unit} ({mode})")
+        base = f"sensors/{self.spec.sensor}"
+        self.pubs = {}
+        self.raw_pub = None
+        if mode == "sim":
+            self.raw_pub = self.create_publisher(self.mc.RawBlock, f"{base}/raw", STREAM_QOS)
+            self.create_subscription(self.mc.TrainState, "ground_truth/state", self.on_truth, STREAM_QOS)
+        else:
+            self.create_subscription(self.mc.RawBlock, f"{base}/raw", self.on_raw, STREAM_QOS)
+        self.diag.set_status(0, "running")
+
+    def _publisher(self, topic: str, msg):
+        if topic not in self.pubs:
+            qos = LATCHED_QOS if topic == convert.SECTIONS_TOPIC else STREAM_QOS
+            self.pubs[topic] = self.create_publisher(type(msg), topic, qos)
+        return self.pubs[topic]
+
+    def on_truth(self, msg):
+        try:
+            state = convert.truth_from_msg(msg)
+        except InputRejected as exc:
+            self.diag.reject("ground_truth/state", exc.reason, str(exc))
+            return
+        self.diag.accept("ground_truth/state")
+        for block in self.pipe.on_truth(state):
+            self.raw_pub.publish(convert.raw_block_to_msg(block, self.mc))
+            self._decode(block)
+
+    def on_raw(self, msg):
+        try:
+            block = convert.raw_block_from_msg(msg)
+        except InputRejected as exc:
+            self.pipe.rejected[exc.reason] += 1
+            self.diag.reject("raw", exc.reason, str(exc))
+            return
+        self._decode(block)
+
+    def _decode(self, block):
+        try:
+            measurements = self.pipe.on_block(block)
+        except InputRejected as exc:
+            self.diag.reject("raw", exc.reason, str(exc))
+            return
+        self.diag.accept("raw")
+        for m in measurements:
+            out = convert.measurement_to_msg(m, self.mc)
+            self._publisher(convert.measurement_topic(m), out).publish(out)
+        self.diag.values.update({f"decoder/{k}": str(v) for k, v in self.pipe.decoder.stats.items()})
+
+
+def main(args=None, node_name: str | None = None):
+    return spin(lambda: SensorNode(node_name), args)
+
+
+def _entry(node_name):
+    def entry(args=None):
+        sys.exit(main(args, node_name))
+    entry.__name__ = f"main_{node_name}"
+    return entry
+
+
+for _name in NODE_NAMES:
+    globals()[f"main_{_name}"] = _entry(_name)

@@ -1,0 +1,79 @@
+"""Simulator node: publishes /clock and ground_truth/state from a scenario.
+
+Parameters:
+  scenario (string, required)  scenario YAML (config/scenario_*.yaml or a path)
+  rate (double, 1.0)           speed-up over real time; 0 = as fast as possible
+  start_delay (double, 1.0)    wall-clock seconds to wait before t = 0 (lets
+                               subscribers connect)
+  exit_at_end (bool, true)     shut the node down after the last state
+Topics: /clock (rosgraph_msgs/Clock), ground_truth/state (TrainState, stddevs 0,
+interval = position), /diagnostics.
+"""
+from __future__ import annotations
+
+import threading
+import time
+
+from rosgraph_msgs.msg import Clock
+from rclpy.node import Node
+
+from ..core.convert import sec_to_ns, train_state_to_msg
+from ..core.scenario import Scenario
+from .common import CLOCK_QOS, STREAM_QOS, Diagnostics, declare, rclpy_classes, spin
+
+
+class SimulatorNode(Node):
+    def __init__(self):
+        super().__init__("simulator")
+        path = declare(self, "scenario", "", "scenario YAML file")
+        self.rate = float(declare(self, "rate", 1.0, "speed-up over real time; 0 = as fast as possible"))
+        self.start_delay = float(declare(self, "start_delay", 1.0, "wall seconds before t = 0 [s]"))
+        self.exit_at_end = bool(declare(self, "exit_at_end", True, "shut down after the last state"))
+        if not path:
+            raise ValueError("parameter 'scenario' is required (a scenario YAML file)")
+        self.scenario = Scenario.from_yaml(path)
+        self.trajectory = self.scenario.trajectory()
+        self.mc = rclpy_classes()
+        self.clock_pub = self.create_publisher(Clock, "/clock", CLOCK_QOS)
+        self.truth_pub = self.create_publisher(self.mc.TrainState, "ground_truth/state", STREAM_QOS)
+        self.diag = Diagnostics(self, "simulator")
+        self.diag.values["scenario"] = self.scenario.name
+        self.finished = False
+        self.published = 0
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._stop = threading.Event()
+        self._thread.start()
+
+    def _run(self):
+        sc = self.scenario
+        n = int(round(sc.duration * sc.truth_rate)) + 1
+        time.sleep(self.start_delay)
+        wall0 = time.monotonic()
+        for k in range(n):
+            if self._stop.is_set():
+                return
+            t = k / sc.truth_rate
+            if self.rate > 0:
+                lag = wall0 + t / self.rate - time.monotonic()
+                if lag > 0:
+                    time.sleep(lag)
+            clock = Clock()
+            clock.clock.sec, clock.clock.nanosec = divmod(sec_to_ns(t), 1_000_000_000)
+            self.clock_pub.publish(clock)
+            st = self.trajectory.state_at(t)
+            self.truth_pub.publish(train_state_to_msg(self.mc, st.stamp, sc.track.track_id, st.position,
+                                                      st.speed, st.acceleration))
+            self.published += 1
+            self.diag.values["sim_time"] = f"{t:.2f}"
+        self.diag.set_status(0, "scenario finished")
+        self.get_logger().info(f"scenario '{sc.name}' finished: {self.published} states")
+        if self.exit_at_end:
+            time.sleep(0.5)
+            self.finished = True
+
+    def close(self):
+        self._stop.set()
+
+
+def main(args=None):
+    return spin(SimulatorNode, args)

@@ -1,0 +1,159 @@
+"""MCAP bags without ROS: the typestore, a writer and a reader.
+
+Bags are single ``.mcap`` files with ``ros2msg`` schemas (the full concatenated
+message definition, as rosbag2 writes them) and CDR messages, so ``ros2 bag play``,
+rosbags and the mcap library's ROS 2 decoder all read them without this package.
+
+The message definitions of train_localization_msgs come from the installed package
+(ament index) or, in a source checkout, from msg_defs/.
+"""
+from __future__ import annotations
+
+from collections import Counter
+from functools import lru_cache
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+from mcap.writer import CompressionType, Writer
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from .convert import MsgClasses
+from .paths import SOURCE_ROOT
+
+MSG_PACKAGE = "train_localization_msgs"
+
+
+def _msg_dir() -> Path:
+    try:
+        from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+        try:
+            return Path(get_package_share_directory(MSG_PACKAGE)) / "msg"
+        except PackageNotFoundError:
+            pass
+    except ImportError:
+        pass
+    return SOURCE_ROOT / "msg_defs" / "msg"
+
+
+@lru_cache(maxsize=1)
+def typestore():
+    """rosbags typestore: ROS 2 Jazzy types + train_localization_msgs."""
+    store = get_typestore(Stores.ROS2_JAZZY)
+    types = {}
+    for path in sorted(_msg_dir().glob("*.msg")):
+        types.update(get_types_from_msg(path.read_text(), f"{MSG_PACKAGE}/msg/{path.stem}"))
+    store.register(types)
+    return store
+
+
+def typestore_classes() -> MsgClasses:
+    """MsgClasses backed by the typestore (for writing bags offline)."""
+    t = typestore().types
+
+    def cls(name):
+        return t[name]
+
+    def array(values: np.ndarray, kind: str):
+        return np.ascontiguousarray(values, dtype=np.float32 if kind == "float32" else np.float64)
+
+    def make(name):
+        c = cls(name)
+
+        def build(**kw):
+            return c(**kw)
+        return build
+
+    p = MSG_PACKAGE + "/msg/"
+    return MsgClasses(Time=make("builtin_interfaces/msg/Time"), Header=make("std_msgs/msg/Header"),
+                      TrainState=make(p + "TrainState"), RawBlock=make(p + "RawBlock"),
+                      PositionFix=make(p + "PositionFix"), SpeedMeasurement=make(p + "SpeedMeasurement"),
+                      DistanceIncrement=make(p + "DistanceIncrement"), SectionState=make(p + "SectionState"),
+                      SectionOccupancy=make(p + "SectionOccupancy"), array=array)
+
+
+def ros2_typename(name: str) -> str:
+    """'pkg/msg/Type' (rosbags, ROS 2 graph) for 'pkg/msg/Type' or 'pkg/Type'."""
+    parts = name.split("/")
+    return name if len(parts) == 3 else f"{parts[0]}/msg/{parts[-1]}"
+
+
+class BagWriter:
+    """Writes CDR messages to one MCAP file; schemas and channels are added on first use.
+
+    Chunks are zstd-compressed. ``close`` must be called (the recorder does it on every
+    exit path) to write the summary; until then data is flushed chunk by chunk.
+    """
+
+    def __init__(self, path: str | Path, chunk_size: int = 256 * 1024, compression: str = "zstd"):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._fh = open(self.path, "wb")
+        comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}[compression]
+        self._writer = Writer(self._fh, chunk_size=chunk_size, compression=comp)
+        self._writer.start(profile="ros2", library="train_localization")
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, int] = {}
+        self.counts: Counter[str] = Counter()
+        self._closed = False
+
+    def _channel(self, topic: str, typename: str) -> int:
+        if topic not in self._channels:
+            typename = ros2_typename(typename)
+            if typename not in self._schemas:
+                msgdef, _ = typestore().generate_msgdef(typename, ros_version=2)
+                self._schemas[typename] = self._writer.register_schema(
+                    name=typename, encoding="ros2msg", data=msgdef.encode())
+            self._channels[topic] = self._writer.register_channel(
+                topic=topic, message_encoding="cdr", schema_id=self._schemas[typename],
+                metadata={"offered_qos_profiles": ""})
+        return self._channels[topic]
+
+    def write_cdr(self, topic: str, typename: str, data: bytes, log_time_ns: int,
+                  publish_time_ns: int | None = None) -> None:
+        channel = self._channel(topic, typename)
+        self._writer.add_message(channel_id=channel, log_time=int(log_time_ns), data=bytes(data),
+                                 publish_time=int(log_time_ns if publish_time_ns is None else publish_time_ns),
+                                 sequence=self.counts[topic])
+        self.counts[topic] += 1
+
+    def write(self, topic: str, msg, log_time_ns: int) -> None:
+        """Serialise a typestore message object and write it."""
+        typename = msg.__msgtype__
+        self.write_cdr(topic, typename, bytes(typestore().serialize_cdr(msg, typename)), log_time_ns)
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self._writer.finish()
+            self._fh.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def read_bag(path: str | Path, topics: list[str] | None = None) -> Iterator[tuple[str, str, int, object]]:
+    """(topic, typename, log_time_ns, message) of every message, in log-time order.
+
+    Types are taken from the bag's own schemas, so bags from other versions decode.
+    """
+    from rosbags.highlevel import AnyReader
+    with AnyReader([Path(path)], default_typestore=typestore()) as reader:
+        conns = [c for c in reader.connections if topics is None or c.topic in topics]
+        for conn, t_ns, raw in reader.messages(connections=conns):
+            yield conn.topic, conn.msgtype, t_ns, reader.deserialize(raw, conn.msgtype)
+
+
+def topic_counts(path: str | Path) -> dict[str, int]:
+    """Messages per topic from the MCAP summary."""
+    from mcap.reader import make_reader
+    with open(path, "rb") as fh:
+        summary = make_reader(fh).get_summary()
+    channels = summary.channels
+    counts: Counter[str] = Counter()
+    for cid, n in summary.statistics.channel_message_counts.items():
+        counts[channels[cid].topic] += n
+    return dict(counts)

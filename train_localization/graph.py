@@ -1,0 +1,31 @@
+"""The node graph of the demo, in one place: used by tools/demo.py and launch/.
+
+Each entry is (executable, node name, parameters). Everything runs in the
+``/train`` namespace with use_sim_time (the simulator publishes /clock).
+"""
+from __future__ import annotations
+
+NAMESPACE = "/train"
+
+
+def demo_graph(scenario: str, sensors: list[str], bag: str, rate: float = 1.0) -> list[tuple[str, str, dict]]:
+    """Recorder, one sensor node per entry of ``sensors`` (node names), fusion, simulator."""
+    from .core.sensors import spec
+    classes = [spec(n).sensor for n in sensors]
+    nodes = [("recorder", "recorder", {"output": bag, "use_sim_time": True})]
+    nodes += [(name, name, {"mode": "sim", "scenario": scenario, "use_sim_time": True}) for name in sensors]
+    nodes.append(("fusion", "fusion", {"scenario": scenario, "sensors": classes, "use_sim_time": True}))
+    nodes.append(("simulator", "simulator", {"scenario": scenario, "rate": rate, "start_delay": 3.0}))
+    return nodes
+
+
+def ros_args(name: str, params: dict) -> list[str]:
+    """Command-line ROS arguments for one node."""
+    args = ["--ros-args", "-r", f"__ns:={NAMESPACE}", "-r", f"__node:={name}"]
+    for key, value in params.items():
+        if isinstance(value, bool):
+            value = "true" if value else "false"
+        elif isinstance(value, (list, tuple)):
+            value = "[" + ",".join(str(v) for v in value) + "]"
+        args += ["-p", f"{key}:={value}"]
+    return args

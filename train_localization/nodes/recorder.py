@@ -1,0 +1,77 @@
+"""Recorder node: writes topics to one MCAP file (ros2msg schemas, CDR as received).
+
+Subscriptions are raw (serialized bytes, no deserialisation, DESIGN.md section 3),
+so the bytes in the bag are exactly those published. Topics are discovered
+periodically; a topic is recorded from the moment it is discovered.
+
+Parameters:
+  output (string, "recording.mcap")   file to write (parent directories are created)
+  topics (string[], [])               topics to record (absolute or relative to the
+                                      node namespace); empty = every topic seen
+  exclude (string[], ["/rosout", "/parameter_events"])
+  discovery_period (double, 0.2)      [s]
+  compression (string, "zstd")        zstd | lz4 | none
+Log time of each message = the node clock at reception (sim time with
+use_sim_time:=true). On SIGINT/SIGTERM every message received so far is written and
+the file is closed properly; ``counts`` in the final log line are per topic.
+"""
+from __future__ import annotations
+
+import importlib
+
+from rclpy.node import Node
+
+from ..core.bagio import BagWriter
+from .common import STREAM_QOS, LATCHED_QOS, CLOCK_QOS, declare, spin
+
+
+def message_class(typename: str):
+    pkg, kind, name = typename.split("/")
+    return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
+
+
+class RecorderNode(Node):
+    def __init__(self):
+        super().__init__("recorder")
+        self.output = declare(self, "output", "recording.mcap", "MCAP file to write")
+        wanted = [t for t in declare(self, "topics", [""], "topics to record; empty = all") if t]
+        self.wanted = {self.resolve_topic_name(t) for t in wanted}
+        self.exclude = set(declare(self, "exclude", ["/rosout", "/parameter_events"], "topics never recorded"))
+        period = float(declare(self, "discovery_period", 0.2, "topic discovery period [s]"))
+        compression = declare(self, "compression", "zstd", "chunk compression: zstd, lz4 or none")
+        self.writer = BagWriter(self.output, compression=compression)
+        self.subs = {}
+        self._discover()
+        self.create_timer(period, self._discover)
+        self.get_logger().info(f"recording to {self.output}")
+
+    def _discover(self):
+        for topic, types in self.get_topic_names_and_types():
+            if topic in self.subs or topic in self.exclude or (self.wanted and topic not in self.wanted):
+                continue
+            typename = types[0]
+            try:
+                cls = message_class(typename)
+            except (ImportError, AttributeError, ValueError):
+                self.get_logger().warn(f"cannot record {topic}: type {typename} is not importable")
+                self.exclude.add(topic)
+                continue
+            qos = CLOCK_QOS if topic == "/clock" else STREAM_QOS
+            infos = self.get_publishers_info_by_topic(topic)
+            if any(i.qos_profile.durability == LATCHED_QOS.durability for i in infos):
+                qos = LATCHED_QOS
+            self.subs[topic] = self.create_subscription(
+                cls, topic, lambda data, topic=topic, typename=typename: self._on_msg(topic, typename, data),
+                qos, raw=True)
+
+    def _on_msg(self, topic, typename, data: bytes):
+        self.writer.write_cdr(topic, typename, data, self.get_clock().now().nanoseconds)
+
+    def close(self):
+        self.writer.close()
+        counts = ", ".join(f"{t}={n}" for t, n in sorted(self.writer.counts.items()))
+        print(f"[recorder] wrote {self.output}: {counts}", flush=True)
+
+
+def main(args=None):
+    return spin(RecorderNode, args)

@@ -73,6 +73,15 @@ class SensorNode(Node):
             self.create_subscription(self.mc.TrainState, "ground_truth/state", self.on_truth, STREAM_QOS)
         else:
             self.create_subscription(self.mc.RawBlock, f"{base}/raw", self.on_raw, STREAM_QOS)
+        # publishers exist from the start, so subscribers match before the first output
+        from ..core.convert import MEASUREMENT_TOPICS
+        for kind in self.spec.outputs:
+            if kind == "sections":
+                self.pubs[convert.SECTIONS_TOPIC] = self.create_publisher(
+                    self.mc.SectionOccupancy, convert.SECTIONS_TOPIC, LATCHED_QOS)
+            else:
+                cls = getattr(self.mc, MEASUREMENT_TOPICS[kind][0])
+                self.pubs[f"{base}/{kind}"] = self.create_publisher(cls, f"{base}/{kind}", STREAM_QOS)
         self.diag.set_status(0, "running")
 
     def _publisher(self, topic: str, msg):

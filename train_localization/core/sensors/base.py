@@ -150,3 +150,5 @@ class SensorSpec:
     params: dict[str, Param]
     description: str
     seeds: tuple[str, ...] = field(default=())
+    # measurement kinds published: "position", "speed", "distance", "sections"
+    outputs: tuple[str, ...] = ("position", "speed", "distance")

@@ -115,4 +115,5 @@ class DopplerDecoder(Decoder):
 SPEC = SensorSpec(
     node="doppler_radar", sensor="doppler", simulator=DopplerSimulator, decoder=DopplerDecoder,
     params=PARAMS, description="on-board Doppler radar: signed speed", seeds=("000", "002"),
+    outputs=("speed",),
 )

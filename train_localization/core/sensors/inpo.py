@@ -92,16 +92,16 @@ PARAMS = {
                             "(receiver output level, seed 000 eq. 1)"),
     "noise": Param(0.01, "1-sigma white noise of each envelope channel [V] (40 dB SNR in the 1 kHz "
                          "envelope bandwidth; calibrated into the +-8 deg budget of seed 002 section 2.2.1)"),
-    "harmonic2": Param(0.075, "2nd harmonic of the envelope, fraction of the fundamental at the nominal gap "
+    "harmonic2": Param(0.07, "2nd harmonic of the envelope, fraction of the fundamental at the nominal gap "
                               "(non-ideal loop/antenna geometry, seed 000 section 2.1.1); with 3 pairs it gives "
-                              "up to asin(h2) = 4.3 deg of phase error"),
+                              "up to asin(h2) = 4.0 deg of phase error"),
     "harmonic2_phase": Param(30.0, "phase of the 2nd harmonic [deg]"),
     "harmonic3": Param(0.10, "3rd harmonic of the envelope, fraction of the fundamental (cancels in the "
                              "Clarke transform except for the channel-to-channel spread)"),
     "harmonic3_phase": Param(-20.0, "phase of the 3rd harmonic [deg]"),
-    "harmonic_spread": Param(0.2, "1-sigma channel-to-channel spread of the harmonic amplitudes (fraction) "
+    "harmonic_spread": Param(0.12, "1-sigma channel-to-channel spread of the harmonic amplitudes (fraction) "
                                   "and phases [rad] (loop manufacturing tolerance)"),
-    "gain_tolerance": Param(0.015, "1-sigma gain mismatch between the pair channels (fraction; receiver and "
+    "gain_tolerance": Param(0.01, "1-sigma gain mismatch between the pair channels (fraction; receiver and "
                                    "loop tolerance)"),
     "offset_sigma": Param(0.005, "1-sigma DC offset of each envelope detector [V]"),
     "skew_sigma": Param(0.001, "1-sigma laying error of each loop pair along the track [m]"),

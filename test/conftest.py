@@ -1,0 +1,89 @@
+"""Test set-up: DDS on loopback with a domain of this run's own; helpers for nodes."""
+from __future__ import annotations
+
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+os.environ["ROS_DOMAIN_ID"] = str(random.Random(os.getpid() ^ time.time_ns()).randint(1, 100))
+os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+os.environ["PYTHONUNBUFFERED"] = "1"
+
+import pytest  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+@pytest.fixture(scope="session")
+def ros_context():
+    """rclpy initialised once for the test process."""
+    import rclpy
+    rclpy.init()
+    yield rclpy
+    rclpy.shutdown()
+
+
+class NodeProcess:
+    """A node executable run as a subprocess, with its output captured to a file."""
+
+    def __init__(self, exe: str, args: list[str], log: Path):
+        from train_localization.tools.demo import executable
+        self.log_path = log
+        self._log = open(log, "w")
+        self.proc = subprocess.Popen([executable(exe)] + args, stdout=self._log, stderr=subprocess.STDOUT,
+                                     start_new_session=True)
+
+    def interrupt(self, timeout: float = 15.0) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(timeout=timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+                self._log.close()
+                raise AssertionError(f"{self.log_path.name}: no exit within {timeout} s of SIGINT")
+        self._log.close()
+        return self.proc.returncode
+
+    def output(self) -> str:
+        if not self._log.closed:
+            self._log.flush()
+        return self.log_path.read_text()
+
+
+@pytest.fixture
+def start_node(tmp_path):
+    procs = []
+
+    def start(exe: str, *args: str) -> NodeProcess:
+        p = NodeProcess(exe, list(args), tmp_path / f"{exe}-{len(procs)}.log")
+        procs.append(p)
+        return p
+    yield start
+    for p in procs:
+        if p.proc.poll() is None:
+            p.proc.kill()
+            p.proc.wait()
+
+
+def spin_until(node, predicate, timeout: float = 20.0) -> bool:
+    """Spin a test node until predicate() is true or the timeout passes."""
+    from rclpy.executors import SingleThreadedExecutor
+    ex = SingleThreadedExecutor()
+    ex.add_node(node)
+    deadline = time.monotonic() + timeout
+    try:
+        while time.monotonic() < deadline:
+            if predicate():
+                return True
+            ex.spin_once(timeout_sec=0.05)
+        return predicate()
+    finally:
+        ex.remove_node(node)

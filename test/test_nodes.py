@@ -1,0 +1,127 @@
+"""Node behaviour over DDS: start-up with use_sim_time, clean SIGINT, bad input."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from conftest import spin_until
+from train_localization.core.sensors import NODE_NAMES
+
+NS = ["-r", "__ns:=/train"]
+SIM_TIME = ["-p", "use_sim_time:=true"]
+
+NODE_ARGS = {
+    "simulator": ["-p", "scenario:=config/scenario_demo.yaml", "-p", "start_delay:=0.0", "-p", "rate:=1.0"],
+    "fusion": [],
+    "recorder": [],
+    **{name: [] for name in NODE_NAMES},
+}
+
+
+@pytest.mark.parametrize("exe", sorted(NODE_ARGS))
+def test_node_starts_with_sim_time_and_stops_on_sigint(exe, ros_context, start_node, tmp_path):
+    extra = ["-p", f"output:={tmp_path / 'r.mcap'}"] if exe == "recorder" else []
+    proc = start_node(exe, "--ros-args", *NS, *SIM_TIME, *NODE_ARGS[exe], *extra)
+    node = ros_context.create_node(f"probe_{exe}")
+    try:
+        up = spin_until(node, lambda: exe in node.get_node_names() or proc.proc.poll() is not None, 30.0)
+        assert up and proc.proc.poll() is None, proc.output()
+        assert proc.interrupt() == 0, proc.output()
+        assert "Traceback" not in proc.output(), proc.output()
+    finally:
+        node.destroy_node()
+
+
+def _diag_values(msgs, name_part):
+    values = {}
+    for arr in msgs:
+        for st in arr.status:
+            if name_part in st.name:
+                values = {kv.key: kv.value for kv in st.values}
+    return values
+
+
+def test_sensor_node_rejects_bad_raw_blocks_and_keeps_running(ros_context, start_node):
+    from diagnostic_msgs.msg import DiagnosticArray
+    from train_localization_msgs.msg import RawBlock, SpeedMeasurement
+    from train_localization.nodes.common import STREAM_QOS
+
+    proc = start_node("doppler_radar", "--ros-args", *NS, "-p", "mode:=ingest")
+    node = ros_context.create_node("probe_bad_raw", namespace="/train")
+    pub = node.create_publisher(RawBlock, "sensors/doppler/raw", STREAM_QOS)
+    speeds, diags = [], []
+    node.create_subscription(SpeedMeasurement, "sensors/doppler/speed", speeds.append, STREAM_QOS)
+    node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+    try:
+        assert spin_until(node, lambda: pub.get_subscription_count() > 0 and node.count_publishers(
+            "sensors/doppler/speed") > 0, 30.0), proc.output()
+
+        def block(seq, t0, data, channels=("doppler_shift", "snr")):
+            m = RawBlock(sensor="doppler", unit_id="doppler", seq=seq, sample_rate=200.0,
+                         channels=list(channels), units=["Hz", "dB"][:len(channels)])
+            m.header.stamp.sec, m.header.stamp.nanosec = int(t0), int(round((t0 % 1) * 1e9))
+            m.data = np.asarray(data, dtype=np.float32)
+            return m
+        good = np.column_stack([np.full(10, 1000.0), np.full(10, 25.0)]).reshape(-1)
+        nan = good.copy()
+        nan[3] = math.nan
+        sequence = [
+            block(0, 1.00, good),          # ok
+            block(1, 1.05, nan),           # NaN sample
+            block(2, 1.05, good[:-1]),     # 19 values for 2 channels
+            block(3, 1.05, good),          # ok
+            block(3, 1.10, good),          # duplicate seq
+            block(4, 1.02, good),          # starts before the previous block ended
+            block(5, 1.10, good),          # ok
+        ]
+        for m in sequence:
+            pub.publish(m)
+        assert spin_until(node, lambda: len(speeds) >= 3 and _diag_values(diags, "doppler").get(
+            "rejected/raw/stamp_back") == "1", 20.0), proc.output()
+        values = _diag_values(diags, "doppler")
+        assert [values.get(f"rejected/raw/{r}") for r in ("nan", "shape", "duplicate", "stamp_back")] == ["1"] * 4
+        assert values["accepted/raw"] == "3"
+        assert len(speeds) == 3
+        v_expected = 1000.0 * 299_792_458.0 / (2 * 24.125e9 * math.cos(math.radians(45.0)))
+        assert speeds[0].speed == pytest.approx(v_expected, rel=1e-6)
+        assert proc.proc.poll() is None
+        assert proc.interrupt() == 0
+    finally:
+        node.destroy_node()
+
+
+def test_fusion_node_rejects_nan_and_too_late_measurements(ros_context, start_node):
+    from diagnostic_msgs.msg import DiagnosticArray
+    from train_localization_msgs.msg import PositionFix, TrainState
+    from train_localization.nodes.common import LATCHED_QOS, STREAM_QOS
+
+    proc = start_node("fusion", "--ros-args", *NS, "-p", "history:=1.0")
+    node = ros_context.create_node("probe_fusion", namespace="/train")
+    pub = node.create_publisher(PositionFix, "sensors/eurobalise/position", STREAM_QOS)
+    states, diags = [], []
+    node.create_subscription(TrainState, "localization/state", states.append, LATCHED_QOS)
+    node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+    try:
+        assert spin_until(node, lambda: pub.get_subscription_count() > 0, 30.0), proc.output()
+
+        def fix(t, pos, sd=1.0):
+            m = PositionFix(sensor="eurobalise", unit_id="btm", track_id="conventional_line",
+                            reference_id="1", position=pos, position_stddev=sd)
+            m.header.stamp.sec, m.header.stamp.nanosec = int(t), int(round((t % 1) * 1e9))
+            return m
+        for m in [fix(10.0, 500.0), fix(10.5, math.nan), fix(11.0, 510.0, sd=0.0), fix(12.0, 520.0),
+                  fix(10.2, 502.0), fix(12.0, 520.0)]:
+            pub.publish(m)
+        assert spin_until(node, lambda: _diag_values(diags, "fusion").get(
+            "rejected/sensors/eurobalise/position/duplicate") == "1", 20.0), proc.output()
+        values = _diag_values(diags, "fusion")
+        assert values["rejected/sensors/eurobalise/position/nan"] == "1"
+        assert values["rejected/sensors/eurobalise/position/stddev"] == "1"
+        assert values["rejected/sensors/eurobalise/position/too_late"] == "1"
+        assert values["accepted/sensors/eurobalise/position"] == "2"
+        assert proc.proc.poll() is None
+        assert proc.interrupt() == 0
+    finally:
+        node.destroy_node()

@@ -1,0 +1,480 @@
+"""Millimetre-wave radio ranging to wayside base stations (on-board), seed 002.
+
+Physics (seed 002 section 2.2.2, MLX): the mm-wave radio system locates the train
+from the propagation delays of radio signals exchanged between the train and
+several wayside base stations; it serves for the initialisation of the position
+and for train protection, receives several base stations at once for safety, and
+the MLX position system updates every 5 ms. Seed 002 section 2.2.1: the Transrapid
+exchanges position and speed over a 38 GHz radio link with the wayside.
+
+Ranging scheme (our choice, documented): two-way ranging (TWR). The on-board radio
+polls each base station; the station answers after a fixed, calibrated turnaround
+time, so the round-trip time gives the one-way propagation delay
+``tau = r / c_air`` without a common clock between train and stations (no clock
+offset to estimate, unlike one-way TDOA). The device reports tau [s] per station.
+All stations of one epoch are ranged in parallel (own codes/channels) within
+~100 us, i.e. 1.4 cm of travel at 500 km/h: all delays of an epoch refer to the
+epoch time.
+
+Geometry: station i at chainage s_i, lateral distance ``offset`` d_i from the track
+centre line and antenna height ``height`` h_i above rail level; the train antenna
+at height ``antenna_height`` and ``antenna_offset`` behind the front. Treating the
+track as locally straight,
+
+    r_i = sqrt((x - s_i)^2 + d_i^2 + (h_i - h_a)^2),    x = antenna chainage.
+
+Track equipment (kind ``mmwave_station``)::
+
+    mmwave_station:
+      - {id: MW001, position: 1200.0, offset: 5.0, height: 6.0, code: 1}
+      - {every: 400.0, start: 200.0, end: 9800.0, id: "MW{n:03d}", offset: 5.0, height: 6.0}
+
+``offset`` [m] is required (lateral distance, either side), ``height`` [m] defaults to
+the parameter ``station_height``; ``code`` (integer > 0) is the number the radio
+reports in the station-id channel; default: 1-based order along the track (the
+order of ``Track.items``, i.e. by chainage). Codes must be unique.
+
+Raw signal (one row per ranging epoch, default 200 Hz = the 5 ms MLX update period
+of seed 002 section 2.2.2): the radio tracks the ``N_SLOTS`` = 4 nearest stations
+within ``max_range`` (a hand-over set, so the raw rate does not grow with the
+number of stations on the line: 12 channels x 200 Hz = 2400 samples/s). Slot k
+(k = 0..3, slots ordered by station chainage) has three channels:
+
+    station_k  station code (0 = empty slot)
+    delay_k    one-way propagation delay [s]; 0 = no reply this epoch (dropout or
+               below the detection threshold) -- the sentinel for a missing value,
+               raw data never contain NaN
+    snr_k      first-path signal-to-noise ratio [dB]; 0 with a missing reply
+
+Errors modelled:
+  * ranging noise growing as the SNR falls: sigma^2 = floor^2 +
+    (sigma_snr 10^((20 dB - SNR)/20))^2 (Cramer-Rao bound of a time-of-arrival estimate
+    ~ 1/sqrt(SNR)), with floor = decimetre level like UWB/mm-wave TWR transceivers
+    (Decawave DW1000 / Qorvo DW3000 datasheets: +-10 cm ranging accuracy);
+  * SNR from free-space path loss 20 log10(r) around ``snr_ref`` at ``ref_range``,
+    with log-normal fading;
+  * a constant per-station bias (residual of the antenna-delay calibration,
+    Decawave APS014: few cm);
+  * NLOS / multipath episodes per station: the direct path is blocked, the first
+    detected path is a reflection: positive range bias (exponential, mean
+    ``nlos_bias_mean``; UWB NLOS bias 0.3-2 m, Decawave APS006 part 3) and a
+    first-path SNR loss;
+  * lost replies (``dropout_prob``), replies below ``snr_threshold``;
+  * injected faults (``faults``) for tests: a fixed bias or a dropout of one station
+    over a time window.
+
+Decoder: per epoch a weighted least-squares fit of the 1-D antenna chainage x to
+the valid ranges (SNR >= ``snr_threshold``), with sigma_i from the reported SNR
+plus the calibration term.
+  * Ambiguity: a single range is symmetric about the station's chainage (x = s_i +-
+    sqrt(r^2 - d^2)). The fit starts from the best of the 2 m candidates
+    s_i +- sqrt(r_i^2 - d_i^2) under a robust (capped) cost over all stations; two
+    stations at different chainages remove the ambiguity. If the two best candidates
+    fit (nearly) equally well -- one station only (``min_stations`` = 1), or a
+    degenerate geometry -- the candidate nearer to the previous solution predicted
+    with the previous speed is taken; without a recent previous solution the epoch
+    gives no fix.
+  * Gauss-Newton on x (the range model is non-linear near a station).
+  * NLOS rejection: chi-square test of the weighted residuals against the
+    ``outlier_probability`` quantile (dof = stations - 1); if it fails, the station
+    with the largest normalised residual e_i / sqrt(sigma_i^2 - h_i^2 P) is dropped
+    and the fit repeated, as long as at least ``min_stations`` remain. The largest
+    *positive* residual is taken: a reflected first path only lengthens a range. A failing
+    test with no station left to drop gives no fix (2 stations cannot tell which one
+    is wrong).
+  * Output: one PositionFix per epoch (``fix_per_block`` false) or one per block (the
+    epoch solutions fitted with a straight line in time, evaluated at the block's
+    mean epoch time). position = x + orientation * ``antenna_offset``; variance =
+    LS covariance P = 1 / sum(h_i^2 / sigma_i^2) (per block: noise averaged over the
+    epochs, calibration term not). ``reference_id`` = comma-separated ids of the
+    stations used (ascending chainage) followed by the rejected ones prefixed with
+    "!"; ``residuals`` = measured minus fitted range [m], one per entry of
+    ``reference_id`` in the same order (per block: mean over the epochs). direction
+    = 0 (ranging gives no direction of travel).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.special import chdtri
+
+from ..measurements import PositionFix
+from ..signals import InputRejected, RawBlock
+from ..track import Track, TrackError
+from .base import Decoder, Param, SensorSpec, Simulator
+
+C_AIR = 299_792_458.0 / 1.0003  # speed of light in air (refractive index ~1.0003) [m/s]
+STATION_KIND = "mmwave_station"
+N_SLOTS = 4
+SNR_NOISE_REF = 20.0  # SNR [dB] at which the SNR-dependent ranging term equals range_sigma_snr
+
+PARAMS = {
+    "max_range": Param(1000.0, "radio range of a base station [m]; the nearest 4 stations within it are ranged "
+                               "(38 GHz line-of-sight radio link, seed 002 section 2.2.1; ~1 km cells)"),
+    "snr_ref": Param(35.0, "first-path SNR at ref_range with line of sight [dB]; falls with free-space path "
+                           "loss 20 log10(r) (15 dB at 1 km)"),
+    "ref_range": Param(100.0, "range at which the SNR equals snr_ref [m]"),
+    "snr_fading": Param(1.5, "1-sigma fading of the reported SNR [dB]"),
+    "snr_threshold": Param(10.0, "replies below this SNR are not detected / not used [dB]"),
+    "range_sigma_floor": Param(0.08, "1-sigma ranging noise at high SNR [m] (UWB/mm-wave TWR transceivers: "
+                                     "+-10 cm, Decawave DW1000 / Qorvo DW3000 datasheets)"),
+    "range_sigma_snr": Param(0.10, "1-sigma SNR-dependent ranging noise at 20 dB SNR [m], scales as "
+                                   "10^((20-SNR)/20) (time-of-arrival Cramer-Rao bound ~ 1/sqrt(SNR))"),
+    "cal_sigma": Param(0.03, "1-sigma constant range bias per station [m] (antenna-delay calibration "
+                             "residual, Decawave APS014)"),
+    "nlos_rate": Param(0.05, "NLOS/multipath episodes per station per second (structures, passing trains)"),
+    "nlos_duration": Param(0.5, "mean NLOS episode length [s]"),
+    "nlos_bias_mean": Param(1.0, "mean positive range bias of an NLOS episode [m], exponential "
+                                 "(UWB NLOS bias 0.3-2 m, Decawave APS006 part 3)"),
+    "nlos_snr_loss": Param(6.0, "first-path SNR loss during NLOS [dB] (APS006 part 3: > 6 dB first-path "
+                                "to total power difference indicates NLOS)"),
+    "dropout_prob": Param(0.02, "probability that a reply is lost in an epoch (packet loss)"),
+    "station_height": Param(6.0, "default station antenna height above rail level [m] (mast)"),
+    "antenna_height": Param(3.0, "train antenna height above rail level [m]"),
+    "antenna_offset": Param(0.0, "train antenna distance behind the front [m]"),
+    "orientation": Param(1, "+1: the train front faces increasing chainage (antenna at front - offset), "
+                            "-1: decreasing"),
+    "min_stations": Param(2, "minimum number of consistent stations for a fix (1 = allow single-station "
+                             "fixes resolved by the previous solution)"),
+    "outlier_probability": Param(0.999, "chi-square gate probability of the NLOS test"),
+    "fix_per_block": Param(False, "false: one PositionFix per epoch (5 ms, seed 002); true: one per block"),
+    "hold_time": Param(1.0, "a previous solution older than this is not used to resolve ambiguity [s]"),
+    "faults": Param("", "injected faults 'ID@T0-T1:BIAS' (range bias [m]) or 'ID@T0-T1:drop', "
+                        "separated by ';' (tests)"),
+}
+
+
+def _stations(track: Track, params: dict):
+    """(ids, chainage, perpendicular distance, code) arrays of the track's base stations."""
+    items = track.items(STATION_KIND)
+    ids, pos, perp, codes = [], [], [], []
+    for k, it in enumerate(items):
+        if "offset" not in it:
+            raise TrackError(f"{STATION_KIND} '{it['id']}' has no 'offset' (lateral distance [m])")
+        height = float(it.get("height", params["station_height"]))
+        ids.append(it["id"])
+        pos.append(it["position"])
+        perp.append(math.hypot(float(it["offset"]), height - params["antenna_height"]))
+        codes.append(int(it.get("code", k + 1)))
+    if len(set(codes)) != len(codes):
+        raise TrackError(f"{STATION_KIND} codes are not unique")
+    if any(c <= 0 or c >= 2 ** 24 for c in codes):
+        raise TrackError(f"{STATION_KIND} codes must be integers in 1..2^24-1")
+    return ids, np.asarray(pos, float), np.asarray(perp, float), np.asarray(codes, np.int64)
+
+
+def _parse_faults(text: str) -> list[tuple[str, float, float, float | None]]:
+    """'ID@T0-T1:BIAS' / 'ID@T0-T1:drop' items -> (id, t0, t1, bias or None for drop)."""
+    faults = []
+    for item in filter(None, (s.strip() for s in str(text).split(";"))):
+        try:
+            sid, rest = item.split("@")
+            window, what = rest.split(":")
+            t0, t1 = (float(v) for v in window.split("-"))
+            faults.append((sid.strip(), t0, t1, None if what.strip() == "drop" else float(what)))
+        except ValueError:
+            raise ValueError(f"malformed mmwave fault {item!r}; expected 'ID@T0-T1:BIAS' or 'ID@T0-T1:drop'") from None
+    return faults
+
+
+def channel_names() -> tuple[tuple[str, ...], tuple[str, ...]]:
+    names, units = [], []
+    for k in range(N_SLOTS):
+        names += [f"station_{k}", f"delay_{k}", f"snr_{k}"]
+        units += ["1", "s", "dB"]
+    return tuple(names), tuple(units)
+
+
+CHANNELS, UNITS = channel_names()
+
+
+def range_sigma(snr, p: dict):
+    """1-sigma ranging noise [m] for a first-path SNR [dB] (without the calibration term)."""
+    thermal = p["range_sigma_snr"] * 10.0 ** ((SNR_NOISE_REF - np.asarray(snr, float)) / 20.0)
+    return np.sqrt(p["range_sigma_floor"] ** 2 + thermal ** 2)
+
+
+class MmWaveSimulator(Simulator):
+    sensor = "mmwave"
+    channels = CHANNELS
+    units = UNITS
+    default_sample_rate = 200.0
+
+    def __init__(self, *args):
+        super().__init__(*args)
+        self.ids, self.pos, self.perp, self.codes = _stations(self.track, self.params)
+        n = len(self.ids)
+        self.cal = self.rng.normal(0.0, self.params["cal_sigma"], n)
+        self.nlos_left = np.zeros(n)
+        self.nlos_bias = np.zeros(n)
+        index = {sid: k for k, sid in enumerate(self.ids)}
+        self.faults = []
+        for sid, t0, t1, bias in _parse_faults(self.params["faults"]):
+            if sid not in index:
+                raise ValueError(f"mmwave fault names unknown station {sid!r}")
+            self.faults.append((index[sid], t0, t1, bias))
+
+    def samples(self, times, position, speed, acceleration):
+        p = self.params
+        n, m = len(times), len(self.ids)
+        out = np.zeros((n, 3 * N_SLOTS))
+        if m == 0:
+            return out
+        dt = 1.0 / self.sample_rate
+        x = position - p["orientation"] * p["antenna_offset"]
+        r = np.hypot(x[:, None] - self.pos[None, :], self.perp[None, :])  # (n, m)
+        # NLOS episodes per station (all stations, so the random stream does not depend on the set)
+        starts = self.rng.random((n, m)) < p["nlos_rate"] * dt
+        lengths = self.rng.exponential(p["nlos_duration"], (n, m))
+        biases = self.rng.exponential(p["nlos_bias_mean"], (n, m))
+        nlos = np.zeros((n, m), dtype=bool)
+        bias = np.zeros((n, m))
+        for i in range(n):
+            new = starts[i] & (self.nlos_left <= 0.0)
+            self.nlos_left[new] = lengths[i, new]
+            self.nlos_bias[new] = biases[i, new]
+            on = self.nlos_left > 0.0
+            nlos[i], bias[i] = on, np.where(on, self.nlos_bias, 0.0)
+            self.nlos_left[on] -= dt
+        lost = self.rng.random((n, m)) < p["dropout_prob"]
+        for k, t0, t1, fbias in self.faults:
+            window = (times >= t0) & (times < t1)
+            if fbias is None:
+                lost[window, k] = True
+            else:
+                bias[window, k] += fbias
+        snr = (p["snr_ref"] - 20.0 * np.log10(np.maximum(r, 1.0) / p["ref_range"])
+               - np.where(nlos, p["nlos_snr_loss"], 0.0) + self.rng.normal(0.0, p["snr_fading"], (n, m)))
+        noise = self.rng.normal(0.0, 1.0, (n, m)) * range_sigma(snr, p)
+        measured = r + self.cal[None, :] + bias + noise
+        replied = ~lost & (snr >= p["snr_threshold"]) & (measured > 0.0)
+        # hand-over set: the N_SLOTS nearest stations within max_range, slots by chainage
+        in_range = r <= p["max_range"]
+        order = np.argsort(np.where(in_range, r, np.inf), axis=1, kind="stable")[:, :N_SLOTS]
+        rows = np.arange(n)[:, None]
+        chosen = np.sort(order, axis=1)  # station index order = chainage order
+        ok = in_range[rows, chosen]
+        for k in range(min(N_SLOTS, m)):
+            j = chosen[:, k]
+            valid = ok[:, k]
+            rep = valid & replied[np.arange(n), j]
+            out[:, 3 * k] = np.where(valid, self.codes[j], 0)
+            out[:, 3 * k + 1] = np.where(rep, measured[np.arange(n), j] / C_AIR, 0.0)
+            out[:, 3 * k + 2] = np.where(rep, snr[np.arange(n), j], 0.0)
+        # a slot chosen among fewer in-range stations than slots may repeat a station: empty it
+        for k in range(1, min(N_SLOTS, m)):
+            dup = (out[:, 3 * k] == out[:, 3 * (k - 1)]) & (out[:, 3 * k] > 0)
+            out[dup, 3 * k: 3 * k + 3] = 0.0
+        return out
+
+
+class MmWaveDecoder(Decoder):
+    sensor = "mmwave"
+    channels = CHANNELS
+
+    def __init__(self, params: dict, track: Track):
+        super().__init__(params, track)
+        self.ids, self.pos, self.perp, self.codes = _stations(track, params)
+        self._code_index = {int(c): k for k, c in enumerate(self.codes)}
+        self._lut = np.full(int(self.codes.max()) + 1 if len(self.codes) else 1, -1, dtype=np.int64)
+        for c, k in self._code_index.items():
+            self._lut[c] = k
+        self._gate = np.array([np.inf] + [float(chdtri(df, 1.0 - params["outlier_probability"]))
+                                          for df in range(1, N_SLOTS)])
+        self._max_delay = 2.0 * max(params["max_range"], 1.0) / C_AIR + 1e-6
+        self._prev_t: float | None = None
+        self._prev_x: float | None = None
+        self._prev_v = 0.0
+        self.stats.update(epochs=0, fixes=0, rejected_stations=0, no_fix=0, ambiguous=0)
+
+    # -- input checks -------------------------------------------------------------------
+    def _check(self, codes_f, delay, snr):
+        if np.any(codes_f != np.round(codes_f)) or np.any(codes_f < 0):
+            raise InputRejected("unknown_id", "station channel holds a non-integer or negative code")
+        codes = codes_f.astype(np.int64)
+        present = codes > 0
+        bad = present & ((codes >= len(self._lut)) | (self._lut[np.minimum(codes, len(self._lut) - 1)] < 0))
+        if bad.any():
+            raise InputRejected("unknown_id", f"station code {int(codes[bad][0])} is not on track "
+                                              f"{self.track.track_id}")
+        if np.any(delay < 0.0) or np.any(delay > self._max_delay):
+            raise InputRejected("implausible", f"propagation delay outside 0..{self._max_delay:.3e} s")
+        if np.any(~present & ((delay != 0.0) | (snr != 0.0))):
+            raise InputRejected("implausible", "empty slot carries a delay or SNR")
+        if np.any((snr < -30.0) | (snr > 100.0)):
+            raise InputRejected("implausible", "SNR outside -30..100 dB")
+        srt = np.sort(np.where(present, codes, -np.arange(1, codes.shape[1] + 1)), axis=1)
+        if np.any(np.diff(srt, axis=1) == 0):
+            raise InputRejected("implausible", "one station reported in two slots of an epoch")
+        return codes, present
+
+    # -- decoding -----------------------------------------------------------------------
+    def decode(self, block: RawBlock):
+        p = self.params
+        data = block.data.astype(float)
+        codes_f, delay, snr = data[:, 0::3], data[:, 1::3], data[:, 2::3]
+        codes, present = self._check(codes_f, delay, snr)
+        n = block.n_samples
+        times = block.times()
+        idx = np.where(present, self._lut[np.where(present, codes, 0)], 0)
+        valid = present & (delay > 0.0) & (snr >= p["snr_threshold"])
+        rng = delay * C_AIR
+        s_pos, perp = self.pos[idx], self.perp[idx]
+        sig2 = range_sigma(snr, p) ** 2 + p["cal_sigma"] ** 2
+        x, ok, used, resid, var, cal_var = self._solve(times, rng, s_pos, perp, sig2, valid)
+        self.stats["epochs"] += n
+        self.stats["no_fix"] += int((~ok).sum())
+        self.stats["rejected_stations"] += int((valid & ~used & ok[:, None]).sum())
+        if not ok.any():
+            return []
+        front = x + p["orientation"] * p["antenna_offset"]
+        if p["fix_per_block"]:
+            fixes = [self._block_fix(times, front, var, cal_var, ok, used, valid, resid, idx)]
+        else:
+            fixes = []
+            for i in np.flatnonzero(ok):
+                ref, res = self._refs(used[i], valid[i], resid[i], idx[i])
+                fixes.append(PositionFix(float(times[i]), self.sensor, self.unit_id, self.track.track_id,
+                                         ref, float(front[i]), float(math.sqrt(var[i])), 0, res))
+        self.stats["fixes"] += len(fixes)
+        return fixes
+
+    def _refs(self, used, valid, resid, idx):
+        order_used = [j for j in range(N_SLOTS) if used[j]]
+        order_rej = [j for j in range(N_SLOTS) if valid[j] and not used[j]]
+        ref = ",".join([self.ids[idx[j]] for j in order_used] + ["!" + self.ids[idx[j]] for j in order_rej])
+        res = tuple(float(resid[j]) for j in order_used + order_rej)
+        return ref, res
+
+    def _block_fix(self, times, front, var, cal_var, ok, used, valid, resid, idx):
+        t, y = times[ok], front[ok]
+        noise = np.maximum(var[ok] - cal_var[ok], 1e-12)
+        w = 1.0 / noise
+        tm = float(np.sum(w * t) / np.sum(w))
+        if len(t) >= 3 and np.ptp(t) > 0:
+            a = np.vstack([np.ones_like(t), t - tm]).T * np.sqrt(w)[:, None]
+            coef, *_ = np.linalg.lstsq(a, y * np.sqrt(w), rcond=None)
+            pos = float(coef[0])
+            noise_var = float(np.linalg.inv(a.T @ a)[0, 0])
+        else:
+            pos = float(np.sum(w * y) / np.sum(w))
+            noise_var = 1.0 / float(np.sum(w))
+        # the calibration biases are common to the epochs: they do not average out
+        sigma = math.sqrt(noise_var + float(np.mean(cal_var[ok])))
+        used_pos, rej_pos, res = {}, {}, {}
+        for i in np.flatnonzero(ok):
+            for j in np.flatnonzero(valid[i]):
+                sid = self.ids[idx[i, j]]
+                res.setdefault(sid, []).append(resid[i, j])
+                (used_pos if used[i, j] else rej_pos)[sid] = self.pos[idx[i, j]]
+        rej_only = {k: v for k, v in rej_pos.items() if k not in used_pos}
+        order_used = sorted(used_pos, key=used_pos.get)
+        order_rej = sorted(rej_only, key=rej_only.get)
+        ref = ",".join(order_used + ["!" + s for s in order_rej])
+        residuals = tuple(float(np.mean(res[s])) for s in order_used + order_rej)
+        return PositionFix(tm, self.sensor, self.unit_id, self.track.track_id, ref, pos, sigma, 0, residuals)
+
+    def _solve(self, times, r, s, d, sig2, valid):
+        """Vectorised robust 1-D LS over the epochs of a block.
+
+        Returns x (n,), ok (n,), used (n, N_SLOTS), residuals (n, N_SLOTS), variance (n,) and
+        the part of the variance due to the per-station calibration biases (n,).
+        """
+        p = self.params
+        n = len(times)
+        w = np.where(valid, 1.0 / sig2, 0.0)
+        nv = valid.sum(axis=1)
+        # candidates s_j +- along_j, robust capped cost over all valid stations
+        along = np.sqrt(np.maximum(r * r - d * d, 0.0))
+        cand = np.concatenate([s - along, s + along], axis=1)           # (n, 2 N)
+        cvalid = np.concatenate([valid, valid], axis=1)
+        pred = np.hypot(cand[:, :, None] - s[:, None, :], d[:, None, :])  # (n, 2N, N)
+        z2 = (r[:, None, :] - pred) ** 2 * w[:, None, :]
+        cost = np.where(cvalid, np.minimum(z2, 25.0).sum(axis=2), np.inf)
+        best = np.argmin(cost, axis=1)
+        rows = np.arange(n)
+        x = cand[rows, best]
+        c1 = cost[rows, best]
+        far = np.abs(cand - x[:, None]) > 2.0
+        c2 = np.min(np.where(far & cvalid, cost, np.inf), axis=1)
+        ambiguous = (c2 - c1 < 4.0) & (nv > 0)
+        if ambiguous.any():
+            self.stats["ambiguous"] += int(ambiguous.sum())
+            if self._prev_t is not None:
+                age = times - self._prev_t
+                xp = self._prev_x + self._prev_v * age
+                # candidates among the near-best: pick the one nearest to the prediction
+                near_best = cvalid & (cost - c1[:, None] < 4.0)
+                dist = np.where(near_best, np.abs(cand - xp[:, None]), np.inf)
+                pick = cand[rows, np.argmin(dist, axis=1)]
+                resolvable = ambiguous & (age <= p["hold_time"])
+                x = np.where(resolvable, pick, x)
+                ambiguous &= ~resolvable
+        used = valid.copy()
+        ok = (nv >= max(1, p["min_stations"])) & ~ambiguous
+        x, info = self._gauss_newton(x, r, s, d, w, used)
+        for _ in range(N_SLOTS):
+            e, h, P = self._residuals(x, r, s, d, info)
+            wu = np.where(used, w, 0.0)
+            chi2 = np.sum(wu * e * e, axis=1)
+            df = used.sum(axis=1) - 1
+            fail = ok & (df >= 1) & (chi2 > self._gate[np.clip(df, 0, N_SLOTS - 1)])
+            if not fail.any():
+                break
+            can_drop = fail & (used.sum(axis=1) > max(1, p["min_stations"]))
+            ok &= ~(fail & ~can_drop)
+            if not can_drop.any():
+                break
+            denom = np.maximum(np.where(used, 1.0 / np.maximum(w, 1e-300), 1.0) - h * h * P[:, None], 1e-12)
+            # NLOS / multipath only lengthens a range: drop the largest positive normalised residual
+            znorm = np.where(used, e / np.sqrt(denom), -np.inf)
+            worst = np.argmax(znorm, axis=1)
+            used[np.flatnonzero(can_drop), worst[can_drop]] = False
+            x2, info2 = self._gauss_newton(x, r, s, d, w, used)
+            x = np.where(can_drop, x2, x)
+            info = np.where(can_drop, info2, info)
+        e, h, P = self._residuals(x, r, s, d, info)
+        gain = np.where(used, w * h, 0.0) * np.where(np.isfinite(P), P, 0.0)[:, None]
+        cal_var = np.sum(gain * gain, axis=1) * p["cal_sigma"] ** 2
+        ok &= np.isfinite(x) & (info > 1e-6) & (used.sum(axis=1) >= max(1, p["min_stations"]))
+        var = np.where(ok, P, np.inf)
+        if ok.any():
+            last = int(np.flatnonzero(ok)[-1])
+            if self._prev_t is not None and times[last] > self._prev_t:
+                dt = times[last] - self._prev_t
+                if dt <= p["hold_time"]:
+                    v = (x[last] - self._prev_x) / dt
+                    self._prev_v = v if dt > 0.02 else 0.7 * self._prev_v + 0.3 * v
+            self._prev_t, self._prev_x = float(times[last]), float(x[last])
+        return x, ok, used, np.where(valid, e, 0.0), var, cal_var
+
+    @staticmethod
+    def _residuals(x, r, s, d, info):
+        pred = np.hypot(x[:, None] - s, d)
+        h = (x[:, None] - s) / np.maximum(pred, 1e-9)
+        with np.errstate(divide="ignore"):
+            P = np.where(info > 0.0, 1.0 / np.maximum(info, 1e-300), np.inf)
+        return r - pred, h, P
+
+    @staticmethod
+    def _gauss_newton(x, r, s, d, w, used, iterations=6):
+        wu = np.where(used, w, 0.0)
+        info = np.zeros_like(x)
+        for _ in range(iterations):
+            pred = np.hypot(x[:, None] - s, d)
+            h = (x[:, None] - s) / np.maximum(pred, 1e-9)
+            info = np.sum(wu * h * h, axis=1)
+            g = np.sum(wu * h * (r - pred), axis=1)
+            step = np.where(info > 1e-9, g / np.maximum(info, 1e-9), 0.0)
+            x = x + np.clip(step, -50.0, 50.0)
+        pred = np.hypot(x[:, None] - s, d)
+        h = (x[:, None] - s) / np.maximum(pred, 1e-9)
+        return x, np.sum(wu * h * h, axis=1)
+
+
+SPEC = SensorSpec(
+    node="mmwave_ranging", sensor="mmwave", simulator=MmWaveSimulator, decoder=MmWaveDecoder,
+    params=PARAMS, description="on-board mm-wave radio ranging to wayside base stations: absolute position",
+    seeds=("002",),
+)

@@ -1,0 +1,490 @@
+"""Wheel rotation sensor: two-channel pulse generator on an axle (on-board), seed 002.
+
+The MLX position detection uses a "wheel rotation sensor" that counts the
+revolutions of the running wheels for position and speed at low speed (seed 002
+section 2.2.2); on conventional railways the same device (an axle-box pulse
+generator) is the primary odometer. This module models it up to conventional-rail
+speeds (``max_speed`` 300 km/h by default), not beyond: a maglev runs on wheels only
+at low speed.
+
+Physics (raw signal): a toothed/slotted disc on the axle with
+``pulses_per_revolution`` pulses gives two square-wave channels A and B, 90 deg apart
+(quadrature), levels 0/1, sampled at ``sample_rate``. B lags A when the wheel turns
+forwards (chainage increasing), so the order of the edges gives the direction.
+Errors modelled:
+  * wheel diameter: the true diameter differs from the nominal one by a wear error
+    (``diameter_error``; by default drawn per device uniformly within
+    +-``diameter_tolerance``): a scale error of the distance;
+  * creep: under traction or braking the wheel's circumferential speed differs from
+    the train speed by ``creep_coefficient`` x |a| (wheel-rail creep);
+  * slip (traction) and slide (braking) episodes of several seconds with slip ratios
+    of a few % up to 20 %: random while |a| >= ``slip_accel_threshold`` at
+    ``slip_rate`` per second, or forced by a scenario through ``slip_episodes``;
+    a positive slip ratio means the wheel turns faster than the train moves;
+  * manufacturing tolerance of the disc/sensor: A/B phase deviation from 90 deg
+    (``phase_tolerance``) and duty-cycle deviation (``duty_tolerance``), drawn per
+    device: unevenly spaced edges;
+  * longitudinal/torsional vibration of the wheel (``vibration``): edge chatter at
+    standstill, which quadrature decoding cancels;
+  * EMI glitches: a single-sample flip of one channel (``glitch_rate``).
+
+Decoder (vectorised): state sequence 00 -> 10 -> 11 -> 01 forwards; each legal
+state change counts +-1 edge, a change of both levels at once is illegal (a skipped
+state: speed beyond what the sample rate resolves, or a glitch). Counts -> distance
+with the NOMINAL diameter: one edge = pi D / (4 ppr). One DistanceIncrement per block
+(from the last sample of the previous block to the last sample of this one), speed
+from the timing of edges of the same kind within ``speed_window`` (one full pulse
+period or more, so disc tolerances cancel), else from the count. The stddevs are
+those of quantisation, edge timing and diameter tolerance; the decoder does NOT
+know about slip: the fusion has to detect it (speed excess over other sensors).
+Note: quantisation errors of consecutive increments are anti-correlated (the total
+count is exact to one edge); the diameter error is common to all increments.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import lfilter
+
+from ..measurements import DistanceIncrement
+from ..signals import InputRejected, RawBlock
+from .base import Decoder, Param, SensorSpec, Simulator
+
+PARAMS = {
+    "pulses_per_revolution": Param(
+        60, "pulses per wheel revolution per channel [1]; rail speed sensors give 60-300 "
+        "(Wikipedia 'Wheel speed sensor'); 4 edges per pulse are counted (one edge = pi D / 240 "
+        "= 12 mm at D = 0.92 m)"),
+    "wheel_diameter": Param(
+        0.92, "NOMINAL wheel diameter configured in the on-board unit [m]; must equal "
+        "vehicle.wheel_diameter of the scenario (the simulator checks it; the decoder has no "
+        "access to the vehicle)"),
+    "max_speed": Param(
+        83.4, "highest speed the configuration must resolve [m/s] (300 km/h, conventional rail; "
+        "a maglev uses wheels only at low speed, seed 002 2.2.2). The simulator refuses a "
+        "sample rate at which the narrowest quadrature state (tolerances included) would last "
+        "less than one sample at this speed with a wheel at the lower diameter tolerance"),
+    "phase_tolerance": Param(
+        15.0, "max deviation of the A-B phase from 90 deg [deg], drawn per device uniformly "
+        "(typical two-channel rail speed-sensor datasheet figure)"),
+    "duty_tolerance": Param(
+        0.03, "max deviation of each channel's duty cycle from 0.5 [fraction of a pulse], drawn "
+        "per device uniformly (typical datasheet figure)"),
+    "diameter_tolerance": Param(
+        0.01, "max |true/nominal - 1| of the wheel diameter [fraction]: wear between two "
+        "re-calibrations (wheel wear up to 1 %, task statement); the decoder uses "
+        "tolerance/sqrt(3) as 1-sigma scale error"),
+    "diameter_error": Param(
+        float("nan"), "true/nominal - 1 of this wheel [fraction]; NaN (default) = drawn per device "
+        "uniformly within +-diameter_tolerance"),
+    "creep_coefficient": Param(
+        0.002, "steady creep per unit acceleration [s^2/m]: wheel speed = v (1 + c a sign v); "
+        "0.2 % at 1 m/s^2 (creep of a few 0.1 % at adhesion use 0.1, Kalker/Polach creep curves)"),
+    "driven_axle": Param(
+        True, "the sensor sits on a motored axle: traction slip and creep occur; False = trailer "
+        "axle: only braking creep and slides"),
+    "slip_rate": Param(
+        0.02, "random slip/slide episodes per second while |a| >= slip_accel_threshold [1/s] "
+        "(poor adhesion: about one episode per 50 s of hard traction or braking)"),
+    "slip_accel_threshold": Param(0.6, "|acceleration| above which random episodes can start [m/s^2]"),
+    "slip_ratio_min": Param(0.02, "smallest |slip ratio| of a random episode [fraction]"),
+    "slip_ratio_max": Param(0.20, "largest |slip ratio| of a random episode [fraction] (wheel-slide "
+                                  "protection keeps slides below ~20 %)"),
+    "slip_duration": Param(2.0, "mean length of a random episode [s] (exponential, 0.5..10 s)"),
+    "slip_episodes": Param(
+        [], "forced episodes, flat list t_start [s], duration [s], slip_ratio, t_start, ... (nested "
+        "triples are accepted too); slip_ratio > 0: wheel faster than the train (traction slip), "
+        "< 0: slower (braking slide)"),
+    "vibration": Param(0.0003, "1-sigma longitudinal/torsional vibration of the wheel, as "
+                               "circumferential displacement [m]"),
+    "vibration_tau": Param(0.02, "correlation time of the vibration [s]"),
+    "glitch_rate": Param(0.01, "EMI glitches per second: one channel flipped for one sample [1/s]"),
+    "speed_window": Param(0.1, "decoder: longest time span of the edges used for the speed [s]"),
+}
+
+DEFAULT_SAMPLE_RATE = 10_000.0
+"""A, B sampled at 10 kHz (2 x 10 k samples/s). With 60 ppr, +-15 deg phase and +-3 % duty
+tolerance the narrowest state is 0.178 pulse, which lasts 100 us = one sample at 85 m/s
+(306 km/h) with a wheel 1 % under the nominal 0.92 m: quadrature edges are resolved up to
+``max_speed`` = 300 km/h."""
+
+# (A, B) -> position in the forward sequence 00 -> 10 -> 11 -> 01; code = 2A + B
+_QUAD_INDEX = np.array([0, 3, 1, 2], dtype=np.int8)
+
+
+# --------------------------------------------------------------------------- decoding core
+@dataclass
+class FeedResult:
+    steps: int            # signed steps of the last gap-free segment of the block
+    t_start: float | None  # time of the reference sample of that segment [s]
+    t_end: float | None    # time of its last valid sample [s]
+    illegal: int          # skipped-state transitions in the block
+    transitions: int      # state changes in the block
+    dropped_steps: int    # steps of earlier segments (before a loss of signal)
+
+
+class CycleCounter:
+    """Counts steps through a cyclic sequence of ``n`` states (quadrature: 4, belt: 6).
+
+    Shared by the wheel sensor and the pattern belt. ``feed`` takes state indices
+    (-1 = no valid state, held) and a loss mask (no counting across lost samples);
+    it keeps the last state between blocks. A change by more than one state is
+    illegal (a skipped state); it is counted as the shortest way round, or, for a
+    change by n/2, in the last known direction.
+    """
+
+    def __init__(self, n_states: int, history: float = 1.0):
+        self.n = n_states
+        self.history = history
+        self.state = -1
+        self.t_state: float | None = None
+        self.direction = 0
+        self.count = 0
+        self.t_last_transition: float | None = None
+        self._tr_t = np.empty(0)
+        self._tr_c = np.empty(0, dtype=np.int64)
+        self._tr_s = np.empty(0, dtype=np.int64)
+
+    def reset(self) -> None:
+        """Forget the last state and the transition history (gap or loss of signal)."""
+        self.state = -1
+        self.t_state = None
+        self._tr_t = np.empty(0)
+        self._tr_c = np.empty(0, dtype=np.int64)
+        self._tr_s = np.empty(0, dtype=np.int64)
+
+    def feed(self, times: np.ndarray, states: np.ndarray, lost: np.ndarray | None = None,
+             sample_period: float = 0.0) -> FeedResult:
+        n = self.n
+        states = np.asarray(states, dtype=np.int64)
+        lost_cum = np.cumsum(lost) if lost is not None else np.zeros(len(states), dtype=np.int64)
+        idx = np.flatnonzero(states >= 0)
+        seq_s = states[idx]
+        seq_t = times[idx]
+        seq_l = lost_cum[idx]
+        if self.state >= 0:
+            seq_s = np.concatenate(([self.state], seq_s))
+            seq_t = np.concatenate(([self.t_state], seq_t))
+            seq_l = np.concatenate(([0], seq_l))
+        if len(seq_s) == 0:
+            if lost is not None and lost.any():
+                self.reset()
+            return FeedResult(0, None, None, 0, 0, 0)
+        d = np.diff(seq_s) % n
+        bridged = np.diff(seq_l) == 0
+        signed = np.where(d <= n // 2, d, d - n)
+        legal_sign = np.where(np.abs(signed) == 1, signed, 0)
+        # direction in force before each step: last legal step before it (forward fill)
+        pos = np.where(legal_sign != 0, np.arange(len(d)), -1)
+        last = np.maximum.accumulate(np.concatenate(([-1], pos)))[:-1]
+        prev_dir = np.where(last >= 0, legal_sign[np.maximum(last, 0)], self.direction)
+        half = (n % 2 == 0) & (d == n // 2)
+        signed = np.where(half, prev_dir * (n // 2), signed)
+        illegal = bridged & (d != 0) & ((np.abs(signed) > 1) | (half & (prev_dir == 0)))
+        steps = np.where(bridged, signed, 0)
+        # segments: the last gap-free stretch ends the block
+        breaks = np.flatnonzero(~bridged)
+        seg0 = int(breaks[-1]) + 1 if len(breaks) else 0  # index into seq of the segment's first sample
+        seg_steps = int(steps[seg0:].sum())
+        dropped = int(steps[:seg0].sum())
+        # transitions: time = between the last sample of the old state and the first of the new
+        tr = np.flatnonzero(steps != 0)
+        t_tr = seq_t[tr + 1] - 0.5 * sample_period
+        c_tr = self.count + np.cumsum(steps)[tr]
+        s_tr = np.sign(steps[tr])
+        if len(breaks):  # history before a loss is not comparable
+            keep = tr >= seg0
+            t_tr, c_tr, s_tr = t_tr[keep], c_tr[keep], s_tr[keep]
+            self._tr_t = np.empty(0)
+            self._tr_c = np.empty(0, dtype=np.int64)
+            self._tr_s = np.empty(0, dtype=np.int64)
+        self.count += int(steps.sum())
+        self._tr_t = np.concatenate((self._tr_t, t_tr))
+        self._tr_c = np.concatenate((self._tr_c, c_tr))
+        self._tr_s = np.concatenate((self._tr_s, s_tr))
+        if len(self._tr_t):
+            self.t_last_transition = float(self._tr_t[-1])
+            cut = int(np.searchsorted(self._tr_t, self._tr_t[-1] - self.history))
+            if cut:
+                self._tr_t, self._tr_c, self._tr_s = self._tr_t[cut:], self._tr_c[cut:], self._tr_s[cut:]
+        nz = np.flatnonzero(legal_sign)
+        if len(nz):
+            self.direction = int(legal_sign[nz[-1]])
+        t_start = float(seq_t[seg0])
+        t_end = float(seq_t[-1])
+        self.state = int(seq_s[-1])
+        self.t_state = t_end
+        if lost is not None and len(lost) and (lost_cum[-1] > (seq_l[-1] if len(seq_l) else 0)):
+            # the block ends without signal: the next valid sample starts afresh
+            self.reset()
+        return FeedResult(seg_steps, t_start, t_end, int(illegal.sum()), int((d != 0).sum()), dropped)
+
+    def transition_speed(self, t_from: float, t_to: float):
+        """Steps per second between the two latest-spanning transitions of the same kind.
+
+        Looks at transitions in [t_from, t_to]: the last one L and the earliest j with
+        the same state entered in the same direction (count difference a non-zero
+        multiple of n, no reversal in between). Returns (steps/s, t_j, t_L) or None.
+        """
+        t = self._tr_t
+        if len(t) < 2:
+            return None
+        hi = int(np.searchsorted(t, t_to, side="right")) - 1
+        lo = int(np.searchsorted(t, t_from, side="left"))
+        if hi - lo < self.n:
+            return None
+        s = self._tr_s[lo:hi + 1]
+        c = self._tr_c[lo:hi + 1]
+        diff_sign = np.flatnonzero(s != s[-1])
+        first = int(diff_sign[-1]) + 1 if len(diff_sign) else 0
+        dc = c[-1] - c[first:]
+        ok = np.flatnonzero((dc != 0) & (dc % self.n == 0))
+        if not len(ok):
+            return None
+        j = first + int(ok[0])
+        tj, tl = float(t[lo + j]), float(t[hi])
+        if tl <= tj:
+            return None
+        return float(c[-1] - c[j]) / (tl - tj), tj, tl
+
+
+class IncrementEstimator:
+    """Turns counted steps of one block into a DistanceIncrement (shared with the belt).
+
+    step: distance of one step [m]; step_max: widest state [m] (quantisation);
+    scale_sigma: 1-sigma relative scale error; timing_jitter: 1-sigma of a transition
+    time [s] on top of the sampling; position_jitter: 1-sigma of a transition's
+    position [m].
+    """
+
+    def __init__(self, sensor: str, unit_id: str, counter: CycleCounter, step: float, step_max: float,
+                 scale_sigma: float, speed_window: float, position_jitter: float = 0.0):
+        self.sensor, self.unit_id, self.counter = sensor, unit_id, counter
+        self.step, self.step_max, self.scale_sigma = step, step_max, scale_sigma
+        self.speed_window, self.position_jitter = speed_window, position_jitter
+        self._prev_v: float | None = None
+        self._prev_t: float | None = None
+        self._acc = 0.0
+
+    def reset(self) -> None:
+        self._prev_v = None
+        self._prev_t = None
+        self._acc = 0.0
+
+    def make(self, res: FeedResult, sample_rate: float):
+        if res.t_end is None or res.t_start is None or res.t_end - res.t_start <= 0.0:
+            return None
+        dt_s = 1.0 / sample_rate
+        duration = res.t_end - res.t_start
+        distance = res.steps * self.step
+        q = self.step_max / math.sqrt(6.0)  # two ends, each uniform over one state
+        dist_sigma = math.sqrt(q * q + 2 * self.position_jitter ** 2 + (self.scale_sigma * distance) ** 2
+                               + (res.illegal * self.step) ** 2)
+        t_mid = 0.5 * (res.t_start + res.t_end)
+        est = self.counter.transition_speed(res.t_end - self.speed_window, res.t_end)
+        if est is not None and res.illegal == 0:
+            rate, tj, tl = est
+            span = tl - tj
+            speed = rate * self.step
+            # timing: each transition known within one sample; jitter of its position
+            rel_t = math.sqrt(2.0 * (dt_s * dt_s / 12.0)) / span
+            pos_t = math.sqrt(2.0) * self.position_jitter / (abs(rate) * self.step * span)
+            offset = abs(0.5 * (tj + tl) - t_mid)
+            speed_sigma = math.sqrt((speed * rel_t) ** 2 + (speed * pos_t) ** 2 + (self.scale_sigma * speed) ** 2
+                                    + (self._acc * offset) ** 2)
+        elif res.steps != 0 or self.counter.t_last_transition is None:
+            speed = distance / duration
+            speed_sigma = dist_sigma / duration
+        else:
+            # no transition since t_last: the train moved less than one state since then
+            speed = 0.0
+            since = res.t_end - self.counter.t_last_transition
+            speed_sigma = min(dist_sigma / duration, self.step_max / (math.sqrt(3.0) * max(since, duration)))
+        if self._prev_v is not None and res.t_end > self._prev_t:
+            self._acc = abs(speed - self._prev_v) / (res.t_end - self._prev_t)
+        self._prev_v, self._prev_t = speed, res.t_end
+        return DistanceIncrement(float(res.t_end), self.sensor, self.unit_id, float(duration), float(distance),
+                                 float(dist_sigma), float(speed), float(max(speed_sigma, 1e-3)))
+
+
+# --------------------------------------------------------------------------- device
+def narrowest_state(phase_tolerance_deg: float, duty_tolerance: float) -> float:
+    """Worst-case shortest quadrature state [fraction of a pulse period]."""
+    return 0.25 - phase_tolerance_deg / 360.0 - duty_tolerance
+
+
+def resolvable_speed(sample_rate: float, ppr: int, diameter: float, phase_tolerance_deg: float,
+                     duty_tolerance: float) -> float:
+    """Highest speed [m/s] at which every quadrature state lasts at least one sample."""
+    return sample_rate * narrowest_state(phase_tolerance_deg, duty_tolerance) * math.pi * diameter / ppr
+
+
+def _smoothstep(x):
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+class WheelSimulator(Simulator):
+    sensor = "wheel"
+    channels = ("A", "B")
+    units = ("level", "level")
+    default_sample_rate = DEFAULT_SAMPLE_RATE
+
+    def __init__(self, *args):
+        super().__init__(*args)
+        p = self.params
+        nominal = float(self.vehicle.wheel_diameter)
+        if abs(p["wheel_diameter"] - nominal) > 1e-9:
+            raise ValueError(
+                f"wheel_sensor parameter wheel_diameter = {p['wheel_diameter']} m differs from the vehicle's "
+                f"nominal {nominal} m: set sensors.wheel_sensor.wheel_diameter to it")
+        self.ppr = int(p["pulses_per_revolution"])
+        if self.ppr < 1:
+            raise ValueError("pulses_per_revolution must be >= 1")
+        tol = p["diameter_tolerance"]
+        err = p["diameter_error"]
+        if not math.isfinite(err):
+            err = float(self.rng.uniform(-tol, tol))
+        self.diameter_error = err
+        self.diameter = nominal * (1.0 + err)
+        self.phase_b = 0.25 + float(self.rng.uniform(-1.0, 1.0)) * p["phase_tolerance"] / 360.0
+        self.duty = 0.5 + self.rng.uniform(-1.0, 1.0, 2) * p["duty_tolerance"]
+        v_res = resolvable_speed(self.sample_rate, self.ppr, nominal * (1.0 - tol), p["phase_tolerance"],
+                                 p["duty_tolerance"])
+        if v_res < p["max_speed"]:
+            raise ValueError(
+                f"wheel_sensor: {self.sample_rate:.0f} Hz resolves {self.ppr} ppr quadrature only up to "
+                f"{v_res:.1f} m/s < max_speed {p['max_speed']} m/s; raise sample_rate or lower the ppr")
+        forced = np.asarray(p["slip_episodes"], dtype=float).reshape(-1, 3) if len(p["slip_episodes"]) else \
+            np.empty((0, 3))
+        self._episodes: list[tuple[float, float, float]] = [tuple(map(float, row)) for row in forced]
+        self._busy_until = -math.inf
+        self._s_ref: float | None = None
+        self._extra = 0.0   # circumferential distance gained by creep and slip [m]
+        self._vib_zi = np.zeros(1)
+        self.slip_log: list[tuple[float, float, float]] = []  # random episodes started (t, duration, ratio)
+
+    # slip ratio r(t): wheel circumferential speed = v (1 + r)
+    def _slip_ratio(self, times, speed, accel):
+        p = self.params
+        n = len(times)
+        dt = 1.0 / self.sample_rate
+        drive = accel * np.sign(speed)          # > 0 traction, < 0 braking
+        creep = p["creep_coefficient"] * drive
+        if not p["driven_axle"]:
+            creep = np.minimum(creep, 0.0)
+        r = creep
+        # random episodes (one at a time)
+        u = self.rng.random(n)
+        cand = np.flatnonzero((np.abs(accel) >= p["slip_accel_threshold"]) & (u < p["slip_rate"] * dt)
+                              & (speed != 0.0))
+        for i in cand:
+            t = float(times[i])
+            if t < self._busy_until:
+                continue
+            traction = drive[i] > 0
+            dur = float(np.clip(self.rng.exponential(p["slip_duration"]), 0.5, 10.0))
+            mag = float(self.rng.uniform(p["slip_ratio_min"], p["slip_ratio_max"]))
+            if traction and not p["driven_axle"]:
+                continue
+            ratio = mag if traction else -mag
+            self._episodes.append((t, dur, ratio))
+            self.slip_log.append((t, dur, ratio))
+            self._busy_until = t + dur
+        t0, t1 = times[0], times[-1]
+        for ts, dur, ratio in self._episodes:
+            if ts > t1 or ts + dur < t0:
+                continue
+            ramp = min(0.3, dur / 3.0)
+            shape = _smoothstep(np.minimum(times - ts, ts + dur - times) / ramp)
+            r = r + ratio * shape
+        self._episodes = [e for e in self._episodes if e[0] + e[1] >= t0]
+        return np.maximum(r, -1.0)
+
+    def samples(self, times, position, speed, acceleration):
+        p = self.params
+        n = len(times)
+        dt = 1.0 / self.sample_rate
+        if self._s_ref is None:
+            self._s_ref = float(position[0])
+        r = self._slip_ratio(times, speed, acceleration)
+        extra = self._extra + np.cumsum(r * speed) * dt
+        self._extra = float(extra[-1])
+        # AR(1) vibration, exact discretisation, state kept between blocks
+        phi = math.exp(-dt / p["vibration_tau"])
+        w = self.rng.normal(0.0, p["vibration"] * math.sqrt(1.0 - phi * phi), n)
+        vib, self._vib_zi = lfilter([1.0], [1.0, -phi], w, zi=self._vib_zi)
+        circ = (position - self._s_ref) + extra + vib          # wheel circumferential travel [m]
+        phase = circ / (math.pi * self.diameter) * self.ppr     # pulse periods
+        a = (np.mod(phase, 1.0) < self.duty[0]).astype(np.float64)
+        b = (np.mod(phase - self.phase_b, 1.0) < self.duty[1]).astype(np.float64)
+        # EMI glitches
+        k = int(self.rng.poisson(p["glitch_rate"] * n * dt))
+        if k:
+            where = self.rng.integers(0, n, k)
+            which = self.rng.integers(0, 2, k)
+            for i, c in zip(where, which):
+                if c == 0:
+                    a[i] = 1.0 - a[i]
+                else:
+                    b[i] = 1.0 - b[i]
+        return np.column_stack([a, b])
+
+
+class WheelDecoder(Decoder):
+    sensor = "wheel"
+    channels = WheelSimulator.channels
+
+    def __init__(self, params, track):
+        super().__init__(params, track)
+        p = self.params
+        self.ppr = int(p["pulses_per_revolution"])
+        self.edge = math.pi * p["wheel_diameter"] / (4.0 * self.ppr)      # one step [m]
+        widest = 0.25 + p["phase_tolerance"] / 360.0 + p["duty_tolerance"]  # pulse periods
+        self.counter = CycleCounter(4, history=max(1.0, 2 * p["speed_window"]))
+        self.estimator = IncrementEstimator(
+            self.sensor, self.unit_id, self.counter, self.edge, widest * 4.0 * self.edge,
+            p["diameter_tolerance"] / math.sqrt(3.0), p["speed_window"],
+            position_jitter=p["vibration"])
+        self._t_next: float | None = None
+        self.stats = {"edges": 0, "illegal_transitions": 0, "gaps": 0}
+
+    @property
+    def count(self) -> int:
+        """Cumulative signed edge count since start."""
+        return self.counter.count
+
+    def decode(self, block: RawBlock):
+        a = block.channel("A")
+        b = block.channel("B")
+        bad = ~(((a == 0.0) | (a == 1.0)) & ((b == 0.0) | (b == 1.0)))
+        if bad.any():
+            raise InputRejected("implausible", f"{int(bad.sum())} samples with levels other than 0/1 "
+                                f"(first {block.data[np.flatnonzero(bad)[0]].tolist()})")
+        fs = block.sample_rate
+        if self._t_next is None or abs(block.t0 - self._t_next) > 0.5 / fs:
+            if self._t_next is not None:
+                self.stats["gaps"] += 1
+            self.counter.reset()
+            self.estimator.reset()
+        self._t_next = block.t_end
+        q = _QUAD_INDEX[(2 * a.astype(np.int64) + b.astype(np.int64))]
+        res = self.counter.feed(block.times(), q, sample_period=1.0 / fs)
+        self.stats["edges"] += res.transitions
+        self.stats["illegal_transitions"] += res.illegal
+        if res.illegal > max(2, 0.1 * res.transitions):
+            self.counter.reset()
+            self.estimator.reset()
+            raise InputRejected("implausible", f"{res.illegal} of {res.transitions} quadrature transitions "
+                                "skip a state: speed beyond what the sample rate resolves, or a faulty channel")
+        inc = self.estimator.make(res, fs)
+        return [inc] if inc is not None else []
+
+
+SPEC = SensorSpec(
+    node="wheel_sensor", sensor="wheel", simulator=WheelSimulator, decoder=WheelDecoder,
+    params=PARAMS, description="on-board wheel pulse generator (quadrature): signed distance increments "
+    "and speed; affected by diameter error, creep, slip and slide", seeds=("002",),
+)

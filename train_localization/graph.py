@@ -15,7 +15,9 @@ def demo_graph(scenario: str, sensors: list[str], bag: str, rate: float = 1.0) -
     nodes = [("recorder", "recorder", {"output": bag, "use_sim_time": True})]
     nodes += [(name, name, {"mode": "sim", "scenario": scenario, "use_sim_time": True}) for name in sensors]
     nodes.append(("fusion", "fusion", {"scenario": scenario, "sensors": classes, "use_sim_time": True}))
-    nodes.append(("simulator", "simulator", {"scenario": scenario, "rate": rate, "start_delay": 3.0}))
+    # the simulator starts once the recorder and every sensor node listen to the truth
+    nodes.append(("simulator", "simulator", {"scenario": scenario, "rate": rate, "start_delay": 1.0,
+                                             "wait_for_subscribers": len(sensors) + 1}))
     return nodes
 
 

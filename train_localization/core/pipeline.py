@@ -25,6 +25,9 @@ class SensorPipeline:
     def __init__(self, spec: SensorSpec, params: dict | None, track: Track, vehicle: Vehicle,
                  rng=None, simulate: bool = True):
         self.spec = spec
+        params = dict(params or {})
+        if "wheel_diameter" in spec.params and "wheel_diameter" not in params:
+            params["wheel_diameter"] = vehicle.wheel_diameter  # the decoder's nominal diameter
         self.params = resolve_params(spec.params, params)
         self.track = track
         self.decoder = spec.decoder(self.params, track)

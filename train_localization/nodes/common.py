@@ -65,7 +65,7 @@ class Diagnostics:
         self.level = 0  # 0 OK, 1 WARN, 2 ERROR, 3 STALE (diagnostic_msgs/DiagnosticStatus)
         self.message = "starting"
         self.pub = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        node.create_timer(period, self.publish)
+        node.create_timer(period, self.publish, clock=steady_clock())  # also before /clock runs
 
     def accept(self, stream: str, n: int = 1) -> None:
         self.accepted[stream] += n
@@ -94,6 +94,12 @@ class Diagnostics:
         arr = DiagnosticArray(status=[status])
         arr.header.stamp = self.node.get_clock().now().to_msg()
         self.pub.publish(arr)
+
+
+def steady_clock():
+    """A wall (steady) clock for timers that must run whatever use_sim_time says."""
+    from rclpy.clock import Clock, ClockType
+    return Clock(clock_type=ClockType.STEADY_TIME)
 
 
 def declare(node: Node, name: str, default, description: str = ""):
@@ -128,10 +134,14 @@ def spin(node_factory, args=None) -> int:
         executor.add_node(node)
         while not stop["flag"] and not getattr(node, "finished", False) and rclpy.ok():
             executor.spin_once(timeout_sec=0.05)
-        # take what is already delivered before closing (a recorder loses nothing)
-        deadline = time.monotonic() + 0.5
-        while rclpy.ok() and time.monotonic() < deadline:
+        # take what is already delivered before closing (a recorder loses nothing):
+        # spin until the node's ``activity`` counter stops moving for 0.3 s (max 20 s)
+        deadline, quiet_since, last = time.monotonic() + 20.0, time.monotonic(), None
+        while rclpy.ok() and time.monotonic() < deadline and time.monotonic() - quiet_since < 0.3:
             executor.spin_once(timeout_sec=0.02)
+            now_activity = getattr(node, "activity", None)
+            if now_activity != last:
+                last, quiet_since = now_activity, time.monotonic()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception as exc:  # noqa: BLE001 - report and exit non-zero, never a traceback storm

@@ -22,7 +22,7 @@ import importlib
 from rclpy.node import Node
 
 from ..core.bagio import BagWriter
-from .common import STREAM_QOS, LATCHED_QOS, CLOCK_QOS, declare, spin
+from .common import CLOCK_QOS, LATCHED_QOS, STREAM_QOS, declare, spin, steady_clock
 
 
 def message_class(typename: str):
@@ -42,7 +42,8 @@ class RecorderNode(Node):
         self.writer = BagWriter(self.output, compression=compression)
         self.subs = {}
         self._discover()
-        self.create_timer(period, self._discover)
+        # wall-clock timer: with use_sim_time there is no /clock before the simulator runs
+        self.create_timer(period, self._discover, clock=steady_clock())
         self.get_logger().info(f"recording to {self.output}")
 
     def _discover(self):
@@ -63,6 +64,11 @@ class RecorderNode(Node):
             self.subs[topic] = self.create_subscription(
                 cls, topic, lambda data, topic=topic, typename=typename: self._on_msg(topic, typename, data),
                 qos, raw=True)
+
+    @property
+    def activity(self) -> int:
+        """Messages written so far (the shutdown drain waits until it stops growing)."""
+        return sum(self.writer.counts.values())
 
     def _on_msg(self, topic, typename, data: bytes):
         self.writer.write_cdr(topic, typename, data, self.get_clock().now().nanoseconds)

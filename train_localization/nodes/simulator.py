@@ -6,6 +6,8 @@ Parameters:
   start_delay (double, 1.0)    wall-clock seconds to wait before t = 0 (lets
                                subscribers connect)
   exit_at_end (bool, true)     shut the node down after the last state
+  wait_for_subscribers (int, 0)  before starting, wait (at most 60 s) until
+                               ground_truth/state has this many subscribers
 Topics: /clock (rosgraph_msgs/Clock), ground_truth/state (TrainState, stddevs 0,
 interval = position), /diagnostics.
 """
@@ -29,6 +31,7 @@ class SimulatorNode(Node):
         self.rate = float(declare(self, "rate", 1.0, "speed-up over real time; 0 = as fast as possible"))
         self.start_delay = float(declare(self, "start_delay", 1.0, "wall seconds before t = 0 [s]"))
         self.exit_at_end = bool(declare(self, "exit_at_end", True, "shut down after the last state"))
+        self.wait_for = int(declare(self, "wait_for_subscribers", 0, "subscribers of ground_truth/state to wait for"))
         if not path:
             raise ValueError("parameter 'scenario' is required (a scenario YAML file)")
         self.scenario = Scenario.from_yaml(path)
@@ -47,6 +50,12 @@ class SimulatorNode(Node):
     def _run(self):
         sc = self.scenario
         n = int(round(sc.duration * sc.truth_rate)) + 1
+        deadline = time.monotonic() + 60.0
+        while self.truth_pub.get_subscription_count() < self.wait_for and time.monotonic() < deadline:
+            time.sleep(0.05)
+        subs = [i.node_name for i in self.get_subscriptions_info_by_topic(self.truth_pub.topic_name)]
+        self.get_logger().info(f"starting scenario '{sc.name}' with {self.truth_pub.get_subscription_count()} "
+                               f"truth subscribers {subs} after {time.monotonic() - deadline + 60.0:.1f} s")
         time.sleep(self.start_delay)
         wall0 = time.monotonic()
         for k in range(n):

@@ -27,6 +27,12 @@ from ..core.scoring import StateSeries, score
 from ..graph import NAMESPACE, demo_graph, ros_args
 
 
+def spec_sensor(node: str) -> str:
+    """Topic key of a sensor node name (doppler_radar -> doppler)."""
+    from ..core.sensors import spec
+    return spec(node).sensor
+
+
 def executable(name: str) -> str:
     prefixes = [sys.prefix] + os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep)
     for prefix in prefixes:

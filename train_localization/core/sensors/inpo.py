@@ -13,19 +13,21 @@ within the period p. Counting the 0..360 deg repetitions from the section start
 gives the absolute position. MLU lays 6 loops (each phase twice, the second set
 shifted by p/2, i.e. a 6-phase system at p/6 spacing) so that the 2nd and 3rd
 harmonics of a non-sinusoidal envelope cancel (seed 000 section 2.1.1, last
-paragraph). Transrapid INPO resolves the position to +-8 deg over one pole pair
-(seed 000 section 2.1.2), which seed 002 section 2.2.1 gives as +-8 deg (12 mm).
+paragraph). Transrapid INPO resolves the position to +-8 deg (electrical) of the
+motor period (seed 000 section 2.1.2), which seed 002 section 2.2.1 gives as +-8 deg
+(12 mm).
 
 Period: 8 deg = 12 mm means 360 deg = 540 mm, i.e. one electrical period of the
 long-stator motor = 2 pole pitches. The Transrapid pole pitch is 258 mm, so the
-default period is p = 0.516 m (8 deg = 11.5 mm ~ 12 mm). Seed 003 builds the same
-kind of crossed loop with a 0.21 m signal period (its section 4.1).
+default period is p = 0.516 m (8 deg = 11.5 mm ~ 12 mm). (Seed 003's experimental
+crossed loop has a 0.63 m period: its 1/3-period pulse train repeats every 21 cm,
+section 4.1.)
 
 Track equipment (kind ``inpo_section``): one wayside receiver per loop section::
 
     inpo_section:
       - {id: INPO01, position: 1000.0, end: 3000.0, period: 0.516}   # position = section start
-      - {every: 2000.0, start: 4000.0, end: 8000.0, id: "INPO{n:02d}", length: 2000.0}
+      - {every: 2000.0, start: 4000.0, end: 8000.0, id: "INPO{n:02d}", length: 2000.0}  # 3 adjacent
 
 ``position`` is the chainage of the loop start [m] (``start`` is accepted as an alias),
 ``end`` [m] or ``length`` [m] its end, ``period`` [m] the loop period (default:
@@ -34,7 +36,14 @@ data (default: 1-based order along the track). Sections must not overlap; adjace
 sections (end == next start) hand over to one another. The phase origin (0 deg of
 phase U) is the section start.
 
-Raw signal (``sample_rate`` default 2 kHz): the envelope voltages [V] of the loop
+Sample rate (default 2 kHz, common parameter ``sample_rate``): at 500 km/h (139 m/s)
+the phase turns at 139 / 0.516 = 269 Hz, so counting periods needs > 538 Hz (phase
+advance per sample < 180 deg). 2 kHz gives 48.5 deg per sample, leaving a wide margin
+for the +-8 deg error and noise in the unwrapping, and resolves the envelope's 3rd
+harmonic (807 Hz < 1 kHz Nyquist). Data rate: 4 channels x 2 kHz = 8000 values/s
+(6 pairs: 7 x 2 kHz = 14000 values/s).
+
+Raw signal: the envelope voltages [V] of the loop
 pairs (``u, v, w``; with ``n_pairs = 6``: ``u1, v1, w1, u2, v2, w2``) of the receiver
 that currently carries the vehicle's signal, and ``receiver``: the number of that
 receiver (the wayside evaluation unit switches to the receiver with the strongest
@@ -61,9 +70,15 @@ direction is known and the entry sample is placed at the nearest phase-consisten
 position to the section start (moving forwards) or end (moving backwards). Absolute
 antenna position = section start + count x p + phase/(2 pi) x p; the fix is the train
 front = antenna position + ``antenna_offset``. One PositionFix per ``fix_samples``
-samples (0 = one per block), direction from the sign of the phase rate. Lost blocks
-up to ``max_bridge`` seconds are bridged by the phase rate; a longer gap loses the
-count until the next section entry.
+samples (0 = one per block), direction from the sign of the phase rate, 1-sigma from
+the +-8 deg spec taken as 2.5 sigma per sample (its periodic part averaging out with the
+distance run in the fix, the white part with the sample count) plus the section's fixed
+survey and loop-laying errors. Lost or rejected blocks up to ``max_bridge`` seconds are
+bridged by the phase rate; a longer gap, or a count that places the antenna off the
+loops that still see it, loses the count until the next section entry. Blocks with a
+saturated channel, an amplitude beyond any air gap, a zero-sequence voltage (broken
+pair), a signal without a receiver or an impossible phase step are rejected as
+"implausible"; an unknown receiver number as "unknown_id".
 """
 from __future__ import annotations
 
@@ -85,7 +100,8 @@ PARAMS = {
                            "pitch, so that 8 deg = 11.5 mm ~ the 12 mm of seed 002 section 2.2.1"),
     "n_pairs": Param(3, "loop pairs evaluated: 3 (U, V, W at p/3; Transrapid INPO) or 6 (MLU: each phase "
                         "twice, second set shifted p/2, cancels 2nd/3rd harmonics; seed 000 section 2.1.1)"),
-    "antenna_offset": Param(1.5, "transmitter antenna distance behind the train front [m] (vehicle layout)"),
+    "antenna_offset": Param(1.5, "transmitter antenna distance behind the train front [m], i.e. at front "
+                                 "chainage - offset (vehicle layout)"),
     "antenna_length": Param(0.3, "length of the transmitter antenna along the track [m]; the coupling ramps "
                                  "up/down over it at a section end (antenna size a, seed 000 section 2.1.1)"),
     "amplitude": Param(1.0, "envelope amplitude E0 of one pair at the nominal gap, full coupling [V] "
@@ -147,6 +163,8 @@ def section_table(track: Track, default_period: float) -> list[dict]:
         receiver = int(item.get("receiver", i + 1))
         if not (end > start and period > 0.0):
             raise TrackError(f"{SECTION_KIND} '{item['id']}': need end > start and period > 0")
+        if end > track.length + 1e-9:
+            raise TrackError(f"{SECTION_KIND} '{item['id']}' ends at {end} m, off the track (0..{track.length} m)")
         if receiver <= 0 or receiver in receivers:
             raise TrackError(f"{SECTION_KIND} '{item['id']}': receiver {receiver} is not a new positive number")
         if out and start < out[-1]["end"] - 1e-9:
@@ -362,13 +380,14 @@ class InpoDecoder(Decoder):
         t_last = self._t_last
         contiguous = t_last is not None and t[0] - t_last <= 1.5 * dt
         bridge = False
+        counts = dict.fromkeys(("entries", "bridged", "count_lost"), 0)
         if not contiguous:
             if mode == "track" and t_last is not None and t[0] - t_last <= p["max_bridge"]:
                 bridge = True
-                self.stats["bridged"] += 1
+                counts["bridged"] += 1
             else:
                 if mode in ("track", "pending"):
-                    self.stats["count_lost"] += 1
+                    counts["count_lost"] += 1
                 mode, prev_in = "lost", False
         inside = self._hysteresis(amp, prev_in)
         inside &= rx > 0
@@ -402,7 +421,7 @@ class InpoDecoder(Decoder):
                 entry = handover or (mode == "out" and not prev_in)
                 if entry:
                     mode, w_entry = "pending", float(w[0])
-                    self.stats["entries"] += 1
+                    counts["entries"] += 1
                 else:
                     mode = "lost"
             if mode == "pending":
@@ -422,9 +441,13 @@ class InpoDecoder(Decoder):
                 slack = p["antenna_length"] / per + 0.5
                 n_end = (section["end"] - section["start"]) / per
                 if np.any((u_run < -slack) | (u_run > n_end + slack)):
-                    raise InputRejected("implausible", f"period count leaves section {section['id']}")
-                u[i0:i1] = u_run
-                sec_of[i0:i1] = r
+                    # the count says the antenna is off the loops while they still see it: the
+                    # count is wrong (e.g. a slip during a bridged gap); wait for the next entry
+                    mode = "lost"
+                    counts["count_lost"] += 1
+                else:
+                    u[i0:i1] = u_run
+                    sec_of[i0:i1] = r
             if i1 - i0 >= 2:
                 rate = float((w[-1] - w[0]) / (t[i1 - 1] - t[i0]))
             w_last, theta_last = float(w[-1]), float(theta[i1 - 1])
@@ -433,6 +456,8 @@ class InpoDecoder(Decoder):
         self._mode, self._w_last, self._theta_last = mode, w_last, theta_last
         self._w_entry, self._offset, self._rate = w_entry, offset, rate
         self._in, self._rx, self._t_last = bool(inside[-1]), int(rx[-1]), float(t[-1])
+        for key, value in counts.items():
+            self.stats[key] += value
         return self._fixes(block, t - p["detector_delay"], u, sec_of)
 
     def _fixes(self, block, t, u, sec_of):
@@ -460,7 +485,9 @@ class InpoDecoder(Decoder):
                 span = abs(slope) * (tt[-1] - tt[0])
                 sigma_s = per * p["accuracy_deg"] / 360.0 / 2.5
                 periodic = min(1.0, per / (TWO_PI * span)) if span > 0 else 1.0
-                sigma = math.sqrt(sigma_s ** 2 * (periodic ** 2 + 1.0 / k) + p["survey_sigma"] ** 2)
+                # + the fixed errors of a section: survey of its start, mean laying error of its pairs
+                bias2 = p["survey_sigma"] ** 2 + p["skew_sigma"] ** 2 / self.n_pairs
+                sigma = math.sqrt(sigma_s ** 2 * (periodic ** 2 + 1.0 / k) + bias2)
                 out.append(PositionFix(tm, self.sensor, self.unit_id, self.track.track_id, sec["id"],
                                        float(x.mean()), max(sigma, 1e-4), direction))
         self.stats["fixes"] += len(out)

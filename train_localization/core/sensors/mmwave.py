@@ -75,16 +75,23 @@ plus the calibration term.
     with the previous speed is taken; without a recent previous solution the epoch
     gives no fix.
   * Gauss-Newton on x (the range model is non-linear near a station).
+  * A single-station fix (``min_stations`` = 1) has no redundancy: it is accepted
+    only if it agrees (3 sigma) with the prediction from a previous solution at most
+    0.3 s old, which catches the jump at an NLOS onset, and its variance gets
+    ``unchecked_sigma``^2 added for the small biases that pass the gate. A longer
+    NLOS episode breaks the chain: no fix until two stations are in view again.
   * NLOS rejection: chi-square test of the weighted residuals against the
     ``outlier_probability`` quantile (dof = stations - 1); if it fails, the station
     with the largest normalised residual e_i / sqrt(sigma_i^2 - h_i^2 P) is dropped
     and the fit repeated, as long as at least ``min_stations`` remain. The largest
     *positive* residual is taken: a reflected first path only lengthens a range. A failing
     test with no station left to drop gives no fix (2 stations cannot tell which one
-    is wrong).
+    is wrong); a station is only dropped if at least two remain.
   * Output: one PositionFix per epoch (``fix_per_block`` false) or one per block (the
     epoch solutions fitted with a straight line in time, evaluated at the block's
-    mean epoch time). position = x + orientation * ``antenna_offset``; variance =
+    mean epoch time; a station whose mean residual over the block exceeds the gate
+    -- a small NLOS bias that the single epochs cannot see -- is excluded and the
+    block solved again). position = x + orientation * ``antenna_offset``; variance =
     LS covariance P = 1 / sum(h_i^2 / sigma_i^2) (per block: noise averaged over the
     epochs, calibration term not). ``reference_id`` = comma-separated ids of the
     stations used (ascending chainage) followed by the rejected ones prefixed with
@@ -107,6 +114,10 @@ from .base import Decoder, Param, SensorSpec, Simulator
 C_AIR = 299_792_458.0 / 1.0003  # speed of light in air (refractive index ~1.0003) [m/s]
 STATION_KIND = "mmwave_station"
 N_SLOTS = 4
+PRED_SIGMA = 0.25        # 1-sigma of the previous solution used for a prediction [m]
+PRED_SPEED_SIGMA = 0.5   # 1-sigma speed error of the prediction [m/s] (slope over the history)
+PRED_ACCEL = 1.5         # largest acceleration of the train [m/s^2]
+SINGLE_HOLD = 0.3        # a single-station fix needs a previous solution younger than this [s]
 SNR_NOISE_REF = 20.0  # SNR [dB] at which the SNR-dependent ranging term equals range_sigma_snr
 
 PARAMS = {
@@ -137,6 +148,8 @@ PARAMS = {
                             "-1: decreasing"),
     "min_stations": Param(2, "minimum number of consistent stations for a fix (1 = allow single-station "
                              "fixes resolved by the previous solution)"),
+    "unchecked_sigma": Param(0.5, "1-sigma added to single-station fixes [m]: without redundancy an NLOS bias "
+                                  "(exponential, mean ~1 m) cannot be detected"),
     "outlier_probability": Param(0.999, "chi-square gate probability of the NLOS test"),
     "fix_per_block": Param(False, "false: one PositionFix per epoch (5 ms, seed 002); true: one per block"),
     "hold_time": Param(1.0, "a previous solution older than this is not used to resolve ambiguity [s]"),
@@ -282,11 +295,13 @@ class MmWaveDecoder(Decoder):
             self._lut[c] = k
         self._gate = np.array([np.inf] + [float(chdtri(df, 1.0 - params["outlier_probability"]))
                                           for df in range(1, N_SLOTS)])
+        self._z_gate = math.sqrt(float(chdtri(1, 1.0 - params["outlier_probability"])))
         self._max_delay = 2.0 * max(params["max_range"], 1.0) / C_AIR + 1e-6
         self._prev_t: float | None = None
         self._prev_x: float | None = None
         self._prev_v = 0.0
-        self.stats.update(epochs=0, fixes=0, rejected_stations=0, no_fix=0, ambiguous=0)
+        self._hist_t = self._hist_x = self._hist_w = np.zeros(0)
+        self.stats.update(epochs=0, fixes=0, rejected_stations=0, no_fix=0, ambiguous=0, inconsistent_single=0)
 
     # -- input checks -------------------------------------------------------------------
     def _check(self, codes_f, delay, snr):
@@ -321,8 +336,19 @@ class MmWaveDecoder(Decoder):
         valid = present & (delay > 0.0) & (snr >= p["snr_threshold"])
         rng = delay * C_AIR
         s_pos, perp = self.pos[idx], self.perp[idx]
-        sig2 = range_sigma(snr, p) ** 2 + p["cal_sigma"] ** 2
-        x, ok, used, resid, var, cal_var = self._solve(times, rng, s_pos, perp, sig2, valid)
+        sig2 = np.maximum(range_sigma(snr, p) ** 2 + p["cal_sigma"] ** 2, 1e-6)  # >= 1 mm (float32 delays)
+        fit_valid = valid
+        for _ in range(N_SLOTS if p["fix_per_block"] else 1):
+            x, ok, used, resid, var, cal_var = self._solve(times, rng, s_pos, perp, sig2, fit_valid)
+            if not p["fix_per_block"]:
+                break
+            # a bias persisting over the block stands out in the station's mean residual
+            worst = self._block_outlier(idx, used & ok[:, None], resid, sig2)
+            if worst is None:
+                break
+            fit_valid = fit_valid & (idx != worst)
+        if ok.any():
+            self._remember(times[ok], x[ok], var[ok])
         self.stats["epochs"] += n
         self.stats["no_fix"] += int((~ok).sum())
         self.stats["rejected_stations"] += int((valid & ~used & ok[:, None]).sum())
@@ -339,6 +365,22 @@ class MmWaveDecoder(Decoder):
                                          ref, float(front[i]), float(math.sqrt(var[i])), 0, res))
         self.stats["fixes"] += len(fixes)
         return fixes
+
+    def _block_outlier(self, idx, used, resid, sig2):
+        """Station index whose mean residual over the block fails the gate (largest positive), or None."""
+        cal2 = self.params["cal_sigma"] ** 2
+        worst, worst_z = None, self._z_gate
+        for k in np.unique(idx[used]):
+            sel = used & (idx == k)
+            n_k = int(sel.sum())
+            if n_k < 3:
+                continue
+            z = float(np.mean(resid[sel])) / math.sqrt(float(np.mean(sig2[sel])) / n_k + cal2)
+            if z > worst_z:
+                worst, worst_z = int(k), z
+        if worst is not None and len(np.unique(idx[used])) <= max(2, self.params["min_stations"]):
+            return None  # no station to spare: the epoch tests decide
+        return worst
 
     def _refs(self, used, valid, resid, idx):
         order_used = [j for j in range(N_SLOTS) if used[j]]
@@ -381,6 +423,10 @@ class MmWaveDecoder(Decoder):
         Returns x (n,), ok (n,), used (n, N_SLOTS), residuals (n, N_SLOTS), variance (n,) and
         the part of the variance due to the per-station calibration biases (n,).
         """
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return self._solve_epochs(times, r, s, d, sig2, valid)
+
+    def _solve_epochs(self, times, r, s, d, sig2, valid):
         p = self.params
         n = len(times)
         w = np.where(valid, 1.0 / sig2, 0.0)
@@ -398,17 +444,21 @@ class MmWaveDecoder(Decoder):
         c1 = cost[rows, best]
         far = np.abs(cand - x[:, None]) > 2.0
         c2 = np.min(np.where(far & cvalid, cost, np.inf), axis=1)
-        ambiguous = (c2 - c1 < 4.0) & (nv > 0)
+        # one station: always two branches; more: a distinct candidate fitting nearly as well
+        ambiguous = ((c2 - c1 < 4.0) & (nv > 0)) | (nv == 1)
+        have_pred = self._prev_t is not None
+        if have_pred:
+            age = times - self._prev_t
+            xp = self._prev_x + self._prev_v * age
+            recent = age <= p["hold_time"]
         if ambiguous.any():
             self.stats["ambiguous"] += int(ambiguous.sum())
-            if self._prev_t is not None:
-                age = times - self._prev_t
-                xp = self._prev_x + self._prev_v * age
+            if have_pred:
                 # candidates among the near-best: pick the one nearest to the prediction
                 near_best = cvalid & (cost - c1[:, None] < 4.0)
                 dist = np.where(near_best, np.abs(cand - xp[:, None]), np.inf)
                 pick = cand[rows, np.argmin(dist, axis=1)]
-                resolvable = ambiguous & (age <= p["hold_time"])
+                resolvable = ambiguous & recent
                 x = np.where(resolvable, pick, x)
                 ambiguous &= ~resolvable
         used = valid.copy()
@@ -422,7 +472,8 @@ class MmWaveDecoder(Decoder):
             fail = ok & (df >= 1) & (chi2 > self._gate[np.clip(df, 0, N_SLOTS - 1)])
             if not fail.any():
                 break
-            can_drop = fail & (used.sum(axis=1) > max(1, p["min_stations"]))
+            # identify the outlier only if >= 2 stations remain to check one another
+            can_drop = fail & (used.sum(axis=1) > max(2, p["min_stations"]))
             ok &= ~(fail & ~can_drop)
             if not can_drop.any():
                 break
@@ -439,15 +490,32 @@ class MmWaveDecoder(Decoder):
         cal_var = np.sum(gain * gain, axis=1) * p["cal_sigma"] ** 2
         ok &= np.isfinite(x) & (info > 1e-6) & (used.sum(axis=1) >= max(1, p["min_stations"]))
         var = np.where(ok, P, np.inf)
-        if ok.any():
-            last = int(np.flatnonzero(ok)[-1])
-            if self._prev_t is not None and times[last] > self._prev_t:
-                dt = times[last] - self._prev_t
-                if dt <= p["hold_time"]:
-                    v = (x[last] - self._prev_x) / dt
-                    self._prev_v = v if dt > 0.02 else 0.7 * self._prev_v + 0.3 * v
-            self._prev_t, self._prev_x = float(times[last]), float(x[last])
-        return x, ok, used, np.where(valid, e, 0.0), var, cal_var
+        single = ok & (used.sum(axis=1) == 1)
+        if single.any():
+            # no redundancy: check against the prediction instead (an NLOS onset is a jump)
+            if have_pred:
+                a = np.abs(age)
+                spread = PRED_SIGMA + PRED_SPEED_SIGMA * a + 0.5 * PRED_ACCEL * a * a
+                consistent = (a <= SINGLE_HOLD) & (np.abs(x - xp) <= 3.0 * np.sqrt(P + spread ** 2))
+            else:
+                consistent = np.zeros(n, dtype=bool)
+            self.stats["inconsistent_single"] += int((single & ~consistent).sum())
+            ok &= ~single | consistent
+            var = np.where(single, var + p["unchecked_sigma"] ** 2, var)
+        return x, ok, used, e, var, cal_var
+
+    def _remember(self, t, x, var):
+        """Keep the solutions of the last hold_time and their speed (LS slope) for predictions."""
+        keep = self._hist_t > t[-1] - self.params["hold_time"]
+        self._hist_t = np.concatenate([self._hist_t[keep], t])
+        self._hist_x = np.concatenate([self._hist_x[keep], x])
+        self._hist_w = np.concatenate([self._hist_w[keep], 1.0 / var])
+        self._prev_t, self._prev_x = float(t[-1]), float(x[-1])
+        tt, w = self._hist_t - self._hist_t.mean(), self._hist_w
+        if len(tt) >= 3 and np.ptp(tt) > 0:
+            tm = np.sum(w * tt) / np.sum(w)
+            xm = np.sum(w * self._hist_x) / np.sum(w)
+            self._prev_v = float(np.sum(w * (tt - tm) * (self._hist_x - xm)) / np.sum(w * (tt - tm) ** 2))
 
     @staticmethod
     def _residuals(x, r, s, d, info):

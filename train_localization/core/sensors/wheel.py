@@ -16,7 +16,7 @@ Errors modelled:
     (``diameter_error``; by default drawn per device uniformly within
     +-``diameter_tolerance``): a scale error of the distance;
   * creep: under traction or braking the wheel's circumferential speed differs from
-    the train speed by ``creep_coefficient`` x |a| (wheel-rail creep);
+    the train speed by ``creep_coefficient`` x a (wheel-rail creep);
   * slip (traction) and slide (braking) episodes of several seconds with slip ratios
     of a few % up to 20 %: random while |a| >= ``slip_accel_threshold`` at
     ``slip_rate`` per second, or forced by a scenario through ``slip_episodes``;
@@ -30,15 +30,23 @@ Errors modelled:
 
 Decoder (vectorised): state sequence 00 -> 10 -> 11 -> 01 forwards; each legal
 state change counts +-1 edge, a change of both levels at once is illegal (a skipped
-state: speed beyond what the sample rate resolves, or a glitch). Counts -> distance
+state: speed beyond what the sample rate resolves, or a glitch); it is counted as 2
+edges in the last direction (which keeps the count right up to ~120 m/s with the
+defaults) and a block with more than 10 % illegal changes is rejected
+("implausible"). Counts -> distance
 with the NOMINAL diameter: one edge = pi D / (4 ppr). One DistanceIncrement per block
 (from the last sample of the previous block to the last sample of this one), speed
-from the timing of edges of the same kind within ``speed_window`` (one full pulse
-period or more, so disc tolerances cancel), else from the count. The stddevs are
+from the timing of edges of the same kind (one full pulse period or more apart, so
+disc tolerances cancel) within the block or ``speed_window``; at low speed from any
+two edges in the same direction; else from the count. A lost block (gap in time)
+restarts the count at the next block. The stddevs are
 those of quantisation, edge timing and diameter tolerance; the decoder does NOT
 know about slip: the fusion has to detect it (speed excess over other sensors).
 Note: quantisation errors of consecutive increments are anti-correlated (the total
 count is exact to one edge); the diameter error is common to all increments.
+
+``CycleCounter`` and ``IncrementEstimator`` below are shared with the pattern belt
+(6 states instead of 4).
 """
 from __future__ import annotations
 
@@ -156,7 +164,13 @@ class CycleCounter:
         self._tr_s = np.empty(0, dtype=np.int64)
 
     def feed(self, times: np.ndarray, states: np.ndarray, lost: np.ndarray | None = None,
-             sample_period: float = 0.0) -> FeedResult:
+             sample_period: float = 0.0, crossing_times: np.ndarray | None = None) -> FeedResult:
+        """Count the steps of one block.
+
+        times: sample times [s]; states: state index per sample (-1 = none); lost: True
+        where the signal is absent; crossing_times: per sample, the interpolated time of
+        a state change completed at that sample (default: half a sample before it).
+        """
         n = self.n
         states = np.asarray(states, dtype=np.int64)
         lost_cum = np.cumsum(lost) if lost is not None else np.zeros(len(states), dtype=np.int64)
@@ -164,10 +178,12 @@ class CycleCounter:
         seq_s = states[idx]
         seq_t = times[idx]
         seq_l = lost_cum[idx]
+        seq_x = (crossing_times[idx] if crossing_times is not None else seq_t - 0.5 * sample_period)
         if self.state >= 0:
             seq_s = np.concatenate(([self.state], seq_s))
             seq_t = np.concatenate(([self.t_state], seq_t))
             seq_l = np.concatenate(([0], seq_l))
+            seq_x = np.concatenate(([self.t_state], seq_x))
         if len(seq_s) == 0:
             if lost is not None and lost.any():
                 self.reset()
@@ -191,7 +207,7 @@ class CycleCounter:
         dropped = int(steps[:seg0].sum())
         # transitions: time = between the last sample of the old state and the first of the new
         tr = np.flatnonzero(steps != 0)
-        t_tr = seq_t[tr + 1] - 0.5 * sample_period
+        t_tr = seq_x[tr + 1]
         c_tr = self.count + np.cumsum(steps)[tr]
         s_tr = np.sign(steps[tr])
         if len(breaks):  # history before a loss is not comparable
@@ -221,26 +237,27 @@ class CycleCounter:
             self.reset()
         return FeedResult(seg_steps, t_start, t_end, int(illegal.sum()), int((d != 0).sum()), dropped)
 
-    def transition_speed(self, t_from: float, t_to: float):
-        """Steps per second between the two latest-spanning transitions of the same kind.
+    def transition_speed(self, t_from: float, t_to: float, same_kind: bool = True):
+        """Steps per second between the last transition and the earliest usable one.
 
-        Looks at transitions in [t_from, t_to]: the last one L and the earliest j with
-        the same state entered in the same direction (count difference a non-zero
-        multiple of n, no reversal in between). Returns (steps/s, t_j, t_L) or None.
+        Looks at transitions in [t_from, t_to]: the last one L and the earliest j after
+        the last reversal with a count difference that is non-zero and, if
+        ``same_kind``, a multiple of n (the same state entered in the same direction, so
+        unequal state widths cancel). Returns (steps/s, t_j, t_L) or None.
         """
         t = self._tr_t
         if len(t) < 2:
             return None
         hi = int(np.searchsorted(t, t_to, side="right")) - 1
         lo = int(np.searchsorted(t, t_from, side="left"))
-        if hi - lo < self.n:
+        if hi - lo < (self.n if same_kind else 1):
             return None
         s = self._tr_s[lo:hi + 1]
         c = self._tr_c[lo:hi + 1]
         diff_sign = np.flatnonzero(s != s[-1])
         first = int(diff_sign[-1]) + 1 if len(diff_sign) else 0
         dc = c[-1] - c[first:]
-        ok = np.flatnonzero((dc != 0) & (dc % self.n == 0))
+        ok = np.flatnonzero((dc != 0) & (dc % (self.n if same_kind else 1) == 0))
         if not len(ok):
             return None
         j = first + int(ok[0])
@@ -254,14 +271,24 @@ class IncrementEstimator:
     """Turns counted steps of one block into a DistanceIncrement (shared with the belt).
 
     step: distance of one step [m]; step_max: widest state [m] (quantisation);
-    scale_sigma: 1-sigma relative scale error; timing_jitter: 1-sigma of a transition
-    time [s] on top of the sampling; position_jitter: 1-sigma of a transition's
-    position [m].
+    scale_sigma: 1-sigma relative scale error; position_jitter: 1-sigma of a
+    transition's position [m]; accel_sigma: prior 1-sigma of the train's acceleration
+    [m/s^2], for a speed taken over a window that is not centred on the increment
+    (the larger of it and the acceleration seen between the last two speeds is used);
+    timing_sigma: 1-sigma error of a transition time [samples] (1/sqrt(12): the
+    transition is only known to lie between two samples); unevenness: 1-sigma deviation
+    of a transition's position from the even grid of steps [m] (used when the speed
+    has to come from transitions of different kinds, at low speed).
     """
 
     def __init__(self, sensor: str, unit_id: str, counter: CycleCounter, step: float, step_max: float,
-                 scale_sigma: float, speed_window: float, position_jitter: float = 0.0):
+                 scale_sigma: float, speed_window: float, position_jitter: float = 0.0,
+                 accel_sigma: float = 0.5, timing_sigma: float = 1.0 / math.sqrt(12.0),
+                 unevenness: float = 0.0):
         self.sensor, self.unit_id, self.counter = sensor, unit_id, counter
+        self.unevenness = unevenness
+        self.timing_sigma = timing_sigma
+        self.accel_sigma = accel_sigma
         self.step, self.step_max, self.scale_sigma = step, step_max, scale_sigma
         self.speed_window, self.position_jitter = speed_window, position_jitter
         self._prev_v: float | None = None
@@ -281,19 +308,28 @@ class IncrementEstimator:
         distance = res.steps * self.step
         q = self.step_max / math.sqrt(6.0)  # two ends, each uniform over one state
         dist_sigma = math.sqrt(q * q + 2 * self.position_jitter ** 2 + (self.scale_sigma * distance) ** 2
-                               + (res.illegal * self.step) ** 2)
+                               + (2 * res.illegal * self.step) ** 2)
         t_mid = 0.5 * (res.t_start + res.t_end)
-        est = self.counter.transition_speed(res.t_end - self.speed_window, res.t_end)
+        # edges of the same kind within the increment (the speed is its mean speed), else
+        # reaching back at most speed_window, else (low speed) any two edges in the same
+        # direction
+        uneven = 0.0
+        est = self.counter.transition_speed(res.t_start, res.t_end)
+        if est is None:
+            est = self.counter.transition_speed(res.t_end - self.speed_window, res.t_end)
+        if est is None:
+            est = self.counter.transition_speed(res.t_end - self.speed_window, res.t_end, same_kind=False)
+            uneven = self.unevenness
         if est is not None and res.illegal == 0:
             rate, tj, tl = est
             span = tl - tj
             speed = rate * self.step
             # timing: each transition known within one sample; jitter of its position
-            rel_t = math.sqrt(2.0 * (dt_s * dt_s / 12.0)) / span
-            pos_t = math.sqrt(2.0) * self.position_jitter / (abs(rate) * self.step * span)
+            rel_t = math.sqrt(2.0) * self.timing_sigma * dt_s / span
+            pos_t = math.sqrt(2.0 * (self.position_jitter ** 2 + uneven ** 2)) / (abs(rate) * self.step * span)
             offset = abs(0.5 * (tj + tl) - t_mid)
             speed_sigma = math.sqrt((speed * rel_t) ** 2 + (speed * pos_t) ** 2 + (self.scale_sigma * speed) ** 2
-                                    + (self._acc * offset) ** 2)
+                                    + (max(self._acc, self.accel_sigma) * offset) ** 2)
         elif res.steps != 0 or self.counter.t_last_transition is None:
             speed = distance / duration
             speed_sigma = dist_sigma / duration
@@ -364,6 +400,7 @@ class WheelSimulator(Simulator):
         self._s_ref: float | None = None
         self._extra = 0.0   # circumferential distance gained by creep and slip [m]
         self._vib_zi = np.zeros(1)
+        self._angle0 = float(self.rng.uniform(0.0, 1.0))  # initial disc angle [pulse periods]
         self.slip_log: list[tuple[float, float, float]] = []  # random episodes started (t, duration, ratio)
 
     # slip ratio r(t): wheel circumferential speed = v (1 + r)
@@ -417,7 +454,7 @@ class WheelSimulator(Simulator):
         w = self.rng.normal(0.0, p["vibration"] * math.sqrt(1.0 - phi * phi), n)
         vib, self._vib_zi = lfilter([1.0], [1.0, -phi], w, zi=self._vib_zi)
         circ = (position - self._s_ref) + extra + vib          # wheel circumferential travel [m]
-        phase = circ / (math.pi * self.diameter) * self.ppr     # pulse periods
+        phase = circ / (math.pi * self.diameter) * self.ppr + self._angle0  # pulse periods
         a = (np.mod(phase, 1.0) < self.duty[0]).astype(np.float64)
         b = (np.mod(phase - self.phase_b, 1.0) < self.duty[1]).astype(np.float64)
         # EMI glitches
@@ -447,7 +484,8 @@ class WheelDecoder(Decoder):
         self.estimator = IncrementEstimator(
             self.sensor, self.unit_id, self.counter, self.edge, widest * 4.0 * self.edge,
             p["diameter_tolerance"] / math.sqrt(3.0), p["speed_window"],
-            position_jitter=p["vibration"])
+            position_jitter=p["vibration"],
+            unevenness=(p["phase_tolerance"] / 360.0 + p["duty_tolerance"]) * 4.0 * self.edge / math.sqrt(3.0))
         self._t_next: float | None = None
         self.stats = {"edges": 0, "illegal_transitions": 0, "gaps": 0}
 

@@ -1,0 +1,300 @@
+"""Eurobalise reader (seed 001): telegram time and transmission distance (eq. 1-2), reading
+distance (Table 2), mutual inductance (eq. 3-5, Table 3) and read field strength (eq. 6-7,
+Table 4) for 100..600 km/h; simulated passages in both directions up to 500 km/h, failed
+reads above the speed limit of the readable window, unknown ids, determinism."""
+import math
+import time
+
+import numpy as np
+import pytest
+
+from train_localization.core.pipeline import SensorPipeline, run_offline
+from train_localization.core.scenario import Scenario
+from train_localization.core.sensors import eurobalise as eb
+from train_localization.core.sensors import spec
+from train_localization.core.signals import InputRejected, RawBlock
+from train_localization.core.track import Track
+
+NODE = "eurobalise_reader"
+OFFSET = eb.PARAMS["antenna_offset"].default
+
+# Seed 001, copied here independently of the module: speed [km/h] -> value
+SEED_T_R = 1.8138e-3                      # s (section 4.1)
+SEED_D_T = {100: 50.38e-3, 600: 302.3e-3}  # m (section 4.1 / Fig. 7)
+SEED_TABLE2 = {100: 5.19, 200: 30.38, 300: 55.58, 400: 80.77, 500: 106.0, 600: 131.2}          # mm
+SEED_TABLE3 = {100: 3.0712, 200: 2.9722, 300: 2.7536, 400: 2.4577, 500: 2.1299, 600: 1.8079}   # nH
+SEED_TABLE4 = {100: 2.182, 200: 2.112, 300: 1.957, 400: 1.746, 500: 1.514, 600: 1.285}         # mA/m
+TOL = 0.005
+
+
+def rel(a, b):
+    return abs(a - b) / abs(b)
+
+
+# ---------------------------------------------------------------- seed 001 tables
+
+def test_telegram_time_and_transmission_distance():
+    t_r = eb.telegram_time()
+    assert rel(t_r, SEED_T_R) < 1e-4
+    assert rel(eb.telegram_time(1023, 564e3), 1023 / 564e3) < 1e-12
+    for kmh, d in SEED_D_T.items():
+        assert rel(float(eb.transmission_distance(kmh / 3.6)), d) < TOL
+        assert rel(float(eb.transmission_distance(-kmh / 3.6)), d) < TOL   # sign of speed irrelevant
+
+
+@pytest.mark.parametrize("kmh", sorted(SEED_TABLE2))
+def test_table2_reading_distance(kmh):
+    assert rel(float(eb.reading_distance(kmh / 3.6)) * 1e3, SEED_TABLE2[kmh]) < TOL
+
+
+@pytest.mark.parametrize("kmh", sorted(SEED_TABLE3))
+def test_table3_mutual_inductance(kmh):
+    x = eb.reading_distance(kmh / 3.6)
+    assert rel(float(eb.mutual_inductance(x)) * 1e9, SEED_TABLE3[kmh]) < TOL
+
+
+@pytest.mark.parametrize("kmh", sorted(SEED_TABLE4))
+def test_table4_read_field_strength(kmh):
+    # explicit chain eq. 3 -> 5 -> 6 -> 7 and the composed helper
+    m = eb.mutual_inductance(eb.reading_distance(kmh / 3.6))
+    u_n = eb.induced_emf(m)
+    h_min = float(eb.read_field_strength(u_n))
+    assert rel(h_min * 1e3, SEED_TABLE4[kmh]) < TOL
+    assert rel(float(eb.required_field(kmh / 3.6)) * 1e3, SEED_TABLE4[kmh]) < TOL
+    # eq. 7 inverts eq. 6: the read field is the eq. 3 field at the reading distance
+    assert rel(h_min, float(eb.loop_field(eb.reading_distance(kmh / 3.6)))) < 1e-9
+
+
+def test_field_and_emf_physics():
+    h = eb.loop_field(np.linspace(0.0, 1.0, 101))
+    assert np.all(np.diff(h) < 0)                                # falls off with the offset
+    assert rel(float(eb.loop_field(0.3)), float(eb.loop_field(-0.3))) < 1e-12
+    # centre of a square loop in its own plane: H = 2 sqrt(2) N I / (pi a)
+    assert rel(float(eb.loop_field(0.0, 0.0)), 2 * math.sqrt(2) * 7 * 0.01 / (math.pi * 0.04)) < 1e-9
+    # the antenna circuit is tuned to the 4.23 MHz up-link (section 3: resonance matched)
+    w = 2 * math.pi * 4.23e6
+    assert abs(w * w * 960e-9 * 1.474e-9 - 1.0) < 1e-3
+    assert float(eb.induced_emf(2e-9)) == pytest.approx(2 * float(eb.induced_emf(1e-9)))
+    assert eb.self_inductance() > 0
+
+
+@pytest.mark.parametrize("kmh", [200, 300, 400, 500, 600])
+def test_speed_limit_of_the_window_inverts_table4(kmh):
+    """A BTM whose sensitivity is Table 4's H_min(V) reads telegrams up to exactly V."""
+    v_max = eb.max_read_speed(SEED_TABLE4[kmh] * 1e-3)
+    assert rel(v_max * 3.6, kmh) < TOL
+    assert eb.max_read_speed(1.0) == 0.0                        # more than the balise can give
+
+
+def test_default_sensitivity_reads_long_telegrams_at_500_kmh():
+    p = {k: v.default for k, v in eb.PARAMS.items()}
+    v_max = eb.max_read_speed(p["read_threshold"], eb.telegram_time(p["telegram_bits"], p["bit_rate"]))
+    assert 500 / 3.6 < v_max < 600 / 3.6
+
+
+def test_telegram_ids_fit_float32_and_are_unique():
+    items = [{"id": "101", "position": 0.0}, {"id": "BG7a", "position": 1.0}, {"id": "BG7b", "position": 2.0},
+             {"id": "x", "position": 3.0, "nid": 4711}, {"id": "99999", "position": 4.0}]
+    ids = eb.telegram_ids(items)
+    assert ids["101"] == 101 and ids["x"] == 4711
+    assert len(set(ids.values())) == len(items)
+    for nid in ids.values():
+        assert 1 <= nid <= 16383 and float(np.float32(nid)) == nid
+    assert eb.telegram_ids(items) == ids                        # same track -> same ids
+    with pytest.raises(ValueError):
+        eb.telegram_ids([{"id": "1", "position": 0.0}, {"id": "a", "position": 1.0, "nid": 1}])
+
+
+def test_raw_rate_is_modest_and_resolves_the_peak_at_500_kmh():
+    sim = eb.EurobaliseSimulator.default_sample_rate
+    assert sim * len(eb.EurobaliseSimulator.channels) <= 20_000
+    half_width, _ = eb._half_max_geometry(0.2)
+    assert 2 * half_width / (500 / 3.6) * sim >= 8              # samples across the half-max width
+
+
+# ---------------------------------------------------------------- simulation
+
+def balise_track(length=6000.0):
+    return {"track_id": "EB", "length": length, "equipment": {"eurobalise": [
+        {"id": "101", "position": 900.0},
+        {"id": "A1", "position": 1500.0, "group": "A"},
+        {"id": "A2", "position": 1503.0, "group": "A"},
+        {"every": 25.0, "start": 2000.0, "end": 5000.0, "id": "EB{n:03d}"},
+    ]}}
+
+
+def scenario(v, duration, sensors=None, seed=11, track=None, start=None):
+    if start is None:
+        start = 850.0 if v > 0 else 5060.0
+    return Scenario.from_dict({
+        "name": "eb_test", "seed": seed, "duration": duration, "track": track or balise_track(),
+        "vehicle": {"type": "conventional", "length": 200.0},
+        "initial": {"position": start, "speed": v}, "profile": [{"speed": v, "hold": 1e4}],
+        "sensors": {NODE: sensors or {}},
+    })
+
+
+def run(sc, decode_track=None):
+    """Simulate and decode like run_offline, but keep going after rejected blocks."""
+    node_spec = spec(NODE)
+    params = sc.sensors.get(NODE, {})
+    pipe = SensorPipeline(node_spec, params, sc.track, sc.vehicle, sc.rng(NODE, node_spec.sensor))
+    if decode_track is not None:
+        pipe.decoder = node_spec.decoder(pipe.params, decode_track)
+    traj = sc.trajectory()
+    blocks, fixes, rejected = [], [], []
+    for k in range(int(sc.duration * sc.truth_rate) + 1):
+        for block in pipe.on_truth(traj.state_at(k / sc.truth_rate)):
+            blocks.append(block)
+            try:
+                fixes.extend(pipe.on_block(block))
+            except InputRejected as exc:
+                rejected.append(exc.reason)
+    return blocks, fixes, rejected, pipe, traj
+
+
+def passed(track, traj, offset=OFFSET, kind="eurobalise"):
+    """Ids of the balises the antenna passed completely (with a margin)."""
+    lo, hi = traj.position.min() - offset, traj.position.max() - offset
+    return [it["id"] for it in track.items(kind) if lo + 0.5 < it["position"] < hi - 0.5]
+
+
+@pytest.mark.parametrize("v", [3.0, 40.0, 500 / 3.6, -3.0, -40.0, -500 / 3.6])
+def test_fixes_match_truth_both_directions(v):
+    duration = min(25.0, 4300.0 / abs(v))
+    start = None if abs(v) > 10 else (2010.0 if v > 0 else 2100.0)
+    blocks, fixes, rejected, pipe, traj = run(scenario(v, duration, start=start))
+    assert not rejected
+    ids = passed(pipe.track, traj)
+    read = [f.reference_id for f in fixes]
+    assert len(ids) >= 3
+    # every balise passed is read (default error levels: a rare failed read is allowed)
+    assert set(read) <= set(ids) and len(read) >= len(ids) - max(1, len(ids) // 50)
+    assert pipe.decoder.stats["failed_reads"] == len(ids) - len(read)
+    assert len(read) == len(set(read))                          # one fix per passage
+    err = np.array([f.position - np.interp(f.stamp, traj.t, traj.position) for f in fixes])
+    sd = np.array([f.position_stddev for f in fixes])
+    assert np.all(sd < 1.0)                                     # ETCS +-1 m class
+    assert np.all(np.abs(err) < 4 * sd)
+    # each fix is the balise chainage + antenna offset
+    for f in fixes:
+        assert f.position == pytest.approx(pipe.track.item("eurobalise", f.reference_id)["position"] + OFFSET)
+    if len(fixes) >= 30:
+        z = err / sd
+        assert 0.5 < np.sqrt(np.mean(z * z)) < 1.5               # honest 1-sigma
+        assert np.mean(np.abs(z) <= 1.0) > 0.5
+
+
+@pytest.mark.parametrize("v", [60.0, -500 / 3.6])
+def test_peak_timing_alone_is_mm_accurate(v):
+    """Without the installation error the stamp of the field peak puts the fix within mm."""
+    duration = min(20.0, 4300.0 / abs(v))
+    _, fixes, rejected, pipe, traj = run(scenario(v, duration, {"location_sigma": 0.0},
+                                                  start=1990.0 if v > 0 else None))
+    assert not rejected and len(fixes) >= 20
+    err = np.array([f.position - np.interp(f.stamp, traj.t, traj.position) for f in fixes])
+    sd = np.array([f.position_stddev for f in fixes])
+    assert np.max(np.abs(err)) < 0.01
+    assert np.all(np.abs(err) < 4 * sd)
+    assert np.sqrt(np.mean((err / sd) ** 2)) < 1.5
+
+
+@pytest.mark.parametrize("v", [30.0, -30.0])
+def test_direction_from_balise_group(v):
+    sc = scenario(v, 3.0, start=1480.0 if v > 0 else 1530.0)
+    _, fixes, rejected, pipe, _ = run(sc)
+    by_id = {f.reference_id: f for f in fixes}
+    first, second = ("A1", "A2") if v > 0 else ("A2", "A1")
+    assert by_id[first].direction == 0                          # a single balise gives none
+    assert by_id[second].direction == (1 if v > 0 else -1)      # the second of the group does
+    assert all(f.direction == 0 for f in fixes if f.reference_id not in ("A1", "A2"))
+
+
+def test_failed_reads_above_the_speed_limit_of_the_window():
+    """With Table 4's H_min(500 km/h) as sensitivity the window fits one 1023-bit telegram up
+    to 500 km/h: below it every balise is read, above it none, each counted as failed."""
+    sens = {"read_threshold": SEED_TABLE4[500] * 1e-3, "field_sigma": 0.0, "telegram_error_rate": 0.0}
+    v_max = eb.max_read_speed(SEED_TABLE4[500] * 1e-3)
+    for factor, readable in ((0.97, True), (1.03, False)):
+        for sign in (1, -1):
+            v = sign * factor * v_max
+            _, fixes, rejected, pipe, traj = run(scenario(v, 4300.0 / abs(v), sens))
+            ids = passed(pipe.track, traj)
+            st = pipe.decoder.stats
+            assert st["passages"] == len(ids) and not rejected
+            if readable:
+                assert len(fixes) == len(ids) and st["failed_reads"] == 0
+            else:
+                assert not fixes and st["failed_reads"] == len(ids)
+    # the short telegram (341 bit) fits at 1.03 x that speed
+    _, fixes, _, pipe, traj = run(scenario(1.03 * v_max, 10.0, {**sens, "telegram_bits": 341}))
+    assert len(fixes) == len(passed(pipe.track, traj)) > 5
+
+
+def test_corrupt_telegrams_are_failed_reads():
+    _, fixes, rejected, pipe, traj = run(scenario(50.0, 20.0, {"telegram_error_rate": 1.0}, start=1990.0))
+    assert not fixes and not rejected
+    assert pipe.decoder.stats["failed_reads"] == len(passed(pipe.track, traj)) > 10
+
+
+def test_unknown_balise_is_rejected():
+    sc = scenario(50.0, 8.0, start=880.0)
+    other = Track.from_dict({"track_id": "EB", "length": 6000.0,
+                             "equipment": {"eurobalise": [{"id": "102", "position": 900.0}]}})
+    _, fixes, rejected, pipe, _ = run(sc, decode_track=other)
+    assert rejected and set(rejected) == {"unknown_id"}
+    assert pipe.rejected["unknown_id"] == len(rejected) == pipe.decoder.stats["unknown_id"]
+    assert not fixes
+
+
+def _block(field, telegram, seq=0, t0=0.0, fs=5000.0):
+    data = np.column_stack([field, telegram])
+    return RawBlock.from_samples("eurobalise", "eurobalise", seq, t0, fs, eb.EurobaliseSimulator.channels,
+                                 eb.EurobaliseSimulator.units, data)
+
+
+def test_hand_made_blocks_unknown_id_and_implausible():
+    track = Track.from_dict(balise_track())
+    params = {k: v.default for k, v in eb.PARAMS.items()}
+    dec = eb.EurobaliseDecoder(params, track)
+    x = (np.arange(250) - 125) * 0.02                         # 100 m/s past a balise
+    field = eb.loop_field(x)
+    tel = np.zeros(250)
+    tel[131] = 9999                                            # a 14-bit id no balise has
+    with pytest.raises(InputRejected) as exc:
+        dec.decode(_block(field, tel))
+    assert exc.value.reason == "unknown_id"
+    tel[131] = 101
+    fixes = eb.EurobaliseDecoder(params, track).decode(_block(field, tel))
+    assert len(fixes) == 1 and fixes[0].reference_id == "101"
+    assert fixes[0].stamp == pytest.approx(125 / 5000.0, abs=1e-5)
+    for bad_field, bad_tel in ((field * 100.0, tel), (field - 0.01, tel), (field, tel + 0.5),
+                               (field, tel + 20000)):
+        with pytest.raises(InputRejected) as exc:
+            eb.EurobaliseDecoder(params, track).decode(_block(bad_field, bad_tel))
+        assert exc.value.reason == "implausible"
+
+
+def test_deterministic_given_the_seed():
+    a, _, _ = run_offline(NODE, scenario(80.0, 3.0, start=1480.0))
+    b, _, _ = run_offline(NODE, scenario(80.0, 3.0, start=1480.0))
+    c, _, _ = run_offline(NODE, scenario(80.0, 3.0, start=1480.0, seed=12))
+    assert len(a) == len(b) and all(np.array_equal(x.data, y.data) for x, y in zip(a, b))
+    assert not all(np.array_equal(x.data, y.data) for x, y in zip(a, c))
+    tel = np.concatenate([blk.channel("telegram") for blk in a])
+    nid = eb.telegram_ids(Track.from_dict(balise_track()).items("eurobalise"))
+    assert sorted(np.unique(tel)) == [0.0, *sorted([nid["A1"], nid["A2"]])]   # each id once, exact
+    assert np.count_nonzero(tel) == 2
+
+
+def test_decoder_throughput_at_500_kmh():
+    sc = scenario(500 / 3.6, 10.0, start=1900.0)
+    blocks, _, _ = run_offline(NODE, sc)
+    params = {k: v.default for k, v in eb.PARAMS.items()}
+    dec = eb.EurobaliseDecoder(params, sc.track)
+    start = time.perf_counter()
+    n = sum(len(dec.decode(b)) for b in blocks)
+    elapsed = time.perf_counter() - start
+    covered = sum(b.duration for b in blocks)
+    assert n > 50
+    assert covered / elapsed >= 10.0

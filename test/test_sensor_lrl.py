@@ -1,0 +1,281 @@
+"""INKREFA LRL scanner (seed 002 sections 2.2.1 / 3.1, seed 000 section 2.1.2): 4-bit lugs
+read in single scan (P1..P4 + D0) and continuous scan (N1..N4 + D1), groups of lugs, direction
+from the channel order, 4 redundant sensors with majority vote; speeds up to 500 km/h in both
+directions; misreads detected; unknown codes rejected; fixes within their stddev of truth."""
+import time
+
+import numpy as np
+import pytest
+
+from train_localization.core.pipeline import SensorPipeline, run_offline
+from train_localization.core.scenario import Scenario
+from train_localization.core.sensors import lrl, spec
+from train_localization.core.signals import InputRejected, RawBlock
+from train_localization.core.track import Track
+
+NODE = "lrl_scanner"
+OFFSET = lrl.PARAMS["sensor_offset"].default
+V500 = 500 / 3.6
+MODES = ("single", "continuous")
+
+# codes pairwise >= 2 bits apart, with asymmetric patterns (a reversed read would differ)
+GROUPS = [
+    {"id": "G1", "position": 1000.0, "code": [3, 12, 7]},
+    {"id": "G2", "position": 1040.0, "code": [9, 0, 14], "spacing": 4.0},
+    {"id": "G3", "position": 1100.0, "code": [1, 8, 6]},
+    {"id": "G4", "position": 1160.0, "code": [15, 5, 10]},
+    {"every": 100.0, "start": 1300.0, "end": 5000.0, "id": "LRL{n:03d}"},
+]
+
+
+def track(groups=None, length=6000.0):
+    return {"track_id": "MAG", "length": length, "equipment": {"lrl_group": groups or GROUPS}}
+
+
+def scenario(v, duration, sensors=None, seed=5, start=None, groups=None, profile=None):
+    if start is None:
+        start = 995.0 if v > 0 else 5030.0
+    return Scenario.from_dict({
+        "name": "lrl_test", "seed": seed, "duration": duration, "track": track(groups),
+        "vehicle": {"type": "maglev", "length": 50.0, "axles": []},
+        "initial": {"position": start, "speed": v},
+        "profile": profile or [{"speed": v, "hold": 1e4}],
+        "sensors": {NODE: sensors or {}},
+    })
+
+
+def run(sc, decode_track=None):
+    """Simulate and decode like run_offline, but keep going after rejected blocks."""
+    node_spec = spec(NODE)
+    params = sc.sensors.get(NODE, {})
+    pipe = SensorPipeline(node_spec, params, sc.track, sc.vehicle, sc.rng(NODE, node_spec.sensor))
+    if decode_track is not None:
+        pipe.decoder = node_spec.decoder(pipe.params, decode_track)
+    traj = sc.trajectory()
+    blocks, fixes, rejected = [], [], []
+    for k in range(int(sc.duration * sc.truth_rate) + 1):
+        for block in pipe.on_truth(traj.state_at(k / sc.truth_rate)):
+            blocks.append(block)
+            try:
+                fixes.extend(pipe.on_block(block))
+            except InputRejected as exc:
+                rejected.append(exc.reason)
+    return blocks, fixes, rejected, pipe, traj
+
+
+def passed_groups(tr, traj, params=None):
+    """Ids of the groups whose lugs the sensor passed completely (travel order)."""
+    p = {k: v.default for k, v in lrl.PARAMS.items()} | (params or {})
+    s = traj.position - OFFSET
+    out = []
+    for item, code, spacing in lrl.track_groups(tr, p):
+        first, last = item["position"] - 1.2, item["position"] + (len(code) - 1) * spacing + 1.2
+        if s.min() < first and s.max() > last:
+            out.append(item["id"])
+    return out
+
+
+def errors(fixes, traj):
+    err = np.array([f.position - np.interp(f.stamp, traj.t, traj.position) for f in fixes])
+    sd = np.array([f.position_stddev for f in fixes])
+    return err, sd
+
+
+# ---------------------------------------------------------------- geometry and codes
+
+def test_group_codes():
+    assert lrl.group_code({"id": "x", "code": [3, 12, 7]}) == (3, 12, 7)
+    assert lrl.nibble_bits(0b1010) == (1, 0, 1, 0)
+    # generated entries: the number of the id, scrambled bijectively, in 3 nibbles
+    codes = {lrl.group_code({"id": f"LRL{n:03d}"}, 3) for n in range(4096)}
+    assert len(codes) == 4096 and all(len(c) == 3 and all(0 <= x <= 15 for x in c) for c in codes)
+    assert len(lrl.group_code({"id": "LRL7", "lugs": 4})) == 4
+    with pytest.raises(ValueError):
+        lrl.group_code({"id": "bad", "code": [3, 16]})
+    with pytest.raises(ValueError):
+        lrl.track_groups(Track.from_dict(track([{"id": "g", "position": 10.0, "code": [1, 2],
+                                                 "spacing": 1.0}])), {"lugs_per_group": 3, "lug_spacing": 3.0})
+
+
+def test_channel_geometry_and_raw_rate():
+    """N4 leads N3, N2, N1 along the track (seed 002 Fig. 7: N4 reaches the lug first); D1 is
+    over cell 0 when N4 is over the sync tab; 5 channels per sensor, 4 sensors, <= 20 k/s."""
+    p = lrl.PARAMS["bit_pitch"].default
+    o = lrl.channel_offsets("continuous", p)
+    assert list(np.argsort(-o[:4])) == [3, 2, 1, 0]               # N4 first moving forwards
+    assert np.allclose(-o[3], (0 - 1.5) * p)                      # N4 on the tab -> D1 on cell 0
+    fs = lrl.LrlSimulator.default_sample_rate
+    n = lrl.PARAMS["n_sensors"].default
+    assert n == 4 and 5 * n * fs <= 20_000
+    assert p / (V500 / fs) >= 2.5                                 # samples per data cell at 500 km/h
+    assert 0.4 / (V500 / fs) >= 2.5                               # samples per single-scan hole
+    assert len(lrl._channels("single", 4)) == 20 and lrl._channels("single", 1)[-1] == "s0_D0"
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_simulated_levels_follow_the_lug(mode):
+    """The receive level drops from ~1 to ~0 where the lug has conductive material."""
+    sc = scenario(2.0, 5.0, {"scan_mode": mode, "level_noise": 0.0, "gain_sigma": 0.0,
+                             "misread_probability": 0.0, "install_sigma": 0.0}, start=1000.0)
+    blocks, _, _ = run_offline(NODE, sc)
+    data = np.vstack([b.data for b in blocks])
+    assert data.max() <= 1.0 + 1e-6 and data.min() >= 0.05 - 1e-6
+    names = blocks[0].channels
+    traj = sc.trajectory()
+    t = np.concatenate([b.times() for b in blocks])
+    ref = np.interp(t, traj.t, traj.position) - OFFSET - 1000.0     # sensor vs lug 0 of G1
+    sync = names.index("s0_D0" if mode == "single" else "s0_N4")
+    o = lrl.channel_offsets(mode, lrl.PARAMS["bit_pitch"].default)[4 if mode == "single" else 3]
+    lugs = np.array([it["position"] + k * sp - 1000.0 for it, code, sp in
+                     lrl.track_groups(sc.track, {"lugs_per_group": 3, "lug_spacing": 3.0})
+                     for k in range(len(code))])
+    near = np.min(np.abs(ref[:, None] - lugs[None, :]), axis=1)
+    on_tab = np.abs(ref + o) < 0.15
+    assert on_tab.sum() > 50 and np.all(data[on_tab, sync] < 0.1)
+    assert np.all(data[near > 1.3] > 0.99)                         # no lug: every channel clear
+
+
+# ---------------------------------------------------------------- decoding
+
+@pytest.mark.parametrize("mode", MODES)
+@pytest.mark.parametrize("v", [0.5, 8.0, 40.0, 90.0, V500, -0.5, -40.0, -V500])
+def test_codes_decoded_both_modes_both_directions(mode, v):
+    if abs(v) < 1.0:
+        start, duration = (998.0, 22.0) if v > 0 else (1010.0, 22.0)
+    else:
+        start, duration = None, min(20.0, 3900.0 / abs(v))
+    sc = scenario(v, duration, {"scan_mode": mode}, start=start)
+    _, fixes, rejected, pipe, traj = run(sc)
+    expected = passed_groups(sc.track, traj)[::1 if v > 0 else -1]
+    assert len(expected) >= 1
+    assert not rejected
+    assert [f.reference_id for f in fixes] == expected            # every group, in travel order
+    st = pipe.decoder.stats
+    assert st["sensor_invalid"] == 0 and st["unresolved_lugs"] == 0
+    assert all(f.direction == (1 if v > 0 else -1) for f in fixes)
+    err, sd = errors(fixes, traj)
+    assert np.all(np.abs(err) < 3.5 * sd)
+    assert np.all(sd < 0.05)
+    # the fix is the chainage of the lug read last (+ offset): last lug forwards, first backwards
+    for f in fixes:
+        item, code, spacing = next(g for g in lrl.track_groups(sc.track, pipe.params) if g[0]["id"] == f.reference_id)
+        lug = item["position"] + ((len(code) - 1) * spacing if v > 0 else 0.0)
+        assert f.position == pytest.approx(lug + OFFSET)
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_stddev_is_honest_at_speed(mode):
+    err_all, sd_all = [], []
+    for v in (60.0, V500, -V500):
+        sc = scenario(v, min(20.0, 3900.0 / abs(v)), {"scan_mode": mode}, seed=9)
+        _, fixes, rejected, _, traj = run(sc)
+        assert not rejected
+        err, sd = errors(fixes, traj)
+        err_all.append(err)
+        sd_all.append(sd)
+    z = np.concatenate(err_all) / np.concatenate(sd_all)
+    assert len(z) >= 60
+    assert 0.4 < np.sqrt(np.mean(z * z)) < 1.3
+    assert np.mean(np.abs(z) <= 1.0) > 0.55
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_accelerating_and_reversing_over_groups(mode):
+    """Start from standstill next to a group, run over two groups, stop, come back: direction
+    follows the motion, the lug order is reversed to the track's order backwards."""
+    profile = [{"speed": 12.0, "accel": 1.0, "decel": 1.0, "jerk": 2.0, "hold": 3.0},
+               {"speed": -12.0, "accel": 1.0, "decel": 1.0, "jerk": 2.0, "hold": 100.0}]
+    sc = scenario(0.0, 65.0, {"scan_mode": mode}, start=1000.3, profile=profile)
+    _, fixes, rejected, pipe, traj = run(sc)
+    assert not rejected
+    got = [(f.reference_id, f.direction) for f in fixes]
+    assert got[:2] == [("G1", 1), ("G2", 1)]
+    assert ("G2", -1) in got and ("G1", -1) in got
+    assert got.index(("G1", -1)) > got.index(("G2", -1))
+    err, sd = errors(fixes, traj)
+    assert np.all(np.abs(err) < 3.5 * sd)
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_misreads_detected_and_outvoted(mode):
+    sc = scenario(80.0, 3900.0 / 80.0, {"scan_mode": mode, "misread_probability": 0.15}, seed=3)
+    _, fixes, rejected, pipe, traj = run(sc)
+    st = pipe.decoder.stats
+    expected = passed_groups(sc.track, traj)
+    assert st["sensor_disagreements"] > 10                        # misreads are seen ...
+    assert not rejected                                           # ... and never become a code
+    ids = [f.reference_id for f in fixes]
+    assert set(ids) <= set(expected) and len(ids) == len(set(ids))
+    assert len(ids) + st["unresolved_lugs"] >= len(expected)      # a lost group has an unresolved lug
+    assert len(ids) >= 0.8 * len(expected)
+    err, sd = errors(fixes, traj)
+    assert np.all(np.abs(err) < 3.5 * sd)
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_single_sensor_misreads_give_unknown_codes(mode):
+    """Without redundancy a misread lug yields a code that is not in the track."""
+    sc = scenario(50.0, 4.0, {"scan_mode": mode, "n_sensors": 1, "misread_probability": 1.0},
+                  groups=GROUPS[:4])
+    _, fixes, rejected, pipe, traj = run(sc)
+    n = len(passed_groups(sc.track, traj))
+    assert n == 4 and not fixes
+    assert rejected == ["unknown_id"] * n and pipe.decoder.stats["unknown_id"] == n
+
+
+def test_unknown_group_is_rejected():
+    sc = scenario(30.0, 1.0, start=995.0)
+    other = Track.from_dict(track([{"id": "X", "position": 1000.0, "code": [3, 12, 6]}]))
+    _, fixes, rejected, pipe, _ = run(sc, decode_track=other)
+    assert not fixes and rejected == ["unknown_id"]
+    assert pipe.rejected["unknown_id"] == 1
+
+
+def test_implausible_and_wrong_layout_blocks():
+    tr = Track.from_dict(track())
+    params = {k: v.default for k, v in lrl.PARAMS.items()}
+    dec = lrl.LrlDecoder(params, tr)
+    chans = lrl._channels("single", 4)
+    good = np.ones((50, 20))
+
+    def block(data, channels=chans, seq=0):
+        return RawBlock.from_samples("lrl", "lrl", seq, 0.0, 1000.0, channels, ("1",) * len(channels), data)
+    assert dec.decode(block(good)) == []
+    with pytest.raises(InputRejected) as exc:
+        dec.decode(block(good * 50.0, seq=1))
+    assert exc.value.reason == "implausible"
+    with pytest.raises(InputRejected) as exc:
+        dec.decode(block(good, lrl._channels("continuous", 4), seq=2))
+    assert exc.value.reason == "channels"
+    with pytest.raises(ValueError):
+        lrl.LrlDecoder({**params, "scan_mode": "diagonal"}, tr)
+
+
+def test_generated_groups_from_yaml_form():
+    sc = scenario(100.0, 12.0, start=1290.0)
+    _, fixes, rejected, pipe, traj = run(sc)
+    assert not rejected
+    assert [f.reference_id for f in fixes] == passed_groups(sc.track, traj)
+    assert all(f.reference_id.startswith("LRL") for f in fixes) and len(fixes) >= 9
+
+
+def test_deterministic_given_the_seed():
+    a, _, _ = run_offline(NODE, scenario(40.0, 1.0))
+    b, _, _ = run_offline(NODE, scenario(40.0, 1.0))
+    c, _, _ = run_offline(NODE, scenario(40.0, 1.0, seed=6))
+    assert len(a) == len(b) == 20
+    assert all(np.array_equal(x.data, y.data) for x, y in zip(a, b))
+    assert not all(np.array_equal(x.data, y.data) for x, y in zip(a, c))
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_decoder_throughput_at_500_kmh(mode):
+    sc = scenario(V500, 8.0, {"scan_mode": mode})
+    blocks, _, _ = run_offline(NODE, sc)
+    params = {k: v.default for k, v in lrl.PARAMS.items()} | {"scan_mode": mode}
+    dec = lrl.LrlDecoder(params, sc.track)
+    start = time.perf_counter()
+    n = sum(len(dec.decode(b)) for b in blocks)
+    elapsed = time.perf_counter() - start
+    assert n >= 9
+    assert sum(b.duration for b in blocks) / elapsed >= 10.0

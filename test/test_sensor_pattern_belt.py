@@ -1,0 +1,336 @@
+"""HSST pattern belt (seeds 000 2.2.1, 002 2.1.1, 003): loop field, Schmitt/6-state decoder."""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from train_localization.core.measurements import DistanceIncrement
+from train_localization.core.pipeline import SensorPipeline, run_offline
+from train_localization.core.scenario import Scenario
+from train_localization.core.sensors import spec
+from train_localization.core.sensors.base import resolve_params
+from train_localization.core.sensors.pattern_belt import (PARAMS, SPEC, PatternBeltDecoder, belt_sections,
+                                                          envelope_profile, half_duty_level, rectangle_bz,
+                                                          resolvable_speed)
+from train_localization.core.signals import InputRejected, RawBlock
+from train_localization.core.track import Track
+
+NODE = "pattern_belt"
+P_HSST = 0.6
+
+
+def scenario(profile, duration, sensors=None, seed=7, v0=0.0, s0=200.0, equipment=None, length=20000.0):
+    return Scenario.from_dict({
+        "name": "belt_test", "seed": seed, "duration": duration,
+        "track": {"track_id": "G1", "length": length, "equipment": equipment or {}},
+        "vehicle": {"type": "maglev", "length": 30.0},
+        "initial": {"position": s0, "speed": v0}, "profile": profile,
+        "sensors": {NODE: dict(sensors or {})},
+    })
+
+
+def seed003_params(**extra):
+    """Seed 003's rotating-disc unit: 21 cm period, plain (uncrossed) widened/narrowed loop."""
+    p = {"period": 0.21, "loop_width": 0.06, "gap": 0.015, "gap_sigma": 0.001, "crossed": False,
+         "max_speed": 100 / 3.6, **extra}
+    level = half_duty_level(resolve_params(PARAMS, p))
+    p.update(threshold_on=level + 0.05, threshold_off=level - 0.05)
+    return p
+
+
+def drive(scen, params=None):
+    """Like run_offline but counting rejected blocks instead of stopping at the first."""
+    sp = spec(NODE)
+    overrides = {**scen.sensors.get(NODE, {}), **(params or {})}
+    pipe = SensorPipeline(sp, overrides, scen.track, scen.vehicle, scen.rng(NODE, sp.sensor))
+    traj = scen.trajectory()
+    out, rejected = [], []
+    for k in range(int(scen.duration * scen.truth_rate) + 1):
+        for block in pipe.on_truth(traj.state_at(k / scen.truth_rate)):
+            try:
+                out.extend(pipe.on_block(block))
+            except InputRejected as exc:
+                rejected.append((block.t0, exc.reason))
+    return out, rejected, pipe
+
+
+def truth_of(scen, ms):
+    traj = scen.trajectory()
+    stamp = np.array([m.stamp for m in ms])
+    dur = np.array([m.duration for m in ms])
+    d_true = np.interp(stamp, traj.t, traj.position) - np.interp(stamp - dur, traj.t, traj.position)
+    return stamp, dur, d_true, d_true / dur
+
+
+def arrays(ms):
+    return (np.array([m.distance for m in ms]), np.array([m.distance_stddev for m in ms]),
+            np.array([m.speed for m in ms]), np.array([m.speed_stddev for m in ms]))
+
+
+def hysteresis_lag(params) -> float:
+    """Distance [m] by which a switching point lags behind the mid-threshold crossing."""
+    x, env = envelope_profile(params)
+    slope = np.max(np.abs(np.gradient(env * params["peak_voltage"], x)))
+    return 0.5 * (params["threshold_on"] - params["threshold_off"]) / slope
+
+
+def test_spec_and_registry():
+    assert SPEC.node == "pattern_belt" and SPEC.sensor == "pattern_belt"
+    assert spec(NODE) is SPEC
+    assert set(SPEC.seeds) == {"000", "002", "003"}
+    assert SPEC.simulator.default_sample_rate * 3 <= 20_000
+
+
+def test_biot_savart_rectangle_matches_closed_forms():
+    a = 0.1
+    # centre of a square loop in its plane: B = 2 sqrt(2) mu0 I / (pi a) = mu0 I / 4 pi * 8 sqrt(2) / a
+    assert rectangle_bz(0.0, 0.0, 1e-9, 0.0, a / 2, a / 2) == pytest.approx(8 * math.sqrt(2) / a, rel=1e-9)
+    # on the axis at height z: B = mu0 I a^2 / (2 pi (z^2 + a^2/4) sqrt(z^2 + a^2/2))
+    z = 0.04
+    expect = 2 * a * a / ((z * z + a * a / 4) * math.sqrt(z * z + a * a / 2))
+    assert rectangle_bz(0.0, 0.0, z, 0.0, a / 2, a / 2) == pytest.approx(expect, rel=1e-9)
+    # far away the field of a small loop falls off like a dipole (1/r^3)
+    b1 = rectangle_bz(1.0, 0.0, 0.01, 0.0, 0.01, 0.01)
+    b2 = rectangle_bz(2.0, 0.0, 0.01, 0.0, 0.01, 0.01)
+    assert b1 / b2 == pytest.approx(8.0, rel=0.01)
+
+
+def test_envelope_of_the_crossed_loop():
+    p = resolve_params(PARAMS, {})
+    x, env = envelope_profile(p)
+    # maximum over the middle of a wide part, zero over the middle of a narrow part
+    assert x[np.argmax(env)] == pytest.approx(0.25 * P_HSST, abs=0.005)
+    assert env[np.argmin(np.abs(x - 0.75 * P_HSST))] < 1e-6
+    # high (above the half-duty level) for half a period centred on the wide part
+    level = half_duty_level(p) / p["peak_voltage"]
+    high = x[env > level]
+    assert high.min() == pytest.approx(0.0, abs=0.01) and high.max() == pytest.approx(0.3, abs=0.01)
+    # the default Schmitt thresholds straddle that level (even p/6 states)
+    assert p["threshold_off"] < half_duty_level(p) < p["threshold_on"]
+    assert 0.5 * (p["threshold_on"] + p["threshold_off"]) == pytest.approx(half_duty_level(p), abs=0.01)
+    # a larger gap weakens the coupling
+    _, env_far = envelope_profile(p, gap=0.06)
+    assert envelope_profile(p, gap=0.06)[1].max() == 1.0 and env_far.min() < 1e-6
+
+
+def test_raw_channels_are_three_coils_120_degrees_apart():
+    v = 5.0
+    scen = scenario([{"speed": v, "hold": 10}], 1.2, {"noise": 0.0, "gap_sigma": 0.0, "gain_mismatch": 0.0,
+                                                       "detector_offset": 0.0, "spacing_error": 0.0}, v0=v)
+    blocks, _, _ = run_offline(NODE, scen)
+    data = np.concatenate([b.data for b in blocks]).astype(float)[10:]   # after the detector settles
+    fs = blocks[0].sample_rate
+    assert data.max() == pytest.approx(2.0, abs=0.02)     # peak_voltage at the nominal gap
+    # coil 2 sees what coil 1 saw p/3 of travel earlier
+    lag = int(round(P_HSST / 3 / v * fs))
+    assert np.abs(data[lag:, 1] - data[:-lag, 0]).max() < 0.03
+    assert np.abs(data[lag:, 2] - data[:-lag, 1]).max() < 0.03
+    # and the envelope repeats every period
+    per = int(round(P_HSST / v * fs))
+    assert np.abs(data[per:, 0] - data[:-per, 0]).max() < 0.03
+
+
+IDEAL = {"noise": 0.0, "gap_sigma": 0.0, "gain_mismatch": 0.0, "detector_offset": 0.0, "spacing_error": 0.0,
+         "detector_bandwidth": 1e6}
+
+
+def test_ideal_device_error_is_bounded_by_one_step_plus_hysteresis():
+    prof = [{"speed": 8.0, "accel": 1.0, "hold": 2.0}, {"speed": -3.0, "decel": 1.0, "accel": 0.6, "hold": 2.0},
+            {"speed": 0.0, "hold": 1.0}]
+    scen = scenario(prof, 36.0, IDEAL)
+    _, ms, pipe = run_offline(NODE, scen)
+    assert not pipe.rejected
+    _, _, d_true, v_true = truth_of(scen, ms)
+    d = np.array([m.distance for m in ms])
+    err = np.cumsum(d) - np.cumsum(d_true)
+    lag = hysteresis_lag(resolve_params(PARAMS, IDEAL))
+    assert 0.004 < lag < 0.01
+    assert (v_true < -2.5).any()
+    # one step of quantisation; the Schmitt hysteresis moves the switching points by
+    # +-lag depending on the direction of travel; a switch is seen at the next sample
+    v_max = np.abs(v_true).max()
+    assert err.max() - err.min() <= P_HSST / 6 + 2 * lag + v_max / 2000.0
+    assert err.max() - err.min() > P_HSST / 6 - 0.01
+
+
+def test_resolution_is_p_over_6_and_error_bounded_with_reversal():
+    prof = [{"speed": 20.0, "accel": 1.0, "hold": 3.0}, {"speed": -4.0, "decel": 1.0, "accel": 0.6, "hold": 2.0},
+            {"speed": 0.0, "hold": 3.0}]
+    scen = scenario(prof, 68.0)
+    _, ms, pipe = run_offline(NODE, scen)
+    assert not pipe.rejected and pipe.decoder.stats["illegal_transitions"] == 0
+    assert all(isinstance(m, DistanceIncrement) for m in ms)
+    stamp, dur, d_true, v_true = truth_of(scen, ms)
+    d, ds, v, vs = arrays(ms)
+    step = P_HSST / 6
+    # every increment is a whole number of 10 cm steps (HSST: 1/6 of the 60 cm period)
+    assert np.allclose(d / step, np.round(d / step), atol=1e-9)
+    assert np.abs(np.diff(np.unique(np.round(d / step)))).min() == 1
+    # cumulative distance vs truth: within one step, + the hysteresis lag on each side and
+    # the scatter of the switching points (gap, gain mismatch, noise: transition_jitter)
+    err = np.cumsum(d) - (np.cumsum(d_true))
+    p = resolve_params(PARAMS, {})
+    bound = step + 2 * hysteresis_lag(p) + 4 * p["transition_jitter"]
+    assert err.max() - err.min() <= bound
+    assert err.max() - err.min() > 0.7 * step     # and not finer than p/6
+    # both directions, incl. the reversal (below 2 m/s a 50 ms block may hold no 10 cm step)
+    moving = np.abs(v_true) > 1.0
+    assert np.all(d[moving] * v_true[moving] >= 0.0)
+    assert np.all(np.sign(d[np.abs(v_true) > 2.0]) == np.sign(v_true[np.abs(v_true) > 2.0]))
+    assert np.all(np.sign(v[moving]) == np.sign(v_true[moving]))
+    assert (v_true < -3.5).any()
+    # stddevs are honest
+    assert np.mean(np.abs((d - d_true) / ds) < 3) > 0.99
+    assert np.mean(np.abs((v - v_true) / vs) < 3) > 0.98
+    # at standstill: no steps, zero speed with a stddev shrinking with the time since the last step
+    still = np.abs(v_true) < 1e-3
+    assert still.sum() > 20 and np.all(d[still] == 0.0) and np.all(v[still] == 0.0)
+    assert vs[still][-1] < vs[still][0] and vs[still][-1] < 0.05
+
+
+@pytest.mark.parametrize("kmh", [110.0, 500.0])
+def test_hsst_belt_high_speed(kmh):
+    v0 = kmh / 3.6
+    assert resolvable_speed(SPEC.simulator.default_sample_rate, P_HSST) > v0
+    scen = scenario([{"speed": v0, "hold": 10.0}], 3.0, v0=v0)
+    _, ms, pipe = run_offline(NODE, scen)
+    assert not pipe.rejected and pipe.decoder.stats["illegal_transitions"] == 0
+    stamp, dur, d_true, v_true = truth_of(scen, ms)
+    d, ds, v, vs = arrays(ms)
+    assert np.abs(np.cumsum(d) - np.cumsum(d_true)).max() < P_HSST / 6 + 0.03
+    assert np.abs(v - v_true).max() < 0.015 * v0
+    assert np.mean(np.abs((v - v_true) / vs) < 3) > 0.95
+
+
+def test_seed003_unit_21cm_period_at_100_kmh_and_over_speed():
+    v0 = 100 / 3.6                       # seed 003: up to 500 rpm = 100 km/h
+    prm = seed003_params()
+    assert resolvable_speed(SPEC.simulator.default_sample_rate, 0.21) > v0
+    scen = scenario([{"speed": v0, "hold": 10.0}], 3.0, prm, v0=v0)
+    ms, rejected, pipe = drive(scen)
+    assert not rejected and pipe.decoder.stats["illegal_transitions"] == 0
+    stamp, dur, d_true, v_true = truth_of(scen, ms)
+    d, _, v, _ = arrays(ms)
+    assert np.allclose(d / 0.035, np.round(d / 0.035), atol=1e-9)   # 3.5 cm steps
+    err = np.cumsum(d) - np.cumsum(d_true)
+    assert err.max() - err.min() <= 0.035 + 2 * hysteresis_lag(resolve_params(PARAMS, prm)) + 0.005
+    assert np.abs(v - v_true).max() < 0.03 * v0
+    # far beyond the sampling limit (2 kHz x 3.5 cm = 70 m/s) states are skipped: blocks rejected
+    scen = scenario([{"speed": 90.0, "hold": 10.0}], 1.0, prm, v0=90.0)
+    ms, rejected, _ = drive(scen)
+    assert len(rejected) > 15 and {r for _, r in rejected} == {"implausible"}
+
+
+def test_belt_sections_from_track_equipment():
+    eq = {"pattern_belt": [{"id": "PB1", "position": 300.0, "end": 400.0},
+                           {"id": "PB2", "position": 420.0, "length": 100.0}]}
+    assert belt_sections(Track.from_dict({"track_id": "x", "length": 1000.0, "equipment": eq}), 0.6).tolist() == \
+        [[300.0, 400.0, 0.6], [420.0, 520.0, 0.6]]
+    assert belt_sections(Track("x", 1000.0), 0.6).tolist() == [[0.0, 1000.0, 0.6]]
+    scen = scenario([{"speed": 10.0, "accel": 1.0, "hold": 30.0}], 30.0, v0=10.0, s0=290.0, equipment=eq)
+    ms, rejected, pipe = drive(scen)
+    assert not rejected
+    traj = scen.trajectory()
+    stamp, dur, d_true, _ = truth_of(scen, ms)
+    coil1 = np.interp(stamp, traj.t, traj.position) - PARAMS["antenna_offset"].default
+    coil3_start = np.interp(stamp - dur, traj.t, traj.position) - PARAMS["antenna_offset"].default - 0.4
+    # increments only while a coil is over a belt
+    on = ((coil1 > 300.0) & (coil3_start < 400.0)) | ((coil1 > 420.0) & (coil3_start < 520.0))
+    assert np.all(on)
+    assert not np.any((coil3_start > 400.5) & (coil1 < 419.5))
+    # each belt counted over its full length, to a step
+    d = np.array([m.distance for m in ms])
+    first = coil1 < 410.0
+    assert d[first].sum() == pytest.approx(100.0, abs=0.25)
+    assert d[~first].sum() == pytest.approx(100.0, abs=0.25)
+    assert pipe.decoder.stats["no_belt_samples"] > 0
+
+
+def test_installed_period_differs_from_nominal():
+    eq = {"pattern_belt": [{"id": "PB1", "position": 0.0, "end": 5000.0, "period": 0.6006}]}
+    scen = scenario([{"speed": 15.0, "hold": 20.0}], 12.0, v0=15.0, equipment=eq)
+    _, ms, _ = run_offline(NODE, scen)
+    _, _, d_true, _ = truth_of(scen, ms)
+    d = np.array([m.distance for m in ms])
+    assert d.sum() / d_true.sum() == pytest.approx(1 / 1.001, abs=2e-4)
+
+
+def _block(data, t0=0.0, seq=0):
+    return RawBlock.from_samples("pattern_belt", "pattern_belt", seq, t0, 2000.0, ("coil_1", "coil_2", "coil_3"),
+                                 ("V", "V", "V"), data)
+
+
+def _synthetic_envelopes(phase):
+    """Ideal square envelopes of the 3 coils for pattern phases (fraction of p) of coil 1."""
+    out = np.empty((len(phase), 3))
+    for k in range(3):
+        out[:, k] = np.where(np.mod(phase - k / 3, 1.0) < 0.5, 2.0, 0.1)
+    return out
+
+
+def test_decoder_counts_exact_states_and_direction_on_synthetic_blocks():
+    # forwards 2 periods + 1 state, back 4 states, each state held 5 samples
+    states = np.concatenate([np.arange(0, 13), np.arange(11, 7, -1)])
+    phase = (np.repeat(states, 5) + 0.5) / 6
+    dec = PatternBeltDecoder(resolve_params(PARAMS, {}), Track("x", 100.0))
+    (inc,) = dec.decode(_block(_synthetic_envelopes(phase)))
+    assert dec.count == 8 and inc.distance == pytest.approx(8 * 0.1)
+    assert inc.duration == pytest.approx((len(phase) - 1) / 2000.0)
+    (inc2,) = dec.decode(_block(_synthetic_envelopes((np.repeat(np.arange(7, 2, -1), 4) + 0.5) / 6),
+                                t0=len(phase) / 2000.0, seq=1))
+    assert dec.count == 3 and inc2.distance == pytest.approx(-0.5) and inc2.speed < 0
+    assert dec.stats["illegal_transitions"] == 0
+
+
+def test_bad_blocks_rejected():
+    phase = np.repeat(np.arange(30) + 0.5, 4) / 6
+    good = _synthetic_envelopes(phase)
+    dec = PatternBeltDecoder(resolve_params(PARAMS, {}), Track("x", 100.0))
+    for bad, what in [(-3.0, "negative"), (9.0, "saturated")]:
+        data = good.copy()
+        data[17, 1] = bad
+        with pytest.raises(InputRejected) as exc:
+            dec.decode(_block(data))
+        assert exc.value.reason == "implausible", what
+    # one coil stuck high: the sequence skips states; two stuck: half the samples 111
+    for coils in ([0], [1], [0, 2]):
+        stuck = good.copy()
+        stuck[:, coils] = 2.0
+        with pytest.raises(InputRejected) as exc:
+            PatternBeltDecoder(resolve_params(PARAMS, {}), Track("x", 100.0)).decode(_block(stuck))
+        assert exc.value.reason == "implausible", coils
+    # skipping states (every sample jumps 2 states)
+    with pytest.raises(InputRejected) as exc:
+        PatternBeltDecoder(resolve_params(PARAMS, {}), Track("x", 100.0)).decode(
+            _block(_synthetic_envelopes((np.arange(60) * 2 + 0.5) / 6)))
+    assert exc.value.reason == "implausible"
+    # off the belt (noise only): no measurement, no error
+    assert PatternBeltDecoder(resolve_params(PARAMS, {}), Track("x", 100.0)).decode(
+        _block(np.full((100, 3), 0.05))) == []
+
+
+def test_determinism_same_seed_same_blocks():
+    prof = [{"speed": 8.0, "accel": 1.0, "hold": 1.0}, {"speed": 0.0}]
+    b1, m1, _ = run_offline(NODE, scenario(prof, 6.0, seed=4))
+    b2, m2, _ = run_offline(NODE, scenario(prof, 6.0, seed=4))
+    b3, _, _ = run_offline(NODE, scenario(prof, 6.0, seed=9))
+    assert len(b1) == len(b2) > 100
+    assert all(np.array_equal(x.data, y.data) and x.t0 == y.t0 for x, y in zip(b1, b2))
+    assert m1 == m2
+    assert any(not np.array_equal(x.data, y.data) for x, y in zip(b1, b3))
+
+
+def test_decode_throughput_at_least_10x_real_time_at_500_kmh():
+    v0 = 500 / 3.6
+    scen = scenario([{"speed": v0, "hold": 10.0}], 3.0, v0=v0)
+    blocks, _, _ = run_offline(NODE, scen)
+    dec = PatternBeltDecoder(resolve_params(PARAMS, {}), scen.track)
+    t = time.perf_counter()
+    for blk in blocks:
+        dec.decode(blk)
+    elapsed = time.perf_counter() - t
+    real = sum(b.duration for b in blocks)
+    assert elapsed < real / 10.0, f"decode took {elapsed:.3f} s for {real:.1f} s of data"

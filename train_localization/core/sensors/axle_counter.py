@@ -1,0 +1,520 @@
+"""Axle counter (wayside train detection), seed 004.
+
+Physics (seed 004 section 2.2): an axle counter head is an electromagnetic
+(inductive) wheel detector on the rail; the evaluation unit counts the axles that
+enter and leave the section between two heads, and the difference count in - count
+out gives the occupancy of the section. Seed 004 section 4.2 places three counting
+points around a neutral section (two sections, both directions of running). The
+direction of an axle comes from the two sensor systems of a double wheel sensor.
+
+Wheel sensor model: each head is a double wheel sensor with two inductive systems
+Sa and Sb ``sensor_spacing`` apart along the rail (Sa at position - spacing/2, Sb at
+position + spacing/2), like the double sensors of axle counters (e.g. Frauscher
+RSR180 type). A wheel flange entering a system's field damps its oscillator; the
+evaluation board reports the damping normalised to 0 (no wheel) .. ~1 (nominal
+flange centred over the system). Damping versus the along-track distance u of the
+wheel from the system centre: a bell exp(-u^2 / (2 w^2)), w = ``zone_width`` =
+0.085 m (about 0.2 m FWHM: the chord over which the flange of a 0.92 m wheel,
+28 mm flange height of the S1002 profile, dips below the sensor top), times the
+wheel's amplitude (flange height/wear, ``damping_spread``) and the system's gain.
+Noise: white electronics/EMI noise, a slow drift of the idle level (temperature),
+and short single-system EMI spikes (traction current, rail brakes) that the
+two-system sequence check must reject.
+
+Vehicle: ``Scenario.vehicle.axles`` are the axle offsets behind the front [m]. With
+orientation o (+1: the front faces increasing chainage), axle k is at
+chainage front - o * axles[k]. ``orientation`` 0 (default) = auto: the simulator
+takes the sign of the first motion (a train starts front first; reversals back
+up), the decoder the direction of the first counted axle into an empty region.
+
+Track equipment (kind ``axle_counter_head``)::
+
+    axle_counter_head:
+      - {id: AC01, position: 1000.0}
+      - {id: AC02, position: 1800.0, section: NS1}   # optional name of the section beyond (+ side)
+      - {every: 800.0, start: 1000.0, end: 2600.0, id: "AC{n:02d}"}
+
+Sections lie between consecutive heads (by chainage). Section k (between heads k and
+k+1) is called ``<id_k>-<id_k+1>`` unless head k has a ``section`` key. The areas
+before the first and after the last head are not monitored. Parameter ``heads``
+restricts a device (one evaluation unit) to a subset of the heads.
+
+Raw signal: per head two channels ``<head id>.a`` and ``<head id>.b`` [1]
+(normalised damping) at ``sample_rate`` (default 2 kHz). At 300 km/h (83 m/s) a
+wheel stays 2.4 ms (5 samples) above the threshold and Sb lags Sa by 1.7 ms (3.4
+samples, 0.14 m); at 500 km/h still 1.4 ms / 1 ms. Rate = 2 x heads x 2 kHz: 4000
+samples/s per head, so the default suits up to 5 heads (20k samples/s, e.g. the
+three counting points of seed 004 section 4.2); a longer line uses several units
+(``heads``). The channel layout depends on the track, so the decoder checks it
+itself (``AxleCounterDecoder.channels`` is empty).
+
+Faults for tests (``faults``, ';'-separated): ``HEAD@T:missed`` suppresses the
+first wheel that enters the head's field after time T (flange not detected);
+``HEAD@T:extra`` (``extra-``: decreasing direction) adds a wheel-like damping
+sequence through the head at 5 m/s centred at T (a spurious axle).
+
+Decoder:
+  * per system, hysteresis (on at ``threshold_on``, off below ``threshold_off``);
+  * per head, an episode runs from the first system damped until both are free.
+    It is an axle if both systems were damped and the order of the damping starts
+    equals the order of the ends: Sa first -> increasing direction, Sb first ->
+    decreasing; other sequences (a wheel rocking back, a spike on one system, a
+    lag faster than ``max_speed``) are not counted. The axle passed the head centre
+    at the mean of the four on-level crossing times (interpolated), its speed is
+    sensor_spacing / lag;
+  * counting: an axle at head k moving + leaves region k and enters region k+1
+    (region 0 / H = the unmonitored outer areas); each section keeps axles_in,
+    axles_out and count = in - out;
+  * state per section: CLEAR (count 0), OCCUPIED (count > 0), DISTURBED, which is
+    latched until ``reset_section(section_id)``. A section becomes DISTURBED when
+      (A) its count goes negative (more axles out than in), or
+      (B) a neighbour section to which it passed axles counts the train out: when a
+          section j reaches count 0 by an axle leaving it, every adjacent section q
+          with count > 0 whose latest axle event was an axle leaving q into j has
+          a residual count although its train has left -> DISTURBED.
+    Rule B assumes one train per section (block working) and sections longer than
+    the largest axle gap of a train (~18 m bogie distance; block and neutral
+    sections are hundreds of metres, seed 004 section 4.2). A spurious extra
+    axle in the last monitored section cannot be detected (nothing beyond counts
+    the train out); it stays OCCUPIED, the safe side. The counters start CLEAR
+    (after a reset), or DISTURBED with ``start_disturbed``;
+  * outputs: SectionOccupancy of all sections whenever a section changes state
+    (stamp = time the axle was counted), after a reset, at the first block and
+    every ``report_period`` s; a PositionFix of the train front whenever an axle
+    passes a head into an empty, undisturbed region (the first axle of a train):
+    front = head + o * ``first_axle_offset`` when the front leads (direction = o),
+    or head + o * ``last_axle_offset`` when the train backs (skipped if that
+    parameter is 0). Its stddev combines the head survey, the axle offset and the
+    timing (speed x 0.25 sample), plus 0.1 m if the axle stopped over the head.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..measurements import CLEAR, DISTURBED, OCCUPIED, PositionFix, SectionOccupancy, SectionState
+from ..signals import InputRejected, RawBlock
+from ..track import Track, TrackError
+from .base import Decoder, Param, SensorSpec, Simulator
+
+HEAD_KIND = "axle_counter_head"
+
+PARAMS = {
+    "sensor_spacing": Param(0.14, "distance of the two sensor systems Sa, Sb of a head along the rail [m] "
+                                  "(double wheel sensor)"),
+    "zone_width": Param(0.085, "1-sigma half-width of a system's damping zone [m] (~0.2 m FWHM, flange "
+                               "chord of a 0.92 m wheel, S1002 profile)"),
+    "damping_spread": Param(0.10, "1-sigma spread of the damping amplitude between wheels (flange height "
+                                  "and wear), fraction"),
+    "gain_spread": Param(0.05, "1-sigma spread of the gain between sensor systems, fraction"),
+    "noise_sigma": Param(0.02, "1-sigma white noise of the normalised damping (electronics, EMI)"),
+    "drift_sigma": Param(0.02, "1-sigma slow drift of the idle level (temperature)"),
+    "drift_tau": Param(60.0, "correlation time of the idle-level drift [s]"),
+    "spike_rate": Param(0.01, "EMI spikes per sensor system per second (traction current, rail brakes)"),
+    "spike_amplitude": Param(0.8, "peak normalised damping of an EMI spike"),
+    "threshold_on": Param(0.5, "damping above which a system is occupied by a wheel"),
+    "threshold_off": Param(0.3, "damping below which a system is free again (hysteresis)"),
+    "max_speed": Param(200.0, "sequences faster than this (sensor_spacing / lag) are not axles [m/s]; "
+                              "500 km/h = 139 m/s plus the lag error of a 2 kHz sampled pulse (~10 %)"),
+    "heads": Param("", "comma-separated head ids of this evaluation unit; empty = all heads of the track"),
+    "orientation": Param(0, "+1: train front faces increasing chainage, -1: decreasing, 0: auto (first motion "
+                            "/ first counted axle)"),
+    "first_axle_offset": Param(2.5, "distance of the first axle behind the train front [m] (vehicle data)"),
+    "last_axle_offset": Param(0.0, "distance of the last axle behind the front [m]; 0 = unknown: no front "
+                                   "fix while the train backs"),
+    "axle_offset_sigma": Param(0.02, "1-sigma of the configured axle offsets [m]"),
+    "head_position_sigma": Param(0.02, "1-sigma error of the surveyed head chainage in the track file [m] "
+                                       "(simulated: real heads are displaced by it)"),
+    "report_period": Param(1.0, "period of the SectionOccupancy report without state changes [s]"),
+    "start_disturbed": Param(False, "sections start DISTURBED (as after power-up) instead of CLEAR"),
+    "faults": Param("", "injected miscounts 'HEAD@T:missed', 'HEAD@T:extra', 'HEAD@T:extra-' separated by "
+                        "';' (tests)"),
+}
+
+
+def _heads(track: Track, params: dict) -> list[dict]:
+    items = track.items(HEAD_KIND)
+    wanted = [h.strip() for h in str(params.get("heads", "")).split(",") if h.strip()]
+    if wanted:
+        known = {it["id"] for it in items}
+        missing = [h for h in wanted if h not in known]
+        if missing:
+            raise TrackError(f"{HEAD_KIND} {', '.join(missing)} not on track {track.track_id}")
+        items = [it for it in items if it["id"] in wanted]
+    if len({it["id"] for it in items}) != len(items):
+        raise TrackError(f"{HEAD_KIND} ids are not unique")
+    return items
+
+
+def channel_layout(heads: list[dict]) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    names = tuple(f"{h['id']}.{s}" for h in heads for s in ("a", "b"))
+    return names, ("1",) * len(names)
+
+
+def section_ids(heads: list[dict]) -> list[str]:
+    return [str(heads[k].get("section", f"{heads[k]['id']}-{heads[k + 1]['id']}")) for k in range(len(heads) - 1)]
+
+
+def _parse_faults(text: str, head_ids: list[str]) -> list[tuple[int, float, str]]:
+    faults = []
+    for item in filter(None, (s.strip() for s in str(text).split(";"))):
+        try:
+            head, rest = item.split("@")
+            t, kind = rest.split(":")
+            t, kind, head = float(t), kind.strip(), head.strip()
+        except ValueError:
+            raise ValueError(f"malformed axle counter fault {item!r}; expected 'HEAD@T:missed|extra|extra-'") from None
+        if kind not in ("missed", "extra", "extra+", "extra-"):
+            raise ValueError(f"unknown axle counter fault kind {kind!r}")
+        if head not in head_ids:
+            raise ValueError(f"axle counter fault names unknown head {head!r}")
+        faults.append((head_ids.index(head), t, kind))
+    return faults
+
+
+class AxleCounterSimulator(Simulator):
+    sensor = "axle_counter"
+    channels = ()  # per instance: two per head (the layout depends on the track)
+    units = ()
+    default_sample_rate = 2000.0
+
+    def __init__(self, *args):
+        super().__init__(*args)
+        p = self.params
+        self.heads = _heads(self.track, p)
+        self.channels, self.units = channel_layout(self.heads)
+        nh = len(self.heads)
+        # the real heads lie where the survey (track file) says, within head_position_sigma
+        self.head_pos = np.array([h["position"] for h in self.heads], float) + \
+            self.rng.normal(0.0, p["head_position_sigma"], nh)
+        self.axles = np.asarray(self.vehicle.axles, float)
+        na = len(self.axles)
+        self.amp = np.clip(1.0 + self.rng.normal(0.0, p["damping_spread"], na), 0.6, None)
+        self.gain = np.clip(1.0 + self.rng.normal(0.0, p["gain_spread"], (nh, 2)), 0.7, None)
+        self.drift = self.rng.normal(0.0, p["drift_sigma"], 2 * nh)
+        self.orient = int(np.sign(p["orientation"])) or None
+        self.faults = [[hi, t, kind, "armed", -1, None]
+                       for hi, t, kind in _parse_faults(p["faults"], [h["id"] for h in self.heads])]
+        self._spike_left = np.zeros(2 * nh)
+        self._spike_amp = np.zeros(2 * nh)
+
+    def samples(self, times, position, speed, acceleration):
+        p = self.params
+        n, nh = len(times), len(self.heads)
+        dt = 1.0 / self.sample_rate
+        w = p["zone_width"]
+        half = 0.5 * p["sensor_spacing"]
+        if self.orient is None:
+            moving = np.flatnonzero(np.abs(speed) > 0.01)
+            if len(moving):
+                self.orient = int(np.sign(speed[moving[0]]))
+        o = self.orient or 1
+        out = np.zeros((n, 2 * nh))
+        wheels = position[:, None] - o * self.axles[None, :]  # (n, axles)
+        reach = 6.0 * w + half
+        for hi in range(nh):
+            if not len(self.axles):
+                break
+            du = wheels - self.head_pos[hi]
+            near = np.abs(du) < reach
+            if not near.any() and not any(f[0] == hi and f[2] == "missed" and f[3] != "done"
+                                          for f in self.faults):
+                continue
+            amp = np.broadcast_to(self.amp, du.shape).copy()
+            for f in self.faults:
+                if f[0] == hi and f[2] == "missed":
+                    self._apply_missed(f, times, near, amp)
+            for s, sign in ((0, -1.0), (1, 1.0)):
+                u = du - sign * half
+                out[:, 2 * hi + s] += self.gain[hi, s] * np.sum(amp * np.exp(-0.5 * (u / w) ** 2), axis=1)
+        for hi, t, kind, *_ in self.faults:
+            if kind.startswith("extra") and times[0] - 0.3 <= t <= times[-1] + 0.3:
+                d = -1.0 if kind == "extra-" else 1.0
+                u = d * 5.0 * (times - t)
+                for s, sign in ((0, -1.0), (1, 1.0)):
+                    out[:, 2 * hi + s] += self.gain[hi, s] * np.exp(-0.5 * ((u - sign * half) / w) ** 2)
+        # idle-level drift (AR(1), held over a block), white noise, EMI spikes on single systems
+        phi = math.exp(-n * dt / p["drift_tau"])
+        self.drift = phi * self.drift + math.sqrt(1.0 - phi * phi) * p["drift_sigma"] * \
+            self.rng.normal(0.0, 1.0, 2 * nh)
+        out += self.drift[None, :] + self.rng.normal(0.0, p["noise_sigma"], (n, 2 * nh))
+        starts = self.rng.random((n, 2 * nh)) < p["spike_rate"] * dt
+        amps = p["spike_amplitude"] * self.rng.uniform(0.5, 1.0, (n, 2 * nh))
+        if starts.any() or self._spike_left.any():
+            for i in range(n):
+                new = starts[i] & (self._spike_left <= 0)
+                self._spike_left[new] = 2
+                self._spike_amp[new] = amps[i, new]
+                on = self._spike_left > 0
+                out[i, on] += self._spike_amp[on] * np.where(self._spike_left[on] == 2, 1.0, 0.5)
+                self._spike_left[on] -= 1
+        return out
+
+    @staticmethod
+    def _apply_missed(f, times, near, amp):
+        """Suppress the first wheel entering the head's field after the fault time."""
+        _, t, _, state, axle, prev = f
+        if state == "done":
+            return
+        if prev is None:
+            prev = np.zeros(near.shape[1], dtype=bool)
+        before = np.vstack([prev[None, :], near[:-1]])
+        if state == "armed":
+            entering = near & ~before & (times >= t)[:, None]
+            hits = np.argwhere(entering)
+            if len(hits):
+                i0, axle = hits[0]
+                f[3], f[4] = "active", int(axle)
+                state = "active"
+                leave = np.flatnonzero(~near[i0:, axle])
+                i1 = i0 + leave[0] if len(leave) else len(times)
+                amp[i0:i1, axle] = 0.0
+                if len(leave):
+                    f[3] = "done"
+        elif state == "active":
+            leave = np.flatnonzero(~near[:, axle])
+            i1 = leave[0] if len(leave) else len(times)
+            amp[:i1, axle] = 0.0
+            if len(leave):
+                f[3] = "done"
+        f[5] = near[-1].copy()
+
+
+class _Episode:
+    """One damping episode of a head: from the first system damped until both are free."""
+
+    __slots__ = ("on", "rise", "fall")
+
+    def __init__(self):
+        self.on = [False, False]
+        self.rise: list[float | None] = [None, None]
+        self.fall: list[float | None] = [None, None]
+
+
+class AxleCounterDecoder(Decoder):
+    sensor = "axle_counter"
+    channels = ()  # layout depends on the track: checked in decode()
+
+    def __init__(self, params: dict, track: Track):
+        super().__init__(params, track)
+        p = params
+        if p["threshold_off"] >= p["threshold_on"]:
+            raise ValueError("threshold_off must be below threshold_on")
+        self.heads = _heads(track, p)
+        self.expected, _ = channel_layout(self.heads)
+        self.head_ids = [h["id"] for h in self.heads]
+        self.head_pos = np.array([h["position"] for h in self.heads], float)
+        self.section_ids = section_ids(self.heads)
+        nh = len(self.heads)
+        nreg = nh + 1
+        self.count = np.zeros(nreg, dtype=np.int64)
+        self.axles_in = np.zeros(nreg, dtype=np.int64)
+        self.axles_out = np.zeros(nreg, dtype=np.int64)
+        self.disturbed = np.zeros(nreg, dtype=bool)
+        if p["start_disturbed"]:
+            self.disturbed[1:nh] = True
+        self.last_event: list[tuple[str, int] | None] = [None] * nreg
+        self.orient = int(np.sign(p["orientation"])) or None
+        self._state = np.zeros(2 * nh, dtype=bool)
+        self._last_x = np.zeros(2 * nh)
+        self._last_dn = np.full(2 * nh, np.nan)
+        self._episodes: list[_Episode | None] = [None] * nh
+        self._reported_states: tuple[int, ...] | None = None
+        self._last_report: float | None = None
+        self._force_report = True
+        self._fs = 0.0
+        self.stats.update(axles=0, rejected_sequences=0, fixes=0)
+
+    # -- public API -------------------------------------------------------------------
+    def reset_section(self, section_id: str) -> None:
+        """Reset a section (operator command): count zeroed, CLEAR, disturbance cleared.
+
+        Real systems offer a preparatory reset (the section stays occupied until a
+        train has swept it); here the reset is direct. KeyError for an unknown id.
+        """
+        if section_id not in self.section_ids:
+            raise KeyError(f"unknown section {section_id!r}; known: {', '.join(self.section_ids)}")
+        r = self.section_ids.index(section_id) + 1
+        self.count[r] = self.axles_in[r] = self.axles_out[r] = 0
+        self.disturbed[r] = False
+        self.last_event[r] = None
+        self._force_report = True
+
+    def section_states(self) -> tuple[int, ...]:
+        nh = len(self.heads)
+        return tuple(DISTURBED if self.disturbed[r] else OCCUPIED if self.count[r] > 0 else CLEAR
+                     for r in range(1, nh))
+
+    def occupancy(self, stamp: float) -> SectionOccupancy:
+        states = self.section_states()
+        sections = tuple(
+            SectionState(sid, float(self.head_pos[k]), float(self.head_pos[k + 1]), states[k],
+                         int(self.count[k + 1]), int(self.axles_in[k + 1]), int(self.axles_out[k + 1]))
+            for k, sid in enumerate(self.section_ids))
+        return SectionOccupancy(float(stamp), self.unit_id, sections)
+
+    # -- decoding ---------------------------------------------------------------------
+    def _check(self, block: RawBlock):
+        if block.channels != self.expected:
+            known = set(self.head_ids)
+            for name in block.channels:
+                head, _, system = name.rpartition(".")
+                if head not in known or system not in ("a", "b"):
+                    raise InputRejected("unknown_id", f"channel {name!r} is not a head of this axle counter")
+            raise InputRejected("channels", f"channels {block.channels} differ from {self.expected}")
+        if np.any(block.data < -1.0) or np.any(block.data > 3.0):
+            raise InputRejected("implausible", "normalised damping outside -1..3")
+
+    def decode(self, block: RawBlock):
+        self._check(block)
+        p = self.params
+        self._fs = block.sample_rate
+        x = block.data.astype(float)
+        n, nc = x.shape
+        dt = 1.0 / block.sample_rate
+        t0 = block.t0
+        on_thr, off_thr = p["threshold_on"], p["threshold_off"]
+        # hysteresis, vectorised: carry the last defined state forward
+        on = x >= on_thr
+        defined = on | (x < off_thr)
+        idx = np.where(defined, np.arange(n)[:, None], -1)
+        idx = np.maximum.accumulate(idx, axis=0)
+        state = np.where(idx >= 0, np.take_along_axis(on, np.maximum(idx, 0), axis=0), self._state[None, :])
+        full = np.vstack([self._state[None, :], state])
+        change = full[1:] != full[:-1]
+        # on-level crossings with linear interpolation (prev sample carried over)
+        xx = np.vstack([self._last_x[None, :], x])
+        up = (xx[1:] >= on_thr) & (xx[:-1] < on_thr)
+        dn = (xx[1:] < on_thr) & (xx[:-1] >= on_thr)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            frac = np.clip((on_thr - xx[:-1]) / (xx[1:] - xx[:-1]), 0.0, 1.0)
+        tcross = t0 + (np.arange(n)[:, None] - 1.0 + frac) * dt  # time of a crossing ending at sample i
+        events = []  # (sample, order, head, system, kind, time)
+        for c in np.flatnonzero(change.any(axis=0)):
+            hi, s = divmod(int(c), 2)
+            dn_idx = np.flatnonzero(dn[:, c])
+            for i in np.flatnonzero(change[:, c]):
+                if state[i, c]:
+                    events.append((int(i), 0, hi, s, 1, float(tcross[i, c])))
+                else:
+                    k = np.searchsorted(dn_idx, i, side="right") - 1
+                    tf = float(tcross[dn_idx[k], c]) if k >= 0 else float(self._last_dn[c])
+                    if not math.isfinite(tf):
+                        tf = t0 + (i - 0.5) * dt
+                    events.append((int(i), 1, hi, s, 0, tf))
+        # remember the last falling crossing of each channel for pulses ending in a later block
+        any_dn = dn.any(axis=0)
+        if any_dn.any():
+            last_dn_i = n - 1 - np.argmax(dn[::-1], axis=0)
+            self._last_dn = np.where(any_dn, tcross[last_dn_i, np.arange(nc)], self._last_dn)
+        self._state = state[-1].copy()
+        self._last_x = x[-1].copy()
+        events.sort(key=lambda e: (e[0], e[1]))  # within a sample: switch-on before switch-off
+        passages = []
+        for i, _, hi, s, kind, t in events:
+            ep = self._episodes[hi]
+            if kind == 1:
+                if ep is None:
+                    ep = self._episodes[hi] = _Episode()
+                ep.on[s] = True
+                if ep.rise[s] is None:
+                    ep.rise[s] = t
+            else:
+                if ep is None:  # switch-off of a pulse started before the decoder did
+                    continue
+                ep.on[s] = False
+                ep.fall[s] = t
+                if not (ep.on[0] or ep.on[1]):
+                    self._episodes[hi] = None
+                    passage = self._evaluate(hi, ep, t0 + i * dt)
+                    if passage is not None:
+                        passages.append(passage)
+        out = []
+        if self._force_report or self._last_report is None:
+            out.append(self.occupancy(t0))
+            self._reported_states = self.section_states()
+            self._last_report = t0
+            self._force_report = False
+        passages.sort(key=lambda q: q[0])
+        for t_done, hi, d, t_c, v in passages:
+            fix = self._count(hi, d, t_c, v)
+            if fix is not None:
+                out.append(fix)
+            states = self.section_states()
+            if states != self._reported_states:
+                out.append(self.occupancy(t_done))
+                self._reported_states = states
+                self._last_report = t_done
+        if block.t_end - self._last_report >= p["report_period"] - 1e-9:
+            out.append(self.occupancy(block.t_end))
+            self._last_report = block.t_end
+        return out
+
+    def _evaluate(self, hi: int, ep: _Episode, t_done: float):
+        """(t_done, head, direction, t_centre, speed) of a valid axle sequence, else None."""
+        ra, rb = ep.rise
+        fa, fb = ep.fall
+        if None in (ra, rb, fa, fb):
+            self.stats["rejected_sequences"] += 1
+            return None
+        if ra < rb and fa < fb:
+            d = 1
+        elif ra > rb and fa > fb:
+            d = -1
+        else:
+            self.stats["rejected_sequences"] += 1
+            return None
+        lag = abs((rb + fb) - (ra + fa)) / 2.0
+        speed = self.params["sensor_spacing"] / lag if lag > 0 else math.inf
+        if speed > self.params["max_speed"]:
+            self.stats["rejected_sequences"] += 1
+            return None
+        return (t_done, hi, d, (ra + fa + rb + fb) / 4.0, speed)
+
+    def _count(self, hi: int, d: int, t_c: float, speed: float):
+        p = self.params
+        nh = len(self.heads)
+        src, dst = (hi, hi + 1) if d > 0 else (hi + 1, hi)
+        into_empty = self.count[dst] == 0 and not self.disturbed[dst]
+        self.stats["axles"] += 1
+        self.count[src] -= 1
+        self.axles_out[src] += 1
+        self.count[dst] += 1
+        self.axles_in[dst] += 1
+        self.last_event[src] = ("out", hi)
+        self.last_event[dst] = ("in", hi)
+        outer = (0, nh)
+        if src in outer:
+            self.count[src] = max(self.count[src], 0)  # unmonitored area: only what it received is known
+        else:
+            if self.count[src] < 0:
+                self.disturbed[src] = True                      # rule A
+            elif self.count[src] == 0:
+                for q, head in ((src - 1, src - 1), (src + 1, src)):  # rule B
+                    if 0 < q < nh and not self.disturbed[q] and self.count[q] > 0 \
+                            and self.last_event[q] == ("out", head):
+                        self.disturbed[q] = True
+        if not into_empty:
+            return None
+        if self.orient is None:
+            self.orient = d
+        if d == self.orient:
+            offset = p["first_axle_offset"]
+        elif p["last_axle_offset"] > 0.0:
+            offset = p["last_axle_offset"]
+        else:
+            return None
+        slow = 0.1 if speed < 1.0 else 0.0
+        timing = min(speed, p["max_speed"]) * 0.25 / self._fs
+        sigma = math.sqrt(p["head_position_sigma"] ** 2 + p["axle_offset_sigma"] ** 2 + timing ** 2 + slow ** 2)
+        self.stats["fixes"] += 1
+        return PositionFix(float(t_c), self.sensor, self.unit_id, self.track.track_id, self.head_ids[hi],
+                           float(self.head_pos[hi] + self.orient * offset), sigma, int(d))
+
+
+SPEC = SensorSpec(
+    node="axle_counter", sensor="axle_counter", simulator=AxleCounterSimulator, decoder=AxleCounterDecoder,
+    params=PARAMS, description="wayside axle counter: section occupancy and train-front fixes at the heads",
+    seeds=("004",),
+)

@@ -1,0 +1,571 @@
+"""INKREFA Location Reference Lug (LRL) scanner (on-board), seeds 002 and 000.
+
+Principle (seed 002 sections 2.2.1 and 3.1, seed 000 section 2.1.2): lugs of
+conductive material carrying 4 bits each are fixed to the guideway; a U-shaped
+sensor on the vehicle head has transmit/receive channels across its slot; the lug
+passing through the slot attenuates the HF signal of a channel wherever it has
+conductive material, so the receive level drops from ~1 to ~0. The sensor has two
+kinds of channels, 10 in all (5 used per scan mode):
+
+  * single scan: P1..P4 data channels + D0 sync channel; when D0 goes to 0 the four
+    P channels are read at once (the 4 bits of the lug);
+  * continuous scan: N1..N4 sync channels + D1 data channel; as N4, N3, N2, N1 in turn
+    reach the threshold, D1 is read bit by bit;
+  * the direction of travel follows from the order in which the channels see the lug;
+  * a group of LRLs extends the code (4 bits per lug); 4 redundant sensors are mounted
+    on the vehicle head.
+
+Geometry (the seeds give no dimensions; the values below are assumptions sized so
+that 1 kHz sampling resolves a lug at 500 km/h: 139 mm per sample). Offsets o are
+along the track from the sensor reference point (+ = towards increasing chainage,
+the vehicle front), lug coordinates from the lug reference point (its sync mark):
+
+  continuous scan (bit pitch p = ``bit_pitch``, default 0.35 m):
+    N1..N4 at o = -1.5p, -0.5p, +0.5p, +1.5p (N4 leads when moving forwards), D1 at 0;
+    lug: sync tab [-(p+0.05)/2, (p+0.05)/2] read by N; data row of 4 cells of length p
+    centred at c_j = (j - 1.5)p, cell j conductive iff bit j = 1. N4 over the tab puts
+    D1 over cell 0, N3 -> cell 1, N2 -> cell 2, N1 -> cell 3 (seed 002 Fig. 7). Moving
+    backwards N1 leads and D1 reads the cells in the order 3, 2, 1, 0: the decoder maps
+    each read to its cell by the channel geometry, so the code comes out in lug order
+    in both directions.
+  single scan (channel pitch q = 0.2 m):
+    P1..P4 at o = +1.5q, +0.5q, -0.5q, -1.5q, D0 at 0;
+    lug: D0 row a sync tab [-0.25, 0.25] m; each P row a plate [-0.7, 0.7] m with a
+    0.4 m hole centred at o_i where bit i is 0. When D0 is over its tab, P_i is over
+    the centre of its hole position (seed 002 Fig. 6). The plate edges pass P1..P4 in
+    order moving forwards and in reverse order moving backwards (direction).
+
+Bit j of a lug is bit (3 - j) of its 4-bit value: bit 0 (most significant) is cell 0
+(lowest chainage) in continuous scan and row P1 in single scan.
+
+Raw signal (default 1 kHz; ``n_sensors`` x 5 channels, 20 k samples/s for 4 sensors):
+channels ``s<k>_<name>`` (P1 P2 P3 P4 D0, or N1 N2 N3 N4 D1) per sensor k: receive
+level [1] = gain_k (1 - attenuation x coverage) + white noise. Coverage is the
+conductive fraction of the channel's footprint, a linear ramp of ``edge_width`` at
+every edge. Per sensor gain error ``gain_sigma``. Misreads: with probability
+``misread_probability`` per sensor and lug passage one bit of that sensor reads
+inverted (dirt, ice, a foreign metal part, a weak channel).
+
+Decoder: a lug passage is a run of samples in which any channel is below
+``threshold``. Per sensor: the centre times of the sync pulses (N1..N4, or D0 and
+the P plate edges; crossings interpolated) are fitted by a line t = a + b o, which
+gives the speed v = -1/b (its sign is the direction: channel order) and the time a
+at which the sensor reference point passed the lug's sync mark; the data channels
+are read at the samples nearest the fitted read instants (single: a; continuous:
+a - b c_j). Vote over the valid sensors: a strict majority, or at least two sensors
+agreeing while the others all read different values; else the lug is unresolved
+(``stats["unresolved_lugs"]``); every disagreement is counted
+(``stats["sensor_disagreements"]``). Lugs less than ``group_gap`` apart form a
+group; travelling backwards the lug order is reversed to the track's order; the code
+is looked up in the track's ``lrl_group`` list -> PositionFix of the train front =
+chainage of the lug last read + ``sensor_offset``, stamped when the sensor passed it.
+A code not in the track -> InputRejected("unknown_id").
+
+Track equipment (kind ``lrl_group``)::
+
+    lrl_group:
+      - {id: LRL12, position: 1500.0, code: [3, 12, 7], spacing: 3.0}
+      - {every: 500.0, start: 100.0, end: 9600.0, id: "LRL{n:03d}", lugs: 3}
+
+``position``: chainage of the first lug's sync mark (lowest chainage) [m]; lug k at
+position + k x spacing; ``code``: 4-bit values 0..15 in chainage order; ``spacing``
+[m] (default: parameter ``lug_spacing``, at least MIN_SPACING). Without ``code`` (e.g.
+generated entries) the code is the number in the id (n of "LRL{n:03d}"), scrambled by
+an odd multiplier mod 16^lugs, in ``lugs`` (default ``lugs_per_group``) hex digits.
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+import re
+
+import numpy as np
+
+from ..measurements import PositionFix
+from ..signals import InputRejected, RawBlock
+from .base import Decoder, Param, SensorSpec, Simulator
+
+KIND = "lrl_group"
+MIN_SPACING = 2.5            # [m] lugs closer than this would be seen by the sensor at once
+NEAR_RANGE = 1.2             # [m] beyond this a lug does not touch any channel
+Q_PITCH = 0.2                # single-scan P-channel pitch [m]
+D0_HALF = 0.25               # single-scan sync tab half-length [m]
+PLATE_HALF = 0.7             # single-scan plate half-length [m]
+HOLE_HALF = 0.2              # single-scan bit-0 hole half-length [m]
+READ_HALF = 0.05             # data channels are read within +-5 cm of the read point [m]
+CODE_SCRAMBLE = 0x9E3779B1   # odd multiplier: bijection of the id numbers mod 16^lugs
+
+MODES = ("single", "continuous")
+CHANNEL_NAMES = {"single": ("P1", "P2", "P3", "P4", "D0"), "continuous": ("N1", "N2", "N3", "N4", "D1")}
+
+PARAMS = {
+    "scan_mode": Param("single", "scan mode of the U-sensor: 'single' (P1..P4 + D0 sync) or 'continuous' "
+                                 "(N1..N4 sync + D1 data), seed 002 section 3.1"),
+    "n_sensors": Param(4, "redundant sensors on the vehicle head (seed 002 section 2.2.1: 4), all at the "
+                          "same along-track position"),
+    "sensor_offset": Param(1.5, "distance of the sensor reference point behind the train front [m] "
+                                "(on the vehicle head; assumption)"),
+    "lug_spacing": Param(3.0, "default spacing of the lugs of a group [m] (assumption; >= 2.5 m)"),
+    "lugs_per_group": Param(3, "lugs of a group without an explicit code (12 bits = 4096 codes)"),
+    "bit_pitch": Param(0.35, "continuous scan: data cell length = N-channel pitch [m] (assumption: >= 2.5 "
+                             "samples per cell at 500 km/h and 1 kHz)"),
+    "edge_width": Param(0.02, "width of the level ramp at a lug edge (channel footprint) [m] (assumption)"),
+    "attenuation": Param(0.95, "fraction of the HF signal a conductive lug blocks (level ~1 -> ~0.05)"),
+    "level_noise": Param(0.05, "1-sigma white noise of a receive level [1] (assumption: 26 dB SNR)"),
+    "gain_sigma": Param(0.05, "1-sigma gain error of one sensor [1] (assumption)"),
+    "threshold": Param(0.5, "receive level below which a channel sees conductive material [1]"),
+    "misread_probability": Param(1e-3, "probability that one sensor reads one bit of a lug wrong "
+                                       "(dirt, ice, foreign metal; assumption)"),
+    "install_sigma": Param(0.005, "1-sigma error of a lug's real position vs the track file [m] "
+                                  "(guideway manufacturing tolerance; assumption)"),
+    "group_gap": Param(10.0, "a group is closed when the train has moved this far past its last lug [m]"),
+}
+
+
+# ----------------------------------------------------------------------------------
+# Track equipment
+# ----------------------------------------------------------------------------------
+
+def group_code(item: dict, lugs_per_group: int = 3) -> tuple[int, ...]:
+    """4-bit lug values of an ``lrl_group`` entry, in chainage order (see module doc)."""
+    if "code" in item:
+        code = item["code"]
+        if isinstance(code, (int, np.integer)):
+            code = [int(code)]
+        code = tuple(int(c) for c in code)
+        if not code or any(not 0 <= c <= 15 for c in code):
+            raise ValueError(f"lrl_group {item['id']}: code {item['code']!r} must be 4-bit values 0..15")
+        return code
+    lugs = int(item.get("lugs", lugs_per_group))
+    m = re.search(r"(\d+)$", str(item["id"]))
+    number = int(m.group(1)) if m else int.from_bytes(hashlib.sha256(str(item["id"]).encode()).digest()[:8],
+                                                     "little")
+    value = (number * CODE_SCRAMBLE) % (16 ** lugs)
+    return tuple((value >> (4 * (lugs - 1 - k))) & 15 for k in range(lugs))
+
+
+def track_groups(track, params: dict) -> list[tuple[dict, tuple[int, ...], float]]:
+    """(item, code, spacing) of every LRL group of the track; spacing checked."""
+    out = []
+    for item in track.items(KIND):
+        code = group_code(item, params["lugs_per_group"])
+        spacing = float(item.get("spacing", params["lug_spacing"]))
+        if len(code) > 1 and spacing < MIN_SPACING:
+            raise ValueError(f"lrl_group {item['id']}: lug spacing {spacing} m < {MIN_SPACING} m")
+        out.append((item, code, spacing))
+    return out
+
+
+def nibble_bits(value: int) -> tuple[int, int, int, int]:
+    """Bits 0..3 of a lug value (bit 0 = most significant)."""
+    return tuple((value >> (3 - j)) & 1 for j in range(4))
+
+
+def channel_offsets(mode: str, bit_pitch: float) -> np.ndarray:
+    """Along-track offsets [m] of the 5 channels of one sensor, in CHANNEL_NAMES order."""
+    if mode == "single":
+        return np.array([1.5, 0.5, -0.5, -1.5, 0.0]) * np.array([Q_PITCH] * 4 + [1.0])
+    return np.array([-1.5, -0.5, 0.5, 1.5, 0.0]) * np.array([bit_pitch] * 4 + [1.0])
+
+
+def _ramp(x, e):
+    return np.clip(x / e + 0.5, 0.0, 1.0)
+
+
+def _cover(x, a, b, e):
+    """Fraction of a channel footprint at x covered by conductive material on [a, b]."""
+    return _ramp(x - a, e) - _ramp(x - b, e)
+
+
+def _check_mode(mode: str) -> str:
+    if mode not in MODES:
+        raise ValueError(f"scan_mode {mode!r}: must be one of {MODES}")
+    return mode
+
+
+def _channels(mode: str, n_sensors: int) -> tuple[str, ...]:
+    return tuple(f"s{k}_{name}" for k in range(n_sensors) for name in CHANNEL_NAMES[mode])
+
+
+# ----------------------------------------------------------------------------------
+# Simulator
+# ----------------------------------------------------------------------------------
+
+class LrlSimulator(Simulator):
+    sensor = "lrl"
+    channels = ()
+    units = ()
+    default_sample_rate = 1000.0
+
+    def __init__(self, *args):
+        super().__init__(*args)
+        p = self.params
+        self.mode = _check_mode(p["scan_mode"])
+        self.n_sensors = int(p["n_sensors"])
+        if self.n_sensors < 1:
+            raise ValueError("n_sensors must be >= 1")
+        self.channels = _channels(self.mode, self.n_sensors)
+        self.units = ("1",) * len(self.channels)
+        self.offsets = channel_offsets(self.mode, p["bit_pitch"])
+        pos, bits = [], []
+        for item, code, spacing in track_groups(self.track, p):
+            for k, value in enumerate(code):
+                pos.append(item["position"] + k * spacing)
+                bits.append(nibble_bits(value))
+        pos = np.array(pos, dtype=float) + self.rng.normal(0.0, p["install_sigma"], len(pos))
+        order = np.argsort(pos, kind="stable")
+        self._pos = pos[order]
+        self._bits = np.array(bits, dtype=float).reshape(-1, 4)[order]
+        self._gain = np.maximum(0.5, 1.0 + p["gain_sigma"] * self.rng.normal(size=self.n_sensors))
+        self._passage: tuple[int, np.ndarray] | None = None    # (lug index, flip mask per sensor)
+
+    def _flips(self) -> np.ndarray:
+        """Bit-flip mask (n_sensors, 4) of one lug passage."""
+        mask = np.zeros((self.n_sensors, 4))
+        for s in range(self.n_sensors):
+            if self.rng.random() < self.params["misread_probability"]:
+                mask[s, self.rng.integers(4)] = 1.0
+        return mask
+
+    def coverage(self, u: np.ndarray, bits: np.ndarray) -> np.ndarray:
+        """Coverage (n, n_sensors, 5) of the channels for sensor-to-lug offsets u (n,) [m]
+        and effective bits (n, n_sensors, 4) of the lug in front of each sensor."""
+        p = self.params
+        e = p["edge_width"]
+        n = len(u)
+        cov = np.zeros((n, self.n_sensors, 5))
+        if self.mode == "single":
+            for i in range(4):
+                x = (u + self.offsets[i])[:, None]
+                o = self.offsets[i]
+                plate = _cover(x, -PLATE_HALF, PLATE_HALF, e)
+                hole = _cover(x, o - HOLE_HALF, o + HOLE_HALF, e)
+                cov[:, :, i] = plate - hole * (1.0 - bits[:, :, i])
+            cov[:, :, 4] = _cover(u, -D0_HALF, D0_HALF, e)[:, None]
+        else:
+            pitch = p["bit_pitch"]
+            half_tab = 0.5 * (pitch + 0.05)
+            for i in range(4):
+                cov[:, :, i] = _cover(u + self.offsets[i], -half_tab, half_tab, e)[:, None]
+            d1 = np.zeros((n, self.n_sensors))
+            for j in range(4):
+                c = (j - 1.5) * pitch
+                d1 += bits[:, :, j] * _cover(u, c - 0.5 * pitch, c + 0.5 * pitch, e)[:, None]
+            cov[:, :, 4] = np.clip(d1, 0.0, 1.0)
+        return cov
+
+    def samples(self, times, position, speed, acceleration):
+        p = self.params
+        n = len(times)
+        cov = np.zeros((n, self.n_sensors, 5))
+        if self._pos.size:
+            ref = position - p["sensor_offset"]
+            k = np.searchsorted(self._pos, ref)
+            lo = np.clip(k - 1, 0, self._pos.size - 1)
+            hi = np.clip(k, 0, self._pos.size - 1)
+            idx = np.where(np.abs(ref - self._pos[lo]) <= np.abs(ref - self._pos[hi]), lo, hi)
+            u = ref - self._pos[idx]
+            key = np.where(np.abs(u) < NEAR_RANGE, idx, -1)
+            bits = np.zeros((n, self.n_sensors, 4))
+            starts = np.r_[0, np.flatnonzero(np.diff(key)) + 1]
+            ends = np.r_[starts[1:], n]
+            for r0, r1 in zip(starts, ends):
+                kk = int(key[r0])
+                if kk < 0:
+                    self._passage = None
+                    continue
+                if self._passage is None or self._passage[0] != kk or r0 != 0:
+                    self._passage = (kk, self._flips())
+                eff = np.abs(self._bits[kk][None, :] - self._passage[1])        # XOR
+                bits[r0:r1] = eff[None, :, :]
+            cov = self.coverage(u, bits)
+        level = self._gain[None, :, None] * (1.0 - p["attenuation"] * cov)
+        level = level + self.rng.normal(0.0, p["level_noise"], level.shape)
+        return level.reshape(n, -1)
+
+
+# ----------------------------------------------------------------------------------
+# Decoder
+# ----------------------------------------------------------------------------------
+
+def hysteresis(lev: np.ndarray, lo: float, hi: float, init: np.ndarray) -> np.ndarray:
+    """Channel states (True = conductive material seen) of levels (n, C): a channel goes
+    low below ``lo`` and high again above ``hi``; ``init`` (C,) is the state before."""
+    n, c = lev.shape
+    st = np.where(lev < lo, 1, np.where(lev > hi, 0, -1))
+    idx = np.where(st >= 0, np.arange(n)[:, None], -1)
+    idx = np.maximum.accumulate(idx, axis=0)
+    return np.where(idx >= 0, st[np.maximum(idx, 0), np.arange(c)[None, :]] == 1, init[None, :])
+
+
+def _runs(low: np.ndarray) -> list[tuple[int, int]]:
+    """[start, end) index ranges of True runs."""
+    d = np.diff(np.r_[0, low.astype(np.int8), 0])
+    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
+
+
+def _ramp_crossing(t: np.ndarray, lev: np.ndarray, i0: int, i1: int, thr: float) -> float:
+    """Time at which the level crosses thr on the ramp of samples i0..i1 (inclusive): a
+    straight line fitted to the ramp samples (2 samples at speed: linear interpolation)."""
+    if i1 - i0 == 1:                          # two samples: linear interpolation
+        a, b = lev[i0], lev[i1]
+        return float(t[i1] if a == b else t[i0] + (a - thr) / (a - b) * (t[i1] - t[i0]))
+    tt, ll = t[i0:i1 + 1], lev[i0:i1 + 1]
+    if len(tt) < 2:
+        return float(tt[0])
+    tm, lm = tt.mean(), ll.mean()
+    dt_ = tt - tm
+    den = float(np.dot(dt_, dt_))
+    slope = float(np.dot(dt_, ll - lm)) / den if den > 0 else 0.0
+    if slope == 0.0:
+        return float(tm)
+    return float(np.clip(tm + (thr - lm) / slope, tt[0], tt[-1]))
+
+
+class LrlDecoder(Decoder):
+    sensor = "lrl"
+    channels = ()            # depend on scan_mode and n_sensors: checked per block
+
+    MAX_PASSAGE = 120.0      # [s] a longer lug passage (train stopped over a lug) is dropped
+    HYSTERESIS = 0.2         # channel state hysteresis +- around the threshold [1] (4 sigma of the noise)
+    HISTORY = 400            # samples kept before a passage for the first falling ramp
+
+    def __init__(self, params, track):
+        super().__init__(params, track)
+        p = self.params
+        self.mode = _check_mode(p["scan_mode"])
+        self.n_sensors = int(p["n_sensors"])
+        self.expected = _channels(self.mode, self.n_sensors)
+        self.offsets = channel_offsets(self.mode, p["bit_pitch"])
+        self._groups: dict[tuple[int, ...], list[tuple[dict, float]]] = {}
+        lengths = set()
+        for item, code, spacing in track_groups(track, p):
+            self._groups.setdefault(code, []).append((item, spacing))
+            lengths.add(len(code))
+        self._group_len = max(lengths) if len(lengths) == 1 else 0   # 0: groups end by gap only
+        self._lo = p["threshold"] - self.HYSTERESIS
+        self._hi = p["threshold"] + self.HYSTERESIS
+        self._state = np.zeros(len(self.expected), dtype=bool)
+        self._active = False
+        self._seg: list[np.ndarray] = []
+        self._seg_t: list[np.ndarray] = []
+        self._seg_start = 0.0
+        self._hist_t = np.zeros(0)
+        self._hist = np.zeros((0, len(self.expected)))
+        self._group: list[dict] = []
+        self.stats = {"lugs": 0, "sensor_invalid": 0, "sensor_disagreements": 0, "unresolved_lugs": 0,
+                      "groups": 0, "incomplete_groups": 0, "unknown_id": 0, "dropped_passages": 0}
+
+    # -- block handling -------------------------------------------------------------
+    def decode(self, block: RawBlock):
+        p = self.params
+        if block.channels != self.expected:
+            raise InputRejected("channels", f"channels {block.channels} differ from the {self.mode}-scan "
+                                            f"layout of {self.n_sensors} sensors")
+        lev = block.data.astype(float)
+        if np.any(lev < -1.0) or np.any(lev > 3.0):
+            raise InputRejected("implausible", f"receive levels {lev.min():.2f}..{lev.max():.2f} are outside "
+                                               "0..1 plus noise")
+        t = block.times()
+        state = hysteresis(lev, self._lo, self._hi, self._state)
+        self._state = state[-1].copy()
+        act = state.any(axis=1)
+        out: list[PositionFix] = []
+        errors: list[InputRejected] = []
+        i, n = 0, len(t)
+        hist_t, hist, q0 = self._hist_t, self._hist, 0     # quiet samples since the last passage
+        while i < n:
+            if not self._active:
+                nz = np.flatnonzero(act[i:])
+                if not nz.size:
+                    break
+                j = i + int(nz[0])
+                pre_t = np.r_[hist_t, t[q0:j]][-self.HISTORY:]
+                pre = np.vstack([hist, lev[q0:j]])[-self.HISTORY:]
+                self._active, self._seg_t, self._seg, i = True, [pre_t], [pre], j
+                self._seg_start = t[j]
+            else:
+                nz = np.flatnonzero(~act[i:])
+                j = i + int(nz[0]) if nz.size else n
+                end = min(j + 1, n)             # keep the first quiet sample (end of the last ramp)
+                self._seg_t.append(t[i:end])
+                self._seg.append(lev[i:end])
+                if j >= n:
+                    if t[-1] - self._seg_start > self.MAX_PASSAGE:
+                        self.stats["dropped_passages"] += 1
+                        self._active = False
+                    break
+                self._active, i = False, j + 1
+                self._lug(np.concatenate(self._seg_t), np.vstack(self._seg), out, errors)
+                hist_t, hist, q0 = t[:0], lev[:0], j
+        if self._active:
+            self._hist_t, self._hist = t[:0], lev[:0]
+        else:
+            self._hist_t = np.r_[hist_t, t[q0:]][-self.HISTORY:]
+            self._hist = np.vstack([hist, lev[q0:]])[-self.HISTORY:]
+        # a group whose next lug is overdue is closed
+        if self._group and not self._active:
+            g = self._group[-1]
+            if (block.t_end - g["t"]) * abs(g["v"]) > p["group_gap"]:
+                self._close_group(out, errors)
+        if errors and not out:
+            raise errors[0]
+        return out
+
+    # -- one lug passage --------------------------------------------------------------
+    def _sensor(self, t: np.ndarray, lev: np.ndarray) -> tuple[int, float, float, int, float] | None:
+        """(value, t_ref, v, n_crossings, fit residual [m]) of one sensor's lug passage, None
+        if unusable.
+
+        Every threshold crossing of a sync or plate channel is a point (ref, t): the
+        channel at offset o crosses the lug edge e when the sensor reference point is at
+        ref = e - o (which edge comes first depends on the direction). A line (a quadratic
+        when the train accelerates over the lug) t(ref) through these points gives the time
+        the sensor passed the sync mark, t(0), the speed 1/t'(0) and the read instants.
+        """
+        p = self.params
+        thr = p["threshold"]
+        low = hysteresis(lev, self._lo, self._hi, np.zeros(5, dtype=bool))
+        if self.mode == "single":
+            chans = [(4, D0_HALF, False)] + [(i, PLATE_HALF, True) for i in range(4)]
+        else:
+            half_tab = 0.5 * (p["bit_pitch"] + 0.05)
+            chans = [(i, half_tab, False) for i in range(4)]
+        t_fall, t_rise, offs, halves = [], [], [], []
+        for ch, half, first_last in chans:
+            runs = _runs(low[:, ch])
+            if not runs or (not first_last and len(runs) != 1):
+                return None
+            k0, k1 = runs[0][0], runs[-1][1]
+            if k0 == 0 or k1 >= len(t):      # an edge was not seen
+                return None
+            x = lev[:, ch]
+            above = np.flatnonzero(x[:k0] > self._hi)
+            f0 = int(above[-1]) if above.size else 0
+            r0 = int(np.flatnonzero(x[:k1] < self._lo)[-1])
+            t_fall.append(_ramp_crossing(t, x, f0, k0, thr))
+            t_rise.append(_ramp_crossing(t, x, r0, k1, thr))
+            offs.append(self.offsets[ch])
+            halves.append(half)
+        t_fall, t_rise, offs, halves = map(np.array, (t_fall, t_rise, offs, halves))
+        centres = 0.5 * (t_fall + t_rise)
+        steps = np.diff(centres[np.argsort(offs)])
+        if not (np.all(steps > 0) or np.all(steps < 0)):
+            return None                       # channels not passed in order (reversal, glitch)
+        forward = steps[0] < 0                # the channel ahead (larger offset) sees the lug first
+        sgn = 1.0 if forward else -1.0
+        refs = np.r_[-sgn * halves - offs, sgn * halves - offs]
+        ts = np.r_[t_fall, t_rise]
+        dt = t[1] - t[0] if len(t) > 1 else 0.0
+        fit = np.polyfit(refs, ts, 1)
+        rms = float(np.sqrt(np.mean((ts - np.polyval(fit, refs)) ** 2)))
+        fit_err = 0.0
+        if rms * abs(1.0 / fit[0]) > abs(1.0 / fit[0]) * dt / math.sqrt(12.0) * 2.0 + 0.001:
+            fit = np.polyfit(refs, ts, 2)     # accelerating / braking over the lug
+            fit_err = float(np.sqrt(np.mean((ts - np.polyval(fit, refs)) ** 2))) / abs(fit[1])
+        slope0 = fit[-2]
+        if slope0 == 0.0 or slope0 * sgn <= 0.0:
+            return None
+        v = 1.0 / slope0
+        if abs(v) > 200.0:
+            return None
+        t_ref = float(np.polyval(fit, 0.0))
+        if self.mode == "single":
+            read_t, read_ch = np.full(4, t_ref), [0, 1, 2, 3]
+        else:
+            read_t, read_ch = np.polyval(fit, (np.arange(4) - 1.5) * p["bit_pitch"]), [4, 4, 4, 4]
+        value = 0
+        win = READ_HALF * abs(slope0)
+        for j in range(4):
+            sel = np.abs(t - read_t[j]) <= win
+            if not sel.any():
+                sel = np.zeros(len(t), bool)
+                sel[int(np.argmin(np.abs(t - read_t[j])))] = True
+            bit = int(np.median(lev[sel, read_ch[j]]) < thr)
+            value |= bit << (3 - j)
+        return value, t_ref, float(v), len(ts), fit_err
+
+    def _lug(self, t, lev, out, errors) -> None:
+        p = self.params
+        self.stats["lugs"] += 1
+        reads = []
+        for s in range(self.n_sensors):
+            r = self._sensor(t, lev[:, 5 * s:5 * s + 5])
+            if r is None:
+                self.stats["sensor_invalid"] += 1
+            else:
+                reads.append(r)
+        if not reads:
+            self.stats["unresolved_lugs"] += 1
+            return
+        values = [r[0] for r in reads]
+        counts = sorted(((values.count(x), x) for x in set(values)), reverse=True)
+        count, best = counts[0]
+        if count < len(values):
+            self.stats["sensor_disagreements"] += 1
+        # vote: a strict majority, or at least two sensors agreeing with every other
+        # sensor reading something different (two independent misreads of the same bit
+        # are improbable); a single sensor is taken as it reads
+        if len(values) == 1 or 2 * count > len(values) or (count >= 2 and counts[1][0] < count):
+            value = best
+        else:
+            self.stats["unresolved_lugs"] += 1
+            value = None
+        agree = [r for r in reads if r[0] == best]
+        t_ref = float(np.mean([r[1] for r in agree]))
+        v = float(np.mean([r[2] for r in agree]))
+        dt = t[1] - t[0] if len(t) > 1 else 0.0
+        n_pts = agree[0][3]
+        # crossing times quantised by the sampling (sharp edges) and jittered by the noise;
+        # the sensors sample at the same instants, so their quantisation errors are common
+        sig_q = abs(v) * dt / math.sqrt(12.0 * n_pts)
+        sig_n = p["level_noise"] * p["edge_width"] / p["attenuation"] / math.sqrt(n_pts * len(agree))
+        sig_fit = float(np.mean([r[4] for r in agree]))      # acceleration over the lug
+        lug = {"value": value, "t": t_ref, "v": v, "sigma": math.sqrt(sig_q ** 2 + sig_n ** 2 + sig_fit ** 2)}
+        if self._group:
+            g = self._group[-1]
+            if (np.sign(v) != np.sign(g["v"]) or
+                    (t_ref - g["t"]) * 0.5 * (abs(v) + abs(g["v"])) > p["group_gap"]):
+                self._close_group(out, errors)
+        self._group.append(lug)
+        if self._group_len and len(self._group) >= self._group_len:
+            self._close_group(out, errors)
+
+    def _close_group(self, out, errors) -> None:
+        p = self.params
+        lugs, self._group = self._group, []
+        self.stats["groups"] += 1
+        if any(lug["value"] is None for lug in lugs):
+            return                            # counted in unresolved_lugs
+        direction = 1 if np.mean([lug["v"] for lug in lugs]) > 0 else -1
+        code = tuple(lug["value"] for lug in lugs)
+        if direction < 0:
+            code = code[::-1]                 # travel order -> chainage order
+        match = self._groups.get(code)
+        if not match:
+            if self._group_len and len(code) < self._group_len:
+                self.stats["incomplete_groups"] += 1
+                return
+            self.stats["unknown_id"] += 1
+            errors.append(InputRejected("unknown_id", f"LRL code {list(code)} is no group of track "
+                                                      f"{self.track.track_id}"))
+            return
+        if len(match) > 1:
+            self.stats["unknown_id"] += 1
+            errors.append(InputRejected("unknown_id", f"LRL code {list(code)} is used by several groups: "
+                                                      f"{[m[0]['id'] for m in match]}"))
+            return
+        item, spacing = match[0]
+        last = lugs[-1]
+        k_last = len(code) - 1 if direction > 0 else 0
+        chainage = item["position"] + k_last * spacing
+        sigma = math.hypot(p["install_sigma"], last["sigma"])
+        out.append(PositionFix(float(last["t"]), self.sensor, self.unit_id, self.track.track_id, str(item["id"]),
+                               float(chainage + p["sensor_offset"]), float(sigma), direction))
+
+
+SPEC = SensorSpec(
+    node="lrl_scanner", sensor="lrl", simulator=LrlSimulator, decoder=LrlDecoder, params=PARAMS,
+    description="on-board INKREFA LRL scanner: location reference lug codes -> position fix",
+    seeds=("002", "000"),
+)

@@ -59,6 +59,8 @@ def check_fixes(sc, fixes):
 def test_counts_exact_at_300_kmh_both_directions(speed, start, order):
     sc = scenario(speed, start, duration=42.0)
     blocks, ms, pipe = run_offline(NODE, sc)
+    for m in ms:
+        m.validate()
     n_axles = len(sc.vehicle.axles)
     final = by_id(occupancies(ms)[-1])
     for sid in SECTIONS:

@@ -42,6 +42,8 @@ def test_accuracy_at_500_kmh_both_directions(speed, start):
     sc = scenario(speed, start, duration=30.0)
     blocks, fixes, pipe = run_offline(NODE, sc)
     assert all(isinstance(f, PositionFix) for f in fixes)
+    for f in fixes:
+        f.validate()
     n_epochs = sum(b.n_samples for b in blocks)
     assert len(fixes) >= 0.97 * n_epochs          # a fix every 5 ms epoch (seed 002: 5 ms update)
     err, sd = errors(sc, fixes)

@@ -261,8 +261,10 @@ def test_over_speed_blocks_are_rejected_not_miscounted():
 
 
 def test_configuration_checks():
+    # the pipeline gives the decoder the vehicle's nominal diameter; a different
+    # explicit value is a configuration error
     with pytest.raises(ValueError, match="wheel_diameter"):
-        run_offline(NODE, scenario([{"speed": 1.0}], 1.0, diameter=0.86))
+        run_offline(NODE, scenario([{"speed": 1.0}], 1.0, {"wheel_diameter": 0.92}, diameter=0.86))
     # a smaller wheel turns faster: 10 kHz no longer resolves 300 km/h, but 270 km/h
     with pytest.raises(ValueError, match="max_speed"):
         run_offline(NODE, scenario([{"speed": 1.0}], 0.2, {"wheel_diameter": 0.86}, diameter=0.86))

@@ -446,9 +446,10 @@ class AxleCounterDecoder(Decoder):
                 out.append(self.occupancy(t_done))
                 self._reported_states = states
                 self._last_report = t_done
-        if block.t_end - self._last_report >= p["report_period"] - 1e-9:
-            out.append(self.occupancy(block.t_end))
-            self._last_report = block.t_end
+        t_last = t0 + (n - 1) * dt
+        if t_last - self._last_report >= p["report_period"] - 1e-9:
+            out.append(self.occupancy(t_last))
+            self._last_report = t_last
         return out
 
     def _evaluate(self, hi: int, ep: _Episode, t_done: float):

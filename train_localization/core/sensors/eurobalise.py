@@ -44,8 +44,8 @@ balises of the track (equipment kind ``eurobalise``). Raw signal (default 5 kHz)
 Sample rate: the field peak is 0.31 m wide at half maximum (eq. 3, y = 200 mm),
 2.2 ms at 500 km/h: 5 kHz gives 11 samples across it; 2 channels -> 10 k samples/s.
 
-Decoder: a passage is a run of samples with the field above ``detect_level``
-(hysteresis 0.8x). The antenna was over the balise centre at the midpoint of the two
+Decoder: a passage is a run of samples with the field above ``detect_level`` (or half
+the read threshold if lower; hysteresis 0.8x). The antenna was over the balise centre at the midpoint of the two
 half-maximum crossings (linear interpolation); the crossings' distance in time and
 the known half-maximum width of eq. 3 give |v|. The telegram id of the passage ->
 balise (track file) -> PositionFix of the train front = balise chainage +
@@ -445,7 +445,8 @@ class EurobaliseDecoder(Decoder):
         if np.any((tel < 0) | (tel > NID_MAX) | (tel != np.round(tel))):
             raise InputRejected("implausible", "telegram channel holds a value that is no 14-bit id")
         t = block.times()
-        on, off = p["detect_level"], 0.8 * p["detect_level"]
+        on = min(p["detect_level"], 0.5 * p["read_threshold"])   # the readable window lies inside
+        off = 0.8 * on
         out: list[PositionFix] = []
         errors: list[InputRejected] = []
         i, n = 0, len(f)
@@ -518,7 +519,7 @@ class EurobaliseDecoder(Decoder):
         # halved (in variance) by the midpoint; the interpolation error of a symmetric peak
         # cancels in the midpoint
         slope = self._rel_slope * 2.0 * half
-        sigma = math.sqrt(p["location_sigma"] ** 2 + 0.5 * (p["field_noise"] / slope) ** 2)
+        sigma = max(math.sqrt(p["location_sigma"] ** 2 + 0.5 * (p["field_noise"] / slope) ** 2), 1e-3)
         direction = 0
         if self._last_read is not None:
             t_last, last = self._last_read
@@ -534,5 +535,5 @@ class EurobaliseDecoder(Decoder):
 SPEC = SensorSpec(
     node="eurobalise_reader", sensor=KIND, simulator=EurobaliseSimulator, decoder=EurobaliseDecoder,
     params=PARAMS, description="on-board Eurobalise reader (BTM): balise telegram -> position fix",
-    seeds=("001",),
+    seeds=("001",), outputs=("position",),
 )

@@ -499,4 +499,5 @@ SPEC = SensorSpec(
     description="wayside INPO crossed inductive loops (Transrapid; MLU with 6 pairs): absolute position "
                 "from the 3-phase loop signals and period counting",
     seeds=("000", "002", "003"),
+    outputs=("position",),
 )

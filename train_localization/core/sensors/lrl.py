@@ -46,14 +46,17 @@ every edge. Per sensor gain error ``gain_sigma``. Misreads: with probability
 ``misread_probability`` per sensor and lug passage one bit of that sensor reads
 inverted (dirt, ice, a foreign metal part, a weak channel).
 
-Decoder: a lug passage is a run of samples in which any channel is below
-``threshold``. Per sensor: the centre times of the sync pulses (N1..N4, or D0 and
-the P plate edges; crossings interpolated) are fitted by a line t = a + b o, which
-gives the speed v = -1/b (its sign is the direction: channel order) and the time a
-at which the sensor reference point passed the lug's sync mark; the data channels
-are read at the samples nearest the fitted read instants (single: a; continuous:
-a - b c_j). Vote over the valid sensors: a strict majority, or at least two sensors
-agreeing while the others all read different values; else the lug is unresolved
+Decoder: a lug passage is a run of samples in which any channel is in the "lug" state
+(level below ``threshold``, with +-0.2 hysteresis). Per sensor, every threshold
+crossing of a sync or plate channel (N1..N4; or D0 and the plate edges of P1..P4),
+interpolated along its ramp, is a point (ref, t): the channel at offset o meets the
+lug edge e when the sensor reference point is at ref = e - o. The order in which the
+channels see the lug gives the direction; a line t(ref) through the points (a
+quadratic when the train accelerates over the lug) gives the time t(0) at which the
+sensor passed the sync mark, the speed 1/t'(0) and the read instants: t(0) for
+P1..P4 (the D0 pulse centre), t(c_j) for D1 cell j (N4, N3, N2, N1 over the tab).
+Vote over the valid sensors: a strict majority, or at least two sensors agreeing
+while the others all read different values; else the lug is unresolved
 (``stats["unresolved_lugs"]``); every disagreement is counted
 (``stats["sensor_disagreements"]``). Lugs less than ``group_gap`` apart form a
 group; travelling backwards the lug order is reversed to the track's order; the code
@@ -69,7 +72,8 @@ Track equipment (kind ``lrl_group``)::
 
 ``position``: chainage of the first lug's sync mark (lowest chainage) [m]; lug k at
 position + k x spacing; ``code``: 4-bit values 0..15 in chainage order; ``spacing``
-[m] (default: parameter ``lug_spacing``, at least MIN_SPACING). Without ``code`` (e.g.
+[m] (default: parameter ``lug_spacing``; at least 2 x lug_extent() + 0.5 m, 2.5 m with
+the default geometry, so that the sensor never sees two lugs at once). Without ``code`` (e.g.
 generated entries) the code is the number in the id (n of "LRL{n:03d}"), scrambled by
 an odd multiplier mod 16^lugs, in ``lugs`` (default ``lugs_per_group``) hex digits.
 """
@@ -86,8 +90,6 @@ from ..signals import InputRejected, RawBlock
 from .base import Decoder, Param, SensorSpec, Simulator
 
 KIND = "lrl_group"
-MIN_SPACING = 2.5            # [m] lugs closer than this would be seen by the sensor at once
-NEAR_RANGE = 1.2             # [m] beyond this a lug does not touch any channel
 Q_PITCH = 0.2                # single-scan P-channel pitch [m]
 D0_HALF = 0.25               # single-scan sync tab half-length [m]
 PLATE_HALF = 0.7             # single-scan plate half-length [m]
@@ -144,14 +146,23 @@ def group_code(item: dict, lugs_per_group: int = 3) -> tuple[int, ...]:
     return tuple((value >> (4 * (lugs - 1 - k))) & 15 for k in range(lugs))
 
 
+def lug_extent(mode: str = "single", bit_pitch: float = 0.35) -> float:
+    """Largest distance [m] between the sensor reference point and a lug's sync mark at
+    which some channel still sees the lug."""
+    if mode == "single":
+        return 1.5 * Q_PITCH + PLATE_HALF
+    return max(1.5 * bit_pitch + 0.5 * (bit_pitch + 0.05), 2.0 * bit_pitch)
+
+
 def track_groups(track, params: dict) -> list[tuple[dict, tuple[int, ...], float]]:
     """(item, code, spacing) of every LRL group of the track; spacing checked."""
     out = []
+    min_spacing = 2.0 * lug_extent(params.get("scan_mode", "single"), params.get("bit_pitch", 0.35)) + 0.5
     for item in track.items(KIND):
         code = group_code(item, params["lugs_per_group"])
         spacing = float(item.get("spacing", params["lug_spacing"]))
-        if len(code) > 1 and spacing < MIN_SPACING:
-            raise ValueError(f"lrl_group {item['id']}: lug spacing {spacing} m < {MIN_SPACING} m")
+        if len(code) > 1 and spacing < min_spacing:
+            raise ValueError(f"lrl_group {item['id']}: lug spacing {spacing} m < {min_spacing:.2f} m")
         out.append((item, code, spacing))
     return out
 
@@ -218,6 +229,7 @@ class LrlSimulator(Simulator):
         self._bits = np.array(bits, dtype=float).reshape(-1, 4)[order]
         self._gain = np.maximum(0.5, 1.0 + p["gain_sigma"] * self.rng.normal(size=self.n_sensors))
         self._passage: tuple[int, np.ndarray] | None = None    # (lug index, flip mask per sensor)
+        self._near = lug_extent(self.mode, p["bit_pitch"]) + 0.2
 
     def _flips(self) -> np.ndarray:
         """Bit-flip mask (n_sensors, 4) of one lug passage."""
@@ -265,7 +277,7 @@ class LrlSimulator(Simulator):
             hi = np.clip(k, 0, self._pos.size - 1)
             idx = np.where(np.abs(ref - self._pos[lo]) <= np.abs(ref - self._pos[hi]), lo, hi)
             u = ref - self._pos[idx]
-            key = np.where(np.abs(u) < NEAR_RANGE, idx, -1)
+            key = np.where(np.abs(u) < self._near, idx, -1)
             bits = np.zeros((n, self.n_sensors, 4))
             starts = np.r_[0, np.flatnonzero(np.diff(key)) + 1]
             ends = np.r_[starts[1:], n]
@@ -559,7 +571,7 @@ class LrlDecoder(Decoder):
         last = lugs[-1]
         k_last = len(code) - 1 if direction > 0 else 0
         chainage = item["position"] + k_last * spacing
-        sigma = math.hypot(p["install_sigma"], last["sigma"])
+        sigma = max(math.hypot(p["install_sigma"], last["sigma"]), 1e-3)
         out.append(PositionFix(float(last["t"]), self.sensor, self.unit_id, self.track.track_id, str(item["id"]),
                                float(chainage + p["sensor_offset"]), float(sigma), direction))
 
@@ -567,5 +579,5 @@ class LrlDecoder(Decoder):
 SPEC = SensorSpec(
     node="lrl_scanner", sensor="lrl", simulator=LrlSimulator, decoder=LrlDecoder, params=PARAMS,
     description="on-board INKREFA LRL scanner: location reference lug codes -> position fix",
-    seeds=("002", "000"),
+    seeds=("002", "000"), outputs=("position",),
 )

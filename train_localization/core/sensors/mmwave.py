@@ -5,7 +5,10 @@ from the propagation delays of radio signals exchanged between the train and
 several wayside base stations; it serves for the initialisation of the position
 and for train protection, receives several base stations at once for safety, and
 the MLX position system updates every 5 ms. Seed 002 section 2.2.1: the Transrapid
-exchanges position and speed over a 38 GHz radio link with the wayside.
+exchanges position and speed over a 38 GHz radio link with the wayside. The +-5 deg
+accuracy that seed 002 gives for the whole MLX system (LSM electrical angle, i.e.
+centimetres) comes from its incremental sensors; the radio ranging serves
+initialisation and protection, for which decimetre-level ranges suffice.
 
 Ranging scheme (our choice, documented): two-way ranging (TWR). The on-board radio
 polls each base station; the station answers after a fixed, calibrated turnaround
@@ -67,7 +70,7 @@ Decoder: per epoch a weighted least-squares fit of the 1-D antenna chainage x to
 the valid ranges (SNR >= ``snr_threshold``), with sigma_i from the reported SNR
 plus the calibration term.
   * Ambiguity: a single range is symmetric about the station's chainage (x = s_i +-
-    sqrt(r^2 - d^2)). The fit starts from the best of the 2 m candidates
+    sqrt(r^2 - d^2)). The fit starts from the best of the 2 x stations candidates
     s_i +- sqrt(r_i^2 - d_i^2) under a robust (capped) cost over all stations; two
     stations at different chainages remove the ambiguity. If the two best candidates
     fit (nearly) equally well -- one station only (``min_stations`` = 1), or a
@@ -267,7 +270,7 @@ class MmWaveSimulator(Simulator):
         order = np.argsort(np.where(in_range, r, np.inf), axis=1, kind="stable")[:, :N_SLOTS]
         rows = np.arange(n)[:, None]
         chosen = np.sort(order, axis=1)  # station index order = chainage order
-        ok = in_range[rows, chosen]
+        ok = in_range[rows, chosen]  # fewer stations in range than slots: the rest stay empty (code 0)
         for k in range(min(N_SLOTS, m)):
             j = chosen[:, k]
             valid = ok[:, k]
@@ -275,10 +278,6 @@ class MmWaveSimulator(Simulator):
             out[:, 3 * k] = np.where(valid, self.codes[j], 0)
             out[:, 3 * k + 1] = np.where(rep, measured[np.arange(n), j] / C_AIR, 0.0)
             out[:, 3 * k + 2] = np.where(rep, snr[np.arange(n), j], 0.0)
-        # a slot chosen among fewer in-range stations than slots may repeat a station: empty it
-        for k in range(1, min(N_SLOTS, m)):
-            dup = (out[:, 3 * k] == out[:, 3 * (k - 1)]) & (out[:, 3 * k] > 0)
-            out[dup, 3 * k: 3 * k + 3] = 0.0
         return out
 
 

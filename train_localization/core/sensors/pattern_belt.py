@@ -415,4 +415,5 @@ SPEC = SensorSpec(
     node="pattern_belt", sensor="pattern_belt", simulator=PatternBeltSimulator, decoder=PatternBeltDecoder,
     params=PARAMS, description="HSST pattern belt (8-shaped HF loop, 3 coils at p/3): signed distance "
     "increments at p/6 resolution and speed", seeds=("000", "002", "003"),
+    outputs=("distance",),
 )

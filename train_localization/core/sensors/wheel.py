@@ -525,4 +525,5 @@ SPEC = SensorSpec(
     node="wheel_sensor", sensor="wheel", simulator=WheelSimulator, decoder=WheelDecoder,
     params=PARAMS, description="on-board wheel pulse generator (quadrature): signed distance increments "
     "and speed; affected by diameter error, creep, slip and slide", seeds=("002",),
+    outputs=("distance",),
 )

@@ -142,6 +142,8 @@ def _heads(track: Track, params: dict) -> list[dict]:
         if missing:
             raise TrackError(f"{HEAD_KIND} {', '.join(missing)} not on track {track.track_id}")
         items = [it for it in items if it["id"] in wanted]
+    if not items:
+        raise TrackError(f"no {HEAD_KIND} on track {track.track_id}: an axle counter needs heads")
     if len({it["id"] for it in items}) != len(items):
         raise TrackError(f"{HEAD_KIND} ids are not unique")
     return items

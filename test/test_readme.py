@@ -1,0 +1,25 @@
+"""README.md stays true: quick start, node list, parameter tables."""
+from __future__ import annotations
+
+import re
+
+from conftest import ROOT
+from train_localization.core.sensors import NODE_NAMES
+from train_localization.tools.docs import BEGIN, END, sensor_params_markdown
+
+README = (ROOT / "README.md").read_text()
+
+
+def test_quick_start_holds_exactly_the_demo_then_the_test_command():
+    section = README.split("## Quick start", 1)[1].split("\n## ", 1)[0]
+    block = re.search(r"```(?:bash|sh)?\n(.*?)```", section, re.S).group(1)
+    commands = [line for line in block.splitlines() if line.strip() and not line.startswith("#")]
+    assert commands == ["bash scripts/demo.sh", "bash scripts/test.sh"]
+    assert "bash scripts/test.sh" in (ROOT / ".ci" / "run").read_text()
+
+
+def test_every_node_is_documented_with_its_current_parameters():
+    table = README.split(BEGIN, 1)[1].split(END, 1)[0]
+    assert table.strip() == sensor_params_markdown().strip(), "regenerate: python -m train_localization.tools.docs"
+    for node in ("simulator", "fusion", "recorder", "replayer", *NODE_NAMES):
+        assert f"`{node}`" in README

@@ -1,0 +1,113 @@
+"""Replayer node: plays an MCAP bag into the graph, like ``ros2 bag play``.
+
+Messages are published as the serialized bytes stored in the bag (no decoding),
+paced by their log time. /clock is published from the bag's time line (unless the
+bag's own /clock is replayed), so nodes with use_sim_time follow the recording.
+
+Parameters:
+  bag (string, required)     MCAP file
+  rate (double, 1.0)         playback speed factor; 0 = as fast as possible
+  start_offset (double, 0.0) skip the first seconds of the bag [s]
+  loop (bool, false)         start again at the end
+  topics (string[], [])      topics to play; empty = all
+  remap (string[], [])       "from:=to" topic remappings, e.g. "/train/sensors/doppler/raw:=/lab/raw"
+  clock_rate (double, 100.0) /clock publications per second of bag time [Hz]
+  exit_at_end (bool, true)   shut down after the last message (ignored with loop)
+"""
+from __future__ import annotations
+
+import threading
+import time
+
+from mcap.reader import make_reader
+from rclpy.node import Node
+from rosgraph_msgs.msg import Clock
+
+from .common import CLOCK_QOS, LATCHED_QOS, STREAM_QOS, declare, spin
+from .recorder import message_class
+
+
+class ReplayerNode(Node):
+    def __init__(self):
+        super().__init__("replayer")
+        self.bag = declare(self, "bag", "", "MCAP file to play")
+        if not self.bag:
+            raise ValueError("parameter 'bag' is required")
+        self.rate = float(declare(self, "rate", 1.0, "playback speed factor; 0 = as fast as possible"))
+        self.start_offset = float(declare(self, "start_offset", 0.0, "skip this much of the bag [s]"))
+        self.loop = bool(declare(self, "loop", False, "start again at the end"))
+        self.topics = {t for t in declare(self, "topics", [""], "topics to play; empty = all") if t}
+        self.remap = {}
+        for item in declare(self, "remap", [""], "'from:=to' topic remappings"):
+            if item:
+                src, sep, dst = item.partition(":=")
+                if not sep:
+                    raise ValueError(f"remap entry {item!r} is not 'from:=to'")
+                self.remap[src] = dst
+        self.clock_period = 1.0 / float(declare(self, "clock_rate", 100.0, "/clock rate [Hz of bag time]"))
+        self.exit_at_end = bool(declare(self, "exit_at_end", True, "shut down at the end"))
+        self.pubs = {}
+        self.published = 0
+        self.finished = False
+        self._stop = threading.Event()
+        with open(self.bag, "rb") as fh:
+            summary = make_reader(fh).get_summary()
+        self._channels = {cid: ch for cid, ch in summary.channels.items()
+                          if not self.topics or ch.topic in self.topics}
+        for cid, ch in self._channels.items():
+            typename = summary.schemas[ch.schema_id].name
+            topic = self.remap.get(ch.topic, ch.topic)
+            qos = CLOCK_QOS if topic == "/clock" else (LATCHED_QOS if topic.endswith(("localization/state", "sections")) else STREAM_QOS)
+            self.pubs[cid] = self.create_publisher(message_class(typename), topic, qos)
+        self._own_clock = not any(ch.topic == "/clock" for ch in self._channels.values())
+        self.clock_pub = self.create_publisher(Clock, "/clock", CLOCK_QOS) if self._own_clock else None
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _publish_clock(self, t_ns: int):
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = divmod(int(t_ns), 1_000_000_000)
+        self.clock_pub.publish(msg)
+
+    def _run(self):
+        time.sleep(0.5)  # let subscribers match
+        while not self._stop.is_set():
+            self._play_once()
+            if not self.loop:
+                break
+        self.get_logger().info(f"replay finished: {self.published} messages")
+        if self.exit_at_end and not self.loop:
+            time.sleep(0.5)
+            self.finished = True
+
+    def _play_once(self):
+        with open(self.bag, "rb") as fh:
+            reader = make_reader(fh)
+            t0_bag = None
+            wall0 = time.monotonic()
+            next_clock = None
+            for _, channel, message in reader.iter_messages(log_time_order=True):
+                if self._stop.is_set():
+                    return
+                if t0_bag is None:
+                    t0_bag = message.log_time + int(self.start_offset * 1e9)
+                if message.log_time < t0_bag or channel.id not in self.pubs:
+                    continue
+                rel = (message.log_time - t0_bag) * 1e-9
+                if self.rate > 0:
+                    lag = wall0 + rel / self.rate - time.monotonic()
+                    if lag > 0:
+                        time.sleep(lag)
+                if self.clock_pub is not None:
+                    if next_clock is None or message.log_time >= next_clock:
+                        self._publish_clock(message.log_time)
+                        next_clock = message.log_time + int(self.clock_period * 1e9)
+                self.pubs[channel.id].publish(message.data)
+                self.published += 1
+
+    def close(self):
+        self._stop.set()
+
+
+def main(args=None):
+    return spin(ReplayerNode, args)

@@ -520,4 +520,5 @@ SPEC = SensorSpec(
     node="axle_counter", sensor="axle_counter", simulator=AxleCounterSimulator, decoder=AxleCounterDecoder,
     params=PARAMS, description="wayside axle counter: section occupancy and train-front fixes at the heads",
     seeds=("004",),
+    outputs=("position", "sections"),
 )

@@ -544,4 +544,5 @@ SPEC = SensorSpec(
     node="mmwave_ranging", sensor="mmwave", simulator=MmWaveSimulator, decoder=MmWaveDecoder,
     params=PARAMS, description="on-board mm-wave radio ranging to wayside base stations: absolute position",
     seeds=("002",),
+    outputs=("position",),
 )

@@ -70,6 +70,7 @@ class Scenario:
     start_speed: float = 0.0
     truth_rate: float = 100.0            # ground_truth/state rate [Hz]
     sensors: dict[str, dict] = field(default_factory=dict)  # sensor node name -> parameters
+    fusion: dict = field(default_factory=dict)  # FusionConfig overrides (core/fusion.py)
     source: Path | None = None
 
     def rng(self, *names: str) -> np.random.Generator:
@@ -113,6 +114,7 @@ class Scenario:
                 seed=int(data.get("seed", 0)), start_position=float(init.get("position", 0.0)),
                 start_speed=float(init.get("speed", 0.0)), truth_rate=float(data.get("truth_rate", 100.0)),
                 sensors={name: dict(params or {}) for name, params in (data.get("sensors", {}) or {}).items()},
+                fusion=dict(data.get("fusion", {}) or {}),
                 source=source,
             )
         except KeyError as exc:

@@ -1,0 +1,215 @@
+"""The graph without DDS: scenario -> sensors -> fusion, and bag -> decoders -> fusion.
+
+``FusionRunner`` is the fusion node's logic (filter + fixed-rate output grid); the
+node wraps it and so do the offline functions here, so live and offline runs make
+the same estimates from the same measurement sequence.
+
+``simulate_scenario`` runs every sensor of a scenario in simulation mode and the
+fusion, and can write a bag with the same topics as the live graph.
+``replay_bag`` feeds a bag's raw topics through the decoders (ingest mode) and the
+fusion as fast as the CPU allows and can write a new bag with the recomputed
+outputs (offline replay, DESIGN.md section 1).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from . import convert
+from .bagio import BagWriter, read_bag, typestore_classes
+from .fusion import Estimate, FusionConfig, TrainFilter
+from .measurements import SectionOccupancy
+from .pipeline import SensorPipeline
+from .scenario import Scenario
+from .sensors import spec as sensor_spec
+from .signals import InputRejected
+
+NAMESPACE = "/train"
+FUSED_INPUTS = ("position", "speed", "distance")
+
+
+def fusion_config(scenario: Scenario | None, **overrides) -> FusionConfig:
+    """FusionConfig of a scenario's ``fusion:`` section (plus overrides)."""
+    values = dict((scenario.fusion if scenario else {}) or {})
+    values.update(overrides)
+    if scenario is not None:
+        values.setdefault("track_id", scenario.track.track_id)
+    for key in ("scale_sensors", "slip_sensors"):
+        if key in values:
+            values[key] = tuple(values[key])
+    return FusionConfig(**values)
+
+
+class FusionRunner:
+    """TrainFilter plus the fixed-rate output grid (k / rate seconds).
+
+    ``add`` feeds a measurement (rejections are counted in ``rejected``),
+    ``advance(t)`` returns the estimates of every grid time <= t not yet produced,
+    each with the sensor classes used since the previous one.
+    """
+
+    def __init__(self, config: FusionConfig, rate: float = 200.0):
+        self.filter = TrainFilter(config)
+        self.period = 1.0 / rate
+        self._next_k: int | None = None
+        self._used: set[str] = set()
+        self.rejected: dict[str, int] = {}
+
+    def add(self, m) -> bool:
+        try:
+            self.filter.add(m)
+        except InputRejected as exc:
+            self.rejected[exc.reason] = self.rejected.get(exc.reason, 0) + 1
+            return False
+        self._used.add(m.sensor)
+        return True
+
+    def advance(self, t: float, max_catch_up: int = 1000) -> list[tuple[Estimate, list[str]]]:
+        k_now = math.floor(t / self.period + 1e-9)
+        if self._next_k is None or k_now - self._next_k > max_catch_up:
+            self._next_k = k_now
+        out = []
+        while self._next_k <= k_now:
+            out.append((self.filter.estimate(convert.canonical(self._next_k * self.period)), sorted(self._used)))
+            self._used.clear()
+            self._next_k += 1
+        return out
+
+
+def estimate_to_msg(mc, est: Estimate, track_id: str, sensors):
+    return convert.train_state_to_msg(mc, est.stamp, track_id, est.position, est.speed, est.acceleration,
+                                      est.position_stddev, est.speed_stddev, est.position_min,
+                                      est.position_max, est.confidence, est.mode, sensors)
+
+
+@dataclass
+class RunResult:
+    truth: list = field(default_factory=list)       # TruthState
+    estimates: list = field(default_factory=list)   # Estimate
+    measurements: list = field(default_factory=list)
+    blocks: int = 0
+    rejected: dict = field(default_factory=dict)
+    runner: FusionRunner | None = None
+
+
+def _ns(t: float) -> int:
+    return convert.sec_to_ns(t)
+
+
+def simulate_scenario(scenario: Scenario, bag: str | Path | None = None, fusion_rate: float = 200.0,
+                      record_raw: bool = True, t_end: float | None = None) -> RunResult:
+    """Run the scenario's sensors and the fusion in one process; optionally write a bag.
+
+    Order of events: at each truth step the truth is published, every sensor turns
+    the blocks it completed into measurements (published at the block end), the
+    fusion takes them, then the fused states up to the step time are produced.
+    """
+    mc = typestore_classes() if bag else None
+    writer = BagWriter(bag) if bag else None
+    pipes = []
+    for node, params in scenario.sensors.items():
+        spec = sensor_spec(node)
+        unit = (params or {}).get("unit_id") or spec.sensor
+        pipes.append(SensorPipeline(spec, params, scenario.track, scenario.vehicle, scenario.rng(node, unit)))
+    runner = FusionRunner(fusion_config(scenario), fusion_rate)
+    traj = scenario.trajectory()
+    result = RunResult(runner=runner)
+    track_id = scenario.track.track_id
+    t_end = scenario.duration if t_end is None else t_end
+    n = int(round(t_end * scenario.truth_rate)) + 1
+    try:
+        for k in range(n):
+            t = convert.canonical(k / scenario.truth_rate)
+            state = traj.state_at(t)
+            result.truth.append(state)
+            if writer:
+                writer.write(f"{NAMESPACE}/ground_truth/state", convert.train_state_to_msg(
+                    mc, t, track_id, state.position, state.speed, state.acceleration), _ns(t))
+            for pipe in pipes:
+                for block in pipe.on_truth(state):
+                    result.blocks += 1
+                    if writer and record_raw:
+                        writer.write(f"{NAMESPACE}/sensors/{block.sensor}/raw",
+                                     convert.raw_block_to_msg(block, mc), _ns(t))
+                    try:
+                        ms = pipe.on_block(block)
+                    except InputRejected as exc:
+                        result.rejected[exc.reason] = result.rejected.get(exc.reason, 0) + 1
+                        continue
+                    for m in ms:
+                        _publish_measurement(m, runner, result, writer, mc, t)
+            for est, used in runner.advance(t):
+                result.estimates.append(est)
+                if writer:
+                    writer.write(f"{NAMESPACE}/localization/state", estimate_to_msg(mc, est, track_id, used),
+                                 _ns(est.stamp))
+    finally:
+        if writer:
+            writer.close()
+    return result
+
+
+def _publish_measurement(m, runner, result, writer, mc, t):
+    result.measurements.append(m)
+    if writer:
+        writer.write(f"{NAMESPACE}/{convert.measurement_topic(m)}", convert.measurement_to_msg(m, mc), _ns(t))
+    if not isinstance(m, SectionOccupancy):
+        runner.add(m)
+
+
+def replay_bag(bag: str | Path, scenario: Scenario, out_bag: str | Path | None = None,
+               fusion_rate: float = 200.0, progress: bool = False) -> RunResult:
+    """Decode a bag's raw topics and fuse them, in log-time order, without DDS.
+
+    The ground truth of the bag (if any) is copied to the result and the new bag.
+    Raw topics of sensors the scenario does not list are ignored.
+    """
+    from .bagio import topic_counts
+    mc = typestore_classes() if out_bag else None
+    writer = BagWriter(out_bag) if out_bag else None
+    pipes = {}
+    for node, params in scenario.sensors.items():
+        spec = sensor_spec(node)
+        pipes[f"{NAMESPACE}/sensors/{spec.sensor}/raw"] = SensorPipeline(
+            spec, params, scenario.track, scenario.vehicle, simulate=False)
+    runner = FusionRunner(fusion_config(scenario), fusion_rate)
+    result = RunResult(runner=runner)
+    track_id = scenario.track.track_id
+    topics = list(pipes) + [f"{NAMESPACE}/ground_truth/state"]
+    total = sum(n for t, n in topic_counts(bag).items() if t in topics)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=total, unit="msg", desc=Path(bag).name)
+    try:
+        for topic, _, t_ns, msg in read_bag(bag, topics):
+            t = t_ns / 1e9
+            if bar:
+                bar.update(1)
+            if topic.endswith("ground_truth/state"):
+                state = convert.truth_from_msg(msg)
+                result.truth.append(state)
+                if writer:
+                    writer.write(topic, convert.train_state_to_msg(mc, state.stamp, track_id, state.position,
+                                                                   state.speed, state.acceleration), t_ns)
+            else:
+                try:
+                    ms = pipes[topic].on_block(convert.raw_block_from_msg(msg))
+                except InputRejected as exc:
+                    result.rejected[exc.reason] = result.rejected.get(exc.reason, 0) + 1
+                    continue
+                result.blocks += 1
+                for m in ms:
+                    _publish_measurement(m, runner, result, writer, mc, t)
+            for est, used in runner.advance(t):
+                result.estimates.append(est)
+                if writer:
+                    writer.write(f"{NAMESPACE}/localization/state", estimate_to_msg(mc, est, track_id, used),
+                                 _ns(est.stamp))
+    finally:
+        if bar:
+            bar.close()
+        if writer:
+            writer.close()
+    return result

@@ -143,6 +143,8 @@ def read_bag(path: str | Path, topics: list[str] | None = None) -> Iterator[tupl
     from rosbags.highlevel import AnyReader
     with AnyReader([Path(path)], default_typestore=typestore()) as reader:
         conns = [c for c in reader.connections if topics is None or c.topic in topics]
+        if not conns:
+            return  # (an empty list would mean "all connections" to rosbags)
         for conn, t_ns, raw in reader.messages(connections=conns):
             yield conn.topic, conn.msgtype, t_ns, reader.deserialize(raw, conn.msgtype)
 

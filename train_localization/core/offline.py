@@ -118,6 +118,8 @@ def simulate_scenario(scenario: Scenario, bag: str | Path | None = None, fusion_
     track_id = scenario.track.track_id
     t_end = scenario.duration if t_end is None else t_end
     n = int(round(t_end * scenario.truth_rate)) + 1
+    if writer:
+        writer.write(f"{NAMESPACE}/scenario", typestore_classes_string(scenario.to_yaml()), 0)
     try:
         for k in range(n):
             t = convert.canonical(k / scenario.truth_rate)
@@ -148,6 +150,19 @@ def simulate_scenario(scenario: Scenario, bag: str | Path | None = None, fusion_
         if writer:
             writer.close()
     return result
+
+
+def typestore_classes_string(text: str):
+    from .bagio import typestore
+    return typestore().types["std_msgs/msg/String"](data=text)
+
+
+def scenario_from_bag(bag: str | Path) -> Scenario:
+    """The scenario a bag was made from (its /train/scenario topic)."""
+    for _, _, _, msg in read_bag(bag, [f"{NAMESPACE}/scenario"]):
+        import yaml
+        return Scenario.from_dict(yaml.safe_load(msg.data))
+    raise ValueError(f"{bag} has no {NAMESPACE}/scenario topic: give the scenario explicitly")
 
 
 def _publish_measurement(m, runner, result, writer, mc, t):

@@ -72,6 +72,11 @@ class Scenario:
     sensors: dict[str, dict] = field(default_factory=dict)  # sensor node name -> parameters
     fusion: dict = field(default_factory=dict)  # FusionConfig overrides (core/fusion.py)
     source: Path | None = None
+    description: dict = field(default_factory=dict, repr=False)  # the YAML, track inlined
+
+    def to_yaml(self) -> str:
+        """Self-contained YAML of the scenario (track inlined): recorded into bags."""
+        return yaml.safe_dump(self.description, sort_keys=False)
 
     def rng(self, *names: str) -> np.random.Generator:
         """Independent random stream for one device, stable across runs and orderings."""
@@ -96,12 +101,14 @@ class Scenario:
         try:
             track_ref = data["track"]
             if isinstance(track_ref, dict):
-                track = Track.from_dict(track_ref)
+                track_data = track_ref
             else:
                 track_path = Path(track_ref)
                 if not track_path.is_absolute() and source is not None and (source.parent / track_path.name).exists():
                     track_path = source.parent / track_path.name
-                track = Track.from_yaml(paths.resolve(track_path))
+                with open(paths.resolve(track_path), encoding="utf-8") as fh:
+                    track_data = yaml.safe_load(fh)
+            track = Track.from_dict(track_data)
             veh = data.get("vehicle", {}) or {}
             vehicle = Vehicle(kind=str(veh.get("type", "conventional")), length=float(veh.get("length", 200.0)),
                               axles=tuple(float(a) for a in veh.get("axles", ()) or ()),
@@ -115,7 +122,7 @@ class Scenario:
                 start_speed=float(init.get("speed", 0.0)), truth_rate=float(data.get("truth_rate", 100.0)),
                 sensors={name: dict(params or {}) for name, params in (data.get("sensors", {}) or {}).items()},
                 fusion=dict(data.get("fusion", {}) or {}),
-                source=source,
+                source=source, description={**data, "track": track_data},
             )
         except KeyError as exc:
             raise ScenarioError(f"scenario lacks the key {exc}") from None

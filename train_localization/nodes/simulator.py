@@ -9,7 +9,8 @@ Parameters:
   wait_for_subscribers (int, 0)  before starting, wait (at most 60 s) until
                                ground_truth/state has this many subscribers
 Topics: /clock (rosgraph_msgs/Clock), ground_truth/state (TrainState, stddevs 0,
-interval = position), /diagnostics.
+interval = position), scenario (std_msgs/String, transient-local: the scenario
+YAML with the track inlined, so that a recorded bag describes itself), /diagnostics.
 """
 from __future__ import annotations
 
@@ -21,7 +22,7 @@ from rclpy.node import Node
 
 from ..core.convert import sec_to_ns, train_state_to_msg
 from ..core.scenario import Scenario
-from .common import CLOCK_QOS, STREAM_QOS, Diagnostics, declare, rclpy_classes, spin
+from .common import CLOCK_QOS, LATCHED_QOS, STREAM_QOS, Diagnostics, declare, rclpy_classes, spin
 
 
 class SimulatorNode(Node):
@@ -39,6 +40,9 @@ class SimulatorNode(Node):
         self.mc = rclpy_classes()
         self.clock_pub = self.create_publisher(Clock, "/clock", CLOCK_QOS)
         self.truth_pub = self.create_publisher(self.mc.TrainState, "ground_truth/state", STREAM_QOS)
+        from std_msgs.msg import String
+        self.scenario_pub = self.create_publisher(String, "scenario", LATCHED_QOS)
+        self.scenario_pub.publish(String(data=self.scenario.to_yaml()))
         self.diag = Diagnostics(self, "simulator")
         self.diag.values["scenario"] = self.scenario.name
         self.finished = False

@@ -179,6 +179,7 @@ class AxleCounterSimulator(Simulator):
     sensor = "axle_counter"
     channels = ()  # per instance: two per head (the layout depends on the track)
     units = ()
+    adc_lsb = {"1": 1 / 1024}  # 10-bit conversion of the normalised damping
     default_sample_rate = 2000.0
 
     def __init__(self, *args):

@@ -74,6 +74,9 @@ class Simulator(ABC):
     channels: tuple[str, ...] = ()
     units: tuple[str, ...] = ()
     default_sample_rate: float = 100.0
+    # resolution of the device's A/D conversion by channel unit, e.g. {"V": 5 / 4096};
+    # samples of those channels are rounded to it (a real ADC; it also keeps bags small)
+    adc_lsb: dict[str, float] = {}
 
     def __init__(self, params: dict, track: Track, vehicle: Vehicle, rng: np.random.Generator):
         self.params = params
@@ -103,11 +106,19 @@ class Simulator(ABC):
             times = (n0 + np.arange(self.samples_per_block)) / self.sample_rate
             s, v, a = truth.sample(times)
             data = self.samples(times, s, v, a)
+            if self.adc_lsb:
+                data = self._quantise(np.array(data, dtype=float))
             blocks.append(RawBlock.from_samples(self.sensor, self.unit_id, self.seq, float(times[0]),
                                                 self.sample_rate, self.channels, self.units, data))
             self.seq += 1
             self._next_t0 = (n0 + self.samples_per_block) / self.sample_rate
         return blocks
+
+    def _quantise(self, data: np.ndarray) -> np.ndarray:
+        lsb = np.array([self.adc_lsb.get(u, 0.0) for u in self.units])
+        q = lsb > 0
+        data[:, q] = np.round(data[:, q] / lsb[q]) * lsb[q]
+        return data
 
     def _sample_index(self, t: float) -> int:
         return int(round(t * self.sample_rate))

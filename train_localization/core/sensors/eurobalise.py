@@ -322,6 +322,7 @@ class EurobaliseSimulator(Simulator):
     sensor = KIND
     channels = ("field_strength", "telegram")
     units = ("A/m", "1")
+    adc_lsb = {"A/m": 2e-6}  # field channel 2 uA/m (1/10 of its noise); the telegram id stays exact
     default_sample_rate = 5000.0
 
     def __init__(self, *args):

@@ -216,6 +216,7 @@ class InpoSimulator(Simulator):
 
     sensor = "inpo"
     default_sample_rate = 2000.0  # 48.5 deg of phase per sample at 139 m/s with p = 0.516 m
+    adc_lsb = {"V": 5.0 / 4096}  # 12-bit ADC over the 5 V input range (adc_range)
 
     def __init__(self, *args):
         super().__init__(*args)

@@ -206,6 +206,7 @@ class LrlSimulator(Simulator):
     sensor = "lrl"
     channels = ()
     units = ()
+    adc_lsb = {"1": 1 / 1024}  # 10-bit conversion of the normalised receive level
     default_sample_rate = 1000.0
 
     def __init__(self, *args):

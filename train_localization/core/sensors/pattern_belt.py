@@ -246,6 +246,7 @@ class PatternBeltSimulator(Simulator):
     sensor = "pattern_belt"
     channels = ("coil_1", "coil_2", "coil_3")
     units = ("V", "V", "V")
+    adc_lsb = {"V": 5.0 / 4096}  # 12-bit ADC over 0..5 V (the detector saturates at 5 V)
     default_sample_rate = DEFAULT_SAMPLE_RATE
 
     def __init__(self, *args):

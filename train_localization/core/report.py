@@ -1,0 +1,234 @@
+"""Scores and plots of a run against ground truth: the regression report.
+
+Input: truth states, fused estimates (or TrainState messages) and the decoded
+measurements of one run (live bag or offline replay). Output: a JSON-able dict and
+PNG plots.
+
+Checks, per published state with a claimed position:
+  * ETCS odometry envelope (SUBSET-041 5.3.1): |position error| <= 5 m + 5 % of the
+    distance travelled since the last absolute reference (balise group; in a run
+    without balises, the last PositionFix of any on-board reference reader);
+  * speed band (SUBSET-041 5.3.1.2): +-2 km/h below 30 km/h, rising linearly to
+    +-12 km/h at 500 km/h;
+  * integrity: truth inside [position_min, position_max].
+Per-sensor residuals: measurement minus the fused estimate at its stamp (position
+fixes against position, speed and distance increments against speed), raw and
+normalised by the measurement's stddev.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .measurements import DistanceIncrement, PositionFix, SpeedMeasurement
+
+KMH = 1 / 3.6
+REFERENCE_READERS = ("eurobalise", "lrl", "axle_counter")  # point references, in order of preference
+
+
+def speed_band(speed_mps: np.ndarray) -> np.ndarray:
+    """Allowed |speed error| [m/s] of SUBSET-041: 2 km/h below 30 km/h, 12 km/h at 500 km/h."""
+    v = np.abs(speed_mps) / KMH
+    band_kmh = np.where(v < 30.0, 2.0, 2.0 + 10.0 * (np.minimum(v, 500.0) - 30.0) / 470.0)
+    return band_kmh * KMH
+
+
+def _stats(err) -> dict:
+    err = np.asarray(err, dtype=float)
+    if err.size == 0:
+        return {"n": 0, "rms": None, "p95": None, "max": None}
+    a = np.abs(err)
+    return {"n": int(err.size), "rms": float(np.sqrt(np.mean(err * err))), "p95": float(np.percentile(a, 95)),
+            "max": float(a.max())}
+
+
+def _columns(estimates):
+    """Arrays from Estimate objects or TrainState messages."""
+    from .convert import stamp_to_sec
+    rows = []
+    for e in estimates:
+        t = e.stamp if hasattr(e, "stamp") else stamp_to_sec(e.header.stamp)
+        rows.append((t, e.position, e.speed, e.position_stddev, e.speed_stddev, e.position_min, e.position_max,
+                     e.mode))
+    arr = np.array(rows, dtype=float).reshape(-1, 8)
+    return {k: arr[:, i] for i, k in enumerate(("t", "position", "speed", "position_stddev", "speed_stddev",
+                                                  "position_min", "position_max", "mode"))}
+
+
+def evaluate(truth, estimates, measurements) -> tuple[dict, dict]:
+    """(report dict, arrays for plotting)."""
+    tt = np.array([s.stamp for s in truth])
+    ts = np.array([s.position for s in truth])
+    tv = np.array([s.speed for s in truth])
+    f = _columns(estimates)
+    keep = (f["t"] >= tt[0]) & (f["t"] <= tt[-1])
+    f = {k: v[keep] for k, v in f.items()}
+    s_true = np.interp(f["t"], tt, ts)
+    v_true = np.interp(f["t"], tt, tv)
+    claimed = (f["mode"] != 0) & np.isfinite(f["position"])
+    pos_err = f["position"] - s_true
+    spd_err = f["speed"] - v_true
+
+    # distance travelled since the last point reference (true odometer difference)
+    odo = np.concatenate([[0.0], np.cumsum(np.abs(np.diff(ts)))])
+    fixes = [m for m in measurements if isinstance(m, PositionFix)]
+    reader = next((r for r in REFERENCE_READERS if any(m.sensor == r for m in fixes)), None)
+    ref_times = np.array(sorted(m.stamp for m in fixes if reader is None or m.sensor == reader))
+    odo_now = np.interp(f["t"], tt, odo)
+    envelope = np.full(f["t"].shape, np.inf)
+    if ref_times.size:
+        idx = np.searchsorted(ref_times, f["t"], side="right") - 1
+        has_ref = idx >= 0
+        odo_ref = np.interp(ref_times[np.maximum(idx, 0)], tt, odo)
+        envelope = np.where(has_ref, 5.0 + 0.05 * (odo_now - odo_ref), np.inf)
+    band = speed_band(v_true)
+    inside = (s_true >= f["position_min"]) & (s_true <= f["position_max"])
+    pe = pos_err[claimed]
+    env_c = envelope[claimed]
+    finite_env = np.isfinite(env_c)
+    report = {
+        "duration_s": float(tt[-1] - tt[0]),
+        "states": int(f["t"].size),
+        "states_with_position": int(claimed.sum()),
+        "position_error_m": _stats(pe),
+        "speed_error_mps": _stats(spd_err),
+        "speed_error_kmh_p95": float(np.percentile(np.abs(spd_err), 95) / KMH) if spd_err.size else None,
+        "etcs_envelope": {
+            "reference_reader": reader,
+            "states_checked": int(finite_env.sum()),
+            "inside_fraction": float(np.mean(np.abs(pe[finite_env]) <= env_c[finite_env])) if finite_env.any() else None,
+            "p95_error_over_envelope": float(np.percentile(np.abs(pe[finite_env]) / env_c[finite_env], 95))
+            if finite_env.any() else None,
+            "speed_inside_fraction": float(np.mean(np.abs(spd_err) <= band)) if band.size else None,
+            "speed_max_error_over_band": float(np.max(np.abs(spd_err) / band)) if band.size else None,
+        },
+        "integrity": {
+            "confidence": None,
+            "inside_fraction": float(inside[claimed].mean()) if claimed.any() else None,
+            "outside_count": int((~inside[claimed]).sum()),
+            "mean_interval_width_m": float(np.mean(f["position_max"][claimed] - f["position_min"][claimed]))
+            if claimed.any() else None,
+        },
+        "modes": {str(int(m)): int(n) for m, n in zip(*np.unique(f["mode"], return_counts=True))},
+        "residuals": {},
+    }
+    if hasattr(estimates[0], "confidence") if len(estimates) else False:
+        report["integrity"]["confidence"] = float(estimates[-1].confidence)
+    # per-sensor residuals against the fused estimate at the measurement stamp
+    res_plot = {}
+    groups: dict[str, list] = {}
+    for m in measurements:
+        if isinstance(m, PositionFix):
+            key, z, sd, ref = f"{m.sensor}/position", m.position, m.position_stddev, "position"
+        elif isinstance(m, SpeedMeasurement):
+            key, z, sd, ref = f"{m.sensor}/speed", m.speed, m.speed_stddev, "speed"
+        elif isinstance(m, DistanceIncrement):
+            key, z, sd, ref = f"{m.sensor}/distance", m.distance / m.duration, m.speed_stddev, "speed"
+        else:
+            continue
+        groups.setdefault(key, []).append((m.stamp, z, sd, ref))
+    ok = claimed
+    for key, rows in sorted(groups.items()):
+        arr = np.array([(t, z, sd) for t, z, sd, _ in rows])
+        ref = rows[0][3]
+        series = f["position"] if ref == "position" else f["speed"]
+        sel = ok if ref == "position" else np.ones_like(ok)
+        if sel.sum() < 2:
+            continue
+        est = np.interp(arr[:, 0], f["t"][sel], series[sel])
+        valid = (arr[:, 0] >= f["t"][sel][0]) & (arr[:, 0] <= f["t"][sel][-1])
+        r = arr[valid, 1] - est[valid]
+        nr = r / arr[valid, 2]
+        report["residuals"][key] = {"n": int(r.size), "mean": float(r.mean()) if r.size else None,
+                                    "std": float(r.std()) if r.size else None,
+                                    "normalised_rms": float(np.sqrt(np.mean(nr * nr))) if r.size else None}
+        res_plot[key] = (arr[valid, 0], r)
+    arrays = {"t": f["t"], "pos_err": pos_err, "claimed": claimed, "lo": f["position_min"] - s_true,
+              "hi": f["position_max"] - s_true, "spd_err": spd_err, "band": band, "envelope": envelope,
+              "mode": f["mode"], "residuals": res_plot}
+    return report, arrays
+
+
+def plot(arrays: dict, out_dir: Path, title: str = "") -> list[Path]:
+    """PNG plots: position error with interval and envelope, speed error with band,
+    per-sensor residuals, mode timeline. Returns the files written."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    out_dir.mkdir(parents=True, exist_ok=True)
+    t, c = arrays["t"], arrays["claimed"]
+    files = []
+
+    fig, ax = plt.subplots(figsize=(10, 4.5))
+    ax.fill_between(t[c], arrays["lo"][c], arrays["hi"][c], color="tab:blue", alpha=0.2,
+                    label="confidence interval - truth")
+    ax.plot(t[c], arrays["pos_err"][c], color="tab:blue", lw=0.8, label="position error (fused - truth)")
+    env = np.where(np.isfinite(arrays["envelope"]), arrays["envelope"], np.nan)
+    if np.isfinite(env).any():
+        ax.plot(t, env, "k--", lw=0.7, label="ETCS envelope")
+        ax.plot(t, -env, "k--", lw=0.7)
+        lim = np.nanmax(np.abs(np.concatenate([arrays["lo"][c], arrays["hi"][c]]))) if c.any() else 1
+        ax.set_ylim(-1.2 * lim, 1.2 * lim)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("[m]")
+    ax.set_title(f"{title}: position error and confidence interval")
+    ax.legend(loc="upper left", fontsize=8)
+    ax.grid(alpha=0.3)
+    files.append(out_dir / "position_error.png")
+    fig.tight_layout()
+    fig.savefig(files[-1], dpi=110)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(10, 3.5))
+    ax.plot(t, arrays["spd_err"] / KMH, lw=0.8, label="speed error (fused - truth)")
+    ax.plot(t, arrays["band"] / KMH, "k--", lw=0.7, label="SUBSET-041 band")
+    ax.plot(t, -arrays["band"] / KMH, "k--", lw=0.7)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("[km/h]")
+    ax.set_title(f"{title}: speed error")
+    ax.legend(loc="upper left", fontsize=8)
+    ax.grid(alpha=0.3)
+    files.append(out_dir / "speed_error.png")
+    fig.tight_layout()
+    fig.savefig(files[-1], dpi=110)
+    plt.close(fig)
+
+    res = arrays["residuals"]
+    n = max(1, len(res))
+    fig, axes = plt.subplots(n, 1, figsize=(10, 1.8 * n + 0.6), sharex=True, squeeze=False)
+    for ax, (key, (rt, r)) in zip(axes[:, 0], sorted(res.items())):
+        ax.plot(rt, r, ".", ms=2)
+        ax.set_ylabel(key, fontsize=7)
+        ax.grid(alpha=0.3)
+    axes[-1, 0].set_xlabel("time [s]")
+    fig.suptitle(f"{title}: residuals (measurement - fused) [m or m/s]")
+    files.append(out_dir / "residuals.png")
+    fig.tight_layout()
+    fig.savefig(files[-1], dpi=110)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(10, 2.0))
+    ax.step(t, arrays["mode"], where="post")
+    ax.set_yticks([0, 1, 2, 3], ["INIT", "NOMINAL", "DEGRADED", "LOST"])
+    ax.set_xlabel("time [s]")
+    ax.set_title(f"{title}: mode")
+    ax.grid(alpha=0.3)
+    files.append(out_dir / "modes.png")
+    fig.tight_layout()
+    fig.savefig(files[-1], dpi=110)
+    plt.close(fig)
+    return files
+
+
+def jsonable(obj):
+    if isinstance(obj, dict):
+        return {k: jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, (np.floating, float)):
+        return None if not math.isfinite(float(obj)) else float(obj)
+    if isinstance(obj, np.integer):
+        return int(obj)
+    return obj

@@ -8,11 +8,22 @@ from __future__ import annotations
 NAMESPACE = "/train"
 
 
-def demo_graph(scenario: str, sensors: list[str], bag: str, rate: float = 1.0) -> list[tuple[str, str, dict]]:
-    """Recorder, one sensor node per entry of ``sensors`` (node names), fusion, simulator."""
+LEAN_EXCLUDE = ["/rosout", "/parameter_events", "/tf", f"{NAMESPACE}/localization/odometry"]
+
+
+def demo_graph(scenario: str, sensors: list[str], bag: str, rate: float = 1.0,
+               exclude: list[str] | None = None) -> list[tuple[str, str, dict]]:
+    """Recorder, one sensor node per entry of ``sensors`` (node names), fusion, simulator.
+
+    ``exclude``: topics the recorder leaves out (default: only /rosout and
+    /parameter_events; LEAN_EXCLUDE also drops what the fused state determines).
+    """
     from .core.sensors import spec
     classes = [spec(n).sensor for n in sensors]
-    nodes = [("recorder", "recorder", {"output": bag, "use_sim_time": True})]
+    recorder = {"output": bag, "use_sim_time": True}
+    if exclude:
+        recorder["exclude"] = list(exclude)
+    nodes = [("recorder", "recorder", recorder)]
     nodes += [(name, name, {"mode": "sim", "scenario": scenario, "use_sim_time": True}) for name in sensors]
     nodes.append(("fusion", "fusion", {"scenario": scenario, "sensors": classes, "use_sim_time": True}))
     # the simulator starts once the recorder and every sensor node listen to the truth

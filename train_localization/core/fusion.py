@@ -1,72 +1,157 @@
 """Along-track fusion: an extended Kalman filter (filterpy) with exact out-of-order handling.
 
-State x = [s, v, a, k_1 .. k_n]: chainage of the front [m], speed [m/s], acceleration
-[m/s^2] and one scale error per incremental/speed sensor class listed in
-``scale_sensors`` (wheel diameter error, Doppler scale): such a sensor measures
-(1 + k) times the true quantity.
+State x = [s, v, a, k_1 .. k_n, b_1 .. b_m]: chainage of the train front [m], speed
+[m/s], acceleration [m/s^2]; one relative scale error k per incremental/speed sensor
+class in ``scale_sensors`` (wheel diameter error, Doppler scale: the sensor measures
+(1 + k) times the true quantity) and one speed bias b [m/s, along the direction of
+motion] per class in ``bias_sensors`` (the Doppler radar's device bias).
 
-Why an EKF (filterpy.kalman.ExtendedKalmanFilter) and not a UKF: the only
-nonlinearity is the product of a scale state and the speed, which an EKF
-linearises with negligible error at the accuracy of the sensors, and the filter has
-to re-run its history whenever a measurement arrives late, where the EKF's single
-Jacobian product per update is several times cheaper than 2n+1 sigma points.
+Why an EKF (filterpy.kalman.ExtendedKalmanFilter holds x and P) and not a UKF: the
+only nonlinearity is the product of a scale (or bias) state and the speed, which an
+EKF linearises with negligible error at the accuracy of the sensors (the scale
+errors are < 2 %, so the second-order term is < 2 % of the first-order one); and the
+filter re-runs its history whenever a measurement arrives late, where one Jacobian
+product per scalar update is several times cheaper than 2n+1 sigma points. The
+update itself is our own scalar-measurement form of filterpy's
+``ExtendedKalmanFilter.update`` (same equations, test/test_fusion.py checks that
+they agree), written without filterpy's generic matrix bookkeeping because the
+rollback re-applies every measurement of the last 200 ms or so many times
+(``train_localization.tools.bench_fusion`` measures it).
 
-Measurement models
-  PositionFix        z = s                                   (balise, LRL, INPO, mm-wave, axle counter)
-  SpeedMeasurement   z = (1 + k_sensor) v                    (Doppler)
-  DistanceIncrement  z = distance/duration = (1 + k_sensor)(v - a d/2)
-                     mean speed over the interval of length d ending at the stamp
-Process model: constant acceleration driven by white jerk (spectral density
-``jerk_psd``), scale errors as slow random walks.
+Process model
+  [s, v, a]   constant acceleration driven by white jerk (spectral density ``jerk_psd``)
+  k (scale)   first-order Gauss-Markov process with correlation time ``scale_tau[sensor]``
+              and stationary 1-sigma ``scale_sigma[sensor]`` -- the exact discretisation
+              of the Doppler radar's AR(1) scale error (core/sensors/doppler.py
+              ``scale_sigma`` 0.5 %, ``scale_tau`` 5 s) --, or, without a tau, a random
+              walk (``scale_psd``) from a prior ``scale_sigma`` (wheel diameter: constant
+              between re-calibrations, wear within +-1 %, i.e. 1-sigma 1 %/sqrt(3))
+  b (bias)    random walk (``bias_psd``) from a prior ``bias_sigma[sensor]``
+
+Measurement models (scalar updates)
+  PositionFix        z = s                                 (balise, LRL, INPO, mm-wave, axle counter)
+  SpeedMeasurement   z = (1 + k)(v + sign(z) b)            (Doppler)
+  DistanceIncrement  z = distance / d = (1 + k)(v - a d/2) (wheel, pattern belt): the mean
+                     speed over the interval of length d ending at the stamp, with
+                     R = (distance_stddev / d)^2
+Honest noise: a decoder reports the 1-sigma of a measurement including its slowly
+varying errors (the Doppler decoder adds 0.5 % of the speed for the scale and its
+0.02 m/s bias, the wheel decoder the diameter tolerance times the distance) as if
+they were white. Since the filter carries those errors as states, they are removed
+from R: R = sigma^2 - (reported_scale[sensor] z)^2 - reported_bias[sensor]^2 (floored
+at 1 % of sigma^2); ``stddev_factor[sensor]`` then scales what is left (1 = the
+sensor's own figure).
 
 Late and out-of-order measurements: every measurement is kept for ``history`` s with
-a checkpoint of the filter after it; one that arrives late is inserted at its
-stamp, the filter is restored to the checkpoint before it and the later ones are
-re-applied. The result equals in-order processing (ties are ordered by a key built
-from the measurement itself, not by arrival).
+the filter state after it (x, P and the bookkeeping: immutable snapshots that share
+their arrays, no copying). One that arrives late is inserted at its stamp and the
+measurements after it are re-applied from the state before it -- lazily, when an
+estimate is next asked for, so that several late arrivals cost one replay. The
+result equals in-order processing bit for bit (ties are ordered by a key built from
+the measurement itself, never by arrival). ``estimate(t)`` for a t inside the history
+uses the state after the last measurement stamped <= t, so the estimate of a past
+time does not depend on the order in which the data came in.
 
 Gating: a measurement whose normalised innovation squared exceeds the chi-square
-quantile ``gate_probability`` (1 dof) is rejected and counted. Slip/slide: a wheel
-(``slip_sensors``) increment that disagrees with the filter while another speed
-source was accepted in the last ``slip_reference_timeout`` s marks a slip/slide,
-and that sensor is excluded for ``slip_holdoff`` s after the last disagreement.
+quantile (1 dof) of ``gate_probabilities[sensor]`` (default ``gate_probability``) is
+rejected and counted. Slip/slide: an increment of a ``slip_sensors`` class (the
+wheel) whose NIS exceeds the ``slip_gate_probability`` quantile while another speed
+source was accepted in the last ``slip_reference_timeout`` s starts a slip/slide
+episode: that sensor is excluded until ``slip_holdoff`` s after its last
+disagreement.
+
+Modes: INITIALISING until the first absolute fix (no position is claimed: NaN and an
+infinite interval), LOST when the position 1-sigma exceeds ``lost_stddev``, DEGRADED
+when a sensor class of ``timeouts`` has not been accepted for longer than its
+timeout, else NOMINAL. [position_min, position_max] is the two-sided ``confidence``
+interval of the Gaussian position estimate.
 """
 from __future__ import annotations
 
 import bisect
-import copy
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from scipy.stats import chi2, norm
 
 from .measurements import DistanceIncrement, PositionFix, SpeedMeasurement
+from .sensors import doppler as _doppler
+from .sensors import wheel as _wheel
 from .signals import InputRejected
 
 MODE_INITIALISING, MODE_NOMINAL, MODE_DEGRADED, MODE_LOST = 0, 1, 2, 3
 
+# error levels of the sensor models' defaults (core/sensors/*.py), so that the
+# filter's noise model follows the devices
+_DOPPLER_SCALE = float(_doppler.PARAMS["scale_sigma"].default)   # 0.005
+_DOPPLER_TAU = float(_doppler.PARAMS["scale_tau"].default)       # 5 s
+_DOPPLER_BIAS = float(_doppler.PARAMS["bias"].default)           # 0.02 m/s
+_WHEEL_SCALE = float(_wheel.PARAMS["diameter_tolerance"].default) / math.sqrt(3.0)  # uniform +-1 %
+
+
+def _doc(default, text: str, factory: bool = False):
+    if factory:
+        return field(default_factory=default, metadata={"doc": text})
+    return field(default=default, metadata={"doc": text})
+
 
 @dataclass
 class FusionConfig:
-    """Tuning of the filter; every field is a parameter of the fusion node."""
+    """Tuning of the filter; every field is a parameter of the fusion node (``metadata["doc"]``)."""
 
-    track_id: str = ""
-    scale_sensors: tuple[str, ...] = ("wheel", "doppler")
-    slip_sensors: tuple[str, ...] = ("wheel",)
-    jerk_psd: float = 0.5              # white-jerk spectral density [m^2/s^5]
-    scale_psd: float = 1e-8            # random walk of the scale errors [1/s]
-    initial_speed_stddev: float = 1.0  # [m/s]
-    initial_accel_stddev: float = 0.5  # [m/s^2]
-    initial_scale_stddev: float = 0.01  # wheel wear up to 1 %, Doppler ~1 %
-    gate_probability: float = 0.9999   # chi-square gate (1 dof)
-    slip_holdoff: float = 2.0          # [s]
-    slip_reference_timeout: float = 1.0  # [s]
-    history: float = 2.0               # how late a measurement may be [s]
-    confidence: float = 0.999          # probability of [position_min, position_max]
-    lost_stddev: float = 100.0         # position 1-sigma above which the mode is LOST [m]
-    timeouts: dict[str, float] = field(default_factory=dict)  # sensor class -> timeout [s]
+    track_id: str = _doc("", "track id of the published states")
+    scale_sensors: tuple[str, ...] = _doc(("wheel", "doppler"), "sensor classes with a scale-error state")
+    bias_sensors: tuple[str, ...] = _doc(("doppler",), "sensor classes with a speed-bias state [m/s]")
+    slip_sensors: tuple[str, ...] = _doc(("wheel",), "sensor classes checked for slip/slide")
+    jerk_psd: float = _doc(0.5, "white-jerk spectral density of the motion model [m^2/s^5]")
+    scale_psd: float = _doc(1e-9, "random-walk spectral density of a scale state without a tau [1/s]")
+    scale_tau: dict[str, float] = _doc(lambda: {"doppler": _DOPPLER_TAU},
+                                       "sensor -> correlation time of its Gauss-Markov scale state [s] "
+                                       "(Doppler AR(1) scale error, doppler.py scale_tau)", True)
+    scale_sigma: dict[str, float] = _doc(lambda: {"wheel": _WHEEL_SCALE, "doppler": _DOPPLER_SCALE},
+                                         "sensor -> prior (Gauss-Markov: stationary) 1-sigma of its scale "
+                                         "state [fraction] (wheel: 1 %/sqrt(3), doppler: 0.5 %)", True)
+    initial_scale_stddev: float = _doc(0.01, "prior 1-sigma of a scale state not in scale_sigma [fraction]")
+    bias_sigma: dict[str, float] = _doc(lambda: {"doppler": _DOPPLER_BIAS},
+                                        "sensor -> prior 1-sigma of its bias state [m/s]", True)
+    bias_psd: float = _doc(0.0, "random-walk spectral density of the bias states [m^2/s^3]")
+    reported_scale: dict[str, float] = _doc(lambda: {"wheel": _WHEEL_SCALE, "doppler": _DOPPLER_SCALE},
+                                            "sensor -> relative scale 1-sigma that its decoder includes in "
+                                            "the reported stddev; removed from R (the state models it)", True)
+    reported_bias: dict[str, float] = _doc(lambda: {"doppler": _DOPPLER_BIAS},
+                                           "sensor -> bias 1-sigma [m/s] that its decoder includes in the "
+                                           "reported stddev; removed from R", True)
+    stddev_factor: dict[str, float] = _doc(dict, "sensor -> factor on its reported stddev (after the removal "
+                                                 "above); 1 = the sensor's own figure", True)
+    initial_speed_stddev: float = _doc(100.0, "prior 1-sigma of the speed [m/s] (unknown at start-up)")
+    initial_accel_stddev: float = _doc(1.0, "prior 1-sigma of the acceleration [m/s^2]")
+    gate_probability: float = _doc(0.9999, "chi-square gate (1 dof) of every measurement")
+    gate_probabilities: dict[str, float] = _doc(dict, "sensor -> its own chi-square gate probability", True)
+    slip_gate_probability: float = _doc(0.999, "chi-square quantile above which a slip sensor's "
+                                                "increment starts/extends a slip or slide episode")
+    slip_holdoff: float = _doc(2.0, "a slip sensor stays excluded this long after its last disagreement [s]")
+    slip_reference_timeout: float = _doc(1.0, "slip is declared only if another speed source was accepted "
+                                              "within this time [s]")
+    history: float = _doc(2.0, "how late a measurement may be [s]")
+    confidence: float = _doc(0.999, "probability of [position_min, position_max]")
+    lost_stddev: float = _doc(100.0, "position 1-sigma above which the mode is LOST [m]")
+    timeouts: dict[str, float] = _doc(dict, "sensor class -> timeout [s]; a class past it -> DEGRADED", True)
+
+    def __post_init__(self):
+        for name in ("scale_sensors", "bias_sensors", "slip_sensors"):
+            setattr(self, name, tuple(getattr(self, name)))
+        for f in fields(self):
+            if isinstance(getattr(self, f.name), dict):
+                setattr(self, f.name, {str(k): float(v) for k, v in getattr(self, f.name).items()})
+        if not 0.0 < self.confidence < 1.0:
+            raise ValueError("confidence must be in (0, 1)")
+        if self.history <= 0.0:
+            raise ValueError("history must be > 0 s")
+        if len(set(self.scale_sensors)) != len(self.scale_sensors) or \
+                len(set(self.bias_sensors)) != len(self.bias_sensors):
+            raise ValueError("scale_sensors / bias_sensors must not repeat a sensor")
 
 
 @dataclass
@@ -82,6 +167,7 @@ class Estimate:
     confidence: float
     mode: int
     scales: dict[str, float]
+    biases: dict[str, float] = field(default_factory=dict)
 
 
 def _order_key(m) -> tuple:
@@ -95,239 +181,352 @@ def _order_key(m) -> tuple:
     return (m.stamp, m.sensor, m.unit_id) + body
 
 
-@dataclass
 class _Aux:
-    """Filter bookkeeping that rolls back together with x and P."""
+    """Bookkeeping that rolls back with x and P. Copy-on-write: ``copy`` is shallow and
+    the dicts/sets are never changed in place, only replaced."""
 
-    initialised: bool = False
-    t: float | None = None              # time of x, P [s]
-    last_accepted: dict[str, float] = field(default_factory=dict)
-    slip_until: dict[str, float] = field(default_factory=dict)
-    accepted: dict[str, int] = field(default_factory=dict)
-    gated: dict[str, int] = field(default_factory=dict)
-    slips: int = 0
-    speed_sources: set = field(default_factory=set)  # sensor classes that gave speed/distance
-    nis: dict[str, list] = field(default_factory=dict)  # sensor -> [count, sum of NIS]
+    __slots__ = ("initialised", "t", "last_accepted", "slip_until", "accepted", "gated", "slips",
+                 "speed_sources", "nis")
+
+    def __init__(self):
+        self.initialised = False
+        self.t: float | None = None           # time of x, P [s]
+        self.last_accepted: dict[str, float] = {}
+        self.slip_until: dict[str, float] = {}
+        self.accepted: dict[str, int] = {}
+        self.gated: dict[str, int] = {}
+        self.slips = 0
+        self.speed_sources: frozenset = frozenset()   # classes that gave speed/distance
+        self.nis: dict[str, tuple[int, float]] = {}   # sensor -> (count, sum of NIS) of accepted ones
+
+    def copy(self) -> "_Aux":
+        new = _Aux.__new__(_Aux)
+        for name in _Aux.__slots__:
+            setattr(new, name, getattr(self, name))
+        return new
+
+
+def _inc(counter: dict, key: str) -> dict:
+    new = dict(counter)
+    new[key] = new.get(key, 0) + 1
+    return new
 
 
 class TrainFilter:
     """Feed measurements with ``add`` (any order within ``history``), query with ``estimate``."""
 
     def __init__(self, config: FusionConfig | None = None):
-        self.cfg = config or FusionConfig()
-        self.n = 3 + len(self.cfg.scale_sensors)
-        self._scale_idx = {name: 3 + i for i, name in enumerate(self.cfg.scale_sensors)}
+        cfg = self.cfg = config or FusionConfig()
+        self._scale_idx = {name: 3 + i for i, name in enumerate(cfg.scale_sensors)}
+        nb = len(cfg.scale_sensors)
+        self._bias_idx = {name: 3 + nb + i for i, name in enumerate(cfg.bias_sensors)}
+        self.n = 3 + nb + len(cfg.bias_sensors)
         self.ekf = ExtendedKalmanFilter(dim_x=self.n, dim_z=1)
-        self._gate = float(chi2.ppf(self.cfg.gate_probability, 1))
-        self._z = float(norm.ppf(0.5 + self.cfg.confidence / 2.0))
-        self._reset_state()
-        self._keys: list[tuple] = []
-        self._meas: list = []
-        self._checkpoints: list[tuple] = []   # state after each measurement
-        self._base = self._snapshot()         # state before the first kept measurement
+        # per error state: (index, phi(dt) parameters)
+        self._gm = [(i, cfg.scale_tau[s], cfg.scale_sigma.get(s, cfg.initial_scale_stddev))
+                    for s, i in self._scale_idx.items() if cfg.scale_tau.get(s, 0.0) > 0.0]
+        self._rw = [(i, cfg.scale_psd) for s, i in self._scale_idx.items() if not cfg.scale_tau.get(s, 0.0) > 0.0]
+        self._rw += [(i, cfg.bias_psd) for i in self._bias_idx.values()]
+        self._gate = float(chi2.ppf(cfg.gate_probability, 1))
+        self._gates = {s: float(chi2.ppf(p, 1)) for s, p in cfg.gate_probabilities.items()}
+        self._slip_gate = float(chi2.ppf(cfg.slip_gate_probability, 1))
+        self._z = float(norm.ppf(0.5 + cfg.confidence / 2.0))
+        self._cache: dict[float, tuple] = {}
         self.rejected: dict[str, int] = {}
         self.rollbacks = 0
+        self.applied = 0          # measurement updates run, replays included
+        self._clear(self._initial_state())
 
     # -- state handling --------------------------------------------------------
-    def _reset_state(self):
-        self.ekf.x = np.zeros((self.n, 1))
+    def _initial_state(self):
+        cfg = self.cfg
         P = np.zeros((self.n, self.n))
-        P[1, 1] = self.cfg.initial_speed_stddev ** 2
-        P[2, 2] = self.cfg.initial_accel_stddev ** 2
-        for i in range(3, self.n):
-            P[i, i] = self.cfg.initial_scale_stddev ** 2
         P[0, 0] = 1.0  # relative position until the first fix
-        self.ekf.P = P
-        self.aux = _Aux()
+        P[1, 1] = cfg.initial_speed_stddev ** 2
+        P[2, 2] = cfg.initial_accel_stddev ** 2
+        for s, i in self._scale_idx.items():
+            P[i, i] = cfg.scale_sigma.get(s, cfg.initial_scale_stddev) ** 2
+        for s, i in self._bias_idx.items():
+            P[i, i] = cfg.bias_sigma.get(s, 0.0) ** 2
+        return np.zeros((self.n, 1)), P, _Aux()
 
-    def _snapshot(self):
-        return (self.ekf.x.copy(), self.ekf.P.copy(), copy.deepcopy(self.aux))
+    def _clear(self, base) -> None:
+        self._keys: list[tuple] = []
+        self._stamps: list[float] = []
+        self._meas: list = []
+        self._snaps: list[tuple] = []   # state after each applied measurement
+        self._n_applied = 0
+        self._base = base               # state before the first kept measurement
+        self._base_key: tuple = (-math.inf,)
+        self._set(base)
 
-    def _restore(self, snap):
-        self.ekf.x, self.ekf.P, self.aux = snap[0].copy(), snap[1].copy(), copy.deepcopy(snap[2])
+    def _set(self, snap) -> None:
+        self.ekf.x, self.ekf.P, self.aux = snap
 
     def reset(self, position: float | None = None, position_stddev: float = 1.0,
               speed: float = 0.0, speed_stddev: float = 1.0, stamp: float | None = None) -> None:
-        """Operator reset: forget everything; optionally set the position (then NOMINAL)."""
-        self._reset_state()
-        self._keys, self._meas, self._checkpoints = [], [], []
-        if position is not None:
-            self.ekf.x[0, 0], self.ekf.x[1, 0] = position, speed
-            self.ekf.P[0, 0], self.ekf.P[1, 1] = position_stddev ** 2, speed_stddev ** 2
-            self.aux.initialised = True
-            self.aux.t = stamp
-            self.aux.last_accepted["operator"] = stamp if stamp is not None else 0.0
-        self._base = self._snapshot()
+        """Operator reset: forget everything; optionally set the position (then NOMINAL).
 
-    @staticmethod
-    def _transition(dt: float, n: int, jerk_psd: float, scale_psd: float):
+        Measurements stamped before ``stamp`` are rejected afterwards (``too_late``).
+        """
+        x, P, aux = self._initial_state()
+        if position is not None:
+            x[0, 0], x[1, 0] = position, speed
+            P[0, 0], P[1, 1] = position_stddev ** 2, speed_stddev ** 2
+            aux.initialised = True
+            aux.last_accepted = {"operator": stamp if stamp is not None else 0.0}
+        aux.t = stamp
+        self._clear((x, P, aux))
+        if stamp is not None:
+            self._base_key = (stamp,)
+
+    def _transition(self, dt: float):
+        """F, Q over dt (cached: the replays and the fixed sensor rates repeat the same dt)."""
+        hit = self._cache.get(dt)
+        if hit is not None:
+            return hit
+        n = self.n
         F = np.eye(n)
         F[0, 1], F[0, 2], F[1, 2] = dt, 0.5 * dt * dt, dt
-        q = jerk_psd
+        q = self.cfg.jerk_psd
         Q = np.zeros((n, n))
-        Q[:3, :3] = q * np.array([[dt ** 5 / 20, dt ** 4 / 8, dt ** 3 / 6],
-                                  [dt ** 4 / 8, dt ** 3 / 3, dt ** 2 / 2],
-                                  [dt ** 3 / 6, dt ** 2 / 2, dt]])
-        for i in range(3, n):
-            Q[i, i] = scale_psd * dt
-        return F, Q
+        dt2 = dt * dt
+        Q[:3, :3] = q * np.array([[dt2 * dt2 * dt / 20, dt2 * dt2 / 8, dt2 * dt / 6],
+                                  [dt2 * dt2 / 8, dt2 * dt / 3, dt2 / 2],
+                                  [dt2 * dt / 6, dt2 / 2, dt]])
+        for i, tau, sigma in self._gm:
+            phi = math.exp(-dt / tau)
+            F[i, i] = phi
+            Q[i, i] = sigma * sigma * (1.0 - phi * phi)
+        for i, psd in self._rw:
+            Q[i, i] = psd * dt
+        FT = F.T.copy()
+        if len(self._cache) > 4096:
+            self._cache.clear()
+        self._cache[dt] = (F, FT, Q)
+        return F, FT, Q
+
+    def _predicted(self, x, P, t0: float | None, t: float):
+        if t0 is None or t == t0:
+            return x, P
+        F, FT, Q = self._transition(t - t0)
+        if t < t0:   # before the kept history: extrapolate back, uncertainty grown as forwards
+            return F @ x, F @ P @ FT + self._transition(t0 - t)[2]
+        return F @ x, F @ P @ FT + Q
 
     def _predict_to(self, t: float) -> None:
-        if self.aux.t is None:
-            self.aux.t = t
+        aux = self.aux
+        if aux.t is None:
+            aux.t = t
             return
-        dt = t - self.aux.t
-        if dt > 0:
-            F, Q = self._transition(dt, self.n, self.cfg.jerk_psd, self.cfg.scale_psd)
-            self.ekf.F, self.ekf.Q = F, Q
-            self.ekf.predict()
-            self.aux.t = t
+        if t > aux.t:
+            self.ekf.x, self.ekf.P = self._predicted(self.ekf.x, self.ekf.P, aux.t, t)
+            aux.t = t
 
     # -- measurement update ----------------------------------------------------
     def _model(self, m):
-        """(z, R, H row, h(x)) of a measurement at the current state."""
+        """(z, R, H row (1-D), h(x)) of a measurement at the current state."""
+        cfg = self.cfg
         x = self.ekf.x[:, 0]
-        H = np.zeros((1, self.n))
+        h = np.zeros(self.n)
+        cls = m.sensor
         if isinstance(m, PositionFix):
-            H[0, 0] = 1.0
-            return m.position, m.position_stddev ** 2, H, x[0]
-        k_idx = self._scale_idx.get(m.sensor)
-        k = x[k_idx] if k_idx is not None else 0.0
-        if isinstance(m, SpeedMeasurement):
-            H[0, 1] = 1.0 + k
+            h[0] = 1.0
+            R = m.position_stddev ** 2
+            z, hx = m.position, x[0]
+        else:
+            k_idx = self._scale_idx.get(cls)
+            g = 1.0 + (x[k_idx] if k_idx is not None else 0.0)
+            if isinstance(m, SpeedMeasurement):
+                z, sigma = m.speed, m.speed_stddev
+                v = x[1]
+                h[1] = g
+            else:
+                d = m.duration
+                z, sigma = m.distance / d, m.distance_stddev / d
+                v = x[1] - 0.5 * d * x[2]
+                h[1], h[2] = g, -0.5 * d * g
+            b_idx = self._bias_idx.get(cls)
+            if b_idx is not None:
+                sgn = 1.0 if z >= 0.0 else -1.0
+                h[b_idx] = g * sgn
+                v = v + sgn * x[b_idx]
             if k_idx is not None:
-                H[0, k_idx] = x[1]
-            return m.speed, m.speed_stddev ** 2, H, (1.0 + k) * x[1]
-        d = m.duration
-        mean_v = x[1] - 0.5 * d * x[2]
-        H[0, 1], H[0, 2] = 1.0 + k, -0.5 * d * (1.0 + k)
-        if k_idx is not None:
-            H[0, k_idx] = mean_v
-        return m.distance / d, m.speed_stddev ** 2, H, (1.0 + k) * mean_v
+                h[k_idx] = v
+            hx = g * v
+            R = sigma * sigma
+            removed = R - (cfg.reported_scale.get(cls, 0.0) * z) ** 2 - cfg.reported_bias.get(cls, 0.0) ** 2
+            R = max(removed, 0.01 * R)
+        f = cfg.stddev_factor.get(cls)
+        if f is not None:
+            R *= f * f
+        return z, R, h, hx
+
+    def _update(self, z: float, R: float, h, hx: float) -> None:
+        """Scalar EKF update (filterpy ExtendedKalmanFilter.update, Joseph form, for one row H)."""
+        P = self.ekf.P
+        PHt = P @ h
+        S = float(h @ PHt) + R
+        K = PHt / S
+        self.ekf.x = self.ekf.x + (K * (z - hx))[:, None]
+        A = np.eye(self.n) - np.outer(K, h)
+        self.ekf.P = A @ P @ A.T + np.outer(K, K) * R
 
     def _apply(self, m) -> None:
-        aux = self.aux
+        aux = self.aux = self.aux.copy()
         self._predict_to(m.stamp)
+        self.applied += 1
         cls = m.sensor
         if isinstance(m, PositionFix) and not aux.initialised:
-            self.ekf.x[0, 0] = m.position
-            self.ekf.P[0, :] = 0.0
-            self.ekf.P[:, 0] = 0.0
-            self.ekf.P[0, 0] = m.position_stddev ** 2
+            z, R, _, _ = self._model(m)
+            x = self.ekf.x.copy()
+            P = self.ekf.P.copy()
+            x[0, 0] = z
+            P[0, :] = 0.0
+            P[:, 0] = 0.0
+            P[0, 0] = R
+            self.ekf.x, self.ekf.P = x, P
             aux.initialised = True
-            self._count(aux.accepted, cls)
-            aux.last_accepted[cls] = m.stamp
+            aux.accepted = _inc(aux.accepted, cls)
+            aux.last_accepted = {**aux.last_accepted, cls: m.stamp}
             return
-        if cls in self.cfg.slip_sensors and aux.slip_until.get(cls, -math.inf) > m.stamp:
-            z, R, H, hx = self._model(m)
-            if (z - hx) ** 2 / (H @ self.ekf.P @ H.T + R)[0, 0] > self._gate:
-                aux.slip_until[cls] = m.stamp + self.cfg.slip_holdoff  # still slipping
-            self._count(aux.gated, cls + "/slip")
-            return
-        z, R, H, hx = self._model(m)
-        S = (H @ self.ekf.P @ H.T)[0, 0] + R
+        z, R, h, hx = self._model(m)
+        S = float(h @ self.ekf.P @ h) + R
         nis = (z - hx) ** 2 / S
-        if nis > self._gate:
-            other_speed_ok = any(t > m.stamp - self.cfg.slip_reference_timeout
-                                 for s, t in aux.last_accepted.items()
-                                 if s not in self.cfg.slip_sensors and s not in ("operator",)
-                                 and s in aux.speed_sources)
-            if cls in self.cfg.slip_sensors and other_speed_ok:
-                aux.slip_until[cls] = m.stamp + self.cfg.slip_holdoff
+        if cls in self.cfg.slip_sensors:
+            if aux.slip_until.get(cls, -math.inf) > m.stamp:
+                if nis > self._slip_gate:   # still slipping
+                    aux.slip_until = {**aux.slip_until, cls: m.stamp + self.cfg.slip_holdoff}
+                aux.gated = _inc(aux.gated, cls + "/slip")
+                return
+            if nis > self._slip_gate and self._reference_ok(m.stamp):
+                aux.slip_until = {**aux.slip_until, cls: m.stamp + self.cfg.slip_holdoff}
                 aux.slips += 1
-                self._count(aux.gated, cls + "/slip")
-            else:
-                self._count(aux.gated, cls)
+                aux.gated = _inc(aux.gated, cls + "/slip")
+                return
+        if nis > self._gates.get(cls, self._gate):
+            aux.gated = _inc(aux.gated, cls)
             return
-        self.ekf.update(np.array([[z]]), lambda _x, H=H: H, lambda _x, hx=hx: np.array([[hx]]),
-                        R=np.array([[R]]))
-        stats = aux.nis.setdefault(cls, [0, 0.0])
-        stats[0] += 1
-        stats[1] += nis
-        self._count(aux.accepted, cls)
-        aux.last_accepted[cls] = m.stamp
-        if not isinstance(m, PositionFix):
-            aux.speed_sources.add(cls)
+        self._update(z, R, h, hx)
+        count, total = aux.nis.get(cls, (0, 0.0))
+        aux.nis = {**aux.nis, cls: (count + 1, total + nis)}
+        aux.accepted = _inc(aux.accepted, cls)
+        aux.last_accepted = {**aux.last_accepted, cls: m.stamp}
+        if not isinstance(m, PositionFix) and cls not in aux.speed_sources:
+            aux.speed_sources = aux.speed_sources | {cls}
 
-    @staticmethod
-    def _count(counter: dict, key: str) -> None:
-        counter[key] = counter.get(key, 0) + 1
+    def _reference_ok(self, stamp: float) -> bool:
+        """Another speed source (not a slip sensor) was accepted recently."""
+        aux = self.aux
+        return any(aux.last_accepted.get(s, -math.inf) > stamp - self.cfg.slip_reference_timeout
+                   for s in aux.speed_sources if s not in self.cfg.slip_sensors)
 
     def add(self, m) -> None:
-        """Insert a measurement at its stamp and update the filter.
+        """Insert a measurement at its stamp (the filter catches up when next queried).
 
         Raises InputRejected for NaN or non-positive stddevs (``nan``/``stddev``), a
-        measurement already seen (``duplicate``) or one older than the history
-        (``too_late``).
+        measurement already seen (``duplicate``) or one older than the history or the
+        last reset (``too_late``).
         """
         try:
             m.validate()
             key = _order_key(m)
-            newest = self._keys[-1][0] if self._keys else None
+            newest = self._stamps[-1] if self._stamps else None
             if newest is not None and m.stamp < newest - self.cfg.history:
                 raise InputRejected("too_late", f"{m.sensor} measurement {newest - m.stamp:.3f} s late "
                                     f"(history {self.cfg.history} s)")
+            if key <= self._base_key:
+                raise InputRejected("too_late", f"{m.sensor} measurement at {m.stamp:.6f} s is before the "
+                                    "kept history (or the last reset)")
             i = bisect.bisect_left(self._keys, key)
             if i < len(self._keys) and self._keys[i] == key:
                 raise InputRejected("duplicate", f"{m.sensor} measurement at {m.stamp:.6f} s seen before")
-            if self.aux.t is not None and not self._keys and m.stamp < self.aux.t:
-                raise InputRejected("too_late", f"{m.sensor} measurement before the filter start")
         except InputRejected as exc:
             self.rejected[exc.reason] = self.rejected.get(exc.reason, 0) + 1
             raise
         self._keys.insert(i, key)
+        self._stamps.insert(i, m.stamp)
         self._meas.insert(i, m)
-        if i < len(self._keys) - 1:
+        if i < self._n_applied:
             self.rollbacks += 1
-            self._restore(self._checkpoints[i - 1] if i > 0 else self._base)
-            del self._checkpoints[i:]
-            for j in range(i, len(self._meas)):
-                self._apply(self._meas[j])
-                self._checkpoints.append(self._snapshot())
-        else:
-            self._apply(m)
-            self._checkpoints.append(self._snapshot())
+            del self._snaps[i:]
+            self._n_applied = i
+        if len(self._meas) - self._n_applied > 10000:   # nobody asks: keep memory bounded
+            self._catch_up()
+
+    def _catch_up(self) -> None:
+        """Apply the measurements not applied yet, from the state before the first of them."""
+        n = len(self._meas)
+        if self._n_applied == n:
+            return
+        self._set(self._snaps[self._n_applied - 1] if self._n_applied else self._base)
+        snaps = self._snaps
+        for j in range(self._n_applied, n):
+            self._apply(self._meas[j])
+            snaps.append((self.ekf.x, self.ekf.P, self.aux))
+        self._n_applied = n
         self._prune()
 
     def _prune(self) -> None:
-        newest = self._keys[-1][0]
-        cut = bisect.bisect_left(self._keys, (newest - self.cfg.history,))
+        cut = bisect.bisect_left(self._stamps, self._stamps[-1] - self.cfg.history)
         if cut > 0:
-            self._base = self._checkpoints[cut - 1]
-            del self._keys[:cut], self._meas[:cut], self._checkpoints[:cut]
+            self._base, self._base_key = self._snaps[cut - 1], self._keys[cut - 1]
+            del self._keys[:cut], self._stamps[:cut], self._meas[:cut], self._snaps[:cut]
+            self._n_applied -= cut
 
     # -- output ----------------------------------------------------------------
     @property
     def initialised(self) -> bool:
+        self._catch_up()
         return self.aux.initialised
 
+    def state(self, t: float | None = None):
+        """(x (n,), P (n, n), bookkeeping) valid at t: after every measurement stamped <= t.
+
+        Default: after all measurements. Before the kept history the oldest state is
+        extrapolated back.
+        """
+        self._catch_up()
+        if t is None or not self._stamps or t >= self._stamps[-1]:
+            x, P, aux = self.ekf.x, self.ekf.P, self.aux
+        else:
+            j = bisect.bisect_right(self._stamps, t) - 1
+            x, P, aux = self._snaps[j] if j >= 0 else self._base
+        if t is not None:
+            x, P = self._predicted(x, P, aux.t, t)
+        return x[:, 0], P, aux
+
     def estimate(self, t: float) -> Estimate:
-        """State predicted to time t [s] (does not change the filter)."""
-        x, P = self.ekf.x[:, 0].copy(), self.ekf.P.copy()
-        if self.aux.t is not None and t > self.aux.t:
-            F, Q = self._transition(t - self.aux.t, self.n, self.cfg.jerk_psd, self.cfg.scale_psd)
-            x, P = F @ x, F @ P @ F.T + Q
+        """State at time t [s] (does not change the filter)."""
+        x, P, aux = self.state(t)
         sd_s, sd_v = math.sqrt(max(P[0, 0], 0.0)), math.sqrt(max(P[1, 1], 0.0))
-        mode = self.mode(t, sd_s)
         scales = {name: float(x[i]) for name, i in self._scale_idx.items()}
-        if not self.aux.initialised:
+        biases = {name: float(x[i]) for name, i in self._bias_idx.items()}
+        if not aux.initialised:
             return Estimate(t, math.nan, float(x[1]), float(x[2]), math.inf, sd_v, -math.inf, math.inf,
-                            self.cfg.confidence, MODE_INITIALISING, scales)
+                            self.cfg.confidence, MODE_INITIALISING, scales, biases)
         half = self._z * sd_s
         return Estimate(t, float(x[0]), float(x[1]), float(x[2]), sd_s, sd_v, float(x[0]) - half,
-                        float(x[0]) + half, self.cfg.confidence, mode, scales)
+                        float(x[0]) + half, self.cfg.confidence, self._mode(aux, t, sd_s), scales, biases)
 
-    def mode(self, t: float, position_stddev: float) -> int:
-        if not self.aux.initialised:
+    def _mode(self, aux: _Aux, t: float, position_stddev: float) -> int:
+        if not aux.initialised:
             return MODE_INITIALISING
         if position_stddev > self.cfg.lost_stddev:
             return MODE_LOST
         for sensor, timeout in self.cfg.timeouts.items():
-            if t - self.aux.last_accepted.get(sensor, -math.inf) > timeout:
+            if t - aux.last_accepted.get(sensor, -math.inf) > timeout:
                 return MODE_DEGRADED
         return MODE_NOMINAL
 
+    def mode(self, t: float, position_stddev: float) -> int:
+        self._catch_up()
+        return self._mode(self.aux, t, position_stddev)
+
     def counters(self) -> dict[str, dict]:
-        return {"accepted": dict(self.aux.accepted), "gated": dict(self.aux.gated),
-                "rejected": dict(self.rejected), "slips": {"episodes": self.aux.slips},
-                "nis_mean": {k: v[1] / v[0] for k, v in self.aux.nis.items() if v[0]}}
+        self._catch_up()
+        aux = self.aux
+        return {"accepted": dict(aux.accepted), "gated": dict(aux.gated),
+                "rejected": dict(self.rejected), "slips": {"episodes": aux.slips},
+                "nis_mean": {k: total / count for k, (count, total) in aux.nis.items() if count},
+                "rollbacks": {"late": self.rollbacks, "updates": self.applied}}

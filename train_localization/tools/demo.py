@@ -43,7 +43,8 @@ def executable(name: str) -> str:
                             "(run scripts/setup_env.sh or colcon build)")
 
 
-def run_graph(scenario_path: str, bag: Path, rate: float, log_dir: Path, timeout: float | None = None) -> dict:
+def run_graph(scenario_path: str, bag: Path, rate: float, log_dir: Path, timeout: float | None = None,
+              exclude: list[str] | None = None) -> dict:
     """Start the graph, wait for the simulator to finish, stop everything; exit codes by node."""
     scenario = Scenario.from_yaml(scenario_path)
     env = dict(os.environ)
@@ -57,7 +58,7 @@ def run_graph(scenario_path: str, bag: Path, rate: float, log_dir: Path, timeout
     if bag.exists():
         bag.unlink()
     procs = {}
-    graph = demo_graph(str(paths.resolve(scenario_path)), list(scenario.sensors), str(bag), rate)
+    graph = demo_graph(str(paths.resolve(scenario_path)), list(scenario.sensors), str(bag), rate, exclude)
     for exe, name, params in graph:
         log = open(log_dir / f"{name}.log", "w")
         procs[name] = (subprocess.Popen([executable(exe)] + ros_args(name, params), env=env, stdout=log,

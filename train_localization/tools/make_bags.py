@@ -1,0 +1,100 @@
+"""Record the regression bags of bags/ from the live graph and store their thresholds.
+
+  python -m train_localization.tools.make_bags [--only NAME ...] [--rate 2]
+
+For each entry of BAGS the demo graph (simulator, sensor nodes, fusion, recorder as
+separate processes over DDS) runs the scenario and the recorder writes
+bags/<name>.mcap (without /tf and odometry, which the fused state determines).
+Then every bag is replayed offline and its scores, with margins, go to
+bags/thresholds.json, which test/test_bags.py enforces. Re-run after a deliberate
+change of a sensor model or the fusion, and say why in the commit.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+import yaml
+
+from ..core.paths import SOURCE_ROOT
+from ..graph import LEAN_EXCLUDE
+from .demo import run_graph
+from .replay import report_for
+
+BAG_DIR = SOURCE_ROOT / "bags"
+# name -> (scenario file, simulated duration [s], speed-up of the live run)
+BAGS = {
+    "maglev_500": ("config/scenario_maglev_500.yaml", 50.0, 1.0),
+    "urban_stops": ("config/scenario_urban_stops.yaml", 100.0, 2.0),
+    "conventional_slip": ("config/scenario_conventional_300.yaml", 80.0, 1.0),
+    "faults": ("config/scenario_faults.yaml", 70.0, 1.0),
+    "stop_and_go": ("config/scenario_stop_and_go.yaml", 150.0, 2.0),
+}
+
+
+def thresholds(report: dict) -> dict:
+    """Bounds a later replay must respect: {metric: {"max": v} or {"min": v}}.
+
+    Errors may grow by a margin over the recorded value; integrity and envelope
+    fractions may not fall below the recorded value (integrity: below 99.9 %)."""
+    pe, se, integ = report["position_error_m"], report["speed_error_mps"], report["integrity"]
+    bounds = {
+        "position_error_m.rms": {"max": pe["rms"] * 1.25 + 0.002},
+        "position_error_m.p95": {"max": pe["p95"] * 1.25 + 0.005},
+        "position_error_m.max": {"max": pe["max"] * 1.5 + 0.01},
+        "speed_error_mps.rms": {"max": se["rms"] * 1.25 + 0.002},
+        "speed_error_mps.max": {"max": se["max"] * 1.5 + 0.01},
+        "integrity.inside_fraction": {"min": min(integ["inside_fraction"], 0.999)},
+    }
+    if report["etcs_envelope"]["inside_fraction"] is not None:
+        bounds["etcs_envelope.inside_fraction"] = {"min": report["etcs_envelope"]["inside_fraction"]}
+    return bounds
+
+
+def metric(report: dict, dotted: str) -> float:
+    group, key = dotted.split(".", 1)
+    return report[group][key]
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--only", nargs="*", default=list(BAGS))
+    ap.add_argument("--thresholds-only", action="store_true", help="do not record, only recompute thresholds")
+    args = ap.parse_args(argv)
+    BAG_DIR.mkdir(exist_ok=True)
+    for name in args.only:
+        scenario_file, duration, rate = BAGS[name]
+        bag = BAG_DIR / f"{name}.mcap"
+        if args.thresholds_only:
+            continue
+        with tempfile.TemporaryDirectory() as tmp:
+            data = yaml.safe_load((SOURCE_ROOT / scenario_file).read_text())
+            data["duration"] = duration
+            data["name"] = name
+            scen = Path(tmp) / f"{name}.yaml"
+            scen.write_text(yaml.safe_dump(data, sort_keys=False))
+            out = Path(tmp) / f"{name}.mcap"
+            codes = run_graph(str(scen), out, rate, Path(tmp) / "logs", exclude=LEAN_EXCLUDE)
+            if any(codes.values()):
+                for log in (Path(tmp) / "logs").glob("*.log"):
+                    print(log.name, log.read_text()[-2000:], file=sys.stderr)
+                raise SystemExit(f"{name}: nodes failed: {codes}")
+            shutil.move(str(out), bag)
+        print(f"{bag}: {bag.stat().st_size / 1e6:.2f} MB")
+    table_path = BAG_DIR / "thresholds.json"
+    table = json.loads(table_path.read_text()) if table_path.exists() else {}
+    for name in args.only:
+        report, _ = report_for(BAG_DIR / f"{name}.mcap")
+        bounds = thresholds(report)
+        table[name] = {"measured": {k: metric(report, k) for k in bounds}, "bounds": bounds}
+        print(name, json.dumps(table[name]["measured"]))
+    table_path.write_text(json.dumps(table, indent=2, sort_keys=True) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

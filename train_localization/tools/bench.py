@@ -1,0 +1,103 @@
+"""tl_bench: throughput benchmarks (figures for the README and issue notes).
+
+  tl_bench sensors   decode throughput per sensor [samples/s] and its ratio to the
+                     real-time need at 500 km/h (or the sensor's top speed)
+  tl_bench replay    offline replay speed of every bag in bags/ [x real time]
+  tl_bench fusion    the fusion benchmark (train_localization.tools.bench_fusion)
+
+Timings are wall-clock on one core (the process is single-threaded); run on an
+idle machine and repeat: shared machines are noisy.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import yaml
+
+from ..core.paths import SOURCE_ROOT
+from ..core.pipeline import SensorPipeline
+from ..core.scenario import Scenario
+from ..core.sensors import NODE_NAMES, spec
+
+V500 = 500 / 3.6
+# sensor -> (speed [m/s], parameter overrides): the top speed each device is specified for
+SPEEDS = {
+    "wheel_sensor": (83.0, {}),          # 10 kHz default resolves 60 ppr up to 300 km/h (wheel.py)
+    "axle_counter": (83.0, {"heads": "AC00,AC01"}),  # conventional rail, 300 km/h
+}
+
+
+def _scenario(node: str, speed: float) -> Scenario:
+    track = yaml.safe_load((SOURCE_ROOT / "config" / "track_test.yaml").read_text())
+    track["length"] = 20000.0
+    track["equipment"]["inpo_section"] = [{"id": "INPO01", "position": 10.0, "end": 19000.0, "period": 0.516}]
+    track["equipment"]["pattern_belt"] = [{"id": "PB01", "position": 0.0, "end": 20000.0}]
+    params = SPEEDS.get(node, (V500, {}))[1]
+    return Scenario.from_dict({
+        "name": f"bench_{node}", "seed": 1, "duration": 12.0, "track": track,
+        "vehicle": {"type": "conventional", "length": 60.0, "axles": [2.5, 5.0, 30.0, 32.5]},
+        "initial": {"position": 5.0, "speed": speed}, "profile": [{"speed": speed, "hold": 60.0}],
+        "sensors": {node: params}})
+
+
+def bench_sensors() -> list[dict]:
+    rows = []
+    for node in NODE_NAMES:
+        speed = SPEEDS.get(node, (V500, {}))[0]
+        sc = _scenario(node, speed)
+        s = spec(node)
+        params = sc.sensors[node]
+        sim = SensorPipeline(s, params, sc.track, sc.vehicle, sc.rng(node, s.sensor))
+        traj = sc.trajectory()
+        blocks = []
+        for k in range(int(sc.duration * sc.truth_rate) + 1):
+            blocks.extend(sim.on_truth(traj.state_at(k / sc.truth_rate)))
+        best = float("inf")
+        for _ in range(3):
+            dec = SensorPipeline(s, params, sc.track, sc.vehicle, simulate=False)
+            t0 = time.perf_counter()
+            for b in blocks:
+                dec.on_block(b)
+            best = min(best, time.perf_counter() - t0)
+        samples = sum(b.data.size for b in blocks)
+        need = blocks[0].sample_rate * blocks[0].data.shape[1]
+        rate = samples / best
+        rows.append({"sensor": node, "speed_kmh": speed * 3.6, "samples_per_s": rate,
+                     "realtime_need": need, "ratio": rate / need, "blocks": len(blocks)})
+    return rows
+
+
+def bench_replay() -> list[dict]:
+    from .replay import report_for
+    rows = []
+    for bag in sorted((SOURCE_ROOT / "bags").glob("*.mcap")):
+        report, _ = report_for(bag)
+        rows.append({"bag": bag.name, "duration_s": report["duration_s"], "wall_s": report["wall_time_s"],
+                     "factor": report["speed_factor"]})
+    return rows
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("what", choices=["sensors", "replay", "fusion"])
+    args = ap.parse_args(argv)
+    if args.what == "sensors":
+        print(f"{'sensor':20s} {'speed km/h':>10s} {'decode samples/s':>17s} {'real-time need':>15s} {'ratio':>8s}")
+        for r in bench_sensors():
+            print(f"{r['sensor']:20s} {r['speed_kmh']:10.0f} {r['samples_per_s']:17.3e} "
+                  f"{r['realtime_need']:15.0f} {r['ratio']:7.0f}x")
+    elif args.what == "replay":
+        print(f"{'bag':28s} {'bag time s':>10s} {'wall s':>8s} {'factor':>8s}")
+        for r in bench_replay():
+            print(f"{r['bag']:28s} {r['duration_s']:10.1f} {r['wall_s']:8.2f} {r['factor']:7.0f}x")
+    else:
+        from . import bench_fusion
+        return bench_fusion.main([])
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

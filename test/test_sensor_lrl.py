@@ -7,7 +7,7 @@ import time
 import numpy as np
 import pytest
 
-from train_localization.core.pipeline import SensorPipeline, run_offline
+from train_localization.core.pipeline import SensorPipeline, run_offline, simulate_and_decode
 from train_localization.core.scenario import Scenario
 from train_localization.core.sensors import lrl, spec
 from train_localization.core.signals import InputRejected, RawBlock
@@ -45,22 +45,9 @@ def scenario(v, duration, sensors=None, seed=5, start=None, groups=None, profile
 
 
 def run(sc, decode_track=None):
-    """Simulate and decode like run_offline, but keep going after rejected blocks."""
-    node_spec = spec(NODE)
-    params = sc.sensors.get(NODE, {})
-    pipe = SensorPipeline(node_spec, params, sc.track, sc.vehicle, sc.rng(NODE, node_spec.sensor))
-    if decode_track is not None:
-        pipe.decoder = node_spec.decoder(pipe.params, decode_track)
-    traj = sc.trajectory()
-    blocks, fixes, rejected = [], [], []
-    for k in range(int(sc.duration * sc.truth_rate) + 1):
-        for block in pipe.on_truth(traj.state_at(k / sc.truth_rate)):
-            blocks.append(block)
-            try:
-                fixes.extend(pipe.on_block(block))
-            except InputRejected as exc:
-                rejected.append(exc.reason)
-    return blocks, fixes, rejected, pipe, traj
+    """Simulate and decode, keeping going after rejected blocks (their reasons are returned)."""
+    r = simulate_and_decode(NODE, sc, decode_track=decode_track, keep_going=True)
+    return r.blocks, r.measurements, [reason for _, reason in r.rejected], r.pipe, r.trajectory
 
 
 def passed_groups(tr, traj, params=None):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from train_localization.core.measurements import DistanceIncrement
-from train_localization.core.pipeline import SensorPipeline, run_offline
+from train_localization.core.pipeline import SensorPipeline, run_offline, simulate_and_decode
 from train_localization.core.scenario import Scenario
 from train_localization.core.sensors import spec
 from train_localization.core.sensors.base import resolve_params
@@ -42,19 +42,9 @@ def seed003_params(**extra):
 
 
 def drive(scen, params=None):
-    """Like run_offline but counting rejected blocks instead of stopping at the first."""
-    sp = spec(NODE)
-    overrides = {**scen.sensors.get(NODE, {}), **(params or {})}
-    pipe = SensorPipeline(sp, overrides, scen.track, scen.vehicle, scen.rng(NODE, sp.sensor))
-    traj = scen.trajectory()
-    out, rejected = [], []
-    for k in range(int(scen.duration * scen.truth_rate) + 1):
-        for block in pipe.on_truth(traj.state_at(k / scen.truth_rate)):
-            try:
-                out.extend(pipe.on_block(block))
-            except InputRejected as exc:
-                rejected.append((block.t0, exc.reason))
-    return out, rejected, pipe
+    """Simulate and decode, counting rejected blocks instead of stopping at the first."""
+    run = simulate_and_decode(NODE, scen, params, keep_going=True)
+    return run.measurements, run.rejected, run.pipe
 
 
 def truth_of(scen, ms):

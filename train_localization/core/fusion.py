@@ -1,10 +1,13 @@
 """Along-track fusion: an extended Kalman filter (filterpy) with exact out-of-order handling.
 
-State x = [s, v, a, k_1 .. k_n, b_1 .. b_m]: chainage of the train front [m], speed
-[m/s], acceleration [m/s^2]; one relative scale error k per incremental/speed sensor
-class in ``scale_sensors`` (wheel diameter error, Doppler scale: the sensor measures
-(1 + k) times the true quantity) and one speed bias b [m/s, along the direction of
-motion] per class in ``bias_sensors`` (the Doppler radar's device bias).
+State x = [s, v, a, k_1 .. k_n, b_1 .. b_m, c_1 .. c_l]: chainage of the train front
+[m], speed [m/s], acceleration [m/s^2]; one relative scale error k per
+incremental/speed sensor class in ``scale_sensors`` (wheel diameter error, Doppler
+scale: the sensor measures (1 + k) times the true quantity), one speed bias b [m/s,
+along the direction of motion] per class in ``bias_sensors`` (the Doppler radar's
+device bias) and one creep coefficient c [s^2/m] per class in ``creep_sensors`` (a
+wheel under traction or braking turns faster or slower than the train moves:
+wheel speed = v (1 + c a sign v), core/sensors/wheel.py).
 
 Why an EKF (filterpy.kalman.ExtendedKalmanFilter holds x and P) and not a UKF: the
 only nonlinearity is the product of a scale (or bias) state and the speed, which an
@@ -27,13 +30,15 @@ Process model
               walk (``scale_psd``) from a prior ``scale_sigma`` (wheel diameter: constant
               between re-calibrations, wear within +-1 %, i.e. 1-sigma 1 %/sqrt(3))
   b (bias)    random walk (``bias_psd``) from a prior ``bias_sigma[sensor]``
+  c (creep)   random walk (``creep_psd``) from a prior ``creep_sigma[sensor]``
 
 Measurement models (scalar updates)
   PositionFix        z = s                                 (balise, LRL, INPO, mm-wave, axle counter)
-  SpeedMeasurement   z = (1 + k)(v + sign(z) b)            (Doppler)
-  DistanceIncrement  z = distance / d = (1 + k)(v - a d/2) (wheel, pattern belt): the mean
-                     speed over the interval of length d ending at the stamp, with
-                     R = (distance_stddev / d)^2
+  SpeedMeasurement   z = (1 + k)(u + sign(z) b),  u = v        (Doppler)
+  DistanceIncrement  z = distance / d = (1 + k)(u + sign(z) b), u = v - a d/2 (wheel, pattern
+                     belt): the mean speed over the interval of length d ending at the
+                     stamp, with R = (distance_stddev / d)^2
+                     with a creep state u becomes u + c a |u|; without a k, b: k = b = 0
 Honest noise: a decoder reports the 1-sigma of a measurement including its slowly
 varying errors (the Doppler decoder adds 0.5 % of the speed for the scale and its
 0.02 m/s bias, the wheel decoder the diameter tolerance times the distance) as if
@@ -88,6 +93,7 @@ MODE_INITIALISING, MODE_NOMINAL, MODE_DEGRADED, MODE_LOST = 0, 1, 2, 3
 _DOPPLER_SCALE = float(_doppler.PARAMS["scale_sigma"].default)   # 0.005
 _DOPPLER_TAU = float(_doppler.PARAMS["scale_tau"].default)       # 5 s
 _DOPPLER_BIAS = float(_doppler.PARAMS["bias"].default)           # 0.02 m/s
+_WHEEL_CREEP = float(_wheel.PARAMS["creep_coefficient"].default)  # 0.002 s^2/m
 _WHEEL_SCALE = float(_wheel.PARAMS["diameter_tolerance"].default) / math.sqrt(3.0)  # uniform +-1 %
 
 
@@ -117,6 +123,12 @@ class FusionConfig:
     bias_sigma: dict[str, float] = _doc(lambda: {"doppler": _DOPPLER_BIAS},
                                         "sensor -> prior 1-sigma of its bias state [m/s]", True)
     bias_psd: float = _doc(0.0, "random-walk spectral density of the bias states [m^2/s^3]")
+    creep_sensors: tuple[str, ...] = _doc(("wheel",), "sensor classes with a creep-coefficient state (wheel "
+                                                      "speed = v (1 + c a sign v))")
+    creep_sigma: dict[str, float] = _doc(lambda: {"wheel": _WHEEL_CREEP},
+                                         "sensor -> prior 1-sigma of its creep coefficient [s^2/m] (wheel: "
+                                         "wheel.py creep_coefficient, unknown a priori: adhesion)", True)
+    creep_psd: float = _doc(1e-10, "random-walk spectral density of the creep states [s^3/m^2]")
     reported_scale: dict[str, float] = _doc(lambda: {"wheel": _WHEEL_SCALE, "doppler": _DOPPLER_SCALE},
                                             "sensor -> relative scale 1-sigma that its decoder includes in "
                                             "the reported stddev; removed from R (the state models it)", True)
@@ -140,7 +152,7 @@ class FusionConfig:
     timeouts: dict[str, float] = _doc(dict, "sensor class -> timeout [s]; a class past it -> DEGRADED", True)
 
     def __post_init__(self):
-        for name in ("scale_sensors", "bias_sensors", "slip_sensors"):
+        for name in ("scale_sensors", "bias_sensors", "slip_sensors", "creep_sensors"):
             setattr(self, name, tuple(getattr(self, name)))
         for f in fields(self):
             if isinstance(getattr(self, f.name), dict):
@@ -149,9 +161,9 @@ class FusionConfig:
             raise ValueError("confidence must be in (0, 1)")
         if self.history <= 0.0:
             raise ValueError("history must be > 0 s")
-        if len(set(self.scale_sensors)) != len(self.scale_sensors) or \
-                len(set(self.bias_sensors)) != len(self.bias_sensors):
-            raise ValueError("scale_sensors / bias_sensors must not repeat a sensor")
+        for name in ("scale_sensors", "bias_sensors", "creep_sensors"):
+            if len(set(getattr(self, name))) != len(getattr(self, name)):
+                raise ValueError(f"{name} must not repeat a sensor")
 
 
 @dataclass
@@ -168,6 +180,7 @@ class Estimate:
     mode: int
     scales: dict[str, float]
     biases: dict[str, float] = field(default_factory=dict)
+    creeps: dict[str, float] = field(default_factory=dict)
 
 
 def _order_key(m) -> tuple:
@@ -220,13 +233,16 @@ class TrainFilter:
         self._scale_idx = {name: 3 + i for i, name in enumerate(cfg.scale_sensors)}
         nb = len(cfg.scale_sensors)
         self._bias_idx = {name: 3 + nb + i for i, name in enumerate(cfg.bias_sensors)}
-        self.n = 3 + nb + len(cfg.bias_sensors)
+        nb += len(cfg.bias_sensors)
+        self._creep_idx = {name: 3 + nb + i for i, name in enumerate(cfg.creep_sensors)}
+        self.n = 3 + nb + len(cfg.creep_sensors)
         self.ekf = ExtendedKalmanFilter(dim_x=self.n, dim_z=1)
         # per error state: (index, phi(dt) parameters)
         self._gm = [(i, cfg.scale_tau[s], cfg.scale_sigma.get(s, cfg.initial_scale_stddev))
                     for s, i in self._scale_idx.items() if cfg.scale_tau.get(s, 0.0) > 0.0]
         self._rw = [(i, cfg.scale_psd) for s, i in self._scale_idx.items() if not cfg.scale_tau.get(s, 0.0) > 0.0]
         self._rw += [(i, cfg.bias_psd) for i in self._bias_idx.values()]
+        self._rw += [(i, cfg.creep_psd) for i in self._creep_idx.values()]
         self._gate = float(chi2.ppf(cfg.gate_probability, 1))
         self._gates = {s: float(chi2.ppf(p, 1)) for s, p in cfg.gate_probabilities.items()}
         self._slip_gate = float(chi2.ppf(cfg.slip_gate_probability, 1))
@@ -248,6 +264,8 @@ class TrainFilter:
             P[i, i] = cfg.scale_sigma.get(s, cfg.initial_scale_stddev) ** 2
         for s, i in self._bias_idx.items():
             P[i, i] = cfg.bias_sigma.get(s, 0.0) ** 2
+        for s, i in self._creep_idx.items():
+            P[i, i] = cfg.creep_sigma.get(s, 0.0) ** 2
         return np.zeros((self.n, 1)), P, _Aux()
 
     def _clear(self, base) -> None:
@@ -339,13 +357,21 @@ class TrainFilter:
             g = 1.0 + (x[k_idx] if k_idx is not None else 0.0)
             if isinstance(m, SpeedMeasurement):
                 z, sigma = m.speed, m.speed_stddev
-                v = x[1]
+                v, a, d = x[1], x[2], 0.0
                 h[1] = g
             else:
                 d = m.duration
                 z, sigma = m.distance / d, m.distance_stddev / d
-                v = x[1] - 0.5 * d * x[2]
+                a = x[2]
+                v = x[1] - 0.5 * d * a
                 h[1], h[2] = g, -0.5 * d * g
+            c_idx = self._creep_idx.get(cls)
+            if c_idx is not None:   # v (1 + c a sign v) = v + c a |v|
+                c, sv = x[c_idx], (1.0 if v >= 0.0 else -1.0)
+                h[1] += g * c * a * sv
+                h[2] += g * c * (abs(v) - 0.5 * d * a * sv)
+                h[c_idx] = g * a * abs(v)
+                v = v + c * a * abs(v)
             b_idx = self._bias_idx.get(cls)
             if b_idx is not None:
                 sgn = 1.0 if z >= 0.0 else -1.0
@@ -502,12 +528,13 @@ class TrainFilter:
         sd_s, sd_v = math.sqrt(max(P[0, 0], 0.0)), math.sqrt(max(P[1, 1], 0.0))
         scales = {name: float(x[i]) for name, i in self._scale_idx.items()}
         biases = {name: float(x[i]) for name, i in self._bias_idx.items()}
+        creeps = {name: float(x[i]) for name, i in self._creep_idx.items()}
         if not aux.initialised:
             return Estimate(t, math.nan, float(x[1]), float(x[2]), math.inf, sd_v, -math.inf, math.inf,
-                            self.cfg.confidence, MODE_INITIALISING, scales, biases)
+                            self.cfg.confidence, MODE_INITIALISING, scales, biases, creeps)
         half = self._z * sd_s
         return Estimate(t, float(x[0]), float(x[1]), float(x[2]), sd_s, sd_v, float(x[0]) - half,
-                        float(x[0]) + half, self.cfg.confidence, self._mode(aux, t, sd_s), scales, biases)
+                        float(x[0]) + half, self.cfg.confidence, self._mode(aux, t, sd_s), scales, biases, creeps)
 
     def _mode(self, aux: _Aux, t: float, position_stddev: float) -> int:
         if not aux.initialised:

@@ -118,6 +118,7 @@ def simulate_scenario(scenario: Scenario, bag: str | Path | None = None, fusion_
     track_id = scenario.track.track_id
     t_end = scenario.duration if t_end is None else t_end
     n = int(round(t_end * scenario.truth_rate)) + 1
+    out = _Output(runner, result, writer, mc, track_id)
     if writer:
         writer.write(f"{NAMESPACE}/scenario", typestore_classes_string(scenario.to_yaml()), 0)
     try:
@@ -134,18 +135,8 @@ def simulate_scenario(scenario: Scenario, bag: str | Path | None = None, fusion_
                     if writer and record_raw:
                         writer.write(f"{NAMESPACE}/sensors/{block.sensor}/raw",
                                      convert.raw_block_to_msg(block, mc), _ns(t))
-                    try:
-                        ms = pipe.on_block(block)
-                    except InputRejected as exc:
-                        result.rejected[exc.reason] = result.rejected.get(exc.reason, 0) + 1
-                        continue
-                    for m in ms:
-                        _publish_measurement(m, runner, result, writer, mc, t)
-            for est, used in runner.advance(t):
-                result.estimates.append(est)
-                if writer:
-                    writer.write(f"{NAMESPACE}/localization/state", estimate_to_msg(mc, est, track_id, used),
-                                 _ns(est.stamp))
+                    out.decode(pipe, block, t)
+            out.states(t)
     finally:
         if writer:
             writer.close()
@@ -165,12 +156,32 @@ def scenario_from_bag(bag: str | Path) -> Scenario:
     raise ValueError(f"{bag} has no {NAMESPACE}/scenario topic: give the scenario explicitly")
 
 
-def _publish_measurement(m, runner, result, writer, mc, t):
-    result.measurements.append(m)
-    if writer:
-        writer.write(f"{NAMESPACE}/{convert.measurement_topic(m)}", convert.measurement_to_msg(m, mc), _ns(t))
-    if not isinstance(m, SectionOccupancy):
-        runner.add(m)
+class _Output:
+    """Decodes blocks into measurements, feeds the fusion, collects and writes both."""
+
+    def __init__(self, runner: FusionRunner, result: RunResult, writer: BagWriter | None, mc, track_id: str):
+        self.runner, self.result, self.writer, self.mc, self.track_id = runner, result, writer, mc, track_id
+
+    def decode(self, pipe: SensorPipeline, block, t: float) -> None:
+        try:
+            measurements = pipe.on_block(block)
+        except InputRejected as exc:
+            self.result.rejected[exc.reason] = self.result.rejected.get(exc.reason, 0) + 1
+            return
+        for m in measurements:
+            self.result.measurements.append(m)
+            if self.writer:
+                self.writer.write(f"{NAMESPACE}/{convert.measurement_topic(m)}",
+                                  convert.measurement_to_msg(m, self.mc), _ns(t))
+            if not isinstance(m, SectionOccupancy):
+                self.runner.add(m)
+
+    def states(self, t: float) -> None:
+        for est, used in self.runner.advance(t):
+            self.result.estimates.append(est)
+            if self.writer:
+                self.writer.write(f"{NAMESPACE}/localization/state",
+                                  estimate_to_msg(self.mc, est, self.track_id, used), _ns(est.stamp))
 
 
 def replay_bag(bag: str | Path, scenario: Scenario, out_bag: str | Path | None = None,
@@ -193,6 +204,7 @@ def replay_bag(bag: str | Path, scenario: Scenario, out_bag: str | Path | None =
     track_id = scenario.track.track_id
     topics = list(pipes) + [f"{NAMESPACE}/ground_truth/state"]
     total = sum(n for t, n in topic_counts(bag).items() if t in topics)
+    out = _Output(runner, result, writer, mc, track_id)
     bar = None
     if progress:
         from tqdm import tqdm
@@ -210,18 +222,13 @@ def replay_bag(bag: str | Path, scenario: Scenario, out_bag: str | Path | None =
                                                                    state.speed, state.acceleration), t_ns)
             else:
                 try:
-                    ms = pipes[topic].on_block(convert.raw_block_from_msg(msg))
+                    block = convert.raw_block_from_msg(msg)
                 except InputRejected as exc:
                     result.rejected[exc.reason] = result.rejected.get(exc.reason, 0) + 1
                     continue
                 result.blocks += 1
-                for m in ms:
-                    _publish_measurement(m, runner, result, writer, mc, t)
-            for est, used in runner.advance(t):
-                result.estimates.append(est)
-                if writer:
-                    writer.write(f"{NAMESPACE}/localization/state", estimate_to_msg(mc, est, track_id, used),
-                                 _ns(est.stamp))
+                out.decode(pipes[topic], block, t)
+            out.states(t)
     finally:
         if bar:
             bar.close()

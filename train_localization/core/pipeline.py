@@ -7,7 +7,7 @@ in the same order. In ingest mode only ``on_block`` is used.
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 from .measurements import Measurement
 from .scenario import Scenario, TruthBuffer, TruthState, Vehicle
@@ -65,22 +65,46 @@ class SensorPipeline:
         return [replace(m, stamp=round(m.stamp * 1_000_000_000) / 1_000_000_000) for m in out]
 
 
-def run_offline(node: str, scenario: Scenario, params: dict | None = None, t_end: float | None = None):
+@dataclass
+class OfflineRun:
+    blocks: list
+    measurements: list
+    rejected: list          # (t0 of the block [s], reason) of every rejected block
+    pipe: SensorPipeline
+    trajectory: object
+
+
+def simulate_and_decode(node: str, scenario: Scenario, params: dict | None = None, t_end: float | None = None,
+                        decode_track: Track | None = None, keep_going: bool = False) -> OfflineRun:
     """Simulate and decode one sensor over a scenario at its truth rate.
 
-    Returns (blocks, measurements, pipeline). Used by tests and benchmarks; the
-    simulator node and sensor node produce the same sequence live.
+    ``decode_track`` gives the decoder another track than the simulator (e.g. one
+    missing an id). A rejected block raises InputRejected unless ``keep_going``,
+    which records it in ``rejected`` and goes on. The sensor node produces the
+    same sequence live.
     """
     spec = sensor_spec(node)
     overrides = {**scenario.sensors.get(node, {}), **(params or {})}
     pipe = SensorPipeline(spec, overrides, scenario.track, scenario.vehicle,
                           scenario.rng(node, overrides.get("unit_id") or spec.sensor))
+    if decode_track is not None:
+        pipe.decoder = spec.decoder(pipe.params, decode_track)
     traj = scenario.trajectory()
-    blocks, measurements = [], []
+    run = OfflineRun([], [], [], pipe, traj)
     t_end = scenario.duration if t_end is None else t_end
-    n = int(t_end * scenario.truth_rate) + 1
-    for k in range(n):
+    for k in range(int(t_end * scenario.truth_rate) + 1):
         for block in pipe.on_truth(traj.state_at(k / scenario.truth_rate)):
-            blocks.append(block)
-            measurements.extend(pipe.on_block(block))
-    return blocks, measurements, pipe
+            run.blocks.append(block)
+            try:
+                run.measurements.extend(pipe.on_block(block))
+            except InputRejected as exc:
+                if not keep_going:
+                    raise
+                run.rejected.append((block.t0, exc.reason))
+    return run
+
+
+def run_offline(node: str, scenario: Scenario, params: dict | None = None, t_end: float | None = None):
+    """(blocks, measurements, pipeline) of simulate_and_decode; a rejected block raises."""
+    run = simulate_and_decode(node, scenario, params, t_end)
+    return run.blocks, run.measurements, run.pipe

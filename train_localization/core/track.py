@@ -46,6 +46,15 @@ def _expand(kind: str, entries: list) -> list[dict]:
     return items
 
 
+def nearest(positions: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Index of the nearest of sorted ``positions`` to each ``x``, and x minus it [m]."""
+    k = np.searchsorted(positions, x)
+    lo = np.clip(k - 1, 0, positions.size - 1)
+    hi = np.clip(k, 0, positions.size - 1)
+    idx = np.where(np.abs(x - positions[lo]) <= np.abs(x - positions[hi]), lo, hi)
+    return idx, x - positions[idx]
+
+
 @dataclass
 class Track:
     """A named track: length [m], alignment polyline and equipment by kind."""

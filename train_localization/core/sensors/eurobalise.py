@@ -75,6 +75,7 @@ import numpy as np
 
 from ..measurements import PositionFix
 from ..signals import InputRejected, RawBlock
+from ..track import nearest
 from .base import Decoder, Param, SensorSpec, Simulator
 
 KIND = "eurobalise"
@@ -386,11 +387,7 @@ class EurobaliseSimulator(Simulator):
         h = np.zeros(n)
         if self._pos.size:
             ant = position - p["antenna_offset"]
-            k = np.searchsorted(self._pos, ant)
-            lo = np.clip(k - 1, 0, self._pos.size - 1)
-            hi = np.clip(k, 0, self._pos.size - 1)
-            idx = np.where(np.abs(ant - self._pos[lo]) <= np.abs(ant - self._pos[hi]), lo, hi)
-            u = ant - self._pos[idx]
+            idx, u = nearest(self._pos, ant)
             key = np.where(np.abs(u) < NEAR_RANGE, idx, -1)
             gain = np.zeros(n)
             starts = np.r_[0, np.flatnonzero(np.diff(key)) + 1]

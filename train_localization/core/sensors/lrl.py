@@ -87,6 +87,7 @@ import numpy as np
 
 from ..measurements import PositionFix
 from ..signals import InputRejected, RawBlock
+from ..track import nearest
 from .base import Decoder, Param, SensorSpec, Simulator
 
 KIND = "lrl_group"
@@ -273,11 +274,7 @@ class LrlSimulator(Simulator):
         cov = np.zeros((n, self.n_sensors, 5))
         if self._pos.size:
             ref = position - p["sensor_offset"]
-            k = np.searchsorted(self._pos, ref)
-            lo = np.clip(k - 1, 0, self._pos.size - 1)
-            hi = np.clip(k, 0, self._pos.size - 1)
-            idx = np.where(np.abs(ref - self._pos[lo]) <= np.abs(ref - self._pos[hi]), lo, hi)
-            u = ref - self._pos[idx]
+            idx, u = nearest(self._pos, ref)
             key = np.where(np.abs(u) < self._near, idx, -1)
             bits = np.zeros((n, self.n_sensors, 4))
             starts = np.r_[0, np.flatnonzero(np.diff(key)) + 1]

@@ -19,7 +19,7 @@ def demo_run(tmp_path_factory):
     data["track"] = str(ROOT / "config" / "track_conventional.yaml")
     scenario = out / "scenario_short.yaml"
     scenario.write_text(yaml.safe_dump(data))
-    assert demo.main(["--scenario", str(scenario), "--rate", "4", "--out", str(out)]) == 0
+    assert demo.main(["--scenario", str(scenario), "--rate", "2", "--out", str(out)]) == 0
     return out, Scenario.from_yaml(scenario)
 
 

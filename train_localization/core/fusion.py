@@ -1,13 +1,13 @@
 """Along-track fusion: an extended Kalman filter (filterpy) with exact out-of-order handling.
 
-State x = [s, v, a, k_1 .. k_n, b_1 .. b_m, c_1 .. c_l]: chainage of the train front
+State x = [s, v, a, k_1 .. k_n, b_1 .. b_m, e_1 .. e_l]: chainage of the train front
 [m], speed [m/s], acceleration [m/s^2]; one relative scale error k per
 incremental/speed sensor class in ``scale_sensors`` (wheel diameter error, Doppler
 scale: the sensor measures (1 + k) times the true quantity), one speed bias b [m/s,
 along the direction of motion] per class in ``bias_sensors`` (the Doppler radar's
-device bias) and one creep coefficient c [s^2/m] per class in ``creep_sensors`` (a
-wheel under traction or braking turns faster or slower than the train moves:
-wheel speed = v (1 + c a sign v), core/sensors/wheel.py).
+device bias) and one position-fix bias e [m] per class in ``fix_bias_sensors`` (the
+mm-wave ranging: per-station calibration biases that persist while the same
+stations are in view, so its 200 fixes/s do not average them out).
 
 Why an EKF (filterpy.kalman.ExtendedKalmanFilter holds x and P) and not a UKF: the
 only nonlinearity is the product of a scale (or bias) state and the speed, which an
@@ -30,15 +30,21 @@ Process model
               walk (``scale_psd``) from a prior ``scale_sigma`` (wheel diameter: constant
               between re-calibrations, wear within +-1 %, i.e. 1-sigma 1 %/sqrt(3))
   b (bias)    random walk (``bias_psd``) from a prior ``bias_sigma[sensor]``
-  c (creep)   random walk (``creep_psd``) from a prior ``creep_sigma[sensor]``
+  e (fix bias) Gauss-Markov in the distance travelled: phi = exp(-|v| dt / L) with
+              ``fix_bias_length[sensor]`` L and stationary 1-sigma ``fix_bias_sigma``
 
 Measurement models (scalar updates)
-  PositionFix        z = s                                 (balise, LRL, INPO, mm-wave, axle counter)
+  PositionFix        z = s (+ e)                          (balise, LRL, INPO, mm-wave, axle counter)
   SpeedMeasurement   z = (1 + k)(u + sign(z) b),  u = v        (Doppler)
   DistanceIncrement  z = distance / d = (1 + k)(u + sign(z) b), u = v - a d/2 (wheel, pattern
                      belt): the mean speed over the interval of length d ending at the
                      stamp, with R = (distance_stddev / d)^2
-                     with a creep state u becomes u + c a |u|; without a k, b: k = b = 0
+                     without a k or b state: k = b = 0. A wheel under traction or braking
+                     turns faster or slower than the train moves (creep, wheel.py): u is
+                     replaced by u + c a |u| with the vehicle's ``creep_coefficient`` c.
+                     (A creep state instead is not observable apart from the scale at a
+                     constant acceleration, and the EKF let the pair drift along that
+                     direction: tried and dropped.)
 Honest noise: a decoder reports the 1-sigma of a measurement including its slowly
 varying errors (the Doppler decoder adds 0.5 % of the speed for the scale and its
 0.02 m/s bias, the wheel decoder the diameter tolerance times the distance) as if
@@ -83,6 +89,7 @@ from scipy.stats import chi2, norm
 
 from .measurements import DistanceIncrement, PositionFix, SpeedMeasurement
 from .sensors import doppler as _doppler
+from .sensors import mmwave as _mmwave
 from .sensors import wheel as _wheel
 from .signals import InputRejected
 
@@ -93,6 +100,8 @@ MODE_INITIALISING, MODE_NOMINAL, MODE_DEGRADED, MODE_LOST = 0, 1, 2, 3
 _DOPPLER_SCALE = float(_doppler.PARAMS["scale_sigma"].default)   # 0.005
 _DOPPLER_TAU = float(_doppler.PARAMS["scale_tau"].default)       # 5 s
 _DOPPLER_BIAS = float(_doppler.PARAMS["bias"].default)           # 0.02 m/s
+_MMWAVE_CAL = float(_mmwave.PARAMS["cal_sigma"].default)        # 0.03 m per station
+_MMWAVE_LENGTH = 400.0   # measured: the mm-wave fix error decorrelates over ~3 s at 139 m/s
 _WHEEL_CREEP = float(_wheel.PARAMS["creep_coefficient"].default)  # 0.002 s^2/m
 _WHEEL_SCALE = float(_wheel.PARAMS["diameter_tolerance"].default) / math.sqrt(3.0)  # uniform +-1 %
 
@@ -123,12 +132,18 @@ class FusionConfig:
     bias_sigma: dict[str, float] = _doc(lambda: {"doppler": _DOPPLER_BIAS},
                                         "sensor -> prior 1-sigma of its bias state [m/s]", True)
     bias_psd: float = _doc(0.0, "random-walk spectral density of the bias states [m^2/s^3]")
-    creep_sensors: tuple[str, ...] = _doc(("wheel",), "sensor classes with a creep-coefficient state (wheel "
-                                                      "speed = v (1 + c a sign v))")
-    creep_sigma: dict[str, float] = _doc(lambda: {"wheel": _WHEEL_CREEP},
-                                         "sensor -> prior 1-sigma of its creep coefficient [s^2/m] (wheel: "
-                                         "wheel.py creep_coefficient, unknown a priori: adhesion)", True)
-    creep_psd: float = _doc(1e-10, "random-walk spectral density of the creep states [s^3/m^2]")
+    fix_bias_sensors: tuple[str, ...] = _doc(("mmwave",), "position-fix sensor classes with a bias state [m] "
+                                                          "(errors that persist from fix to fix)")
+    fix_bias_sigma: dict[str, float] = _doc(lambda: {"mmwave": _MMWAVE_CAL},
+                                            "sensor -> stationary 1-sigma of its fix bias [m] (mm-wave: the "
+                                            "per-station calibration bias, mmwave.py cal_sigma)", True)
+    fix_bias_length: dict[str, float] = _doc(lambda: {"mmwave": _MMWAVE_LENGTH},
+                                             "sensor -> correlation length of its fix bias along the track [m] "
+                                             "(mm-wave: the set of stations in view changes over ~ the station "
+                                             "spacing)", True)
+    creep_coefficient: dict[str, float] = _doc(lambda: {"wheel": _WHEEL_CREEP},
+                                               "sensor -> creep coefficient c [s^2/m] of its wheel (vehicle "
+                                               "data; wheel speed = v (1 + c a sign v), wheel.py)", True)
     reported_scale: dict[str, float] = _doc(lambda: {"wheel": _WHEEL_SCALE, "doppler": _DOPPLER_SCALE},
                                             "sensor -> relative scale 1-sigma that its decoder includes in "
                                             "the reported stddev; removed from R (the state models it)", True)
@@ -152,7 +167,7 @@ class FusionConfig:
     timeouts: dict[str, float] = _doc(dict, "sensor class -> timeout [s]; a class past it -> DEGRADED", True)
 
     def __post_init__(self):
-        for name in ("scale_sensors", "bias_sensors", "slip_sensors", "creep_sensors"):
+        for name in ("scale_sensors", "bias_sensors", "slip_sensors", "fix_bias_sensors"):
             setattr(self, name, tuple(getattr(self, name)))
         for f in fields(self):
             if isinstance(getattr(self, f.name), dict):
@@ -161,7 +176,7 @@ class FusionConfig:
             raise ValueError("confidence must be in (0, 1)")
         if self.history <= 0.0:
             raise ValueError("history must be > 0 s")
-        for name in ("scale_sensors", "bias_sensors", "creep_sensors"):
+        for name in ("scale_sensors", "bias_sensors", "fix_bias_sensors"):
             if len(set(getattr(self, name))) != len(getattr(self, name)):
                 raise ValueError(f"{name} must not repeat a sensor")
 
@@ -180,7 +195,6 @@ class Estimate:
     mode: int
     scales: dict[str, float]
     biases: dict[str, float] = field(default_factory=dict)
-    creeps: dict[str, float] = field(default_factory=dict)
 
 
 def _order_key(m) -> tuple:
@@ -234,15 +248,17 @@ class TrainFilter:
         nb = len(cfg.scale_sensors)
         self._bias_idx = {name: 3 + nb + i for i, name in enumerate(cfg.bias_sensors)}
         nb += len(cfg.bias_sensors)
-        self._creep_idx = {name: 3 + nb + i for i, name in enumerate(cfg.creep_sensors)}
-        self.n = 3 + nb + len(cfg.creep_sensors)
+        self._fix_idx = {name: 3 + nb + i for i, name in enumerate(cfg.fix_bias_sensors)}
+        self.n = 3 + nb + len(cfg.fix_bias_sensors)
+        # fix biases: Gauss-Markov in distance travelled, phi = exp(-|v| dt / L)
+        self._fixgm = [(i, cfg.fix_bias_length.get(s, math.inf), cfg.fix_bias_sigma.get(s, 0.0))
+                       for s, i in self._fix_idx.items()]
         self.ekf = ExtendedKalmanFilter(dim_x=self.n, dim_z=1)
         # per error state: (index, phi(dt) parameters)
         self._gm = [(i, cfg.scale_tau[s], cfg.scale_sigma.get(s, cfg.initial_scale_stddev))
                     for s, i in self._scale_idx.items() if cfg.scale_tau.get(s, 0.0) > 0.0]
         self._rw = [(i, cfg.scale_psd) for s, i in self._scale_idx.items() if not cfg.scale_tau.get(s, 0.0) > 0.0]
         self._rw += [(i, cfg.bias_psd) for i in self._bias_idx.values()]
-        self._rw += [(i, cfg.creep_psd) for i in self._creep_idx.values()]
         self._gate = float(chi2.ppf(cfg.gate_probability, 1))
         self._gates = {s: float(chi2.ppf(p, 1)) for s, p in cfg.gate_probabilities.items()}
         self._slip_gate = float(chi2.ppf(cfg.slip_gate_probability, 1))
@@ -264,8 +280,8 @@ class TrainFilter:
             P[i, i] = cfg.scale_sigma.get(s, cfg.initial_scale_stddev) ** 2
         for s, i in self._bias_idx.items():
             P[i, i] = cfg.bias_sigma.get(s, 0.0) ** 2
-        for s, i in self._creep_idx.items():
-            P[i, i] = cfg.creep_sigma.get(s, 0.0) ** 2
+        for s, i in self._fix_idx.items():
+            P[i, i] = cfg.fix_bias_sigma.get(s, 0.0) ** 2
         return np.zeros((self.n, 1)), P, _Aux()
 
     def _clear(self, base) -> None:
@@ -329,7 +345,15 @@ class TrainFilter:
             return x, P
         F, FT, Q = self._transition(t - t0)
         if t < t0:   # before the kept history: extrapolate back, uncertainty grown as forwards
-            return F @ x, F @ P @ FT + self._transition(t0 - t)[2]
+            Q = self._transition(t0 - t)[2]
+        if self._fixgm:
+            dist = abs(float(x[1, 0]) * (t - t0))
+            F, Q = F.copy(), Q.copy()
+            for i, length, sigma in self._fixgm:
+                phi = math.exp(-dist / length)
+                F[i, i] = phi
+                Q[i, i] = sigma * sigma * (1.0 - phi * phi)
+            FT = F.T
         return F @ x, F @ P @ FT + Q
 
     def _predict_to(self, t: float) -> None:
@@ -352,6 +376,10 @@ class TrainFilter:
             h[0] = 1.0
             R = m.position_stddev ** 2
             z, hx = m.position, x[0]
+            f_idx = self._fix_idx.get(cls)
+            if f_idx is not None:
+                h[f_idx] = 1.0
+                hx = hx + x[f_idx]
         else:
             k_idx = self._scale_idx.get(cls)
             g = 1.0 + (x[k_idx] if k_idx is not None else 0.0)
@@ -365,12 +393,11 @@ class TrainFilter:
                 a = x[2]
                 v = x[1] - 0.5 * d * a
                 h[1], h[2] = g, -0.5 * d * g
-            c_idx = self._creep_idx.get(cls)
-            if c_idx is not None:   # v (1 + c a sign v) = v + c a |v|
-                c, sv = x[c_idx], (1.0 if v >= 0.0 else -1.0)
+            c = cfg.creep_coefficient.get(cls)
+            if c is not None:   # v (1 + c a sign v) = v + c a |v|
+                sv = 1.0 if v >= 0.0 else -1.0
                 h[1] += g * c * a * sv
                 h[2] += g * c * (abs(v) - 0.5 * d * a * sv)
-                h[c_idx] = g * a * abs(v)
                 v = v + c * a * abs(v)
             b_idx = self._bias_idx.get(cls)
             if b_idx is not None:
@@ -407,10 +434,15 @@ class TrainFilter:
             z, R, _, _ = self._model(m)
             x = self.ekf.x.copy()
             P = self.ekf.P.copy()
-            x[0, 0] = z
             P[0, :] = 0.0
             P[:, 0] = 0.0
             P[0, 0] = R
+            x[0, 0] = z
+            f_idx = self._fix_idx.get(cls)
+            if f_idx is not None:   # s = z - bias
+                x[0, 0] -= x[f_idx, 0]
+                P[0, 0] += P[f_idx, f_idx]
+                P[0, f_idx] = P[f_idx, 0] = -P[f_idx, f_idx]
             self.ekf.x, self.ekf.P = x, P
             aux.initialised = True
             aux.accepted = _inc(aux.accepted, cls)
@@ -528,13 +560,12 @@ class TrainFilter:
         sd_s, sd_v = math.sqrt(max(P[0, 0], 0.0)), math.sqrt(max(P[1, 1], 0.0))
         scales = {name: float(x[i]) for name, i in self._scale_idx.items()}
         biases = {name: float(x[i]) for name, i in self._bias_idx.items()}
-        creeps = {name: float(x[i]) for name, i in self._creep_idx.items()}
         if not aux.initialised:
             return Estimate(t, math.nan, float(x[1]), float(x[2]), math.inf, sd_v, -math.inf, math.inf,
-                            self.cfg.confidence, MODE_INITIALISING, scales, biases, creeps)
+                            self.cfg.confidence, MODE_INITIALISING, scales, biases)
         half = self._z * sd_s
         return Estimate(t, float(x[0]), float(x[1]), float(x[2]), sd_s, sd_v, float(x[0]) - half,
-                        float(x[0]) + half, self.cfg.confidence, self._mode(aux, t, sd_s), scales, biases, creeps)
+                        float(x[0]) + half, self.cfg.confidence, self._mode(aux, t, sd_s), scales, biases)
 
     def _mode(self, aux: _Aux, t: float, position_stddev: float) -> int:
         if not aux.initialised:

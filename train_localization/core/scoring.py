@@ -55,7 +55,7 @@ def score(truth: StateSeries, fused: StateSeries) -> dict:
     spd_err = f["speed"] - v_true
     in_interval = (s_true[claimed] >= f["position_min"][claimed]) & (s_true[claimed] <= f["position_max"][claimed])
     width = f["position_max"][claimed] - f["position_min"][claimed]
-    modes = {int(m): int(n) for m, n in zip(*np.unique(f["mode"], return_counts=True))}
+    modes = {str(int(m)): int(n) for m, n in zip(*np.unique(f["mode"], return_counts=True))}
     return {
         "states": int(inside.sum()),
         "states_with_position": int(claimed.sum()),

@@ -125,3 +125,36 @@ def test_fusion_node_rejects_nan_and_too_late_measurements(ros_context, start_no
         assert proc.interrupt() == 0
     finally:
         node.destroy_node()
+
+
+def test_sensor_node_in_sim_mode_rejects_bad_truth_states(ros_context, start_node):
+    from diagnostic_msgs.msg import DiagnosticArray
+    from train_localization_msgs.msg import RawBlock, TrainState
+    from train_localization.nodes.common import STREAM_QOS
+
+    proc = start_node("doppler_radar", "--ros-args", *NS, "-p", "mode:=sim")
+    node = ros_context.create_node("probe_bad_truth", namespace="/train")
+    pub = node.create_publisher(TrainState, "ground_truth/state", STREAM_QOS)
+    raws, diags = [], []
+    node.create_subscription(RawBlock, "sensors/doppler/raw", raws.append, STREAM_QOS)
+    node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+    try:
+        assert spin_until(node, lambda: pub.get_subscription_count() > 0, 30.0), proc.output()
+
+        def state(t, position=100.0, speed=20.0):
+            m = TrainState(track_id="conventional_line", position=position, speed=speed)
+            m.header.stamp.sec, m.header.stamp.nanosec = int(t), int(round((t % 1) * 1e9))
+            return m
+        good = [state(k * 0.01, 100.0 + 0.2 * k) for k in range(30)]
+        for m in good[:10] + [state(0.105, math.nan), good[5], good[9]] + good[10:]:
+            pub.publish(m)
+        assert spin_until(node, lambda: _diag_values(diags, "doppler").get(
+            "rejected/ground_truth/state/stamp_back") == "1" and len(raws) >= 5, 20.0), proc.output()
+        values = _diag_values(diags, "doppler")
+        assert values["rejected/ground_truth/state/nan"] == "1"
+        assert values["rejected/ground_truth/state/duplicate"] == "1"
+        assert values["accepted/ground_truth/state"] == "30"
+        assert len(raws) == 5  # 0.29 s of truth: five complete 50 ms blocks
+        assert proc.proc.poll() is None and proc.interrupt() == 0
+    finally:
+        node.destroy_node()

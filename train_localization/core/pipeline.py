@@ -44,7 +44,13 @@ class SensorPipeline:
         return self.decoder.unit_id
 
     def on_truth(self, state: TruthState) -> list[RawBlock]:
-        """Feed one ground-truth state; returns the raw blocks now complete."""
+        """Feed one ground-truth state; returns the raw blocks now complete.
+
+        Raises InputRejected (counted) for a state that is not newer than the last one."""
+        if self.truth.latest is not None and state.stamp <= self.truth.latest:
+            reason = "duplicate" if state.stamp == self.truth.latest else "stamp_back"
+            self.rejected[reason] += 1
+            raise InputRejected(reason, f"truth state at {state.stamp:.6f} s after {self.truth.latest:.6f} s")
         self.truth.add(state)
         return self.simulator.simulate(self.truth) if self.simulator else []
 

@@ -96,8 +96,13 @@ class SensorNode(Node):
         except InputRejected as exc:
             self.diag.reject("ground_truth/state", exc.reason, str(exc))
             return
+        try:
+            blocks = self.pipe.on_truth(state)
+        except InputRejected as exc:
+            self.diag.reject("ground_truth/state", exc.reason, str(exc))
+            return
         self.diag.accept("ground_truth/state")
-        for block in self.pipe.on_truth(state):
+        for block in blocks:
             self.raw_pub.publish(convert.raw_block_to_msg(block, self.mc))
             self._decode(block)
 

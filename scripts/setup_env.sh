@@ -67,8 +67,12 @@ export VIRTUAL_ENV="$_tl_venv"
 export PATH="$_tl_venv/bin:$PATH"
 export AMENT_PREFIX_PATH="$_tl_venv${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}"
 export CMAKE_PREFIX_PATH="$_tl_venv${CMAKE_PREFIX_PATH:+:$CMAKE_PREFIX_PATH}"
+# colcon's setup scripts read unset variables: relax `set -u` of a calling script
+case $- in *u*) _tl_nounset=1; set +u ;; *) _tl_nounset=0 ;; esac
 # shellcheck disable=SC1091
 COLCON_CURRENT_PREFIX="$_tl_ws/install" . "$_tl_ws/install/local_setup.sh"
+[ "$_tl_nounset" = 1 ] && set -u
+unset _tl_nounset
 export RMW_IMPLEMENTATION="${RMW_IMPLEMENTATION:-rmw_fastrtps_cpp}"
 # DDS stays on this machine (DESIGN.md section 3) unless the user overrides it.
 export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"

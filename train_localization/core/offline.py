@@ -44,7 +44,8 @@ def fusion_config(scenario: Scenario | None, **overrides) -> FusionConfig:
 class FusionRunner:
     """TrainFilter plus the fixed-rate output grid (k / rate seconds).
 
-    ``add`` feeds a measurement (rejections are counted in ``rejected``),
+    ``add`` feeds a measurement (rejections are counted in ``rejected``, the last one
+    kept in ``last_error``),
     ``advance(t)`` returns the estimates of every grid time <= t not yet produced,
     each with the sensor classes used since the previous one.
     """
@@ -55,12 +56,14 @@ class FusionRunner:
         self._next_k: int | None = None
         self._used: set[str] = set()
         self.rejected: dict[str, int] = {}
+        self.last_error: InputRejected | None = None   # why the last rejected measurement was
 
     def add(self, m) -> bool:
         try:
             self.filter.add(m)
         except InputRejected as exc:
             self.rejected[exc.reason] = self.rejected.get(exc.reason, 0) + 1
+            self.last_error = exc
             return False
         self._used.add(m.sensor)
         return True

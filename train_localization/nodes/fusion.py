@@ -1,33 +1,39 @@
 """Fusion node: absolute along-track position and speed from every sensor.
 
 Subscribes sensors/<sensor>/position | speed | distance for each sensor in
-``sensors``; publishes at a fixed rate, independent of the inputs:
+``sensors``; publishes at a fixed rate, independent of the inputs (the grid of
+core/offline.py FusionRunner, the same code as the offline runs):
   localization/state     TrainState (reliable, transient-local)
   localization/odometry  nav_msgs/Odometry, pose in map from the track alignment
   /tf                    map -> base_link
-  /diagnostics           counts of accepted, gated and rejected measurements, mode
+  /diagnostics           counts of accepted, gated and rejected measurements, mode, NIS
 Service: localization/set_position (train_localization_msgs/SetPosition).
 
-Parameters (defaults in core/fusion.py FusionConfig):
+Parameters:
   track (string)                track YAML (or take it from ``scenario``)
-  scenario (string, "")         scenario YAML; gives the track
+  scenario (string, "")         scenario YAML; gives the track and the ``fusion:`` tuning
+                                (explicitly set parameters override it)
   sensors (string[])            sensor classes to subscribe
   publish_rate (double, 200.0)  [Hz] (MLX position system updates every 5 ms, seed 002)
-  confidence (double, 0.999)    probability of [position_min, position_max]
-  gate_probability (double, 0.9999), jerk_psd, history [s], slip_holdoff [s], lost_stddev [m]
-  timeouts (string[], [])       "sensor:seconds" entries; a class past its timeout -> DEGRADED
   map_frame ("map"), base_frame ("base_link")
+  and every field of core/fusion.py FusionConfig under its own name, with the same
+  default and description: numbers as doubles, sensor lists as string arrays, and the
+  per-sensor tables (timeouts, scale_tau, scale_sigma, bias_sigma, reported_scale,
+  reported_bias, stddev_factor, gate_probabilities, fix_bias_sigma, fix_bias_length,
+  creep_coefficient) as string arrays of "sensor:value" entries.
 """
 from __future__ import annotations
 
 import math
+from dataclasses import fields
 
 from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 
 from ..core import convert, paths
-from ..core.fusion import FusionConfig, TrainFilter
+from ..core.fusion import FusionConfig
+from ..core.offline import FusionRunner, estimate_to_msg, fusion_config
 from ..core.scenario import Scenario
 from ..core.signals import InputRejected
 from ..core.track import Track
@@ -36,32 +42,57 @@ from .common import LATCHED_QOS, STREAM_QOS, Diagnostics, declare, now_sec, rclp
 ALL_SENSORS = ["doppler", "wheel", "eurobalise", "lrl", "inpo", "pattern_belt", "mmwave", "axle_counter"]
 
 
+def _ros_value(value):
+    """A FusionConfig value as a ROS parameter value (dicts and tuples as string arrays)."""
+    if isinstance(value, dict):
+        return [f"{k}:{v!r}" for k, v in value.items()] or [""]
+    if isinstance(value, (tuple, list)):
+        return [str(v) for v in value] or [""]
+    return value
+
+
+def _from_ros(default, value):
+    if isinstance(default, dict):
+        out = {}
+        for item in value:
+            if item:
+                name, sep, number = item.partition(":")
+                if not sep:
+                    raise ValueError(f"expected 'sensor:value', got {item!r}")
+                out[name.strip()] = float(number)
+        return out
+    if isinstance(default, tuple):
+        return tuple(v for v in value if v)
+    if isinstance(default, float):
+        return float(value)
+    return value
+
+
+def declare_fusion_config(node: Node, base: FusionConfig, track_id: str) -> FusionConfig:
+    """Declare every FusionConfig field as a parameter (default: ``base``) and build the config."""
+    values = {}
+    for f in fields(FusionConfig):
+        if f.name == "track_id":
+            continue
+        default = getattr(base, f.name)
+        values[f.name] = _from_ros(default, declare(node, f.name, _ros_value(default), f.metadata.get("doc", "")))
+    return FusionConfig(track_id=track_id, **values)
+
+
 class FusionNode(Node):
     def __init__(self):
         super().__init__("fusion")
-        scenario = declare(self, "scenario", "", "scenario YAML (gives the track)")
+        scenario_path = declare(self, "scenario", "", "scenario YAML (gives the track and the fusion tuning)")
         track = declare(self, "track", "config/track_conventional.yaml", "track YAML")
-        self.track = Scenario.from_yaml(scenario).track if scenario else Track.from_yaml(paths.resolve(track))
+        scenario = Scenario.from_yaml(scenario_path) if scenario_path else None
+        self.track = scenario.track if scenario else Track.from_yaml(paths.resolve(track))
         sensors = declare(self, "sensors", ALL_SENSORS, "sensor classes to subscribe")
         rate = float(declare(self, "publish_rate", 200.0, "state publish rate [Hz]"))
-        d = FusionConfig()
-        timeouts = {}
-        for item in declare(self, "timeouts", [""], "'sensor:seconds' -> DEGRADED past the timeout"):
-            if item:
-                name, _, sec = item.partition(":")
-                timeouts[name] = float(sec)
-        cfg = FusionConfig(
-            track_id=self.track.track_id,
-            confidence=float(declare(self, "confidence", d.confidence, "probability of the interval")),
-            gate_probability=float(declare(self, "gate_probability", d.gate_probability, "chi-square gate")),
-            jerk_psd=float(declare(self, "jerk_psd", d.jerk_psd, "white jerk PSD [m^2/s^5]")),
-            history=float(declare(self, "history", d.history, "how late a measurement may be [s]")),
-            slip_holdoff=float(declare(self, "slip_holdoff", d.slip_holdoff, "wheel exclusion after slip [s]")),
-            lost_stddev=float(declare(self, "lost_stddev", d.lost_stddev, "1-sigma above which LOST [m]")),
-            timeouts=timeouts)
+        cfg = declare_fusion_config(self, fusion_config(scenario), self.track.track_id)
         self.map_frame = declare(self, "map_frame", "map", "fixed frame")
         self.base_frame = declare(self, "base_frame", "base_link", "vehicle frame")
-        self.filter = TrainFilter(cfg)
+        self.runner = FusionRunner(cfg, rate)
+        self.filter = self.runner.filter
         self.mc = rclpy_classes()
         self.diag = Diagnostics(self, "fusion")
         parsers = {"position": (self.mc.PositionFix, convert.position_fix_from_msg),
@@ -83,20 +114,19 @@ class FusionNode(Node):
             self.get_logger().warn("tf2_msgs is not installed: /tf is not published")
         from train_localization_msgs.srv import SetPosition
         self.create_service(SetPosition, "localization/set_position", self.on_set_position)
-        self.period = 1.0 / rate
-        self._next_k = None
-        self._used: set[str] = set()
-        self.create_timer(self.period, self.on_timer)
+        self.create_timer(1.0 / rate, self.on_timer)
 
     def on_measurement(self, topic, parse, msg):
         try:
             m = parse(msg)
-            self.filter.add(m)
         except InputRejected as exc:
             self.diag.reject(topic, exc.reason, str(exc))
             return
+        if not self.runner.add(m):
+            exc = self.runner.last_error
+            self.diag.reject(topic, exc.reason, str(exc))
+            return
         self.diag.accept(topic)
-        self._used.add(m.sensor)
 
     def on_set_position(self, request, response):
         t = now_sec(self)
@@ -112,25 +142,19 @@ class FusionNode(Node):
         return response
 
     def on_timer(self):
-        now = now_sec(self)
-        k_now = math.floor(now / self.period + 1e-9)
-        if self._next_k is None or k_now - self._next_k > 200:
-            self._next_k = k_now
-        while self._next_k <= k_now:
-            self.publish_state(self._next_k * self.period)
-            self._next_k += 1
+        states = self.runner.advance(now_sec(self), max_catch_up=200)
+        for est, used in states:
+            self.publish_state(est, used)
+        if states:
+            est = states[-1][0]
+            self.diag.values.update({"mode": str(est.mode), "position_stddev": f"{est.position_stddev:.3f}"})
+            for group, values in self.filter.counters().items():
+                for k, v in values.items():
+                    self.diag.values[f"filter/{group}/{k}"] = f"{v:.3f}" if isinstance(v, float) else str(v)
 
-    def publish_state(self, t):
-        est = self.filter.estimate(t)
-        msg = convert.train_state_to_msg(self.mc, t, self.track.track_id, est.position, est.speed, est.acceleration,
-                                         est.position_stddev, est.speed_stddev, est.position_min, est.position_max,
-                                         est.confidence, est.mode, sorted(self._used))
-        self._used.clear()
+    def publish_state(self, est, used):
+        msg = estimate_to_msg(self.mc, est, self.track.track_id, used)
         self.state_pub.publish(msg)
-        self.diag.values.update({"mode": str(est.mode), "position_stddev": f"{est.position_stddev:.3f}"})
-        for group, values in self.filter.counters().items():
-            for k, v in values.items():
-                self.diag.values[f"filter/{group}/{k}"] = f"{v:.3f}" if isinstance(v, float) else str(v)
         if not math.isfinite(est.position):
             return
         x, y, yaw = self.track.pose(est.position)

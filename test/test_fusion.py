@@ -1,0 +1,448 @@
+"""Fusion unit tests (core/fusion.py): measurement and process models, rollback of late
+measurements, gating, slip, modes, reset and initialisation."""
+from __future__ import annotations
+
+import math
+from dataclasses import fields
+
+import numpy as np
+import pytest
+from filterpy.kalman import ExtendedKalmanFilter
+from scipy.stats import norm
+
+from train_localization.core import fusion
+from train_localization.core.fusion import (MODE_DEGRADED, MODE_INITIALISING, MODE_LOST, MODE_NOMINAL,
+                                            FusionConfig, TrainFilter)
+from train_localization.core.measurements import DistanceIncrement, PositionFix, SpeedMeasurement
+from train_localization.core.offline import FusionRunner, fusion_config
+from train_localization.core.scenario import Scenario
+from train_localization.core.sensors import doppler, inpo, wheel
+from train_localization.core.signals import InputRejected
+from train_localization.tools import bench_fusion
+
+Z999 = norm.ppf(0.9995)   # half-width of the 99.9 % interval in sigmas
+
+
+def fix(t, s, sd=0.3, sensor="eurobalise", ref="B1"):
+    return PositionFix(t, sensor, sensor, "T", ref, s, sd)
+
+
+DOPPLER_SCALE, DOPPLER_BIAS = doppler.PARAMS["scale_sigma"].default, doppler.PARAMS["bias"].default
+WHEEL_SCALE = wheel.PARAMS["diameter_tolerance"].default / math.sqrt(3.0)
+
+
+def speed(t, v, white=0.05, sensor="doppler"):
+    """A Doppler speed whose stddev is made up like doppler.py's decoder does it."""
+    return SpeedMeasurement(t, sensor, sensor, v, math.sqrt(white ** 2 + (DOPPLER_SCALE * v) ** 2 + DOPPLER_BIAS ** 2))
+
+
+def inc(t, v, dur=0.05, q=0.004, sensor="wheel"):
+    """A wheel increment whose stddev is made up like wheel.py's decoder does it."""
+    sd = math.hypot(q, WHEEL_SCALE * v * dur)
+    return DistanceIncrement(t, sensor, sensor, dur, v * dur, sd, v, sd / dur)
+
+
+# --------------------------------------------------------------------------- models
+def test_scalar_update_equals_filterpy_extended_kalman_filter_update():
+    rng = np.random.default_rng(4)
+    f = TrainFilter(FusionConfig())
+    n = f.n
+    for _ in range(20):
+        a = rng.normal(size=(n, n))
+        P = a @ a.T + n * np.eye(n)
+        x = rng.normal(size=(n, 1))
+        h = rng.normal(size=n)
+        z, R = float(rng.normal()), float(rng.uniform(0.1, 2.0))
+        hx = float(h @ x[:, 0]) + 0.3
+        ref = ExtendedKalmanFilter(dim_x=n, dim_z=1)
+        ref.x, ref.P = x.copy(), P.copy()
+        ref.update(np.array([[z]]), lambda _x: h[None, :], lambda _x: np.array([[hx]]), R=np.array([[R]]))
+        f.ekf.x, f.ekf.P = x.copy(), P.copy()
+        f._update(z, R, h, hx)
+        assert np.allclose(f.ekf.x, ref.x, rtol=0, atol=1e-12)
+        assert np.allclose(f.ekf.P, ref.P, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("m", [
+    speed(1.0, 30.0), speed(1.0, -12.0),
+    inc(1.0, 25.0), inc(1.0, -8.0),
+    fix(1.0, 100.0, sensor="mmwave"), fix(1.0, 100.0, sensor="inpo", ref="S1"), fix(1.0, 100.0)])
+def test_measurement_jacobian_matches_numerical_derivative(m):
+    f = TrainFilter(FusionConfig())
+    rng = np.random.default_rng(1)
+    x = np.zeros((f.n, 1))
+    x[:3, 0] = (100.0, 30.0 if m.sensor != "wheel" or m.distance > 0 else -8.0, 0.7)
+    if isinstance(m, SpeedMeasurement) and m.speed < 0:
+        x[1, 0] = -12.0
+    x[3:, 0] = rng.normal(0.0, 0.01, f.n - 3)
+    f.ekf.x = x
+    _, _, h, hx = f._model(m)
+    num = np.zeros(f.n)
+    for i in range(f.n):
+        eps = 1e-6 * max(1.0, abs(x[i, 0]))
+        for sign in (1, -1):
+            xp = x.copy()
+            xp[i, 0] += sign * eps
+            f.ekf.x = xp
+            num[i] += sign * f._model(m)[3] / (2 * eps)
+    assert np.allclose(h, num, rtol=1e-6, atol=1e-8)
+    f.ekf.x = x
+    if isinstance(m, PositionFix):
+        assert h[0] == 1.0
+    else:
+        assert abs(h[1]) > 0.9   # it measures the speed
+
+
+def test_noise_that_a_state_carries_is_taken_out_of_r():
+    f = TrainFilter(FusionConfig())
+    p = doppler.PARAMS
+    v, n = 40.0, 10
+    white = (p["spread"].default * v) ** 2 / n
+    sigma = math.sqrt(white + (p["scale_sigma"].default * v) ** 2 + p["bias"].default ** 2)   # doppler.py decoder
+    _, R, _, _ = f._model(SpeedMeasurement(1.0, "doppler", "radar", v, sigma))
+    assert R == pytest.approx(white, rel=1e-9)
+    # wheel: quantisation stays, the diameter tolerance (a state) goes
+    q, dist = 0.006, 2.0
+    scale = wheel.PARAMS["diameter_tolerance"].default / math.sqrt(3.0)
+    m = DistanceIncrement(1.0, "wheel", "wheel", 0.05, dist, math.hypot(q, scale * dist), dist / 0.05, 0.1)
+    _, R, _, _ = f._model(m)
+    assert R * 0.05 ** 2 == pytest.approx(q * q, rel=1e-9)
+    # INPO: the section's survey/laying error is the fix-bias state
+    bias = math.hypot(inpo.PARAMS["survey_sigma"].default,
+                      inpo.PARAMS["skew_sigma"].default / math.sqrt(inpo.PARAMS["n_pairs"].default))
+    _, R, _, _ = f._model(fix(1.0, 10.0, math.hypot(0.0005, bias), sensor="inpo"))
+    assert R == pytest.approx(0.0005 ** 2, rel=1e-6)
+    # a sensor without such a state keeps its figure, scaled by stddev_factor
+    assert f._model(fix(1.0, 10.0, 0.3))[1] == pytest.approx(0.09)
+    g = TrainFilter(FusionConfig(stddev_factor={"eurobalise": 2.0}))
+    assert g._model(fix(1.0, 10.0, 0.3))[1] == pytest.approx(0.36)
+
+
+def test_doppler_scale_state_is_the_exact_discretisation_of_the_radar_ar1():
+    f = TrainFilter(FusionConfig())
+    i = f._scale_idx["doppler"]
+    sigma, tau = doppler.PARAMS["scale_sigma"].default, doppler.PARAMS["scale_tau"].default
+    dt = 1.0 / 200.0                               # the radar's sample period
+    F, _, Q = f._transition(dt)
+    phi = math.exp(-dt / tau)                      # doppler.py DopplerSimulator.samples
+    assert F[i, i] == pytest.approx(phi, rel=1e-12)
+    assert Q[i, i] == pytest.approx(sigma ** 2 * (1 - phi * phi), rel=1e-12)
+    # stationary: the variance stays sigma^2 however long the prediction
+    x, P, _ = f.state(0.0)
+    assert P[i, i] == pytest.approx(sigma ** 2)
+    _, P1 = f._predicted(x[:, None], P, 0.0, 100.0)
+    assert P1[i, i] == pytest.approx(sigma ** 2, rel=1e-9)
+    # the wheel's diameter error is a slow random walk, the constant Doppler offset too
+    w, o = f._scale_idx["wheel"], f._offset_idx["doppler"]
+    assert F[w, w] == 1.0 and F[o, o] == 1.0
+    assert Q[w, w] == pytest.approx(f.cfg.scale_psd * dt)
+
+
+def test_mmwave_fix_bias_decorrelates_with_distance_and_time():
+    cfg = FusionConfig()
+    f = TrainFilter(cfg)
+    i = f._fix_idx["mmwave"]
+    x = np.zeros((f.n, 1))
+    x[1, 0], x[i, 0] = 100.0, 0.05
+    P = np.eye(f.n) * 1e-4
+    dt = 2.0
+    x1, P1 = f._predicted(x, P, 0.0, dt)
+    phi = math.exp(-100.0 * dt / cfg.fix_bias_length["mmwave"] - dt / cfg.fix_bias_tau["mmwave"])
+    assert x1[i, 0] == pytest.approx(0.05 * phi, rel=1e-6)
+    assert P1[i, i] == pytest.approx(1e-4 * phi ** 2 + cfg.fix_bias_sigma["mmwave"] ** 2 * (1 - phi ** 2), rel=1e-6)
+    x[1, 0] = 0.0   # at standstill only the time constant
+    x2, _ = f._predicted(x, P, 0.0, dt)
+    assert x2[i, 0] == pytest.approx(0.05 * math.exp(-dt / cfg.fix_bias_tau["mmwave"]), rel=1e-6)
+
+
+def test_inpo_fix_bias_is_redrawn_for_a_new_section():
+    """Fixes of one section agree to 0.1 mm (their error is the section's survey bias);
+    the next section's fixes may differ by a few mm: with a bias per section that is a
+    normal 1.4-sigma difference, with one bias for all it would be a gross outlier."""
+    def feed(cfg):
+        f = TrainFilter(cfg)
+        for k in range(20):
+            f.add(fix(0.05 * k, 1000.0, 0.00215, sensor="inpo", ref="A"))
+        f.add(fix(1.0, 1000.006, 0.00215, sensor="inpo", ref="B"))
+        return f
+    per_section = feed(FusionConfig())
+    shared = feed(FusionConfig(fix_bias_per_reference=()))
+    assert per_section.counters()["accepted"]["inpo"] == 21
+    assert 1000.002 < per_section.estimate(1.0).position < 1000.004   # about half of the jump
+    assert shared.counters()["gated"] == {"inpo": 1}
+
+
+def test_filter_is_consistent_on_data_drawn_from_its_own_model():
+    """Truth with acceleration phases; Doppler with the radar's AR(1) scale and bias,
+    wheel with a diameter error and creep, balises every 800 m: the position error
+    normalised by the reported stddev has rms ~1 and stays in the 99.9 % interval."""
+    cfg = FusionConfig(fix_bias_sensors=())
+    zs, inside = [], []
+    for seed in range(6):
+        rng = np.random.default_rng(seed)
+        f = TrainFilter(cfg)
+        dt = 0.05
+        s, v = 100.0, 0.0
+        k_wheel = rng.uniform(-0.01, 0.01)
+        k_dop = rng.normal(0.0, 0.005)
+        phi = math.exp(-dt / 5.0)
+        next_balise = 500.0
+        for j in range(1, 3001):
+            t = j * dt
+            a = 0.6 if t < 60 else (0.0 if t < 110 else -0.5)
+            s_prev = s
+            v_new = max(v + a * dt, 0.0)
+            a = (v_new - v) / dt
+            s += 0.5 * (v + v_new) * dt
+            v = v_new
+            k_dop = phi * k_dop + math.sqrt(1 - phi * phi) * 0.005 * rng.normal()
+            if v > 0.3:
+                white = 0.02 * v / math.sqrt(10)
+                f.add(speed(t - 0.025, (v - 0.5 * a * dt + 0.02) * (1 + k_dop) + rng.normal(0, white),
+                            math.sqrt(white ** 2 + (0.005 * v) ** 2 + 0.02 ** 2)))
+            d = (s - s_prev) * (1 + k_wheel) * (1 + 0.002 * a) + rng.normal(0, 0.005)
+            f.add(DistanceIncrement(t, "wheel", "wheel", dt, d, math.hypot(0.005, 0.0058 * d), d / dt, 0.1))
+            if s >= next_balise:
+                t_b = t - (s - next_balise) / max(v, 1e-3)
+                f.add(fix(t_b, next_balise + rng.normal(0, 0.3), 0.3, ref=str(next_balise)))
+                next_balise += 800.0
+            if j % 10 == 0:
+                e = f.estimate(t)
+                if e.mode != MODE_INITIALISING:
+                    zs.append((e.position - s) / e.position_stddev)
+                    inside.append(e.position_min <= s <= e.position_max)
+    zs = np.array(zs)
+    assert len(zs) > 1000
+    assert 0.6 < np.sqrt(np.mean(zs ** 2)) < 1.3
+    assert np.mean(inside) >= 0.995
+
+
+# --------------------------------------------------------------------------- rollback
+@pytest.fixture(scope="module")
+def recorded():
+    """Measurements (with arrival times) of the first seconds of both scenarios."""
+    out = {}
+    for name, t_end in (("scenario_maglev_500", 8.0), ("scenario_conventional_300", 24.0)):
+        sc = Scenario.from_yaml(f"config/{name}.yaml")
+        out[name] = (sc, bench_fusion.scenario_measurements(sc, t_end), t_end)
+    return out
+
+
+@pytest.mark.parametrize("name", ["scenario_maglev_500", "scenario_conventional_300"])
+def test_late_and_shuffled_delivery_gives_the_in_order_estimates(recorded, name):
+    sc, arrivals, t_end = recorded[name]
+    cfg = fusion_config(sc)
+    shuffled = bench_fusion.delayed(arrivals, 0.2, seed=3)
+    # every estimate(T), asked once all data stamped <= T are in, agrees with in-order processing
+    diff = bench_fusion.compare_history(cfg, arrivals, shuffled, t_end + 0.3, step=0.02)
+    assert diff <= 1e-9
+    # and so does the final state, bit for bit, with the same counters
+    a, b = TrainFilter(cfg), TrainFilter(cfg)
+    for _, m in sorted(arrivals, key=lambda item: fusion._order_key(item[1])):
+        a.add(m)
+    for _, m in shuffled:
+        b.add(m)
+    (xa, Pa, _), (xb, Pb, _) = a.state(), b.state()
+    assert np.max(np.abs(xa - xb)) <= 1e-9 and np.max(np.abs(Pa - Pb)) <= 1e-9
+    assert a.counters()["accepted"] == b.counters()["accepted"]
+    assert a.counters()["gated"] == b.counters()["gated"]
+    assert b.rollbacks > 0.3 * len(arrivals) and a.rollbacks == 0   # out of order: many arrived late
+    if name == "scenario_conventional_300":   # the forced slip at 20 s rolls back too
+        assert b.counters()["slips"]["episodes"] >= 1
+    ea, eb = a.estimate(t_end), b.estimate(t_end)
+    assert ea.mode == eb.mode and ea.speed == pytest.approx(eb.speed, abs=1e-9)
+    assert ea.position == pytest.approx(eb.position, abs=1e-9, nan_ok=True)
+
+
+def test_benchmark_holds_the_maglev_sensors_with_5x_headroom(recorded):
+    """CPU time of the fusion (filter + 200 Hz grid) on the maglev scenario's measurements."""
+    sc, arrivals, t_end = recorded["scenario_maglev_500"]
+    cfg = fusion_config(sc)
+    for stream in (arrivals, bench_fusion.delayed(arrivals, 0.2, seed=1)):
+        runner, est, t_add, t_adv = bench_fusion.run(cfg, stream, t_end + 0.21)
+        assert len(est) >= 200 * t_end
+        assert t_end / (t_add + t_adv) >= 5.0
+
+
+def test_estimate_of_a_past_time_ignores_later_measurements():
+    f = TrainFilter(FusionConfig())
+    g = TrainFilter(FusionConfig())
+    for t in np.arange(0.05, 3.0, 0.05):
+        f.add(speed(t, 10.0))
+        g.add(speed(t, 10.0))
+    f.add(fix(1.0, 500.0))
+    g.add(fix(1.0, 500.0))
+    f.add(fix(2.5, 515.3))          # later, 0.3 m off the dead reckoning
+    e_f, e_g = f.estimate(2.2), g.estimate(2.2)
+    assert e_f.position == e_g.position and e_f.position_stddev == e_g.position_stddev
+    assert f.estimate(2.9).position != g.estimate(2.9).position
+
+
+def test_bad_input_is_rejected_with_its_reason():
+    f = TrainFilter(FusionConfig(history=1.0))
+    f.add(fix(10.0, 500.0))
+    f.add(fix(12.0, 520.0))
+    with pytest.raises(InputRejected) as exc:
+        f.add(fix(10.5, 505.0))           # 1.5 s older than the newest, history 1 s
+    assert exc.value.reason == "too_late"
+    with pytest.raises(InputRejected) as exc:
+        f.add(fix(12.0, 520.0))
+    assert exc.value.reason == "duplicate"
+    with pytest.raises(InputRejected) as exc:
+        f.add(fix(12.1, math.nan))
+    assert exc.value.reason == "nan"
+    with pytest.raises(InputRejected) as exc:
+        f.add(SpeedMeasurement(12.1, "doppler", "radar", 5.0, 0.0))
+    assert exc.value.reason == "stddev"
+    assert f.rejected == {"too_late": 1, "duplicate": 1, "nan": 1, "stddev": 1}
+    f.add(fix(11.5, 515.0))               # late but inside the history: inserted
+    assert f.rollbacks == 1 and f.counters()["accepted"]["eurobalise"] == 3
+
+
+# --------------------------------------------------------------------------- gating, slip
+def test_gate_threshold_is_a_per_sensor_parameter():
+    def outlier(cfg, k_sigma):
+        f = TrainFilter(cfg)
+        for t in np.arange(0.05, 2.0, 0.05):
+            f.add(speed(t, 20.0))
+        f.add(fix(1.0, 1000.0, 0.3))
+        e = f.estimate(2.0)
+        s = math.sqrt(e.position_stddev ** 2 + 0.3 ** 2)
+        f.add(fix(2.0, e.position + k_sigma * s, 0.3, ref="B2"))
+        return f, e
+    f, before = outlier(FusionConfig(), 4.5)                   # gate 0.9999: 3.89 sigma
+    assert f.counters()["gated"] == {"eurobalise": 1}
+    assert f.estimate(2.0).position == before.position       # no effect on the state
+    f, _ = outlier(FusionConfig(gate_probabilities={"eurobalise": 1 - 1e-7}), 4.5)   # 5.33 sigma
+    assert f.counters()["gated"] == {} and f.counters()["accepted"]["eurobalise"] == 2
+    f, _ = outlier(FusionConfig(gate_probability=0.99), 3.0)   # 2.58 sigma
+    assert f.counters()["gated"] == {"eurobalise": 1}
+
+
+def _slip_run(cfg, with_doppler=True):
+    f = TrainFilter(cfg)
+    rng = np.random.default_rng(2)
+    err = []
+    for j in range(1, 301):
+        t = j * 0.05
+        ratio = 0.10 if 6.0 <= t < 9.0 else 0.0       # wheel 10 % fast for 3 s
+        f.add(inc(t, 30.0 * (1 + ratio) + rng.normal(0, 0.05), q=0.004))
+        if with_doppler:
+            f.add(speed(t - 0.025, 30.0 + rng.normal(0, 0.2), 0.2))
+        if j == 20:
+            f.add(fix(t, 100.0 + 30.0 * t))
+        if t > 2.0:
+            err.append(f.estimate(t).speed - 30.0)
+    return f, np.array(err)
+
+
+def test_wheel_slip_is_detected_against_the_doppler_and_excluded():
+    f, err = _slip_run(FusionConfig())
+    c = f.counters()
+    assert c["slips"]["episodes"] == 1
+    holdoff = int(FusionConfig().slip_holdoff / 0.05)
+    assert 60 <= c["gated"]["wheel/slip"] <= 60 + holdoff   # 3 s of increments, then the hold-off
+    assert np.max(np.abs(err)) < 0.3                # the slipping wheel (+3 m/s) does not pull the speed
+    assert "wheel" not in c["gated"]                 # slip, not counted as outliers
+    # without slip detection (and no gate for the wheel) the filter follows the wheel
+    g, err_off = _slip_run(FusionConfig(slip_sensors=(), gate_probabilities={"wheel": 1.0}))
+    assert np.max(np.abs(err_off)) > 1.0
+    # without another speed source the disagreement is no slip, just an outlier
+    h, _ = _slip_run(FusionConfig(), with_doppler=False)
+    assert h.counters()["slips"]["episodes"] == 0
+
+
+# --------------------------------------------------------------------------- modes, init, reset
+def test_initialising_until_the_first_fix_then_nominal_degraded_lost():
+    f = TrainFilter(FusionConfig(timeouts={"doppler": 0.5}, lost_stddev=2.0, fix_bias_sensors=()))
+    for t in np.arange(0.05, 5.0, 0.05):
+        f.add(speed(t, 20.0))
+    e = f.estimate(5.0)
+    assert e.mode == MODE_INITIALISING and math.isnan(e.position)
+    assert e.position_min == -math.inf and e.position_max == math.inf
+    assert e.speed == pytest.approx(20.0, abs=0.1)            # speed is known before the position
+    f.add(fix(5.0, 1234.0, 0.3))
+    e = f.estimate(5.0)
+    assert e.mode == MODE_NOMINAL and e.position == pytest.approx(1234.0, abs=1e-9)
+    assert e.position_stddev == pytest.approx(0.3, rel=1e-6)
+    assert e.position_max - e.position == pytest.approx(Z999 * 0.3, rel=1e-6)
+    assert f.estimate(5.4).mode == MODE_NOMINAL
+    assert f.estimate(5.6).mode == MODE_DEGRADED                # Doppler silent > 0.5 s
+    f.add(speed(5.7, 20.0))
+    assert f.estimate(5.7).mode == MODE_NOMINAL
+    late = f.estimate(60.0)                                     # nothing for a minute
+    assert late.position_stddev > 2.0 and late.mode == MODE_LOST
+
+
+def test_confidence_sets_the_interval():
+    f = TrainFilter(FusionConfig(confidence=0.95))
+    f.add(fix(1.0, 50.0, 0.5))
+    e = f.estimate(1.0)
+    assert (e.position_max - e.position_min) / 2 == pytest.approx(1.959964 * 0.5, rel=1e-5)
+    assert e.confidence == 0.95
+
+
+def test_reset_sets_or_forgets_the_position():
+    f = TrainFilter(FusionConfig())
+    f.add(fix(1.0, 50.0))
+    f.reset(position=2000.0, position_stddev=0.5, speed=12.0, speed_stddev=0.2, stamp=10.0)
+    e = f.estimate(10.0)
+    assert e.mode == MODE_NOMINAL and e.position == 2000.0 and e.position_stddev == pytest.approx(0.5)
+    assert f.estimate(11.0).position == pytest.approx(2012.0, abs=1e-6)
+    with pytest.raises(InputRejected) as exc:
+        f.add(fix(9.0, 1990.0))                                 # before the reset
+    assert exc.value.reason == "too_late"
+    f.add(fix(10.5, 2006.0))
+    assert f.counters()["accepted"] == {"eurobalise": 1}        # counters restart too
+    f.reset(stamp=20.0)
+    assert f.estimate(20.0).mode == MODE_INITIALISING
+    f.add(fix(21.0, 100.0))
+    assert f.estimate(21.0).position == pytest.approx(100.0)
+
+
+def test_position_is_reacquired_when_every_fix_disagrees():
+    """A wrong operator position with a small stddev: the first fixes are gated, the third
+    in a row (none accepted for 5 s) re-initialises the position."""
+    f = TrainFilter(FusionConfig(fix_bias_sensors=()))
+    f.reset(position=1000.0, position_stddev=0.2, speed=20.0, speed_stddev=0.1, stamp=0.0)
+    truth = 1050.0                       # the operator was 50 m off
+    for j in range(1, 400):
+        t = j * 0.05
+        f.add(speed(t, 20.0))
+        if j % 100 == 0:                 # a balise every 5 s
+            f.add(fix(t, truth + 20.0 * t, 0.3, ref=str(j)))
+    c = f.counters()
+    assert c["gated"]["eurobalise"] == 2 and c["position"]["reacquired"] == 1
+    assert c["accepted"]["eurobalise"] == 1
+    e = f.estimate(19.95)
+    assert abs(e.position - (truth + 20.0 * 19.95)) < 1.0 and e.position_min <= truth + 20.0 * 19.95
+    # disabled: the filter stays wrong
+    g = TrainFilter(FusionConfig(fix_bias_sensors=(), reacquire_count=0))
+    g.reset(position=1000.0, position_stddev=0.2, speed=20.0, speed_stddev=0.1, stamp=0.0)
+    for j in range(1, 400):
+        t = j * 0.05
+        g.add(speed(t, 20.0))
+        if j % 100 == 0:
+            g.add(fix(t, truth + 20.0 * t, 0.3, ref=str(j)))
+    assert g.counters()["gated"]["eurobalise"] == 3
+    assert abs(g.estimate(19.95).position - (truth + 20.0 * 19.95)) > 40.0
+
+
+def test_runner_publishes_on_a_fixed_grid_and_reports_rejections():
+    r = FusionRunner(FusionConfig(), rate=200.0)
+    assert r.add(fix(0.01, 10.0)) and not r.add(fix(0.01, 10.0))
+    assert r.last_error.reason == "duplicate" and r.rejected == {"duplicate": 1}
+    out = r.advance(0.0)
+    out += r.advance(0.0213)
+    assert [e.stamp for e, _ in out] == pytest.approx([0.0, 0.005, 0.01, 0.015, 0.02])
+    assert out[0][1] == ["eurobalise"] and out[1][1] == []
+
+
+def test_every_config_field_is_a_documented_node_parameter():
+    from train_localization.nodes.fusion import _from_ros, _ros_value
+    cfg = FusionConfig()
+    for f in fields(FusionConfig):
+        assert f.metadata.get("doc"), f"{f.name} has no description"
+        value = getattr(cfg, f.name)
+        assert _from_ros(value, _ros_value(value)) == value, f.name
+    assert _from_ros({}, ["wheel:0.5", ""]) == {"wheel": 0.5}

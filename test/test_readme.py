@@ -5,7 +5,8 @@ import re
 
 from conftest import ROOT
 from train_localization.core.sensors import NODE_NAMES
-from train_localization.tools.docs import BEGIN, END, sensor_params_markdown
+from train_localization.tools.docs import (BEGIN, END, FUSION_BEGIN, FUSION_END, fusion_params_markdown,
+                                          sensor_params_markdown)
 
 README = (ROOT / "README.md").read_text()
 
@@ -20,6 +21,8 @@ def test_quick_start_holds_exactly_the_demo_then_the_test_command():
 
 def test_every_node_is_documented_with_its_current_parameters():
     table = README.split(BEGIN, 1)[1].split(END, 1)[0]
-    assert table.strip() == sensor_params_markdown().strip(), "regenerate: python -m train_localization.tools.docs"
+    assert table.strip() == sensor_params_markdown().strip(), "run: python -m train_localization.tools.docs --write"
+    fusion = README.split(FUSION_BEGIN, 1)[1].split(FUSION_END, 1)[0]
+    assert fusion.strip() == fusion_params_markdown().strip(), "run: python -m train_localization.tools.docs --write"
     for node in ("simulator", "fusion", "recorder", "replayer", *NODE_NAMES):
         assert f"`{node}`" in README

@@ -64,7 +64,7 @@ def test_replayer_drives_an_ingest_node_to_the_recorded_measurements(ros_context
         assert spin_until(node, lambda: node.count_publishers("sensors/doppler/speed") > 0
                           and node.count_subscribers("sensors/doppler/raw") > 0, 30.0), node_proc.output()
         replay = start_node("replayer", "--ros-args", "-p", f"bag:={bag}", "-p", "rate:=4.0",
-                            "-p", "topics:=[/train/sensors/doppler/raw]")
+                            "-p", "topics:=[/train/sensors/doppler/raw]", "-p", "wait_for_subscribers:=1")
         assert spin_until(node, lambda: len(got) >= len(expected) or replay.proc.poll() is not None, 60.0)
         spin_until(node, lambda: len(got) >= len(expected), 5.0)
         assert replay.proc.wait(timeout=30) == 0, replay.output()

@@ -13,6 +13,8 @@ Parameters:
   remap (string[], [])       "from:=to" topic remappings, e.g. "/train/sensors/doppler/raw:=/lab/raw"
   clock_rate (double, 100.0) /clock publications per second of bag time [Hz]
   exit_at_end (bool, true)   shut down after the last message (ignored with loop)
+  wait_for_subscribers (int, 0)  before playing, wait (at most 60 s) until the
+                             played topics have this many matched subscribers in all
 """
 from __future__ import annotations
 
@@ -46,6 +48,7 @@ class ReplayerNode(Node):
                 self.remap[src] = dst
         self.clock_period = 1.0 / float(declare(self, "clock_rate", 100.0, "/clock rate [Hz of bag time]"))
         self.exit_at_end = bool(declare(self, "exit_at_end", True, "shut down at the end"))
+        self.wait_for = int(declare(self, "wait_for_subscribers", 0, "matched subscribers to wait for"))
         self.pubs = {}
         self.published = 0
         self.finished = False
@@ -70,14 +73,18 @@ class ReplayerNode(Node):
         self.clock_pub.publish(msg)
 
     def _run(self):
-        time.sleep(0.5)  # let subscribers match
+        deadline = time.monotonic() + 60.0
+        while (sum(p.get_subscription_count() for p in self.pubs.values()) < self.wait_for
+               and time.monotonic() < deadline and not self._stop.is_set()):
+            self._stop.wait(0.05)
+        self._stop.wait(0.5)  # let subscribers match
         while not self._stop.is_set():
             self._play_once()
             if not self.loop:
                 break
         self.get_logger().info(f"replay finished: {self.published} messages")
         if self.exit_at_end and not self.loop:
-            time.sleep(0.5)
+            self._stop.wait(0.5)
             self.finished = True
 
     def _play_once(self):
@@ -97,7 +104,7 @@ class ReplayerNode(Node):
                 if self.rate > 0:
                     lag = wall0 + rel / self.rate - time.monotonic()
                     if lag > 0:
-                        time.sleep(lag)
+                        self._stop.wait(lag)
                 if self.clock_pub is not None:
                     if next_clock is None or message.log_time >= next_clock:
                         self._publish_clock(message.log_time)
@@ -106,7 +113,9 @@ class ReplayerNode(Node):
                 self.published += 1
 
     def close(self):
+        """Stop the publishing thread before the node goes away (no publish after destroy)."""
         self._stop.set()
+        self._thread.join(timeout=5.0)
 
 
 def main(args=None):

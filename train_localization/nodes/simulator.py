@@ -56,11 +56,11 @@ class SimulatorNode(Node):
         n = int(round(sc.duration * sc.truth_rate)) + 1
         deadline = time.monotonic() + 60.0
         while self.truth_pub.get_subscription_count() < self.wait_for and time.monotonic() < deadline:
-            time.sleep(0.05)
+            self._stop.wait(0.05)
         subs = [i.node_name for i in self.get_subscriptions_info_by_topic(self.truth_pub.topic_name)]
         self.get_logger().info(f"starting scenario '{sc.name}' with {self.truth_pub.get_subscription_count()} "
                                f"truth subscribers {subs} after {time.monotonic() - deadline + 60.0:.1f} s")
-        time.sleep(self.start_delay)
+        self._stop.wait(self.start_delay)
         wall0 = time.monotonic()
         for k in range(n):
             if self._stop.is_set():
@@ -69,7 +69,7 @@ class SimulatorNode(Node):
             if self.rate > 0:
                 lag = wall0 + t / self.rate - time.monotonic()
                 if lag > 0:
-                    time.sleep(lag)
+                    self._stop.wait(lag)
             clock = Clock()
             clock.clock.sec, clock.clock.nanosec = divmod(sec_to_ns(t), 1_000_000_000)
             self.clock_pub.publish(clock)
@@ -81,11 +81,13 @@ class SimulatorNode(Node):
         self.diag.set_status(0, "scenario finished")
         self.get_logger().info(f"scenario '{sc.name}' finished: {self.published} states")
         if self.exit_at_end:
-            time.sleep(0.5)
+            self._stop.wait(0.5)
             self.finished = True
 
     def close(self):
+        """Stop the publishing thread before the node goes away (no publish after destroy)."""
         self._stop.set()
+        self._thread.join(timeout=5.0)
 
 
 def main(args=None):

@@ -1,8 +1,9 @@
 """Markdown tables of every sensor node's parameters (kept in README.md).
 
-  python -m train_localization.tools.docs > /tmp/params.md
+  python -m train_localization.tools.docs            # print them
+  python -m train_localization.tools.docs --write    # update README.md
 test/test_readme.py checks that README.md holds exactly this text between the
-markers ``<!-- sensor-params:begin -->`` and ``<!-- sensor-params:end -->``.
+markers ``<!-- sensor-params:begin/end -->`` and ``<!-- fusion-params:begin/end -->``.
 """
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from ..core.sensors import NODE_NAMES, spec
 from ..core.sensors.base import COMMON_PARAMS
 
 BEGIN, END = "<!-- sensor-params:begin -->", "<!-- sensor-params:end -->"
+FUSION_BEGIN, FUSION_END = "<!-- fusion-params:begin -->", "<!-- fusion-params:end -->"
 
 
 def _value(v) -> str:
@@ -31,5 +33,38 @@ def sensor_params_markdown() -> str:
     return "\n".join(lines) + "\n"
 
 
+def fusion_params_markdown() -> str:
+    """Parameters of the fusion node beyond scenario/track/sensors/publish_rate/frames:
+    every field of core.fusion.FusionConfig (per-sensor tables as "sensor:value" lists)."""
+    from dataclasses import fields
+
+    from ..core.fusion import FusionConfig
+    base = FusionConfig()
+    lines = ["| parameter | default | meaning |", "|---|---|---|"]
+    for f in fields(FusionConfig):
+        if f.name == "track_id":
+            continue
+        value = getattr(base, f.name)
+        if isinstance(value, dict):
+            value = [f"{k}:{v!r}" for k, v in value.items()]
+        elif isinstance(value, tuple):
+            value = list(value)
+        lines.append(f"| `{f.name}` | {_value(value)} | {f.metadata.get('doc', '').replace('|', '/')} |")
+    return "\n".join(lines) + "\n"
+
+
+def splice(text: str, begin: str, end: str, body: str) -> str:
+    """``text`` with the part between the markers replaced by ``body``."""
+    head, rest = text.split(begin, 1)
+    return head + begin + "\n" + body + end + rest.split(end, 1)[1]
+
+
 if __name__ == "__main__":
-    print(sensor_params_markdown(), end="")
+    import sys
+    from ..core.paths import SOURCE_ROOT
+    readme = SOURCE_ROOT / "README.md"
+    if sys.argv[1:] == ["--write"]:
+        text = splice(readme.read_text(), BEGIN, END, sensor_params_markdown())
+        readme.write_text(splice(text, FUSION_BEGIN, FUSION_END, fusion_params_markdown()))
+    else:
+        print(sensor_params_markdown() + "\n" + fusion_params_markdown(), end="")

@@ -30,9 +30,9 @@ BAG_DIR = SOURCE_ROOT / "bags"
 BAGS = {
     "maglev_500": ("config/scenario_maglev_500.yaml", 50.0, 1.0),
     "urban_stops": ("config/scenario_urban_stops.yaml", 100.0, 2.0),
-    "conventional_slip": ("config/scenario_conventional_300.yaml", 80.0, 1.0),
-    "faults": ("config/scenario_faults.yaml", 70.0, 1.0),
-    "stop_and_go": ("config/scenario_stop_and_go.yaml", 150.0, 2.0),
+    "conventional_slip": ("config/scenario_conventional_slip.yaml", 90.0, 1.0),
+    "faults": ("config/scenario_faults.yaml", 60.0, 1.0),
+    "stop_and_go": ("config/scenario_stop_and_go.yaml", 140.0, 2.0),
 }
 
 

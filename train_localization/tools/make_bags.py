@@ -28,7 +28,7 @@ from .replay import report_for
 BAG_DIR = SOURCE_ROOT / "bags"
 # name -> (scenario file, simulated duration [s], speed-up of the live run)
 BAGS = {
-    "maglev_500": ("config/scenario_maglev_500.yaml", 50.0, 1.0),
+    "maglev_500": ("config/scenario_maglev_500.yaml", 40.0, 1.0),
     "urban_stops": ("config/scenario_urban_stops.yaml", 100.0, 2.0),
     "conventional_slip": ("config/scenario_conventional_slip.yaml", 90.0, 1.0),
     "faults": ("config/scenario_faults.yaml", 60.0, 1.0),

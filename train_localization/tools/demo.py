@@ -97,6 +97,7 @@ def summarise(bag: Path) -> dict:
         result["duration_s"] = float(t.t[-1] - t.t[0])
         if fused:
             result["score"] = score(t, StateSeries.from_msgs(fused))
+            result["score"]["integrity"]["confidence"] = float(fused[-1].confidence)
     return result
 
 
@@ -114,7 +115,7 @@ def print_summary(s: dict) -> None:
                   f"({pe['n']} states)")
         print(f"  speed error [m/s]    RMS {ve['rms']:.3f}  p95 {ve['p95']:.3f}  max {ve['max']:.3f}")
         if integ["inside_fraction"] is not None:
-            print(f"  truth inside the {100 * 0.999:.1f} % interval: {100 * integ['inside_fraction']:.2f} % "
+            print(f"  truth inside the {100 * integ['confidence']:.1f} % interval: {100 * integ['inside_fraction']:.2f} % "
                   f"(mean width {integ['mean_interval_width_m']:.2f} m)")
         print(f"  modes (0 init, 1 nominal, 2 degraded, 3 lost): {sc['modes']}")
     print(f"bag: {s['bag']}")

@@ -308,6 +308,25 @@ class InpoSimulator(Simulator):
         return out
 
 
+def _wrap(a: float) -> float:
+    """Angle a [rad] wrapped into [-pi, pi)."""
+    return (a + math.pi) % TWO_PI - math.pi
+
+
+def _unwrap(p: np.ndarray) -> np.ndarray:
+    """np.unwrap(p) for a 1-D array (same arithmetic, without its generic-axis overhead)."""
+    if len(p) < 2:
+        return p.astype(float)
+    dd = p[1:] - p[:-1]
+    ddmod = np.mod(dd + math.pi, TWO_PI) - math.pi
+    np.copyto(ddmod, math.pi, where=(ddmod == -math.pi) & (dd > 0))
+    ph_correct = ddmod - dd
+    np.copyto(ph_correct, 0.0, where=np.abs(dd) < math.pi)
+    up = p.astype(float)
+    up[1:] = p[1:] + ph_correct.cumsum()
+    return up
+
+
 class InpoDecoder(Decoder):
     sensor = "inpo"
     channels = ()  # depend on n_pairs; checked in decode()
@@ -318,6 +337,7 @@ class InpoDecoder(Decoder):
         self.pairs = pair_channels(self.n_pairs)
         self.expected = self.pairs + ("receiver",)
         self.sections = {s["receiver"]: s for s in section_table(track, params["period"])}
+        self._known_rx = set(self.sections) | {0}
         # state carried between blocks
         self._t_last: float | None = None   # time of the last processed sample [s]
         self._in = False                     # hysteresis state of the last sample
@@ -339,25 +359,26 @@ class InpoDecoder(Decoder):
         volts = block.data[:, : self.n_pairs].astype(float)
         rx_f = block.channel("receiver").astype(float)
         rx = np.rint(rx_f).astype(int)
-        if np.any(np.abs(rx_f - rx) > 1e-3):
+        if (np.abs(rx_f - rx) > 1e-3).any():
             raise InputRejected("implausible", "receiver number is not an integer")
-        unknown = set(np.unique(rx).tolist()) - set(self.sections) - {0}
+        unknown = set(rx.tolist()) - self._known_rx
         if unknown:
             raise InputRejected("unknown_id", f"unknown INPO receiver(s) {sorted(unknown)}")
-        if np.any(np.abs(volts) >= p["adc_range"]):
+        if (np.abs(volts) >= p["adc_range"]).any():
             raise InputRejected("implausible", f"envelope voltage at the {p['adc_range']} V limit (saturated)")
         theta, amp, zero = space_vector(volts, self.n_pairs)
         e0 = p["amplitude"]
-        if np.any(amp > p["max_amplitude"] * e0):
+        if (amp > p["max_amplitude"] * e0).any():
             raise InputRejected("implausible", f"loop signal {amp.max():.2f} V beyond {p['max_amplitude']} x E0")
         strong = amp > p["on_threshold"] * e0
-        if np.any(strong & (np.abs(zero) > p["zero_sequence_limit"] * e0)):
+        if (strong & (np.abs(zero) > p["zero_sequence_limit"] * e0)).any():
             raise InputRejected("implausible", "zero-sequence voltage: a loop pair is broken or stuck")
-        if np.any(strong & (rx == 0)):
+        if (strong & (rx == 0)).any():
             raise InputRejected("implausible", "loop signal without a selected receiver")
         both = strong[1:] & strong[:-1] & (rx[1:] == rx[:-1])
-        step = np.abs(np.angle(np.exp(1j * np.diff(theta)))) / TWO_PI
-        if np.any(both & (step > p["max_step"])):
+        d = theta[1:] - theta[:-1]
+        step = np.abs(np.mod(d + math.pi, TWO_PI) - math.pi) / TWO_PI   # |wrapped phase step|
+        if (both & (step > p["max_step"])).any():
             raise InputRejected("implausible", f"phase step {step[both].max():.2f} periods per sample")
         return theta, amp, rx
 
@@ -405,7 +426,7 @@ class InpoDecoder(Decoder):
                 continue
             section = self.sections[r]
             per = section["period"]
-            w = np.unwrap(theta[i0:i1]) / TWO_PI
+            w = _unwrap(theta[i0:i1]) / TWO_PI
             first_of_block = i0 == 0
             continues = prev_in and prev_rx == r and mode in ("track", "pending")
             if first_of_block and not (contiguous or bridge):
@@ -414,8 +435,8 @@ class InpoDecoder(Decoder):
                 if first_of_block and bridge:
                     target = w_last + rate * (t[0] - t_last)
                 else:
-                    target = w_last + np.angle(np.exp(1j * (theta[i0] - theta_last))) / TWO_PI
-                w = w + np.round(target - w[0])
+                    target = w_last + _wrap(float(theta[i0]) - theta_last) / TWO_PI
+                w = w + round(target - float(w[0]))
             else:
                 # entry: after an observed low-amplitude sample, or a hand-over between receivers
                 handover = prev_in and prev_rx != r and (i0 > 0 or contiguous)
@@ -441,7 +462,7 @@ class InpoDecoder(Decoder):
                 u_run = w + offset
                 slack = p["antenna_length"] / per + 0.5
                 n_end = (section["end"] - section["start"]) / per
-                if np.any((u_run < -slack) | (u_run > n_end + slack)):
+                if u_run.min() < -slack or u_run.max() > n_end + slack:
                     # the count says the antenna is off the loops while they still see it: the
                     # count is wrong (e.g. a slip during a bridged gap); wait for the next entry
                     mode = "lost"
@@ -458,7 +479,8 @@ class InpoDecoder(Decoder):
         self._w_entry, self._offset, self._rate = w_entry, offset, rate
         self._in, self._rx, self._t_last = bool(inside[-1]), int(rx[-1]), float(t[-1])
         for key, value in counts.items():
-            self.stats[key] += value
+            if value:
+                self.stats[key] += value
         return self._fixes(block, t - p["detector_delay"], u, sec_of)
 
     def _fixes(self, block, t, u, sec_of):
@@ -467,21 +489,30 @@ class InpoDecoder(Decoder):
         chunk = int(p["fix_samples"]) or n
         out = []
         for c0 in range(0, n, chunk):
-            sl = slice(c0, min(n, c0 + chunk))
-            ok = ~np.isnan(u[sl])
+            if chunk >= n:
+                u_c, s_c, t_c = u, sec_of, t
+            else:
+                sl = slice(c0, min(n, c0 + chunk))
+                u_c, s_c, t_c = u[sl], sec_of[sl], t[sl]
+            ok = u_c == u_c                      # not NaN
             if ok.sum() < p["min_fix_samples"]:
                 continue
-            for r in np.unique(sec_of[sl][ok]):
-                m = ok & (sec_of[sl] == r)
+            secs = s_c[ok]
+            if not secs.size:
+                continue
+            single = secs[0] == secs[-1] and (secs == secs[0]).all()
+            for r in ([int(secs[0])] if single else np.unique(secs).tolist()):
+                m = ok if single else ok & (s_c == r)
                 k = int(m.sum())
                 if k < p["min_fix_samples"]:
                     continue
-                sec = self.sections[int(r)]
+                sec = self.sections[r]
                 per = sec["period"]
-                tt = t[sl][m]
-                x = sec["start"] + u[sl][m] * per + p["antenna_offset"]
-                tm = float(tt.mean())
-                slope = float(np.dot(tt - tm, x - x.mean()) / max(np.dot(tt - tm, tt - tm), 1e-12))
+                tt = t_c[m]
+                x = sec["start"] + u_c[m] * per + p["antenna_offset"]
+                tm = float(tt.sum() / k)
+                dtt = tt - tm
+                slope = float(np.dot(dtt, x - x.sum() / k) / max(np.dot(dtt, dtt), 1e-12))
                 direction = int(np.sign(slope)) if abs(slope) > 0.05 else 0
                 span = abs(slope) * (tt[-1] - tt[0])
                 sigma_s = per * p["accuracy_deg"] / 360.0 / 2.5
@@ -490,7 +521,7 @@ class InpoDecoder(Decoder):
                 bias2 = p["survey_sigma"] ** 2 + p["skew_sigma"] ** 2 / self.n_pairs
                 sigma = math.sqrt(sigma_s ** 2 * (periodic ** 2 + 1.0 / k) + bias2)
                 out.append(PositionFix(tm, self.sensor, self.unit_id, self.track.track_id, sec["id"],
-                                       float(x.mean()), max(sigma, 1e-4), direction))
+                                       float(x.sum() / k), max(sigma, 1e-4), direction))
         self.stats["fixes"] += len(out)
         return out
 

@@ -294,8 +294,20 @@ class MmWaveDecoder(Decoder):
             self._lut[c] = k
         self._gate = np.array([np.inf] + [float(chdtri(df, 1.0 - params["outlier_probability"]))
                                           for df in range(1, N_SLOTS)])
-        self._z_gate = math.sqrt(float(chdtri(1, 1.0 - params["outlier_probability"])))
         self._max_delay = 2.0 * max(params["max_range"], 1.0) / C_AIR + 1e-6
+        # gate by the number of stations used (0..N_SLOTS): dof = n - 1, no test below 2 stations
+        self._gate_n = np.concatenate([[np.inf], self._gate])
+        self._neg_slots = -np.arange(1, N_SLOTS + 1)
+        self._lut0 = self._lut.copy()
+        self._lut0[0] = 0
+        self._lo_bound = np.tile([0.0, 0.0, -30.0], N_SLOTS)
+        self._hi_bound = np.tile([len(self._lut) - 1.0, self._max_delay, 100.0], N_SLOTS)
+        self._ref_cache: dict = {}
+        # range_sigma(snr)^2 + cal_sigma^2 = const + coef * exp(snr * expo)
+        self._sig2_const = params["range_sigma_floor"] ** 2 + params["cal_sigma"] ** 2
+        self._sig2_snr = (params["range_sigma_snr"] * 10.0 ** (SNR_NOISE_REF / 20.0)) ** 2
+        self._sig2_exp = -math.log(10.0) / 10.0
+        self._z_gate = math.sqrt(float(chdtri(1, 1.0 - params["outlier_probability"])))
         self._prev_t: float | None = None
         self._prev_x: float | None = None
         self._prev_v = 0.0
@@ -303,7 +315,27 @@ class MmWaveDecoder(Decoder):
         self.stats.update(epochs=0, fixes=0, rejected_stations=0, no_fix=0, ambiguous=0, inconsistent_single=0)
 
     # -- input checks -------------------------------------------------------------------
-    def _check(self, codes_f, delay, snr):
+    def _check(self, data, codes_f, delay, snr):
+        """(codes, present, station index) of a block; raises InputRejected for a bad block.
+
+        A combined fast test of the whole block (few numpy calls); only a block that fails
+        it goes through the detailed checks, which give the reason.
+        """
+        lut = self._lut
+        # bounds of every channel at once (NaN fails too): code, delay, SNR per slot
+        if ((data >= self._lo_bound) & (data <= self._hi_bound)).all():
+            codes = codes_f.astype(np.int64)
+            k = self._lut0[codes]          # station index, 0 for an empty slot, -1 unknown code
+            present = codes > 0
+            if ((codes == codes_f).all() and (k >= 0).all()
+                    and not np.where(present, 0.0, delay + np.abs(snr)).any()):
+                srt = np.sort(np.where(present, codes, self._neg_slots), axis=1)
+                if not (srt[:, 1:] == srt[:, :-1]).any():
+                    return codes, present, k
+        codes, present = self._check_detail(codes_f, delay, snr)
+        return codes, present, np.where(present, lut[np.where(present, codes, 0)], 0)
+
+    def _check_detail(self, codes_f, delay, snr):
         if np.any(codes_f != np.round(codes_f)) or np.any(codes_f < 0):
             raise InputRejected("unknown_id", "station channel holds a non-integer or negative code")
         codes = codes_f.astype(np.int64)
@@ -328,14 +360,14 @@ class MmWaveDecoder(Decoder):
         p = self.params
         data = block.data.astype(float)
         codes_f, delay, snr = data[:, 0::3], data[:, 1::3], data[:, 2::3]
-        codes, present = self._check(codes_f, delay, snr)
+        codes, present, idx = self._check(data, codes_f, delay, snr)
         n = block.n_samples
         times = block.times()
-        idx = np.where(present, self._lut[np.where(present, codes, 0)], 0)
         valid = present & (delay > 0.0) & (snr >= p["snr_threshold"])
         rng = delay * C_AIR
         s_pos, perp = self.pos[idx], self.perp[idx]
-        sig2 = np.maximum(range_sigma(snr, p) ** 2 + p["cal_sigma"] ** 2, 1e-6)  # >= 1 mm (float32 delays)
+        # range_sigma(snr)^2 + cal_sigma^2, >= 1 mm (float32 delays)
+        sig2 = np.maximum(self._sig2_const + self._sig2_snr * np.exp(snr * self._sig2_exp), 1e-6)
         fit_valid = valid
         for _ in range(N_SLOTS if p["fix_per_block"] else 1):
             x, ok, used, resid, var, cal_var = self._solve(times, rng, s_pos, perp, sig2, fit_valid)
@@ -346,40 +378,69 @@ class MmWaveDecoder(Decoder):
             if worst is None:
                 break
             fit_valid = fit_valid & (idx != worst)
-        if ok.any():
-            self._remember(times[ok], x[ok], var[ok])
+        n_ok = int(ok.sum())
+        if n_ok:
+            if n_ok == n:
+                self._remember(times, x, var)
+            else:
+                self._remember(times[ok], x[ok], var[ok])
         self.stats["epochs"] += n
-        self.stats["no_fix"] += int((~ok).sum())
+        self.stats["no_fix"] += n - n_ok
         self.stats["rejected_stations"] += int((valid & ~used & ok[:, None]).sum())
-        if not ok.any():
+        if not n_ok:
             return []
         front = x + p["orientation"] * p["antenna_offset"]
         if p["fix_per_block"]:
             fixes = [self._block_fix(times, front, var, cal_var, ok, used, valid, resid, idx)]
         else:
             fixes = []
-            for i in np.flatnonzero(ok):
-                ref, res = self._refs(used[i], valid[i], resid[i], idx[i])
-                fixes.append(PositionFix(float(times[i]), self.sensor, self.unit_id, self.track.track_id,
-                                         ref, float(front[i]), float(math.sqrt(var[i])), 0, res))
+            t_l, f_l, s_l = times.tolist(), front.tolist(), np.sqrt(var).tolist()
+            u_l, v_l, r_l, i_l = used.tolist(), valid.tolist(), resid.tolist(), idx.tolist()
+            sensor, unit, track_id = self.sensor, self.unit_id, self.track.track_id
+            cache = self._ref_cache
+            if len(cache) > 4096:
+                cache.clear()
+            for i in np.flatnonzero(ok).tolist():
+                u_i, v_i, k_i = u_l[i], v_l[i], i_l[i]
+                key = (*u_i, *v_i, *k_i)
+                hit = cache.get(key)
+                if hit is None:
+                    hit = cache[key] = self._ref_order(u_i, v_i, k_i)
+                ref, order = hit
+                r_i = r_l[i]
+                fixes.append(PositionFix(t_l[i], sensor, unit, track_id, ref, f_l[i], s_l[i], 0,
+                                         tuple([r_i[j] for j in order])))
         self.stats["fixes"] += len(fixes)
         return fixes
 
     def _block_outlier(self, idx, used, resid, sig2):
         """Station index whose mean residual over the block fails the gate (largest positive), or None."""
         cal2 = self.params["cal_sigma"] ** 2
-        worst, worst_z = None, self._z_gate
-        for k in np.unique(idx[used]):
-            sel = used & (idx == k)
-            n_k = int(sel.sum())
-            if n_k < 3:
-                continue
-            z = float(np.mean(resid[sel])) / math.sqrt(float(np.mean(sig2[sel])) / n_k + cal2)
-            if z > worst_z:
-                worst, worst_z = int(k), z
-        if worst is not None and len(np.unique(idx[used])) <= max(2, self.params["min_stations"]):
+        ks = idx[used]
+        if not ks.size:
+            return None
+        cnt = np.bincount(ks)
+        present = cnt > 0
+        cand = cnt >= 3
+        if not cand.any():
+            return None
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean_r = np.bincount(ks, resid[used]) / cnt
+            mean_s = np.bincount(ks, sig2[used]) / cnt
+            z = np.where(cand, mean_r / np.sqrt(mean_s / cnt + cal2), -np.inf)
+        k = int(np.argmax(z))
+        if not z[k] > self._z_gate:
+            return None
+        if int(present.sum()) <= max(2, self.params["min_stations"]):
             return None  # no station to spare: the epoch tests decide
-        return worst
+        return k
+
+    def _ref_order(self, used, valid, idx):
+        """reference_id of one epoch and the slots of its residuals (used, then rejected)."""
+        order = [j for j in range(N_SLOTS) if used[j]]
+        rej = [j for j in range(N_SLOTS) if valid[j] and not used[j]]
+        ref = ",".join([self.ids[idx[j]] for j in order] + ["!" + self.ids[idx[j]] for j in rej])
+        return ref, order + rej
 
     def _refs(self, used, valid, resid, idx):
         order_used = [j for j in range(N_SLOTS) if used[j]]
@@ -392,28 +453,31 @@ class MmWaveDecoder(Decoder):
         t, y = times[ok], front[ok]
         noise = np.maximum(var[ok] - cal_var[ok], 1e-12)
         w = 1.0 / noise
-        tm = float(np.sum(w * t) / np.sum(w))
-        if len(t) >= 3 and np.ptp(t) > 0:
-            a = np.vstack([np.ones_like(t), t - tm]).T * np.sqrt(w)[:, None]
-            coef, *_ = np.linalg.lstsq(a, y * np.sqrt(w), rcond=None)
-            pos = float(coef[0])
-            noise_var = float(np.linalg.inv(a.T @ a)[0, 0])
-        else:
-            pos = float(np.sum(w * y) / np.sum(w))
-            noise_var = 1.0 / float(np.sum(w))
+        sw = float(w.sum())
+        tm = float(np.dot(w, t) / sw)
+        # weighted straight line in (t - tm): the design columns are orthogonal under the
+        # weights (sum w (t - tm) = 0), so the value at tm is the weighted mean and its
+        # variance 1 / sum(w), with or without the slope
+        pos = float(np.dot(w, y) / sw)
+        noise_var = 1.0 / sw
         # the calibration biases are common to the epochs: they do not average out
-        sigma = math.sqrt(noise_var + float(np.mean(cal_var[ok])))
-        used_pos, rej_pos, res = {}, {}, {}
-        for i in np.flatnonzero(ok):
-            for j in np.flatnonzero(valid[i]):
-                sid = self.ids[idx[i, j]]
-                res.setdefault(sid, []).append(resid[i, j])
-                (used_pos if used[i, j] else rej_pos)[sid] = self.pos[idx[i, j]]
-        rej_only = {k: v for k, v in rej_pos.items() if k not in used_pos}
-        order_used = sorted(used_pos, key=used_pos.get)
-        order_rej = sorted(rej_only, key=rej_only.get)
-        ref = ",".join(order_used + ["!" + s for s in order_rej])
-        residuals = tuple(float(np.mean(res[s])) for s in order_used + order_rej)
+        sigma = math.sqrt(noise_var + float(cal_var[ok].mean()))
+        sel = valid & ok[:, None]
+        ks = idx[sel]
+        # stations in order of first appearance (epoch, slot), as the per-epoch loop met them
+        uk, first, inv = np.unique(ks, return_index=True, return_inverse=True)
+        cnt = np.bincount(inv)
+        mean_r = np.bincount(inv, resid[sel]) / cnt
+        any_used = np.bincount(inv, used[sel]) > 0
+        pos_k = self.pos[uk]
+        ids = self.ids
+        u_sel = np.flatnonzero(any_used)
+        r_sel = np.flatnonzero(~any_used)
+        u_sel = u_sel[np.lexsort((first[u_sel], pos_k[u_sel]))]
+        r_sel = r_sel[np.lexsort((first[r_sel], pos_k[r_sel]))]
+        uk_l = uk.tolist()
+        ref = ",".join([ids[uk_l[j]] for j in u_sel.tolist()] + ["!" + ids[uk_l[j]] for j in r_sel.tolist()])
+        residuals = tuple(mean_r[np.concatenate([u_sel, r_sel])].tolist())
         return PositionFix(tm, self.sensor, self.unit_id, self.track.track_id, ref, pos, sigma, 0, residuals)
 
     def _solve(self, times, r, s, d, sig2, valid):
@@ -422,7 +486,7 @@ class MmWaveDecoder(Decoder):
         Returns x (n,), ok (n,), used (n, N_SLOTS), residuals (n, N_SLOTS), variance (n,) and
         the part of the variance due to the per-station calibration biases (n,).
         """
-        with np.errstate(invalid="ignore", divide="ignore"):
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
             return self._solve_epochs(times, r, s, d, sig2, valid)
 
     def _solve_epochs(self, times, r, s, d, sig2, valid):
@@ -430,19 +494,21 @@ class MmWaveDecoder(Decoder):
         n = len(times)
         w = np.where(valid, 1.0 / sig2, 0.0)
         nv = valid.sum(axis=1)
+        d2 = d * d
         # candidates s_j +- along_j, robust capped cost over all valid stations
-        along = np.sqrt(np.maximum(r * r - d * d, 0.0))
+        along = np.sqrt(np.maximum(r * r - d2, 0.0))
         cand = np.concatenate([s - along, s + along], axis=1)           # (n, 2 N)
         cvalid = np.concatenate([valid, valid], axis=1)
-        pred = np.hypot(cand[:, :, None] - s[:, None, :], d[:, None, :])  # (n, 2N, N)
-        z2 = (r[:, None, :] - pred) ** 2 * w[:, None, :]
+        dx = cand[:, :, None] - s[:, None, :]
+        res = r[:, None, :] - np.sqrt(dx * dx + d2[:, None, :])          # (n, 2N, N)
+        z2 = res * res * w[:, None, :]
         cost = np.where(cvalid, np.minimum(z2, 25.0).sum(axis=2), np.inf)
-        best = np.argmin(cost, axis=1)
+        best = cost.argmin(axis=1)
         rows = np.arange(n)
         x = cand[rows, best]
         c1 = cost[rows, best]
         far = np.abs(cand - x[:, None]) > 2.0
-        c2 = np.min(np.where(far & cvalid, cost, np.inf), axis=1)
+        c2 = np.where(far & cvalid, cost, np.inf).min(axis=1)
         # one station: always two branches; more: a distinct candidate fitting nearly as well
         ambiguous = ((c2 - c1 < 4.0) & (nv > 0)) | (nv == 1)
         have_pred = self._prev_t is not None
@@ -456,40 +522,44 @@ class MmWaveDecoder(Decoder):
                 # candidates among the near-best: pick the one nearest to the prediction
                 near_best = cvalid & (cost - c1[:, None] < 4.0)
                 dist = np.where(near_best, np.abs(cand - xp[:, None]), np.inf)
-                pick = cand[rows, np.argmin(dist, axis=1)]
+                pick = cand[rows, dist.argmin(axis=1)]
                 resolvable = ambiguous & recent
                 x = np.where(resolvable, pick, x)
                 ambiguous &= ~resolvable
         used = valid.copy()
-        ok = (nv >= max(1, p["min_stations"])) & ~ambiguous
-        x, info = self._gauss_newton(x, r, s, d, w, used)
+        min_st = max(1, p["min_stations"])
+        ok = (nv >= min_st) & ~ambiguous
+        x, info, e, h = self._gauss_newton(x, r, s, d2, w)
+        nu = nv
         for _ in range(N_SLOTS):
-            e, h, P = self._residuals(x, r, s, d, info)
-            wu = np.where(used, w, 0.0)
-            chi2 = np.sum(wu * e * e, axis=1)
-            df = used.sum(axis=1) - 1
-            fail = ok & (df >= 1) & (chi2 > self._gate[np.clip(df, 0, N_SLOTS - 1)])
+            wu = w if nu is nv else np.where(used, w, 0.0)
+            chi2 = (wu * e * e).sum(axis=1)
+            fail = ok & (chi2 > self._gate_n[nu])
             if not fail.any():
                 break
             # identify the outlier only if >= 2 stations remain to check one another
-            can_drop = fail & (used.sum(axis=1) > max(2, p["min_stations"]))
+            can_drop = fail & (nu > max(2, p["min_stations"]))
             ok &= ~(fail & ~can_drop)
             if not can_drop.any():
                 break
+            P = np.where(info > 0.0, 1.0 / np.maximum(info, 1e-300), np.inf)
             denom = np.maximum(np.where(used, 1.0 / np.maximum(w, 1e-300), 1.0) - h * h * P[:, None], 1e-12)
             # NLOS / multipath only lengthens a range: drop the largest positive normalised residual
             znorm = np.where(used, e / np.sqrt(denom), -np.inf)
-            worst = np.argmax(znorm, axis=1)
+            worst = znorm.argmax(axis=1)
             used[np.flatnonzero(can_drop), worst[can_drop]] = False
-            x2, info2 = self._gauss_newton(x, r, s, d, w, used)
+            nu = used.sum(axis=1)
+            x2, info2, e2, h2 = self._gauss_newton(x, r, s, d2, np.where(used, w, 0.0))
             x = np.where(can_drop, x2, x)
             info = np.where(can_drop, info2, info)
-        e, h, P = self._residuals(x, r, s, d, info)
+            e = np.where(can_drop[:, None], e2, e)
+            h = np.where(can_drop[:, None], h2, h)
+        P = np.where(info > 0.0, 1.0 / np.maximum(info, 1e-300), np.inf)
         gain = np.where(used, w * h, 0.0) * np.where(np.isfinite(P), P, 0.0)[:, None]
-        cal_var = np.sum(gain * gain, axis=1) * p["cal_sigma"] ** 2
-        ok &= np.isfinite(x) & (info > 1e-6) & (used.sum(axis=1) >= max(1, p["min_stations"]))
+        cal_var = (gain * gain).sum(axis=1) * p["cal_sigma"] ** 2
+        ok &= np.isfinite(x) & (info > 1e-6) & (nu >= min_st)
         var = np.where(ok, P, np.inf)
-        single = ok & (used.sum(axis=1) == 1)
+        single = ok & (nu == 1)
         if single.any():
             # no redundancy: check against the prediction instead (an NLOS onset is a jump)
             if have_pred:
@@ -506,15 +576,23 @@ class MmWaveDecoder(Decoder):
     def _remember(self, t, x, var):
         """Keep the solutions of the last hold_time and their speed (LS slope) for predictions."""
         keep = self._hist_t > t[-1] - self.params["hold_time"]
-        self._hist_t = np.concatenate([self._hist_t[keep], t])
-        self._hist_x = np.concatenate([self._hist_x[keep], x])
-        self._hist_w = np.concatenate([self._hist_w[keep], 1.0 / var])
+        if keep.all():
+            ht, hx, hw = self._hist_t, self._hist_x, self._hist_w
+        else:
+            ht, hx, hw = self._hist_t[keep], self._hist_x[keep], self._hist_w[keep]
+        ht = self._hist_t = np.concatenate((ht, t))
+        hx = self._hist_x = np.concatenate((hx, x))
+        w = self._hist_w = np.concatenate((hw, 1.0 / var))
         self._prev_t, self._prev_x = float(t[-1]), float(x[-1])
-        tt, w = self._hist_t - self._hist_t.mean(), self._hist_w
-        if len(tt) >= 3 and np.ptp(tt) > 0:
-            tm = np.sum(w * tt) / np.sum(w)
-            xm = np.sum(w * self._hist_x) / np.sum(w)
-            self._prev_v = float(np.sum(w * (tt - tm) * (self._hist_x - xm)) / np.sum(w * (tt - tm) ** 2))
+        if len(ht) >= 3:
+            tt = ht - ht.mean()
+            if tt.max() > tt.min():
+                sw = w.sum()
+                tm = np.dot(w, tt) / sw
+                xm = np.dot(w, hx) / sw
+                dt = tt - tm
+                wdt = w * dt
+                self._prev_v = float(np.dot(wdt, hx - xm) / np.dot(wdt, dt))
 
     @staticmethod
     def _residuals(x, r, s, d, info):
@@ -525,19 +603,29 @@ class MmWaveDecoder(Decoder):
         return r - pred, h, P
 
     @staticmethod
-    def _gauss_newton(x, r, s, d, w, used, iterations=6):
-        wu = np.where(used, w, 0.0)
-        info = np.zeros_like(x)
+    def _gauss_newton(x, r, s, d2, wu, iterations=6, tol=1e-9):
+        """Gauss-Newton on x for all epochs at once (wu: weights, 0 for unused ranges).
+
+        Stops early once every epoch's step is below ``tol`` [m] (converged to round-off:
+        the next step would be ~tol^2). Returns x, the information sum(wu h^2), the
+        residuals r - pred and the partials h, all at the final x.
+        """
         for _ in range(iterations):
-            pred = np.hypot(x[:, None] - s, d)
-            h = (x[:, None] - s) / np.maximum(pred, 1e-9)
-            info = np.sum(wu * h * h, axis=1)
-            g = np.sum(wu * h * (r - pred), axis=1)
+            dx = x[:, None] - s
+            pred = np.sqrt(dx * dx + d2)
+            h = dx / np.maximum(pred, 1e-9)
+            wh = wu * h
+            info = (wh * h).sum(axis=1)
+            g = (wh * (r - pred)).sum(axis=1)
             step = np.where(info > 1e-9, g / np.maximum(info, 1e-9), 0.0)
-            x = x + np.clip(step, -50.0, 50.0)
-        pred = np.hypot(x[:, None] - s, d)
-        h = (x[:, None] - s) / np.maximum(pred, 1e-9)
-        return x, np.sum(wu * h * h, axis=1)
+            step = np.minimum(np.maximum(step, -50.0), 50.0)
+            x = x + step
+            if np.abs(step).max() <= tol:
+                break
+        dx = x[:, None] - s
+        pred = np.sqrt(dx * dx + d2)
+        h = dx / np.maximum(pred, 1e-9)
+        return x, (wu * h * h).sum(axis=1), r - pred, h
 
 
 SPEC = SensorSpec(

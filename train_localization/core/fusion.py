@@ -289,10 +289,16 @@ class _Aux:
         self.reacquired = 0
 
     def copy(self) -> "_Aux":
-        new = _Aux.__new__(_Aux)
-        for name in _Aux.__slots__:
-            setattr(new, name, getattr(self, name))
+        new = _new_aux(_Aux)
+        (new.initialised, new.t, new.last_accepted, new.slip_until, new.accepted, new.gated, new.slips,
+         new.speed_sources, new.nis, new.fix_ref, new.fix_gated_run, new.last_fix_accepted,
+         new.reacquired) = (self.initialised, self.t, self.last_accepted, self.slip_until, self.accepted,
+                            self.gated, self.slips, self.speed_sources, self.nis, self.fix_ref,
+                            self.fix_gated_run, self.last_fix_accepted, self.reacquired)
         return new
+
+
+_new_aux = object.__new__
 
 
 def _inc(counter: dict, key: str) -> dict:
@@ -334,6 +340,8 @@ class TrainFilter:
         self._slip_gate = float(chi2.ppf(cfg.slip_gate_probability, 1))
         self._z = float(norm.ppf(0.5 + cfg.confidence / 2.0))
         self._cache: dict[float, tuple] = {}
+        self._est_cache: tuple = (None, None)   # (x, P, x as floats, P[:3, :3] as floats) for estimate
+        self._scale_terms = [(name, i, self._offset_idx.get(name)) for name, i in self._scale_idx.items()]
         self._eye = np.eye(self.n)
         self.rejected: dict[str, int] = {}
         self.rollbacks = 0        # measurements that arrived after one stamped later (out of order)
@@ -419,7 +427,9 @@ class TrainFilter:
         F, FT, Q = self._transition(t - t0)
         if t < t0:   # before the kept history: extrapolate back, uncertainty grown as forwards
             Q = self._transition(t0 - t)[2]
-        x, P = F @ x, F @ P @ FT + Q      # new arrays: snapshots share the old ones
+        # new arrays: snapshots share the old ones (ndarray.dot: the same BLAS products as @,
+        # with less per-call overhead on these small matrices)
+        x, P = F.dot(x), F.dot(P).dot(FT) + Q
         if self._fixgm:   # fix biases decorrelate with the distance run (F, Q above leave them alone)
             dt = abs(t - t0)
             dist = abs(float(x[1, 0])) * dt
@@ -444,7 +454,7 @@ class TrainFilter:
     def _model(self, m):
         """(z, R, H row (1-D), h(x)) of a measurement at the current state."""
         cfg = self.cfg
-        x = self.ekf.x[:, 0]
+        x = self.ekf.x[:, 0].tolist()   # plain floats: the same doubles, without numpy scalars
         h = np.zeros(self.n)
         cls = m.sensor
         if isinstance(m, PositionFix):
@@ -498,13 +508,15 @@ class TrainFilter:
 
     def _update(self, z: float, R: float, h, hx: float) -> None:
         """Scalar EKF update (filterpy ExtendedKalmanFilter.update, Joseph form, for one row H)."""
+        # np.outer(a, b) is a[:, None] * b[None, :]: written out, without its Python wrapper
         P = self.ekf.P
-        PHt = P @ h
-        S = float(h @ PHt) + R
+        PHt = P.dot(h)
+        S = float(h.dot(PHt)) + R
         K = PHt / S
-        self.ekf.x = self.ekf.x + (K * (z - hx))[:, None]
-        A = self._eye - np.outer(K, h)
-        self.ekf.P = A @ P @ A.T + np.outer(K, K * R)
+        Kc = K[:, None]
+        self.ekf.x = self.ekf.x + Kc * (z - hx)
+        A = self._eye - Kc * h
+        self.ekf.P = A.dot(P).dot(A.T) + Kc * (K * R)
 
     def _apply(self, m) -> None:
         aux = self.aux = self.aux.copy()
@@ -519,7 +531,7 @@ class TrainFilter:
             aux.initialised = True
             return
         z, R, h, hx = self._model(m)
-        S = float(h @ self.ekf.P @ h) + R
+        S = float(h.dot(self.ekf.P).dot(h)) + R
         nis = (z - hx) ** 2 / S
         if cls in self.cfg.slip_sensors:
             if aux.slip_until.get(cls, -math.inf) > m.stamp:
@@ -680,25 +692,30 @@ class TrainFilter:
         if aux.t is None or t < aux.t:
             x, P, aux = self.state(t)
             s, v, a, var_s, var_v = x[0], x[1], x[2], P[0, 0], P[1, 1]
-            x_err = x
+            x_err = x.tolist()
         else:
-            # plain floats: numpy's per-call overhead dominates 3x3 arithmetic
+            # plain floats: numpy's per-call overhead dominates 3x3 arithmetic; the floats
+            # of a kept state are taken once (the 200 Hz grid asks the same state many times)
+            c = self._est_cache
+            if c[0] is not xk or c[1] is not Pk:
+                c = self._est_cache = (xk, Pk, xk[:, 0].tolist(), Pk[:3, :3].tolist())
+            x_err = c[2]
+            (p00, p01, p02), (_, p11, p12), (_, _, p22) = c[3]
+            x0, x1, a = x_err[0], x_err[1], x_err[2]
             dt = t - aux.t
             h = 0.5 * dt * dt
-            x0, x1, a = float(xk[0, 0]), float(xk[1, 0]), float(xk[2, 0])
-            (p00, p01, p02), (_, p11, p12), (_, _, p22) = Pk[:3, :3].tolist()
             q, dt2 = self.cfg.jerk_psd, dt * dt
             s, v = x0 + x1 * dt + a * h, x1 + a * dt
             var_s = (p00 + 2 * dt * p01 + 2 * h * p02 + dt2 * p11 + 2 * dt * h * p12 + h * h * p22
                      + q * dt2 * dt2 * dt / 20)
             var_v = p11 + 2 * dt * p12 + dt2 * p22 + q * dt2 * dt / 3
-            x_err = xk[:, 0].tolist()
-            for i, tau, _ in self._gm:
-                x_err[i] *= math.exp(-dt / tau)
+            if self._gm:
+                x_err = list(x_err)
+                for i, tau, _ in self._gm:
+                    x_err[i] *= math.exp(-dt / tau)
         sd_s, sd_v = math.sqrt(max(var_s, 0.0)), math.sqrt(max(var_v, 0.0))
-        scales = {name: float(x_err[i]) + (float(x_err[self._offset_idx[name]]) if name in self._offset_idx else 0.0)
-                  for name, i in self._scale_idx.items()}
-        biases = {name: float(x_err[i]) for name, i in self._bias_idx.items()}
+        scales = {name: x_err[i] + (x_err[o] if o is not None else 0.0) for name, i, o in self._scale_terms}
+        biases = {name: x_err[i] for name, i in self._bias_idx.items()}
         if not aux.initialised:
             return Estimate(t, math.nan, float(v), float(a), math.inf, sd_v, -math.inf, math.inf,
                             self.cfg.confidence, MODE_INITIALISING, scales, biases)

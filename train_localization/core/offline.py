@@ -18,7 +18,7 @@ from pathlib import Path
 
 from . import convert
 from .bagio import BagWriter, read_bag, typestore_classes
-from .fusion import Estimate, FusionConfig, TrainFilter
+from .fusion import Estimate, FusionConfig, TrainFilter, _order_key
 from .measurements import SectionOccupancy
 from .pipeline import SensorPipeline
 from .scenario import Scenario
@@ -67,6 +67,10 @@ class FusionRunner:
             return False
         self._used.add(m.sensor)
         return True
+
+    def due(self, t: float) -> bool:
+        """Whether ``advance(t)`` would produce an estimate (a grid time <= t not produced yet)."""
+        return self._next_k is None or math.floor(t / self.period + 1e-9) >= self._next_k
 
     def advance(self, t: float, max_catch_up: int = 1000) -> list[tuple[Estimate, list[str]]]:
         k_now = math.floor(t / self.period + 1e-9)
@@ -140,6 +144,7 @@ def simulate_scenario(scenario: Scenario, bag: str | Path | None = None, fusion_
                                      convert.raw_block_to_msg(block, mc), _ns(t))
                     out.decode(pipe, block, t)
             out.states(t)
+        out.flush()
     finally:
         if writer:
             writer.close()
@@ -160,10 +165,19 @@ def scenario_from_bag(bag: str | Path) -> Scenario:
 
 
 class _Output:
-    """Decodes blocks into measurements, feeds the fusion, collects and writes both."""
+    """Decodes blocks into measurements, feeds the fusion, collects and writes both.
+
+    The measurements decoded since the last grid step are held and given to the
+    fusion in the filter's own order (``_order_key``) just before the next estimate
+    is made: the filter's result does not depend on the order in which a set of
+    measurements is added (core/fusion.py), so the estimates are the same, but
+    measurements of one step that arrive out of stamp order (blocks of several
+    sensors ending at the same time) no longer roll the filter back one by one.
+    """
 
     def __init__(self, runner: FusionRunner, result: RunResult, writer: BagWriter | None, mc, track_id: str):
         self.runner, self.result, self.writer, self.mc, self.track_id = runner, result, writer, mc, track_id
+        self._pending: list = []
 
     def decode(self, pipe: SensorPipeline, block, t: float) -> None:
         try:
@@ -177,9 +191,20 @@ class _Output:
                 self.writer.write(f"{NAMESPACE}/{convert.measurement_topic(m)}",
                                   convert.measurement_to_msg(m, self.mc), _ns(t))
             if not isinstance(m, SectionOccupancy):
+                self._pending.append(m)
+
+    def flush(self) -> None:
+        """Give the held measurements to the fusion, in the filter's order."""
+        if self._pending:
+            pending, self._pending = self._pending, []
+            pending.sort(key=_order_key)
+            for m in pending:
                 self.runner.add(m)
 
     def states(self, t: float) -> None:
+        if not self.runner.due(t):
+            return
+        self.flush()
         for est, used in self.runner.advance(t):
             self.result.estimates.append(est)
             if self.writer:
@@ -232,6 +257,7 @@ def replay_bag(bag: str | Path, scenario: Scenario, out_bag: str | Path | None =
                 result.blocks += 1
                 out.decode(pipes[topic], block, t)
             out.states(t)
+        out.flush()
     finally:
         if bar:
             bar.close()

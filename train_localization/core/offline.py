@@ -238,8 +238,14 @@ def replay_bag(bag: str | Path, scenario: Scenario, out_bag: str | Path | None =
         from tqdm import tqdm
         bar = tqdm(total=total, unit="msg", desc=Path(bag).name)
     try:
+        t_prev = None
         for topic, _, t_ns, msg in read_bag(bag, topics):
             t = t_ns / 1e9
+            # the fused states up to a log time are made once every message logged at
+            # that time is in (as simulate_scenario does within a truth step)
+            if t_prev is not None and t > t_prev:
+                out.states(t_prev)
+            t_prev = t
             if bar:
                 bar.update(1)
             if topic.endswith("ground_truth/state"):
@@ -256,7 +262,8 @@ def replay_bag(bag: str | Path, scenario: Scenario, out_bag: str | Path | None =
                     continue
                 result.blocks += 1
                 out.decode(pipes[topic], block, t)
-            out.states(t)
+        if t_prev is not None:
+            out.states(t_prev)
         out.flush()
     finally:
         if bar:

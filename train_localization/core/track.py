@@ -55,6 +55,20 @@ def nearest(positions: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return idx, x - positions[idx]
 
 
+def nearby_runs(positions: np.ndarray, x: np.ndarray, radius: float):
+    """Split samples ``x`` into runs near the same item of sorted ``positions``.
+
+    Returns (offsets x - nearest position [m], [(first, end, item index or -1), ...]):
+    consecutive samples within ``radius`` of the same item form one run, the others
+    runs with index -1.
+    """
+    idx, u = nearest(positions, x)
+    key = np.where(np.abs(u) < radius, idx, -1)
+    starts = np.r_[0, np.flatnonzero(np.diff(key)) + 1]
+    ends = np.r_[starts[1:], x.size]
+    return u, [(int(a), int(b), int(key[a])) for a, b in zip(starts, ends)]
+
+
 @dataclass
 class Track:
     """A named track: length [m], alignment polyline and equipment by kind."""

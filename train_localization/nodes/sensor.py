@@ -92,12 +92,7 @@ class SensorNode(Node):
 
     def on_truth(self, msg):
         try:
-            state = convert.truth_from_msg(msg)
-        except InputRejected as exc:
-            self.diag.reject("ground_truth/state", exc.reason, str(exc))
-            return
-        try:
-            blocks = self.pipe.on_truth(state)
+            blocks = self.pipe.on_truth(convert.truth_from_msg(msg))
         except InputRejected as exc:
             self.diag.reject("ground_truth/state", exc.reason, str(exc))
             return

@@ -75,7 +75,7 @@ import numpy as np
 
 from ..measurements import PositionFix
 from ..signals import InputRejected, RawBlock
-from ..track import nearest
+from ..track import nearby_runs
 from .base import Decoder, Param, SensorSpec, Simulator
 
 KIND = "eurobalise"
@@ -387,13 +387,9 @@ class EurobaliseSimulator(Simulator):
         h = np.zeros(n)
         if self._pos.size:
             ant = position - p["antenna_offset"]
-            idx, u = nearest(self._pos, ant)
-            key = np.where(np.abs(u) < NEAR_RANGE, idx, -1)
+            u, runs = nearby_runs(self._pos, ant, NEAR_RANGE)
             gain = np.zeros(n)
-            starts = np.r_[0, np.flatnonzero(np.diff(key)) + 1]
-            ends = np.r_[starts[1:], n]
-            for r0, r1 in zip(starts, ends):
-                kk = int(key[r0])
+            for r0, r1, kk in runs:
                 if kk < 0:
                     self._passage = None
                     continue

@@ -87,7 +87,7 @@ import numpy as np
 
 from ..measurements import PositionFix
 from ..signals import InputRejected, RawBlock
-from ..track import nearest
+from ..track import nearby_runs
 from .base import Decoder, Param, SensorSpec, Simulator
 
 KIND = "lrl_group"
@@ -274,13 +274,9 @@ class LrlSimulator(Simulator):
         cov = np.zeros((n, self.n_sensors, 5))
         if self._pos.size:
             ref = position - p["sensor_offset"]
-            idx, u = nearest(self._pos, ref)
-            key = np.where(np.abs(u) < self._near, idx, -1)
+            u, runs = nearby_runs(self._pos, ref, self._near)
             bits = np.zeros((n, self.n_sensors, 4))
-            starts = np.r_[0, np.flatnonzero(np.diff(key)) + 1]
-            ends = np.r_[starts[1:], n]
-            for r0, r1 in zip(starts, ends):
-                kk = int(key[r0])
+            for r0, r1, kk in runs:
                 if kk < 0:
                     self._passage = None
                     continue

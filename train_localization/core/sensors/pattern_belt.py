@@ -76,7 +76,7 @@ from scipy.signal import lfilter
 from ..signals import InputRejected, RawBlock
 from ..track import Track
 from .base import Decoder, Param, SensorSpec, Simulator
-from .wheel import CycleCounter, IncrementEstimator
+from .wheel import CycleCounter, IncrementEstimator, increment_or_reject
 
 KIND = "pattern_belt"
 MIN_STATE_FRACTION = 0.75   # shortest state / (p/6) allowed for by the speed limit
@@ -403,13 +403,8 @@ class PatternBeltDecoder(Decoder):
             self.estimator.reset()
             raise InputRejected("implausible", f"{invalid} of {on_belt} samples with all or none of the coils "
                                 "switched on: stuck channel or mis-set thresholds")
-        if res.illegal > max(1, 0.1 * res.transitions):
-            self.counter.reset()
-            self.estimator.reset()
-            raise InputRejected("implausible", f"{res.illegal} of {res.transitions} state changes skip a state: "
-                                "speed beyond what the sample rate resolves, or a faulty coil")
-        inc = self.estimator.make(res, fs)
-        return [inc] if inc is not None else []
+        return increment_or_reject(self.counter, self.estimator, res, fs, max(1, 0.1 * res.transitions),
+                                   "state changes", "coil")
 
 
 SPEC = SensorSpec(

@@ -267,6 +267,19 @@ class CycleCounter:
         return float(c[-1] - c[j]) / (tl - tj), tj, tl
 
 
+def increment_or_reject(counter: "CycleCounter", estimator: "IncrementEstimator", res, sample_rate: float,
+                        max_illegal: float, what: str, part: str) -> list:
+    """The DistanceIncrement of a fed block, or InputRejected("implausible") (state reset)
+    when more than ``max_illegal`` state changes skipped a state."""
+    if res.illegal > max_illegal:
+        counter.reset()
+        estimator.reset()
+        raise InputRejected("implausible", f"{res.illegal} of {res.transitions} {what} skip a state: speed "
+                            f"beyond what the sample rate resolves, or a faulty {part}")
+    inc = estimator.make(res, sample_rate)
+    return [inc] if inc is not None else []
+
+
 class IncrementEstimator:
     """Turns counted steps of one block into a DistanceIncrement (shared with the belt).
 
@@ -512,13 +525,8 @@ class WheelDecoder(Decoder):
         res = self.counter.feed(block.times(), q, sample_period=1.0 / fs)
         self.stats["edges"] += res.transitions
         self.stats["illegal_transitions"] += res.illegal
-        if res.illegal > max(2, 0.1 * res.transitions):
-            self.counter.reset()
-            self.estimator.reset()
-            raise InputRejected("implausible", f"{res.illegal} of {res.transitions} quadrature transitions "
-                                "skip a state: speed beyond what the sample rate resolves, or a faulty channel")
-        inc = self.estimator.make(res, fs)
-        return [inc] if inc is not None else []
+        return increment_or_reject(self.counter, self.estimator, res, fs, max(2, 0.1 * res.transitions),
+                                   "quadrature transitions", "channel")
 
 
 SPEC = SensorSpec(

@@ -76,7 +76,7 @@ from scipy.signal import lfilter
 from ..signals import InputRejected, RawBlock
 from ..track import Track
 from .base import Decoder, Param, SensorSpec, Simulator
-from .wheel import CycleCounter, IncrementEstimator, increment_or_reject
+from .wheel import CycleCounter, IncrementEstimator, increment_or_reject, restart_after_gap
 
 KIND = "pattern_belt"
 MIN_STATE_FRACTION = 0.75   # shortest state / (p/6) allowed for by the speed limit
@@ -374,14 +374,9 @@ class PatternBeltDecoder(Decoder):
             raise InputRejected("implausible", f"envelope {env.min():.2f}..{env.max():.2f} V outside the "
                                 f"detector's 0..{p['saturation']} V")
         fs = block.sample_rate
-        if self._t_next is None or abs(block.t0 - self._t_next) > 0.5 / fs:
-            if self._t_next is not None:
-                self.stats["gaps"] += 1
-            self.counter.reset()
-            self.estimator.reset()
+        if restart_after_gap(self, block):
             self._y[:] = -1
             self._env_last = None
-        self._t_next = block.t_end
         y_before = self._y.copy()
         y = self._schmitt(env)
         times = block.times()

@@ -267,6 +267,20 @@ class CycleCounter:
         return float(c[-1] - c[j]) / (tl - tj), tj, tl
 
 
+def restart_after_gap(decoder, block: RawBlock) -> bool:
+    """Restart ``decoder``'s counter and estimator unless ``block`` continues the last one.
+
+    True for the first block and after a gap (counted in stats["gaps"])."""
+    gap = decoder._t_next is None or abs(block.t0 - decoder._t_next) > 0.5 / block.sample_rate
+    if gap:
+        if decoder._t_next is not None:
+            decoder.stats["gaps"] += 1
+        decoder.counter.reset()
+        decoder.estimator.reset()
+    decoder._t_next = block.t_end
+    return gap
+
+
 def increment_or_reject(counter: "CycleCounter", estimator: "IncrementEstimator", res, sample_rate: float,
                         max_illegal: float, what: str, part: str) -> list:
     """The DistanceIncrement of a fed block, or InputRejected("implausible") (state reset)
@@ -515,12 +529,7 @@ class WheelDecoder(Decoder):
             raise InputRejected("implausible", f"{int(bad.sum())} samples with levels other than 0/1 "
                                 f"(first {block.data[np.flatnonzero(bad)[0]].tolist()})")
         fs = block.sample_rate
-        if self._t_next is None or abs(block.t0 - self._t_next) > 0.5 / fs:
-            if self._t_next is not None:
-                self.stats["gaps"] += 1
-            self.counter.reset()
-            self.estimator.reset()
-        self._t_next = block.t_end
+        restart_after_gap(self, block)
         q = _QUAD_INDEX[(2 * a.astype(np.int64) + b.astype(np.int64))]
         res = self.counter.feed(block.times(), q, sample_period=1.0 / fs)
         self.stats["edges"] += res.transitions

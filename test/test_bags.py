@@ -9,8 +9,10 @@ import pytest
 
 from conftest import ROOT
 from train_localization.core import convert
+from train_localization.core.offline import replay_bag, scenario_from_bag
+from train_localization.core.report import evaluate
 from train_localization.tools.make_bags import metric
-from train_localization.tools.replay import recorded_run, report_for
+from train_localization.tools.replay import recorded_run
 
 BAGS = ROOT / "bags"
 TABLE = json.loads((BAGS / "thresholds.json").read_text()) if (BAGS / "thresholds.json").exists() else {}
@@ -27,13 +29,16 @@ def test_every_bag_has_bounds_and_is_small():
 
 @pytest.fixture(scope="module", params=sorted(TABLE))
 def replayed(request):
+    """(bag name, offline replay of the bag, its report)."""
     name = request.param
-    report, _ = report_for(BAGS / f"{name}.mcap")
-    return name, report
+    bag = BAGS / f"{name}.mcap"
+    run = replay_bag(bag, scenario_from_bag(bag))
+    report, _ = evaluate(run.truth, run.estimates, run.measurements)
+    return name, run, report
 
 
 def test_offline_replay_scores_stay_within_stored_bounds(replayed):
-    name, report = replayed
+    name, _, report = replayed
     failures = []
     for key, bound in TABLE[name]["bounds"].items():
         value = metric(report, key)
@@ -45,11 +50,9 @@ def test_offline_replay_scores_stay_within_stored_bounds(replayed):
 
 
 def test_offline_replay_matches_the_live_graph_within_the_filter_tolerance(replayed):
-    name, report = replayed
-    from train_localization.core.offline import replay_bag, scenario_from_bag
-    bag = BAGS / f"{name}.mcap"
-    _, live, _ = recorded_run(bag)
-    offline = replay_bag(bag, scenario_from_bag(bag)).estimates
+    name, run, _ = replayed
+    _, live, _ = recorded_run(BAGS / f"{name}.mcap")
+    offline = run.estimates
     off_t = np.array([e.stamp for e in offline])
     off_s = np.array([e.position for e in offline])
     live_t = np.array([convert.stamp_to_sec(m.header.stamp) for m in live])

@@ -2,10 +2,14 @@
 bag give identical measurements, for every sensor kind."""
 from __future__ import annotations
 
+import math
+from pathlib import Path
+
 import pytest
 import yaml
 
 from conftest import ROOT
+from train_localization.core.bagio import BagReader, BagWriter, typestore
 from train_localization.core.offline import replay_bag, scenario_from_bag, simulate_scenario
 from train_localization.core.scenario import Scenario
 from train_localization.core.sensors import NODE_NAMES
@@ -36,12 +40,73 @@ def test_the_two_scenarios_cover_every_sensor():
     assert set(CONVENTIONAL["sensors"]) | set(MAGLEV["sensors"]) == set(NODE_NAMES)
 
 
-@pytest.mark.parametrize("data", [CONVENTIONAL, MAGLEV], ids=lambda d: d["name"])
-def test_bag_replay_decodes_exactly_what_the_simulation_decoded(data, tmp_path):
-    bag = tmp_path / f"{data['name']}.mcap"
-    live = simulate_scenario(Scenario.from_dict(data), bag)
-    replayed = replay_bag(bag, scenario_from_bag(bag))
+@pytest.fixture(scope="module", params=[CONVENTIONAL, MAGLEV], ids=lambda d: d["name"])
+def recorded(request, tmp_path_factory):
+    """(scenario data, the bag simulate_scenario wrote, its in-process run)."""
+    data = request.param
+    bag = tmp_path_factory.mktemp("identity") / f"{data['name']}.mcap"
+    return data, bag, simulate_scenario(Scenario.from_dict(data), bag)
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_bag_replay_decodes_and_fuses_exactly_what_the_simulation_did(recorded, workers):
+    data, bag, live = recorded
+    replayed = replay_bag(bag, scenario_from_bag(bag), workers=workers)
     sensors_seen = {m.sensor if hasattr(m, "sensor") else m.source for m in live.measurements}
     assert len(sensors_seen) == len(data["sensors"]), sensors_seen
     assert replayed.blocks == live.blocks
     assert replayed.measurements == live.measurements
+    # repr: the states before the first fix have NaN positions (NaN != NaN)
+    assert len(replayed.estimates) == len(live.estimates) > 0
+    assert repr(replayed.estimates) == repr(live.estimates)
+    assert replayed.truth == live.truth and not replayed.rejected
+
+
+def _copy_bag(src: Path, dst: Path, edit) -> None:
+    """Copy a bag message by message; ``edit(topic, typename, t_ns, cdr)`` returns the
+    list of (cdr bytes, log time) to write in its place."""
+    with BagReader(src) as reader, BagWriter(dst) as writer:
+        for topic, typename, t_ns, data in reader.cdr():
+            for cdr, t in edit(topic, typename, t_ns, bytes(data)):
+                writer.write_cdr(topic, typename, cdr, t)
+
+
+def test_bad_messages_in_a_bag_are_counted_and_lose_nothing_else(tmp_path):
+    """A truncated raw block, a repeated raw block and a NaN truth state are rejected
+    by reason; the replay is the same as that of the bag without them."""
+    bag = tmp_path / "clean.mcap"
+    simulate_scenario(Scenario.from_dict(CONVENTIONAL), bag, t_end=5.0)
+    with BagReader(bag) as reader:
+        raw = {(topic, t) for topic, _, t, _ in reader.cdr() if topic.endswith("/raw")}
+    last_doppler = max(t for topic, t in raw if topic.endswith("doppler/raw"))
+    some_wheel = sorted(t for topic, t in raw if topic.endswith("wheel/raw"))[10]
+    nan_truth_at = 2_000_000_000
+
+    def without(topic, typename, t_ns, cdr):
+        if (topic.endswith("doppler/raw") and t_ns == last_doppler) or \
+                (topic.endswith("ground_truth/state") and t_ns == nan_truth_at):
+            return []
+        return [(cdr, t_ns)]
+
+    def corrupted(topic, typename, t_ns, cdr):
+        if topic.endswith("doppler/raw") and t_ns == last_doppler:
+            return [(cdr[:len(cdr) // 2], t_ns)]                 # truncated: malformed CDR
+        if topic.endswith("wheel/raw") and t_ns == some_wheel:
+            return [(cdr, t_ns), (cdr, t_ns)]                    # the same block twice
+        if topic.endswith("ground_truth/state") and t_ns == nan_truth_at:
+            msg = typestore().deserialize_cdr(cdr, typename)
+            msg.position = math.nan
+            return [(bytes(typestore().serialize_cdr(msg, typename)), t_ns)]
+        return [(cdr, t_ns)]
+
+    _copy_bag(bag, tmp_path / "without.mcap", without)
+    _copy_bag(bag, tmp_path / "corrupted.mcap", corrupted)
+    scenario = scenario_from_bag(bag)
+    reference = replay_bag(tmp_path / "without.mcap", scenario)
+    for workers in (1, 2):
+        bad = replay_bag(tmp_path / "corrupted.mcap", scenario, workers=workers)
+        assert bad.rejected == {"malformed": 1, "duplicate": 1, "nan": 1}
+        assert bad.blocks == reference.blocks + 2
+        assert bad.truth == reference.truth
+        assert bad.measurements == reference.measurements
+        assert repr(bad.estimates) == repr(reference.estimates)

@@ -20,6 +20,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from .convert import MsgClasses
 from .paths import SOURCE_ROOT
+from .signals import InputRejected
 
 MSG_PACKAGE = "train_localization_msgs"
 
@@ -135,18 +136,52 @@ class BagWriter:
         self.close()
 
 
+class BagReader:
+    """One bag, read in log-time order: messages as CDR bytes, and their deserialiser.
+
+    Types are taken from the bag's own schemas, so bags from other versions decode.
+    ``deserialize`` keeps working after the reader is closed (it only needs the types),
+    so the bytes can be decoded later or in another process (core/offline.py).
+    """
+
+    def __init__(self, path: str | Path):
+        from rosbags.highlevel import AnyReader
+        self.path = Path(path)
+        self._reader = AnyReader([self.path], default_typestore=typestore())
+        self._store = None
+
+    def __enter__(self) -> "BagReader":
+        self._reader.open()
+        self._store = self._reader.typestore
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._reader.close()
+
+    def cdr(self, topics: list[str] | None = None) -> Iterator[tuple[str, str, int, bytes]]:
+        """(topic, typename, log_time_ns, CDR bytes) of the messages of ``topics`` (all if None)."""
+        conns = [c for c in self._reader.connections if topics is None or c.topic in topics]
+        if not conns:
+            return  # (an empty list would mean "all connections" to rosbags)
+        for conn, t_ns, raw in self._reader.messages(connections=conns):
+            yield conn.topic, conn.msgtype, t_ns, raw
+
+    def deserialize(self, data: bytes, typename: str):
+        """Message object of CDR bytes; raises InputRejected("malformed") for bytes that do not parse."""
+        try:
+            return self._store.deserialize_cdr(data, typename)
+        except Exception as exc:   # rosbags raises SerdeError, struct.error, IndexError, ...
+            raise InputRejected("malformed", f"{typename} message does not deserialise: {exc}") from None
+
+
 def read_bag(path: str | Path, topics: list[str] | None = None) -> Iterator[tuple[str, str, int, object]]:
     """(topic, typename, log_time_ns, message) of every message, in log-time order.
 
-    Types are taken from the bag's own schemas, so bags from other versions decode.
+    Raises InputRejected for a message that does not deserialise.
     """
-    from rosbags.highlevel import AnyReader
-    with AnyReader([Path(path)], default_typestore=typestore()) as reader:
-        conns = [c for c in reader.connections if topics is None or c.topic in topics]
-        if not conns:
-            return  # (an empty list would mean "all connections" to rosbags)
-        for conn, t_ns, raw in reader.messages(connections=conns):
-            yield conn.topic, conn.msgtype, t_ns, reader.deserialize(raw, conn.msgtype)
+    with BagReader(path) as reader:
+        for topic, typename, t_ns, raw in reader.cdr(topics):
+            yield topic, typename, t_ns, reader.deserialize(raw, typename)
 
 
 def topic_counts(path: str | Path) -> dict[str, int]:

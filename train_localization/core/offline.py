@@ -13,6 +13,7 @@ outputs (offline replay, DESIGN.md section 1).
 from __future__ import annotations
 
 import math
+import multiprocessing
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -165,7 +166,7 @@ def scenario_from_bag(bag: str | Path) -> Scenario:
 
 
 class _Output:
-    """Decodes blocks into measurements, feeds the fusion, collects and writes both.
+    """Takes decoded measurements, feeds the fusion, collects and writes both.
 
     The measurements decoded since the last grid step are held and given to the
     fusion in the filter's own order (``_order_key``) just before the next estimate
@@ -179,12 +180,19 @@ class _Output:
         self.runner, self.result, self.writer, self.mc, self.track_id = runner, result, writer, mc, track_id
         self._pending: list = []
 
+    def reject(self, exc: InputRejected) -> None:
+        self.result.rejected[exc.reason] = self.result.rejected.get(exc.reason, 0) + 1
+
     def decode(self, pipe: SensorPipeline, block, t: float) -> None:
         try:
             measurements = pipe.on_block(block)
         except InputRejected as exc:
-            self.result.rejected[exc.reason] = self.result.rejected.get(exc.reason, 0) + 1
+            self.reject(exc)
             return
+        self.take(measurements, t)
+
+    def take(self, measurements: list, t: float) -> None:
+        """Measurements decoded at time t [s] (published then)."""
         for m in measurements:
             self.result.measurements.append(m)
             if self.writer:
@@ -212,16 +220,86 @@ class _Output:
                                   estimate_to_msg(self.mc, est, self.track_id, used), _ns(est.stamp))
 
 
+TRUTH_TOPIC = f"{NAMESPACE}/ground_truth/state"
+
+
+class _MessageDecoder:
+    """One replayed message -> what the fusion loop needs.
+
+    Returns a TruthState (ground truth topic), the measurements of a raw block (a
+    raw topic, through that sensor's SensorPipeline), or the InputRejected that
+    refused the message (malformed CDR, invalid block, decoder rejection).
+    """
+
+    def __init__(self, pipes: dict[str, SensorPipeline], deserialize):
+        self.pipes, self.deserialize = pipes, deserialize
+
+    def __call__(self, topic: str, typename: str, data: bytes):
+        try:
+            msg = self.deserialize(data, typename)
+            if topic == TRUTH_TOPIC:
+                return convert.truth_from_msg(msg)
+            return self.pipes[topic].on_block(convert.raw_block_from_msg(msg))
+        except InputRejected as exc:
+            return exc
+
+
+# (decoder, {topic: [(typename, CDR bytes), ...]}) of the parallel replay running now:
+# set before the worker processes are forked, which so inherit it without copying
+_PARALLEL_JOB: tuple | None = None
+
+
+def _decode_topic(topic: str) -> tuple[str, list]:
+    decoder, by_topic = _PARALLEL_JOB
+    return topic, [decoder(topic, typename, data) for typename, data in by_topic[topic]]
+
+
+def _decode_in_parallel(decoder: _MessageDecoder, messages: list, workers: int, bar):
+    """Decoded items of ``messages`` (in their order), each topic decoded in a worker process.
+
+    The sensors are independent until the fusion (as the live nodes are), so each
+    topic's messages go through its own pipeline, in order, in one worker; the
+    fusion then takes the results in the bag's order, as in the serial replay.
+    """
+    global _PARALLEL_JOB
+    by_topic: dict[str, list] = {}
+    for topic, typename, _, data in messages:
+        by_topic.setdefault(topic, []).append((typename, data))
+    # largest first: the long jobs start early and the short ones fill the gaps
+    order = sorted(by_topic, key=lambda tp: -sum(len(d) for _, d in by_topic[tp]))
+    decoded = {}
+    _PARALLEL_JOB = (decoder, by_topic)
+    try:
+        with multiprocessing.get_context("fork").Pool(min(workers, len(order))) as pool:
+            for topic, items in pool.imap_unordered(_decode_topic, order):
+                decoded[topic] = iter(items)
+                if bar:
+                    bar.update(len(items))
+    finally:
+        _PARALLEL_JOB = None
+    return ((topic, t_ns, next(decoded[topic])) for topic, _, t_ns, _ in messages)
+
+
+def can_fork() -> bool:
+    """Whether parallel replay is available here (it forks worker processes)."""
+    return "fork" in multiprocessing.get_all_start_methods()
+
+
 def replay_bag(bag: str | Path, scenario: Scenario, out_bag: str | Path | None = None,
-               fusion_rate: float = 200.0, progress: bool = False) -> RunResult:
+               fusion_rate: float = 200.0, progress: bool = False, workers: int = 1) -> RunResult:
     """Decode a bag's raw topics and fuse them, in log-time order, without DDS.
 
     The ground truth of the bag (if any) is copied to the result and the new bag.
-    Raw topics of sensors the scenario does not list are ignored.
+    Raw topics of sensors the scenario does not list are ignored; a message that
+    does not deserialise, a bad block or a decoder rejection is counted in
+    ``rejected`` by reason (``blocks`` counts the raw messages read).
+
+    ``workers`` > 1 decodes the sensors in that many forked processes (the bag's
+    messages are then held in memory); the result is identical to ``workers=1``,
+    which streams the bag.
     """
-    from .bagio import topic_counts
+    from .bagio import BagReader, topic_counts
     mc = typestore_classes() if out_bag else None
-    writer = BagWriter(out_bag) if out_bag else None
     pipes = {}
     for node, params in scenario.sensors.items():
         spec = sensor_spec(node)
@@ -230,41 +308,48 @@ def replay_bag(bag: str | Path, scenario: Scenario, out_bag: str | Path | None =
     runner = FusionRunner(fusion_config(scenario), fusion_rate)
     result = RunResult(runner=runner)
     track_id = scenario.track.track_id
-    topics = list(pipes) + [f"{NAMESPACE}/ground_truth/state"]
-    total = sum(n for t, n in topic_counts(bag).items() if t in topics)
-    out = _Output(runner, result, writer, mc, track_id)
+    topics = list(pipes) + [TRUTH_TOPIC]
     bar = None
     if progress:
         from tqdm import tqdm
-        bar = tqdm(total=total, unit="msg", desc=Path(bag).name)
+        bar = tqdm(total=sum(n for t, n in topic_counts(bag).items() if t in topics), unit="msg",
+                   desc=Path(bag).name)
+    writer = None
     try:
-        t_prev = None
-        for topic, _, t_ns, msg in read_bag(bag, topics):
-            t = t_ns / 1e9
-            # the fused states up to a log time are made once every message logged at
-            # that time is in (as simulate_scenario does within a truth step)
-            if t_prev is not None and t > t_prev:
-                out.states(t_prev)
-            t_prev = t
-            if bar:
-                bar.update(1)
-            if topic.endswith("ground_truth/state"):
-                state = convert.truth_from_msg(msg)
-                result.truth.append(state)
-                if writer:
-                    writer.write(topic, convert.train_state_to_msg(mc, state.stamp, track_id, state.position,
-                                                                   state.speed, state.acceleration), t_ns)
+        with BagReader(bag) as reader:
+            decoder = _MessageDecoder(pipes, reader.deserialize)
+            parallel = workers > 1 and can_fork()
+            if parallel:
+                items = _decode_in_parallel(decoder, list(reader.cdr(topics)), workers, bar)
             else:
-                try:
-                    block = convert.raw_block_from_msg(msg)
-                except InputRejected as exc:
-                    result.rejected[exc.reason] = result.rejected.get(exc.reason, 0) + 1
-                    continue
-                result.blocks += 1
-                out.decode(pipes[topic], block, t)
-        if t_prev is not None:
-            out.states(t_prev)
-        out.flush()
+                items = ((topic, t_ns, decoder(topic, typename, data))
+                         for topic, typename, t_ns, data in reader.cdr(topics))
+            writer = BagWriter(out_bag) if out_bag else None
+            out = _Output(runner, result, writer, mc, track_id)
+            t_prev = None
+            for topic, t_ns, item in items:
+                t = t_ns / 1e9
+                # the fused states up to a log time are made once every message logged at
+                # that time is in (as simulate_scenario does within a truth step)
+                if t_prev is not None and t > t_prev:
+                    out.states(t_prev)
+                t_prev = t
+                if bar and not parallel:
+                    bar.update(1)
+                if topic != TRUTH_TOPIC:
+                    result.blocks += 1
+                if isinstance(item, InputRejected):
+                    out.reject(item)
+                elif topic == TRUTH_TOPIC:
+                    result.truth.append(item)
+                    if writer:
+                        writer.write(topic, convert.train_state_to_msg(mc, item.stamp, track_id, item.position,
+                                                                       item.speed, item.acceleration), t_ns)
+                else:
+                    out.take(item, t)
+            if t_prev is not None:
+                out.states(t_prev)
+            out.flush()
     finally:
         if bar:
             bar.close()

@@ -68,7 +68,8 @@ class SensorPipeline:
         self.measurements_out += len(out)
         # whole-nanosecond stamps, as they will be in a message: live, offline and
         # replayed runs then see bit-identical measurements
-        return [replace(m, stamp=round(m.stamp * 1_000_000_000) / 1_000_000_000) for m in out]
+        return [m if (t := round(m.stamp * 1_000_000_000) / 1_000_000_000) == m.stamp else replace(m, stamp=t)
+                for m in out]
 
 
 @dataclass

@@ -11,6 +11,7 @@ float32 when it is made, so decoding it live or after a bag round trip is identi
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -26,6 +27,10 @@ class InputRejected(ValueError):
     def __init__(self, reason: str, message: str):
         super().__init__(f"{reason}: {message}")
         self.reason = reason
+        self.message = message
+
+    def __reduce__(self):   # pickles with both arguments (parallel offline replay returns them)
+        return type(self), (self.reason, self.message)
 
 
 @dataclass(frozen=True)
@@ -82,17 +87,20 @@ class RawBlock:
             raise InputRejected("channels", "block has no channels")
         if len(units) != len(channels):
             raise InputRejected("shape", f"{len(units)} units for {len(channels)} channels")
-        if not (np.isfinite(sample_rate) and sample_rate > 0.0):
+        sample_rate, t0 = float(sample_rate), float(t0)
+        if not (math.isfinite(sample_rate) and sample_rate > 0.0):
             raise InputRejected("sample_rate", f"sample rate {sample_rate!r} Hz is not a positive number")
-        if not np.isfinite(t0):
+        if not math.isfinite(t0):
             raise InputRejected("stamp", f"first-sample stamp {t0!r} is not finite")
         if flat.size == 0 or flat.size % len(channels):
             raise InputRejected(
                 "shape", f"{flat.size} samples cannot be split into {len(channels)} channels")
-        if not np.all(np.isfinite(flat)):
+        # one pass: a float64 sum of float32 samples cannot overflow, so it is finite
+        # exactly when every sample is
+        if not math.isfinite(np.add.reduce(flat, dtype=np.float64)):
             raise InputRejected("nan", f"{int(np.count_nonzero(~np.isfinite(flat)))} samples are NaN or inf")
-        t0 = round(float(t0) * 1_000_000_000) / 1_000_000_000  # whole ns: survives a stamp round trip
-        return cls(sensor, unit_id, int(seq), t0, float(sample_rate), channels, units,
+        t0 = round(t0 * 1_000_000_000) / 1_000_000_000  # whole ns: survives a stamp round trip
+        return cls(sensor, unit_id, int(seq), t0, sample_rate, channels, units,
                    flat.reshape(-1, len(channels)))
 
     @classmethod

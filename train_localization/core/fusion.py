@@ -343,6 +343,7 @@ class TrainFilter:
         self._est_cache: tuple = (None, None)   # (x, P, x as floats, P[:3, :3] as floats) for estimate
         self._scale_terms = [(name, i, self._offset_idx.get(name)) for name, i in self._scale_idx.items()]
         self._eye = np.eye(self.n)
+        self._ones = np.ones(self.n)
         self.rejected: dict[str, int] = {}
         self.rollbacks = 0        # measurements that arrived after one stamped later (out of order)
         self.applied = 0          # measurement updates run, replays included
@@ -433,12 +434,14 @@ class TrainFilter:
         if self._fixgm:   # fix biases decorrelate with the distance run (F, Q above leave them alone)
             dt = abs(t - t0)
             dist = abs(float(x[1, 0])) * dt
+            d = self._ones.copy()       # x_i, row i and column i of P scaled by phi_i
             for i, length, tau, sigma in self._fixgm:
-                phi = math.exp(-dist / length - dt / tau)
-                x[i, 0] *= phi
-                P[i, :] *= phi
-                P[:, i] *= phi
-                P[i, i] += sigma * sigma * (1.0 - phi * phi)
+                d[i] = math.exp(-dist / length - dt / tau)
+            x *= d[:, None]
+            P *= d[:, None]
+            P *= d
+            for i, _, _, sigma in self._fixgm:
+                P[i, i] += sigma * sigma * (1.0 - d[i] * d[i])
         return x, P
 
     def _predict_to(self, t: float) -> None:
@@ -506,12 +509,13 @@ class TrainFilter:
             R *= f * f
         return z, R, h, hx
 
-    def _update(self, z: float, R: float, h, hx: float) -> None:
-        """Scalar EKF update (filterpy ExtendedKalmanFilter.update, Joseph form, for one row H)."""
+    def _update(self, z: float, R: float, h, hx: float, PHt, S: float) -> None:
+        """Scalar EKF update (filterpy ExtendedKalmanFilter.update, Joseph form, for one row H).
+
+        PHt = P h and S = h P h + R are those of the gate test.
+        """
         # np.outer(a, b) is a[:, None] * b[None, :]: written out, without its Python wrapper
         P = self.ekf.P
-        PHt = P.dot(h)
-        S = float(h.dot(PHt)) + R
         K = PHt / S
         Kc = K[:, None]
         self.ekf.x = self.ekf.x + Kc * (z - hx)
@@ -531,7 +535,8 @@ class TrainFilter:
             aux.initialised = True
             return
         z, R, h, hx = self._model(m)
-        S = float(h.dot(self.ekf.P).dot(h)) + R
+        PHt = self.ekf.P.dot(h)
+        S = float(h.dot(PHt)) + R
         nis = (z - hx) ** 2 / S
         if cls in self.cfg.slip_sensors:
             if aux.slip_until.get(cls, -math.inf) > m.stamp:
@@ -555,7 +560,7 @@ class TrainFilter:
                 aux.fix_gated_run = run
             aux.gated = _inc(aux.gated, cls)
             return
-        self._update(z, R, h, hx)
+        self._update(z, R, h, hx, PHt, S)
         if isinstance(m, PositionFix):
             aux.fix_gated_run, aux.last_fix_accepted = 0, m.stamp
         count, total = aux.nis.get(cls, (0, 0.0))

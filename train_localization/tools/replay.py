@@ -54,7 +54,7 @@ def report_for(bag: Path, scenario: Scenario | None = None, out_bag: Path | None
         scenario = scenario or scenario_from_bag(bag)
         run = replay_bag(bag, scenario, out_bag, progress=progress, workers=workers)
         truth, estimates, measurements = run.truth, run.estimates, run.measurements
-        extra = {"source": "offline replay", "rejected_blocks": run.rejected,
+        extra = {"source": "offline replay", "rejected_messages": run.rejected,
                  "fusion_counters": run.runner.filter.counters()}
     if not truth:
         raise SystemExit(f"{bag}: no ground truth in the bag, nothing to score against")

@@ -12,7 +12,7 @@ from conftest import ROOT
 from train_localization.core.bagio import BagReader, BagWriter, typestore
 from train_localization.core.offline import replay_bag, scenario_from_bag, simulate_scenario
 from train_localization.core.scenario import Scenario
-from train_localization.core.sensors import NODE_NAMES
+from train_localization.core.sensors import NODE_NAMES, spec as sensor_spec
 
 CONVENTIONAL = {
     "name": "identity_conventional", "seed": 3, "duration": 25.0,
@@ -48,10 +48,10 @@ def recorded(request, tmp_path_factory):
     return data, bag, simulate_scenario(Scenario.from_dict(data), bag)
 
 
-@pytest.mark.parametrize("workers", [1, 2])
-def test_bag_replay_decodes_and_fuses_exactly_what_the_simulation_did(recorded, workers):
+@pytest.mark.parametrize("parallel", [False, True], ids=["serial", "parallel"])
+def test_bag_replay_decodes_and_fuses_exactly_what_the_simulation_did(recorded, parallel):
     data, bag, live = recorded
-    replayed = replay_bag(bag, scenario_from_bag(bag), workers=workers)
+    replayed = replay_bag(bag, scenario_from_bag(bag), parallel=parallel)
     sensors_seen = {m.sensor if hasattr(m, "sensor") else m.source for m in live.measurements}
     assert len(sensors_seen) == len(data["sensors"]), sensors_seen
     assert replayed.blocks == live.blocks
@@ -103,10 +103,25 @@ def test_bad_messages_in_a_bag_are_counted_and_lose_nothing_else(tmp_path):
     _copy_bag(bag, tmp_path / "corrupted.mcap", corrupted)
     scenario = scenario_from_bag(bag)
     reference = replay_bag(tmp_path / "without.mcap", scenario)
-    for workers in (1, 2):
-        bad = replay_bag(tmp_path / "corrupted.mcap", scenario, workers=workers)
+    for parallel in (False, True):
+        bad = replay_bag(tmp_path / "corrupted.mcap", scenario, parallel=parallel)
         assert bad.rejected == {"malformed": 1, "duplicate": 1, "nan": 1}
         assert bad.blocks == reference.blocks + 2
         assert bad.truth == reference.truth
         assert bad.measurements == reference.measurements
         assert repr(bad.estimates) == repr(reference.estimates)
+
+
+def test_a_decoder_that_crashes_in_a_worker_process_stops_the_parallel_replay_with_its_traceback(
+        tmp_path, monkeypatch):
+    bag = tmp_path / "short.mcap"
+    simulate_scenario(Scenario.from_dict(CONVENTIONAL), bag, t_end=3.0)
+    decoder = sensor_spec("doppler_radar").decoder
+
+    def broken(self, block):
+        raise ZeroDivisionError("a bug in the decoder")
+    monkeypatch.setattr(decoder, "decode", broken)
+    with pytest.raises(RuntimeError, match=r"(?s)doppler.*ZeroDivisionError: a bug in the decoder"):
+        replay_bag(bag, scenario_from_bag(bag), parallel=True)
+    with pytest.raises(ZeroDivisionError):
+        replay_bag(bag, scenario_from_bag(bag))

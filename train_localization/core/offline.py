@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import multiprocessing
+import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -244,40 +245,81 @@ class _MessageDecoder:
             return exc
 
 
-# (decoder, {topic: [(typename, CDR bytes), ...]}) of the parallel replay running now:
-# set before the worker processes are forked, which so inherit it without copying
+# (decoder, {topic: [window k: [(typename, CDR bytes), ...]]}) of the parallel replay
+# running now: set before its worker processes are forked, which so inherit it
 _PARALLEL_JOB: tuple | None = None
+PARALLEL_WINDOW = 1.0   # log time [s] that the workers decode before handing it over
 
 
-def _decode_topic(topic: str) -> tuple[str, list]:
+def _decode_topic_windows(topic: str, conn) -> None:
+    """Worker process: decode one topic window by window, sending each window's items."""
     decoder, by_topic = _PARALLEL_JOB
-    return topic, [decoder(topic, typename, data) for typename, data in by_topic[topic]]
+    try:
+        for window in by_topic[topic]:
+            conn.send([decoder(topic, typename, data) for typename, data in window])
+    except BaseException:   # hand the failure to the parent, which raises it
+        conn.send(RuntimeError(f"decoding {topic} failed in its worker process:\n{traceback.format_exc()}"))
+    finally:
+        conn.close()
 
 
-def _decode_in_parallel(decoder: _MessageDecoder, messages: list, workers: int, bar):
-    """Decoded items of ``messages`` (in their order), each topic decoded in a worker process.
+def _decode_in_parallel(decoder: _MessageDecoder, messages: list, bar):
+    """Decoded items of ``messages`` (in their order), each topic decoded in its own process.
 
-    The sensors are independent until the fusion (as the live nodes are), so each
-    topic's messages go through its own pipeline, in order, in one worker; the
-    fusion then takes the results in the bag's order, as in the serial replay.
+    The sensors are independent until the fusion, as the live nodes are, so each
+    topic goes through its own pipeline, in order, in a forked worker process;
+    the workers hand over their results one window of log time after the other,
+    so the caller fuses window k while window k + 1 is decoded. The items come in
+    the bag's order, as in the serial replay, so the result is the same.
     """
     global _PARALLEL_JOB
+    if not messages:
+        return
+    window_ns = round(PARALLEL_WINDOW * 1e9)
+    n_windows = messages[-1][2] // window_ns + 1
     by_topic: dict[str, list] = {}
-    for topic, typename, _, data in messages:
-        by_topic.setdefault(topic, []).append((typename, data))
-    # largest first: the long jobs start early and the short ones fill the gaps
-    order = sorted(by_topic, key=lambda tp: -sum(len(d) for _, d in by_topic[tp]))
-    decoded = {}
+    for topic, typename, t_ns, data in messages:
+        windows = by_topic.get(topic)
+        if windows is None:
+            windows = by_topic[topic] = [[] for _ in range(n_windows)]
+        windows[t_ns // window_ns].append((typename, data))
+    ctx = multiprocessing.get_context("fork")
+    conns, procs = {}, []
     _PARALLEL_JOB = (decoder, by_topic)
     try:
-        with multiprocessing.get_context("fork").Pool(min(workers, len(order))) as pool:
-            for topic, items in pool.imap_unordered(_decode_topic, order):
-                decoded[topic] = iter(items)
-                if bar:
-                    bar.update(len(items))
+        for topic in by_topic:
+            receive, send = ctx.Pipe(duplex=False)
+            proc = ctx.Process(target=_decode_topic_windows, args=(topic, send), daemon=True,
+                               name=f"replay {topic}")
+            proc.start()
+            send.close()    # the worker holds it: a worker that dies ends the parent's recv
+            conns[topic] = receive
+            procs.append(proc)
     finally:
         _PARALLEL_JOB = None
-    return ((topic, t_ns, next(decoded[topic])) for topic, _, t_ns, _ in messages)
+    try:
+        i = 0
+        for k in range(n_windows):
+            items = {}
+            for topic, conn in conns.items():
+                got = conn.recv()
+                if isinstance(got, BaseException):
+                    raise got
+                items[topic] = iter(got)
+            i0 = i
+            while i < len(messages) and messages[i][2] // window_ns == k:
+                topic, _, t_ns, _ = messages[i]
+                yield topic, t_ns, next(items[topic])
+                i += 1
+            if bar:
+                bar.update(i - i0)
+    finally:
+        for proc in procs:
+            if proc.is_alive():
+                proc.terminate()
+            proc.join()
+        for conn in conns.values():
+            conn.close()
 
 
 def can_fork() -> bool:
@@ -286,7 +328,7 @@ def can_fork() -> bool:
 
 
 def replay_bag(bag: str | Path, scenario: Scenario, out_bag: str | Path | None = None,
-               fusion_rate: float = 200.0, progress: bool = False, workers: int = 1) -> RunResult:
+               fusion_rate: float = 200.0, progress: bool = False, parallel: bool = False) -> RunResult:
     """Decode a bag's raw topics and fuse them, in log-time order, without DDS.
 
     The ground truth of the bag (if any) is copied to the result and the new bag.
@@ -294,9 +336,9 @@ def replay_bag(bag: str | Path, scenario: Scenario, out_bag: str | Path | None =
     does not deserialise, a bad block or a decoder rejection is counted in
     ``rejected`` by reason (``blocks`` counts the raw messages read).
 
-    ``workers`` > 1 decodes the sensors in that many forked processes (the bag's
-    messages are then held in memory); the result is identical to ``workers=1``,
-    which streams the bag.
+    ``parallel`` decodes each sensor in its own forked process while this one fuses
+    (the bag's messages are then held in memory); the result is identical to the
+    serial replay, which streams the bag.
     """
     from .bagio import BagReader, topic_counts
     mc = typestore_classes() if out_bag else None
@@ -314,13 +356,13 @@ def replay_bag(bag: str | Path, scenario: Scenario, out_bag: str | Path | None =
         from tqdm import tqdm
         bar = tqdm(total=sum(n for t, n in topic_counts(bag).items() if t in topics), unit="msg",
                    desc=Path(bag).name)
-    writer = None
+    writer = items = None
     try:
         with BagReader(bag) as reader:
             decoder = _MessageDecoder(pipes, reader.deserialize)
-            parallel = workers > 1 and can_fork()
+            parallel = parallel and can_fork()
             if parallel:
-                items = _decode_in_parallel(decoder, list(reader.cdr(topics)), workers, bar)
+                items = _decode_in_parallel(decoder, list(reader.cdr(topics)), bar)
             else:
                 items = ((topic, t_ns, decoder(topic, typename, data))
                          for topic, typename, t_ns, data in reader.cdr(topics))
@@ -351,6 +393,8 @@ def replay_bag(bag: str | Path, scenario: Scenario, out_bag: str | Path | None =
                 out.states(t_prev)
             out.flush()
     finally:
+        if items is not None:
+            items.close()   # parallel: ends the worker processes
         if bar:
             bar.close()
         if writer:

@@ -2,8 +2,8 @@
 
   tl_bench sensors   decode throughput per sensor [samples/s] and its ratio to the
                      real-time need at 500 km/h (or the sensor's top speed)
-  tl_bench replay    offline replay speed of every bag in bags/ [x real time], in one
-                     process and with one decoding worker process per CPU core
+  tl_bench replay    offline replay speed of every bag in bags/ [x real time], serial
+                     and with one decoding process per sensor (tl_replay's default)
   tl_bench fusion    the fusion benchmark (train_localization.tools.bench_fusion)
 
 Timings are wall-clock (sensors, fusion: one core); run on an idle machine and
@@ -72,14 +72,14 @@ def bench_sensors() -> list[dict]:
     return rows
 
 
-def bench_replay(workers: int, repeat: int = 3) -> list[dict]:
-    """Offline replay speed of every bag (best of ``repeat``), in one process and with ``workers``."""
+def bench_replay(repeat: int = 3) -> list[dict]:
+    """Offline replay speed of every bag (best of ``repeat``), serial and parallel (tl_replay --serial / default)."""
     from .replay import report_for
     rows = []
     for bag in sorted((SOURCE_ROOT / "bags").glob("*.mcap")):
         row = {"bag": bag.name}
-        for key, n in (("serial", 1), ("parallel", workers)):
-            runs = [report_for(bag, workers=n)[0] for _ in range(repeat)]
+        for key, parallel in (("serial", False), ("parallel", True)):
+            runs = [report_for(bag, parallel=parallel)[0] for _ in range(repeat)]
             best = min(runs, key=lambda r: r["wall_time_s"])
             row.update({"duration_s": best["duration_s"], f"wall_s_{key}": best["wall_time_s"],
                         f"factor_{key}": best["speed_factor"]})
@@ -97,13 +97,12 @@ def main(argv=None) -> int:
             print(f"{r['sensor']:20s} {r['speed_kmh']:10.0f} {r['samples_per_s']:17.3e} "
                   f"{r['realtime_need']:15.0f} {r['ratio']:7.0f}x")
     elif args.what == "replay":
-        workers = os.cpu_count() or 1
-        print(f"offline replay (tl_replay), best of 3; x real time with 1 process and with --jobs {workers}")
-        print(f"{'bag':24s} {'bag time s':>10s} {'wall s':>7s} {'factor':>7s} {'wall s':>7s} {'factor':>7s}")
-        print(f"{'':24s} {'':10s} {'1 process':>15s} {f'{workers} processes':>15s}")
-        for r in bench_replay(workers):
+        print(f"offline replay (tl_replay), best of 3, x real time; {os.cpu_count()} CPU cores")
+        print(f"{'':35s} {'--serial':>15s} {'one process per sensor':>23s}")
+        print(f"{'bag':24s} {'bag time s':>10s} {'wall s':>7s} {'factor':>7s} {'wall s':>15s} {'factor':>7s}")
+        for r in bench_replay():
             print(f"{r['bag']:24s} {r['duration_s']:10.1f} {r['wall_s_serial']:7.2f} {r['factor_serial']:6.0f}x "
-                  f"{r['wall_s_parallel']:7.2f} {r['factor_parallel']:6.0f}x")
+                  f"{r['wall_s_parallel']:15.2f} {r['factor_parallel']:6.0f}x")
     else:
         from . import bench_fusion
         return bench_fusion.main([])

@@ -1,6 +1,6 @@
 """tl_replay: offline replay of a bag through the decoders and the fusion, and its report.
 
-  tl_replay BAG [--scenario S] [--out NEW.mcap] [--report DIR] [--recorded] [--jobs N] [--quiet]
+  tl_replay BAG [--scenario S] [--out NEW.mcap] [--report DIR] [--recorded] [--serial] [--quiet]
 
 Without DDS and as fast as the CPU allows, the bag's raw topics go through the
 same decoders (ingest mode) and the same fusion as the live nodes; the recomputed
@@ -9,15 +9,14 @@ measurements and fused states can be written to a new bag (--out). The scenario
 unless --scenario is given (field recordings).
 --report DIR writes report.json (error statistics, ETCS envelope, integrity,
 per-sensor residuals, modes) and PNG plots. --recorded scores the bag's own
-recorded localization/state instead of recomputing it. --jobs N decodes the
-sensors in N worker processes (default: one per CPU core; 1 = in this process,
-streaming the bag); the result does not depend on N.
+recorded localization/state instead of recomputing it. Each sensor is decoded
+in its own forked worker process while this one fuses; --serial does it all in
+this process, streaming the bag (the result is the same).
 """
 from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 from pathlib import Path
@@ -44,7 +43,7 @@ def recorded_run(bag: Path):
 
 
 def report_for(bag: Path, scenario: Scenario | None = None, out_bag: Path | None = None,
-               recorded: bool = False, progress: bool = False, workers: int = 1) -> tuple[dict, dict]:
+               recorded: bool = False, progress: bool = False, parallel: bool = False) -> tuple[dict, dict]:
     """(report, plot arrays) for a bag, recomputed offline unless ``recorded``."""
     t0 = time.perf_counter()
     if recorded:
@@ -52,7 +51,7 @@ def report_for(bag: Path, scenario: Scenario | None = None, out_bag: Path | None
         extra = {"source": "recorded"}
     else:
         scenario = scenario or scenario_from_bag(bag)
-        run = replay_bag(bag, scenario, out_bag, progress=progress, workers=workers)
+        run = replay_bag(bag, scenario, out_bag, progress=progress, parallel=parallel)
         truth, estimates, measurements = run.truth, run.estimates, run.measurements
         extra = {"source": "offline replay", "rejected_messages": run.rejected,
                  "fusion_counters": run.runner.filter.counters()}
@@ -74,19 +73,16 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, help="write the recomputed run to this MCAP file")
     ap.add_argument("--report", type=Path, help="directory for report.json and the PNG plots")
     ap.add_argument("--recorded", action="store_true", help="score the recorded fused state, do not recompute")
-    ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
-                    help="worker processes decoding the sensors (default: CPU cores; 1: none)")
+    ap.add_argument("--serial", action="store_true",
+                    help="decode in this process instead of one worker process per sensor")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     args = ap.parse_args(argv)
     if not args.bag.exists():
         print(f"tl_replay: {args.bag} does not exist", file=sys.stderr)
         return 2
-    if args.jobs < 1:
-        print(f"tl_replay: --jobs must be at least 1, not {args.jobs}", file=sys.stderr)
-        return 2
     scenario = Scenario.from_yaml(args.scenario) if args.scenario else None
     report, arrays = report_for(args.bag, scenario, args.out, args.recorded, progress=not args.quiet,
-                                workers=args.jobs)
+                                parallel=not args.serial)
     pe, integ, env = report["position_error_m"], report["integrity"], report["etcs_envelope"]
     print(f"{args.bag.name}: {report['duration_s']:.1f} s replayed in {report['wall_time_s']:.2f} s "
           f"({report['speed_factor']:.0f}x real time)")

@@ -122,7 +122,7 @@ PRED_SIGMA = 0.25        # 1-sigma of the previous solution used for a predictio
 PRED_SPEED_SIGMA = 0.5   # 1-sigma speed error of the prediction [m/s] (slope over the history)
 PRED_ACCEL = 1.5         # largest acceleration of the train [m/s^2]
 SINGLE_HOLD = 0.3        # a single-station fix needs a previous solution younger than this [s]
-_BRANCH = np.array([[-1.0], [1.0]])  # the two candidates s -+ along of a range
+_BRANCH = np.array([-1.0, 1.0])[:, None, None]  # the two candidates s -+ along of a range
 SNR_NOISE_REF = 20.0  # SNR [dB] at which the SNR-dependent ranging term equals range_sigma_snr
 
 PARAMS = {
@@ -286,13 +286,16 @@ class MmWaveSimulator(Simulator):
 class _Pattern:
     """What the station-code channels of a block determine (cached per code pattern).
 
-    idx: station index per slot (0 for an empty slot), s: its chainage [m], d2: its squared
-    perpendicular distance [m^2], key: 4 x idx (the station part of the per-epoch cache key
-    of reference_id), all (n, N_SLOTS); lo / hi: (n, 3 N_SLOTS) bounds that every channel of
-    a valid block with these codes meets (None for a block that took the detailed checks).
+    Slot-major like the decoder's arrays: idx: station index per slot (0 for an empty slot),
+    s: its chainage [m], d2: its squared perpendicular distance [m^2], key: 4 x idx (the
+    station part of the per-epoch cache key of reference_id), all (N_SLOTS, n); s4 / d4: s
+    and d2 of station j repeated for every candidate, (N_SLOTS, 2, N_SLOTS, n) (same-shape
+    operands are cheaper than broadcast ones); lo / hi: (3 N_SLOTS, n) bounds that every
+    channel of a valid block with these codes meets (None for a block that took the
+    detailed checks).
     """
 
-    __slots__ = ("idx", "s", "d2", "key", "lo", "hi")
+    __slots__ = ("idx", "s", "d2", "s4", "d4", "key", "lo", "hi")
 
 
 def _picker(order: list[int]):
@@ -304,6 +307,10 @@ def _picker(order: list[int]):
 
 
 class MmWaveDecoder(Decoder):
+    """Decoder. Arrays over the epochs and slots of a block are slot-major, (N_SLOTS, n):
+    per-epoch values (n,) then broadcast without reshaping, and sums over the slots (axis 0)
+    add the slots in order, as a row sum does."""
+
     sensor = "mmwave"
     channels = CHANNELS
 
@@ -319,7 +326,7 @@ class MmWaveDecoder(Decoder):
         self._max_delay = 2.0 * max(params["max_range"], 1.0) / C_AIR + 1e-6
         # gate by the number of stations used (0..N_SLOTS): dof = n - 1, no test below 2 stations
         self._gate_n = np.concatenate([[np.inf], self._gate])
-        self._neg_slots = -np.arange(1, N_SLOTS + 1)
+        self._neg_slots = -np.arange(1, N_SLOTS + 1)[:, None]
         self._lut0 = self._lut.copy()
         self._lut0[0] = 0
         self._perp2 = self.perp * self.perp
@@ -331,7 +338,7 @@ class MmWaveDecoder(Decoder):
         self._patterns: dict = {}
         self._ref_cache: dict = {}
         self._offsets: dict = {}   # sample times - t0 per (n, sample rate)
-        self._rows: dict = {}
+        self._cols: dict = {}
         # range_sigma(snr)^2 + cal_sigma^2 = const + coef * exp(snr * expo)
         self._sig2_const = params["range_sigma_floor"] ** 2 + params["cal_sigma"] ** 2
         self._sig2_snr = (params["range_sigma_snr"] * 10.0 ** (SNR_NOISE_REF / 20.0)) ** 2
@@ -343,13 +350,15 @@ class MmWaveDecoder(Decoder):
         self._prev_x: float | None = None
         self._prev_v = 0.0
         self._speed_src = None   # history the speed _prev_v is still to be computed from
-        self._hist_t = self._hist_x = self._hist_w = np.zeros(0)
+        self._hist: list = []     # solutions of the last hold_time: chunks (t, x, var) by block
+        self._hist_n = 0
         self._hist_sorted = True  # history times ascending (blocks in time order)
         self.stats.update(epochs=0, fixes=0, rejected_stations=0, no_fix=0, ambiguous=0, inconsistent_single=0)
 
     # -- input checks -------------------------------------------------------------------
     def _check(self, data, codes_f, delay, snr) -> _Pattern:
-        """Station pattern of a block; raises InputRejected for a bad block.
+        """Station pattern of a block (data: the channels, (3 N_SLOTS, n)); raises
+        InputRejected for a bad block.
 
         The checks of the code channels depend on the codes only; they are cached per code
         pattern (the same stations are in view for many blocks) together with the bounds
@@ -361,23 +370,27 @@ class MmWaveDecoder(Decoder):
         if pat is None:
             pat = self._code_pattern(codes_f)
             if pat is not None:
-                if len(self._patterns) > 1024:
+                if len(self._patterns) > 256:
                     self._patterns.clear()
                 self._patterns[key] = pat
         if pat is not None and ((data >= pat.lo) & (data <= pat.hi)).all():
             return pat
-        codes, present = self._check_detail(codes_f, delay, snr)
-        return self._pattern(np.where(present, self._lut[np.where(present, codes, 0)], 0))
+        # epoch-major views: the first offending sample in the messages is the first by time
+        codes, present = self._check_detail(codes_f.T, delay.T, snr.T)
+        return self._pattern(np.ascontiguousarray(np.where(present, self._lut[np.where(present, codes, 0)], 0).T))
 
     def _pattern(self, idx) -> _Pattern:
         pat = _Pattern()
         pat.idx, pat.s, pat.d2, pat.key = idx, self.pos[idx], self._perp2[idx], idx * 4
+        shape = (N_SLOTS, 2, N_SLOTS, idx.shape[1])
+        pat.s4 = np.ascontiguousarray(np.broadcast_to(pat.s[:, None, None, :], shape))
+        pat.d4 = np.ascontiguousarray(np.broadcast_to(pat.d2[:, None, None, :], shape))
         pat.lo = pat.hi = None
         return pat
 
     def _code_pattern(self, codes_f) -> _Pattern | None:
-        """Pattern of valid code channels (known integer codes, no station twice in an
-        epoch) with the bounds of the other channels; None if the codes are not valid."""
+        """Pattern of valid code channels (N_SLOTS, n) (known integer codes, no station twice
+        in an epoch) with the bounds of the other channels; None if the codes are not valid."""
         if not ((codes_f >= 0.0) & (codes_f <= len(self._lut) - 1.0)).all():
             return None
         codes = codes_f.astype(np.int64)
@@ -385,16 +398,17 @@ class MmWaveDecoder(Decoder):
         if not ((codes == codes_f).all() and (k >= 0).all()):
             return None
         present = codes > 0
-        srt = np.sort(np.where(present, codes, self._neg_slots), axis=1)
-        if (srt[:, 1:] == srt[:, :-1]).any():
+        srt = np.sort(np.where(present, codes, self._neg_slots), axis=0)
+        if (srt[1:] == srt[:-1]).any():
             return None
         pat = self._pattern(k)
         # a replying station: delay 0..max, SNR -30..100 dB; an empty slot: delay = SNR = 0
-        pat.lo, pat.hi = np.zeros((len(codes_f), 3 * N_SLOTS)), np.zeros((len(codes_f), 3 * N_SLOTS))
-        pat.lo[:, 0::3] = pat.hi[:, 0::3] = codes_f
-        pat.hi[:, 1::3] = np.where(present, self._max_delay, 0.0)
-        pat.lo[:, 2::3] = np.where(present, -30.0, 0.0)
-        pat.hi[:, 2::3] = np.where(present, 100.0, 0.0)
+        shape = (3 * N_SLOTS, codes_f.shape[1])
+        pat.lo, pat.hi = np.zeros(shape), np.zeros(shape)
+        pat.lo[0::3] = pat.hi[0::3] = codes_f
+        pat.hi[1::3] = np.where(present, self._max_delay, 0.0)
+        pat.lo[2::3] = np.where(present, -30.0, 0.0)
+        pat.hi[2::3] = np.where(present, 100.0, 0.0)
         return pat
 
     def _check_detail(self, codes_f, delay, snr):
@@ -420,8 +434,8 @@ class MmWaveDecoder(Decoder):
     # -- decoding -----------------------------------------------------------------------
     def decode(self, block: RawBlock):
         p = self.params
-        data = block.data.astype(float)
-        codes_f, delay, snr = data[:, 0::3], data[:, 1::3], data[:, 2::3]
+        data = block.data.T.astype(float, order="C")   # channel-major, (3 N_SLOTS, n)
+        codes_f, delay, snr = data[0::3], data[1::3], data[2::3]
         pat = self._check(data, codes_f, delay, snr)
         n = block.n_samples
         offsets = self._offsets.get((n, block.sample_rate))
@@ -442,7 +456,7 @@ class MmWaveDecoder(Decoder):
             if not block_mode:
                 break
             # a bias persisting over the block stands out in the station's mean residual
-            worst = self._block_outlier(pat.idx, used & ok[:, None], resid, sig2)
+            worst = self._block_outlier(pat.idx, used & ok, resid, sig2)
             if worst is None:
                 break
             fit_valid = fit_valid & (pat.idx != worst)
@@ -455,7 +469,7 @@ class MmWaveDecoder(Decoder):
         self.stats["epochs"] += n
         self.stats["no_fix"] += n - n_ok
         if used is not valid:  # else no station was dropped or excluded
-            self.stats["rejected_stations"] += int((valid & ~used & ok[:, None]).sum())
+            self.stats["rejected_stations"] += int((valid & ~used & ok).sum())
         if not n_ok:
             return []
         front = x + p["orientation"] * p["antenna_offset"]
@@ -466,8 +480,8 @@ class MmWaveDecoder(Decoder):
             # per slot one small integer, 4 x station index + 2 x used + valid: the cache key
             # of an epoch's reference_id and residual order
             code = pat.key + (valid * 3 if used is valid else used * 2 + valid)
-            t_l, f_l, s_l, r_l = times.tolist(), front.tolist(), np.sqrt(var).tolist(), resid.tolist()
-            c_l = code.tolist()
+            t_l, f_l, s_l = times.tolist(), front.tolist(), np.sqrt(var).tolist()
+            r_l, c_l = resid.T.tolist(), code.T.tolist()
             sensor, unit, track_id = self.sensor, self.unit_id, self.track.track_id
             cache = self._ref_cache
             if len(cache) > 4096:
@@ -484,7 +498,8 @@ class MmWaveDecoder(Decoder):
 
     def _block_outlier(self, idx, used, resid, sig2):
         """Station index whose mean residual over the block fails the gate (largest positive), or None."""
-        ks = idx[used]
+        used = used.T   # epoch-major: the per-station sums add the epochs in time order
+        ks = idx.T[used]
         if not ks.size:
             return None
         cnt = np.bincount(ks)
@@ -495,8 +510,8 @@ class MmWaveDecoder(Decoder):
         # per station in view: mean residual over its (>= 3) epochs against its standard error
         # (noise averaged, calibration bias not); the first largest wins, a NaN fails
         cal2 = self.params["cal_sigma"] ** 2
-        sum_r = np.bincount(ks, resid[used])[stations].tolist()
-        sum_s = np.bincount(ks, sig2[used])[stations].tolist()
+        sum_r = np.bincount(ks, resid.T[used])[stations].tolist()
+        sum_s = np.bincount(ks, sig2.T[used])[stations].tolist()
         best, z_best = None, -math.inf
         for j, c in enumerate(n_k):
             if c >= 3:
@@ -524,7 +539,7 @@ class MmWaveDecoder(Decoder):
         if all_ok:
             t, y, v, cv, sel = times, front, var, cal_var, valid
         else:
-            t, y, v, cv, sel = times[ok], front[ok], var[ok], cal_var[ok], valid & ok[:, None]
+            t, y, v, cv, sel = times[ok], front[ok], var[ok], cal_var[ok], valid & ok
         noise = np.maximum(v - cv, 1e-12)
         w = 1.0 / noise
         sw = float(w.sum())
@@ -536,11 +551,12 @@ class MmWaveDecoder(Decoder):
         noise_var = 1.0 / sw
         # the calibration biases are common to the epochs: they do not average out
         sigma = math.sqrt(noise_var + float(cv.sum() / len(cv)))
-        ks = idx[sel]
+        sel = sel.T   # epoch-major: the per-station sums add the epochs in time order
+        ks = idx.T[sel]
         cnt = np.bincount(ks)
         stations = np.flatnonzero(cnt)
-        mean_r = (np.bincount(ks, resid[sel])[stations] / cnt[stations]).tolist()
-        any_used = (np.bincount(ks, used[sel])[stations] > 0).tolist()
+        mean_r = (np.bincount(ks, resid.T[sel])[stations] / cnt[stations]).tolist()
+        any_used = (np.bincount(ks, used.T[sel])[stations] > 0).tolist()
         st = stations.tolist()
         rank = range(len(st))
         if not self._pos_increasing:
@@ -557,42 +573,42 @@ class MmWaveDecoder(Decoder):
         return PositionFix(tm, self.sensor, self.unit_id, self.track.track_id, ref, pos, sigma, 0, residuals)
 
     def _solve(self, times, r, pat, sig2, valid, need_cal):
-        """Vectorised robust 1-D LS over the epochs of a block.
+        """Vectorised robust 1-D LS over the epochs of a block (arrays (N_SLOTS, n)).
 
-        Returns x (n,), ok (n,), used (n, N_SLOTS; ``valid`` itself if no station was
-        dropped), residuals (n, N_SLOTS), variance (n,) and, if ``need_cal``, the part of
+        Returns x (n,), ok (n,), used (N_SLOTS, n; ``valid`` itself if no station was
+        dropped), residuals (N_SLOTS, n), variance (n,) and, if ``need_cal``, the part of
         the variance due to the per-station calibration biases (n,), else None.
         """
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-            return self._solve_epochs(times, r, pat.s, pat.d2, sig2, valid, need_cal)
+            return self._solve_epochs(times, r, pat, sig2, valid, need_cal)
 
-    def _solve_epochs(self, times, r, s, d2, sig2, valid, need_cal):
+    def _solve_epochs(self, times, r, pat, sig2, valid, need_cal):
         p = self.params
         n = len(times)
+        s, d2 = pat.s, pat.d2
         w = np.where(valid, 1.0 / sig2, 0.0)
-        nv = valid.sum(axis=1)
-        # candidates s_j -+ along_j (n, 2, N), robust capped cost over all valid stations
+        nv = valid.sum(axis=0)
+        # candidates s_k -+ along_k (2, N, n), robust capped cost over all valid stations j
         along = r * r
         along -= d2
         np.maximum(along, 0.0, out=along)
         np.sqrt(along, out=along)
-        cand = s[:, None, :] + along[:, None, :] * _BRANCH
-        q = cand[:, :, :, None] - s[:, None, None, :]    # (n, 2, N, N): candidate x station
+        cand = s + along * _BRANCH
+        q = cand - pat.s4                  # (N_j, 2, N_k, n)
         q *= q
-        q += d2[:, None, None, :]
+        q += pat.d4
         np.sqrt(q, out=q)
         np.subtract(r[:, None, None, :], q, out=q)       # range residual
         q *= q
         q *= w[:, None, None, :]
         np.minimum(q, 25.0, out=q)
-        cost = np.where(valid[:, None, :], q.sum(axis=3), np.inf).reshape(n, 2 * N_SLOTS)
-        cand = cand.reshape(n, 2 * N_SLOTS)
-        rows = self._row_offsets(n)
-        best = cost.argmin(axis=1) + rows
-        x = cand.take(best)
-        c1 = cost.take(best)
-        far = np.abs(cand - x[:, None]) > 2.0
-        c2 = np.where(far, cost, np.inf).min(axis=1)
+        cost = np.where(valid, np.add.reduce(q), np.inf).reshape(2 * N_SLOTS, n)
+        cand = cand.reshape(2 * N_SLOTS, n)
+        cols = self._columns(n)
+        best = cost.argmin(axis=0)
+        x = cand[best, cols]
+        c1 = cost[best, cols]
+        c2 = np.minimum.reduce(cost, axis=0, where=np.abs(cand - x) > 2.0, initial=np.inf)  # far ones
         # one station: always two branches; more: a distinct candidate fitting nearly as well
         # (no station: c1 = c2 = inf, not ambiguous)
         ambiguous = (c2 - c1 < 4.0) | (nv == 1)
@@ -602,9 +618,9 @@ class MmWaveDecoder(Decoder):
             if have_pred:
                 # candidates among the near-best: pick the one nearest to the prediction
                 age, xp = self._prediction(times)
-                near_best = cost - c1[:, None] < 4.0
-                dist = np.where(near_best, np.abs(cand - xp[:, None]), np.inf)
-                pick = cand.take(dist.argmin(axis=1) + rows)
+                near_best = cost - c1 < 4.0
+                dist = np.where(near_best, np.abs(cand - xp), np.inf)
+                pick = cand[dist.argmin(axis=0), cols]
                 resolvable = ambiguous & (age <= p["hold_time"])
                 x = np.where(resolvable, pick, x)
                 ambiguous &= ~resolvable
@@ -614,7 +630,7 @@ class MmWaveDecoder(Decoder):
         x, info, e, h = self._gauss_newton(x, r, s, d2, w)
         nu, wu = nv, w
         for _ in range(N_SLOTS):
-            chi2 = (wu * e * e).sum(axis=1)
+            chi2 = np.add.reduce(wu * e * e)
             fail = ok & (chi2 > self._gate_n[nu])
             if not fail.any():
                 break
@@ -624,20 +640,20 @@ class MmWaveDecoder(Decoder):
             if not can_drop.any():
                 break
             P = np.where(info > 0.0, 1.0 / np.maximum(info, 1e-300), np.inf)
-            denom = np.maximum(np.where(used, 1.0 / np.maximum(w, 1e-300), 1.0) - h * h * P[:, None], 1e-12)
+            denom = np.maximum(np.where(used, 1.0 / np.maximum(w, 1e-300), 1.0) - h * h * P, 1e-12)
             # NLOS / multipath only lengthens a range: drop the largest positive normalised residual
             znorm = np.where(used, e / np.sqrt(denom), -np.inf)
-            worst = znorm.argmax(axis=1)
+            worst = znorm.argmax(axis=0)
             if used is valid:
                 used = valid.copy()
-            used[np.flatnonzero(can_drop), worst[can_drop]] = False
-            nu = used.sum(axis=1)
+            used[worst[can_drop], np.flatnonzero(can_drop)] = False
+            nu = used.sum(axis=0)
             wu = np.where(used, w, 0.0)
             x2, info2, e2, h2 = self._gauss_newton(x, r, s, d2, wu)
             x = np.where(can_drop, x2, x)
             info = np.where(can_drop, info2, info)
-            e = np.where(can_drop[:, None], e2, e)
-            h = np.where(can_drop[:, None], h2, h)
+            e = np.where(can_drop, e2, e)
+            h = np.where(can_drop, h2, h)
         # an ok epoch has >= min_st stations (none dropped below) and info > 1e-6, so its LS
         # covariance P is 1 / info (the values of the other epochs are not used)
         P = 1.0 / info
@@ -645,8 +661,8 @@ class MmWaveDecoder(Decoder):
         var = np.where(ok, P, np.inf)
         cal_var = None
         if need_cal:
-            gain = wu * h * P[:, None]
-            cal_var = (gain * gain).sum(axis=1) * p["cal_sigma"] ** 2
+            gain = wu * h * P
+            cal_var = np.add.reduce(gain * gain) * p["cal_sigma"] ** 2
         if p["min_stations"] <= 1:  # else no epoch is left with a single station
             single = ok & (nu == 1)
             if single.any():
@@ -663,12 +679,12 @@ class MmWaveDecoder(Decoder):
                 var = np.where(single, var + p["unchecked_sigma"] ** 2, var)
         return x, ok, used, e, var, cal_var
 
-    def _row_offsets(self, n):
-        """Flat index of the first candidate of each epoch, (n,), cached per block length."""
-        rows = self._rows.get(n)
-        if rows is None:
-            rows = self._rows[n] = np.arange(n) * (2 * N_SLOTS)
-        return rows
+    def _columns(self, n):
+        """np.arange(n), cached per block length."""
+        cols = self._cols.get(n)
+        if cols is None:
+            cols = self._cols[n] = np.arange(n)
+        return cols
 
     def _prediction(self, times):
         """Age [s] of the previous solution and the position predicted from it at ``times``."""
@@ -682,7 +698,7 @@ class MmWaveDecoder(Decoder):
         history kept by the last _remember that had a time spread.
         """
         if self._speed_src is not None:
-            ht, hx, w = self._speed_src
+            ht, hx, w = self._joined(self._speed_src)
             self._speed_src = None
             tt = ht - ht.mean()
             sw = w.sum()
@@ -693,33 +709,49 @@ class MmWaveDecoder(Decoder):
             self._prev_v = float(np.dot(wdt, hx - xm) / np.dot(wdt, dt))
         return self._prev_v
 
-    def _remember(self, t, x, var):
-        """Keep the solutions of the last hold_time (t ascending) for the speed (_speed)."""
-        ht, hx, hw = self._hist_t, self._hist_x, self._hist_w
-        cut = t[-1] - self.params["hold_time"]
-        if not self._hist_sorted:
-            keep = ht > cut
-            if not keep.all():
-                ht, hx, hw = ht[keep], hx[keep], hw[keep]
-        elif ht.size and not ht[0] > cut:   # the kept ones are a tail
-            i0 = int(ht.searchsorted(cut, side="right"))
-            ht, hx, hw = ht[i0:], hx[i0:], hw[i0:]
-        if ht.size and t[0] < ht[-1]:
-            self._hist_sorted = False
-        ht = self._hist_t = np.concatenate((ht, t))
-        hx = self._hist_x = np.concatenate((hx, x))
-        w = self._hist_w = np.concatenate((hw, 1.0 / var))
-        self._prev_t, self._prev_x = float(t[-1]), float(x[-1])
-        if len(ht) >= 3 and self._time_spread(ht):
-            self._speed_src = (ht, hx, w)
+    @staticmethod
+    def _joined(chunks):
+        """History chunks (t, x, var) -> arrays t, x, weight 1 / var."""
+        return (np.concatenate([c[0] for c in chunks]), np.concatenate([c[1] for c in chunks]),
+                1.0 / np.concatenate([c[2] for c in chunks]))
 
-    def _time_spread(self, ht) -> bool:
-        """Whether the times ht, less their mean, are not all equal (a slope is defined)."""
+    def _remember(self, t, x, var):
+        """Keep the solutions of the last hold_time (t ascending) for the speed (_speed).
+
+        The history stays a list of per-block chunks, joined only when the speed is needed.
+        """
+        hist = self._hist
+        cut = t[-1] - self.params["hold_time"]
+        if not self._hist_sorted:   # blocks out of time order: one chunk, filtered as a whole
+            if hist:
+                ht, hx, hv = (np.concatenate([c[k] for c in hist]) for k in range(3))
+                keep = ht > cut
+                hist[:] = [(ht[keep], hx[keep], hv[keep])]
+                self._hist_n = len(hist[0][0])
+        else:
+            while hist and not hist[0][0][-1] > cut:   # the oldest chunk left as a whole
+                self._hist_n -= len(hist.pop(0)[0])
+            if hist and not hist[0][0][0] > cut:
+                ht, hx, hv = hist[0]
+                i0 = int(ht.searchsorted(cut, side="right"))
+                hist[0] = (ht[i0:], hx[i0:], hv[i0:])
+                self._hist_n -= i0
+            if hist and t[0] < hist[-1][0][-1]:
+                self._hist_sorted = False
+        hist.append((t, x, var))
+        self._hist_n += len(t)
+        self._prev_t, self._prev_x = float(t[-1]), float(x[-1])
+        if self._hist_n >= 3 and self._time_spread():
+            self._speed_src = list(hist)
+
+    def _time_spread(self) -> bool:
+        """Whether the history times, less their mean, are not all equal (a slope is defined)."""
         if self._hist_sorted:
-            a, b = float(ht[0]), float(ht[-1])
+            a, b = float(self._hist[0][0][0]), float(self._hist[-1][0][-1])
             # far above the round-off of the mean: the extremes stay apart after subtracting it
             if b - a > 1e-6 * (1.0 + abs(a) + abs(b)):
                 return True
+        ht = np.concatenate([c[0] for c in self._hist])
         tt = ht - ht.mean()
         return bool(tt.max() > tt.min())
 
@@ -730,31 +762,33 @@ class MmWaveDecoder(Decoder):
         the next step would be ~tol^2). Returns x, the information sum(wu h^2), the
         residuals r - pred and the partials h, all at the final x.
         """
-        he, sums = self._gn_terms(x, r, s, d2, wu)
-        for _ in range(iterations):
-            info, g = sums
-            step = np.zeros(len(x))
-            np.divide(g, info, out=step, where=info > 1e-9)
+        h, e, info, g = self._gn_terms(x, r, s, d2, wu, True)
+        for it in range(iterations):
+            step = g / info
+            if not info.min() > 1e-9:   # no step without information
+                step = np.where(info > 1e-9, step, 0.0)
             biggest = np.abs(step).max()
             if biggest > 50.0:
                 step = np.minimum(np.maximum(step, -50.0), 50.0)
             x = x + step
-            he, sums = self._gn_terms(x, r, s, d2, wu)
-            if biggest <= tol:
+            done = biggest <= tol
+            # the gradient of the last evaluation is not used
+            h, e, info, g = self._gn_terms(x, r, s, d2, wu, not (done or it == iterations - 1))
+            if done:
                 break
-        return x, sums[0], he[1], he[0]
+        return x, info, e, h
 
-    def _gn_terms(self, x, r, s, d2, wu):
-        """Partials h and residuals e = r - pred at x as he = (h, e), (2, n, N_SLOTS), and
-        their weighted sums (2, n): information sum(wu h^2) and gradient sum(wu h e)."""
-        dx = x[:, None] - s
+    def _gn_terms(self, x, r, s, d2, wu, gradient):
+        """Partials h and residuals e = r - pred at x, the information sum(wu h^2) and, if
+        ``gradient``, the gradient sum(wu h e) (else None)."""
+        dx = x - s
         pred = dx * dx
         pred += d2
         np.sqrt(pred, out=pred)
-        he = np.empty((2,) + dx.shape)
-        np.divide(dx, np.maximum(pred, 1e-9) if self._guard_pred else pred, out=he[0])
-        np.subtract(r, pred, out=he[1])
-        return he, (he * (wu * he[0])).sum(axis=2)
+        h = dx / (np.maximum(pred, 1e-9) if self._guard_pred else pred)
+        e = np.subtract(r, pred, out=pred)
+        wh = wu * h
+        return h, e, np.add.reduce(wh * h), np.add.reduce(wh * e) if gradient else None
 
 
 SPEC = SensorSpec(

@@ -123,6 +123,10 @@ PRED_SPEED_SIGMA = 0.5   # 1-sigma speed error of the prediction [m/s] (slope ov
 PRED_ACCEL = 1.5         # largest acceleration of the train [m/s^2]
 SINGLE_HOLD = 0.3        # a single-station fix needs a previous solution younger than this [s]
 _BRANCH = np.array([-1.0, 1.0])[:, None, None]  # the two candidates s -+ along of a range
+# ndarray.sum/any/max/min go through Python wrappers (numpy 2); the decoder, called for every
+# block with small arrays, calls the ufunc reductions directly (axis 0 by default)
+_sum, _any, _all = np.add.reduce, np.logical_or.reduce, np.logical_and.reduce
+_max, _min = np.maximum.reduce, np.minimum.reduce
 SNR_NOISE_REF = 20.0  # SNR [dB] at which the SNR-dependent ranging term equals range_sigma_snr
 
 PARAMS = {
@@ -373,7 +377,7 @@ class MmWaveDecoder(Decoder):
                 if len(self._patterns) > 256:
                     self._patterns.clear()
                 self._patterns[key] = pat
-        if pat is not None and ((data >= pat.lo) & (data <= pat.hi)).all():
+        if pat is not None and _all((data >= pat.lo) & (data <= pat.hi), axis=None):
             return pat
         # epoch-major views: the first offending sample in the messages is the first by time
         codes, present = self._check_detail(codes_f.T, delay.T, snr.T)
@@ -469,7 +473,7 @@ class MmWaveDecoder(Decoder):
         self.stats["epochs"] += n
         self.stats["no_fix"] += n - n_ok
         if used is not valid:  # else no station was dropped or excluded
-            self.stats["rejected_stations"] += int((valid & ~used & ok).sum())
+            self.stats["rejected_stations"] += int(np.count_nonzero(valid & ~used & ok))
         if not n_ok:
             return []
         front = x + p["orientation"] * p["antenna_offset"]
@@ -477,22 +481,21 @@ class MmWaveDecoder(Decoder):
             fixes = [self._block_fix(times, front, var, cal_var, ok, used, valid, resid, pat.idx, n_ok == n)]
         else:
             fixes = []
-            # per slot one small integer, 4 x station index + 2 x used + valid: the cache key
-            # of an epoch's reference_id and residual order
+            # per slot one small integer, 4 x station index + 2 x used + valid: per epoch the
+            # cache key of its reference_id and residual order
             code = pat.key + (valid * 3 if used is valid else used * 2 + valid)
+            keys = list(map(tuple, code.T.tolist()))
             t_l, f_l, s_l = times.tolist(), front.tolist(), np.sqrt(var).tolist()
-            r_l, c_l = resid.T.tolist(), code.T.tolist()
+            r_l = resid.T.tolist()
             sensor, unit, track_id = self.sensor, self.unit_id, self.track.track_id
             cache = self._ref_cache
             if len(cache) > 4096:
                 cache.clear()
-            for i in (range(n) if n_ok == n else np.flatnonzero(ok).tolist()):
-                key = tuple(c_l[i])
-                hit = cache.get(key)
+            for i in (range(n) if n_ok == n else ok.nonzero()[0].tolist()):
+                hit = cache.get(keys[i])
                 if hit is None:
-                    hit = cache[key] = self._ref_order(key)
-                ref, pick = hit
-                fixes.append(PositionFix(t_l[i], sensor, unit, track_id, ref, f_l[i], s_l[i], 0, pick(r_l[i])))
+                    hit = cache[keys[i]] = self._ref_order(keys[i])
+                fixes.append(PositionFix(t_l[i], sensor, unit, track_id, hit[0], f_l[i], s_l[i], 0, hit[1](r_l[i])))
         self.stats["fixes"] += len(fixes)
         return fixes
 
@@ -503,7 +506,7 @@ class MmWaveDecoder(Decoder):
         if not ks.size:
             return None
         cnt = np.bincount(ks)
-        stations = np.flatnonzero(cnt)
+        stations = cnt.nonzero()[0]
         n_k = cnt[stations].tolist()
         if max(n_k) < 3:
             return None
@@ -542,7 +545,7 @@ class MmWaveDecoder(Decoder):
             t, y, v, cv, sel = times[ok], front[ok], var[ok], cal_var[ok], valid & ok
         noise = np.maximum(v - cv, 1e-12)
         w = 1.0 / noise
-        sw = float(w.sum())
+        sw = float(_sum(w))
         tm = float(np.dot(w, t) / sw)
         # weighted straight line in (t - tm): the design columns are orthogonal under the
         # weights (sum w (t - tm) = 0), so the value at tm is the weighted mean and its
@@ -550,11 +553,11 @@ class MmWaveDecoder(Decoder):
         pos = float(np.dot(w, y) / sw)
         noise_var = 1.0 / sw
         # the calibration biases are common to the epochs: they do not average out
-        sigma = math.sqrt(noise_var + float(cv.sum() / len(cv)))
+        sigma = math.sqrt(noise_var + float(_sum(cv) / len(cv)))
         sel = sel.T   # epoch-major: the per-station sums add the epochs in time order
         ks = idx.T[sel]
         cnt = np.bincount(ks)
-        stations = np.flatnonzero(cnt)
+        stations = cnt.nonzero()[0]
         mean_r = (np.bincount(ks, resid.T[sel])[stations] / cnt[stations]).tolist()
         any_used = (np.bincount(ks, used.T[sel])[stations] > 0).tolist()
         st = stations.tolist()
@@ -586,8 +589,9 @@ class MmWaveDecoder(Decoder):
         p = self.params
         n = len(times)
         s, d2 = pat.s, pat.d2
-        w = np.where(valid, 1.0 / sig2, 0.0)
-        nv = valid.sum(axis=0)
+        # sig2 > 0 and finite after the fast input check: valid / sig2 is 1 / sig2 or 0
+        w = valid / sig2 if pat.lo is not None else np.where(valid, 1.0 / sig2, 0.0)
+        nv = _sum(valid)
         # candidates s_k -+ along_k (2, N, n), robust capped cost over all valid stations j
         along = r * r
         along -= d2
@@ -613,7 +617,7 @@ class MmWaveDecoder(Decoder):
         # (no station: c1 = c2 = inf, not ambiguous)
         ambiguous = (c2 - c1 < 4.0) | (nv == 1)
         have_pred = self._prev_t is not None
-        if ambiguous.any():
+        if _any(ambiguous):
             self.stats["ambiguous"] += int(ambiguous.sum())
             if have_pred:
                 # candidates among the near-best: pick the one nearest to the prediction
@@ -628,26 +632,28 @@ class MmWaveDecoder(Decoder):
         min_st = max(1, p["min_stations"])
         ok = (nv >= min_st) & ~ambiguous
         x, info, e, h = self._gauss_newton(x, r, s, d2, w)
-        nu, wu = nv, w
+        nu, wu, range_var = nv, w, None
         for _ in range(N_SLOTS):
             chi2 = np.add.reduce(wu * e * e)
             fail = ok & (chi2 > self._gate_n[nu])
-            if not fail.any():
+            if not _any(fail):
                 break
             # identify the outlier only if >= 2 stations remain to check one another
             can_drop = fail & (nu > max(2, p["min_stations"]))
             ok &= ~(fail & ~can_drop)
-            if not can_drop.any():
+            if not _any(can_drop):
                 break
             P = np.where(info > 0.0, 1.0 / np.maximum(info, 1e-300), np.inf)
-            denom = np.maximum(np.where(used, 1.0 / np.maximum(w, 1e-300), 1.0) - h * h * P, 1e-12)
+            if used is valid:
+                used = valid.copy()
+            if range_var is None:
+                range_var = 1.0 / np.maximum(w, 1e-300)   # sigma_i^2 of the used ranges
+            denom = np.maximum(range_var - h * h * P, 1e-12)
             # NLOS / multipath only lengthens a range: drop the largest positive normalised residual
             znorm = np.where(used, e / np.sqrt(denom), -np.inf)
             worst = znorm.argmax(axis=0)
-            if used is valid:
-                used = valid.copy()
-            used[worst[can_drop], np.flatnonzero(can_drop)] = False
-            nu = used.sum(axis=0)
+            used[worst[can_drop], can_drop.nonzero()[0]] = False
+            nu = _sum(used)
             wu = np.where(used, w, 0.0)
             x2, info2, e2, h2 = self._gauss_newton(x, r, s, d2, wu)
             x = np.where(can_drop, x2, x)
@@ -665,7 +671,7 @@ class MmWaveDecoder(Decoder):
             cal_var = np.add.reduce(gain * gain) * p["cal_sigma"] ** 2
         if p["min_stations"] <= 1:  # else no epoch is left with a single station
             single = ok & (nu == 1)
-            if single.any():
+            if _any(single):
                 # no redundancy: check against the prediction instead (an NLOS onset is a jump)
                 if have_pred:
                     age, xp = self._prediction(times)
@@ -765,9 +771,9 @@ class MmWaveDecoder(Decoder):
         h, e, info, g = self._gn_terms(x, r, s, d2, wu, True)
         for it in range(iterations):
             step = g / info
-            if not info.min() > 1e-9:   # no step without information
+            if not _min(info) > 1e-9:   # no step without information
                 step = np.where(info > 1e-9, step, 0.0)
-            biggest = np.abs(step).max()
+            biggest = _max(np.abs(step))
             if biggest > 50.0:
                 step = np.minimum(np.maximum(step, -50.0), 50.0)
             x = x + step

@@ -104,6 +104,7 @@ plus the calibration term.
 """
 from __future__ import annotations
 
+import itertools
 import math
 import operator
 
@@ -484,18 +485,19 @@ class MmWaveDecoder(Decoder):
             # per slot one small integer, 4 x station index + 2 x used + valid: per epoch the
             # cache key of its reference_id and residual order
             code = pat.key + (valid * 3 if used is valid else used * 2 + valid)
-            keys = list(map(tuple, code.T.tolist()))
-            t_l, f_l, s_l = times.tolist(), front.tolist(), np.sqrt(var).tolist()
-            r_l = resid.T.tolist()
+            epochs = zip(times.tolist(), front.tolist(), np.sqrt(var).tolist(), resid.T.tolist(),
+                         map(tuple, code.T.tolist()))
+            if n_ok < n:
+                epochs = itertools.compress(epochs, ok.tolist())
             sensor, unit, track_id = self.sensor, self.unit_id, self.track.track_id
             cache = self._ref_cache
             if len(cache) > 4096:
                 cache.clear()
-            for i in (range(n) if n_ok == n else ok.nonzero()[0].tolist()):
-                hit = cache.get(keys[i])
+            for t_i, front_i, sigma_i, resid_i, key in epochs:
+                hit = cache.get(key)
                 if hit is None:
-                    hit = cache[keys[i]] = self._ref_order(keys[i])
-                fixes.append(PositionFix(t_l[i], sensor, unit, track_id, hit[0], f_l[i], s_l[i], 0, hit[1](r_l[i])))
+                    hit = cache[key] = self._ref_order(key)
+                fixes.append(PositionFix(t_i, sensor, unit, track_id, hit[0], front_i, sigma_i, 0, hit[1](resid_i)))
         self.stats["fixes"] += len(fixes)
         return fixes
 
@@ -724,36 +726,38 @@ class MmWaveDecoder(Decoder):
     def _remember(self, t, x, var):
         """Keep the solutions of the last hold_time (t ascending) for the speed (_speed).
 
-        The history stays a list of per-block chunks, joined only when the speed is needed.
+        The history stays a list of per-block chunks (t, x, var, first t, last t), joined
+        only when the speed is needed.
         """
         hist = self._hist
-        cut = t[-1] - self.params["hold_time"]
+        t_first, t_last = float(t[0]), float(t[-1])
+        cut = t_last - self.params["hold_time"]
         if not self._hist_sorted:   # blocks out of time order: one chunk, filtered as a whole
             if hist:
                 ht, hx, hv = (np.concatenate([c[k] for c in hist]) for k in range(3))
                 keep = ht > cut
-                hist[:] = [(ht[keep], hx[keep], hv[keep])]
+                hist[:] = [(ht[keep], hx[keep], hv[keep], None, None)]
                 self._hist_n = len(hist[0][0])
         else:
-            while hist and not hist[0][0][-1] > cut:   # the oldest chunk left as a whole
+            while hist and not hist[0][4] > cut:   # the oldest chunk left as a whole
                 self._hist_n -= len(hist.pop(0)[0])
-            if hist and not hist[0][0][0] > cut:
-                ht, hx, hv = hist[0]
+            if hist and not hist[0][3] > cut:
+                ht, hx, hv, _, last = hist[0]
                 i0 = int(ht.searchsorted(cut, side="right"))
-                hist[0] = (ht[i0:], hx[i0:], hv[i0:])
+                hist[0] = (ht[i0:], hx[i0:], hv[i0:], float(ht[i0]), last)
                 self._hist_n -= i0
-            if hist and t[0] < hist[-1][0][-1]:
+            if hist and t_first < hist[-1][4]:
                 self._hist_sorted = False
-        hist.append((t, x, var))
+        hist.append((t, x, var, t_first, t_last))
         self._hist_n += len(t)
-        self._prev_t, self._prev_x = float(t[-1]), float(x[-1])
+        self._prev_t, self._prev_x = t_last, float(x[-1])
         if self._hist_n >= 3 and self._time_spread():
             self._speed_src = list(hist)
 
     def _time_spread(self) -> bool:
         """Whether the history times, less their mean, are not all equal (a slope is defined)."""
         if self._hist_sorted:
-            a, b = float(self._hist[0][0][0]), float(self._hist[-1][0][-1])
+            a, b = self._hist[0][3], self._hist[-1][4]
             # far above the round-off of the mean: the extremes stay apart after subtracting it
             if b - a > 1e-6 * (1.0 + abs(a) + abs(b)):
                 return True
@@ -768,9 +772,20 @@ class MmWaveDecoder(Decoder):
         the next step would be ~tol^2). Returns x, the information sum(wu h^2), the
         residuals r - pred and the partials h, all at the final x.
         """
-        h, e, info, g = self._gn_terms(x, r, s, d2, wu, True)
-        for it in range(iterations):
-            step = g / info
+        guard = self._guard_pred
+        done = False
+        for it in range(iterations + 1):
+            dx = x - s
+            pred = dx * dx
+            pred += d2
+            np.sqrt(pred, out=pred)
+            h = dx / (np.maximum(pred, 1e-9) if guard else pred)
+            e = np.subtract(r, pred, out=pred)
+            wh = wu * h
+            info = _sum(wh * h)
+            if done or it == iterations:
+                return x, info, e, h
+            step = _sum(wh * e) / info
             if not _min(info) > 1e-9:   # no step without information
                 step = np.where(info > 1e-9, step, 0.0)
             biggest = _max(np.abs(step))
@@ -778,23 +793,6 @@ class MmWaveDecoder(Decoder):
                 step = np.minimum(np.maximum(step, -50.0), 50.0)
             x = x + step
             done = biggest <= tol
-            # the gradient of the last evaluation is not used
-            h, e, info, g = self._gn_terms(x, r, s, d2, wu, not (done or it == iterations - 1))
-            if done:
-                break
-        return x, info, e, h
-
-    def _gn_terms(self, x, r, s, d2, wu, gradient):
-        """Partials h and residuals e = r - pred at x, the information sum(wu h^2) and, if
-        ``gradient``, the gradient sum(wu h e) (else None)."""
-        dx = x - s
-        pred = dx * dx
-        pred += d2
-        np.sqrt(pred, out=pred)
-        h = dx / (np.maximum(pred, 1e-9) if self._guard_pred else pred)
-        e = np.subtract(r, pred, out=pred)
-        wh = wu * h
-        return h, e, np.add.reduce(wh * h), np.add.reduce(wh * e) if gradient else None
 
 
 SPEC = SensorSpec(

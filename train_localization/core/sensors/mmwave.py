@@ -297,10 +297,11 @@ class _Pattern:
     and d2 of station j repeated for every candidate, (N_SLOTS, 2, N_SLOTS, n) (same-shape
     operands are cheaper than broadcast ones); lo / hi: (3 N_SLOTS, n) bounds that every
     channel of a valid block with these codes meets (None for a block that took the
-    detailed checks).
+    detailed checks); stations / loc: the stations in the block (ascending index) and each
+    slot's position in that list, epoch-major (n, N_SLOTS) (block fixes; set by _compact).
     """
 
-    __slots__ = ("idx", "s", "d2", "s4", "d4", "key", "lo", "hi")
+    __slots__ = ("idx", "s", "d2", "s4", "d4", "key", "lo", "hi", "stations", "loc")
 
 
 def _picker(order: list[int]):
@@ -390,8 +391,17 @@ class MmWaveDecoder(Decoder):
         shape = (N_SLOTS, 2, N_SLOTS, idx.shape[1])
         pat.s4 = np.ascontiguousarray(np.broadcast_to(pat.s[:, None, None, :], shape))
         pat.d4 = np.ascontiguousarray(np.broadcast_to(pat.d2[:, None, None, :], shape))
-        pat.lo = pat.hi = None
+        pat.lo = pat.hi = pat.stations = pat.loc = None
         return pat
+
+    @staticmethod
+    def _compact(pat: _Pattern):
+        """The pattern's stations (ascending index) and each slot's position among them,
+        epoch-major (n, N_SLOTS): per-station sums over a block need no search."""
+        if pat.loc is None:
+            stations, loc = np.unique(pat.idx.T.ravel(), return_inverse=True)
+            pat.stations, pat.loc = stations.tolist(), loc.reshape(pat.idx.shape[::-1])
+        return pat.stations, pat.loc
 
     def _code_pattern(self, codes_f) -> _Pattern | None:
         """Pattern of valid code channels (N_SLOTS, n) (known integer codes, no station twice
@@ -461,7 +471,7 @@ class MmWaveDecoder(Decoder):
             if not block_mode:
                 break
             # a bias persisting over the block stands out in the station's mean residual
-            worst = self._block_outlier(pat.idx, used & ok, resid, sig2)
+            worst = self._block_outlier(pat, used & ok, resid, sig2)
             if worst is None:
                 break
             fit_valid = fit_valid & (pat.idx != worst)
@@ -479,7 +489,7 @@ class MmWaveDecoder(Decoder):
             return []
         front = x + p["orientation"] * p["antenna_offset"]
         if block_mode:
-            fixes = [self._block_fix(times, front, var, cal_var, ok, used, valid, resid, pat.idx, n_ok == n)]
+            fixes = [self._block_fix(times, front, var, cal_var, ok, used, valid, resid, pat, n_ok == n)]
         else:
             fixes = []
             # per slot one small integer, 4 x station index + 2 x used + valid: per epoch the
@@ -501,22 +511,21 @@ class MmWaveDecoder(Decoder):
         self.stats["fixes"] += len(fixes)
         return fixes
 
-    def _block_outlier(self, idx, used, resid, sig2):
+    def _block_outlier(self, pat, used, resid, sig2):
         """Station index whose mean residual over the block fails the gate (largest positive), or None."""
+        stations, loc = self._compact(pat)
         used = used.T   # epoch-major: the per-station sums add the epochs in time order
-        ks = idx.T[used]
+        ks = loc[used]
         if not ks.size:
             return None
-        cnt = np.bincount(ks)
-        stations = cnt.nonzero()[0]
-        n_k = cnt[stations].tolist()
+        n_k = np.bincount(ks).tolist()
         if max(n_k) < 3:
             return None
         # per station in view: mean residual over its (>= 3) epochs against its standard error
         # (noise averaged, calibration bias not); the first largest wins, a NaN fails
         cal2 = self.params["cal_sigma"] ** 2
-        sum_r = np.bincount(ks, resid.T[used])[stations].tolist()
-        sum_s = np.bincount(ks, sig2.T[used])[stations].tolist()
+        sum_r = np.bincount(ks, resid.T[used]).tolist()
+        sum_s = np.bincount(ks, sig2.T[used]).tolist()
         best, z_best = None, -math.inf
         for j, c in enumerate(n_k):
             if c >= 3:
@@ -527,9 +536,9 @@ class MmWaveDecoder(Decoder):
                     best, z_best = j, z
         if not z_best > self._z_gate:
             return None
-        if len(n_k) <= max(2, self.params["min_stations"]):
+        if len(n_k) - n_k.count(0) <= max(2, self.params["min_stations"]):
             return None  # no station to spare: the epoch tests decide
-        return int(stations[best])
+        return stations[best]
 
     def _ref_order(self, code):
         """reference_id of one epoch and the function picking its residuals (used stations,
@@ -540,7 +549,7 @@ class MmWaveDecoder(Decoder):
         ref = ",".join([ids[code[j] >> 2] for j in order] + ["!" + ids[code[j] >> 2] for j in rej])
         return ref, _picker(order + rej)
 
-    def _block_fix(self, times, front, var, cal_var, ok, used, valid, resid, idx, all_ok):
+    def _block_fix(self, times, front, var, cal_var, ok, used, valid, resid, pat, all_ok):
         if all_ok:
             t, y, v, cv, sel = times, front, var, cal_var, valid
         else:
@@ -556,25 +565,24 @@ class MmWaveDecoder(Decoder):
         noise_var = 1.0 / sw
         # the calibration biases are common to the epochs: they do not average out
         sigma = math.sqrt(noise_var + float(_sum(cv) / len(cv)))
+        stations, loc = self._compact(pat)
         sel = sel.T   # epoch-major: the per-station sums add the epochs in time order
-        ks = idx.T[sel]
-        cnt = np.bincount(ks)
-        stations = cnt.nonzero()[0]
-        mean_r = (np.bincount(ks, resid.T[sel])[stations] / cnt[stations]).tolist()
-        any_used = (np.bincount(ks, used.T[sel])[stations] > 0).tolist()
-        st = stations.tolist()
-        rank = range(len(st))
+        ks = loc[sel]
+        cnt = np.bincount(ks).tolist()
+        sum_r = np.bincount(ks, resid.T[sel]).tolist()
+        n_used = np.bincount(ks, used.T[sel]).tolist()
+        rank = [j for j, c in enumerate(cnt) if c]   # stations in view, by index
         if not self._pos_increasing:
             # by chainage, then in order of first appearance (epoch, slot)
             first: dict = {}
             for j, k in enumerate(ks.tolist()):
                 first.setdefault(k, j)
-            rank = sorted(rank, key=lambda j: (float(self.pos[st[j]]), first[st[j]]))
-        u_sel = [j for j in rank if any_used[j]]
-        r_sel = [j for j in rank if not any_used[j]]
+            rank.sort(key=lambda j: (float(self.pos[stations[j]]), first[j]))
+        u_sel = [j for j in rank if n_used[j] > 0]
+        r_sel = [j for j in rank if not n_used[j] > 0]
         ids = self.ids
-        ref = ",".join([ids[st[j]] for j in u_sel] + ["!" + ids[st[j]] for j in r_sel])
-        residuals = tuple([mean_r[j] for j in u_sel + r_sel])
+        ref = ",".join([ids[stations[j]] for j in u_sel] + ["!" + ids[stations[j]] for j in r_sel])
+        residuals = tuple([sum_r[j] / cnt[j] for j in u_sel + r_sel])
         return PositionFix(tm, self.sensor, self.unit_id, self.track.track_id, ref, pos, sigma, 0, residuals)
 
     def _solve(self, times, r, pat, sig2, valid, need_cal):

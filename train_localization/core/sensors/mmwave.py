@@ -665,7 +665,8 @@ class MmWaveDecoder(Decoder):
             used[worst[can_drop], can_drop.nonzero()[0]] = False
             nu = _sum(used)
             wu = np.where(used, w, 0.0)
-            x2, info2, e2, h2 = self._gauss_newton(x, r, s, d2, wu)
+            # h and e at x do not depend on the weights: the refit starts from them
+            x2, info2, e2, h2 = self._gauss_newton(x, r, s, d2, wu, start=(h, e))
             x = np.where(can_drop, x2, x)
             info = np.where(can_drop, info2, info)
             e = np.where(can_drop, e2, e)
@@ -773,22 +774,26 @@ class MmWaveDecoder(Decoder):
         tt = ht - ht.mean()
         return bool(tt.max() > tt.min())
 
-    def _gauss_newton(self, x, r, s, d2, wu, iterations=6, tol=1e-9):
+    def _gauss_newton(self, x, r, s, d2, wu, iterations=6, tol=1e-9, start=None):
         """Gauss-Newton on x for all epochs at once (wu: weights, 0 for unused ranges).
 
         Stops early once every epoch's step is below ``tol`` [m] (converged to round-off:
         the next step would be ~tol^2). Returns x, the information sum(wu h^2), the
-        residuals r - pred and the partials h, all at the final x.
+        residuals r - pred and the partials h, all at the final x. ``start``: (h, e) at x
+        if known.
         """
         guard = self._guard_pred
         done = False
         for it in range(iterations + 1):
-            dx = x - s
-            pred = dx * dx
-            pred += d2
-            np.sqrt(pred, out=pred)
-            h = dx / (np.maximum(pred, 1e-9) if guard else pred)
-            e = np.subtract(r, pred, out=pred)
+            if start is None:
+                dx = x - s
+                pred = dx * dx
+                pred += d2
+                np.sqrt(pred, out=pred)
+                h = dx / (np.maximum(pred, 1e-9) if guard else pred)
+                e = np.subtract(r, pred, out=pred)
+            else:
+                (h, e), start = start, None
             wh = wu * h
             info = _sum(wh * h)
             if done or it == iterations:

@@ -327,14 +327,14 @@ def _unwrap(p: np.ndarray, dd: np.ndarray, ddmod: np.ndarray) -> np.ndarray:
     ph_correct = ddmod - dd
     np.copyto(ph_correct, 0.0, where=np.abs(dd) < math.pi)
     up = p.astype(float)
-    up[1:] = p[1:] + ph_correct.cumsum()
+    up[1:] += ph_correct.cumsum()
     return up
 
 
 # ndarray.any/all/sum/min/max go through Python wrappers (numpy 2); the decoder, called for
 # every block with small arrays, calls the ufunc reductions directly
 _sum, _any, _all = np.add.reduce, np.logical_or.reduce, np.logical_and.reduce
-_max, _min = np.maximum.reduce, np.minimum.reduce
+_max, _min, _fmax = np.maximum.reduce, np.minimum.reduce, np.fmax.reduce
 
 
 class InpoDecoder(Decoder):
@@ -364,9 +364,11 @@ class InpoDecoder(Decoder):
 
     # --- helpers -----------------------------------------------------------------
     def _check(self, block: RawBlock):
-        """(theta, amp, receiver, strong, all strong, phase steps, wrapped phase steps) of a
-        block; raises InputRejected for a bad block. ``receiver`` is an int if one receiver
-        carries the whole block (the common case, checked once), else an array."""
+        """(theta, amp, receiver, all strong, phase steps, wrapped phase steps) of a block;
+        raises InputRejected for a bad block. ``receiver`` is an int if one receiver carries
+        the whole block (the common case, checked once), else an array. Tests "any sample
+        above a limit" use the NaN-ignoring maximum (np.fmax), "all samples above" the
+        NaN-propagating minimum: one reduction each, a NaN sample passes as before."""
         p = self.params
         if block.channels != self.expected:
             raise InputRejected("channels", f"INPO channels {block.channels}, expected {self.expected}")
@@ -386,36 +388,42 @@ class InpoDecoder(Decoder):
             unknown = set(rx.tolist()) - self._known_rx
             if unknown:
                 raise InputRejected("unknown_id", f"unknown INPO receiver(s) {sorted(unknown)}")
-        if _any(np.abs(volts) >= p["adc_range"], axis=None):
+        if _fmax(np.abs(volts), axis=None) >= p["adc_range"]:
             raise InputRejected("implausible", f"envelope voltage at the {p['adc_range']} V limit (saturated)")
         if self.n_pairs == 6:
             volts = 0.5 * (volts[:3] - volts[3:6])
         theta, amp, zero = _clarke(volts[0], volts[1], volts[2])
         e0 = p["amplitude"]
-        if _any(amp > p["max_amplitude"] * e0):
+        if _fmax(amp) > p["max_amplitude"] * e0:
             raise InputRejected("implausible", f"loop signal {amp.max():.2f} V beyond {p['max_amplitude']} x E0")
-        strong = amp > p["on_threshold"] * e0
-        all_strong = bool(_all(strong))
-        if _any(strong & (np.abs(zero) > p["zero_sequence_limit"] * e0)):
+        on = p["on_threshold"] * e0
+        all_strong = bool(_min(amp) > on)
+        one_rx = isinstance(rx, int)
+        strong = None if all_strong and one_rx else amp > on
+        lim = p["zero_sequence_limit"] * e0
+        if (_fmax(np.abs(zero)) > lim) if strong is None else _any(strong & (np.abs(zero) > lim)):
             raise InputRejected("implausible", "zero-sequence voltage: a loop pair is broken or stuck")
-        no_rx = (rx == 0 and _any(strong)) if isinstance(rx, int) else _any(strong & (rx == 0))
+        if one_rx:
+            no_rx = rx == 0 and (all_strong or bool(_any(strong)))
+        else:
+            no_rx = _any(strong & (rx == 0))
         if no_rx:
             raise InputRejected("implausible", "loop signal without a selected receiver")
         d = theta[1:] - theta[:-1]
         dmod = np.mod(d + math.pi, TWO_PI) - math.pi
         step = np.abs(dmod) / TWO_PI   # |wrapped phase step|
-        if all_strong and isinstance(rx, int):
+        if strong is None:
             both = None   # every step is between strong samples of one receiver
-            bad = _any(step > p["max_step"])
+            bad = _fmax(step) > p["max_step"]
         else:
             both = strong[1:] & strong[:-1]
-            if not isinstance(rx, int):
+            if not one_rx:
                 both &= rx[1:] == rx[:-1]
             bad = _any(both & (step > p["max_step"]))
         if bad:
             raise InputRejected("implausible", f"phase step {(step if both is None else step[both]).max():.2f} "
                                                f"periods per sample")
-        return theta, amp, rx, strong, all_strong, d, dmod
+        return theta, amp, rx, all_strong, d, dmod
 
     def _hysteresis(self, amp, first_in: bool):
         e0 = self.params["amplitude"]
@@ -455,7 +463,7 @@ class InpoDecoder(Decoder):
     # --- decoding ---------------------------------------------------------------
     def decode(self, block: RawBlock):
         p = self.params
-        theta, amp, rx, strong, all_strong, d, dmod = self._check(block)  # raises before any state changes
+        theta, amp, rx, all_strong, d, dmod = self._check(block)  # raises before any state changes
         n = block.n_samples
         t = block.t0 + self._sample_offsets(n, block.sample_rate)   # = block.times()
         dt = 1.0 / block.sample_rate
@@ -526,9 +534,9 @@ class InpoDecoder(Decoder):
                     counts["count_lost"] += 1
                 else:
                     tracked.append((i0, i1, r, u_run, lo != lo))
-            if i1 - i0 >= 2:
-                rate = float((w[-1] - w[0]) / (t[i1 - 1] - t[i0]))
             w_last, theta_last = float(w[-1]), float(theta[i1 - 1])
+            if i1 - i0 >= 2:
+                rate = (w_last - float(w[0])) / float(t[i1 - 1] - t[i0])
             prev_in, prev_rx = True, r
         # commit state
         self._mode, self._w_last, self._theta_last = mode, w_last, theta_last

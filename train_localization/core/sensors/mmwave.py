@@ -356,7 +356,7 @@ class MmWaveDecoder(Decoder):
         self._prev_x: float | None = None
         self._prev_v = 0.0
         self._speed_src = None   # history the speed _prev_v is still to be computed from
-        self._hist: list = []     # solutions of the last hold_time: chunks (t, x, var) by block
+        self._hist: list = []     # solutions of the last hold_time: per block (t, x, var, first t, last t)
         self._hist_n = 0
         self._hist_sorted = True  # history times ascending (blocks in time order)
         self.stats.update(epochs=0, fixes=0, rejected_stations=0, no_fix=0, ambiguous=0, inconsistent_single=0)

@@ -458,6 +458,7 @@ class InpoDecoder(Decoder):
         offsets = self._offsets.get((n, rate))
         if offsets is None:
             offsets = self._offsets[n, rate] = np.arange(n) / rate
+            offsets.flags.writeable = False
         return offsets
 
     # --- decoding ---------------------------------------------------------------

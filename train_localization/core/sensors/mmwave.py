@@ -392,6 +392,8 @@ class MmWaveDecoder(Decoder):
         pat.s4 = np.ascontiguousarray(np.broadcast_to(pat.s[:, None, None, :], shape))
         pat.d4 = np.ascontiguousarray(np.broadcast_to(pat.d2[:, None, None, :], shape))
         pat.lo = pat.hi = pat.stations = pat.loc = None
+        for a in (pat.idx, pat.s, pat.d2, pat.key, pat.s4, pat.d4):
+            a.flags.writeable = False   # shared by the blocks of the pattern
         return pat
 
     @staticmethod
@@ -424,6 +426,7 @@ class MmWaveDecoder(Decoder):
         pat.hi[1::3] = np.where(present, self._max_delay, 0.0)
         pat.lo[2::3] = np.where(present, -30.0, 0.0)
         pat.hi[2::3] = np.where(present, 100.0, 0.0)
+        pat.lo.flags.writeable = pat.hi.flags.writeable = False
         return pat
 
     def _check_detail(self, codes_f, delay, snr):
@@ -456,6 +459,7 @@ class MmWaveDecoder(Decoder):
         offsets = self._offsets.get((n, block.sample_rate))
         if offsets is None:
             offsets = self._offsets[n, block.sample_rate] = np.arange(n) / block.sample_rate
+            offsets.flags.writeable = False
         times = block.t0 + offsets   # = block.times()
         # an empty slot has delay 0 (checked), so a positive delay implies a station
         valid = (delay > 0.0) & (snr >= p["snr_threshold"])
@@ -701,6 +705,7 @@ class MmWaveDecoder(Decoder):
         cols = self._cols.get(n)
         if cols is None:
             cols = self._cols[n] = np.arange(n)
+            cols.flags.writeable = False
         return cols
 
     def _prediction(self, times):

@@ -120,7 +120,8 @@ tolerance the narrowest state is 0.178 pulse, which lasts 100 us = one sample at
 ``max_speed`` = 300 km/h."""
 
 # (A, B) -> position in the forward sequence 00 -> 10 -> 11 -> 01; code = 2A + B
-_QUAD_INDEX = np.array([0, 3, 1, 2], dtype=np.int8)
+_QUAD_INDEX = np.array([0, 3, 1, 2], dtype=np.int64)
+_CODE_WEIGHTS = np.array([2.0, 1.0], dtype=np.float32)  # (A, B) levels -> code
 
 
 # --------------------------------------------------------------------------- decoding core
@@ -616,6 +617,8 @@ class WheelDecoder(Decoder):
             position_jitter=p["vibration"],
             unevenness=(p["phase_tolerance"] / 360.0 + p["duty_tolerance"]) * 4.0 * self.edge / math.sqrt(3.0))
         self._t_next: float | None = None
+        self._offsets_key: tuple | None = None
+        self._offsets_cache = np.empty(0)
         self.stats = {"edges": 0, "illegal_transitions": 0, "gaps": 0}
 
     @property
@@ -624,21 +627,29 @@ class WheelDecoder(Decoder):
         return self.counter.count
 
     def decode(self, block: RawBlock):
-        a = block.channel("A")
-        b = block.channel("B")
-        bad = ~(((a == 0.0) | (a == 1.0)) & ((b == 0.0) | (b == 1.0)))
-        if bad.any():
+        ab = block.data if block.channels == self.channels else \
+            block.data[:, [block.channels.index("A"), block.channels.index("B")]]
+        # x (x - 1) is 0 exactly for the levels 0 and 1 and for nothing else (NaN included)
+        if np.count_nonzero(ab * (ab - 1.0)):
+            a, b = ab[:, 0], ab[:, 1]
+            bad = ~(((a == 0.0) | (a == 1.0)) & ((b == 0.0) | (b == 1.0)))
             raise InputRejected("implausible", f"{int(bad.sum())} samples with levels other than 0/1 "
                                 f"(first {block.data[np.flatnonzero(bad)[0]].tolist()})")
         fs = block.sample_rate
         restart_after_gap(self, block)
-        q = _QUAD_INDEX[(2 * a.astype(np.int64) + b.astype(np.int64))]
-        res = self.counter.feed(block.times(), q, sample_period=1.0 / fs)
+        q = _QUAD_INDEX[(ab @ _CODE_WEIGHTS).astype(np.intp)]
+        res = self.counter.feed(block.t0 + self._offsets(len(ab), fs), q, sample_period=1.0 / fs)
         self.stats["edges"] += res.transitions
         self.stats["illegal_transitions"] += res.illegal
         return increment_or_reject(self.counter, self.estimator, res, fs, max(2, 0.1 * res.transitions),
                                    "quadrature transitions", "channel")
 
+    def _offsets(self, n: int, fs: float) -> np.ndarray:
+        """Sample times of a block relative to its first sample [s] (as RawBlock.times), cached."""
+        if self._offsets_key != (n, fs):
+            self._offsets_key = (n, fs)
+            self._offsets_cache = np.arange(n) / fs
+        return self._offsets_cache
 
 SPEC = SensorSpec(
     node="wheel_sensor", sensor="wheel", simulator=WheelSimulator, decoder=WheelDecoder,

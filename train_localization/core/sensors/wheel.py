@@ -119,6 +119,10 @@ tolerance the narrowest state is 0.178 pulse, which lasts 100 us = one sample at
 (306 km/h) with a wheel 1 % under the nominal 0.92 m: quadrature edges are resolved up to
 ``max_speed`` = 300 km/h."""
 
+# CycleCounter: look-up value of a state change that is neither none nor a legal step;
+# large, so that one of them shows in the sum of the values of a block's changes
+_OTHER = 1 << 40
+
 # (A, B) -> position in the forward sequence 00 -> 10 -> 11 -> 01; code = 2A + B
 _QUAD_INDEX = np.array([0, 3, 1, 2], dtype=np.int64)
 _CODE_WEIGHTS = np.array([2.0, 1.0], dtype=np.float32)  # (A, B) levels -> code
@@ -168,9 +172,9 @@ class CycleCounter:
         half = n_states // 2
         # signed step of a change by d states: the shortest way round
         self._signed = np.array([d if d <= half else d - n_states for d in range(n_states)], dtype=np.int64)
-        # +-1 for a legal step that is not a change by n/2, 0 for no change, n + 1 otherwise
+        # +-1 for a legal step that is not a change by n/2, 0 for no change, _OTHER otherwise
         # (illegal or ambiguous: the general path decides)
-        unit = [s if abs(s) == 1 and not (n_states % 2 == 0 and d == half) else n_states + 1
+        unit = [s if abs(s) == 1 and not (n_states % 2 == 0 and d == half) else _OTHER
                 for d, s in enumerate(self._signed.tolist())]
         unit[0] = 0
         self._unit = np.array(unit, dtype=np.int64)
@@ -188,21 +192,22 @@ class CycleCounter:
         self._run0 = 0
 
     def feed(self, times: np.ndarray, states: np.ndarray, lost: np.ndarray | None = None,
-             sample_period: float = 0.0, crossing_times=None) -> FeedResult:
+             sample_period: float = 0.0, crossing_times=None, all_valid: bool = False) -> FeedResult:
         """Count the steps of one block.
 
         times: sample times [s]; states: state index per sample (-1 = none); lost: True
         where the signal is absent; crossing_times: per sample, the interpolated time of
         a state change completed at that sample (default: half a sample before it), or
         a function returning these times [s] for an array of sample indices (so that
-        they need only be computed where the state changes).
+        they need only be computed where the state changes); all_valid: the caller
+        knows that no state is -1 (saves a pass over the states).
         """
         n = self.n
         states = np.asarray(states, dtype=np.int64)
         any_lost = lost is not None and bool(lost.any())
         # seq: the valid samples of the block, after the last state of the previous block
         # (if known); sample(k) = idx[k - pre] is the block sample of seq entry k >= pre
-        if len(states) and states.min() >= 0:
+        if all_valid or (len(states) and states.min() >= 0):
             idx = None
             valid = states
         else:
@@ -228,17 +233,21 @@ class CycleCounter:
         else:
             breaks = ()
         gz = g[ev]
-        if not len(breaks) and (not n_ev or gz.max() <= 1):
+        s_tr = gz.tolist()
+        # count after each change if all are legal steps (the count added to the first);
+        # one _OTHER among them makes the total exceed the number of changes
+        if n_ev:
+            gz[0] += self.count
+        c_tr = gz.cumsum()
+        total = int(c_tr[-1]) - self.count if n_ev else 0
+        if not len(breaks) and abs(total) <= n_ev:
             # fast path: all changes are legal steps of one state, no loss of signal
             illegal = 0
             illegal_free = True
-            c_tr = self.count + np.cumsum(gz)
-            s_tr = gz
             tr = ev
-            total = int(c_tr[-1]) - self.count if n_ev else 0
             seg_steps, dropped = total, 0
             if n_ev:
-                self.direction = int(gz[-1])
+                self.direction = s_tr[-1]
         else:
             illegal_free = False
             d = (seq_s[ev + 1] - seq_s[ev]) % n
@@ -268,12 +277,13 @@ class CycleCounter:
                 keep = tr >= seg0
                 tr, c_tr, s_tr = tr[keep], c_tr[keep], s_tr[keep]
                 self._clear_history()
+            s_tr = s_tr.tolist()
             nz = legal_sign.nonzero()[0]
             if len(nz):
                 self.direction = int(legal_sign[nz[-1]])
         if len(tr):
             # transition time: between the last sample of the old state and the first of the new
-            k = tr + (1 - pre)
+            k = tr if pre else tr + 1
             samples = k if idx is None else idx[k]
             if crossing_times is None:
                 t_tr = times[samples] - 0.5 * sample_period
@@ -306,24 +316,23 @@ class CycleCounter:
         k -= pre
         return float(times[k if idx is None else idx[k]])
 
-    def _append_history(self, t_tr: list, c_tr: list, s_tr: np.ndarray, unit: bool) -> None:
+    def _append_history(self, t_tr: list, c_tr: list, s_tr: list, unit: bool) -> None:
         """Append one block's transitions; keep the start of the last one-direction run.
 
         unit: all steps are +-1, so the count tells whether the direction changed."""
-        s_first = int(s_tr[0])
-        if unit and s_first == int(s_tr[-1]) and abs(c_tr[-1] - c_tr[0]) == len(c_tr) - 1:
-            # one direction throughout: the run goes on unless it reverses here
-            if not self._tr_s or self._tr_s[-1] != s_first:
-                self._run0 = len(self._tr_s)
+        s_first = s_tr[0]
+        base = len(self._tr_s)
+        if unit and s_first == s_tr[-1] and abs(c_tr[-1] - c_tr[0]) == len(c_tr) - 1:
+            rev = 0     # one direction throughout
         else:
-            rev = (s_tr[1:] != s_tr[:-1]).nonzero()[0]
-            if len(rev):
-                self._run0 = len(self._tr_s) + int(rev[-1]) + 1
-            elif not self._tr_s or self._tr_s[-1] != s_first:
-                self._run0 = len(self._tr_s)
+            rev = next((i for i in range(len(s_tr) - 1, 0, -1) if s_tr[i] != s_tr[i - 1]), 0)
+        if rev:
+            self._run0 = base + rev
+        elif not self._tr_s or self._tr_s[-1] != s_first:
+            self._run0 = base    # the run goes on unless it reverses here
         self._tr_t.extend(t_tr)
         self._tr_c.extend(c_tr)
-        self._tr_s.extend(s_tr.tolist())
+        self._tr_s.extend(s_tr)
 
     def transition_speed(self, t_from: float, t_to: float, same_kind: bool = True):
         """Steps per second between the last transition and the earliest usable one.
@@ -638,7 +647,7 @@ class WheelDecoder(Decoder):
         fs = block.sample_rate
         restart_after_gap(self, block)
         q = _QUAD_INDEX[(ab @ _CODE_WEIGHTS).astype(np.intp)]
-        res = self.counter.feed(block.t0 + self._offsets(len(ab), fs), q, sample_period=1.0 / fs)
+        res = self.counter.feed(block.t0 + self._offsets(len(ab), fs), q, sample_period=1.0 / fs, all_valid=True)
         self.stats["edges"] += res.transitions
         self.stats["illegal_transitions"] += res.illegal
         return increment_or_reject(self.counter, self.estimator, res, fs, max(2, 0.1 * res.transitions),

@@ -385,6 +385,7 @@ class LrlDecoder(Decoder):
         self._hist_n = 0
         self._offsets_key: tuple | None = None
         self._offsets = np.zeros(0)
+        self._rows_cache = np.zeros((0, 1), dtype=np.intp)
         self._group: list[dict] = []
         self.stats = {"lugs": 0, "sensor_invalid": 0, "sensor_disagreements": 0, "unresolved_lugs": 0,
                       "groups": 0, "incomplete_groups": 0, "unknown_id": 0, "dropped_passages": 0}
@@ -481,21 +482,27 @@ class LrlDecoder(Decoder):
         before k0 above the high level (0 if none; start of the falling ramp) and the last
         sample before k1 below the low level (start of the rising ramp)."""
         m, c = lev.shape
-        lo, hi = self._lo, self._hi
-        low = hysteresis(lev, lo, hi, np.zeros(c, dtype=bool))
-        d = np.diff(low.view(np.int8), axis=0, prepend=np.zeros((1, c), np.int8),
-                    append=np.zeros((1, c), np.int8))
-        starts, ends = d == 1, d == -1
-        n_runs = starts.sum(axis=0)
-        k0 = starts.argmax(axis=0)
-        k1 = m - ends[::-1].argmax(axis=0)
-        rows = np.arange(m)[:, None]
-        last_above = np.maximum.accumulate(np.where(lev > hi, rows, -1), axis=0)
-        last_below = np.maximum.accumulate(np.where(lev < lo, rows, -1), axis=0)
+        below, above = lev < self._lo, lev > self._hi
+        # hysteresis (as hysteresis() from the free state): the state follows the last
+        # sample outside the band, ``last`` (-1: none yet)
+        last = np.where(below | above, self._rows(m), -1)
+        np.maximum.accumulate(last, axis=0, out=last)
         cols = np.arange(c)
-        f0 = np.maximum(last_above[np.maximum(k0 - 1, 0), cols], 0)
-        r0 = last_below[np.maximum(k1 - 1, 0), cols]
+        low = below[np.maximum(last, 0), cols] & (last >= 0)
+        n_runs = (low[1:] > low[:-1]).sum(axis=0) + low[0]
+        k0 = low.argmax(axis=0)
+        k1 = m - low[::-1].argmax(axis=0)
+        # the state is free just before k0 and in the lug state just before k1, so the last
+        # sample outside the band there is the one above (if any) / below the band
+        f0 = np.maximum(last[np.maximum(k0 - 1, 0), cols], 0)
+        r0 = last[np.maximum(k1 - 1, 0), cols]
         return n_runs.tolist(), k0.tolist(), k1.tolist(), f0.tolist(), r0.tolist()
+
+    def _rows(self, m: int) -> np.ndarray:
+        """Column of the sample indices 0..m-1 (cached: a passage's length repeats)."""
+        if len(self._rows_cache) < m:
+            self._rows_cache = np.arange(max(m, 2 * len(self._rows_cache)))[:, None]
+        return self._rows_cache[:m]
 
     def _sensor(self, t: np.ndarray, lev: np.ndarray, edges) -> tuple[int, float, float, int, float] | None:
         """(value, t_ref, v, n_crossings, fit residual [m]) of one sensor's lug passage, None
@@ -542,7 +549,7 @@ class LrlDecoder(Decoder):
         ts = np.array(t_fall + t_rise)
         dt = t[1] - t[0] if len(t) > 1 else 0.0
         fit = np.polyfit(refs, ts, 1)
-        rms = float(np.sqrt(np.mean((ts - np.polyval(fit, refs)) ** 2)))
+        rms = math.sqrt(((ts - np.polyval(fit, refs)) ** 2).sum() / len(ts))   # as np.sqrt(np.mean())
         fit_err = 0.0
         if rms * abs(1.0 / fit[0]) > abs(1.0 / fit[0]) * dt / math.sqrt(12.0) * 2.0 + 0.001:
             fit = np.polyfit(refs, ts, 2)     # accelerating / braking over the lug
@@ -557,8 +564,8 @@ class LrlDecoder(Decoder):
         win = READ_HALF * abs(slope0)
         if self.mode == "single":
             # P1..P4 are all read at t_ref
-            rows = self._read_rows(t, t_ref, win)
-            bits = [_median(lev[rows, ch].tolist()) < thr for ch in range(4)]
+            read = lev[self._read_rows(t, t_ref, win), :4].T.tolist()
+            bits = [_median(levels) < thr for levels in read]
         else:
             read_t = np.polyval(fit, (np.arange(4) - 1.5) * p["bit_pitch"])
             bits = [_median(lev[self._read_rows(t, read_t[j], win), 4].tolist()) < thr for j in range(4)]

@@ -102,9 +102,7 @@ class DopplerDecoder(Decoder):
 
     def decode(self, block: RawBlock):
         p = self.params
-        data = block.data.astype(float)
-        fd = data[:, block.channels.index("doppler_shift")]
-        snr = data[:, block.channels.index("snr")]
+        fd, snr = block.channel("doppler_shift").astype(float), block.channel("snr").astype(float)
         good = snr >= p["snr_threshold"]
         n_samples = len(good)
         n = int(np.count_nonzero(good))
@@ -122,6 +120,7 @@ class DopplerDecoder(Decoder):
         sigma = math.sqrt((p["spread"] * v) ** 2 / n + (p["scale_sigma"] * v) ** 2 + p["bias"] ** 2)
         t_mid = block.t0 + (i_mean + 0.5) / block.sample_rate
         return [SpeedMeasurement(float(t_mid), self.sensor, self.unit_id, v, max(sigma, 0.01))]
+
 
 SPEC = SensorSpec(
     node="doppler_radar", sensor="doppler", simulator=DopplerSimulator, decoder=DopplerDecoder,

@@ -377,7 +377,7 @@ class PatternBeltDecoder(Decoder):
         out = np.empty((n + 1, env.shape[1]), dtype=np.int64)
         out[0] = self._y
         out[1:] = on
-        y = out[last, self._cols[:env.shape[1]]]
+        y = out[last, self._cols]
         self._y = y[-1].copy()
         return y
 
@@ -474,6 +474,7 @@ class PatternBeltDecoder(Decoder):
                                 "switched on: stuck channel or mis-set thresholds")
         return increment_or_reject(self.counter, self.estimator, res, fs, max(1, 0.1 * res.transitions),
                                    "state changes", "coil")
+
 
 SPEC = SensorSpec(
     node="pattern_belt", sensor="pattern_belt", simulator=PatternBeltSimulator, decoder=PatternBeltDecoder,

@@ -660,6 +660,7 @@ class WheelDecoder(Decoder):
             self._offsets_cache = np.arange(n) / fs
         return self._offsets_cache
 
+
 SPEC = SensorSpec(
     node="wheel_sensor", sensor="wheel", simulator=WheelSimulator, decoder=WheelDecoder,
     params=PARAMS, description="on-board wheel pulse generator (quadrature): signed distance increments "

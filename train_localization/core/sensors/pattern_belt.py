@@ -388,9 +388,12 @@ class PatternBeltDecoder(Decoder):
         mean if several switched, half a sample before the sample if none did.
         ``env_before``, ``y_before``: the last envelopes and outputs of the previous block.
 
-        Called for the few samples where the state changes, so plain Python; the mean of
-        three crossings is left to the vectorised version (the order of the sum matters).
+        Called for the samples where the state changes: usually a few, so plain Python;
+        many (high speed) or a mean of three crossings (the order of the sum matters) are
+        left to the vectorised version.
         """
+        if len(k) > 20:
+            return self._crossing_times_all(times, env, y, y_before, env_before, dt)[k]
         on, off = self.params["threshold_on"], self.params["threshold_off"]
         prev_env, prev_y = env[k - 1].tolist(), y[k - 1].tolist()
         if k[0] == 0:

@@ -110,7 +110,7 @@ class DopplerDecoder(Decoder):
         if not n:
             return []
         if n == n_samples:      # the usual block: all samples valid
-            v = float(fd.mean()) / self._k
+            v = float(np.add.reduce(fd)) / n / self._k   # the mean as np.mean computes it
             i_mean = (n - 1) / 2                    # mean sample index (exact, as np.mean)
         else:
             v = float(np.mean(fd[good])) / self._k

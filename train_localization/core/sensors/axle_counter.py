@@ -359,6 +359,8 @@ class AxleCounterDecoder(Decoder):
 
     # -- decoding ---------------------------------------------------------------------
     def _check(self, block: RawBlock):
+        """Channel layout and range check; returns the per-channel minima and maxima of the
+        block (lists of floats)."""
         if block.channels != self.expected:
             known = set(self.head_ids)
             for name in block.channels:
@@ -366,18 +368,53 @@ class AxleCounterDecoder(Decoder):
                 if head not in known or system not in ("a", "b"):
                     raise InputRejected("unknown_id", f"channel {name!r} is not a head of this axle counter")
             raise InputRejected("channels", f"channels {block.channels} differ from {self.expected}")
-        if np.any(block.data < -1.0) or np.any(block.data > 3.0):
+        c_min, c_max = block.data.min(axis=0).tolist(), block.data.max(axis=0).tolist()
+        if min(c_min) < -1.0 or max(c_max) > 3.0:
             raise InputRejected("implausible", "normalised damping outside -1..3")
+        return c_min, c_max
 
     def decode(self, block: RawBlock):
-        self._check(block)
+        c_min, c_max = self._check(block)
         p = self.params
         self._fs = block.sample_rate
-        x = block.data.astype(float)
-        n, nc = x.shape
+        n = block.data.shape[0]
         dt = 1.0 / block.sample_rate
         t0 = block.t0
         on_thr, off_thr = p["threshold_on"], p["threshold_off"]
+        # Usually no wheel is near any head: a system that is free and stays below the
+        # on-level, or is damped and stays at or above it, has no switching and no on-level
+        # crossing in the block, so there are no events.
+        if all(mx < on_thr if not on else mn >= on_thr for mn, mx, on in zip(c_min, c_max, self._state.tolist())):
+            self._last_x = block.data[-1].astype(float)
+            passages = []
+        else:
+            passages = self._passages(block, n, dt, t0, on_thr, off_thr)
+        out = []
+        if self._force_report or self._last_report is None:
+            out.append(self.occupancy(t0))
+            self._reported_states = self.section_states()
+            self._last_report = t0
+            self._force_report = False
+        passages.sort(key=lambda q: q[0])
+        for t_done, hi, d, t_c, v in passages:
+            fix = self._count(hi, d, t_c, v)
+            if fix is not None:
+                out.append(fix)
+            states = self.section_states()
+            if states != self._reported_states:
+                out.append(self.occupancy(t_done))
+                self._reported_states = states
+                self._last_report = t_done
+        t_last = t0 + (n - 1) * dt
+        if t_last - self._last_report >= p["report_period"] - 1e-9:
+            out.append(self.occupancy(t_last))
+            self._last_report = t_last
+        return out
+
+    def _passages(self, block: RawBlock, n: int, dt: float, t0: float, on_thr: float, off_thr: float) -> list:
+        """Switching events of the block -> completed axle passages (see _evaluate)."""
+        x = block.data.astype(float)
+        nc = x.shape[1]
         # hysteresis, vectorised: carry the last defined state forward
         on = x >= on_thr
         defined = on | (x < off_thr)
@@ -433,27 +470,7 @@ class AxleCounterDecoder(Decoder):
                     passage = self._evaluate(hi, ep, t0 + i * dt)
                     if passage is not None:
                         passages.append(passage)
-        out = []
-        if self._force_report or self._last_report is None:
-            out.append(self.occupancy(t0))
-            self._reported_states = self.section_states()
-            self._last_report = t0
-            self._force_report = False
-        passages.sort(key=lambda q: q[0])
-        for t_done, hi, d, t_c, v in passages:
-            fix = self._count(hi, d, t_c, v)
-            if fix is not None:
-                out.append(fix)
-            states = self.section_states()
-            if states != self._reported_states:
-                out.append(self.occupancy(t_done))
-                self._reported_states = states
-                self._last_report = t_done
-        t_last = t0 + (n - 1) * dt
-        if t_last - self._last_report >= p["report_period"] - 1e-9:
-            out.append(self.occupancy(t_last))
-            self._last_report = t_last
-        return out
+        return passages
 
     def _evaluate(self, hi: int, ep: _Episode, t_done: float):
         """(t_done, head, direction, t_centre, speed) of a valid axle sequence, else None."""

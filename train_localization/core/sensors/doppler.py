@@ -95,20 +95,30 @@ class DopplerDecoder(Decoder):
     sensor = "doppler"
     channels = DopplerSimulator.channels
 
+    def __init__(self, params, track):
+        super().__init__(params, track)
+        p = self.params
+        self._k = 2.0 * p["carrier_frequency"] * math.cos(math.radians(p["mount_angle"])) / C  # f_d per m/s [Hz s/m]
+
     def decode(self, block: RawBlock):
         p = self.params
         fd, snr = block.channel("doppler_shift").astype(float), block.channel("snr").astype(float)
         good = snr >= p["snr_threshold"]
-        self.stats["invalid_samples"] = self.stats.get("invalid_samples", 0) + int((~good).sum())
-        if not good.any():
+        n_samples = len(good)
+        n = int(np.count_nonzero(good))
+        self.stats["invalid_samples"] = self.stats.get("invalid_samples", 0) + (n_samples - n)
+        if not n:
             return []
-        k = 2.0 * p["carrier_frequency"] * math.cos(math.radians(p["mount_angle"])) / C
-        v = float(np.mean(fd[good])) / k
-        n = int(good.sum())
+        if n == n_samples:      # the usual block: all samples valid
+            v = float(np.add.reduce(fd)) / n / self._k   # the mean as np.mean computes it
+            i_mean = (n - 1) / 2                    # mean sample index (exact, as np.mean)
+        else:
+            v = float(np.mean(fd[good])) / self._k
+            i_mean = float(np.flatnonzero(good).mean())
         if abs(v) > 200.0:
             raise InputRejected("implausible", f"Doppler speed {v:.1f} m/s is beyond any vehicle")
         sigma = math.sqrt((p["spread"] * v) ** 2 / n + (p["scale_sigma"] * v) ** 2 + p["bias"] ** 2)
-        t_mid = block.t0 + (np.flatnonzero(good).mean() + 0.5) / block.sample_rate
+        t_mid = block.t0 + (i_mean + 0.5) / block.sample_rate
         return [SpeedMeasurement(float(t_mid), self.sensor, self.unit_id, v, max(sigma, 0.01))]
 
 

@@ -431,16 +431,25 @@ class EurobaliseDecoder(Decoder):
 
     def decode(self, block: RawBlock):
         p = self.params
-        f = block.channel("field_strength").astype(float)
-        tel = block.channel("telegram").astype(float)
-        if np.any(f < -10 * p["field_noise"]) or np.any(f > 20.0 * self._peak_nominal):
-            raise InputRejected("implausible", f"field strength {f.min():.3g}..{f.max():.3g} A/m is outside "
+        f32 = block.channel("field_strength")
+        tel32 = block.channel("telegram")
+        f_min, f_max = float(f32.min()), float(f32.max())
+        if f_min < -10 * p["field_noise"] or f_max > 20.0 * self._peak_nominal:
+            raise InputRejected("implausible", f"field strength {f_min:.3g}..{f_max:.3g} A/m is outside "
                                                f"what a balise can produce")
-        if np.any((tel < 0) | (tel > NID_MAX) | (tel != np.round(tel))):
-            raise InputRejected("implausible", "telegram channel holds a value that is no 14-bit id")
-        t = block.times()
+        any_tel = np.count_nonzero(tel32) > 0
+        if any_tel:
+            tel = tel32.astype(float)
+            if np.any((tel < 0) | (tel > NID_MAX) | (tel != np.round(tel))):
+                raise InputRejected("implausible", "telegram channel holds a value that is no 14-bit id")
         on = min(p["detect_level"], 0.5 * p["read_threshold"])   # the readable window lies inside
         off = 0.8 * on
+        if not (self._active or any_tel or f_max > on):
+            return []   # the usual block: no balise near, no telegram
+        f = f32.astype(float)
+        if not any_tel:
+            tel = tel32.astype(float)
+        t = block.times()
         out: list[PositionFix] = []
         errors: list[InputRejected] = []
         i, n = 0, len(f)

@@ -204,7 +204,11 @@ def space_vector(data: np.ndarray, n_pairs: int) -> tuple[np.ndarray, np.ndarray
     data = np.asarray(data, dtype=float)
     if n_pairs == 6:
         data = 0.5 * (data[:, :3] - data[:, 3:6])
-    u, v, w = data[:, 0], data[:, 1], data[:, 2]
+    return _clarke(data[:, 0], data[:, 1], data[:, 2])
+
+
+def _clarke(u, v, w):
+    """(phase, amplitude, zero sequence) of the pair voltages u, v, w (see space_vector)."""
     alpha = (2.0 / 3.0) * (u - 0.5 * (v + w))
     beta = (v - w) / SQRT3
     return np.arctan2(beta, alpha), np.hypot(alpha, beta), (u + v + w) / 3.0
@@ -313,18 +317,24 @@ def _wrap(a: float) -> float:
     return (a + math.pi) % TWO_PI - math.pi
 
 
-def _unwrap(p: np.ndarray) -> np.ndarray:
-    """np.unwrap(p) for a 1-D array (same arithmetic, without its generic-axis overhead)."""
+def _unwrap(p: np.ndarray, dd: np.ndarray, ddmod: np.ndarray) -> np.ndarray:
+    """np.unwrap(p) for a 1-D array (same arithmetic, without its generic-axis overhead),
+    given its steps dd = p[1:] - p[:-1] and ddmod = mod(dd + pi, 2 pi) - pi (not modified)."""
     if len(p) < 2:
         return p.astype(float)
-    dd = p[1:] - p[:-1]
-    ddmod = np.mod(dd + math.pi, TWO_PI) - math.pi
-    np.copyto(ddmod, math.pi, where=(ddmod == -math.pi) & (dd > 0))
+    if _any(ddmod == -math.pi):   # a step of exactly +-pi (rare)
+        ddmod = np.where((ddmod == -math.pi) & (dd > 0), math.pi, ddmod)
     ph_correct = ddmod - dd
     np.copyto(ph_correct, 0.0, where=np.abs(dd) < math.pi)
     up = p.astype(float)
-    up[1:] = p[1:] + ph_correct.cumsum()
+    up[1:] += ph_correct.cumsum()
     return up
+
+
+# ndarray.any/all/sum/min/max go through Python wrappers (numpy 2); the decoder, called for
+# every block with small arrays, calls the ufunc reductions directly
+_sum, _any, _all = np.add.reduce, np.logical_or.reduce, np.logical_and.reduce
+_max, _min, _fmax = np.maximum.reduce, np.minimum.reduce, np.fmax.reduce
 
 
 class InpoDecoder(Decoder):
@@ -338,6 +348,7 @@ class InpoDecoder(Decoder):
         self.expected = self.pairs + ("receiver",)
         self.sections = {s["receiver"]: s for s in section_table(track, params["period"])}
         self._known_rx = set(self.sections) | {0}
+        self._offsets: dict = {}
         # state carried between blocks
         self._t_last: float | None = None   # time of the last processed sample [s]
         self._in = False                     # hysteresis state of the last sample
@@ -353,34 +364,66 @@ class InpoDecoder(Decoder):
 
     # --- helpers -----------------------------------------------------------------
     def _check(self, block: RawBlock):
+        """(theta, amp, receiver, all strong, phase steps, wrapped phase steps) of a block;
+        raises InputRejected for a bad block. ``receiver`` is an int if one receiver carries
+        the whole block (the common case, checked once), else an array. Tests "any sample
+        above a limit" use the NaN-ignoring maximum (np.fmax), "all samples above" the
+        NaN-propagating minimum: one reduction each, a NaN sample passes as before."""
         p = self.params
         if block.channels != self.expected:
             raise InputRejected("channels", f"INPO channels {block.channels}, expected {self.expected}")
-        volts = block.data[:, : self.n_pairs].astype(float)
-        rx_f = block.channel("receiver").astype(float)
-        rx = np.rint(rx_f).astype(int)
-        if (np.abs(rx_f - rx) > 1e-3).any():
-            raise InputRejected("implausible", "receiver number is not an integer")
-        unknown = set(rx.tolist()) - self._known_rx
-        if unknown:
-            raise InputRejected("unknown_id", f"unknown INPO receiver(s) {sorted(unknown)}")
-        if (np.abs(volts) >= p["adc_range"]).any():
+        rows = block.data.T.astype(float, order="C")   # channel-major: pairs, then the receiver
+        volts, rx_f = rows[: self.n_pairs], rows[self.n_pairs]
+        r0 = float(rx_f[0])
+        if math.isfinite(r0) and _all(rx_f == r0):
+            rx = round(r0)   # = np.rint (half to even)
+            if abs(r0 - rx) > 1e-3:
+                raise InputRejected("implausible", "receiver number is not an integer")
+            if rx not in self._known_rx:
+                raise InputRejected("unknown_id", f"unknown INPO receiver(s) {[rx]}")
+        else:
+            rx = np.rint(rx_f).astype(int)
+            if _any(np.abs(rx_f - rx) > 1e-3):
+                raise InputRejected("implausible", "receiver number is not an integer")
+            unknown = set(rx.tolist()) - self._known_rx
+            if unknown:
+                raise InputRejected("unknown_id", f"unknown INPO receiver(s) {sorted(unknown)}")
+        if _fmax(np.abs(volts), axis=None) >= p["adc_range"]:
             raise InputRejected("implausible", f"envelope voltage at the {p['adc_range']} V limit (saturated)")
-        theta, amp, zero = space_vector(volts, self.n_pairs)
+        if self.n_pairs == 6:
+            volts = 0.5 * (volts[:3] - volts[3:6])
+        theta, amp, zero = _clarke(volts[0], volts[1], volts[2])
         e0 = p["amplitude"]
-        if (amp > p["max_amplitude"] * e0).any():
+        if _fmax(amp) > p["max_amplitude"] * e0:
             raise InputRejected("implausible", f"loop signal {amp.max():.2f} V beyond {p['max_amplitude']} x E0")
-        strong = amp > p["on_threshold"] * e0
-        if (strong & (np.abs(zero) > p["zero_sequence_limit"] * e0)).any():
+        on = p["on_threshold"] * e0
+        all_strong = bool(_min(amp) > on)
+        one_rx = isinstance(rx, int)
+        strong = None if all_strong and one_rx else amp > on
+        lim = p["zero_sequence_limit"] * e0
+        if (_fmax(np.abs(zero)) > lim) if strong is None else _any(strong & (np.abs(zero) > lim)):
             raise InputRejected("implausible", "zero-sequence voltage: a loop pair is broken or stuck")
-        if (strong & (rx == 0)).any():
+        if one_rx:
+            no_rx = rx == 0 and (all_strong or bool(_any(strong)))
+        else:
+            no_rx = _any(strong & (rx == 0))
+        if no_rx:
             raise InputRejected("implausible", "loop signal without a selected receiver")
-        both = strong[1:] & strong[:-1] & (rx[1:] == rx[:-1])
         d = theta[1:] - theta[:-1]
-        step = np.abs(np.mod(d + math.pi, TWO_PI) - math.pi) / TWO_PI   # |wrapped phase step|
-        if (both & (step > p["max_step"])).any():
-            raise InputRejected("implausible", f"phase step {step[both].max():.2f} periods per sample")
-        return theta, amp, rx
+        dmod = np.mod(d + math.pi, TWO_PI) - math.pi
+        step = np.abs(dmod) / TWO_PI   # |wrapped phase step|
+        if strong is None:
+            both = None   # every step is between strong samples of one receiver
+            bad = _fmax(step) > p["max_step"]
+        else:
+            both = strong[1:] & strong[:-1]
+            if not one_rx:
+                both &= rx[1:] == rx[:-1]
+            bad = _any(both & (step > p["max_step"]))
+        if bad:
+            raise InputRejected("implausible", f"phase step {(step if both is None else step[both]).max():.2f} "
+                                               f"periods per sample")
+        return theta, amp, rx, all_strong, d, dmod
 
     def _hysteresis(self, amp, first_in: bool):
         e0 = self.params["amplitude"]
@@ -390,12 +433,40 @@ class InpoDecoder(Decoder):
         np.maximum.accumulate(idx, out=idx)
         return np.where(idx >= 0, ev[np.maximum(idx, 0)] == 1, first_in)
 
+    def _runs(self, amp, rx, all_strong: bool, first_in: bool):
+        """[(i0, i1, inside, receiver)] of the runs of samples with one hysteresis state
+        (inside a section: above on_threshold since the last sample below off_threshold,
+        and a receiver) and one receiver."""
+        n = len(amp)
+        if isinstance(rx, int):   # one receiver: usually one run
+            if rx == 0:
+                return [(0, n, False, 0)]
+            if all_strong:
+                return [(0, n, True, rx)]
+            if _all(amp < self.params["off_threshold"] * self.params["amplitude"]):
+                return [(0, n, False, rx)]
+            rx = np.full(n, rx)
+        inside = self._hysteresis(amp, first_in)
+        inside &= rx > 0
+        change = ((inside[1:] != inside[:-1]) | (rx[1:] != rx[:-1])).nonzero()[0] + 1
+        bounds = [0, *change.tolist(), n]
+        inside_l, rx_l = inside.tolist(), rx.tolist()
+        return [(i0, i1, inside_l[i0], rx_l[i0]) for i0, i1 in zip(bounds[:-1], bounds[1:])]
+
+    def _sample_offsets(self, n: int, rate: float) -> np.ndarray:
+        """Sample times - t0 [s] of a block, cached per (n, sample rate)."""
+        offsets = self._offsets.get((n, rate))
+        if offsets is None:
+            offsets = self._offsets[n, rate] = np.arange(n) / rate
+            offsets.flags.writeable = False
+        return offsets
+
     # --- decoding ---------------------------------------------------------------
     def decode(self, block: RawBlock):
         p = self.params
-        theta, amp, rx = self._check(block)  # raises before any state changes
+        theta, amp, rx, all_strong, d, dmod = self._check(block)  # raises before any state changes
         n = block.n_samples
-        t = block.times()
+        t = block.t0 + self._sample_offsets(n, block.sample_rate)   # = block.times()
         dt = 1.0 / block.sample_rate
         mode, w_last, theta_last = self._mode, self._w_last, self._theta_last
         w_entry, offset, rate, prev_in, prev_rx = self._w_entry, self._offset, self._rate, self._in, self._rx
@@ -411,22 +482,16 @@ class InpoDecoder(Decoder):
                 if mode in ("track", "pending"):
                     counts["count_lost"] += 1
                 mode, prev_in = "lost", False
-        inside = self._hysteresis(amp, prev_in)
-        inside &= rx > 0
-        # runs of constant (inside, receiver)
-        change = np.flatnonzero((inside[1:] != inside[:-1]) | (rx[1:] != rx[:-1])) + 1
-        bounds = np.concatenate([[0], change, [n]])
-        u = np.full(n, np.nan)
-        sec_of = np.zeros(n, dtype=int)
-        for i0, i1 in zip(bounds[:-1], bounds[1:]):
-            r = int(rx[i0])
-            if not inside[i0]:
+        runs = self._runs(amp, rx, all_strong, prev_in)
+        tracked = []   # (i0, i1, receiver, u [periods from the section start], u has NaN)
+        for i0, i1, inside, r in runs:
+            if not inside:
                 mode = "out"  # an observed low-amplitude sample: ready for the next entry
                 prev_in, prev_rx = False, r
                 continue
             section = self.sections[r]
             per = section["period"]
-            w = _unwrap(theta[i0:i1]) / TWO_PI
+            w = _unwrap(theta[i0:i1], d[i0:i1 - 1], dmod[i0:i1 - 1]) / TWO_PI
             first_of_block = i0 == 0
             continues = prev_in and prev_rx == r and mode in ("track", "pending")
             if first_of_block and not (contiguous or bridge):
@@ -449,9 +514,9 @@ class InpoDecoder(Decoder):
             if mode == "pending":
                 moved = np.flatnonzero(np.abs(w - w_entry) >= 0.25)
                 if moved.size:
-                    d = np.sign(w[moved[0]] - w_entry)
+                    d_dir = np.sign(w[moved[0]] - w_entry)
                     frac = w_entry - math.floor(w_entry)
-                    if d > 0:   # entered at the section start
+                    if d_dir > 0:   # entered at the section start
                         u_entry = frac - round(frac)
                     else:       # entered at the section end
                         n_end = (section["end"] - section["start"]) / per
@@ -462,57 +527,64 @@ class InpoDecoder(Decoder):
                 u_run = w + offset
                 slack = p["antenna_length"] / per + 0.5
                 n_end = (section["end"] - section["start"]) / per
-                if u_run.min() < -slack or u_run.max() > n_end + slack:
+                lo = _min(u_run)
+                if lo < -slack or _max(u_run) > n_end + slack:
                     # the count says the antenna is off the loops while they still see it: the
                     # count is wrong (e.g. a slip during a bridged gap); wait for the next entry
                     mode = "lost"
                     counts["count_lost"] += 1
                 else:
-                    u[i0:i1] = u_run
-                    sec_of[i0:i1] = r
-            if i1 - i0 >= 2:
-                rate = float((w[-1] - w[0]) / (t[i1 - 1] - t[i0]))
+                    tracked.append((i0, i1, r, u_run, lo != lo))
             w_last, theta_last = float(w[-1]), float(theta[i1 - 1])
+            if i1 - i0 >= 2:
+                rate = (w_last - float(w[0])) / float(t[i1 - 1] - t[i0])
             prev_in, prev_rx = True, r
         # commit state
         self._mode, self._w_last, self._theta_last = mode, w_last, theta_last
         self._w_entry, self._offset, self._rate = w_entry, offset, rate
-        self._in, self._rx, self._t_last = bool(inside[-1]), int(rx[-1]), float(t[-1])
+        self._in, self._rx, self._t_last = runs[-1][2], runs[-1][3], float(t[-1])
         for key, value in counts.items():
             if value:
                 self.stats[key] += value
-        return self._fixes(block, t - p["detector_delay"], u, sec_of)
+        return self._fixes(t, n, tracked) if tracked else []
 
-    def _fixes(self, block, t, u, sec_of):
+    def _fixes(self, t, n, tracked):
+        """PositionFixes of the tracked runs (i0, i1, receiver, u, has NaN) of a block with the
+        sample times t [s]: one per fix_samples samples (0: per block) and section."""
         p = self.params
-        n = len(t)
+        t = t - p["detector_delay"]
         chunk = int(p["fix_samples"]) or n
         out = []
         for c0 in range(0, n, chunk):
-            if chunk >= n:
-                u_c, s_c, t_c = u, sec_of, t
-            else:
-                sl = slice(c0, min(n, c0 + chunk))
-                u_c, s_c, t_c = u[sl], sec_of[sl], t[sl]
-            ok = u_c == u_c                      # not NaN
-            if ok.sum() < p["min_fix_samples"]:
+            c1 = min(n, c0 + chunk)
+            # per section: the tracked samples of the chunk as (times, u) pieces in time order
+            pieces: dict = {}
+            for i0, i1, r, u, has_nan in tracked:
+                a, b = max(i0, c0), min(i1, c1)
+                if a < b:
+                    t_p, u_p = t[a:b], u[a - i0:b - i0]
+                    if has_nan:   # a NaN sample is not tracked
+                        keep = u_p == u_p
+                        t_p, u_p = t_p[keep], u_p[keep]
+                    pieces.setdefault(r, []).append((t_p, u_p))
+            if sum(len(u_p) for ps in pieces.values() for _, u_p in ps) < p["min_fix_samples"]:
                 continue
-            secs = s_c[ok]
-            if not secs.size:
-                continue
-            single = secs[0] == secs[-1] and (secs == secs[0]).all()
-            for r in ([int(secs[0])] if single else np.unique(secs).tolist()):
-                m = ok if single else ok & (s_c == r)
-                k = int(m.sum())
-                if k < p["min_fix_samples"]:
+            for r in sorted(pieces):
+                ps = pieces[r]
+                k = sum(len(u_p) for _, u_p in ps)
+                if k < p["min_fix_samples"] or not k:
                     continue
+                if len(ps) == 1:
+                    tt, u_r = ps[0]
+                else:
+                    tt, u_r = np.concatenate([t_p for t_p, _ in ps]), np.concatenate([u_p for _, u_p in ps])
                 sec = self.sections[r]
                 per = sec["period"]
-                tt = t_c[m]
-                x = sec["start"] + u_c[m] * per + p["antenna_offset"]
-                tm = float(tt.sum() / k)
+                x = sec["start"] + u_r * per + p["antenna_offset"]
+                tm = float(_sum(tt) / k)
                 dtt = tt - tm
-                slope = float(np.dot(dtt, x - x.sum() / k) / max(np.dot(dtt, dtt), 1e-12))
+                xm = _sum(x) / k
+                slope = float(np.dot(dtt, x - xm) / max(np.dot(dtt, dtt), 1e-12))
                 direction = int(np.sign(slope)) if abs(slope) > 0.05 else 0
                 span = abs(slope) * (tt[-1] - tt[0])
                 sigma_s = per * p["accuracy_deg"] / 360.0 / 2.5
@@ -521,7 +593,7 @@ class InpoDecoder(Decoder):
                 bias2 = p["survey_sigma"] ** 2 + p["skew_sigma"] ** 2 / self.n_pairs
                 sigma = math.sqrt(sigma_s ** 2 * (periodic ** 2 + 1.0 / k) + bias2)
                 out.append(PositionFix(tm, self.sensor, self.unit_id, self.track.track_id, sec["id"],
-                                       float(x.sum() / k), max(sigma, 1e-4), direction))
+                                       float(xm), max(sigma, 1e-4), direction))
         self.stats["fixes"] += len(out)
         return out
 

@@ -220,6 +220,16 @@ class LrlSimulator(Simulator):
         self.channels = _channels(self.mode, self.n_sensors)
         self.units = ("1",) * len(self.channels)
         self.offsets = channel_offsets(self.mode, p["bit_pitch"])
+        # channels timed by _sensor: (index, half-length of the lug part it sees [m], whether
+        # it may see several runs of which the first and last count)
+        if self.mode == "single":
+            self._chans = [(4, D0_HALF, False)] + [(i, PLATE_HALF, True) for i in range(4)]
+        else:
+            half_tab = 0.5 * (p["bit_pitch"] + 0.05)
+            self._chans = [(i, half_tab, False) for i in range(4)]
+        offs = [float(self.offsets[ch]) for ch, _, _ in self._chans]
+        self._chan_order = np.argsort(offs).tolist()
+        self._chan_half_off = [(half, off) for (_, half, _), off in zip(self._chans, offs)]
         pos, bits = [], []
         for item, code, spacing in track_groups(self.track, p):
             for k, value in enumerate(code):
@@ -304,10 +314,12 @@ def hysteresis(lev: np.ndarray, lo: float, hi: float, init: np.ndarray) -> np.nd
     return np.where(idx >= 0, st[np.maximum(idx, 0), np.arange(c)[None, :]] == 1, init[None, :])
 
 
-def _runs(low: np.ndarray) -> list[tuple[int, int]]:
-    """[start, end) index ranges of True runs."""
-    d = np.diff(np.r_[0, low.astype(np.int8), 0])
-    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
+def _median(values: list) -> float:
+    """Median of a non-empty list of floats, as np.median (the mean of the two middle
+    values for an even count)."""
+    v = sorted(values)
+    h = len(v) // 2
+    return v[h] if len(v) % 2 else (v[h - 1] + v[h]) / 2
 
 
 def _ramp_crossing(t: np.ndarray, lev: np.ndarray, i0: int, i1: int, thr: float) -> float:
@@ -343,6 +355,16 @@ class LrlDecoder(Decoder):
         self.n_sensors = int(p["n_sensors"])
         self.expected = _channels(self.mode, self.n_sensors)
         self.offsets = channel_offsets(self.mode, p["bit_pitch"])
+        # channels timed by _sensor: (index, half-length of the lug part it sees [m], whether
+        # it may see several runs of which the first and last count)
+        if self.mode == "single":
+            self._chans = [(4, D0_HALF, False)] + [(i, PLATE_HALF, True) for i in range(4)]
+        else:
+            half_tab = 0.5 * (p["bit_pitch"] + 0.05)
+            self._chans = [(i, half_tab, False) for i in range(4)]
+        offs = [float(self.offsets[ch]) for ch, _, _ in self._chans]
+        self._chan_order = np.argsort(offs).tolist()
+        self._chan_half_off = [(half, off) for (_, half, _), off in zip(self._chans, offs)]
         self._groups: dict[tuple[int, ...], list[tuple[dict, float]]] = {}
         lengths = set()
         for item, code, spacing in track_groups(track, p):
@@ -356,8 +378,14 @@ class LrlDecoder(Decoder):
         self._seg: list[np.ndarray] = []
         self._seg_t: list[np.ndarray] = []
         self._seg_start = 0.0
-        self._hist_t = np.zeros(0)
-        self._hist = np.zeros((0, len(self.expected)))
+        self._state_any = False
+        # quiet samples before a passage, as (times, levels) chunks, oldest first: they
+        # are joined only when a passage starts
+        self._hist_chunks: list[tuple[np.ndarray, np.ndarray]] = []
+        self._hist_n = 0
+        self._offsets_key: tuple | None = None
+        self._offsets = np.zeros(0)
+        self._rows_cache = np.zeros((0, 1), dtype=np.intp)
         self._group: list[dict] = []
         self.stats = {"lugs": 0, "sensor_invalid": 0, "sensor_disagreements": 0, "unresolved_lugs": 0,
                       "groups": 0, "incomplete_groups": 0, "unknown_id": 0, "dropped_passages": 0}
@@ -369,17 +397,54 @@ class LrlDecoder(Decoder):
             raise InputRejected("channels", f"channels {block.channels} differ from the {self.mode}-scan "
                                             f"layout of {self.n_sensors} sensors")
         lev = block.data.astype(float)
-        if np.any(lev < -1.0) or np.any(lev > 3.0):
-            raise InputRejected("implausible", f"receive levels {lev.min():.2f}..{lev.max():.2f} are outside "
+        lev_min, lev_max = lev.min(), lev.max()
+        if lev_min < -1.0 or lev_max > 3.0:
+            raise InputRejected("implausible", f"receive levels {lev_min:.2f}..{lev_max:.2f} are outside "
                                                "0..1 plus noise")
-        t = block.times()
-        state = hysteresis(lev, self._lo, self._hi, self._state)
-        self._state = state[-1].copy()
-        act = state.any(axis=1)
+        n = len(lev)
+        if self._offsets_key != (n, block.sample_rate):
+            self._offsets_key = (n, block.sample_rate)
+            self._offsets = np.arange(n) / block.sample_rate
+        t = block.t0 + self._offsets      # sample times [s], as block.times()
         out: list[PositionFix] = []
         errors: list[InputRejected] = []
+        if not self._active and not self._state_any and lev_min >= self._lo:
+            # quiet block (most of them): no channel sees a lug, all of it is history
+            self._hist_chunks.append((t, lev))
+            self._hist_n += n
+            while self._hist_n - len(self._hist_chunks[0][0]) >= self.HISTORY:
+                self._hist_n -= len(self._hist_chunks.pop(0)[0])
+        else:
+            self._passages(t, lev, out, errors)
+        # a group whose next lug is overdue is closed
+        if self._group and not self._active:
+            g = self._group[-1]
+            if (block.t_end - g["t"]) * abs(g["v"]) > p["group_gap"]:
+                self._close_group(out, errors)
+        if errors and not out:
+            raise errors[0]
+        return out
+
+    def _history(self) -> tuple[np.ndarray, np.ndarray]:
+        """Times [s] and levels of the last (at most HISTORY) quiet samples."""
+        chunks = self._hist_chunks
+        if not chunks:
+            return np.zeros(0), np.zeros((0, len(self.expected)))
+        if len(chunks) > 1:
+            chunks[:] = [(np.concatenate([c[0] for c in chunks])[-self.HISTORY:],
+                          np.concatenate([c[1] for c in chunks])[-self.HISTORY:])]
+        return chunks[0]
+
+    def _passages(self, t: np.ndarray, lev: np.ndarray, out: list, errors: list) -> None:
+        """Lug passages of a block that is not quiet: channel states, passage segments
+        (with up to HISTORY quiet samples before each), one _lug per completed passage."""
+        state = hysteresis(lev, self._lo, self._hi, self._state)
+        self._state = state[-1].copy()
+        self._state_any = bool(self._state.any())
+        act = state.any(axis=1)
         i, n = 0, len(t)
-        hist_t, hist, q0 = self._hist_t, self._hist, 0     # quiet samples since the last passage
+        hist_t, hist = self._history()
+        q0 = 0     # quiet samples since the last passage
         while i < n:
             if not self._active:
                 nz = np.flatnonzero(act[i:])
@@ -405,23 +470,43 @@ class LrlDecoder(Decoder):
                 self._lug(np.concatenate(self._seg_t), np.vstack(self._seg), out, errors)
                 hist_t, hist, q0 = t[:0], lev[:0], j
         if self._active:
-            self._hist_t, self._hist = t[:0], lev[:0]
+            self._hist_chunks, self._hist_n = [], 0
         else:
-            self._hist_t = np.r_[hist_t, t[q0:]][-self.HISTORY:]
-            self._hist = np.vstack([hist, lev[q0:]])[-self.HISTORY:]
-        # a group whose next lug is overdue is closed
-        if self._group and not self._active:
-            g = self._group[-1]
-            if (block.t_end - g["t"]) * abs(g["v"]) > p["group_gap"]:
-                self._close_group(out, errors)
-        if errors and not out:
-            raise errors[0]
-        return out
+            hist_t = np.r_[hist_t, t[q0:]][-self.HISTORY:]
+            self._hist_chunks, self._hist_n = [(hist_t, np.vstack([hist, lev[q0:]])[-self.HISTORY:])], len(hist_t)
 
     # -- one lug passage --------------------------------------------------------------
-    def _sensor(self, t: np.ndarray, lev: np.ndarray) -> tuple[int, float, float, int, float] | None:
+    def _edges(self, lev: np.ndarray) -> tuple[list, list, list, list, list]:
+        """Per channel of a lug passage (all sensors at once): number of runs in the lug
+        state, start k0 of the first and end k1 (exclusive) of the last, the last sample
+        before k0 above the high level (0 if none; start of the falling ramp) and the last
+        sample before k1 below the low level (start of the rising ramp)."""
+        m, c = lev.shape
+        below, above = lev < self._lo, lev > self._hi
+        # hysteresis (as hysteresis() from the free state): the state follows the last
+        # sample outside the band, ``last`` (-1: none yet)
+        last = np.where(below | above, self._rows(m), -1)
+        np.maximum.accumulate(last, axis=0, out=last)
+        cols = np.arange(c)
+        low = below[np.maximum(last, 0), cols] & (last >= 0)
+        n_runs = (low[1:] > low[:-1]).sum(axis=0) + low[0]
+        k0 = low.argmax(axis=0)
+        k1 = m - low[::-1].argmax(axis=0)
+        # the state is free just before k0 and in the lug state just before k1, so the last
+        # sample outside the band there is the one above (if any) / below the band
+        f0 = np.maximum(last[np.maximum(k0 - 1, 0), cols], 0)
+        r0 = last[np.maximum(k1 - 1, 0), cols]
+        return n_runs.tolist(), k0.tolist(), k1.tolist(), f0.tolist(), r0.tolist()
+
+    def _rows(self, m: int) -> np.ndarray:
+        """Column of the sample indices 0..m-1 (cached: a passage's length repeats)."""
+        if len(self._rows_cache) < m:
+            self._rows_cache = np.arange(max(m, 2 * len(self._rows_cache)))[:, None]
+        return self._rows_cache[:m]
+
+    def _sensor(self, t: np.ndarray, lev: np.ndarray, edges) -> tuple[int, float, float, int, float] | None:
         """(value, t_ref, v, n_crossings, fit residual [m]) of one sensor's lug passage, None
-        if unusable.
+        if unusable. ``edges``: _edges of the sensor's 5 channels.
 
         Every threshold crossing of a sync or plate channel is a point (ref, t): the
         channel at offset o crosses the lug edge e when the sensor reference point is at
@@ -431,40 +516,40 @@ class LrlDecoder(Decoder):
         """
         p = self.params
         thr = p["threshold"]
-        low = hysteresis(lev, self._lo, self._hi, np.zeros(5, dtype=bool))
-        if self.mode == "single":
-            chans = [(4, D0_HALF, False)] + [(i, PLATE_HALF, True) for i in range(4)]
-        else:
-            half_tab = 0.5 * (p["bit_pitch"] + 0.05)
-            chans = [(i, half_tab, False) for i in range(4)]
-        t_fall, t_rise, offs, halves = [], [], [], []
-        for ch, half, first_last in chans:
-            runs = _runs(low[:, ch])
-            if not runs or (not first_last and len(runs) != 1):
+        n_runs, k0s, k1s, f0s, r0s = edges
+        chans = [ch for ch, _, _ in self._chans]
+        for ch, half, first_last in self._chans:
+            if not n_runs[ch] or (not first_last and n_runs[ch] != 1):
                 return None
-            k0, k1 = runs[0][0], runs[-1][1]
-            if k0 == 0 or k1 >= len(t):      # an edge was not seen
+            if k0s[ch] == 0 or k1s[ch] >= len(t):      # an edge was not seen
                 return None
-            x = lev[:, ch]
-            above = np.flatnonzero(x[:k0] > self._hi)
-            f0 = int(above[-1]) if above.size else 0
-            r0 = int(np.flatnonzero(x[:k1] < self._lo)[-1])
-            t_fall.append(_ramp_crossing(t, x, f0, k0, thr))
-            t_rise.append(_ramp_crossing(t, x, r0, k1, thr))
-            offs.append(self.offsets[ch])
-            halves.append(half)
-        t_fall, t_rise, offs, halves = map(np.array, (t_fall, t_rise, offs, halves))
-        centres = 0.5 * (t_fall + t_rise)
-        steps = np.diff(centres[np.argsort(offs)])
-        if not (np.all(steps > 0) or np.all(steps < 0)):
+        # the ramps: falling f0..k0, rising r0..k1; at speed most are two samples, for
+        # which the crossing is interpolated here from the samples fetched at once
+        ramps = [(f0s[ch], k0s[ch]) for ch in chans] + [(r0s[ch], k1s[ch]) for ch in chans]
+        idx = [i for ramp in ramps for i in ramp]
+        lv = lev[idx, [ch for ch in chans for _ in (0, 1)] * 2].tolist()
+        tv = t[idx].tolist()
+        t_cross = []
+        for k, (i0, i1) in enumerate(ramps):
+            if i1 - i0 == 1:
+                a, b = lv[2 * k], lv[2 * k + 1]
+                t0, t1 = tv[2 * k], tv[2 * k + 1]
+                t_cross.append(t1 if a == b else t0 + (a - thr) / (a - b) * (t1 - t0))
+            else:
+                t_cross.append(_ramp_crossing(t, lev[:, chans[k % len(chans)]], i0, i1, thr))
+        t_fall, t_rise = t_cross[:len(chans)], t_cross[len(chans):]
+        # centres of the channels' pulses, in the order of their offsets
+        centres = [0.5 * (t_fall[k] + t_rise[k]) for k in self._chan_order]
+        steps = [b - a for a, b in zip(centres[:-1], centres[1:])]
+        if not (all(x > 0 for x in steps) or all(x < 0 for x in steps)):
             return None                       # channels not passed in order (reversal, glitch)
         forward = steps[0] < 0                # the channel ahead (larger offset) sees the lug first
         sgn = 1.0 if forward else -1.0
-        refs = np.r_[-sgn * halves - offs, sgn * halves - offs]
-        ts = np.r_[t_fall, t_rise]
+        refs = np.array([-sgn * h - o for h, o in self._chan_half_off] + [sgn * h - o for h, o in self._chan_half_off])
+        ts = np.array(t_fall + t_rise)
         dt = t[1] - t[0] if len(t) > 1 else 0.0
         fit = np.polyfit(refs, ts, 1)
-        rms = float(np.sqrt(np.mean((ts - np.polyval(fit, refs)) ** 2)))
+        rms = math.sqrt(((ts - np.polyval(fit, refs)) ** 2).sum() / len(ts))   # as np.sqrt(np.mean())
         fit_err = 0.0
         if rms * abs(1.0 / fit[0]) > abs(1.0 / fit[0]) * dt / math.sqrt(12.0) * 2.0 + 0.001:
             fit = np.polyfit(refs, ts, 2)     # accelerating / braking over the lug
@@ -476,27 +561,37 @@ class LrlDecoder(Decoder):
         if abs(v) > 200.0:
             return None
         t_ref = float(np.polyval(fit, 0.0))
-        if self.mode == "single":
-            read_t, read_ch = np.full(4, t_ref), [0, 1, 2, 3]
-        else:
-            read_t, read_ch = np.polyval(fit, (np.arange(4) - 1.5) * p["bit_pitch"]), [4, 4, 4, 4]
-        value = 0
         win = READ_HALF * abs(slope0)
-        for j in range(4):
-            sel = np.abs(t - read_t[j]) <= win
-            if not sel.any():
-                sel = np.zeros(len(t), bool)
-                sel[int(np.argmin(np.abs(t - read_t[j])))] = True
-            bit = int(np.median(lev[sel, read_ch[j]]) < thr)
-            value |= bit << (3 - j)
+        if self.mode == "single":
+            # P1..P4 are all read at t_ref
+            read = lev[self._read_rows(t, t_ref, win), :4].T.tolist()
+            bits = [_median(levels) < thr for levels in read]
+        else:
+            read_t = np.polyval(fit, (np.arange(4) - 1.5) * p["bit_pitch"])
+            bits = [_median(lev[self._read_rows(t, read_t[j], win), 4].tolist()) < thr for j in range(4)]
+        value = 0
+        for j, bit in enumerate(bits):
+            value |= int(bit) << (3 - j)
         return value, t_ref, float(v), len(ts), fit_err
+
+    @staticmethod
+    def _read_rows(t: np.ndarray, t_read: float, win: float) -> np.ndarray:
+        """Samples within ``win`` [s] of t_read, else the nearest one."""
+        dist = np.abs(t - t_read)
+        sel = dist <= win
+        if not sel.any():
+            sel = np.zeros(len(t), bool)
+            sel[int(np.argmin(dist))] = True
+        return sel
 
     def _lug(self, t, lev, out, errors) -> None:
         p = self.params
         self.stats["lugs"] += 1
         reads = []
+        n_runs, k0, k1, f0, r0 = self._edges(lev)
         for s in range(self.n_sensors):
-            r = self._sensor(t, lev[:, 5 * s:5 * s + 5])
+            c = slice(5 * s, 5 * s + 5)
+            r = self._sensor(t, lev[:, c], (n_runs[c], k0[c], k1[c], f0[c], r0[c]))
             if r is None:
                 self.stats["sensor_invalid"] += 1
             else:

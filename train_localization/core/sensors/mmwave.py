@@ -104,7 +104,9 @@ plus the calibration term.
 """
 from __future__ import annotations
 
+import itertools
 import math
+import operator
 
 import numpy as np
 from scipy.special import chdtri
@@ -121,6 +123,11 @@ PRED_SIGMA = 0.25        # 1-sigma of the previous solution used for a predictio
 PRED_SPEED_SIGMA = 0.5   # 1-sigma speed error of the prediction [m/s] (slope over the history)
 PRED_ACCEL = 1.5         # largest acceleration of the train [m/s^2]
 SINGLE_HOLD = 0.3        # a single-station fix needs a previous solution younger than this [s]
+_BRANCH = np.array([-1.0, 1.0])[:, None, None]  # the two candidates s -+ along of a range
+# ndarray.sum/any/max/min go through Python wrappers (numpy 2); the decoder, called for every
+# block with small arrays, calls the ufunc reductions directly (axis 0 by default)
+_sum, _any, _all = np.add.reduce, np.logical_or.reduce, np.logical_and.reduce
+_max, _min = np.maximum.reduce, np.minimum.reduce
 SNR_NOISE_REF = 20.0  # SNR [dB] at which the SNR-dependent ranging term equals range_sigma_snr
 
 PARAMS = {
@@ -281,7 +288,35 @@ class MmWaveSimulator(Simulator):
         return out
 
 
+class _Pattern:
+    """What the station-code channels of a block determine (cached per code pattern).
+
+    Slot-major like the decoder's arrays: idx: station index per slot (0 for an empty slot),
+    s: its chainage [m], d2: its squared perpendicular distance [m^2], key: 4 x idx (the
+    station part of the per-epoch cache key of reference_id), all (N_SLOTS, n); s4 / d4: s
+    and d2 of station j repeated for every candidate, (N_SLOTS, 2, N_SLOTS, n) (same-shape
+    operands are cheaper than broadcast ones); lo / hi: (3 N_SLOTS, n) bounds that every
+    channel of a valid block with these codes meets (None for a block that took the
+    detailed checks); stations / loc: the stations in the block (ascending index) and each
+    slot's position in that list, epoch-major (n, N_SLOTS) (block fixes; set by _compact).
+    """
+
+    __slots__ = ("idx", "s", "d2", "s4", "d4", "key", "lo", "hi", "stations", "loc")
+
+
+def _picker(order: list[int]):
+    """Function list -> tuple of its items at the positions ``order`` (not empty)."""
+    if len(order) == 1:
+        j = order[0]
+        return lambda row: (row[j],)
+    return operator.itemgetter(*order)
+
+
 class MmWaveDecoder(Decoder):
+    """Decoder. Arrays over the epochs and slots of a block are slot-major, (N_SLOTS, n):
+    per-epoch values (n,) then broadcast without reshaping, and sums over the slots (axis 0)
+    add the slots in order, as a row sum does."""
+
     sensor = "mmwave"
     channels = CHANNELS
 
@@ -297,43 +332,102 @@ class MmWaveDecoder(Decoder):
         self._max_delay = 2.0 * max(params["max_range"], 1.0) / C_AIR + 1e-6
         # gate by the number of stations used (0..N_SLOTS): dof = n - 1, no test below 2 stations
         self._gate_n = np.concatenate([[np.inf], self._gate])
-        self._neg_slots = -np.arange(1, N_SLOTS + 1)
+        self._neg_slots = -np.arange(1, N_SLOTS + 1)[:, None]
         self._lut0 = self._lut.copy()
         self._lut0[0] = 0
-        self._lo_bound = np.tile([0.0, 0.0, -30.0], N_SLOTS)
-        self._hi_bound = np.tile([len(self._lut) - 1.0, self._max_delay, 100.0], N_SLOTS)
+        self._perp2 = self.perp * self.perp
+        # every predicted range is >= the station's perpendicular distance: with none below
+        # 0.1 mm the 1e-9 m guard of the partials can never act and is skipped
+        self._guard_pred = not (len(self.perp) and float(self.perp.min()) >= 1e-4)
+        # stations strictly by chainage: a block fix lists them in index order
+        self._pos_increasing = bool(np.all(self.pos[1:] > self.pos[:-1]))
+        self._patterns: dict = {}
         self._ref_cache: dict = {}
+        self._offsets: dict = {}   # sample times - t0 per (n, sample rate)
+        self._cols: dict = {}
         # range_sigma(snr)^2 + cal_sigma^2 = const + coef * exp(snr * expo)
         self._sig2_const = params["range_sigma_floor"] ** 2 + params["cal_sigma"] ** 2
         self._sig2_snr = (params["range_sigma_snr"] * 10.0 ** (SNR_NOISE_REF / 20.0)) ** 2
         self._sig2_exp = -math.log(10.0) / 10.0
+        # the 1 mm floor of sigma^2 can only act if the constant part is below it
+        self._sig2_floor = not self._sig2_const >= 1e-6
         self._z_gate = math.sqrt(float(chdtri(1, 1.0 - params["outlier_probability"])))
         self._prev_t: float | None = None
         self._prev_x: float | None = None
         self._prev_v = 0.0
-        self._hist_t = self._hist_x = self._hist_w = np.zeros(0)
+        self._speed_src = None   # history the speed _prev_v is still to be computed from
+        self._hist: list = []     # solutions of the last hold_time: per block (t, x, var, first t, last t)
+        self._hist_n = 0
+        self._hist_sorted = True  # history times ascending (blocks in time order)
         self.stats.update(epochs=0, fixes=0, rejected_stations=0, no_fix=0, ambiguous=0, inconsistent_single=0)
 
     # -- input checks -------------------------------------------------------------------
-    def _check(self, data, codes_f, delay, snr):
-        """(codes, present, station index) of a block; raises InputRejected for a bad block.
+    def _check(self, data, codes_f, delay, snr) -> _Pattern:
+        """Station pattern of a block (data: the channels, (3 N_SLOTS, n)); raises
+        InputRejected for a bad block.
 
-        A combined fast test of the whole block (few numpy calls); only a block that fails
-        it goes through the detailed checks, which give the reason.
+        The checks of the code channels depend on the codes only; they are cached per code
+        pattern (the same stations are in view for many blocks) together with the bounds
+        that every channel must then meet, so a good block costs one combined test. Only a
+        block that fails it goes through the detailed checks, which give the reason.
         """
-        lut = self._lut
-        # bounds of every channel at once (NaN fails too): code, delay, SNR per slot
-        if ((data >= self._lo_bound) & (data <= self._hi_bound)).all():
-            codes = codes_f.astype(np.int64)
-            k = self._lut0[codes]          # station index, 0 for an empty slot, -1 unknown code
-            present = codes > 0
-            if ((codes == codes_f).all() and (k >= 0).all()
-                    and not np.where(present, 0.0, delay + np.abs(snr)).any()):
-                srt = np.sort(np.where(present, codes, self._neg_slots), axis=1)
-                if not (srt[:, 1:] == srt[:, :-1]).any():
-                    return codes, present, k
-        codes, present = self._check_detail(codes_f, delay, snr)
-        return codes, present, np.where(present, lut[np.where(present, codes, 0)], 0)
+        key = codes_f.tobytes()
+        pat = self._patterns.get(key)
+        if pat is None:
+            pat = self._code_pattern(codes_f)
+            if pat is not None:
+                if len(self._patterns) > 256:
+                    self._patterns.clear()
+                self._patterns[key] = pat
+        if pat is not None and _all((data >= pat.lo) & (data <= pat.hi), axis=None):
+            return pat
+        # epoch-major views: the first offending sample in the messages is the first by time
+        codes, present = self._check_detail(codes_f.T, delay.T, snr.T)
+        return self._pattern(np.ascontiguousarray(np.where(present, self._lut[np.where(present, codes, 0)], 0).T))
+
+    def _pattern(self, idx) -> _Pattern:
+        pat = _Pattern()
+        pat.idx, pat.s, pat.d2, pat.key = idx, self.pos[idx], self._perp2[idx], idx * 4
+        shape = (N_SLOTS, 2, N_SLOTS, idx.shape[1])
+        pat.s4 = np.ascontiguousarray(np.broadcast_to(pat.s[:, None, None, :], shape))
+        pat.d4 = np.ascontiguousarray(np.broadcast_to(pat.d2[:, None, None, :], shape))
+        pat.lo = pat.hi = pat.stations = pat.loc = None
+        for a in (pat.idx, pat.s, pat.d2, pat.key, pat.s4, pat.d4):
+            a.flags.writeable = False   # shared by the blocks of the pattern
+        return pat
+
+    @staticmethod
+    def _compact(pat: _Pattern):
+        """The pattern's stations (ascending index) and each slot's position among them,
+        epoch-major (n, N_SLOTS): per-station sums over a block need no search."""
+        if pat.loc is None:
+            stations, loc = np.unique(pat.idx.T.ravel(), return_inverse=True)
+            pat.stations, pat.loc = stations.tolist(), loc.reshape(pat.idx.shape[::-1])
+        return pat.stations, pat.loc
+
+    def _code_pattern(self, codes_f) -> _Pattern | None:
+        """Pattern of valid code channels (N_SLOTS, n) (known integer codes, no station twice
+        in an epoch) with the bounds of the other channels; None if the codes are not valid."""
+        if not ((codes_f >= 0.0) & (codes_f <= len(self._lut) - 1.0)).all():
+            return None
+        codes = codes_f.astype(np.int64)
+        k = self._lut0[codes]          # station index, 0 for an empty slot, -1 unknown code
+        if not ((codes == codes_f).all() and (k >= 0).all()):
+            return None
+        present = codes > 0
+        srt = np.sort(np.where(present, codes, self._neg_slots), axis=0)
+        if (srt[1:] == srt[:-1]).any():
+            return None
+        pat = self._pattern(k)
+        # a replying station: delay 0..max, SNR -30..100 dB; an empty slot: delay = SNR = 0
+        shape = (3 * N_SLOTS, codes_f.shape[1])
+        pat.lo, pat.hi = np.zeros(shape), np.zeros(shape)
+        pat.lo[0::3] = pat.hi[0::3] = codes_f
+        pat.hi[1::3] = np.where(present, self._max_delay, 0.0)
+        pat.lo[2::3] = np.where(present, -30.0, 0.0)
+        pat.hi[2::3] = np.where(present, 100.0, 0.0)
+        pat.lo.flags.writeable = pat.hi.flags.writeable = False
+        return pat
 
     def _check_detail(self, codes_f, delay, snr):
         if np.any(codes_f != np.round(codes_f)) or np.any(codes_f < 0):
@@ -358,27 +452,34 @@ class MmWaveDecoder(Decoder):
     # -- decoding -----------------------------------------------------------------------
     def decode(self, block: RawBlock):
         p = self.params
-        data = block.data.astype(float)
-        codes_f, delay, snr = data[:, 0::3], data[:, 1::3], data[:, 2::3]
-        codes, present, idx = self._check(data, codes_f, delay, snr)
+        data = block.data.T.astype(float, order="C")   # channel-major, (3 N_SLOTS, n)
+        codes_f, delay, snr = data[0::3], data[1::3], data[2::3]
+        pat = self._check(data, codes_f, delay, snr)
         n = block.n_samples
-        times = block.times()
-        valid = present & (delay > 0.0) & (snr >= p["snr_threshold"])
+        offsets = self._offsets.get((n, block.sample_rate))
+        if offsets is None:
+            offsets = self._offsets[n, block.sample_rate] = np.arange(n) / block.sample_rate
+            offsets.flags.writeable = False
+        times = block.t0 + offsets   # = block.times()
+        # an empty slot has delay 0 (checked), so a positive delay implies a station
+        valid = (delay > 0.0) & (snr >= p["snr_threshold"])
         rng = delay * C_AIR
-        s_pos, perp = self.pos[idx], self.perp[idx]
         # range_sigma(snr)^2 + cal_sigma^2, >= 1 mm (float32 delays)
-        sig2 = np.maximum(self._sig2_const + self._sig2_snr * np.exp(snr * self._sig2_exp), 1e-6)
+        sig2 = self._sig2_const + self._sig2_snr * np.exp(snr * self._sig2_exp)
+        if self._sig2_floor:
+            sig2 = np.maximum(sig2, 1e-6)
+        block_mode = p["fix_per_block"]
         fit_valid = valid
-        for _ in range(N_SLOTS if p["fix_per_block"] else 1):
-            x, ok, used, resid, var, cal_var = self._solve(times, rng, s_pos, perp, sig2, fit_valid)
-            if not p["fix_per_block"]:
+        for _ in range(N_SLOTS if block_mode else 1):
+            x, ok, used, resid, var, cal_var = self._solve(times, rng, pat, sig2, fit_valid, block_mode)
+            if not block_mode:
                 break
             # a bias persisting over the block stands out in the station's mean residual
-            worst = self._block_outlier(idx, used & ok[:, None], resid, sig2)
+            worst = self._block_outlier(pat, used & ok, resid, sig2)
             if worst is None:
                 break
-            fit_valid = fit_valid & (idx != worst)
-        n_ok = int(ok.sum())
+            fit_valid = fit_valid & (pat.idx != worst)
+        n_ok = int(np.count_nonzero(ok))
         if n_ok:
             if n_ok == n:
                 self._remember(times, x, var)
@@ -386,74 +487,80 @@ class MmWaveDecoder(Decoder):
                 self._remember(times[ok], x[ok], var[ok])
         self.stats["epochs"] += n
         self.stats["no_fix"] += n - n_ok
-        self.stats["rejected_stations"] += int((valid & ~used & ok[:, None]).sum())
+        if used is not valid:  # else no station was dropped or excluded
+            self.stats["rejected_stations"] += int(np.count_nonzero(valid & ~used & ok))
         if not n_ok:
             return []
         front = x + p["orientation"] * p["antenna_offset"]
-        if p["fix_per_block"]:
-            fixes = [self._block_fix(times, front, var, cal_var, ok, used, valid, resid, idx)]
+        if block_mode:
+            fixes = [self._block_fix(times, front, var, cal_var, ok, used, valid, resid, pat, n_ok == n)]
         else:
             fixes = []
-            t_l, f_l, s_l = times.tolist(), front.tolist(), np.sqrt(var).tolist()
-            u_l, v_l, r_l, i_l = used.tolist(), valid.tolist(), resid.tolist(), idx.tolist()
+            # per slot one small integer, 4 x station index + 2 x used + valid: per epoch the
+            # cache key of its reference_id and residual order
+            code = pat.key + (valid * 3 if used is valid else used * 2 + valid)
+            epochs = zip(times.tolist(), front.tolist(), np.sqrt(var).tolist(), resid.T.tolist(),
+                         map(tuple, code.T.tolist()))
+            if n_ok < n:
+                epochs = itertools.compress(epochs, ok.tolist())
             sensor, unit, track_id = self.sensor, self.unit_id, self.track.track_id
             cache = self._ref_cache
             if len(cache) > 4096:
                 cache.clear()
-            for i in np.flatnonzero(ok).tolist():
-                u_i, v_i, k_i = u_l[i], v_l[i], i_l[i]
-                key = (*u_i, *v_i, *k_i)
+            for t_i, front_i, sigma_i, resid_i, key in epochs:
                 hit = cache.get(key)
                 if hit is None:
-                    hit = cache[key] = self._ref_order(u_i, v_i, k_i)
-                ref, order = hit
-                r_i = r_l[i]
-                fixes.append(PositionFix(t_l[i], sensor, unit, track_id, ref, f_l[i], s_l[i], 0,
-                                         tuple([r_i[j] for j in order])))
+                    hit = cache[key] = self._ref_order(key)
+                fixes.append(PositionFix(t_i, sensor, unit, track_id, hit[0], front_i, sigma_i, 0, hit[1](resid_i)))
         self.stats["fixes"] += len(fixes)
         return fixes
 
-    def _block_outlier(self, idx, used, resid, sig2):
+    def _block_outlier(self, pat, used, resid, sig2):
         """Station index whose mean residual over the block fails the gate (largest positive), or None."""
-        cal2 = self.params["cal_sigma"] ** 2
-        ks = idx[used]
+        stations, loc = self._compact(pat)
+        used = used.T   # epoch-major: the per-station sums add the epochs in time order
+        ks = loc[used]
         if not ks.size:
             return None
-        cnt = np.bincount(ks)
-        present = cnt > 0
-        cand = cnt >= 3
-        if not cand.any():
+        n_k = np.bincount(ks).tolist()
+        if max(n_k) < 3:
             return None
-        with np.errstate(invalid="ignore", divide="ignore"):
-            mean_r = np.bincount(ks, resid[used]) / cnt
-            mean_s = np.bincount(ks, sig2[used]) / cnt
-            z = np.where(cand, mean_r / np.sqrt(mean_s / cnt + cal2), -np.inf)
-        k = int(np.argmax(z))
-        if not z[k] > self._z_gate:
+        # per station in view: mean residual over its (>= 3) epochs against its standard error
+        # (noise averaged, calibration bias not); the first largest wins, a NaN fails
+        cal2 = self.params["cal_sigma"] ** 2
+        sum_r = np.bincount(ks, resid.T[used]).tolist()
+        sum_s = np.bincount(ks, sig2.T[used]).tolist()
+        best, z_best = None, -math.inf
+        for j, c in enumerate(n_k):
+            if c >= 3:
+                z = (sum_r[j] / c) / math.sqrt(sum_s[j] / c / c + cal2)
+                if z != z:
+                    return None
+                if z > z_best:
+                    best, z_best = j, z
+        if not z_best > self._z_gate:
             return None
-        if int(present.sum()) <= max(2, self.params["min_stations"]):
+        if len(n_k) - n_k.count(0) <= max(2, self.params["min_stations"]):
             return None  # no station to spare: the epoch tests decide
-        return k
+        return stations[best]
 
-    def _ref_order(self, used, valid, idx):
-        """reference_id of one epoch and the slots of its residuals (used, then rejected)."""
-        order = [j for j in range(N_SLOTS) if used[j]]
-        rej = [j for j in range(N_SLOTS) if valid[j] and not used[j]]
-        ref = ",".join([self.ids[idx[j]] for j in order] + ["!" + self.ids[idx[j]] for j in rej])
-        return ref, order + rej
+    def _ref_order(self, code):
+        """reference_id of one epoch and the function picking its residuals (used stations,
+        then rejected ones) from the slots; code: per slot 4 x station index + 2 x used + valid."""
+        order = [j for j in range(N_SLOTS) if code[j] & 2]
+        rej = [j for j in range(N_SLOTS) if (code[j] & 3) == 1]
+        ids = self.ids
+        ref = ",".join([ids[code[j] >> 2] for j in order] + ["!" + ids[code[j] >> 2] for j in rej])
+        return ref, _picker(order + rej)
 
-    def _refs(self, used, valid, resid, idx):
-        order_used = [j for j in range(N_SLOTS) if used[j]]
-        order_rej = [j for j in range(N_SLOTS) if valid[j] and not used[j]]
-        ref = ",".join([self.ids[idx[j]] for j in order_used] + ["!" + self.ids[idx[j]] for j in order_rej])
-        res = tuple(float(resid[j]) for j in order_used + order_rej)
-        return ref, res
-
-    def _block_fix(self, times, front, var, cal_var, ok, used, valid, resid, idx):
-        t, y = times[ok], front[ok]
-        noise = np.maximum(var[ok] - cal_var[ok], 1e-12)
+    def _block_fix(self, times, front, var, cal_var, ok, used, valid, resid, pat, all_ok):
+        if all_ok:
+            t, y, v, cv, sel = times, front, var, cal_var, valid
+        else:
+            t, y, v, cv, sel = times[ok], front[ok], var[ok], cal_var[ok], valid & ok
+        noise = np.maximum(v - cv, 1e-12)
         w = 1.0 / noise
-        sw = float(w.sum())
+        sw = float(_sum(w))
         tm = float(np.dot(w, t) / sw)
         # weighted straight line in (t - tm): the design columns are orthogonal under the
         # weights (sum w (t - tm) = 0), so the value at tm is the weighted mean and its
@@ -461,171 +568,249 @@ class MmWaveDecoder(Decoder):
         pos = float(np.dot(w, y) / sw)
         noise_var = 1.0 / sw
         # the calibration biases are common to the epochs: they do not average out
-        sigma = math.sqrt(noise_var + float(cal_var[ok].mean()))
-        sel = valid & ok[:, None]
-        ks = idx[sel]
-        # stations in order of first appearance (epoch, slot), as the per-epoch loop met them
-        uk, first, inv = np.unique(ks, return_index=True, return_inverse=True)
-        cnt = np.bincount(inv)
-        mean_r = np.bincount(inv, resid[sel]) / cnt
-        any_used = np.bincount(inv, used[sel]) > 0
-        pos_k = self.pos[uk]
+        sigma = math.sqrt(noise_var + float(_sum(cv) / len(cv)))
+        stations, loc = self._compact(pat)
+        sel = sel.T   # epoch-major: the per-station sums add the epochs in time order
+        ks = loc[sel]
+        cnt = np.bincount(ks).tolist()
+        sum_r = np.bincount(ks, resid.T[sel]).tolist()
+        n_used = np.bincount(ks, used.T[sel]).tolist()
+        rank = [j for j, c in enumerate(cnt) if c]   # stations in view, by index
+        if not self._pos_increasing:
+            # by chainage, then in order of first appearance (epoch, slot)
+            first: dict = {}
+            for j, k in enumerate(ks.tolist()):
+                first.setdefault(k, j)
+            rank.sort(key=lambda j: (float(self.pos[stations[j]]), first[j]))
+        u_sel = [j for j in rank if n_used[j] > 0]
+        r_sel = [j for j in rank if not n_used[j] > 0]
         ids = self.ids
-        u_sel = np.flatnonzero(any_used)
-        r_sel = np.flatnonzero(~any_used)
-        u_sel = u_sel[np.lexsort((first[u_sel], pos_k[u_sel]))]
-        r_sel = r_sel[np.lexsort((first[r_sel], pos_k[r_sel]))]
-        uk_l = uk.tolist()
-        ref = ",".join([ids[uk_l[j]] for j in u_sel.tolist()] + ["!" + ids[uk_l[j]] for j in r_sel.tolist()])
-        residuals = tuple(mean_r[np.concatenate([u_sel, r_sel])].tolist())
+        ref = ",".join([ids[stations[j]] for j in u_sel] + ["!" + ids[stations[j]] for j in r_sel])
+        residuals = tuple([sum_r[j] / cnt[j] for j in u_sel + r_sel])
         return PositionFix(tm, self.sensor, self.unit_id, self.track.track_id, ref, pos, sigma, 0, residuals)
 
-    def _solve(self, times, r, s, d, sig2, valid):
-        """Vectorised robust 1-D LS over the epochs of a block.
+    def _solve(self, times, r, pat, sig2, valid, need_cal):
+        """Vectorised robust 1-D LS over the epochs of a block (arrays (N_SLOTS, n)).
 
-        Returns x (n,), ok (n,), used (n, N_SLOTS), residuals (n, N_SLOTS), variance (n,) and
-        the part of the variance due to the per-station calibration biases (n,).
+        Returns x (n,), ok (n,), used (N_SLOTS, n; ``valid`` itself if no station was
+        dropped), residuals (N_SLOTS, n), variance (n,) and, if ``need_cal``, the part of
+        the variance due to the per-station calibration biases (n,), else None.
         """
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-            return self._solve_epochs(times, r, s, d, sig2, valid)
+            return self._solve_epochs(times, r, pat, sig2, valid, need_cal)
 
-    def _solve_epochs(self, times, r, s, d, sig2, valid):
+    def _solve_epochs(self, times, r, pat, sig2, valid, need_cal):
         p = self.params
         n = len(times)
-        w = np.where(valid, 1.0 / sig2, 0.0)
-        nv = valid.sum(axis=1)
-        d2 = d * d
-        # candidates s_j +- along_j, robust capped cost over all valid stations
-        along = np.sqrt(np.maximum(r * r - d2, 0.0))
-        cand = np.concatenate([s - along, s + along], axis=1)           # (n, 2 N)
-        cvalid = np.concatenate([valid, valid], axis=1)
-        dx = cand[:, :, None] - s[:, None, :]
-        res = r[:, None, :] - np.sqrt(dx * dx + d2[:, None, :])          # (n, 2N, N)
-        z2 = res * res * w[:, None, :]
-        cost = np.where(cvalid, np.minimum(z2, 25.0).sum(axis=2), np.inf)
-        best = cost.argmin(axis=1)
-        rows = np.arange(n)
-        x = cand[rows, best]
-        c1 = cost[rows, best]
-        far = np.abs(cand - x[:, None]) > 2.0
-        c2 = np.where(far & cvalid, cost, np.inf).min(axis=1)
+        s, d2 = pat.s, pat.d2
+        # sig2 > 0 and finite after the fast input check: valid / sig2 is 1 / sig2 or 0
+        w = valid / sig2 if pat.lo is not None else np.where(valid, 1.0 / sig2, 0.0)
+        nv = _sum(valid)
+        # candidates s_k -+ along_k (2, N, n), robust capped cost over all valid stations j
+        along = r * r
+        along -= d2
+        np.maximum(along, 0.0, out=along)
+        np.sqrt(along, out=along)
+        cand = s + along * _BRANCH
+        q = cand - pat.s4                  # (N_j, 2, N_k, n)
+        q *= q
+        q += pat.d4
+        np.sqrt(q, out=q)
+        np.subtract(r[:, None, None, :], q, out=q)       # range residual
+        q *= q
+        q *= w[:, None, None, :]
+        np.minimum(q, 25.0, out=q)
+        cost = np.where(valid, np.add.reduce(q), np.inf).reshape(2 * N_SLOTS, n)
+        cand = cand.reshape(2 * N_SLOTS, n)
+        cols = self._columns(n)
+        best = cost.argmin(axis=0)
+        x = cand[best, cols]
+        c1 = cost[best, cols]
+        c2 = np.minimum.reduce(cost, axis=0, where=np.abs(cand - x) > 2.0, initial=np.inf)  # far ones
         # one station: always two branches; more: a distinct candidate fitting nearly as well
-        ambiguous = ((c2 - c1 < 4.0) & (nv > 0)) | (nv == 1)
+        # (no station: c1 = c2 = inf, not ambiguous)
+        ambiguous = (c2 - c1 < 4.0) | (nv == 1)
         have_pred = self._prev_t is not None
-        if have_pred:
-            age = times - self._prev_t
-            xp = self._prev_x + self._prev_v * age
-            recent = age <= p["hold_time"]
-        if ambiguous.any():
+        if _any(ambiguous):
             self.stats["ambiguous"] += int(ambiguous.sum())
             if have_pred:
                 # candidates among the near-best: pick the one nearest to the prediction
-                near_best = cvalid & (cost - c1[:, None] < 4.0)
-                dist = np.where(near_best, np.abs(cand - xp[:, None]), np.inf)
-                pick = cand[rows, dist.argmin(axis=1)]
-                resolvable = ambiguous & recent
+                age, xp = self._prediction(times)
+                near_best = cost - c1 < 4.0
+                dist = np.where(near_best, np.abs(cand - xp), np.inf)
+                pick = cand[dist.argmin(axis=0), cols]
+                resolvable = ambiguous & (age <= p["hold_time"])
                 x = np.where(resolvable, pick, x)
                 ambiguous &= ~resolvable
-        used = valid.copy()
+        used = valid   # copied before the first station is dropped
         min_st = max(1, p["min_stations"])
         ok = (nv >= min_st) & ~ambiguous
         x, info, e, h = self._gauss_newton(x, r, s, d2, w)
-        nu = nv
+        nu, wu, range_var = nv, w, None
         for _ in range(N_SLOTS):
-            wu = w if nu is nv else np.where(used, w, 0.0)
-            chi2 = (wu * e * e).sum(axis=1)
+            chi2 = np.add.reduce(wu * e * e)
             fail = ok & (chi2 > self._gate_n[nu])
-            if not fail.any():
+            if not _any(fail):
                 break
             # identify the outlier only if >= 2 stations remain to check one another
             can_drop = fail & (nu > max(2, p["min_stations"]))
             ok &= ~(fail & ~can_drop)
-            if not can_drop.any():
+            if not _any(can_drop):
                 break
             P = np.where(info > 0.0, 1.0 / np.maximum(info, 1e-300), np.inf)
-            denom = np.maximum(np.where(used, 1.0 / np.maximum(w, 1e-300), 1.0) - h * h * P[:, None], 1e-12)
+            if used is valid:
+                used = valid.copy()
+            if range_var is None:
+                range_var = 1.0 / np.maximum(w, 1e-300)   # sigma_i^2 of the used ranges
+            denom = np.maximum(range_var - h * h * P, 1e-12)
             # NLOS / multipath only lengthens a range: drop the largest positive normalised residual
             znorm = np.where(used, e / np.sqrt(denom), -np.inf)
-            worst = znorm.argmax(axis=1)
-            used[np.flatnonzero(can_drop), worst[can_drop]] = False
-            nu = used.sum(axis=1)
-            x2, info2, e2, h2 = self._gauss_newton(x, r, s, d2, np.where(used, w, 0.0))
+            worst = znorm.argmax(axis=0)
+            used[worst[can_drop], can_drop.nonzero()[0]] = False
+            nu = _sum(used)
+            wu = np.where(used, w, 0.0)
+            # h and e at x do not depend on the weights: the refit starts from them
+            x2, info2, e2, h2 = self._gauss_newton(x, r, s, d2, wu, start=(h, e))
             x = np.where(can_drop, x2, x)
             info = np.where(can_drop, info2, info)
-            e = np.where(can_drop[:, None], e2, e)
-            h = np.where(can_drop[:, None], h2, h)
-        P = np.where(info > 0.0, 1.0 / np.maximum(info, 1e-300), np.inf)
-        gain = np.where(used, w * h, 0.0) * np.where(np.isfinite(P), P, 0.0)[:, None]
-        cal_var = (gain * gain).sum(axis=1) * p["cal_sigma"] ** 2
-        ok &= np.isfinite(x) & (info > 1e-6) & (nu >= min_st)
+            e = np.where(can_drop, e2, e)
+            h = np.where(can_drop, h2, h)
+        # an ok epoch has >= min_st stations (none dropped below) and info > 1e-6, so its LS
+        # covariance P is 1 / info (the values of the other epochs are not used)
+        P = 1.0 / info
+        ok &= np.isfinite(x) & (info > 1e-6)
         var = np.where(ok, P, np.inf)
-        single = ok & (nu == 1)
-        if single.any():
-            # no redundancy: check against the prediction instead (an NLOS onset is a jump)
-            if have_pred:
-                a = np.abs(age)
-                spread = PRED_SIGMA + PRED_SPEED_SIGMA * a + 0.5 * PRED_ACCEL * a * a
-                consistent = (a <= SINGLE_HOLD) & (np.abs(x - xp) <= 3.0 * np.sqrt(P + spread ** 2))
-            else:
-                consistent = np.zeros(n, dtype=bool)
-            self.stats["inconsistent_single"] += int((single & ~consistent).sum())
-            ok &= ~single | consistent
-            var = np.where(single, var + p["unchecked_sigma"] ** 2, var)
+        cal_var = None
+        if need_cal:
+            gain = wu * h * P
+            cal_var = np.add.reduce(gain * gain) * p["cal_sigma"] ** 2
+        if p["min_stations"] <= 1:  # else no epoch is left with a single station
+            single = ok & (nu == 1)
+            if _any(single):
+                # no redundancy: check against the prediction instead (an NLOS onset is a jump)
+                if have_pred:
+                    age, xp = self._prediction(times)
+                    a = np.abs(age)
+                    spread = PRED_SIGMA + PRED_SPEED_SIGMA * a + 0.5 * PRED_ACCEL * a * a
+                    consistent = (a <= SINGLE_HOLD) & (np.abs(x - xp) <= 3.0 * np.sqrt(P + spread ** 2))
+                else:
+                    consistent = np.zeros(n, dtype=bool)
+                self.stats["inconsistent_single"] += int((single & ~consistent).sum())
+                ok &= ~single | consistent
+                var = np.where(single, var + p["unchecked_sigma"] ** 2, var)
         return x, ok, used, e, var, cal_var
 
-    def _remember(self, t, x, var):
-        """Keep the solutions of the last hold_time and their speed (LS slope) for predictions."""
-        keep = self._hist_t > t[-1] - self.params["hold_time"]
-        if keep.all():
-            ht, hx, hw = self._hist_t, self._hist_x, self._hist_w
-        else:
-            ht, hx, hw = self._hist_t[keep], self._hist_x[keep], self._hist_w[keep]
-        ht = self._hist_t = np.concatenate((ht, t))
-        hx = self._hist_x = np.concatenate((hx, x))
-        w = self._hist_w = np.concatenate((hw, 1.0 / var))
-        self._prev_t, self._prev_x = float(t[-1]), float(x[-1])
-        if len(ht) >= 3:
+    def _columns(self, n):
+        """np.arange(n), cached per block length."""
+        cols = self._cols.get(n)
+        if cols is None:
+            cols = self._cols[n] = np.arange(n)
+            cols.flags.writeable = False
+        return cols
+
+    def _prediction(self, times):
+        """Age [s] of the previous solution and the position predicted from it at ``times``."""
+        age = times - self._prev_t
+        return age, self._prev_x + self._speed() * age
+
+    def _speed(self) -> float:
+        """Speed [m/s] of the predictions: weighted LS slope over the kept solutions.
+
+        Only ambiguous or single-station epochs need it: it is computed on demand from the
+        history kept by the last _remember that had a time spread.
+        """
+        if self._speed_src is not None:
+            ht, hx, w = self._joined(self._speed_src)
+            self._speed_src = None
             tt = ht - ht.mean()
-            if tt.max() > tt.min():
-                sw = w.sum()
-                tm = np.dot(w, tt) / sw
-                xm = np.dot(w, hx) / sw
-                dt = tt - tm
-                wdt = w * dt
-                self._prev_v = float(np.dot(wdt, hx - xm) / np.dot(wdt, dt))
+            sw = w.sum()
+            tm = np.dot(w, tt) / sw
+            xm = np.dot(w, hx) / sw
+            dt = tt - tm
+            wdt = w * dt
+            self._prev_v = float(np.dot(wdt, hx - xm) / np.dot(wdt, dt))
+        return self._prev_v
 
     @staticmethod
-    def _residuals(x, r, s, d, info):
-        pred = np.hypot(x[:, None] - s, d)
-        h = (x[:, None] - s) / np.maximum(pred, 1e-9)
-        with np.errstate(divide="ignore"):
-            P = np.where(info > 0.0, 1.0 / np.maximum(info, 1e-300), np.inf)
-        return r - pred, h, P
+    def _joined(chunks):
+        """History chunks (t, x, var) -> arrays t, x, weight 1 / var."""
+        return (np.concatenate([c[0] for c in chunks]), np.concatenate([c[1] for c in chunks]),
+                1.0 / np.concatenate([c[2] for c in chunks]))
 
-    @staticmethod
-    def _gauss_newton(x, r, s, d2, wu, iterations=6, tol=1e-9):
+    def _remember(self, t, x, var):
+        """Keep the solutions of the last hold_time (t ascending) for the speed (_speed).
+
+        The history stays a list of per-block chunks (t, x, var, first t, last t), joined
+        only when the speed is needed.
+        """
+        hist = self._hist
+        t_first, t_last = float(t[0]), float(t[-1])
+        cut = t_last - self.params["hold_time"]
+        if not self._hist_sorted:   # blocks out of time order: one chunk, filtered as a whole
+            if hist:
+                ht, hx, hv = (np.concatenate([c[k] for c in hist]) for k in range(3))
+                keep = ht > cut
+                hist[:] = [(ht[keep], hx[keep], hv[keep], None, None)]
+                self._hist_n = len(hist[0][0])
+        else:
+            while hist and not hist[0][4] > cut:   # the oldest chunk left as a whole
+                self._hist_n -= len(hist.pop(0)[0])
+            if hist and not hist[0][3] > cut:
+                ht, hx, hv, _, last = hist[0]
+                i0 = int(ht.searchsorted(cut, side="right"))
+                hist[0] = (ht[i0:], hx[i0:], hv[i0:], float(ht[i0]), last)
+                self._hist_n -= i0
+            if hist and t_first < hist[-1][4]:
+                self._hist_sorted = False
+        hist.append((t, x, var, t_first, t_last))
+        self._hist_n += len(t)
+        self._prev_t, self._prev_x = t_last, float(x[-1])
+        if self._hist_n >= 3 and self._time_spread():
+            self._speed_src = list(hist)
+
+    def _time_spread(self) -> bool:
+        """Whether the history times, less their mean, are not all equal (a slope is defined)."""
+        if self._hist_sorted:
+            a, b = self._hist[0][3], self._hist[-1][4]
+            # far above the round-off of the mean: the extremes stay apart after subtracting it
+            if b - a > 1e-6 * (1.0 + abs(a) + abs(b)):
+                return True
+        ht = np.concatenate([c[0] for c in self._hist])
+        tt = ht - ht.mean()
+        return bool(tt.max() > tt.min())
+
+    def _gauss_newton(self, x, r, s, d2, wu, iterations=6, tol=1e-9, start=None):
         """Gauss-Newton on x for all epochs at once (wu: weights, 0 for unused ranges).
 
         Stops early once every epoch's step is below ``tol`` [m] (converged to round-off:
         the next step would be ~tol^2). Returns x, the information sum(wu h^2), the
-        residuals r - pred and the partials h, all at the final x.
+        residuals r - pred and the partials h, all at the final x. ``start``: (h, e) at x
+        if known.
         """
-        for _ in range(iterations):
-            dx = x[:, None] - s
-            pred = np.sqrt(dx * dx + d2)
-            h = dx / np.maximum(pred, 1e-9)
+        guard = self._guard_pred
+        done = False
+        for it in range(iterations + 1):
+            if start is None:
+                dx = x - s
+                pred = dx * dx
+                pred += d2
+                np.sqrt(pred, out=pred)
+                h = dx / (np.maximum(pred, 1e-9) if guard else pred)
+                e = np.subtract(r, pred, out=pred)
+            else:
+                (h, e), start = start, None
             wh = wu * h
-            info = (wh * h).sum(axis=1)
-            g = (wh * (r - pred)).sum(axis=1)
-            step = np.where(info > 1e-9, g / np.maximum(info, 1e-9), 0.0)
-            step = np.minimum(np.maximum(step, -50.0), 50.0)
+            info = _sum(wh * h)
+            if done or it == iterations:
+                return x, info, e, h
+            step = _sum(wh * e) / info
+            if not _min(info) > 1e-9:   # no step without information
+                step = np.where(info > 1e-9, step, 0.0)
+            biggest = _max(np.abs(step))
+            if biggest > 50.0:
+                step = np.minimum(np.maximum(step, -50.0), 50.0)
             x = x + step
-            if np.abs(step).max() <= tol:
-                break
-        dx = x[:, None] - s
-        pred = np.sqrt(dx * dx + d2)
-        h = dx / np.maximum(pred, 1e-9)
-        return x, (wu * h * h).sum(axis=1), r - pred, h
+            done = biggest <= tol
 
 
 SPEC = SensorSpec(

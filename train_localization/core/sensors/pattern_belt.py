@@ -68,6 +68,7 @@ Above the limit states are skipped and the decoder rejects the blocks ("implausi
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 
 import numpy as np
@@ -131,6 +132,24 @@ DEFAULT_SAMPLE_RATE = 2000.0
 # Schmitt outputs (coil1 + 2 coil2 + 4 coil3) -> position in the forward sequence
 # 101 -> 100 -> 110 -> 010 -> 011 -> 001 (coil1 coil2 coil3); 000 and 111 invalid
 _STATE_INDEX = np.array([-1, 1, 3, 2, 5, 0, 4, -1], dtype=np.int64)
+
+
+def _output_tables() -> tuple[np.ndarray, np.ndarray]:
+    """Tables indexed by y1 + 3 y2 + 9 y3 of the three Schmitt outputs y (0, 1, -1 = unknown),
+    in -13..13 (a negative index counts from the end): the state index (-1 = unknown or
+    invalid) and whether all are known but 000 or 111 (invalid), so that the decoder
+    looks both up in one step."""
+    state = np.full(27, -1, dtype=np.int64)
+    invalid = np.zeros(27, dtype=bool)
+    for y1, y2, y3 in itertools.product((0, 1), repeat=3):
+        s = _STATE_INDEX[y1 + 2 * y2 + 4 * y3]
+        state[y1 + 3 * y2 + 9 * y3] = s
+        invalid[y1 + 3 * y2 + 9 * y3] = s < 0
+    return state, invalid
+
+
+_Y_WEIGHTS = np.array([1, 3, 9], dtype=np.int64)
+_STATE_OF_Y, _INVALID_Y = _output_tables()
 
 
 # --------------------------------------------------------------------------- field model
@@ -330,6 +349,10 @@ class PatternBeltDecoder(Decoder):
                                             position_jitter=p["transition_jitter"], timing_sigma=0.05)
         self._y = np.full(3, -1, dtype=np.int64)   # Schmitt outputs (-1 unknown)
         self._env_last: np.ndarray | None = None   # last envelope sample of the previous block
+        self._rows = np.empty((0, 1), dtype=np.int64)  # 1..n as a column (Schmitt trigger)
+        self._cols = np.arange(3)
+        self._offsets_key: tuple | None = None
+        self._offsets = np.empty(0)
         self._t_next: float | None = None
         self.stats = {"transitions": 0, "illegal_transitions": 0, "gaps": 0, "no_belt_samples": 0,
                       "invalid_states": 0}
@@ -340,23 +363,64 @@ class PatternBeltDecoder(Decoder):
         return self.counter.count
 
     def _schmitt(self, env: np.ndarray) -> np.ndarray:
+        """Schmitt trigger outputs (0/1, -1 unknown) per sample and coil; keeps the last ones."""
         p = self.params
-        val = np.full(env.shape, -1, dtype=np.int64)
-        val[env > p["threshold_on"]] = 1
-        val[env < p["threshold_off"]] = 0
+        on = env > p["threshold_on"]
+        off = env < p["threshold_off"]
         n = env.shape[0]
-        idx = np.where(val >= 0, np.arange(n)[:, None], -1)
-        idx = np.maximum.accumulate(idx, axis=0)
-        y = np.where(idx >= 0, np.take_along_axis(val, np.maximum(idx, 0), axis=0), self._y[None, :])
+        if self._rows.shape[0] != n:
+            self._rows = np.arange(1, n + 1)[:, None]
+        # row (1-based) of the last sample at or before each one that was outside the
+        # hysteresis band; row 0 = the outputs at the end of the previous block
+        last = np.where(on | off, self._rows, 0)
+        np.maximum.accumulate(last, axis=0, out=last)
+        out = np.empty((n + 1, env.shape[1]), dtype=np.int64)
+        out[0] = self._y
+        out[1:] = on
+        y = out[last, self._cols]
         self._y = y[-1].copy()
         return y
 
     def _crossing_times(self, times: np.ndarray, env: np.ndarray, y: np.ndarray, y_before: np.ndarray,
-                        dt: float) -> np.ndarray:
-        """Per sample: time at which a Schmitt output that switched at this sample crossed
-        its threshold, interpolated linearly between this sample and the one before."""
+                        env_before: np.ndarray, dt: float, k: np.ndarray) -> np.ndarray:
+        """At samples ``k``: time at which a Schmitt output that switched at the sample crossed
+        its threshold, interpolated linearly between the sample and the one before [s]; the
+        mean if several switched, half a sample before the sample if none did.
+        ``env_before``, ``y_before``: the last envelopes and outputs of the previous block.
+
+        Called for the samples where the state changes: usually a few, so plain Python;
+        many (high speed) or a mean of three crossings (the order of the sum matters) are
+        left to the vectorised version.
+        """
+        if len(k) > 20:
+            return self._crossing_times_all(times, env, y, y_before, env_before, dt)[k]
+        on, off = self.params["threshold_on"], self.params["threshold_off"]
+        prev_env, prev_y = env[k - 1].tolist(), y[k - 1].tolist()
+        if k[0] == 0:
+            prev_env[0], prev_y[0] = env_before.tolist(), y_before.tolist()
+        out = []
+        for t, e, pe, yk, py in zip(times[k].tolist(), env[k].tolist(), prev_env, y[k].tolist(), prev_y):
+            cross = []
+            for c in range(len(e)):
+                if yk[c] + py[c] == 1:  # switched: 0 -> 1 or 1 -> 0 (-1 = unknown)
+                    denom = e[c] - pe[c]
+                    frac = ((on if yk[c] == 1 else off) - pe[c]) / denom if denom != 0 else 0.5
+                    cross.append(t - dt + min(max(frac, 0.0), 1.0) * dt)
+            if not cross:
+                out.append(t - 0.5 * dt)
+            elif len(cross) == 1:
+                out.append(cross[0])
+            elif len(cross) == 2:
+                out.append((cross[0] + cross[1]) / 2)
+            else:
+                return self._crossing_times_all(times, env, y, y_before, env_before, dt)[k]
+        return np.array(out)
+
+    def _crossing_times_all(self, times: np.ndarray, env: np.ndarray, y: np.ndarray, y_before: np.ndarray,
+                            env_before: np.ndarray, dt: float) -> np.ndarray:
+        """_crossing_times at every sample of the block, vectorised."""
         p = self.params
-        prev_env = np.vstack([self._env_last if self._env_last is not None else env[:1], env[:-1]])
+        prev_env = np.vstack([env_before[None, :], env[:-1]])
         prev_y = np.vstack([y_before[None, :], y[:-1]])
         switched = (y != prev_y) & (y >= 0) & (prev_y >= 0)
         thr = np.where(y == 1, p["threshold_on"], p["threshold_off"])
@@ -370,29 +434,42 @@ class PatternBeltDecoder(Decoder):
     def decode(self, block: RawBlock):
         p = self.params
         env = block.data.astype(float)
-        if env.min() < -0.5 or env.max() > p["saturation"] + 0.5:
-            raise InputRejected("implausible", f"envelope {env.min():.2f}..{env.max():.2f} V outside the "
+        row_max = env.max(axis=1)
+        env_min, env_max = env.min(), row_max.max()
+        if env_min < -0.5 or env_max > p["saturation"] + 0.5:
+            raise InputRejected("implausible", f"envelope {env_min:.2f}..{env_max:.2f} V outside the "
                                 f"detector's 0..{p['saturation']} V")
         fs = block.sample_rate
         if restart_after_gap(self, block):
             self._y[:] = -1
             self._env_last = None
         y_before = self._y.copy()
+        env_before = self._env_last[0] if self._env_last is not None else env[0]
         y = self._schmitt(env)
-        times = block.times()
-        crossing = self._crossing_times(times, env, y, y_before, 1.0 / fs)
+        n = env.shape[0]
+        if self._offsets_key != (n, fs):
+            self._offsets_key = (n, fs)
+            self._offsets = np.arange(n) / fs   # sample times - t0 [s], as RawBlock.times
+        times = block.t0 + self._offsets
+        # crossing times are needed only where the state changes: feed asks for those
+        crossing = functools.partial(self._crossing_times, times, env, y, y_before, env_before, 1.0 / fs)
         self._env_last = env[-1:].copy()
-        lost = env.max(axis=1) < p["loss_threshold"]
-        known = (y >= 0).all(axis=1)
-        code = y[:, 0] + 2 * y[:, 1] + 4 * y[:, 2]
-        state = np.where(known & ~lost, _STATE_INDEX[np.clip(code, 0, 7)], -1)
-        invalid = int((known & ~lost & (state < 0)).sum())
-        self.stats["no_belt_samples"] += int(lost.sum())
+        lost = row_max < p["loss_threshold"]
+        n_lost = int(np.count_nonzero(lost))
+        code = y @ _Y_WEIGHTS
+        state = _STATE_OF_Y[code]
+        invalid_state = _INVALID_Y[code]
+        if n_lost:
+            state[lost] = -1
+            invalid_state &= ~lost
+        invalid = int(np.count_nonzero(invalid_state))
+        self.stats["no_belt_samples"] += n_lost
         self.stats["invalid_states"] += invalid
-        res = self.counter.feed(times, state, lost, sample_period=1.0 / fs, crossing_times=crossing)
+        res = self.counter.feed(times, state, lost if n_lost else None, sample_period=1.0 / fs,
+                                crossing_times=crossing)
         self.stats["transitions"] += res.transitions
         self.stats["illegal_transitions"] += res.illegal
-        on_belt = int((~lost).sum())
+        on_belt = n - n_lost
         if on_belt and invalid > 0.45 * on_belt:
             self.counter.reset()
             self.estimator.reset()

@@ -50,6 +50,7 @@ count is exact to one edge); the diameter error is common to all increments.
 """
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
 
@@ -118,8 +119,13 @@ tolerance the narrowest state is 0.178 pulse, which lasts 100 us = one sample at
 (306 km/h) with a wheel 1 % under the nominal 0.92 m: quadrature edges are resolved up to
 ``max_speed`` = 300 km/h."""
 
+# CycleCounter: look-up value of a state change that is neither none nor a legal step;
+# large, so that one of them shows in the sum of the values of a block's changes
+_OTHER = 1 << 40
+
 # (A, B) -> position in the forward sequence 00 -> 10 -> 11 -> 01; code = 2A + B
-_QUAD_INDEX = np.array([0, 3, 1, 2], dtype=np.int8)
+_QUAD_INDEX = np.array([0, 3, 1, 2], dtype=np.int64)
+_CODE_WEIGHTS = np.array([2.0, 1.0], dtype=np.float32)  # (A, B) levels -> code
 
 
 # --------------------------------------------------------------------------- decoding core
@@ -137,10 +143,16 @@ class CycleCounter:
     """Counts steps through a cyclic sequence of ``n`` states (quadrature: 4, belt: 6).
 
     Shared by the wheel sensor and the pattern belt. ``feed`` takes state indices
-    (-1 = no valid state, held) and a loss mask (no counting across lost samples);
-    it keeps the last state between blocks. A change by more than one state is
-    illegal (a skipped state); it is counted as the shortest way round, or, for a
+    (0..n-1; -1 = no valid state, held) and a loss mask (no counting across lost
+    samples); it keeps the last state between blocks. A change by more than one state
+    is illegal (a skipped state); it is counted as the shortest way round, or, for a
     change by n/2, in the last known direction.
+
+    Speed: a block has hundreds of samples but far fewer state changes, so ``feed``
+    works on the changes only, with a fast path for the usual block (only legal
+    steps, no loss of signal). The transition history is kept in plain lists
+    (extended per block, searched with bisect) together with the start of the last
+    run of transitions in one direction, which ``transition_speed`` needs.
     """
 
     def __init__(self, n_states: int, history: float = 1.0):
@@ -151,91 +163,176 @@ class CycleCounter:
         self.direction = 0
         self.count = 0
         self.t_last_transition: float | None = None
-        self._tr_t = np.empty(0)
-        self._tr_c = np.empty(0, dtype=np.int64)
-        self._tr_s = np.empty(0, dtype=np.int64)
+        self._tr_t: list[float] = []   # transition times [s]
+        self._tr_c: list[int] = []     # count after each transition
+        self._tr_s: list[int] = []     # its direction (+-1)
+        self._run0 = 0                 # index of the first transition of the last one-direction run
+        # Look-up tables indexed by the difference of two state indices; a negative
+        # difference wraps round to the end of the table, which is the "mod n".
+        half = n_states // 2
+        # signed step of a change by d states: the shortest way round
+        self._signed = np.array([d if d <= half else d - n_states for d in range(n_states)], dtype=np.int64)
+        # +-1 for a legal step that is not a change by n/2, 0 for no change, _OTHER otherwise
+        # (illegal or ambiguous: the general path decides)
+        unit = [s if abs(s) == 1 and not (n_states % 2 == 0 and d == half) else _OTHER
+                for d, s in enumerate(self._signed.tolist())]
+        unit[0] = 0
+        self._unit = np.array(unit, dtype=np.int64)
 
     def reset(self) -> None:
         """Forget the last state and the transition history (gap or loss of signal)."""
         self.state = -1
         self.t_state = None
-        self._tr_t = np.empty(0)
-        self._tr_c = np.empty(0, dtype=np.int64)
-        self._tr_s = np.empty(0, dtype=np.int64)
+        self._clear_history()
+
+    def _clear_history(self) -> None:
+        self._tr_t = []
+        self._tr_c = []
+        self._tr_s = []
+        self._run0 = 0
 
     def feed(self, times: np.ndarray, states: np.ndarray, lost: np.ndarray | None = None,
-             sample_period: float = 0.0, crossing_times: np.ndarray | None = None) -> FeedResult:
+             sample_period: float = 0.0, crossing_times=None, all_valid: bool = False) -> FeedResult:
         """Count the steps of one block.
 
         times: sample times [s]; states: state index per sample (-1 = none); lost: True
         where the signal is absent; crossing_times: per sample, the interpolated time of
-        a state change completed at that sample (default: half a sample before it).
+        a state change completed at that sample (default: half a sample before it), or
+        a function returning these times [s] for an array of sample indices (so that
+        they need only be computed where the state changes); all_valid: the caller
+        knows that no state is -1 (saves a pass over the states).
         """
         n = self.n
         states = np.asarray(states, dtype=np.int64)
-        lost_cum = np.cumsum(lost) if lost is not None else np.zeros(len(states), dtype=np.int64)
-        idx = np.flatnonzero(states >= 0)
-        seq_s = states[idx]
-        seq_t = times[idx]
-        seq_l = lost_cum[idx]
-        seq_x = (crossing_times[idx] if crossing_times is not None else seq_t - 0.5 * sample_period)
-        if self.state >= 0:
-            seq_s = np.concatenate(([self.state], seq_s))
-            seq_t = np.concatenate(([self.t_state], seq_t))
-            seq_l = np.concatenate(([0], seq_l))
-            seq_x = np.concatenate(([self.t_state], seq_x))
+        any_lost = lost is not None and bool(lost.any())
+        # seq: the valid samples of the block, after the last state of the previous block
+        # (if known); sample(k) = idx[k - pre] is the block sample of seq entry k >= pre
+        if all_valid or (len(states) and states.min() >= 0):
+            idx = None
+            valid = states
+        else:
+            idx = (states >= 0).nonzero()[0]
+            valid = states[idx]
+        pre = 1 if self.state >= 0 else 0
+        seq_s = np.concatenate(([self.state], valid)) if pre else valid
         if len(seq_s) == 0:
-            if lost is not None and lost.any():
+            if any_lost:
                 self.reset()
             return FeedResult(0, None, None, 0, 0, 0)
-        d = np.diff(seq_s) % n
-        bridged = np.diff(seq_l) == 0
-        signed = np.where(d <= n // 2, d, d - n)
-        legal_sign = np.where(np.abs(signed) == 1, signed, 0)
-        # direction in force before each step: last legal step before it (forward fill)
-        pos = np.where(legal_sign != 0, np.arange(len(d)), -1)
-        last = np.maximum.accumulate(np.concatenate(([-1], pos)))[:-1]
-        prev_dir = np.where(last >= 0, legal_sign[np.maximum(last, 0)], self.direction)
-        half = (n % 2 == 0) & (d == n // 2)
-        signed = np.where(half, prev_dir * (n // 2), signed)
-        illegal = bridged & (d != 0) & ((np.abs(signed) > 1) | (half & (prev_dir == 0)))
-        steps = np.where(bridged, signed, 0)
-        # segments: the last gap-free stretch ends the block
-        breaks = np.flatnonzero(~bridged)
-        seg0 = int(breaks[-1]) + 1 if len(breaks) else 0  # index into seq of the segment's first sample
-        seg_steps = int(steps[seg0:].sum())
-        dropped = int(steps[:seg0].sum())
-        # transitions: time = between the last sample of the old state and the first of the new
-        tr = np.flatnonzero(steps != 0)
-        t_tr = seq_x[tr + 1]
-        c_tr = self.count + np.cumsum(steps)[tr]
-        s_tr = np.sign(steps[tr])
-        if len(breaks):  # history before a loss is not comparable
-            keep = tr >= seg0
-            t_tr, c_tr, s_tr = t_tr[keep], c_tr[keep], s_tr[keep]
-            self._tr_t = np.empty(0)
-            self._tr_c = np.empty(0, dtype=np.int64)
-            self._tr_s = np.empty(0, dtype=np.int64)
-        self.count += int(steps.sum())
-        self._tr_t = np.concatenate((self._tr_t, t_tr))
-        self._tr_c = np.concatenate((self._tr_c, c_tr))
-        self._tr_s = np.concatenate((self._tr_s, s_tr))
-        if len(self._tr_t):
-            self.t_last_transition = float(self._tr_t[-1])
-            cut = int(np.searchsorted(self._tr_t, self._tr_t[-1] - self.history))
+        g = self._unit[seq_s[1:] - seq_s[:-1]]
+        ev = g.nonzero()[0]            # seq steps k -> k + 1 that change the state
+        n_ev = len(ev)
+        seg0 = 0                       # seq index of the first sample of the last gap-free segment
+        if any_lost:
+            lost_cum = np.cumsum(lost)
+            seq_l = lost_cum if idx is None else lost_cum[idx]
+            if pre:
+                seq_l = np.concatenate(([0], seq_l))
+            bridged = seq_l[1:] == seq_l[:-1]
+            breaks = (~bridged).nonzero()[0]
+        else:
+            breaks = ()
+        gz = g[ev]
+        s_tr = gz.tolist()
+        # count after each change if all are legal steps (the count added to the first);
+        # one _OTHER among them makes the total exceed the number of changes
+        if n_ev:
+            gz[0] += self.count
+        c_tr = gz.cumsum()
+        total = int(c_tr[-1]) - self.count if n_ev else 0
+        if not len(breaks) and abs(total) <= n_ev:
+            # fast path: all changes are legal steps of one state, no loss of signal
+            illegal = 0
+            illegal_free = True
+            tr = ev
+            seg_steps, dropped = total, 0
+            if n_ev:
+                self.direction = s_tr[-1]
+        else:
+            illegal_free = False
+            d = (seq_s[ev + 1] - seq_s[ev]) % n
+            signed = self._signed[d]
+            legal_sign = np.where(np.abs(signed) == 1, signed, 0)
+            # direction in force before each step: last legal step before it (forward fill)
+            pos = np.where(legal_sign != 0, np.arange(n_ev), -1)
+            last = np.maximum.accumulate(np.concatenate(([-1], pos)))[:-1]
+            prev_dir = np.where(last >= 0, legal_sign[np.maximum(last, 0)], self.direction)
+            half = (n % 2 == 0) & (d == n // 2)
+            signed = np.where(half, prev_dir * (n // 2), signed)
+            br = bridged[ev] if len(breaks) else np.ones(n_ev, dtype=bool)
+            illegal = int((br & ((np.abs(signed) > 1) | (half & (prev_dir == 0)))).sum())
+            steps = np.where(br, signed, 0)
+            # segments: the last gap-free stretch ends the block
+            if len(breaks):
+                seg0 = int(breaks[-1]) + 1
+            e0 = int(np.searchsorted(ev, seg0))
+            seg_steps = int(steps[e0:].sum())
+            dropped = int(steps[:e0].sum())
+            total = seg_steps + dropped
+            nzs = steps.nonzero()[0]
+            tr = ev[nzs]
+            c_tr = self.count + np.cumsum(steps)[nzs]
+            s_tr = np.sign(steps[nzs])
+            if len(breaks):  # history before a loss is not comparable
+                keep = tr >= seg0
+                tr, c_tr, s_tr = tr[keep], c_tr[keep], s_tr[keep]
+                self._clear_history()
+            s_tr = s_tr.tolist()
+            nz = legal_sign.nonzero()[0]
+            if len(nz):
+                self.direction = int(legal_sign[nz[-1]])
+        if len(tr):
+            # transition time: between the last sample of the old state and the first of the new
+            k = tr if pre else tr + 1
+            samples = k if idx is None else idx[k]
+            if crossing_times is None:
+                t_tr = times[samples] - 0.5 * sample_period
+            elif callable(crossing_times):
+                t_tr = crossing_times(samples)
+            else:
+                t_tr = crossing_times[samples]
+            self._append_history(t_tr.tolist(), c_tr.tolist(), s_tr, unit=illegal_free)
+        self.count += total
+        t = self._tr_t
+        if t:
+            self.t_last_transition = t[-1]
+            cut = bisect.bisect_left(t, t[-1] - self.history)
             if cut:
-                self._tr_t, self._tr_c, self._tr_s = self._tr_t[cut:], self._tr_c[cut:], self._tr_s[cut:]
-        nz = np.flatnonzero(legal_sign)
-        if len(nz):
-            self.direction = int(legal_sign[nz[-1]])
-        t_start = float(seq_t[seg0])
-        t_end = float(seq_t[-1])
+                del t[:cut], self._tr_c[:cut], self._tr_s[:cut]
+                self._run0 = max(0, self._run0 - cut)
+        t_start = self._seq_time(seg0, pre, idx, times)
+        t_end = self._seq_time(len(seq_s) - 1, pre, idx, times)
         self.state = int(seq_s[-1])
         self.t_state = t_end
-        if lost is not None and len(lost) and (lost_cum[-1] > (seq_l[-1] if len(seq_l) else 0)):
+        if any_lost and lost_cum[-1] > seq_l[-1]:
             # the block ends without signal: the next valid sample starts afresh
             self.reset()
-        return FeedResult(seg_steps, t_start, t_end, int(illegal.sum()), int((d != 0).sum()), dropped)
+        return FeedResult(seg_steps, t_start, t_end, illegal, n_ev, dropped)
+
+    def _seq_time(self, k: int, pre: int, idx, times) -> float:
+        """Time [s] of entry k of the valid-sample sequence of ``feed``."""
+        if k < pre:
+            return float(self.t_state)
+        k -= pre
+        return float(times[k if idx is None else idx[k]])
+
+    def _append_history(self, t_tr: list, c_tr: list, s_tr: list, unit: bool) -> None:
+        """Append one block's transitions; keep the start of the last one-direction run.
+
+        unit: all steps are +-1, so the count tells whether the direction changed."""
+        s_first = s_tr[0]
+        base = len(self._tr_s)
+        if unit and s_first == s_tr[-1] and abs(c_tr[-1] - c_tr[0]) == len(c_tr) - 1:
+            rev = 0     # one direction throughout
+        else:
+            rev = next((i for i in range(len(s_tr) - 1, 0, -1) if s_tr[i] != s_tr[i - 1]), 0)
+        if rev:
+            self._run0 = base + rev
+        elif not self._tr_s or self._tr_s[-1] != s_first:
+            self._run0 = base    # the run goes on unless it reverses here
+        self._tr_t.extend(t_tr)
+        self._tr_c.extend(c_tr)
+        self._tr_s.extend(s_tr)
 
     def transition_speed(self, t_from: float, t_to: float, same_kind: bool = True):
         """Steps per second between the last transition and the earliest usable one.
@@ -248,23 +345,38 @@ class CycleCounter:
         t = self._tr_t
         if len(t) < 2:
             return None
-        hi = int(np.searchsorted(t, t_to, side="right")) - 1
-        lo = int(np.searchsorted(t, t_from, side="left"))
-        if hi - lo < (self.n if same_kind else 1):
+        hi = bisect.bisect_right(t, t_to) - 1
+        lo = bisect.bisect_left(t, t_from)
+        m = self.n if same_kind else 1
+        if hi - lo < m:
             return None
-        s = self._tr_s[lo:hi + 1]
-        c = self._tr_c[lo:hi + 1]
-        diff_sign = np.flatnonzero(s != s[-1])
+        c = self._tr_c
+        if hi == len(t) - 1:
+            first = max(lo, self._run0)
+            if abs(c[hi] - c[first]) == hi - first:
+                # one step per transition since the reversal: the count difference to L is
+                # a multiple of m every m transitions, first at j
+                j = first + (hi - first) % m
+                if j >= hi:
+                    return None
+                return self._rate(j, hi)
+        # general case (window ending before the last transition, or skipped states)
+        s = np.array(self._tr_s[lo:hi + 1])
+        cw = np.array(c[lo:hi + 1])
+        diff_sign = (s != s[-1]).nonzero()[0]
         first = int(diff_sign[-1]) + 1 if len(diff_sign) else 0
-        dc = c[-1] - c[first:]
-        ok = np.flatnonzero((dc != 0) & (dc % (self.n if same_kind else 1) == 0))
+        dc = cw[-1] - cw[first:]
+        ok = ((dc != 0) & (dc % m == 0)).nonzero()[0]
         if not len(ok):
             return None
-        j = first + int(ok[0])
-        tj, tl = float(t[lo + j]), float(t[hi])
+        return self._rate(lo + first + int(ok[0]), hi)
+
+    def _rate(self, j: int, last: int):
+        """(steps/s, t_j, t_L) between history entries j and L = last, or None."""
+        tj, tl = self._tr_t[j], self._tr_t[last]
         if tl <= tj:
             return None
-        return float(c[-1] - c[j]) / (tl - tj), tj, tl
+        return float(self._tr_c[last] - self._tr_c[j]) / (tl - tj), tj, tl
 
 
 def restart_after_gap(decoder, block: RawBlock) -> bool:
@@ -514,6 +626,8 @@ class WheelDecoder(Decoder):
             position_jitter=p["vibration"],
             unevenness=(p["phase_tolerance"] / 360.0 + p["duty_tolerance"]) * 4.0 * self.edge / math.sqrt(3.0))
         self._t_next: float | None = None
+        self._offsets_key: tuple | None = None
+        self._offsets_cache = np.empty(0)
         self.stats = {"edges": 0, "illegal_transitions": 0, "gaps": 0}
 
     @property
@@ -522,20 +636,29 @@ class WheelDecoder(Decoder):
         return self.counter.count
 
     def decode(self, block: RawBlock):
-        a = block.channel("A")
-        b = block.channel("B")
-        bad = ~(((a == 0.0) | (a == 1.0)) & ((b == 0.0) | (b == 1.0)))
-        if bad.any():
+        ab = block.data if block.channels == self.channels else \
+            block.data[:, [block.channels.index("A"), block.channels.index("B")]]
+        # x (x - 1) is 0 exactly for the levels 0 and 1 and for nothing else (NaN included)
+        if np.count_nonzero(ab * (ab - 1.0)):
+            a, b = ab[:, 0], ab[:, 1]
+            bad = ~(((a == 0.0) | (a == 1.0)) & ((b == 0.0) | (b == 1.0)))
             raise InputRejected("implausible", f"{int(bad.sum())} samples with levels other than 0/1 "
                                 f"(first {block.data[np.flatnonzero(bad)[0]].tolist()})")
         fs = block.sample_rate
         restart_after_gap(self, block)
-        q = _QUAD_INDEX[(2 * a.astype(np.int64) + b.astype(np.int64))]
-        res = self.counter.feed(block.times(), q, sample_period=1.0 / fs)
+        q = _QUAD_INDEX[(ab @ _CODE_WEIGHTS).astype(np.intp)]
+        res = self.counter.feed(block.t0 + self._offsets(len(ab), fs), q, sample_period=1.0 / fs, all_valid=True)
         self.stats["edges"] += res.transitions
         self.stats["illegal_transitions"] += res.illegal
         return increment_or_reject(self.counter, self.estimator, res, fs, max(2, 0.1 * res.transitions),
                                    "quadrature transitions", "channel")
+
+    def _offsets(self, n: int, fs: float) -> np.ndarray:
+        """Sample times of a block relative to its first sample [s] (as RawBlock.times), cached."""
+        if self._offsets_key != (n, fs):
+            self._offsets_key = (n, fs)
+            self._offsets_cache = np.arange(n) / fs
+        return self._offsets_cache
 
 
 SPEC = SensorSpec(

@@ -326,8 +326,9 @@ class TrainFilter:
         self.n = n
         # fix biases: Gauss-Markov in the distance travelled and in time (applied in _predicted)
         self._per_ref = {s for s in cfg.fix_bias_per_reference if s in self._fix_idx}
-        self._fixgm = [(i, cfg.fix_bias_length.get(s, math.inf), cfg.fix_bias_tau.get(s, math.inf),
-                        cfg.fix_bias_sigma.get(s, 0.0)) for s, i in self._fix_idx.items()]
+        fixgm = [(i, cfg.fix_bias_length.get(s, math.inf), cfg.fix_bias_tau.get(s, math.inf),
+                  cfg.fix_bias_sigma.get(s, 0.0)) for s, i in self._fix_idx.items()]
+        self._fixgm = [g for g in fixgm if math.isfinite(g[1]) or math.isfinite(g[2])]   # others: constant
         self.ekf = ExtendedKalmanFilter(dim_x=self.n, dim_z=1)
         # scale states: Gauss-Markov (index, tau, sigma) or random walks (index, psd)
         self._gm = [(i, cfg.scale_tau[s], cfg.scale_sigma.get(s, cfg.initial_scale_stddev))

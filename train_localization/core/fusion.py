@@ -528,10 +528,11 @@ class TrainFilter:
         self._predict_to(m.stamp)
         self.applied += 1
         cls = m.sensor
-        if cls in self._per_ref and isinstance(m, PositionFix) and aux.fix_ref.get(cls) != m.reference_id:
+        is_fix = isinstance(m, PositionFix)
+        if cls in self._per_ref and is_fix and aux.fix_ref.get(cls) != m.reference_id:
             self._new_fix_bias(cls)
             aux.fix_ref = {**aux.fix_ref, cls: m.reference_id}
-        if isinstance(m, PositionFix) and not aux.initialised:
+        if is_fix and not aux.initialised:
             self._set_position(m)
             aux.initialised = True
             return
@@ -551,7 +552,7 @@ class TrainFilter:
                 aux.gated = _inc(aux.gated, cls + "/slip")
                 return
         if nis > self._gates.get(cls, self._gate):
-            if isinstance(m, PositionFix):
+            if is_fix:
                 run = aux.fix_gated_run + 1
                 if 0 < self.cfg.reacquire_count <= run and \
                         m.stamp - aux.last_fix_accepted >= self.cfg.reacquire_time:
@@ -562,13 +563,13 @@ class TrainFilter:
             aux.gated = _inc(aux.gated, cls)
             return
         self._update(z, R, h, hx, PHt, S)
-        if isinstance(m, PositionFix):
+        if is_fix:
             aux.fix_gated_run, aux.last_fix_accepted = 0, m.stamp
         count, total = aux.nis.get(cls, (0, 0.0))
         aux.nis = {**aux.nis, cls: (count + 1, total + nis)}
         aux.accepted = _inc(aux.accepted, cls)
         aux.last_accepted = {**aux.last_accepted, cls: m.stamp}
-        if not isinstance(m, PositionFix) and cls not in aux.speed_sources:
+        if not is_fix and cls not in aux.speed_sources:
             aux.speed_sources = aux.speed_sources | {cls}
 
     def _set_position(self, m) -> None:

@@ -12,6 +12,7 @@ from .signals import InputRejected
 
 
 def _require_finite(kind: str, **values: float) -> None:
+    """Raises InputRejected("nan") naming the first of ``values`` that is NaN or inf."""
     for name, value in values.items():
         if not math.isfinite(value):
             raise InputRejected("nan", f"{kind}.{name} is {value!r}")
@@ -32,8 +33,10 @@ class PositionFix:
     residuals: tuple[float, ...] = field(default=())
 
     def validate(self) -> None:
-        _require_finite("PositionFix", stamp=self.stamp, position=self.position,
-                        position_stddev=self.position_stddev)
+        isfinite = math.isfinite
+        if not (isfinite(self.stamp) and isfinite(self.position) and isfinite(self.position_stddev)):
+            _require_finite("PositionFix", stamp=self.stamp, position=self.position,
+                            position_stddev=self.position_stddev)
         if self.position_stddev <= 0.0:
             raise InputRejected("stddev", f"PositionFix stddev {self.position_stddev} must be > 0")
 
@@ -49,8 +52,10 @@ class SpeedMeasurement:
     speed_stddev: float
 
     def validate(self) -> None:
-        _require_finite("SpeedMeasurement", stamp=self.stamp, speed=self.speed,
-                        speed_stddev=self.speed_stddev)
+        isfinite = math.isfinite
+        if not (isfinite(self.stamp) and isfinite(self.speed) and isfinite(self.speed_stddev)):
+            _require_finite("SpeedMeasurement", stamp=self.stamp, speed=self.speed,
+                            speed_stddev=self.speed_stddev)
         if self.speed_stddev <= 0.0:
             raise InputRejected("stddev", f"SpeedMeasurement stddev {self.speed_stddev} must be > 0")
 

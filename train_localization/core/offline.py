@@ -14,12 +14,13 @@ from __future__ import annotations
 
 import math
 import multiprocessing
+import os
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from . import convert
-from .bagio import BagWriter, read_bag, typestore_classes
+from .bagio import BagWriter, typestore_classes
 from .fusion import Estimate, FusionConfig, TrainFilter, _order_key
 from .measurements import SectionOccupancy
 from .pipeline import SensorPipeline
@@ -28,6 +29,7 @@ from .sensors import spec as sensor_spec
 from .signals import InputRejected
 
 NAMESPACE = "/train"
+SCENARIO_TOPIC = f"{NAMESPACE}/scenario"
 FUSED_INPUTS = ("position", "speed", "distance")
 
 
@@ -160,10 +162,16 @@ def typestore_classes_string(text: str):
 
 def scenario_from_bag(bag: str | Path) -> Scenario:
     """The scenario a bag was made from (its /train/scenario topic)."""
-    for _, _, _, msg in read_bag(bag, [f"{NAMESPACE}/scenario"]):
-        import yaml
-        return Scenario.from_dict(yaml.safe_load(msg.data))
-    raise ValueError(f"{bag} has no {NAMESPACE}/scenario topic: give the scenario explicitly")
+    from .bagio import BagReader
+    with BagReader(bag) as reader:
+        return _recorded_scenario(reader)
+
+
+def _recorded_scenario(reader) -> Scenario:
+    import yaml
+    for _, typename, _, data in reader.cdr([SCENARIO_TOPIC]):
+        return Scenario.from_dict(yaml.safe_load(reader.deserialize(data, typename).data))
+    raise ValueError(f"{reader.path} has no {SCENARIO_TOPIC} topic: give the scenario explicitly")
 
 
 class _Output:
@@ -254,6 +262,7 @@ PARALLEL_WINDOW = 1.0   # log time [s] that the workers decode before handing it
 def _decode_topic_windows(topic: str, conn) -> None:
     """Worker process: decode one topic window by window, sending each window's items."""
     decoder, by_topic = _PARALLEL_JOB
+    os.nice(5)   # the fusion in the parent is the critical path: it goes first
     try:
         for window in by_topic[topic]:
             conn.send([decoder(topic, typename, data) for typename, data in window])
@@ -327,14 +336,45 @@ def can_fork() -> bool:
     return "fork" in multiprocessing.get_all_start_methods()
 
 
-def replay_bag(bag: str | Path, scenario: Scenario, out_bag: str | Path | None = None,
+def _fuse(items, out: _Output, bar) -> None:
+    """Feed decoded (topic, log time [ns], item) triples, in log-time order, to the fusion."""
+    result, writer = out.result, out.writer
+    t_prev = None
+    for topic, t_ns, item in items:
+        t = t_ns / 1e9
+        # the fused states up to a log time are made once every message logged at
+        # that time is in (as simulate_scenario does within a truth step)
+        if t_prev is not None and t > t_prev:
+            out.states(t_prev)
+        t_prev = t
+        if bar:
+            bar.update(1)
+        if topic != TRUTH_TOPIC:
+            result.blocks += 1
+        if isinstance(item, InputRejected):
+            out.reject(item)
+        elif topic == TRUTH_TOPIC:
+            result.truth.append(item)
+            if writer:
+                writer.write(topic, convert.train_state_to_msg(out.mc, item.stamp, out.track_id, item.position,
+                                                               item.speed, item.acceleration), t_ns)
+        else:
+            out.take(item, t)
+    if t_prev is not None:
+        out.states(t_prev)
+    out.flush()
+
+
+def replay_bag(bag: str | Path, scenario: Scenario | None = None, out_bag: str | Path | None = None,
                fusion_rate: float = 200.0, progress: bool = False, parallel: bool = False) -> RunResult:
     """Decode a bag's raw topics and fuse them, in log-time order, without DDS.
 
-    The ground truth of the bag (if any) is copied to the result and the new bag.
-    Raw topics of sensors the scenario does not list are ignored; a message that
-    does not deserialise, a bad block or a decoder rejection is counted in
-    ``rejected`` by reason (``blocks`` counts the raw messages read).
+    ``scenario`` gives the track, vehicle and sensor set-up (default: the one the
+    bag carries on /train/scenario). The ground truth of the bag (if any) is copied
+    to the result and the new bag. Raw topics of sensors the scenario does not list
+    are ignored; a message that does not deserialise, a bad block or a decoder
+    rejection is counted in ``rejected`` by reason (``blocks`` counts the raw
+    messages read).
 
     ``parallel`` decodes each sensor in its own forked process while this one fuses
     (the bag's messages are then held in memory); the result is identical to the
@@ -342,23 +382,23 @@ def replay_bag(bag: str | Path, scenario: Scenario, out_bag: str | Path | None =
     """
     from .bagio import BagReader, topic_counts
     mc = typestore_classes() if out_bag else None
-    pipes = {}
-    for node, params in scenario.sensors.items():
-        spec = sensor_spec(node)
-        pipes[f"{NAMESPACE}/sensors/{spec.sensor}/raw"] = SensorPipeline(
-            spec, params, scenario.track, scenario.vehicle, simulate=False)
-    runner = FusionRunner(fusion_config(scenario), fusion_rate)
-    result = RunResult(runner=runner)
-    track_id = scenario.track.track_id
-    topics = list(pipes) + [TRUTH_TOPIC]
-    bar = None
-    if progress:
-        from tqdm import tqdm
-        bar = tqdm(total=sum(n for t, n in topic_counts(bag).items() if t in topics), unit="msg",
-                   desc=Path(bag).name)
-    writer = items = None
+    writer = items = bar = None
     try:
         with BagReader(bag) as reader:
+            scenario = scenario or _recorded_scenario(reader)
+            pipes = {}
+            for node, params in scenario.sensors.items():
+                spec = sensor_spec(node)
+                pipes[f"{NAMESPACE}/sensors/{spec.sensor}/raw"] = SensorPipeline(
+                    spec, params, scenario.track, scenario.vehicle, simulate=False)
+            runner = FusionRunner(fusion_config(scenario), fusion_rate)
+            result = RunResult(runner=runner)
+            track_id = scenario.track.track_id
+            topics = list(pipes) + [TRUTH_TOPIC]
+            if progress:
+                from tqdm import tqdm
+                bar = tqdm(total=sum(n for t, n in topic_counts(bag).items() if t in topics), unit="msg",
+                           desc=Path(bag).name)
             decoder = _MessageDecoder(pipes, reader.deserialize)
             parallel = parallel and can_fork()
             if parallel:
@@ -367,31 +407,7 @@ def replay_bag(bag: str | Path, scenario: Scenario, out_bag: str | Path | None =
                 items = ((topic, t_ns, decoder(topic, typename, data))
                          for topic, typename, t_ns, data in reader.cdr(topics))
             writer = BagWriter(out_bag) if out_bag else None
-            out = _Output(runner, result, writer, mc, track_id)
-            t_prev = None
-            for topic, t_ns, item in items:
-                t = t_ns / 1e9
-                # the fused states up to a log time are made once every message logged at
-                # that time is in (as simulate_scenario does within a truth step)
-                if t_prev is not None and t > t_prev:
-                    out.states(t_prev)
-                t_prev = t
-                if bar and not parallel:
-                    bar.update(1)
-                if topic != TRUTH_TOPIC:
-                    result.blocks += 1
-                if isinstance(item, InputRejected):
-                    out.reject(item)
-                elif topic == TRUTH_TOPIC:
-                    result.truth.append(item)
-                    if writer:
-                        writer.write(topic, convert.train_state_to_msg(mc, item.stamp, track_id, item.position,
-                                                                       item.speed, item.acceleration), t_ns)
-                else:
-                    out.take(item, t)
-            if t_prev is not None:
-                out.states(t_prev)
-            out.flush()
+            _fuse(items, _Output(runner, result, writer, mc, track_id), bar if not parallel else None)
     finally:
         if items is not None:
             items.close()   # parallel: ends the worker processes

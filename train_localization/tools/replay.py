@@ -23,7 +23,7 @@ from pathlib import Path
 
 from ..core import convert
 from ..core.bagio import read_bag
-from ..core.offline import NAMESPACE, replay_bag, scenario_from_bag
+from ..core.offline import NAMESPACE, replay_bag
 from ..core.report import evaluate, jsonable, plot
 from ..core.scenario import Scenario
 
@@ -50,7 +50,6 @@ def report_for(bag: Path, scenario: Scenario | None = None, out_bag: Path | None
         truth, estimates, measurements = recorded_run(bag)
         extra = {"source": "recorded"}
     else:
-        scenario = scenario or scenario_from_bag(bag)
         run = replay_bag(bag, scenario, out_bag, progress=progress, parallel=parallel)
         truth, estimates, measurements = run.truth, run.estimates, run.measurements
         extra = {"source": "offline replay", "rejected_messages": run.rejected,

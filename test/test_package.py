@@ -5,7 +5,6 @@ import ast
 import os
 import shutil
 import subprocess
-from pathlib import Path
 
 from conftest import ROOT
 from train_localization.core.sensors import NODE_NAMES

@@ -3,15 +3,13 @@ distance (Table 2), mutual inductance (eq. 3-5, Table 3) and read field strength
 Table 4) for 100..600 km/h; simulated passages in both directions up to 500 km/h, failed
 reads above the speed limit of the readable window, unknown ids, determinism."""
 import math
-import time
 
 import numpy as np
 import pytest
 
-from train_localization.core.pipeline import SensorPipeline, run_offline, simulate_and_decode
+from train_localization.core.pipeline import run_offline, simulate_and_decode
 from train_localization.core.scenario import Scenario
 from train_localization.core.sensors import eurobalise as eb
-from train_localization.core.sensors import spec
 from train_localization.core.signals import InputRejected, RawBlock
 from train_localization.core.track import Track
 
@@ -274,14 +272,10 @@ def test_deterministic_given_the_seed():
     assert np.count_nonzero(tel) == 2
 
 
-def test_decoder_throughput_at_500_kmh():
+def test_telegrams_decoded_at_500_kmh():
+    # (decode speed: python -m train_localization.tools.bench sensors)
     sc = scenario(500 / 3.6, 10.0, start=1900.0)
     blocks, _, _ = run_offline(NODE, sc)
     params = {k: v.default for k, v in eb.PARAMS.items()}
     dec = eb.EurobaliseDecoder(params, sc.track)
-    start = time.perf_counter()
-    n = sum(len(dec.decode(b)) for b in blocks)
-    elapsed = time.perf_counter() - start
-    covered = sum(b.duration for b in blocks)
-    assert n > 50
-    assert covered / elapsed >= 10.0
+    assert sum(len(dec.decode(b)) for b in blocks) > 50

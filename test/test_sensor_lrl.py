@@ -2,14 +2,13 @@
 read in single scan (P1..P4 + D0) and continuous scan (N1..N4 + D1), groups of lugs, direction
 from the channel order, 4 redundant sensors with majority vote; speeds up to 500 km/h in both
 directions; misreads detected; unknown codes rejected; fixes within their stddev of truth."""
-import time
 
 import numpy as np
 import pytest
 
-from train_localization.core.pipeline import SensorPipeline, run_offline, simulate_and_decode
+from train_localization.core.pipeline import run_offline, simulate_and_decode
 from train_localization.core.scenario import Scenario
-from train_localization.core.sensors import lrl, spec
+from train_localization.core.sensors import lrl
 from train_localization.core.signals import InputRejected, RawBlock
 from train_localization.core.track import Track
 
@@ -256,13 +255,10 @@ def test_deterministic_given_the_seed():
 
 
 @pytest.mark.parametrize("mode", MODES)
-def test_decoder_throughput_at_500_kmh(mode):
+def test_lug_groups_decoded_at_500_kmh(mode):
+    # (decode speed: python -m train_localization.tools.bench sensors)
     sc = scenario(V500, 8.0, {"scan_mode": mode})
     blocks, _, _ = run_offline(NODE, sc)
     params = {k: v.default for k, v in lrl.PARAMS.items()} | {"scan_mode": mode}
     dec = lrl.LrlDecoder(params, sc.track)
-    start = time.perf_counter()
-    n = sum(len(dec.decode(b)) for b in blocks)
-    elapsed = time.perf_counter() - start
-    assert n >= 9
-    assert sum(b.duration for b in blocks) / elapsed >= 10.0
+    assert sum(len(dec.decode(b)) for b in blocks) >= 9

@@ -325,7 +325,9 @@ def _decode_in_parallel(decoder: _MessageDecoder, messages: list, bar):
     finally:
         for proc in procs:
             if proc.is_alive():
-                proc.terminate()
+                # SIGKILL: a worker may be blocked writing to a full pipe, and may have
+                # inherited a SIGTERM handler that does not exit (rclpy.init installs one)
+                proc.kill()
             proc.join()
         for conn in conns.values():
             conn.close()

@@ -425,7 +425,6 @@ class AxleCounterDecoder(Decoder):
         change = full[1:] != full[:-1]
         # on-level crossings with linear interpolation (prev sample carried over)
         xx = np.vstack([self._last_x[None, :], x])
-        up = (xx[1:] >= on_thr) & (xx[:-1] < on_thr)
         dn = (xx[1:] < on_thr) & (xx[:-1] >= on_thr)
         with np.errstate(divide="ignore", invalid="ignore"):
             frac = np.clip((on_thr - xx[:-1]) / (xx[1:] - xx[:-1]), 0.0, 1.0)

@@ -344,7 +344,6 @@ class TrainFilter:
         self._est_cache: tuple = (None, None)   # (x, P, x as floats, P[:3, :3] as floats) for estimate
         self._scale_terms = [(name, i, self._offset_idx.get(name)) for name, i in self._scale_idx.items()]
         self._eye = np.eye(self.n)
-        self._ones = np.ones(self.n)
         self.rejected: dict[str, int] = {}
         self.rollbacks = 0        # measurements that arrived after one stamped later (out of order)
         self.applied = 0          # measurement updates run, replays included
@@ -435,14 +434,12 @@ class TrainFilter:
         if self._fixgm:   # fix biases decorrelate with the distance run (F, Q above leave them alone)
             dt = abs(t - t0)
             dist = abs(float(x[1, 0])) * dt
-            d = self._ones.copy()       # x_i, row i and column i of P scaled by phi_i
             for i, length, tau, sigma in self._fixgm:
-                d[i] = math.exp(-dist / length - dt / tau)
-            x *= d[:, None]
-            P *= d[:, None]
-            P *= d
-            for i, _, _, sigma in self._fixgm:
-                P[i, i] += sigma * sigma * (1.0 - d[i] * d[i])
+                phi = math.exp(-dist / length - dt / tau)
+                x[i, 0] *= phi
+                P[i, :] *= phi
+                P[:, i] *= phi
+                P[i, i] += sigma * sigma * (1.0 - phi * phi)
         return x, P
 
     def _predict_to(self, t: float) -> None:
@@ -655,8 +652,12 @@ class TrainFilter:
         self._n_applied = n
         self._prune()
 
-    def _prune(self) -> None:
-        cut = bisect.bisect_left(self._stamps, self._stamps[-1] - self.cfg.history)
+    def _prune(self, batch: int = 64) -> None:
+        """Forget the measurements older than ``history``, once ``batch`` of them have aged out."""
+        stamps = self._stamps
+        if len(stamps) <= batch or stamps[batch - 1] >= stamps[-1] - self.cfg.history:
+            return
+        cut = bisect.bisect_left(stamps, stamps[-1] - self.cfg.history)
         if cut > 0:
             self._base, self._base_key = self._snaps[cut - 1], self._keys[cut - 1]
             del self._keys[:cut], self._stamps[:cut], self._meas[:cut], self._snaps[:cut]

@@ -220,16 +220,6 @@ class LrlSimulator(Simulator):
         self.channels = _channels(self.mode, self.n_sensors)
         self.units = ("1",) * len(self.channels)
         self.offsets = channel_offsets(self.mode, p["bit_pitch"])
-        # channels timed by _sensor: (index, half-length of the lug part it sees [m], whether
-        # it may see several runs of which the first and last count)
-        if self.mode == "single":
-            self._chans = [(4, D0_HALF, False)] + [(i, PLATE_HALF, True) for i in range(4)]
-        else:
-            half_tab = 0.5 * (p["bit_pitch"] + 0.05)
-            self._chans = [(i, half_tab, False) for i in range(4)]
-        offs = [float(self.offsets[ch]) for ch, _, _ in self._chans]
-        self._chan_order = np.argsort(offs).tolist()
-        self._chan_half_off = [(half, off) for (_, half, _), off in zip(self._chans, offs)]
         pos, bits = [], []
         for item, code, spacing in track_groups(self.track, p):
             for k, value in enumerate(code):

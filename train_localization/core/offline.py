@@ -19,6 +19,7 @@ import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..graph import NAMESPACE   # the graph's namespace: the bags carry its topics
 from . import convert
 from .bagio import BagWriter, typestore_classes
 from .fusion import Estimate, FusionConfig, TrainFilter, _order_key
@@ -28,8 +29,15 @@ from .scenario import Scenario
 from .sensors import spec as sensor_spec
 from .signals import InputRejected
 
-NAMESPACE = "/train"
 SCENARIO_TOPIC = f"{NAMESPACE}/scenario"
+TRUTH_TOPIC = f"{NAMESPACE}/ground_truth/state"
+FUSED_TOPIC = f"{NAMESPACE}/localization/state"
+
+
+def raw_topic(sensor: str) -> str:
+    """Bag topic of a sensor class's raw blocks."""
+    return f"{NAMESPACE}/sensors/{sensor}/raw"
+
 FUSED_INPUTS = ("position", "speed", "distance")
 
 
@@ -131,20 +139,20 @@ def simulate_scenario(scenario: Scenario, bag: str | Path | None = None, fusion_
     n = int(round(t_end * scenario.truth_rate)) + 1
     out = _Output(runner, result, writer, mc, track_id)
     if writer:
-        writer.write(f"{NAMESPACE}/scenario", typestore_classes_string(scenario.to_yaml()), 0)
+        writer.write(SCENARIO_TOPIC, typestore_classes_string(scenario.to_yaml()), 0)
     try:
         for k in range(n):
             t = convert.canonical(k / scenario.truth_rate)
             state = traj.state_at(t)
             result.truth.append(state)
             if writer:
-                writer.write(f"{NAMESPACE}/ground_truth/state", convert.train_state_to_msg(
+                writer.write(TRUTH_TOPIC, convert.train_state_to_msg(
                     mc, t, track_id, state.position, state.speed, state.acceleration), _ns(t))
             for pipe in pipes:
                 for block in pipe.on_truth(state):
                     result.blocks += 1
                     if writer and record_raw:
-                        writer.write(f"{NAMESPACE}/sensors/{block.sensor}/raw",
+                        writer.write(raw_topic(block.sensor),
                                      convert.raw_block_to_msg(block, mc), _ns(t))
                     out.decode(pipe, block, t)
             out.states(t)
@@ -225,11 +233,8 @@ class _Output:
         for est, used in self.runner.advance(t):
             self.result.estimates.append(est)
             if self.writer:
-                self.writer.write(f"{NAMESPACE}/localization/state",
+                self.writer.write(FUSED_TOPIC,
                                   estimate_to_msg(self.mc, est, self.track_id, used), _ns(est.stamp))
-
-
-TRUTH_TOPIC = f"{NAMESPACE}/ground_truth/state"
 
 
 class _MessageDecoder:
@@ -391,7 +396,7 @@ def replay_bag(bag: str | Path, scenario: Scenario | None = None, out_bag: str |
             pipes = {}
             for node, params in scenario.sensors.items():
                 spec = sensor_spec(node)
-                pipes[f"{NAMESPACE}/sensors/{spec.sensor}/raw"] = SensorPipeline(
+                pipes[raw_topic(spec.sensor)] = SensorPipeline(
                     spec, params, scenario.track, scenario.vehicle, simulate=False)
             runner = FusionRunner(fusion_config(scenario), fusion_rate)
             result = RunResult(runner=runner)

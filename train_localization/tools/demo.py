@@ -24,7 +24,8 @@ from ..core import paths
 from ..core.bagio import read_bag, topic_counts
 from ..core.scenario import Scenario
 from ..core.scoring import StateSeries, score
-from ..graph import NAMESPACE, demo_graph, ros_args
+from ..core.offline import FUSED_TOPIC, TRUTH_TOPIC
+from ..graph import demo_graph, ros_args
 
 
 def spec_sensor(node: str) -> str:
@@ -88,8 +89,8 @@ def run_graph(scenario_path: str, bag: Path, rate: float, log_dir: Path, timeout
 
 def summarise(bag: Path) -> dict:
     truth, fused = [], []
-    for topic, _, _, msg in read_bag(bag, [f"{NAMESPACE}/ground_truth/state", f"{NAMESPACE}/localization/state"]):
-        (truth if topic.endswith("ground_truth/state") else fused).append(msg)
+    for topic, _, _, msg in read_bag(bag, [TRUTH_TOPIC, FUSED_TOPIC]):
+        (truth if topic == TRUTH_TOPIC else fused).append(msg)
     counts = topic_counts(bag)
     result = {"bag": str(bag), "messages": counts}
     if truth:

@@ -23,7 +23,7 @@ from pathlib import Path
 
 from ..core import convert
 from ..core.bagio import read_bag
-from ..core.offline import NAMESPACE, replay_bag
+from ..core.offline import FUSED_TOPIC, NAMESPACE, TRUTH_TOPIC, replay_bag
 from ..core.report import evaluate, jsonable, plot
 from ..core.scenario import Scenario
 
@@ -33,9 +33,9 @@ def recorded_run(bag: Path):
     truth, fused, measurements = [], [], []
     parsers = {s: p for s, (_, p) in convert.MEASUREMENT_TOPICS.items()}
     for topic, _, _, msg in read_bag(bag):
-        if topic == f"{NAMESPACE}/ground_truth/state":
+        if topic == TRUTH_TOPIC:
             truth.append(convert.truth_from_msg(msg))
-        elif topic == f"{NAMESPACE}/localization/state":
+        elif topic == FUSED_TOPIC:
             fused.append(msg)
         elif topic.startswith(f"{NAMESPACE}/sensors/") and topic.rsplit("/", 1)[1] in parsers:
             measurements.append(parsers[topic.rsplit("/", 1)[1]](msg))

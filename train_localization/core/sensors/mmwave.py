@@ -499,9 +499,7 @@ class MmWaveDecoder(Decoder):
             # per slot one small integer, 4 x station index + 2 x used + valid: per epoch the
             # cache key of its reference_id and residual order
             code = pat.key + (valid * 3 if used is valid else used * 2 + valid)
-            # stamps in whole ns, as SensorPipeline.on_block makes them (it then keeps the fixes)
-            stamps = (np.round(times * 1e9) / 1e9).tolist()
-            epochs = zip(stamps, front.tolist(), np.sqrt(var).tolist(), resid.T.tolist(),
+            epochs = zip(times.tolist(), front.tolist(), np.sqrt(var).tolist(), resid.T.tolist(),
                          map(tuple, code.T.tolist()))
             if n_ok < n:
                 epochs = itertools.compress(epochs, ok.tolist())

@@ -169,6 +169,12 @@ def plot(arrays: dict, out_dir: Path, title: str = "") -> list[Path]:
     t, c = arrays["t"], arrays["claimed"]
     files = []
 
+    def save(fig, name: str) -> None:
+        files.append(out_dir / name)
+        fig.tight_layout()
+        fig.savefig(files[-1], dpi=110)
+        plt.close(fig)
+
     fig, ax = plt.subplots(figsize=(10, 4.5))
     ax.fill_between(t[c], arrays["lo"][c], arrays["hi"][c], color="tab:blue", alpha=0.2,
                     label="confidence interval - truth")
@@ -184,10 +190,7 @@ def plot(arrays: dict, out_dir: Path, title: str = "") -> list[Path]:
     ax.set_title(f"{title}: position error and confidence interval")
     ax.legend(loc="upper left", fontsize=8)
     ax.grid(alpha=0.3)
-    files.append(out_dir / "position_error.png")
-    fig.tight_layout()
-    fig.savefig(files[-1], dpi=110)
-    plt.close(fig)
+    save(fig, "position_error.png")
 
     fig, ax = plt.subplots(figsize=(10, 3.5))
     st = arrays["spd_t"]
@@ -199,10 +202,7 @@ def plot(arrays: dict, out_dir: Path, title: str = "") -> list[Path]:
     ax.set_title(f"{title}: speed error")
     ax.legend(loc="upper left", fontsize=8)
     ax.grid(alpha=0.3)
-    files.append(out_dir / "speed_error.png")
-    fig.tight_layout()
-    fig.savefig(files[-1], dpi=110)
-    plt.close(fig)
+    save(fig, "speed_error.png")
 
     res = arrays["residuals"]
     n = max(1, len(res))
@@ -213,10 +213,7 @@ def plot(arrays: dict, out_dir: Path, title: str = "") -> list[Path]:
         ax.grid(alpha=0.3)
     axes[-1, 0].set_xlabel("time [s]")
     fig.suptitle(f"{title}: residuals (measurement - fused) [m or m/s]")
-    files.append(out_dir / "residuals.png")
-    fig.tight_layout()
-    fig.savefig(files[-1], dpi=110)
-    plt.close(fig)
+    save(fig, "residuals.png")
 
     fig, ax = plt.subplots(figsize=(10, 2.0))
     ax.step(t, arrays["mode"], where="post")
@@ -224,10 +221,7 @@ def plot(arrays: dict, out_dir: Path, title: str = "") -> list[Path]:
     ax.set_xlabel("time [s]")
     ax.set_title(f"{title}: mode")
     ax.grid(alpha=0.3)
-    files.append(out_dir / "modes.png")
-    fig.tight_layout()
-    fig.savefig(files[-1], dpi=110)
-    plt.close(fig)
+    save(fig, "modes.png")
     return files
 
 

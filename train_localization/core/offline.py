@@ -38,7 +38,6 @@ def raw_topic(sensor: str) -> str:
     """Bag topic of a sensor class's raw blocks."""
     return f"{NAMESPACE}/sensors/{sensor}/raw"
 
-FUSED_INPUTS = ("position", "speed", "distance")
 
 
 def fusion_config(scenario: Scenario | None, **overrides) -> FusionConfig:

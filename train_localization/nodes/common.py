@@ -157,9 +157,3 @@ def spin(node_factory, args=None) -> int:
         if rclpy.ok():
             rclpy.shutdown()
     return code
-
-
-def wall_sleep_until(t_wall: float) -> None:
-    dt = t_wall - time.monotonic()
-    if dt > 0:
-        time.sleep(dt)

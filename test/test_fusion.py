@@ -239,7 +239,7 @@ def test_late_and_shuffled_delivery_gives_the_in_order_estimates(recorded, name)
     assert diff <= 1e-9
     # and so does the final state, bit for bit, with the same counters
     a, b = TrainFilter(cfg), TrainFilter(cfg)
-    for _, m in sorted(arrivals, key=lambda item: fusion._order_key(item[1])):
+    for _, m in sorted(arrivals, key=lambda item: fusion.order_key(item[1])):
         a.add(m)
     for _, m in shuffled:
         b.add(m)

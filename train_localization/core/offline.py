@@ -22,7 +22,7 @@ from pathlib import Path
 from ..graph import NAMESPACE   # the graph's namespace: the bags carry its topics
 from . import convert
 from .bagio import BagWriter, typestore_classes
-from .fusion import Estimate, FusionConfig, TrainFilter, _order_key
+from .fusion import FusionConfig, FusionRunner, estimate_to_msg, order_key, sensor_models
 from .measurements import SectionOccupancy
 from .pipeline import SensorPipeline
 from .scenario import Scenario
@@ -41,64 +41,14 @@ def raw_topic(sensor: str) -> str:
 
 
 def fusion_config(scenario: Scenario | None, **overrides) -> FusionConfig:
-    """FusionConfig of a scenario's ``fusion:`` section (plus overrides)."""
+    """FusionConfig of a scenario: the error models of its sensors, and its ``fusion:``
+    section (global tuning and per-sensor ``overrides``), plus keyword overrides."""
     values = dict((scenario.fusion if scenario else {}) or {})
     values.update(overrides)
     if scenario is not None:
         values.setdefault("track_id", scenario.track.track_id)
-    for key in ("scale_sensors", "slip_sensors"):
-        if key in values:
-            values[key] = tuple(values[key])
+        values.setdefault("sensors", sensor_models(scenario.sensors, scenario.track, scenario.vehicle))
     return FusionConfig(**values)
-
-
-class FusionRunner:
-    """TrainFilter plus the fixed-rate output grid (k / rate seconds).
-
-    ``add`` feeds a measurement (rejections are counted in ``rejected``, the last one
-    kept in ``last_error``),
-    ``advance(t)`` returns the estimates of every grid time <= t not yet produced,
-    each with the sensor classes used since the previous one.
-    """
-
-    def __init__(self, config: FusionConfig, rate: float = 200.0):
-        self.filter = TrainFilter(config)
-        self.period = 1.0 / rate
-        self._next_k: int | None = None
-        self._used: set[str] = set()
-        self.rejected: dict[str, int] = {}
-        self.last_error: InputRejected | None = None   # why the last rejected measurement was
-
-    def add(self, m) -> bool:
-        try:
-            self.filter.add(m)
-        except InputRejected as exc:
-            self.rejected[exc.reason] = self.rejected.get(exc.reason, 0) + 1
-            self.last_error = exc
-            return False
-        self._used.add(m.sensor)
-        return True
-
-    def due(self, t: float) -> bool:
-        """Whether ``advance(t)`` would produce an estimate (a grid time <= t not produced yet)."""
-        return self._next_k is None or math.floor(t / self.period + 1e-9) >= self._next_k
-
-    def advance(self, t: float, max_catch_up: int = 1000) -> list[tuple[Estimate, list[str]]]:
-        k_now = math.floor(t / self.period + 1e-9)
-        if self._next_k is None or k_now - self._next_k > max_catch_up:
-            self._next_k = k_now
-        out = []
-        while self._next_k <= k_now:
-            out.append((self.filter.estimate(convert.canonical(self._next_k * self.period)), sorted(self._used)))
-            self._used.clear()
-            self._next_k += 1
-        return out
-
-
-def estimate_to_msg(mc, est: Estimate, track_id: str, sensors):
-    return convert.train_state_to_msg(mc, est.stamp, track_id, est.position, est.speed, est.acceleration,
-                                      est.position_stddev, est.speed_stddev, est.position_min,
-                                      est.position_max, est.confidence, est.mode, sensors)
 
 
 @dataclass
@@ -185,7 +135,7 @@ class _Output:
     """Takes decoded measurements, feeds the fusion, collects and writes both.
 
     The measurements decoded since the last grid step are held and given to the
-    fusion in the filter's own order (``_order_key``) just before the next estimate
+    fusion in the filter's own order (``order_key``) just before the next estimate
     is made: the filter's result does not depend on the order in which a set of
     measurements is added (core/fusion.py), so the estimates are the same, but
     measurements of one step that arrive out of stamp order (blocks of several
@@ -221,7 +171,7 @@ class _Output:
         """Give the held measurements to the fusion, in the filter's order."""
         if self._pending:
             pending, self._pending = self._pending, []
-            pending.sort(key=_order_key)
+            pending.sort(key=order_key)
             for m in pending:
                 self.runner.add(m)
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from .measurements import Measurement
 from .scenario import Scenario, TruthBuffer, TruthState, Vehicle
 from .sensors import spec as sensor_spec
-from .sensors.base import SensorSpec, resolve_params
+from .sensors.base import SensorSpec, sensor_params
 from .signals import BlockSequenceGuard, InputRejected, RawBlock
 from .track import Track
 
@@ -26,10 +26,7 @@ class SensorPipeline:
     def __init__(self, spec: SensorSpec, params: dict | None, track: Track, vehicle: Vehicle,
                  rng=None, simulate: bool = True):
         self.spec = spec
-        params = dict(params or {})
-        if "wheel_diameter" in spec.params and "wheel_diameter" not in params:
-            params["wheel_diameter"] = vehicle.wheel_diameter  # the decoder's nominal diameter
-        self.params = resolve_params(spec.params, params)
+        self.params = sensor_params(spec, params, vehicle)
         self.track = track
         self.decoder = spec.decoder(self.params, track)
         self.simulator = spec.simulator(self.params, track, vehicle, rng) if simulate else None

@@ -43,7 +43,7 @@ import numpy as np
 
 from ..core import convert
 from ..core.measurements import SectionOccupancy
-from ..core.fusion import TrainFilter, _order_key
+from ..core.fusion import TrainFilter, order_key
 from ..core.offline import FusionRunner, fusion_config
 from ..core.pipeline import SensorPipeline
 from ..core.scenario import Scenario
@@ -274,7 +274,7 @@ def main(argv=None) -> int:
     # the two elementary costs: an update (predict, scalar EKF update, snapshot) in stamp
     # order, and an estimate (prediction to a grid time, interval, mode)
     f = TrainFilter(config)
-    for m in sorted((m for _, m in arrivals), key=_order_key):
+    for m in sorted((m for _, m in arrivals), key=order_key):
         f.add(m)
     c0 = clock()
     f.state()

@@ -96,7 +96,7 @@ import numpy as np
 from ..measurements import CLEAR, DISTURBED, OCCUPIED, PositionFix, SectionOccupancy, SectionState
 from ..signals import InputRejected, RawBlock
 from ..track import Track, TrackError
-from .base import Decoder, Param, SensorSpec, Simulator
+from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator
 
 HEAD_KIND = "axle_counter_head"
 
@@ -533,9 +533,15 @@ class AxleCounterDecoder(Decoder):
                            float(self.head_pos[hi] + self.orient * offset), sigma, int(d))
 
 
+def error_model(params: dict, track, vehicle) -> ErrorModel:
+    """Axle-counter fixes for the fusion: white (head survey, axle offset and edge timing
+    in the decoder's stddev); fault mode: a miscount (missed or extra axle)."""
+    return ErrorModel("axle_counter", "position", faults=("miscount",))
+
+
 SPEC = SensorSpec(
     node="axle_counter", sensor="axle_counter", simulator=AxleCounterSimulator, decoder=AxleCounterDecoder,
     params=PARAMS, description="wayside axle counter: section occupancy and train-front fixes at the heads",
     seeds=("004",),
-    outputs=("position", "sections"),
+    outputs=("position", "sections"), error_model=error_model,
 )

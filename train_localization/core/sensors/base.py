@@ -7,6 +7,11 @@ a device driver or a bag. Both are plain objects driven block by block, with no
 ROS: the sensor node (nodes/sensor.py), the offline replay and the tests drive
 them the same way.
 
+Error model: every sensor module declares ``error_model(params, track, vehicle)``
+returning an ``ErrorModel``: what the fusion must know of the sensor's errors,
+computed from the same resolved parameters that the simulator and the decoder use
+(DESIGN.md section 7). Nothing else copies a sensor's noise figures.
+
 Parameters: every sensor module declares ``PARAMS``, a dict name -> Param(default,
 description). The description carries the unit and where the default comes from
 (seed file or datasheet). Nodes declare them as ROS parameters; scenarios override
@@ -14,9 +19,10 @@ them per sensor.
 """
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, Callable
 
 import numpy as np
 
@@ -61,6 +67,83 @@ def resolve_params(declared: dict[str, Param], overrides: dict | None) -> dict[s
         else:
             params[name] = value
     return params
+
+
+def sensor_params(spec: "SensorSpec", overrides: dict | None, vehicle: Vehicle) -> dict[str, Any]:
+    """A sensor's resolved parameters for one vehicle (the decoder's nominal wheel diameter
+    is the vehicle's unless set)."""
+    params = dict(overrides or {})
+    if "wheel_diameter" in spec.params and "wheel_diameter" not in params:
+        params["wheel_diameter"] = vehicle.wheel_diameter
+    return resolve_params(spec.params, params)
+
+
+MEASURES = ("speed", "distance", "position", "occupancy")
+FAULT_MODES = ("slip", "slide", "dropout", "scale_fault", "nlos", "misread", "miscount", "outage")
+
+
+@dataclass(frozen=True)
+class ErrorModel:
+    """The errors of one sensor as the fusion models them (DESIGN.md section 7).
+
+    A decoder reports each measurement's 1-sigma including its slowly varying
+    errors as if they were white; the ``reported_*`` parts are the ones the fusion
+    carries as states instead and removes from the measurement noise. Units: scale
+    errors as fractions, speeds in m/s, positions in m, times in s.
+    """
+
+    sensor: str                          # sensor class (topic key)
+    measures: str                        # one of MEASURES
+    scale_sigma: float = 0.0             # 1-sigma scale error (stationary if scale_tau is finite); 0 = no state
+    scale_tau: float = math.inf          # correlation time of the scale error [s]; inf = constant
+    scale_offset_sigma: float = 0.0      # constant scale error on top of a Gauss-Markov one; 0 = no state
+    bias_sigma: float = 0.0              # speed bias along the motion [m/s]; 0 = no state
+    fix_bias_sigma: float = 0.0          # persistent position-fix error [m]; 0 = no state
+    fix_bias_length: float = math.inf    # its correlation length along the track [m]
+    fix_bias_tau: float = math.inf       # its correlation time [s]
+    fix_bias_per_reference: bool = False  # a new reference_id draws a new, independent fix bias
+    reported_scale: float = 0.0          # scale 1-sigma included in the reported stddev
+    reported_bias: float = 0.0           # bias 1-sigma [m/s] included in the reported stddev
+    reported_fix_bias: float = 0.0       # fix-bias 1-sigma [m] included in the reported stddev
+    creep_coefficient: float = 0.0       # wheel creep c [s^2/m]: wheel speed = v (1 + c a sign v)
+    faults: tuple[str, ...] = ()         # fault modes of FAULT_MODES the fusion must check for
+    timeout: float = math.inf            # longest silence while in use [s]; inf = sparse/event sensor
+    gate_probability: float = math.nan   # chi-square gate of its measurements; NaN = the fusion's global one
+    stddev_factor: float = 1.0           # factor on the white part of the reported stddev
+
+    def __post_init__(self):
+        if self.measures not in MEASURES:
+            raise ValueError(f"{self.sensor}: measures must be one of {MEASURES}, not {self.measures!r}")
+        unknown = set(self.faults) - set(FAULT_MODES)
+        if unknown:
+            raise ValueError(f"{self.sensor}: unknown fault modes {sorted(unknown)}; known: {FAULT_MODES}")
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, float) and f.name != "gate_probability" and not value >= 0.0:
+                raise ValueError(f"{self.sensor}: error model {f.name} = {value} must be >= 0")
+
+    @property
+    def relative(self) -> bool:
+        """Measures speed or distance (dead reckoning), not position."""
+        return self.measures in ("speed", "distance")
+
+    def overridden(self, values: dict | None) -> "ErrorModel":
+        """This model with some fields replaced (a user who knows better); unknown names raise."""
+        if not values:
+            return self
+        names = {f.name for f in fields(self)} - {"sensor", "measures"}
+        bad = set(values) - names
+        if bad:
+            raise ValueError(f"unknown error-model field(s) {sorted(bad)} for {self.sensor}; known: "
+                             f"{', '.join(sorted(names))}")
+        cast = {k: (tuple(v) if k == "faults" else bool(v) if k == "fix_bias_per_reference" else float(v))
+                for k, v in values.items()}
+        return replace(self, **cast)
+
+
+def continuous_timeout(params: dict) -> float:
+    """Timeout of a sensor that reports every block: 20 blocks, at least 1 s."""
+    return max(1.0, 20.0 * float(params.get("block_duration", 0.05)))
 
 
 class Simulator(ABC):
@@ -163,3 +246,11 @@ class SensorSpec:
     seeds: tuple[str, ...] = field(default=())
     # measurement kinds published: "position", "speed", "distance", "sections"
     outputs: tuple[str, ...] = ("position", "speed", "distance")
+    # (resolved params, track, vehicle) -> ErrorModel
+    error_model: Callable[[dict, Track, Vehicle], ErrorModel] | None = None
+
+    def errors(self, params: dict, track: Track, vehicle: Vehicle) -> ErrorModel:
+        """The sensor's error model for its resolved ``params``."""
+        if self.error_model is None:
+            raise ValueError(f"sensor {self.node} declares no error model")
+        return self.error_model(params, track, vehicle)

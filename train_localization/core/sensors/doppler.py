@@ -11,6 +11,12 @@ frequency [Hz] and its signal-to-noise ratio [dB]. Errors modelled:
   * scale error from pitching and reflectivity changes: AR(1) with ``scale_sigma``
     and ``scale_tau``;
   * a constant ``bias`` [m/s] of the device;
+  * a mounting-angle error ``mount_angle_error`` [deg] of the installed radar (the
+    decoder uses the configured ``mount_angle``): a constant scale error
+    cos(theta + e) / cos(theta) - 1, about -tan(theta) e; the error model takes its
+    1-sigma ``mount_angle_tolerance`` as a constant scale-error state;
+  * injected scale faults (``faults``, tests and campaigns): a scale error added over
+    a time window (water film or snow changing the echo, a loosened mount);
   * dropouts (smooth, wet or snow-covered surface): episodes at ``dropout_rate`` per
     second of ``dropout_duration`` s, SNR below threshold and a random peak;
   * below ``min_speed`` the peak is lost in the low-frequency clutter filter.
@@ -27,7 +33,7 @@ import numpy as np
 
 from ..measurements import SpeedMeasurement
 from ..signals import InputRejected, RawBlock
-from .base import Decoder, Param, SensorSpec, Simulator
+from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator, continuous_timeout
 
 C = 299_792_458.0  # speed of light [m/s]
 
@@ -43,7 +49,27 @@ PARAMS = {
     "snr_threshold": Param(10.0, "samples below this SNR are invalid [dB]"),
     "dropout_rate": Param(0.01, "dropout episodes per second"),
     "dropout_duration": Param(0.5, "mean dropout length [s]"),
+    "mount_angle_tolerance": Param(0.2, "1-sigma uncertainty of the installed beam angle [deg] (installation "
+                                        "tolerance); a constant scale error of tan(theta) x this (0.35 % at 45 "
+                                        "deg) in the error model"),
+    "mount_angle_error": Param(0.0, "simulator: true deviation of the installed beam angle from mount_angle "
+                                    "[deg]"),
+    "faults": Param("", "injected scale faults 'T0-T1:SCALE' (scale error added, fraction), separated by ';' "
+                        "(tests, campaigns)"),
 }
+
+
+def _parse_faults(text: str) -> list[tuple[float, float, float]]:
+    """'T0-T1:SCALE' items -> (t0, t1, scale)."""
+    out = []
+    for item in filter(None, (s.strip() for s in str(text).split(";"))):
+        try:
+            window, scale = item.split(":")
+            t0, t1 = (float(v) for v in window.split("-"))
+            out.append((t0, t1, float(scale)))
+        except ValueError:
+            raise ValueError(f"malformed doppler fault {item!r}; expected 'T0-T1:SCALE'") from None
+    return out
 
 
 def doppler_shift(speed, f0: float, angle_deg: float):
@@ -61,6 +87,10 @@ class DopplerSimulator(Simulator):
         super().__init__(*args)
         self._scale = self.rng.normal(0.0, self.params["scale_sigma"])
         self._dropout_left = 0.0
+        theta = math.radians(self.params["mount_angle"])
+        # the installed angle differs from the configured one: a constant scale error
+        self._mount_scale = math.cos(theta + math.radians(self.params["mount_angle_error"])) / math.cos(theta) - 1.0
+        self._faults = _parse_faults(self.params["faults"])
 
     def samples(self, times, position, speed, acceleration):
         p = self.params
@@ -72,6 +102,9 @@ class DopplerSimulator(Simulator):
         for i in range(n):
             self._scale = phi * self._scale + math.sqrt(1 - phi * phi) * p["scale_sigma"] * self.rng.normal()
             scale[i] = self._scale
+        scale = scale + self._mount_scale
+        for t0, t1, extra in self._faults:
+            scale = scale + np.where((times >= t0) & (times < t1), extra, 0.0)
         v_meas = (speed + np.sign(speed) * p["bias"]) * (1.0 + scale)
         fd = doppler_shift(v_meas, p["carrier_frequency"], p["mount_angle"])
         fd = fd + self.rng.normal(0.0, 1.0, n) * p["spread"] * np.abs(fd)
@@ -122,8 +155,19 @@ class DopplerDecoder(Decoder):
         return [SpeedMeasurement(float(t_mid), self.sensor, self.unit_id, v, max(sigma, 0.01))]
 
 
+def error_model(params: dict, track, vehicle) -> ErrorModel:
+    """Doppler errors for the fusion: the AR(1) scale (``scale_sigma``, ``scale_tau``), a
+    constant mounting-angle scale error (tan(theta) x ``mount_angle_tolerance``), the
+    device ``bias``; the decoder reports the scale and the bias inside its stddev."""
+    mount = math.tan(math.radians(params["mount_angle"])) * math.radians(params["mount_angle_tolerance"])
+    return ErrorModel("doppler", "speed", scale_sigma=params["scale_sigma"], scale_tau=params["scale_tau"],
+                      scale_offset_sigma=mount, bias_sigma=abs(params["bias"]),
+                      reported_scale=params["scale_sigma"], reported_bias=abs(params["bias"]),
+                      faults=("dropout", "scale_fault"), timeout=continuous_timeout(params))
+
+
 SPEC = SensorSpec(
     node="doppler_radar", sensor="doppler", simulator=DopplerSimulator, decoder=DopplerDecoder,
     params=PARAMS, description="on-board Doppler radar: signed speed", seeds=("000", "002"),
-    outputs=("speed",),
+    outputs=("speed",), error_model=error_model,
 )

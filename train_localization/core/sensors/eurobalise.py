@@ -76,7 +76,7 @@ import numpy as np
 from ..measurements import PositionFix
 from ..signals import InputRejected, RawBlock
 from ..track import nearby_runs
-from .base import Decoder, Param, SensorSpec, Simulator
+from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator
 
 KIND = "eurobalise"
 MU0 = 4e-7 * math.pi           # permeability of free space [H/m]
@@ -535,8 +535,14 @@ class EurobaliseDecoder(Decoder):
                            float(item["position"] + p["antenna_offset"]), float(sigma), direction)
 
 
+def error_model(params: dict, track, vehicle) -> ErrorModel:
+    """Balise fixes for the fusion: white (reading window and peak timing in the decoder's
+    stddev); fault mode: a misread telegram."""
+    return ErrorModel(KIND, "position", faults=("misread",))
+
+
 SPEC = SensorSpec(
     node="eurobalise_reader", sensor=KIND, simulator=EurobaliseSimulator, decoder=EurobaliseDecoder,
     params=PARAMS, description="on-board Eurobalise reader (BTM): balise telegram -> position fix",
-    seeds=("001",), outputs=("position",),
+    seeds=("001",), outputs=("position",), error_model=error_model,
 )

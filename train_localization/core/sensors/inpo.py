@@ -89,7 +89,7 @@ import numpy as np
 from ..measurements import PositionFix
 from ..signals import InputRejected, RawBlock
 from ..track import Track, TrackError
-from .base import Decoder, Param, SensorSpec, Simulator
+from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator
 
 SECTION_KIND = "inpo_section"
 TWO_PI = 2.0 * math.pi
@@ -598,10 +598,20 @@ class InpoDecoder(Decoder):
         return out
 
 
+def error_model(params: dict, track, vehicle) -> ErrorModel:
+    """INPO fixes for the fusion: the section's fixed error (survey of the section start,
+    mean loop-pair skew; seed 002 section 2.2.1) is common to every fix of a section,
+    so it is a fix-bias state redrawn per section (reference_id); the decoder includes
+    it in its stddev."""
+    fixed = math.hypot(params["survey_sigma"], params["skew_sigma"] / math.sqrt(params["n_pairs"]))
+    return ErrorModel("inpo", "position", fix_bias_sigma=fixed, fix_bias_per_reference=True,
+                      reported_fix_bias=fixed, faults=("outage",))
+
+
 SPEC = SensorSpec(
     node="inpo_receiver", sensor="inpo", simulator=InpoSimulator, decoder=InpoDecoder, params=PARAMS,
     description="wayside INPO crossed inductive loops (Transrapid; MLU with 6 pairs): absolute position "
                 "from the 3-phase loop signals and period counting",
     seeds=("000", "002", "003"),
-    outputs=("position",),
+    outputs=("position",), error_model=error_model,
 )

@@ -88,7 +88,7 @@ import numpy as np
 from ..measurements import PositionFix
 from ..signals import InputRejected, RawBlock
 from ..track import nearby_runs
-from .base import Decoder, Param, SensorSpec, Simulator
+from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator
 
 KIND = "lrl_group"
 Q_PITCH = 0.2                # single-scan P-channel pitch [m]
@@ -655,8 +655,14 @@ class LrlDecoder(Decoder):
                                float(chainage + p["sensor_offset"]), float(sigma), direction))
 
 
+def error_model(params: dict, track, vehicle) -> ErrorModel:
+    """LRL fixes for the fusion: white (lug edge timing in the decoder's stddev); fault
+    mode: a misread code."""
+    return ErrorModel("lrl", "position", faults=("misread",))
+
+
 SPEC = SensorSpec(
     node="lrl_scanner", sensor="lrl", simulator=LrlSimulator, decoder=LrlDecoder, params=PARAMS,
     description="on-board INKREFA LRL scanner: location reference lug codes -> position fix",
-    seeds=("002", "000"), outputs=("position",),
+    seeds=("002", "000"), outputs=("position",), error_model=error_model,
 )

@@ -114,7 +114,7 @@ from scipy.special import chdtri
 from ..measurements import PositionFix
 from ..signals import InputRejected, RawBlock
 from ..track import Track, TrackError
-from .base import Decoder, Param, SensorSpec, Simulator
+from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator
 
 C_AIR = 299_792_458.0 / 1.0003  # speed of light in air (refractive index ~1.0003) [m/s]
 STATION_KIND = "mmwave_station"
@@ -813,9 +813,24 @@ class MmWaveDecoder(Decoder):
             done = biggest <= tol
 
 
+def error_model(params: dict, track, vehicle) -> ErrorModel:
+    """mm-wave fixes for the fusion: besides the white ranging noise, per-station errors
+    persist from epoch to epoch: the calibration biases (``cal_sigma``) and NLOS biases
+    small enough to pass the decoder's test (of the order of the ranging noise floor).
+    One fix-bias state of hypot(cal_sigma, range_sigma_floor) carries them; it
+    decorrelates as the stations in view change (the mean station spacing of the
+    track) and as NLOS episodes end (``nlos_duration``)."""
+    positions = sorted(float(it["position"]) for it in track.items(STATION_KIND)) if track is not None else []
+    spacing = (positions[-1] - positions[0]) / (len(positions) - 1) if len(positions) > 1 else math.inf
+    return ErrorModel("mmwave", "position", fix_bias_sigma=math.hypot(params["cal_sigma"],
+                                                                      params["range_sigma_floor"]),
+                      fix_bias_length=spacing, fix_bias_tau=params["nlos_duration"],
+                      faults=("nlos", "outage"))
+
+
 SPEC = SensorSpec(
     node="mmwave_ranging", sensor="mmwave", simulator=MmWaveSimulator, decoder=MmWaveDecoder,
     params=PARAMS, description="on-board mm-wave radio ranging to wayside base stations: absolute position",
     seeds=("002",),
-    outputs=("position",),
+    outputs=("position",), error_model=error_model,
 )

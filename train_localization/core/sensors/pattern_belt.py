@@ -76,7 +76,7 @@ from scipy.signal import lfilter
 
 from ..signals import InputRejected, RawBlock
 from ..track import Track
-from .base import Decoder, Param, SensorSpec, Simulator
+from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator, continuous_timeout
 from .wheel import CycleCounter, IncrementEstimator, increment_or_reject, restart_after_gap
 
 KIND = "pattern_belt"
@@ -479,9 +479,17 @@ class PatternBeltDecoder(Decoder):
                                    "state changes", "coil")
 
 
+def error_model(params: dict, track, vehicle) -> ErrorModel:
+    """Belt errors for the fusion: the installed period's relative error ``scale_sigma``
+    (constant along a belt section, reported inside the decoder's stddev); contactless,
+    so no slip."""
+    return ErrorModel("pattern_belt", "distance", scale_sigma=params["scale_sigma"],
+                      reported_scale=params["scale_sigma"], timeout=continuous_timeout(params))
+
+
 SPEC = SensorSpec(
     node="pattern_belt", sensor="pattern_belt", simulator=PatternBeltSimulator, decoder=PatternBeltDecoder,
     params=PARAMS, description="HSST pattern belt (8-shaped HF loop, 3 coils at p/3): signed distance "
     "increments at p/6 resolution and speed", seeds=("000", "002", "003"),
-    outputs=("distance",),
+    outputs=("distance",), error_model=error_model,
 )

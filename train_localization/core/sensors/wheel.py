@@ -59,7 +59,7 @@ from scipy.signal import lfilter
 
 from ..measurements import DistanceIncrement
 from ..signals import InputRejected, RawBlock
-from .base import Decoder, Param, SensorSpec, Simulator
+from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator, continuous_timeout
 
 PARAMS = {
     "pulses_per_revolution": Param(
@@ -661,9 +661,21 @@ class WheelDecoder(Decoder):
         return self._offsets_cache
 
 
+def error_model(params: dict, track, vehicle) -> ErrorModel:
+    """Wheel errors for the fusion: the diameter error, constant between re-calibrations and
+    uniform within +-``diameter_tolerance`` (1-sigma tolerance/sqrt(3), which the decoder
+    reports inside its stddev); creep under traction and braking; slip (driven axle) and
+    slide episodes, which the decoder cannot see."""
+    scale = params["diameter_tolerance"] / math.sqrt(3.0)
+    return ErrorModel("wheel", "distance", scale_sigma=scale, reported_scale=scale,
+                      creep_coefficient=params["creep_coefficient"],
+                      faults=("slip", "slide") if params["driven_axle"] else ("slide",),
+                      timeout=continuous_timeout(params))
+
+
 SPEC = SensorSpec(
     node="wheel_sensor", sensor="wheel", simulator=WheelSimulator, decoder=WheelDecoder,
     params=PARAMS, description="on-board wheel pulse generator (quadrature): signed distance increments "
     "and speed; affected by diameter error, creep, slip and slide", seeds=("002",),
-    outputs=("distance",),
+    outputs=("distance",), error_model=error_model,
 )

@@ -1,0 +1,92 @@
+"""The late-data history: measurements of the last ``history`` seconds with the filter state
+after each, so that a late measurement is inserted at its stamp and the ones after it
+re-applied (lazily, when an estimate is next asked for). Snapshots are immutable tuples
+(x, P, bookkeeping) that share their arrays: no copying. Ties are ordered by a key built
+from the measurement itself, never by arrival, so the result equals in-order processing.
+"""
+from __future__ import annotations
+
+import bisect
+import math
+
+from ..measurements import PositionFix, SpeedMeasurement
+from ..signals import InputRejected
+
+
+def order_key(m) -> tuple:
+    """Deterministic total order of measurements: by stamp, then by content."""
+    if isinstance(m, PositionFix):
+        body = (0, m.position, m.position_stddev)
+    elif isinstance(m, SpeedMeasurement):
+        body = (1, m.speed, m.speed_stddev)
+    else:
+        body = (2, m.distance, m.duration)
+    return (m.stamp, m.sensor, m.unit_id) + body
+
+
+class History:
+    """Kept measurements (sorted by ``order_key``), the snapshots after the applied ones, and
+    the snapshot before the first (``base``)."""
+
+    def __init__(self, span: float, base):
+        self.span = span
+        self.keys: list[tuple] = []
+        self.stamps: list[float] = []
+        self.meas: list = []
+        self.snaps: list[tuple] = []
+        self.n_applied = 0
+        self.base = base
+        self.base_key: tuple = (-math.inf,)
+        self.excluded: set[tuple] = set()   # keys a fault check excluded after the fact
+        self.rollbacks = 0                  # insertions before a measurement stamped later
+
+    def insert(self, m) -> None:
+        """Insert at its stamp; raises InputRejected ``too_late`` / ``duplicate``."""
+        key = order_key(m)
+        newest = self.stamps[-1] if self.stamps else None
+        if newest is not None and m.stamp < newest - self.span:
+            raise InputRejected("too_late", f"{m.sensor} measurement {newest - m.stamp:.3f} s late "
+                                f"(history {self.span} s)")
+        if key <= self.base_key:
+            raise InputRejected("too_late", f"{m.sensor} measurement at {m.stamp:.6f} s is before the "
+                                "kept history (or the last reset)")
+        i = bisect.bisect_left(self.keys, key)
+        if i < len(self.keys) and self.keys[i] == key:
+            raise InputRejected("duplicate", f"{m.sensor} measurement at {m.stamp:.6f} s seen before")
+        if i < len(self.keys):
+            self.rollbacks += 1
+        self.keys.insert(i, key)
+        self.stamps.insert(i, m.stamp)
+        self.meas.insert(i, m)
+        self.rewind(i)
+
+    def rewind(self, i: int) -> None:
+        """Forget the states from index i on (they are re-applied)."""
+        if i < self.n_applied:
+            del self.snaps[i:]
+            self.n_applied = i
+
+    def snapshot_before(self, i: int):
+        return self.snaps[i - 1] if i else self.base
+
+    def pending(self) -> int:
+        return len(self.meas) - self.n_applied
+
+    def prune(self, batch: int = 64) -> None:
+        """Forget the measurements older than ``span``, once ``batch`` of them have aged out."""
+        stamps = self.stamps
+        if len(stamps) <= batch or stamps[batch - 1] >= stamps[-1] - self.span:
+            return
+        cut = bisect.bisect_left(stamps, stamps[-1] - self.span)
+        cut = min(cut, self.n_applied)
+        if cut > 0:
+            self.base, self.base_key = self.snaps[cut - 1], self.keys[cut - 1]
+            del self.keys[:cut], self.stamps[:cut], self.meas[:cut], self.snaps[:cut]
+            self.n_applied -= cut
+            if self.excluded:
+                self.excluded = {k for k in self.excluded if k > self.base_key}
+
+    def state_at(self, t: float):
+        """Snapshot after every applied measurement stamped <= t (the base before the first)."""
+        j = bisect.bisect_right(self.stamps, t) - 1
+        return self.snaps[j] if j >= 0 else self.base

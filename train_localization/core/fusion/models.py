@@ -1,0 +1,134 @@
+"""Process and measurement models of the along-track filter (scalar measurements).
+
+Process model
+  [s, v, a]   constant acceleration driven by white jerk (spectral density ``jerk_psd``)
+  k (scale)   Gauss-Markov: the exact discretisation of an AR(1) error with correlation
+              time tau and stationary 1-sigma (the Doppler radar, doppler.py); constant
+              scales and biases: random walks from their priors
+  e (fix bias) Gauss-Markov in the distance run and in time: phi = exp(-|v| dt / L - dt / tau)
+
+Measurement models
+  PositionFix        z = s (+ e)
+  SpeedMeasurement   z = (1 + k + k0)(u + sign(z) b),  u = v
+  DistanceIncrement  z = distance / d = (1 + k + k0)(u + sign(z) b), u = v - a d/2: the mean
+                     speed over the interval d ending at the stamp, R = (distance_stddev / d)^2.
+                     A wheel under traction or braking turns faster or slower than the train
+                     moves (creep): u becomes u + c a |u| with the model's creep coefficient c.
+Honest noise: a decoder reports a measurement's 1-sigma including its slowly varying
+errors as if white; the parts the states carry (``reported_*`` of the error model) are
+removed from R (floored at 1 % of it); ``stddev_factor`` scales what is left.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..measurements import PositionFix, SpeedMeasurement
+from .layout import StateLayout
+
+
+class ProcessModel:
+    """F, Q over a time step (cached: the sensors' fixed rates repeat the same steps)."""
+
+    def __init__(self, layout: StateLayout, jerk_psd: float):
+        self.layout, self.q = layout, jerk_psd
+        self._cache: dict[float, tuple] = {}
+
+    def transition(self, dt: float):
+        hit = self._cache.get(dt)
+        if hit is not None:
+            return hit
+        n = self.layout.n
+        F = np.eye(n)
+        F[0, 1], F[0, 2], F[1, 2] = dt, 0.5 * dt * dt, dt
+        Q = np.zeros((n, n))
+        dt2 = dt * dt
+        Q[:3, :3] = self.q * np.array([[dt2 * dt2 * dt / 20, dt2 * dt2 / 8, dt2 * dt / 6],
+                                       [dt2 * dt2 / 8, dt2 * dt / 3, dt2 / 2],
+                                       [dt2 * dt / 6, dt2 / 2, dt]])
+        for i, tau, sigma in self.layout.gauss_markov:
+            phi = math.exp(-dt / tau)
+            F[i, i] = phi
+            Q[i, i] = sigma * sigma * (1.0 - phi * phi)
+        for i, psd in self.layout.random_walk:
+            Q[i, i] = psd * dt
+        FT = F.T.copy()
+        if len(self._cache) > 4096:
+            self._cache.clear()
+        self._cache[dt] = (F, FT, Q)
+        return F, FT, Q
+
+    def predict(self, x, P, t0: float | None, t: float):
+        """(x, P) moved from t0 to t (before t0: extrapolated back, uncertainty grown as forwards)."""
+        if t0 is None or t == t0:
+            return x, P
+        F, FT, Q = self.transition(t - t0)
+        if t < t0:
+            Q = self.transition(t0 - t)[2]
+        # new arrays: snapshots share the old ones
+        x, P = F.dot(x), F.dot(P).dot(FT) + Q
+        if self.layout.fix_decay:
+            dt = abs(t - t0)
+            dist = abs(float(x[1, 0])) * dt
+            for i, length, tau, sigma in self.layout.fix_decay:
+                phi = math.exp(-dist / length - dt / tau)
+                x[i, 0] *= phi
+                P[i, :] *= phi
+                P[:, i] *= phi
+                P[i, i] += sigma * sigma * (1.0 - phi * phi)
+        return x, P
+
+
+def measurement(layout: StateLayout, x_col, m):
+    """(z, R, H row (1-D), h(x)) of a measurement at the state x (n, 1)."""
+    model = layout.models[m.sensor]
+    x = x_col[:, 0].tolist()   # plain floats: the same doubles, without numpy scalars
+    h = np.zeros(layout.n)
+    cls = m.sensor
+    if isinstance(m, PositionFix):
+        h[0] = 1.0
+        R = m.position_stddev ** 2
+        z, hx = m.position, x[0]
+        f_idx = layout.fix.get(cls)
+        if f_idx is not None:
+            h[f_idx] = 1.0
+            hx = hx + x[f_idx]
+            fixed = model.reported_fix_bias
+            if fixed > 0.0:
+                R = max(R - fixed * fixed, 0.01 * R)
+    else:
+        k_idx = layout.scale.get(cls)
+        o_idx = layout.offset.get(cls)
+        g = 1.0 + (x[k_idx] if k_idx is not None else 0.0) + (x[o_idx] if o_idx is not None else 0.0)
+        if isinstance(m, SpeedMeasurement):
+            z, sigma = m.speed, m.speed_stddev
+            v, a, d = x[1], x[2], 0.0
+            h[1] = g
+        else:
+            d = m.duration
+            z, sigma = m.distance / d, m.distance_stddev / d
+            a = x[2]
+            v = x[1] - 0.5 * d * a
+            h[1], h[2] = g, -0.5 * d * g
+        c = model.creep_coefficient
+        if c:   # v (1 + c a sign v) = v + c a |v|
+            sv = 1.0 if v >= 0.0 else -1.0
+            h[1] += g * c * a * sv
+            h[2] += g * c * (abs(v) - 0.5 * d * a * sv)
+            v = v + c * a * abs(v)
+        b_idx = layout.bias.get(cls)
+        if b_idx is not None:
+            sgn = 1.0 if z >= 0.0 else -1.0
+            h[b_idx] = g * sgn
+            v = v + sgn * x[b_idx]
+        if k_idx is not None:
+            h[k_idx] = v
+        if o_idx is not None:
+            h[o_idx] = v
+        hx = g * v
+        R = sigma * sigma
+        R = max(R - (model.reported_scale * z) ** 2 - model.reported_bias ** 2, 0.01 * R)
+    if model.stddev_factor != 1.0:
+        R *= model.stddev_factor ** 2
+    return z, R, h, hx

@@ -1,0 +1,62 @@
+"""The fusion node's logic: the filter plus its fixed-rate output grid.
+
+The live node (nodes/fusion.py) and the offline runs (core/offline.py) both drive a
+``FusionRunner``, so they make the same estimates from the same measurement sequence.
+"""
+from __future__ import annotations
+
+import math
+
+from .. import convert
+from ..signals import InputRejected
+from .filter import Estimate, TrainFilter
+from .config import FusionConfig
+
+
+class FusionRunner:
+    """TrainFilter plus the fixed-rate output grid (k / rate seconds).
+
+    ``add`` feeds a measurement (rejections are counted in ``rejected``, the last one
+    kept in ``last_error``),
+    ``advance(t)`` returns the estimates of every grid time <= t not yet produced,
+    each with the sensor classes used since the previous one.
+    """
+
+    def __init__(self, config: FusionConfig, rate: float = 200.0):
+        self.filter = TrainFilter(config)
+        self.period = 1.0 / rate
+        self._next_k: int | None = None
+        self._used: set[str] = set()
+        self.rejected: dict[str, int] = {}
+        self.last_error: InputRejected | None = None   # why the last rejected measurement was
+
+    def add(self, m) -> bool:
+        try:
+            self.filter.add(m)
+        except InputRejected as exc:
+            self.rejected[exc.reason] = self.rejected.get(exc.reason, 0) + 1
+            self.last_error = exc
+            return False
+        self._used.add(m.sensor)
+        return True
+
+    def due(self, t: float) -> bool:
+        """Whether ``advance(t)`` would produce an estimate (a grid time <= t not produced yet)."""
+        return self._next_k is None or math.floor(t / self.period + 1e-9) >= self._next_k
+
+    def advance(self, t: float, max_catch_up: int = 1000) -> list[tuple[Estimate, list[str]]]:
+        k_now = math.floor(t / self.period + 1e-9)
+        if self._next_k is None or k_now - self._next_k > max_catch_up:
+            self._next_k = k_now
+        out = []
+        while self._next_k <= k_now:
+            out.append((self.filter.estimate(convert.canonical(self._next_k * self.period)), sorted(self._used)))
+            self._used.clear()
+            self._next_k += 1
+        return out
+
+
+def estimate_to_msg(mc, est: Estimate, track_id: str, sensors):
+    return convert.train_state_to_msg(mc, est.stamp, track_id, est.position, est.speed, est.acceleration,
+                                      est.position_stddev, est.speed_stddev, est.position_min,
+                                      est.position_max, est.confidence, est.mode, sensors)

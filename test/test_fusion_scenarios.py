@@ -79,7 +79,7 @@ def test_conventional_300_forced_slip_and_slide_episodes_are_excluded(runs):
     with_detection = _speed_errors_in_episodes(sc, result.estimates, forced)
     # the same measurements without slip detection (and no gate on the wheel): the filter
     # follows the slipping wheel
-    runner = FusionRunner(fusion_config(sc, slip_sensors=(), gate_probabilities={"wheel": 1.0}))
+    runner = FusionRunner(fusion_config(sc, overrides={"wheel": {"faults": (), "gate_probability": 1.0}}))
     estimates = []
     for m in sorted((m for m in result.measurements if hasattr(m, "sensor")), key=lambda m: m.stamp):
         runner.add(m)

@@ -40,10 +40,20 @@ def raw_topic(sensor: str) -> str:
 
 
 
+# per-sensor tables that scenarios (and the bags recorded from them) carried before the
+# sensors owned their error models; the sensors' models replace them
+LEGACY_FUSION_KEYS = frozenset({
+    "scale_sensors", "bias_sensors", "slip_sensors", "fix_bias_sensors", "fix_bias_per_reference", "timeouts",
+    "scale_tau", "scale_sigma", "scale_offset_sigma", "initial_scale_stddev", "bias_sigma", "fix_bias_sigma",
+    "fix_bias_length", "fix_bias_tau", "reported_fix_bias", "creep_coefficient", "reported_scale",
+    "reported_bias", "stddev_factor", "gate_probabilities", "reacquire_count", "reacquire_time"})
+
+
 def fusion_config(scenario: Scenario | None, **overrides) -> FusionConfig:
     """FusionConfig of a scenario: the error models of its sensors, and its ``fusion:``
-    section (global tuning and per-sensor ``overrides``), plus keyword overrides."""
-    values = dict((scenario.fusion if scenario else {}) or {})
+    section (global tuning and per-sensor ``overrides``), plus keyword overrides.
+    Legacy per-sensor tables (``LEGACY_FUSION_KEYS``, in bags recorded before) are ignored."""
+    values = {k: v for k, v in ((scenario.fusion if scenario else {}) or {}).items() if k not in LEGACY_FUSION_KEYS}
     values.update(overrides)
     if scenario is not None:
         values.setdefault("track_id", scenario.track.track_id)

@@ -11,16 +11,16 @@ Service: localization/set_position (train_localization_msgs/SetPosition).
 
 Parameters:
   track (string)                track YAML (or take it from ``scenario``)
-  scenario (string, "")         scenario YAML; gives the track and the ``fusion:`` tuning
-                                (explicitly set parameters override it)
+  scenario (string, "")         scenario YAML: the track, the sensors whose error models configure
+                                the filter, and the ``fusion:`` tuning (set parameters override it)
   sensors (string[])            sensor classes to subscribe
+  sensor_params (string, "")    YAML file: sensor node name -> parameters; the error models of the
+                                subscribed sensors are built from it (without a scenario)
   publish_rate (double, 200.0)  [Hz] (MLX position system updates every 5 ms, seed 002)
   map_frame ("map"), base_frame ("base_link")
-  and every field of core/fusion.py FusionConfig under its own name, with the same
-  default and description: numbers as doubles, sensor lists as string arrays, and the
-  per-sensor tables (timeouts, scale_tau, scale_sigma, bias_sigma, reported_scale,
-  reported_bias, stddev_factor, gate_probabilities, fix_bias_sigma, fix_bias_length,
-  creep_coefficient) as string arrays of "sensor:value" entries.
+  error_model_overrides (string[]) per-sensor error-model fields, "sensor.field:value"
+  and every global tuning field of core/fusion/config.py FusionConfig under its own name,
+  with the same default and description.
 """
 from __future__ import annotations
 
@@ -32,7 +32,7 @@ from nav_msgs.msg import Odometry
 from rclpy.node import Node
 
 from ..core import convert, paths
-from ..core.fusion import FusionConfig
+from ..core.fusion import FusionConfig, sensor_models
 from ..core.offline import FusionRunner, estimate_to_msg, fusion_config
 from ..core.scenario import Scenario
 from ..core.signals import InputRejected
@@ -43,40 +43,58 @@ ALL_SENSORS = ["doppler", "wheel", "eurobalise", "lrl", "inpo", "pattern_belt", 
 
 
 def _ros_value(value):
-    """A FusionConfig value as a ROS parameter value (dicts and tuples as string arrays)."""
-    if isinstance(value, dict):
-        return [f"{k}:{v!r}" for k, v in value.items()] or [""]
-    if isinstance(value, (tuple, list)):
-        return [str(v) for v in value] or [""]
+    """A FusionConfig tuning value as a ROS parameter value."""
     return value
 
 
 def _from_ros(default, value):
-    if isinstance(default, dict):
-        out = {}
-        for item in value:
-            if item:
-                name, sep, number = item.partition(":")
-                if not sep:
-                    raise ValueError(f"expected 'sensor:value', got {item!r}")
-                out[name.strip()] = float(number)
-        return out
-    if isinstance(default, tuple):
-        return tuple(v for v in value if v)
     if isinstance(default, float):
         return float(value)
+    if isinstance(default, int) and not isinstance(default, bool):
+        return int(value)
     return value
 
 
+def overrides_to_ros(overrides: dict) -> list[str]:
+    """{sensor: {field: value}} -> ["sensor.field:value", ...] (a tuple value as a|b|c)."""
+    out = []
+    for sensor, values in overrides.items():
+        for name, value in values.items():
+            text = "|".join(value) if isinstance(value, (tuple, list)) else repr(value)
+            out.append(f"{sensor}.{name}:{text}")
+    return out or [""]
+
+
+def overrides_from_ros(items: list[str]) -> dict:
+    """Inverse of overrides_to_ros; ValueError names a malformed entry."""
+    out: dict = {}
+    for item in items:
+        if not item:
+            continue
+        key, sep, text = item.partition(":")
+        sensor, dot, name = key.strip().partition(".")
+        if not (sep and dot and sensor and name):
+            raise ValueError(f"expected 'sensor.field:value' in error_model_overrides, got {item!r}")
+        value = tuple(v for v in text.split("|") if v) if name == "faults" else \
+            (text.strip().lower() == "true" if name == "fix_bias_per_reference" else float(text))
+        out.setdefault(sensor, {})[name] = value
+    return out
+
+
 def declare_fusion_config(node: Node, base: FusionConfig, track_id: str) -> FusionConfig:
-    """Declare every FusionConfig field as a parameter (default: ``base``) and build the config."""
+    """Declare every global tuning field (default: ``base``) and the per-sensor error-model
+    overrides as parameters, and build the config."""
     values = {}
-    for f in fields(FusionConfig):
+    for f in FusionConfig.tuning_fields():
         if f.name == "track_id":
             continue
         default = getattr(base, f.name)
         values[f.name] = _from_ros(default, declare(node, f.name, _ros_value(default), f.metadata.get("doc", "")))
-    return FusionConfig(track_id=track_id, **values)
+    overrides = overrides_from_ros(declare(
+        node, "error_model_overrides", overrides_to_ros(base.overrides),
+        "per-sensor error-model fields replacing what the sensor's own model says, as "
+        "'sensor.field:value' (fields of core/sensors/base.py ErrorModel, e.g. doppler.scale_sigma:0.01)"))
+    return FusionConfig(track_id=track_id, sensors=base.sensors, overrides=overrides, **values)
 
 
 class FusionNode(Node):
@@ -87,8 +105,16 @@ class FusionNode(Node):
         scenario = Scenario.from_yaml(scenario_path) if scenario_path else None
         self.track = scenario.track if scenario else Track.from_yaml(paths.resolve(track))
         sensors = declare(self, "sensors", ALL_SENSORS, "sensor classes to subscribe")
+        params_file = declare(self, "sensor_params", "", "YAML file: sensor node name -> its parameters (the "
+                                                         "sensors' own parameter files); their error models "
+                                                         "configure the filter (default: the scenario's sensors, "
+                                                         "else default parameters)")
         rate = float(declare(self, "publish_rate", 200.0, "state publish rate [Hz]"))
-        cfg = declare_fusion_config(self, fusion_config(scenario), self.track.track_id)
+        base = fusion_config(scenario)
+        if params_file or not scenario:
+            base = FusionConfig(**{**{f.name: getattr(base, f.name) for f in FusionConfig.tuning_fields()},
+                                   "sensors": self._models(sensors, params_file), "overrides": base.overrides})
+        cfg = declare_fusion_config(self, base, self.track.track_id)
         self.map_frame = declare(self, "map_frame", "map", "fixed frame")
         self.base_frame = declare(self, "base_frame", "base_link", "vehicle frame")
         self.runner = FusionRunner(cfg, rate)
@@ -115,6 +141,21 @@ class FusionNode(Node):
         from train_localization_msgs.srv import SetPosition
         self.create_service(SetPosition, "localization/set_position", self.on_set_position)
         self.create_timer(1.0 / rate, self.on_timer)
+
+    def _models(self, classes: list[str], params_file: str) -> dict:
+        """Error models of the subscribed sensor classes, from their parameter file (if any)."""
+        import yaml
+        from ..core.scenario import Vehicle
+        from ..core.sensors import NODE_NAMES, spec
+        by_class = {spec(n).sensor: n for n in NODE_NAMES}
+        unknown = [c for c in classes if c not in by_class]
+        if unknown:
+            raise ValueError(f"unknown sensor classes {unknown}; known: {', '.join(sorted(by_class))}")
+        given = {}
+        if params_file:
+            with open(paths.resolve(params_file), encoding="utf-8") as fh:
+                given = yaml.safe_load(fh) or {}
+        return sensor_models({by_class[c]: given.get(by_class[c], {}) for c in classes}, self.track, Vehicle())
 
     def on_measurement(self, topic, parse, msg):
         try:

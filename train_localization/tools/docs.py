@@ -35,21 +35,22 @@ def sensor_params_markdown() -> str:
 
 def fusion_params_markdown() -> str:
     """Parameters of the fusion node beyond scenario/track/sensors/publish_rate/frames:
-    every field of core.fusion.FusionConfig (per-sensor tables as "sensor:value" lists)."""
+    every global tuning field of core.fusion.FusionConfig, then the error-model fields that
+    ``error_model_overrides`` can replace per sensor."""
     from dataclasses import fields
 
     from ..core.fusion import FusionConfig
+    from ..core.sensors.base import ErrorModel
     base = FusionConfig()
     lines = ["| parameter | default | meaning |", "|---|---|---|"]
-    for f in fields(FusionConfig):
+    for f in FusionConfig.tuning_fields():
         if f.name == "track_id":
             continue
         value = getattr(base, f.name)
-        if isinstance(value, dict):
-            value = [f"{k}:{v!r}" for k, v in value.items()]
-        elif isinstance(value, tuple):
-            value = list(value)
         lines.append(f"| `{f.name}` | {_value(value)} | {f.metadata.get('doc', '').replace('|', '/')} |")
+    names = ", ".join(f"`{f.name}`" for f in fields(ErrorModel) if f.name not in ("sensor", "measures"))
+    lines += ["", "`error_model_overrides` (string array, `sensor.field:value`) replaces fields of a sensor's "
+              f"own error model (core/sensors/base.py `ErrorModel`): {names}."]
     return "\n".join(lines) + "\n"
 
 

@@ -19,9 +19,10 @@ information; the filter may say it does not know, never be confidently wrong):
               ``slip_window`` s disagree (a slip too small to show in one increment:
               low speed, slow onset), while another speed source was accepted recently,
               starts an episode: the sensor is excluded until ``slip_holdoff`` s after
-              its last disagreement. When the windowed sum detects it, the increments of
-              the window are excluded after the fact and the history re-applied without
-              them, so the slip is not carried in the scale states.
+              its last disagreement. The increments just before that already disagreed
+              the same way (the onset of the slip) are excluded after the fact and the
+              history re-applied without them, so the slip is not carried in the speed
+              and scale states.
   plausibility an error state estimated beyond ``plausible_sigmas`` of its prior means a
               fault was absorbed (the filter explained a slip or a faulty sensor with a
               scale nobody has): every relative sensor's error states are re-learnt from
@@ -265,8 +266,13 @@ class TrainFilter:
         summed = sum(w[1] for w in window) ** 2 / sum(w[2] for w in window) if len(window) >= 3 else 0.0
         if (nis > self._slip_gate or summed > self._slip_gate) and self._reference_ok(m.stamp):
             aux.slip_window = {**aux.slip_window, cls: ()}
-            if nis <= self._slip_gate and len(window) > 1:
-                raise _Lookback(cls, window[0][0])   # the window's increments were absorbed: take them out
+            # the onset: the increments before this one that already disagreed the same way were
+            # absorbed (a slip ramps up): take them out and re-apply the history without them
+            k = len(window) - 1
+            while k > 0 and (window[k - 1][1] > 0.0) == (e > 0.0):
+                k -= 1
+            if k < len(window) - 1:
+                raise _Lookback(cls, window[k][0])
             aux.slip_until = {**aux.slip_until, cls: m.stamp + cfg.slip_holdoff}
             aux.slips += 1
             aux.gated = _inc(aux.gated, cls + "/slip")

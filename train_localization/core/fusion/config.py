@@ -64,6 +64,9 @@ class FusionConfig:
     slip_window: float = _doc(1.0, "window of the accumulated slip test [s]: a slip too small to show in one "
                                    "increment (low speed, slow onset) shows in the sum; the increments of the "
                                    "window are then excluded retroactively")
+    slip_min_drive: float = _doc(0.2, "|acceleration| [m/s^2] below which a wheel transmits too little "
+                                      "traction or braking force to slip or slide (running resistance): a "
+                                      "disagreement then is as likely the other speed sources' fault")
     slip_holdoff: float = _doc(0.5, "a slip sensor stays excluded this long after its last disagreement [s]")
     slip_reference_timeout: float = _doc(1.0, "slip is declared only if another speed source was accepted "
                                               "within this time [s]")

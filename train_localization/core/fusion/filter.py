@@ -14,7 +14,8 @@ Fault policy (the rule of GNSS integrity monitoring: no hazardously misleading
 information; the filter may say it does not know, never be confidently wrong):
   gate        a measurement whose normalised innovation squared (NIS) exceeds the
               chi-square quantile of its gate probability is rejected and counted.
-  slip/slide  an increment of a sensor with slip or slide fault modes that disagrees
+  episodes    (slip, slide, radar scale faults) an increment or speed of a relative sensor
+              with such fault modes that disagrees
               (NIS above ``slip_gate_probability``), or whose innovations summed over
               ``slip_window`` s disagree (a slip too small to show in one increment:
               low speed, slow onset), while another speed source was accepted recently,
@@ -36,6 +37,14 @@ information; the filter may say it does not know, never be confidently wrong):
               another reference decides: one the filter explains drops it (the fix was the
               outlier); one that agrees with it means the filter was wrong: the position is
               taken from the fixes and the relative error states are re-learnt.
+  arbitration a wheel slips only under traction and slides only under braking: a slip
+              sensor's disagreement of another kind (it turns slower while the train
+              accelerates, or any at a steady speed) may be the other speed sources' fault.
+              The filter still follows the majority view, but keeps the excluded sensor's
+              distance as the alternative (the interval covers it, DEGRADED) until an
+              absolute fix decides: if the fix agrees with the excluded sensor, the other
+              speed sources are suspended until they agree again, the position is taken
+              from the fix and the relative error states are re-learnt.
 Modes: INITIALISING until the first absolute fix (NaN position, infinite interval);
 LOST when the position 1-sigma exceeds ``lost_stddev``; DEGRADED while a continuous
 sensor is past its timeout, an unexplained fix is pending, or the filter has not been
@@ -95,7 +104,7 @@ class _Aux:
 
     __slots__ = ("initialised", "t", "last_accepted", "slip_until", "accepted", "gated", "slips",
                  "speed_sources", "nis", "fix_ref", "last_fix_accepted", "fix_nis", "slip_window",
-                 "alternative", "events", "unverified", "s_last_fix")
+                 "alternative", "events", "unverified", "s_last_fix", "relative_alternative", "suspended")
 
     def __init__(self):
         self.initialised = False
@@ -115,6 +124,10 @@ class _Aux:
         self.events: dict[str, int] = {}
         self.unverified = ""                           # why the filter awaits a confirming fix
         self.s_last_fix = math.nan                     # filter position after the last accepted fix
+        # a slip sensor excluded although its disagreement does not look like a slip: it may be
+        # the other speed sources that are wrong: (sensor, distance it ran ahead D [m], var D)
+        self.relative_alternative: tuple | None = None
+        self.suspended: dict[str, float] = {}          # speed sources found faulty -> agreeing since [s]
 
     def copy(self) -> "_Aux":
         new = object.__new__(_Aux)
@@ -232,7 +245,11 @@ class TrainFilter:
         PHt = self.ekf.P.dot(h)
         S = float(h.dot(PHt)) + R
         nis = (z - hx) ** 2 / S
-        if cls in self.layout.slip_sensors and self._slipping(m, z - hx, S, nis):
+        if cls in aux.suspended and self._suspended(m, nis):
+            return
+        if cls in self.layout.episode_sensors and self._slipping(m, z - hx, S, nis):
+            return
+        if is_fix and aux.relative_alternative is not None and self._decide_relative(m, z, hx, S, nis):
             return
         if nis > self._gates[cls]:
             aux.gated = _inc(aux.gated, cls)
@@ -258,13 +275,17 @@ class TrainFilter:
             if nis > self._slip_gate:   # still slipping
                 aux.slip_until = {**aux.slip_until, cls: m.stamp + cfg.slip_holdoff}
             aux.gated = _inc(aux.gated, cls + "/slip")
+            self._separate(m, e, S)
             return True
+        alt = aux.relative_alternative
+        if alt is not None and alt[0] == cls and alt[1] ** 2 <= self._slip_gate * self._alternative_spread(alt)[1]:
+            aux.relative_alternative = None   # the episode ended without a separation: a false alarm
         d = getattr(m, "duration", 0.0) or 0.0
         weight = d if d > 0.0 else 1.0
         window = tuple(w for w in aux.slip_window.get(cls, ()) if w[0] > m.stamp - cfg.slip_window)
         window += ((m.stamp, e * weight, S * weight * weight),)
         summed = sum(w[1] for w in window) ** 2 / sum(w[2] for w in window) if len(window) >= 3 else 0.0
-        if (nis > self._slip_gate or summed > self._slip_gate) and self._reference_ok(m.stamp):
+        if (nis > self._slip_gate or summed > self._slip_gate) and self._reference_ok(m):
             aux.slip_window = {**aux.slip_window, cls: ()}
             # the onset: the increments before this one that already disagreed the same way were
             # absorbed (a slip ramps up): take them out and re-apply the history without them
@@ -273,30 +294,116 @@ class TrainFilter:
                 k -= 1
             if k < len(window) - 1:
                 raise _Lookback(cls, window[k][0])
+            self._episode_starts(m, e)
             aux.slip_until = {**aux.slip_until, cls: m.stamp + cfg.slip_holdoff}
-            aux.slips += 1
             aux.gated = _inc(aux.gated, cls + "/slip")
+            self._separate(m, e, S)
             return True
         aux.slip_window = {**aux.slip_window, cls: window}
         return False
+
+    def _episode_starts(self, m, e: float) -> None:
+        """A fault episode of ``m.sensor`` starts with the disagreement e [m/s]. A wheel slips
+        only under traction (it turns faster) and slides only under braking (slower); a
+        disagreement of another kind, or of a sensor without slip physics (the radar), may
+        be the other speed sources' fault: then the sensor's own view is kept as the
+        alternative until an absolute fix decides."""
+        aux = self.aux
+        aux.slips += 1
+        faults = self.models[m.sensor].faults
+        v, a = float(self.ekf.x[1, 0]), float(self.ekf.x[2, 0])
+        sv = 1.0 if v >= 0.0 else -1.0
+        drive, excess = a * sv, e * sv
+        limit = self.cfg.slip_min_drive
+        physical = ("slip" in faults and drive >= limit and excess > 0.0) or \
+                   ("slide" in faults and drive <= -limit and excess < 0.0)
+        if not physical and aux.relative_alternative is None:
+            aux.relative_alternative = (m.sensor, 0.0, 0.0, m.stamp, m.stamp, 0.0)
+            aux.events = _inc(aux.events, "ambiguous_slip")
+
+    def _separate(self, m, e: float, S: float) -> None:
+        """While a sensor is excluded as the alternative, add up how far it ran ahead [m], the
+        white part of its variance and the distance run (its scale error is common to all)."""
+        alt = self.aux.relative_alternative
+        if alt is None or alt[0] != m.sensor:
+            return
+        cls, D, white, since, last, run = alt
+        d = getattr(m, "duration", 0.0) or (m.stamp - last)   # a speed holds since the previous one
+        R = max(S - float(self.ekf.P[1, 1]), 0.0)              # its own noise (speed units), roughly
+        self.aux.relative_alternative = (cls, D + e * d, white + R * d * d, since, m.stamp,
+                                         run + abs(float(self.ekf.x[1, 0])) * d)
+
+    def _alternative_spread(self, alt) -> tuple[float, float]:
+        """(separation D [m], its variance [m^2]) of the relative alternative."""
+        cls, D, white, _, _, run = alt
+        model = self.models[cls]
+        scale = model.scale_sigma + model.scale_offset_sigma
+        return D, white + (scale * run) ** 2
+
+    def _decide_relative(self, m, z: float, hx: float, S: float, nis: float) -> bool:
+        """An absolute fix decides between the filter and the excluded slip sensor's view.
+        True if the fix was used for it (the position re-acquired)."""
+        aux = self.aux
+        cls, since = aux.relative_alternative[0], aux.relative_alternative[3]
+        D, var_D = self._alternative_spread(aux.relative_alternative)
+        gate = self._gates[m.sensor]
+        alt_fits = (z - hx - D) ** 2 / (S + var_D) <= gate
+        if nis <= gate and alt_fits:
+            return False                           # both explain it: still undecided
+        if nis <= gate or m.stamp - since > self.cfg.branch_timeout:
+            # the filter explains the fix and the excluded sensor's view does not: it was faulty
+            aux.relative_alternative = None
+            aux.events = _inc(aux.events, "excluded_sensor_confirmed_faulty")
+            if cls not in self.layout.slip_sensors:   # a slip ends by itself; a faulty radar may not
+                aux.suspended = {**aux.suspended, cls: math.inf}
+            return False
+        if not alt_fits:
+            return False                           # neither: an unexplained fix
+        # the excluded sensor was right: the other speed sources are faulty
+        self._set_position(m)
+        self._relearn("speed_source_faulty")
+        aux.relative_alternative = None
+        aux.slip_until = {**aux.slip_until, cls: m.stamp}
+        aux.suspended = {**aux.suspended, **{s: math.inf for s in aux.speed_sources if s != cls}}
+        return True
+
+    def _suspended(self, m, nis: float) -> bool:
+        """A speed source found faulty: excluded until it agrees again for ``slip_window`` s."""
+        aux = self.aux
+        since = aux.suspended[m.sensor]
+        if nis > self._slip_gate:
+            since = math.inf
+        elif since == math.inf:
+            since = m.stamp
+        if since != math.inf and m.stamp - since >= self.cfg.slip_window:
+            aux.suspended = {k: v for k, v in aux.suspended.items() if k != m.sensor}
+            aux.events = _inc(aux.events, "speed_source_restored")
+            return False
+        aux.suspended = {**aux.suspended, m.sensor: since}
+        aux.gated = _inc(aux.gated, m.sensor + "/suspended")
+        return True
 
     def _excluded(self, m) -> None:
         """Apply a measurement that a fault check excluded after the fact (a slip's onset)."""
         aux = self.aux = self.aux.copy()
         self._predict_to(m.stamp)
         cls = m.sensor
+        z, R, h, hx = measurement(self.layout, self.ekf.x, m)
+        S = float(h.dot(self.ekf.P.dot(h))) + R
         if not aux.slip_until.get(cls, -math.inf) > m.stamp:
-            aux.slips += 1
+            self._episode_starts(m, z - hx)
             aux.events = _inc(aux.events, "slip_lookback")
+        self._separate(m, z - hx, S)
         aux.slip_until = {**aux.slip_until, cls: m.stamp + self.cfg.slip_holdoff}
         aux.slip_window = {**aux.slip_window, cls: ()}
         aux.gated = _inc(aux.gated, cls + "/slip")
 
-    def _reference_ok(self, stamp: float) -> bool:
-        """Another speed source (not a slip sensor) was accepted recently."""
-        aux = self.aux
+    def _reference_ok(self, m) -> bool:
+        """Another speed source, not itself in an episode, was accepted recently."""
+        aux, stamp = self.aux, m.stamp
         return any(aux.last_accepted.get(s, -math.inf) > stamp - self.cfg.slip_reference_timeout
-                   for s in aux.speed_sources if s not in self.layout.slip_sensors)
+                   for s in aux.speed_sources
+                   if s != m.sensor and not aux.slip_until.get(s, -math.inf) > stamp)
 
     def _check_plausible(self) -> None:
         """Re-learn the relative sensors' error states if one of them left its plausible range."""
@@ -524,15 +631,26 @@ class TrainFilter:
             half = self._z * math.sqrt(R_a + max(var_s - P_a, 0.0))
             lo, hi = min(lo, p_alt - half), max(hi, p_alt + half)
             sd_s = max(sd_s, (hi - lo) / (2.0 * self._z))
+        mode = self._mode(aux, t, sd_s)
+        rel = aux.relative_alternative
+        if rel is not None:   # the excluded sensor's view: the other speed sources may be wrong
+            D, var_D = self._alternative_spread(rel)
+            half = self._z * math.sqrt(var_s + var_D)
+            alt_lo, alt_hi = float(s) + D - half, float(s) + D + half
+            if alt_lo < lo or alt_hi > hi:
+                lo, hi = min(lo, alt_lo), max(hi, alt_hi)
+                sd_s = max(sd_s, (hi - lo) / (2.0 * self._z))
+                mode = self._mode(aux, t, sd_s)
+                mode = Mode.DEGRADED if mode == Mode.NOMINAL else mode
         return Estimate(t, float(s), float(v), float(a), sd_s, sd_v, lo, hi, self.cfg.confidence,
-                        self._mode(aux, t, sd_s), scales, biases)
+                        mode, scales, biases)
 
     def _mode(self, aux: _Aux, t: float, position_stddev: float) -> Mode:
         if not aux.initialised:
             return Mode.INITIALISING
         if position_stddev > self.cfg.lost_stddev:
             return Mode.LOST
-        if aux.alternative is not None or aux.unverified:
+        if aux.alternative is not None or aux.unverified or aux.suspended:
             return Mode.DEGRADED
         for sensor, timeout in self.timeouts.items():
             if t - aux.last_accepted.get(sensor, -math.inf) > timeout:

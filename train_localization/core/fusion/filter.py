@@ -127,7 +127,7 @@ class _Aux:
         # a slip sensor excluded although its disagreement does not look like a slip: it may be
         # the other speed sources that are wrong: (sensor, distance it ran ahead D [m], var D)
         self.relative_alternative: tuple | None = None
-        self.suspended: dict[str, float] = {}          # speed sources found faulty -> agreeing since [s]
+        self.suspended: dict[str, tuple] = {}          # speed sources found faulty -> (agreeing since [s], window)
 
     def copy(self) -> "_Aux":
         new = object.__new__(_Aux)
@@ -245,7 +245,7 @@ class TrainFilter:
         PHt = self.ekf.P.dot(h)
         S = float(h.dot(PHt)) + R
         nis = (z - hx) ** 2 / S
-        if cls in aux.suspended and self._suspended(m, nis):
+        if cls in aux.suspended and self._suspended(m, z - hx, S, nis):
             return
         if cls in self.layout.episode_sensors and self._slipping(m, z - hx, S, nis):
             return
@@ -280,11 +280,7 @@ class TrainFilter:
         alt = aux.relative_alternative
         if alt is not None and alt[0] == cls and alt[1] ** 2 <= self._slip_gate * self._alternative_spread(alt)[1]:
             aux.relative_alternative = None   # the episode ended without a separation: a false alarm
-        d = getattr(m, "duration", 0.0) or 0.0
-        weight = d if d > 0.0 else 1.0
-        window = tuple(w for w in aux.slip_window.get(cls, ()) if w[0] > m.stamp - cfg.slip_window)
-        window += ((m.stamp, e * weight, S * weight * weight),)
-        summed = sum(w[1] for w in window) ** 2 / sum(w[2] for w in window) if len(window) >= 3 else 0.0
+        window, summed = self._windowed(aux.slip_window.get(cls, ()), m, e, S)
         if (nis > self._slip_gate or summed > self._slip_gate) and self._reference_ok(m):
             aux.slip_window = {**aux.slip_window, cls: ()}
             # the onset: the increments before this one that already disagreed the same way were
@@ -301,6 +297,17 @@ class TrainFilter:
             return True
         aux.slip_window = {**aux.slip_window, cls: window}
         return False
+
+    def _windowed(self, window: tuple, m, e: float, S: float) -> tuple[tuple, float]:
+        """The disagreement window of a relative sensor with this measurement added, and its
+        test statistic: the innovations summed over ``slip_window`` s (as distances), squared,
+        over the sum of their variances (0 with fewer than 3)."""
+        d = getattr(m, "duration", 0.0) or 0.0
+        weight = d if d > 0.0 else 1.0
+        window = tuple(w for w in window if w[0] > m.stamp - self.cfg.slip_window)
+        window += ((m.stamp, e * weight, S * weight * weight),)
+        summed = sum(w[1] for w in window) ** 2 / sum(w[2] for w in window) if len(window) >= 3 else 0.0
+        return window, summed
 
     def _episode_starts(self, m, e: float) -> None:
         """A fault episode of ``m.sensor`` starts with the disagreement e [m/s]. A wheel slips
@@ -355,7 +362,7 @@ class TrainFilter:
             aux.relative_alternative = None
             aux.events = _inc(aux.events, "excluded_sensor_confirmed_faulty")
             if cls not in self.layout.slip_sensors:   # a slip ends by itself; a faulty radar may not
-                aux.suspended = {**aux.suspended, cls: math.inf}
+                aux.suspended = {**aux.suspended, cls: (math.inf, ())}
             return False
         if not alt_fits:
             return False                           # neither: an unexplained fix
@@ -364,14 +371,16 @@ class TrainFilter:
         self._relearn("speed_source_faulty")
         aux.relative_alternative = None
         aux.slip_until = {**aux.slip_until, cls: m.stamp}
-        aux.suspended = {**aux.suspended, **{s: math.inf for s in aux.speed_sources if s != cls}}
+        aux.suspended = {**aux.suspended, **{s: (math.inf, ()) for s in aux.speed_sources if s != cls}}
         return True
 
-    def _suspended(self, m, nis: float) -> bool:
-        """A speed source found faulty: excluded until it agrees again for ``slip_window`` s."""
+    def _suspended(self, m, e: float, S: float, nis: float) -> bool:
+        """A speed source found faulty: excluded until it agrees again (neither its single nor
+        its windowed disagreement test fires) for ``slip_window`` s."""
         aux = self.aux
-        since = aux.suspended[m.sensor]
-        if nis > self._slip_gate:
+        since, window = aux.suspended[m.sensor]
+        window, summed = self._windowed(window, m, e, S)
+        if nis > self._slip_gate or summed > self._slip_gate:
             since = math.inf
         elif since == math.inf:
             since = m.stamp
@@ -379,7 +388,7 @@ class TrainFilter:
             aux.suspended = {k: v for k, v in aux.suspended.items() if k != m.sensor}
             aux.events = _inc(aux.events, "speed_source_restored")
             return False
-        aux.suspended = {**aux.suspended, m.sensor: since}
+        aux.suspended = {**aux.suspended, m.sensor: (since, window)}
         aux.gated = _inc(aux.gated, m.sensor + "/suspended")
         return True
 

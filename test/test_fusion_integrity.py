@@ -1,0 +1,150 @@
+"""The fusion's error models come from the configured sensors, and its fault policy does not
+lock onto a wrong hypothesis: forced cases against ground truth (core/fusion/filter.py)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from train_localization.core.fusion import MODE_DEGRADED, FusionConfig, TrainFilter, sensor_models
+from train_localization.core.measurements import DistanceIncrement, PositionFix, SpeedMeasurement
+from train_localization.core.offline import fusion_config, simulate_scenario
+from train_localization.core.scenario import Scenario, Vehicle
+
+CONVENTIONAL = {
+    "track": "config/track_conventional.yaml",
+    "vehicle": {"type": "conventional", "length": 200.0, "wheel_diameter": 0.92,
+                "axles": [2.5, 5.0, 22.5, 25.0, 27.5, 30.0, 47.5, 50.0]},
+    "initial": {"position": 100.0, "speed": 0.0},
+}
+
+
+def scenario(name, seed, duration, profile, sensors):
+    return Scenario.from_dict({**CONVENTIONAL, "name": name, "seed": seed, "duration": duration,
+                               "profile": profile, "sensors": sensors})
+
+
+def integrity(sc, result):
+    traj = sc.trajectory()
+    est = [e for e in result.estimates if e.mode != 0]
+    t = np.array([e.stamp for e in est])
+    truth = np.interp(t, traj.t, traj.position)
+    lo, hi = np.array([e.position_min for e in est]), np.array([e.position_max for e in est])
+    err = np.abs(np.array([e.position for e in est]) - truth)
+    return float(np.mean((truth >= lo) & (truth <= hi))), float(err.max())
+
+
+# --------------------------------------------------------------------------- error-model ownership
+def test_a_changed_sensor_parameter_reaches_the_filter():
+    base = Scenario.from_yaml("config/scenario_demo.yaml")
+    changed = Scenario.from_yaml("config/scenario_demo.yaml")
+    changed.sensors["doppler_radar"] = {"scale_sigma": 0.02, "scale_tau": 20.0, "bias": 0.1}
+    changed.sensors["wheel_sensor"] = {**changed.sensors["wheel_sensor"], "diameter_tolerance": 0.03,
+                                       "driven_axle": False}
+    f0, f1 = TrainFilter(fusion_config(base)), TrainFilter(fusion_config(changed))
+    k = f1.layout.scale["doppler"]
+    assert f1.layout.prior_sigma[k] == 0.02 and f0.layout.prior_sigma[k] == 0.005
+    F, _, Q = f1.process.transition(0.1)
+    assert F[k, k] == pytest.approx(math.exp(-0.1 / 20.0))
+    assert Q[k, k] == pytest.approx(0.02 ** 2 * (1 - math.exp(-0.2 / 20.0)))
+    assert f1.layout.prior_sigma[f1.layout.bias["doppler"]] == 0.1
+    assert f1.layout.prior_sigma[f1.layout.scale["wheel"]] == pytest.approx(0.03 / math.sqrt(3.0))
+    assert f1.models["wheel"].faults == ("slide",) and f0.models["wheel"].faults == ("slip", "slide")
+    # only the configured sensors have states and are accepted
+    assert set(f0.models) == {"wheel", "doppler", "eurobalise", "axle_counter"}
+    assert "mmwave" not in f0.layout.fix
+
+
+def test_per_sensor_overrides_replace_the_sensor_model_and_typos_are_refused():
+    models = sensor_models(["doppler_radar"], None, Vehicle())
+    cfg = FusionConfig(sensors=models, overrides={"doppler": {"scale_sigma": 0.01, "timeout": 3.0}})
+    assert cfg.models["doppler"].scale_sigma == 0.01 and cfg.models["doppler"].timeout == 3.0
+    with pytest.raises(ValueError, match="scale_sigmaa"):
+        FusionConfig(sensors=models, overrides={"doppler": {"scale_sigmaa": 0.01}})
+    with pytest.raises(ValueError, match="not configured"):
+        FusionConfig(sensors=models, overrides={"wheel": {"scale_sigma": 0.01}})
+
+
+# --------------------------------------------------------------------------- slip / radar arbitration
+def test_slip_from_standstill_is_not_absorbed_into_the_scale_states():
+    """Poor adhesion: frequent slips and slides of up to 25 %, one from standstill (seed 4:
+    before, the filter learnt a +3 % wheel diameter from it, excluded the healthy wheel as
+    slipping for minutes and drifted 40 m outside its interval)."""
+    sc = scenario("poor_adhesion", 4, 120.0,
+                  [{"speed": 55.0, "accel": 1.0, "decel": 1.2, "hold": 20.0},
+                   {"speed": 25.0, "accel": 1.0, "decel": 1.2, "hold": 5.0},
+                   {"speed": 60.0, "accel": 1.0, "decel": 1.2, "hold": 20.0}],
+                  {"wheel_sensor": {"max_speed": 65.0, "sample_rate": 8000.0, "slip_rate": 0.3,
+                                    "slip_ratio_min": 0.05, "slip_ratio_max": 0.25, "slip_duration": 4.0,
+                                    "slip_accel_threshold": 0.5},
+                   "doppler_radar": {}, "eurobalise_reader": {}, "axle_counter": {"heads": "AC00,AC01,AC02"}})
+    result = simulate_scenario(sc)
+    inside, err = integrity(sc, result)
+    c = result.runner.filter.counters()
+    assert c["slips"]["episodes"] >= 10 and c["integrity"].get("slip_lookback", 0) >= 1
+    assert inside >= 0.999 and err < 6.0, (inside, err)
+    scales = result.estimates[-1].scales
+    assert abs(scales["wheel"]) < 0.02 and abs(scales["doppler"]) < 0.02
+
+
+def test_a_faulty_radar_is_identified_by_the_next_fix_and_suspended():
+    """The Doppler reads 6 % high for 30 s at a steady 40 m/s (a scale fault: no slip physics):
+    its episode is kept as an alternative, the next fix shows it wrong, it is suspended until it
+    agrees again; the truth stays inside the interval throughout."""
+    sc = scenario("radar_fault", 2, 110.0, [{"speed": 40.0, "accel": 0.8, "decel": 1.0, "hold": 100.0}],
+                  {"wheel_sensor": {"max_speed": 50.0, "sample_rate": 6000.0, "slip_rate": 0.0},
+                   "doppler_radar": {"faults": "40-70:0.06"}, "eurobalise_reader": {},
+                   "axle_counter": {"heads": "AC00,AC01,AC02"}})
+    result = simulate_scenario(sc)
+    inside, err = integrity(sc, result)
+    c = result.runner.filter.counters()
+    assert c["integrity"]["excluded_sensor_confirmed_faulty"] == 1
+    assert c["integrity"]["speed_source_restored"] == 1          # after the fault
+    assert c["gated"]["doppler/suspended"] > 200                 # ~ the rest of the fault
+    assert inside == 1.0 and err < 2.0, (inside, err)
+    modes = {round(e.stamp, 3): e.mode for e in result.estimates}
+    assert modes[60.0] == MODE_DEGRADED                           # it says so while suspended
+
+
+def _arbitration_run(wheel_right: bool):
+    """A precise radar and a noisier wheel drift apart by 5 % over 5 s at a steady speed (no
+    slip physics): the filter follows the radar and keeps the wheel's distance as the
+    alternative (the interval covers both); a balise decides which one was faulty."""
+    models = sensor_models(["doppler_radar", "wheel_sensor", "eurobalise_reader"], None, Vehicle())
+    f = TrainFilter(FusionConfig(sensors=models))
+    f.reset(position=0.0, position_stddev=0.1, speed=30.0, speed_stddev=1.0, stamp=0.0)
+    truth_v = 30.0
+    rng = np.random.default_rng(3)
+    checked = []
+    for j in range(1, 301):
+        t = j * 0.05
+        error = 0.05 * min(max(t - 3.0, 0.0) / 5.0, 1.0)     # the fault grows over 5 s from t = 3 s
+        rv = truth_v * (1.0 + (error if wheel_right else 0.0))
+        wv = truth_v * (1.0 + (0.0 if wheel_right else error))
+        # 0.03 m/s white, plus the scale (0.5 % of 30 m/s) and bias (0.02 m/s) the states carry
+        f.add(SpeedMeasurement(t - 0.025, "doppler", "doppler", rv + rng.normal(0, 0.03), 0.1543))
+        d = wv * 0.05
+        f.add(DistanceIncrement(t, "wheel", "wheel", 0.05, d + rng.normal(0, 0.02), 0.03, wv, 0.6))
+        if j == 240:
+            f.add(PositionFix(t, "eurobalise", "eb", "T", "EB1", truth_v * t, 0.3))
+        e = f.estimate(t)
+        checked.append(e.position_min <= truth_v * t <= e.position_max)
+    return f, checked
+
+
+@pytest.mark.parametrize("wheel_right", [True, False])
+def test_disagreeing_speed_sources_are_arbitrated_by_a_fix(wheel_right):
+    f, checked = _arbitration_run(wheel_right)
+    c = f.counters()["integrity"]
+    assert all(checked)                                   # never confidently wrong
+    gated = f.counters()["gated"]
+    assert c.get("ambiguous_slip", 0) >= 1               # the wheel excluded, its view kept
+    if wheel_right:   # the radar was the faulty one: it is suspended, the position re-acquired
+        assert c.get("speed_source_faulty") == 1
+        assert gated.get("doppler/suspended", 0) > 20
+    else:             # the wheel was: the alternative is dropped, the wheel stays out
+        assert c.get("excluded_sensor_confirmed_faulty") == 1 and "doppler/suspended" not in gated
+        assert gated["wheel/slip"] > 200
+    e = f.estimate(15.0)
+    assert abs(e.position - 30.0 * 15.0) < 3.0 and e.position_min <= 450.0 <= e.position_max

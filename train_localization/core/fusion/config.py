@@ -73,7 +73,8 @@ class FusionConfig:
     plausible_sigmas: float = _doc(4.0, "an error state (scale, bias) estimated beyond this many of its prior "
                                         "1-sigma is implausible: the filter absorbed a fault; the relative "
                                         "sensors' error states are re-learnt and the interval widened")
-    consistency_fixes: int = _doc(5, "number of recent accepted absolute fixes whose mean NIS is monitored")
+    consistency_fixes: int = _doc(5, "number of recent accepted absolute fixes whose mean NIS is monitored "
+                                     "(fixes of sensors without a fix-bias state: independent references)")
     consistency_probability: float = _doc(0.99, "chi-square quantile of that mean NIS above which the filter "
                                                 "is inconsistent: its covariance is inflated by the mean NIS "
                                                 "and the mode is DEGRADED until a fix agrees again")

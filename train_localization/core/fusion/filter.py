@@ -29,9 +29,10 @@ information; the filter may say it does not know, never be confidently wrong):
               scale nobody has): every relative sensor's error states are re-learnt from
               their priors and the position and speed covariance widened by what the
               corrupted states can have caused since the last accepted fix.
-  consistency the mean NIS of the last ``consistency_fixes`` accepted absolute fixes above
-              its chi-square quantile means the covariance is too small: it is inflated by
-              that mean.
+  consistency the mean NIS of the last ``consistency_fixes`` accepted absolute fixes of
+              sensors without a persistent fix error (balises, lugs, axle counters: one
+              independent fix per reference) above its chi-square quantile means the
+              covariance is too small: it is scaled by that mean.
   unexplained an absolute fix the gate rejects is kept as an alternative hypothesis: the
               published interval covers it (moved with the filter's motion) until a fix of
               another reference decides: one the filter explains drops it (the fix was the
@@ -456,15 +457,13 @@ class TrainFilter:
         aux.unverified = ""
         aux.last_fix_accepted = m.stamp
         aux.s_last_fix = float(self.ekf.x[0, 0])
+        if m.sensor in self.layout.fix:
+            return   # a fix with a persistent error: consecutive ones are not independent tests
         window = (aux.fix_nis + (nis,))[-cfg.consistency_fixes:]
         mean = sum(window) / len(window)
         if len(window) == cfg.consistency_fixes and mean > self._consistency:
-            # the fixes disagree more than the covariance says: it is too small
-            root = math.sqrt(mean)
-            P = self.ekf.P.copy()
-            P[:3, :] *= root
-            P[:, :3] *= root
-            self.ekf.P = P
+            # independent fixes disagree more than the covariance says: all of it is too small
+            self.ekf.P = self.ekf.P * mean
             window = ()
             aux.events = _inc(aux.events, "inconsistent")
             aux.unverified = "inconsistent"

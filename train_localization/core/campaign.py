@@ -111,26 +111,30 @@ def _leg_time(v0: float, leg: dict) -> float:
 
 def _stop_and_go_profile(d: _Draw, duration: float, v_top: float, v0: float, accel: tuple, decel: tuple,
                          jerk: tuple, dwell: tuple, hold: tuple, p_stop: float, reversal: bool,
-                         reverse_speed: tuple) -> tuple[list[dict], dict]:
-    """Legs until ``duration`` is spent: runs at drawn speeds (the first at ``v_top``), stops with
-    a dwell, and (``reversal``) one backwards leg after the first stop.
+                         reverse_speed: tuple, speeds: tuple = (0.4, 1.0)) -> tuple[list[dict], dict]:
+    """Legs until ``duration`` is spent: runs at ``v_top`` times U(``speeds``) (the first at
+    ``v_top``), stops with a dwell, and (``reversal``) one backwards leg after a stop (after the
+    first or second run).
 
     Returns (legs, summary: stops, reversal speed)."""
     legs, t, v, stops, rev = [], 0.0, v0, 0, None
     first = True
+    reverse_after = d.int(1, 2)   # runs before the stop that precedes the reversal
+    runs = 0
     while t < duration:
         leg = {"accel": d.u(*accel), "decel": d.u(*decel), "jerk": d.u(*jerk)}
         if v == 0.0 and reversal and rev is None and stops > 0:
             rev = -d.u(*reverse_speed)
             new = [{**leg, "speed": _g(rev), "hold": d.u(3.0, 15.0)},
                    {**leg, "speed": 0.0, "hold": d.u(*dwell)}]
-        elif v != 0.0 and not first and d.chance(p_stop):
+        elif v != 0.0 and not first and (d.chance(p_stop) or reversal and rev is None and runs >= reverse_after):
             new = [{**leg, "speed": 0.0, "hold": d.u(*dwell)}]
             stops += 1
         else:
-            target = v_top if first else _g(v_top * d.u(0.4, 1.0))
+            target = v_top if first else _g(v_top * d.u(*speeds))
             new = [{**leg, "speed": target, "hold": d.u(*hold)}]
             first = False
+            runs += 1
         for n in new:
             t += _leg_time(v, n)
             v = n["speed"]
@@ -217,7 +221,7 @@ def _conventional(d: _Draw) -> tuple[dict, dict]:
     duration = d.u(100.0, 200.0)
     v_top = d.u(40.0, 300.0) * KMH
     v0 = _g(v_top * d.u(0.3, 1.0)) if d.chance(0.4) else 0.0
-    reversal = d.chance(0.3)
+    reversal = d.chance(0.45)   # effective when the train stops within the run
     legs, prof = _stop_and_go_profile(d, duration, _g(v_top), v0, accel=(0.3, 1.0), decel=(0.5, 1.2),
                                       jerk=(0.3, 1.0), dwell=(5.0, 30.0), hold=(5.0, 40.0), p_stop=0.4,
                                       reversal=reversal, reverse_speed=(1.5, 6.0))
@@ -292,8 +296,8 @@ def _urban(d: _Draw) -> tuple[dict, dict]:
     v0 = _g(v_top * d.u(0.3, 1.0)) if d.chance(0.3) else 0.0
     reversal = d.chance(0.3)
     legs, prof = _stop_and_go_profile(d, duration, _g(v_top), v0, accel=(0.8, 1.3), decel=(0.8, 1.3),
-                                      jerk=(0.5, 1.2), dwell=(5.0, 25.0), hold=(3.0, 20.0), p_stop=0.6,
-                                      reversal=reversal, reverse_speed=(1.0, 4.0))
+                                      jerk=(0.5, 1.2), dwell=(5.0, 20.0), hold=(0.0, 10.0), p_stop=0.8,
+                                      reversal=reversal, reverse_speed=(1.0, 4.0), speeds=(0.3, 1.0))
     vehicle = {"type": "maglev_urban", "length": d.u(30.0, 60.0)}
     traj = _coarse(legs, v0, duration)
     length, start = _place(d, traj, vehicle["length"], d.u(3000.0, 8000.0), 200.0)
@@ -368,7 +372,8 @@ def _highspeed_maglev(d: _Draw) -> tuple[dict, dict]:
         t1 = _g(t0 + d.u(2.0, 10.0))
         k = int(np.argmin(np.abs(pos - np.interp(t0, traj.t, front))))
         n = d.int(2, 4)
-        ids = [st["id"] for st in stations[max(0, k - n // 2): k - n // 2 + n]]
+        first = min(max(k - n // 2, 0), len(stations) - n)
+        ids = [st["id"] for st in stations[first:first + n]]
         faults += [f"{sid}@{t0}-{t1}:drop" for sid in ids]
         outage = {"stations": ids, "t0": t0, "t1": t1}
     if d.chance(0.3):    # one station ranging with a bias (antenna-delay fault, a reflector)

@@ -101,6 +101,9 @@ def test_conventional_draws_cover_the_stated_ranges(draws):
     assert rate.min() < 4000.0 and rate.max() >= 10000.0     # the lowest rate that resolves the run
     assert _s(draws, f, "doppler_radar", "scale_sigma").max() > 0.009
     assert _s(draws, f, "eurobalise_reader", "telegram_error_rate").max() > 0.1
+    for d in draws[f]:   # no axle-counter head under the train at the start
+        start, length = d["initial"]["position"], d["vehicle"]["length"]
+        assert not any(start - length <= h["position"] <= start for h in d["track"]["equipment"]["axle_counter_head"])
     faults = [d["sensors"]["axle_counter"]["faults"] for d in draws[f]]
     assert sum(":missed" in x for x in faults) > 20 and sum(":extra" in x for x in faults) > 5
     delay = _c(draws, f, "max_delay")
@@ -211,7 +214,7 @@ def test_run_one_reports_an_exception_as_an_error_entry(monkeypatch):
 
 
 # --------------------------------------------------------------------------- runners
-SHORT = "8"   # simulated seconds per run in the tiny campaigns
+SHORT = "12"   # simulated seconds per run in the tiny campaigns
 
 
 def _scores(out: Path) -> dict:

@@ -246,8 +246,11 @@ def _conventional(d: _Draw) -> tuple[dict, dict]:
                         {"id": f"BG{n:03d}b", "position": _g(x + 3.0, 8), "group": f"BG{n:03d}"}]
         else:
             balises.append({"id": f"EB{n:03d}", "position": x})
+    # no head under the train at the start: counters that start CLEAR with a train over a head
+    # (a reset with the section occupied) count its next axle as the first one
     heads = [{"id": f"AC{n:02d}", "position": x}
-             for n, x in enumerate(_spaced(d, d.u(100.0, head_spacing), length - 100.0, head_spacing, 0.2))]
+             for n, x in enumerate(_spaced(d, d.u(100.0, head_spacing), length - 100.0, head_spacing, 0.2))
+             if not start - vehicle["length"] - 10.0 <= x <= start + 10.0]
     track = {"track_id": "campaign_conventional", "length": length,
              "alignment": _alignment(d, length, 1500.0, 10000.0),
              "equipment": {"eurobalise": balises, "axle_counter_head": heads}}

@@ -56,6 +56,8 @@ def test_generated_scenarios_load_their_sensors_construct_and_stay_on_the_track(
         traj = campaign._coarse(data["profile"], sc.start_speed, sc.duration)
         front = traj.position + sc.start_position
         assert front.min() - sc.vehicle.length > 0.0 and front.max() < sc.track.length
+    fine = sc.trajectory()   # the simulated motion (1 ms steps) of the last one stays on the track too
+    assert fine.position.min() - sc.vehicle.length > 0.0 and fine.position.max() < sc.track.length
     if family == "conventional":   # the axle counter lists the heads the train passes
         data = draws[family][0]
         sc = Scenario.from_dict(copy.deepcopy(data))

@@ -254,9 +254,10 @@ def _conventional(d: _Draw) -> tuple[dict, dict]:
     track = {"track_id": "campaign_conventional", "length": length,
              "alignment": _alignment(d, length, 1500.0, 10000.0),
              "equipment": {"eurobalise": balises, "axle_counter_head": heads}}
-    # one axle-counter evaluation unit for the heads the train passes (4 k samples/s per head)
+    # one axle-counter evaluation unit for the heads the train passes (4 k samples/s per head);
+    # 50 m margins: the 50 ms motion of _coarse is within ~25 m of the simulated one
     front = traj.position + start
-    lo, hi = float(front.min()) - vehicle["length"] - 20.0, float(front.max()) + 20.0
+    lo, hi = float(front.min()) - vehicle["length"] - 50.0, float(front.max()) + 50.0
     passed = [h for h in heads if lo <= h["position"] <= hi] or \
         [min(heads, key=lambda h: abs(h["position"] - start))]
     v_max = max([abs(v0)] + [abs(leg["speed"]) for leg in legs])

@@ -21,6 +21,7 @@ TOOLS = {
     "tl_demo": "train_localization.tools.demo:main",
     "tl_replay": "train_localization.tools.replay:main",
     "tl_bench": "train_localization.tools.bench:main",
+    "tl_campaign": "train_localization.tools.campaign:main",
 }
 
 console_scripts = [f"{name} = {target}" for name, target in NODES.items()]

@@ -175,6 +175,7 @@ def test_inpo_fix_bias_is_redrawn_for_a_new_section():
     normal 1.4-sigma difference, with one bias for all it would be a gross outlier."""
     def feed(cfg):
         f = TrainFilter(cfg)
+        f.reset(position=1000.0, position_stddev=1.0, speed=0.0, speed_stddev=0.001, stamp=-0.05)
         for k in range(20):
             f.add(fix(0.05 * k, 1000.0, 0.00215, sensor="inpo", ref="A"))
         f.add(fix(1.0, 1000.006, 0.00215, sensor="inpo", ref="B"))
@@ -284,9 +285,10 @@ def test_estimate_of_a_past_time_ignores_later_measurements():
     for t in np.arange(0.05, 3.0, 0.05):
         f.add(speed(t, 10.0))
         g.add(speed(t, 10.0))
-    f.add(fix(1.0, 500.0))
-    g.add(fix(1.0, 500.0))
-    f.add(fix(2.5, 515.3))          # later, 0.3 m off the dead reckoning
+    for h in (f, g):   # two balises agree: the position is claimed
+        h.add(fix(1.0, 500.0, ref="B0"))
+        h.add(fix(1.2, 502.0))
+    f.add(fix(2.5, 515.3, ref="B2"))  # later, 0.3 m off the dead reckoning
     e_f, e_g = f.estimate(2.2), g.estimate(2.2)
     assert e_f.position == e_g.position and e_f.position_stddev == e_g.position_stddev
     assert f.estimate(2.9).position != g.estimate(2.9).position
@@ -294,8 +296,8 @@ def test_estimate_of_a_past_time_ignores_later_measurements():
 
 def test_bad_input_is_rejected_with_its_reason():
     f = TrainFilter(FusionConfig(history=1.0))
-    f.add(fix(10.0, 500.0))
-    f.add(fix(12.0, 520.0))
+    f.add(fix(10.0, 500.0, ref="B0"))
+    f.add(fix(12.0, 520.0, ref="B2"))
     with pytest.raises(InputRejected) as exc:
         f.add(fix(10.5, 505.0))           # 1.5 s older than the newest, history 1 s
     assert exc.value.reason == "too_late"
@@ -310,7 +312,8 @@ def test_bad_input_is_rejected_with_its_reason():
     assert exc.value.reason == "stddev"
     assert f.rejected == {"too_late": 1, "duplicate": 1, "nan": 1, "stddev": 1}
     f.add(fix(11.5, 515.0))               # late but inside the history: inserted
-    assert f.rollbacks == 1 and f.counters()["accepted"]["eurobalise"] == 3
+    # the first is the candidate that the second (now the late one) confirms, the third is accepted
+    assert f.rollbacks == 1 and f.counters()["accepted"]["eurobalise"] == 2
 
 
 # --------------------------------------------------------------------------- gating, slip
@@ -319,6 +322,7 @@ def test_gate_threshold_is_a_per_sensor_parameter():
         f = TrainFilter(cfg)
         for t in np.arange(0.05, 2.0, 0.05):
             f.add(speed(t, 20.0))
+        f.add(fix(0.5, 990.0, 0.3, ref="B0"))
         f.add(fix(1.0, 1000.0, 0.3))
         e = f.estimate(2.0)
         s = math.sqrt(e.position_stddev ** 2 + 0.3 ** 2)
@@ -367,7 +371,7 @@ def test_wheel_slip_is_detected_against_the_doppler_and_excluded():
 
 
 # --------------------------------------------------------------------------- modes, init, reset
-def test_initialising_until_the_first_fix_then_nominal_degraded_lost():
+def test_initialising_until_two_fixes_agree_then_nominal_degraded_lost():
     f = TrainFilter(config("doppler_radar", "eurobalise_reader", lost_stddev=2.0, overrides={"doppler": {"timeout": 0.5}}))
     for t in np.arange(0.05, 5.0, 0.05):
         f.add(speed(t, 20.0))
@@ -375,7 +379,9 @@ def test_initialising_until_the_first_fix_then_nominal_degraded_lost():
     assert e.mode == MODE_INITIALISING and math.isnan(e.position)
     assert e.position_min == -math.inf and e.position_max == math.inf
     assert e.speed == pytest.approx(20.0, abs=0.1)            # speed is known before the position
-    f.add(fix(5.0, 1234.0, 0.3))
+    f.add(fix(4.0, 1214.0, 0.3, ref="B0"))   # a single fix may be a misread: no position yet
+    assert f.estimate(4.5).mode == MODE_INITIALISING
+    f.add(fix(5.0, 1234.0, 0.3))              # another balise agrees (20 m/s x 1 s)
     e = f.estimate(5.0)
     assert e.mode == MODE_NOMINAL and e.position == pytest.approx(1234.0, abs=1e-9)
     assert e.position_stddev == pytest.approx(0.3, rel=1e-6)
@@ -390,6 +396,7 @@ def test_initialising_until_the_first_fix_then_nominal_degraded_lost():
 
 def test_confidence_sets_the_interval():
     f = TrainFilter(FusionConfig(confidence=0.95))
+    f.add(fix(0.5, 50.0, 0.5, ref="B0"))
     f.add(fix(1.0, 50.0, 0.5))
     e = f.estimate(1.0)
     assert (e.position_max - e.position_min) / 2 == pytest.approx(1.959964 * 0.5, rel=1e-5)
@@ -410,8 +417,9 @@ def test_reset_sets_or_forgets_the_position():
     assert f.counters()["accepted"] == {"eurobalise": 1}        # counters restart too
     f.reset(stamp=20.0)
     assert f.estimate(20.0).mode == MODE_INITIALISING
-    f.add(fix(21.0, 100.0))
-    assert f.estimate(21.0).position == pytest.approx(100.0)
+    f.add(fix(21.0, 100.0, ref="B8"))
+    f.add(fix(21.5, 100.0, ref="B9"))
+    assert f.estimate(21.5).position == pytest.approx(100.0)
 
 
 def test_position_is_reacquired_when_two_independent_fixes_disagree_with_the_filter():

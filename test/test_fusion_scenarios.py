@@ -112,16 +112,18 @@ def test_maglev_500_position_rms_below_10_mm_where_inpo_covers(runs):
 def test_truth_inside_the_confidence_interval(runs, name):
     sc, result, fig = runs(name)
     it = fig["integrity"]
-    assert fig["states_with_position"] > 0.7 * fig["states"]
+    assert fig["states_with_position"] > 0.6 * fig["states"]
     assert it["inside_fraction"] >= 0.999, it
     # not vacuous: on average the interval is at most ~6x the rms error wide (99.9 %:
     # +-3.3 sigma) and well inside the SUBSET-041 minimum of +-5 m
     assert it["mean_width_m"] < 8.0 * fig["position_error_m"]["rms"] + 0.02
     assert it["mean_width_m"] < 5.0
-    # position claimed from the first absolute fix on; mostly NOMINAL
-    first_fix = min(m.stamp for m in result.measurements if type(m).__name__ == "PositionFix")
+    # position claimed once a fix of another reference confirms the first; mostly NOMINAL
+    fixes = sorted((m for m in result.measurements if type(m).__name__ == "PositionFix"), key=lambda m: m.stamp)
+    first = fixes[0]
+    confirming = next(m for m in fixes if (m.sensor, m.reference_id) != (first.sensor, first.reference_id))
     modes = np.array([e.mode for e in result.estimates])
     t = np.array([e.stamp for e in result.estimates])
-    assert (modes[t < first_fix] == MODE_INITIALISING).all()
-    assert (modes[t > first_fix + 0.1] != MODE_INITIALISING).all()
-    assert np.mean(modes == MODE_NOMINAL) > 0.6
+    assert (modes[t < first.stamp] == MODE_INITIALISING).all()
+    assert (modes[t > confirming.stamp + 0.1] != MODE_INITIALISING).all()
+    assert np.mean(modes == MODE_NOMINAL) > 0.5

@@ -226,10 +226,13 @@ def plot(arrays: dict, out_dir: Path, title: str = "") -> list[Path]:
 
 
 def jsonable(obj):
+    """JSON-safe copy: numpy scalars as Python numbers, NaN and infinities as None."""
     if isinstance(obj, dict):
         return {k: jsonable(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
         return [jsonable(v) for v in obj]
+    if isinstance(obj, np.bool_):
+        return bool(obj)
     if isinstance(obj, (np.floating, float)):
         return None if not math.isfinite(float(obj)) else float(obj)
     if isinstance(obj, np.integer):

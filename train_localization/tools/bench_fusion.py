@@ -41,69 +41,12 @@ import time
 
 import numpy as np
 
-from ..core import convert
-from ..core.measurements import SectionOccupancy
 from ..core.fusion import TrainFilter, order_key
-from ..core.offline import FusionRunner, fusion_config
-from ..core.pipeline import SensorPipeline
+# scenario_measurements, delayed and run (fuse_arrivals) are used by test/test_fusion.py through this module
+from ..core.offline import FusionRunner, delayed, fusion_config, scenario_measurements
+from ..core.offline import fuse_arrivals as run
 from ..core.scenario import Scenario
-from ..core.sensors import spec as sensor_spec
-from ..core.signals import InputRejected
-
-
-def scenario_measurements(scenario: Scenario, t_end: float | None = None) -> list[tuple[float, object]]:
-    """(arrival time, measurement) of every fused measurement of a simulated scenario."""
-    pipes = []
-    for node, params in scenario.sensors.items():
-        sp = sensor_spec(node)
-        unit = (params or {}).get("unit_id") or sp.sensor
-        pipes.append(SensorPipeline(sp, params, scenario.track, scenario.vehicle, scenario.rng(node, unit)))
-    traj = scenario.trajectory()
-    t_end = scenario.duration if t_end is None else t_end
-    out = []
-    for k in range(int(round(t_end * scenario.truth_rate)) + 1):
-        t = convert.canonical(k / scenario.truth_rate)
-        state = traj.state_at(t)
-        for pipe in pipes:
-            for block in pipe.on_truth(state):
-                try:
-                    ms = pipe.on_block(block)
-                except InputRejected:
-                    continue
-                out.extend((t, m) for m in ms if not isinstance(m, SectionOccupancy))
-    return out
-
-
-def delayed(arrivals, delay: float, seed: int = 1):
-    """The same measurements, each arriving a further U(0, delay) s later, in arrival order."""
-    rng = np.random.default_rng(seed)
-    late = [(t + float(rng.uniform(0.0, delay)), i, m) for i, (t, m) in enumerate(arrivals)]
-    late.sort(key=lambda item: (item[0], item[1]))
-    return [(t, m) for t, _, m in late]
-
-
-def run(config, arrivals, t_end: float, rate: float = 200.0, tick: float = 0.005):
-    """Feed the arrivals to a FusionRunner, advancing the output grid every ``tick`` s.
-
-    Returns (runner, estimates, seconds in add, seconds in advance).
-    """
-    runner = FusionRunner(config, rate)
-    estimates = []
-    t_add = t_adv = 0.0
-    j, n = 0, len(arrivals)
-    clock = time.process_time
-    for k in range(int(round(t_end / tick)) + 1):
-        now = k * tick
-        c0 = clock()
-        while j < n and arrivals[j][0] <= now + 1e-12:
-            runner.add(arrivals[j][1])
-            j += 1
-        c1 = clock()
-        estimates.extend(e for e, _ in runner.advance(now))
-        c2 = clock()
-        t_add += c1 - c0
-        t_adv += c2 - c1
-    return runner, estimates, t_add, t_adv
+from ..core.scoring import ENVELOPE_FIXED, ENVELOPE_RATE, SPEED_KNOWN, distance_since, speed_envelope
 
 
 def compare_history(config, arrivals_a, arrivals_b, t_end: float, step: float = 0.05) -> float:
@@ -141,15 +84,6 @@ def compare_history(config, arrivals_a, arrivals_b, t_end: float, step: float = 
     return worst
 
 
-SPEED_KNOWN = 10.0  # [m/s] speed 1-sigma below which the speed counts as measured (not the prior)
-
-
-def speed_envelope(speed):
-    """SUBSET-041 speed accuracy [m/s]: +-2 km/h below 30 km/h, linearly to +-12 km/h at 500 km/h."""
-    kmh = np.abs(np.asarray(speed)) * 3.6
-    return (2.0 + np.clip(kmh - 30.0, 0.0, None) * 10.0 / 470.0) / 3.6
-
-
 def _stats(err) -> dict:
     a = np.abs(err)
     if not a.size:
@@ -175,17 +109,12 @@ def figures(scenario: Scenario, result) -> dict:
     t, pos, lo, hi, spd, mode, sd_v = t[keep], pos[keep], lo[keep], hi[keep], spd[keep], mode[keep], sd_v[keep]
     s_true = np.interp(t, truth[:, 0], truth[:, 1])
     v_true = np.interp(t, truth[:, 0], truth[:, 2])
-    travelled = np.concatenate([[0.0], np.cumsum(np.abs(np.diff(truth[:, 1])))])
-    dist = np.interp(t, truth[:, 0], travelled)
     reads = np.array(sorted(m.stamp for m in result.measurements
                             if isinstance(m, PositionFix) and m.sensor == "eurobalise"))
-    last = np.searchsorted(reads, t, side="right") - 1
-    at_read = np.where(last >= 0, np.interp(reads[np.maximum(last, 0)] if reads.size else t, truth[:, 0],
-                                            travelled), 0.0)
-    since = dist - at_read
+    since = distance_since(t, truth[:, 0], truth[:, 1], reads)
     claimed = (mode != MODE_INITIALISING) & np.isfinite(pos)
     err = (pos - s_true)[claimed]
-    envelope = 5.0 + 0.05 * since[claimed]
+    envelope = ENVELOPE_FIXED + ENVELOPE_RATE * since[claimed]
     ratio = np.abs(err) / envelope
     known = sd_v < SPEED_KNOWN
     verr = (spd - v_true)[known]

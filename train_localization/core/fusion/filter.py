@@ -46,7 +46,8 @@ information; the filter may say it does not know, never be confidently wrong):
               absolute fix decides: if the fix agrees with the excluded sensor, the other
               speed sources are suspended until they agree again, the position is taken
               from the fix and the relative error states are re-learnt.
-Modes: INITIALISING until the first absolute fix (NaN position, infinite interval);
+Modes: INITIALISING until two absolute fixes of different references agree (NaN position,
+infinite interval: a single fix may be a misread or a miscount);
 LOST when the position 1-sigma exceeds ``lost_stddev``; DEGRADED while a continuous
 sensor is past its timeout, an unexplained fix is pending, or the filter has not been
 confirmed by an accepted fix since a re-learn or an inflation; else NOMINAL.
@@ -105,7 +106,8 @@ class _Aux:
 
     __slots__ = ("initialised", "t", "last_accepted", "slip_until", "accepted", "gated", "slips",
                  "speed_sources", "nis", "fix_ref", "last_fix_accepted", "fix_nis", "slip_window",
-                 "alternative", "events", "unverified", "s_last_fix", "relative_alternative", "suspended")
+                 "alternative", "events", "unverified", "s_last_fix", "relative_alternative", "suspended",
+                 "candidate")
 
     def __init__(self):
         self.initialised = False
@@ -128,6 +130,7 @@ class _Aux:
         # a slip sensor excluded although its disagreement does not look like a slip: it may be
         # the other speed sources that are wrong: (sensor, distance it ran ahead D [m], var D)
         self.relative_alternative: tuple | None = None
+        self.candidate: tuple | None = None             # first fix awaiting confirmation
         self.suspended: dict[str, tuple] = {}          # speed sources found faulty -> (agreeing since [s], window)
 
     def copy(self) -> "_Aux":
@@ -239,8 +242,7 @@ class TrainFilter:
             self._new_fix_bias(cls)
             aux.fix_ref = {**aux.fix_ref, cls: m.reference_id}
         if is_fix and not aux.initialised:
-            self._set_position(m)
-            aux.initialised = True
+            self._initialise(m)
             return
         z, R, h, hx = measurement(self.layout, self.ekf.x, m)
         PHt = self.ekf.P.dot(h)
@@ -489,6 +491,26 @@ class TrainFilter:
                 return
         aux.alternative = (m.stamp, z, R, s, P00, m.sensor, m.reference_id)
         aux.events = _inc(aux.events, "unexplained_fix")
+
+    def _initialise(self, m) -> None:
+        """Before a position is claimed a fix is only a candidate (a misread balise, a miscounted
+        axle, a wrong first reference must not become the position): the position is set when
+        a fix of another reference agrees with it, moved by the dead reckoning since."""
+        aux, cfg = self.aux, self.cfg
+        z, R, _, _ = measurement(self.layout, self.ekf.x, m)
+        x0, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
+        cand = aux.candidate
+        if cand is not None and m.stamp - cand[0] <= cfg.branch_timeout:
+            if m.reference_id == cand[5] and m.sensor == cand[4]:
+                return                               # the same reference confirms nothing
+            predicted = cand[1] + (x0 - cand[3])
+            if (z - predicted) ** 2 / (cand[2] + R + max(P00 - cand[6], 0.0)) <= self._gates[m.sensor]:
+                self._set_position(m)
+                aux.initialised = True
+                aux.candidate = None
+                return
+            aux.events = _inc(aux.events, "candidate_replaced")
+        aux.candidate = (m.stamp, z, R, x0, m.sensor, m.reference_id, P00)
 
     def _set_position(self, m) -> None:
         """Take the position from a fix alone (first fix, re-acquisition): s = z - e."""

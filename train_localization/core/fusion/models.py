@@ -13,7 +13,8 @@ Measurement models
   DistanceIncrement  z = distance / d = (1 + k + k0)(u + sign(z) b), u = v - a d/2: the mean
                      speed over the interval d ending at the stamp, R = (distance_stddev / d)^2.
                      A wheel under traction or braking turns faster or slower than the train
-                     moves (creep): u becomes u + c a |u| with the model's creep coefficient c.
+                     moves (creep): u becomes u + c a |u| with the model's creep coefficient c
+                     (under traction only on a driven axle).
 Honest noise: a decoder reports a measurement's 1-sigma including its slowly varying
 errors as if white; the parts the states carry (``reported_*`` of the error model) are
 removed from R (floored at 1 % of it); ``stddev_factor`` scales what is left.
@@ -112,8 +113,8 @@ def measurement(layout: StateLayout, x_col, m):
             v = x[1] - 0.5 * d * a
             h[1], h[2] = g, -0.5 * d * g
         c = model.creep_coefficient
-        if c:   # v (1 + c a sign v) = v + c a |v|
-            sv = 1.0 if v >= 0.0 else -1.0
+        sv = 1.0 if v >= 0.0 else -1.0
+        if c and (model.creep_in_traction or a * sv < 0.0):   # v (1 + c a sign v) = v + c a |v|
             h[1] += g * c * a * sv
             h[2] += g * c * (abs(v) - 0.5 * d * a * sv)
             v = v + c * a * abs(v)

@@ -106,6 +106,7 @@ class ErrorModel:
     reported_bias: float = 0.0           # bias 1-sigma [m/s] included in the reported stddev
     reported_fix_bias: float = 0.0       # fix-bias 1-sigma [m] included in the reported stddev
     creep_coefficient: float = 0.0       # wheel creep c [s^2/m]: wheel speed = v (1 + c a sign v)
+    creep_in_traction: bool = True       # creep under traction too (a motored axle), else only braking
     faults: tuple[str, ...] = ()         # fault modes of FAULT_MODES the fusion must check for
     timeout: float = math.inf            # longest silence while in use [s]; inf = sparse/event sensor
     gate_probability: float = math.nan   # chi-square gate of its measurements; NaN = the fusion's global one
@@ -136,7 +137,8 @@ class ErrorModel:
         if bad:
             raise ValueError(f"unknown error-model field(s) {sorted(bad)} for {self.sensor}; known: "
                              f"{', '.join(sorted(names))}")
-        cast = {k: (tuple(v) if k == "faults" else bool(v) if k == "fix_bias_per_reference" else float(v))
+        kinds = {f.name: type(getattr(self, f.name)) for f in fields(self)}
+        cast = {k: (tuple(v) if k == "faults" else bool(v) if kinds[k] is bool else float(v))
                 for k, v in values.items()}
         return replace(self, **cast)
 

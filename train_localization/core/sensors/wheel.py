@@ -664,11 +664,11 @@ class WheelDecoder(Decoder):
 def error_model(params: dict, track, vehicle) -> ErrorModel:
     """Wheel errors for the fusion: the diameter error, constant between re-calibrations and
     uniform within +-``diameter_tolerance`` (1-sigma tolerance/sqrt(3), which the decoder
-    reports inside its stddev); creep under traction and braking; slip (driven axle) and
-    slide episodes, which the decoder cannot see."""
+    reports inside its stddev); creep under braking, and under traction on a driven axle;
+    slip (driven axle) and slide episodes, which the decoder cannot see."""
     scale = params["diameter_tolerance"] / math.sqrt(3.0)
     return ErrorModel("wheel", "distance", scale_sigma=scale, reported_scale=scale,
-                      creep_coefficient=params["creep_coefficient"],
+                      creep_coefficient=params["creep_coefficient"], creep_in_traction=params["driven_axle"],
                       faults=("slip", "slide") if params["driven_axle"] else ("slide",),
                       timeout=continuous_timeout(params))
 

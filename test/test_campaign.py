@@ -1,0 +1,276 @@
+"""tl_campaign: scenario generators, the per-run scorer, the campaign runners and --export.
+
+The integrity figures themselves are the campaign's output (``tl_campaign --runs ...``),
+not asserted here; neither are timings.
+"""
+from __future__ import annotations
+
+import copy
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from conftest import ROOT
+from train_localization.core import campaign
+from train_localization.core.campaign import FAMILIES, generate, run_one
+from train_localization.core.fusion import MODE_INITIALISING, MODE_NOMINAL
+from train_localization.core.offline import sensor_pipelines
+from train_localization.core.scenario import Scenario
+from train_localization.core.scoring import StateSeries, passing_times, run_scores
+from train_localization.tools import campaign as tool
+
+DRAWS = 200
+
+
+@pytest.fixture(scope="module")
+def draws():
+    """DRAWS generated scenario dicts per family (seeds 0..DRAWS-1)."""
+    return {f: [generate(f, seed) for seed in range(DRAWS)] for f in FAMILIES}
+
+
+# --------------------------------------------------------------------------- generator
+@pytest.mark.parametrize("family", FAMILIES)
+def test_generator_is_deterministic_per_seed_and_seeds_differ(family, draws):
+    assert generate(family, 7) == generate(family, 7) == draws[family][7]
+    conditions = [json.dumps(d["campaign"]["conditions"], sort_keys=True) for d in draws[family][:20]]
+    assert len(set(conditions)) == 20
+    # a shorter run keeps every drawn condition
+    short = generate(family, 7, max_duration=5.0)
+    assert short["duration"] == 5.0
+    assert short["campaign"] == draws[family][7]["campaign"] and short["sensors"] == draws[family][7]["sensors"]
+
+
+@pytest.mark.parametrize("family", FAMILIES)
+def test_generated_scenarios_load_their_sensors_construct_and_stay_on_the_track(family, draws):
+    checked_in = [yaml.safe_load(p.read_text()) for p in sorted((ROOT / "config").glob("scenario_*.yaml"))]
+    for data in draws[family][:6]:
+        sc = Scenario.from_dict(copy.deepcopy(data))
+        pipes = sensor_pipelines(sc)                 # raises on an unknown or inconsistent parameter
+        assert {p.spec.node for p in pipes} == set(data["sensors"])
+        assert sc.fusion == {} and campaign.fusion_overrides(family, data) == {}
+        assert all(data["profile"] != c["profile"] and data["track"] != c["track"] for c in checked_in)
+        traj = campaign._coarse(data["profile"], sc.start_speed, sc.duration)
+        front = traj.position + sc.start_position
+        assert front.min() - sc.vehicle.length > 0.0 and front.max() < sc.track.length
+    fine = sc.trajectory()   # the simulated motion (1 ms steps) of the last one stays on the track too
+    assert fine.position.min() - sc.vehicle.length > 0.0 and fine.position.max() < sc.track.length
+    if family == "conventional":   # the axle counter lists the heads the train passes
+        data = draws[family][0]
+        sc = Scenario.from_dict(copy.deepcopy(data))
+        front = campaign._coarse(data["profile"], sc.start_speed, sc.duration).position + sc.start_position
+        listed = set(data["sensors"]["axle_counter"]["heads"].split(","))
+        passed = {h["id"] for h in sc.track.items("axle_counter_head")
+                  if front.min() + 1.0 < h["position"] < front.max() - 1.0}
+        assert passed <= listed
+
+
+def _c(draws, family, key):
+    return np.array([d["campaign"]["conditions"][key] for d in draws[family]], dtype=float)
+
+
+def _s(draws, family, sensor, key):
+    return np.array([d["sensors"][sensor][key] for d in draws[family]], dtype=float)
+
+
+def test_conventional_draws_cover_the_stated_ranges(draws):
+    f = "conventional"
+    top = _c(draws, f, "top_speed_kmh")
+    assert top.max() > 280.0 and top.min() < 60.0 and top.max() <= 300.0 * 1.001
+    assert 100.0 <= _c(draws, f, "duration").min() and _c(draws, f, "duration").max() <= 200.0
+    length = _c(draws, f, "track_length")
+    assert length.min() >= 8000.0 and length.max() > 35000.0 and length.max() <= 40000.0
+    spacing = _c(draws, f, "balise_spacing")
+    assert spacing.min() < 600.0 and spacing.max() > 1900.0
+    heads = _c(draws, f, "head_spacing")
+    assert heads.min() < 1200.0 and heads.max() > 3800.0
+    reversal = [d["campaign"]["conditions"]["reversal_speed_kmh"] for d in draws[f]]
+    assert 20 < sum(r is not None for r in reversal) < 120
+    assert all(min(leg["speed"] for leg in d["profile"]) < 0 for d, r in zip(draws[f], reversal) if r is not None)
+    assert (_c(draws, f, "stops") >= 1).sum() > 50
+    accel = np.array([leg["accel"] for d in draws[f] for leg in d["profile"]])
+    decel = np.array([leg["decel"] for d in draws[f] for leg in d["profile"]])
+    assert 0.3 <= accel.min() and accel.max() <= 1.0 and 0.5 <= decel.min() and decel.max() <= 1.2
+    assert _s(draws, f, "wheel_sensor", "slip_ratio_max").max() > 0.24
+    assert _s(draws, f, "wheel_sensor", "slip_ratio_max").max() <= 0.25
+    assert _s(draws, f, "wheel_sensor", "slip_rate").min() < 0.01 and _s(draws, f, "wheel_sensor", "slip_rate").max() > 0.1
+    tol = _s(draws, f, "wheel_sensor", "diameter_tolerance")
+    assert (np.abs(_s(draws, f, "wheel_sensor", "diameter_error")) <= tol).all()
+    rate = _s(draws, f, "wheel_sensor", "sample_rate")
+    assert rate.min() < 4000.0 and rate.max() >= 10000.0     # the lowest rate that resolves the run
+    assert _s(draws, f, "doppler_radar", "scale_sigma").max() > 0.009
+    assert _s(draws, f, "eurobalise_reader", "telegram_error_rate").max() > 0.1
+    for d in draws[f]:   # no axle-counter head under the train at the start
+        start, length = d["initial"]["position"], d["vehicle"]["length"]
+        assert not any(start - length <= h["position"] <= start for h in d["track"]["equipment"]["axle_counter_head"])
+    faults = [d["sensors"]["axle_counter"]["faults"] for d in draws[f]]
+    assert sum(":missed" in x for x in faults) > 20 and sum(":extra" in x for x in faults) > 5
+    delay = _c(draws, f, "max_delay")
+    assert (delay == 0).sum() > 20 and delay.max() > 0.45 and delay.max() <= 0.5
+    assert _c(draws, f, "outages").max() >= 2
+
+
+def test_urban_maglev_draws_cover_the_stated_ranges(draws):
+    f = "urban_maglev"
+    top = _c(draws, f, "top_speed_kmh")
+    assert top.max() > 95.0 and top.max() <= 100.0 * 1.001
+    spacing = _c(draws, f, "tag_spacing")
+    assert spacing.min() < 60.0 and spacing.max() > 290.0
+    assert (_c(draws, f, "stops") >= 2).sum() > 50
+    assert 20 < sum(d["campaign"]["conditions"]["reversal_speed_kmh"] is not None for d in draws[f]) < 120
+    assert (_c(draws, f, "belt_gaps") > 0).sum() > 50
+    assert {tuple(sorted(d["sensors"])) for d in draws[f]} == {("doppler_radar", "eurobalise_reader", "pattern_belt")}
+
+
+def test_highspeed_maglev_draws_cover_the_stated_ranges(draws):
+    f = "highspeed_maglev"
+    top = _c(draws, f, "top_speed_kmh")
+    assert top.min() < 220.0 and top.max() > 480.0 and 200.0 <= top.min() and top.max() <= 500.0 * 1.001
+    assert (_c(draws, f, "slow_speed_kmh") < top).all()
+    spacing = _c(draws, f, "station_spacing")
+    assert spacing.min() < 320.0 and spacing.max() > 780.0
+    assert _c(draws, f, "inpo_gap_max").max() > 1500.0 and (_c(draws, f, "inpo_coverage") < 1.0).all()
+    biased = [d["campaign"]["conditions"]["biased_station"] for d in draws[f]]
+    assert 20 < sum(b is not None for b in biased) < 120
+    assert all(1.0 <= b["bias"] <= 4.0 for b in biased if b)
+    outages = [d["campaign"]["conditions"]["station_outage"] for d in draws[f]]
+    assert 20 < sum(o is not None for o in outages) < 120 and all(len(o["stations"]) >= 2 for o in outages if o)
+    assert _c(draws, f, "misread_probability").max() > 0.03
+    offsets = np.array([st["offset"] for d in draws[f][:20] for st in d["track"]["equipment"]["mmwave_station"]])
+    assert offsets.min() < -8.0 and offsets.max() > 8.0
+
+
+# --------------------------------------------------------------------------- scorer
+def _synthetic():
+    """10 s at 200 Hz, truth at 10 m/s; INITIALISING for the first 100 states, then errors 0 except
+    +5 m in states 400..549 (0.75 s) and -6 m in 1200..1229 (0.15 s), 1-sigma 1 m; speed error
+    1.0 m/s in states 1500..1519."""
+    t = np.arange(2001) * 0.005
+    s_true, v_true = 10.0 * t, np.full(t.size, 10.0)
+    err = np.zeros(t.size)
+    err[400:550] = 5.0
+    err[1200:1230] = -6.0
+    pos = s_true + err
+    mode = np.full(t.size, float(MODE_NOMINAL))
+    mode[:100] = MODE_INITIALISING
+    pos[:100] = np.nan
+    sd = np.ones(t.size)
+    half = 3.2905
+    speed = v_true.copy()
+    speed[1500:1520] += 1.0
+    sd_v = np.full(t.size, 0.1)
+    sd_v[:100] = 100.0
+    fused = StateSeries(t, pos, speed, sd, sd_v, pos - half, pos + half, mode)
+    return StateSeries.of_truth(t, s_true, v_true), fused
+
+
+def test_scorer_exact_on_a_synthetic_series():
+    truth, fused = _synthetic()
+    out = run_scores(truth, fused, 0.005, reference_times=[1.0, 5.9])
+    claimed = 2001 - 100
+    assert out["states_with_position"] == claimed
+    assert out["integrity"]["outside_count"] == 180
+    assert out["integrity"]["inside_fraction"] == pytest.approx(1 - 180 / claimed, abs=1e-12)
+    ex = out["excursions"]
+    assert ex["count"] == 2 and ex["longest_states"] == 150
+    assert ex["longest_s"] == pytest.approx(0.75) and ex["longest_start"] == pytest.approx(2.0)
+    assert ex["longest_max_error_m"] == pytest.approx(5.0)
+    assert out["position_error_m"]["max"] == pytest.approx(6.0)
+    assert out["integrity"]["mean_interval_width_m"] == pytest.approx(2 * 3.2905)
+    ne = out["normalised_error"]
+    assert sum(ne["counts"]) == claimed and ne["max_abs"] == pytest.approx(6.0)
+    assert ne["rms"] == pytest.approx(math.sqrt((150 * 25 + 30 * 36) / claimed))
+    # envelope: 5 m + 5 % of the distance since the last reference (1.0 s, then 5.9 s)
+    env = out["etcs_envelope"]
+    assert env["max_ratio"] == pytest.approx(6.0 / (5.0 + 0.05 * 1.0))
+    assert env["within"] == claimed - 30 and env["states"] == claimed and env["references_passed"] == 2
+    band = out["speed_band"]
+    assert band["states"] == claimed and band["violations"] == 20
+    assert band["max_ratio"] == pytest.approx(1.0 / ((2.0 + 6.0 / 47.0) / 3.6))
+    assert out["mode_fractions"] == {"0": 100 / 2001, "1": claimed / 2001}
+    assert out["first_position_s"] == pytest.approx(0.5)
+    pairs = out["error_vs_half_width"]
+    assert 180 <= len(pairs["error_m"]) <= 600 and np.allclose(pairs["half_width_m"], 3.2905)
+    assert np.count_nonzero(np.abs(pairs["error_m"]) > 3.2905) == 180   # every state outside is kept
+
+
+def test_passing_times_of_references_in_both_directions():
+    t = np.arange(0, 10.0001, 0.01)
+    s = np.where(t < 5.0, 10.0 * t, 100.0 - 10.0 * t)  # out to 50 m and back
+    times = passing_times(t, s, [44.95, 15.05])
+    assert np.allclose(times, [1.51, 4.5, 5.51, 8.5], atol=0.011)
+
+
+def test_run_one_reports_an_exception_as_an_error_entry(monkeypatch):
+    def broken(family, seed, max_duration=None):
+        raise RuntimeError("generator exploded")
+    monkeypatch.setattr(campaign, "generate", broken)
+    r = run_one("conventional", 3)
+    assert r["family"] == "conventional" and r["seed"] == 3
+    assert "generator exploded" in r["error"] and "Traceback" in r["traceback"]
+    s = campaign.summarise([r])
+    assert s["all"]["errors"] == 1 and s["checks"]["no_errors"] is False and s["passed"] is False
+
+
+# --------------------------------------------------------------------------- runners
+SHORT = "12"   # simulated seconds per run in the tiny campaigns
+
+
+def _scores(out: Path) -> dict:
+    runs = {}
+    for p in sorted((out / "runs").glob("*.json")):
+        r = json.loads(p.read_text())
+        assert "error" not in r, r.get("traceback")
+        runs[p.name] = {k: r[k] for k in ("scores", "fusion", "sensors", "devices", "conditions")}
+    return runs
+
+
+@pytest.fixture(scope="module")
+def pool_campaign(tmp_path_factory):
+    out = tmp_path_factory.mktemp("pool")
+    rc = tool.main(["--runs", "3", "--seed", "5", "--max-duration", SHORT, "--workers", "2", "--out", str(out),
+                    "--quiet", "--check"])
+    return out, rc
+
+
+def test_tiny_campaign_on_the_process_pool_writes_runs_summary_and_plots(pool_campaign, capsys):
+    out, rc = pool_campaign
+    jobs = campaign.jobs(3, FAMILIES, 5)
+    assert sorted(p.name for p in (out / "runs").glob("*.json")) == sorted(f"{f}-{s}.json" for f, s in jobs)
+    summary = json.loads((out / "summary.json").read_text())
+    assert set(summary["families"]) == set(FAMILIES) and summary["all"]["runs"] == 3
+    assert summary["all"]["errors"] == 0
+    assert summary["all"]["states"] == sum(json.loads(p.read_text())["scores"]["states"]
+                                           for p in (out / "runs").glob("*.json"))
+    assert rc == (0 if summary["passed"] else 1)      # --check follows the targets
+    for name in ("integrity.png", "error_vs_half_width.png", "normalised_error.png"):
+        assert (out / name).stat().st_size > 1000
+
+
+def test_tiny_campaign_on_a_dask_cluster_gives_the_pool_scores(pool_campaign, tmp_path):
+    from dask.distributed import LocalCluster
+    out = tmp_path / "dask"
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address=None) as cluster:
+        rc = tool.main(["--runs", "3", "--seed", "5", "--max-duration", SHORT, "--out", str(out), "--quiet",
+                        "--scheduler", cluster.scheduler_address])
+    assert rc == 0
+    assert (out / "summary.json").exists()
+    assert _scores(out) == _scores(pool_campaign[0])
+
+
+def test_export_round_trip(tmp_path, capsys):
+    path = tmp_path / "run.yaml"
+    assert tool.main(["--export", "highspeed_maglev:42", "-o", str(path), "--max-duration", "3"]) == 0
+    data = yaml.safe_load(path.read_text())
+    assert data == generate("highspeed_maglev", 42, max_duration=3.0)
+    sc = Scenario.from_yaml(path)
+    assert sc.duration == 3.0 and sc.name == "campaign_highspeed_maglev_42"
+    assert sc.sensors == generate("highspeed_maglev", 42)["sensors"]
+    # the existing tools take it as any scenario file
+    from train_localization.tools import bench_fusion
+    assert bench_fusion.main(["--figures", str(path)]) == 0
+    assert "campaign_highspeed_maglev_42" in capsys.readouterr().out

@@ -1,0 +1,580 @@
+"""Monte Carlo integrity campaign: randomised scenarios per vehicle family, one run each.
+
+The fused interval [position_min, position_max] claims 99.9 %. A campaign draws
+conditions nobody tuned for -- a generated track, speed profile, adhesion, sensor
+noise and faults, late and reordered delivery -- runs each scenario once and
+scores the published states against the truth (core/scoring.py ``run_scores``).
+``tools/campaign.py`` (``tl_campaign``) runs many of them in parallel.
+
+A run is fully defined by (family, seed): ``generate(family, seed)`` draws every
+condition from ``numpy.random.default_rng(seed)`` and returns a scenario dict that
+``Scenario.from_dict`` accepts (track inlined) plus a ``campaign`` entry with the
+drawn conditions and the delivery of the measurements to the fusion (``Scenario``
+ignores it; ``run_scenario`` reads it). ``run_one(family, seed)`` generates,
+simulates the sensors once, delivers their measurements late / reordered / with
+link outages to a FusionRunner and returns a JSON-serialisable dict; an exception
+becomes an error entry with its traceback.
+
+Families (ranges: ``docs/campaign.md``):
+  conventional      wheel pulse generator + Doppler + Eurobalise + axle counters on a
+                    generated line, up to 300 km/h, stops, sometimes a reversal, random
+                    slip/slide, axle-counter miscounts
+  urban_maglev      pattern belt (with gaps at switches) + Doppler + transponder tags
+                    (Eurobalise-type reader), up to 100 km/h, several stops
+  highspeed_maglev  Doppler + INPO (sections with gaps) + LRL groups + mm-wave
+                    ranging, 200-500 km/h with a slowdown; NLOS, base-station outages
+                    and a biased station in some runs, LRL misreads
+"""
+from __future__ import annotations
+
+import math
+import time
+import traceback
+
+import numpy as np
+
+from .offline import delayed, fuse_arrivals, fusion_config, scenario_measurements, sensor_pipelines
+from .report import jsonable
+from .scenario import Leg, Scenario, Trajectory
+from .scoring import StateSeries, passing_times, run_scores
+from .sensors import wheel as _wheel
+
+FAMILIES = ("conventional", "urban_maglev", "highspeed_maglev")
+FUSION_RATE = 200.0   # published states per second (the fusion node's default)
+KMH = 1.0 / 3.6
+
+def fusion_overrides(family: str, draw: dict) -> dict:
+    """FusionConfig overrides of a generated scenario: none.
+
+    The campaign measures the fusion as it configures itself from the scenario's
+    sensors; a tuning under test would go here (``draw``: the run's conditions).
+    """
+    return {}
+
+
+def run_seed(base: int, index: int) -> int:
+    """Seed of run ``index`` of a campaign with base seed ``base`` (printed with each run)."""
+    return int(np.random.SeedSequence([int(base), int(index)]).generate_state(1)[0])
+
+
+def jobs(n_runs: int, families=FAMILIES, base: int = 0) -> list[tuple[str, int]]:
+    """(family, seed) of runs 0..n-1: the families in turn, so any prefix is balanced."""
+    return [(families[i % len(families)], run_seed(base, i)) for i in range(n_runs)]
+
+
+# ----------------------------------------------------------------------------- drawing
+def _g(x: float, digits: int = 6) -> float:
+    """A float with ``digits`` significant digits (readable YAML; the rounded value is what runs)."""
+    return float(f"{float(x):.{digits}g}")
+
+
+class _Draw:
+    """The run's random stream with the shapes of draw the generators use."""
+
+    def __init__(self, seed: int):
+        self.rng = np.random.default_rng(seed)
+
+    def u(self, lo: float, hi: float) -> float:
+        return _g(self.rng.uniform(lo, hi))
+
+    def logu(self, lo: float, hi: float) -> float:
+        return _g(math.exp(self.rng.uniform(math.log(lo), math.log(hi))))
+
+    def chance(self, p: float) -> bool:
+        return bool(self.rng.random() < p)
+
+    def int(self, lo: int, hi: int) -> int:
+        """Integer in [lo, hi]."""
+        return int(self.rng.integers(lo, hi + 1))
+
+    def seed(self) -> int:
+        return int(self.rng.integers(0, 2 ** 31 - 1))
+
+
+def _leg_time(v0: float, leg: dict) -> float:
+    """Rough duration of a leg [s] (no jerk phases), for the duration budget of a profile."""
+    v1 = leg["speed"]
+    if v0 * v1 < 0:   # through a stop
+        t = abs(v0) / leg["decel"] + abs(v1) / leg["accel"]
+    else:
+        t = abs(v1 - v0) / (leg["accel"] if abs(v1) > abs(v0) else leg["decel"])
+    return t + 2.0 * leg["accel"] / leg["jerk"] + leg["hold"]
+
+
+def _stop_and_go_profile(d: _Draw, duration: float, v_top: float, v0: float, accel: tuple, decel: tuple,
+                         jerk: tuple, dwell: tuple, hold: tuple, p_stop: float, reversal: bool,
+                         reverse_speed: tuple, speeds: tuple = (0.4, 1.0)) -> tuple[list[dict], dict]:
+    """Legs until ``duration`` is spent: runs at ``v_top`` times U(``speeds``) (the first at
+    ``v_top``), stops with a dwell, and (``reversal``) one backwards leg after a stop (after the
+    first or second run).
+
+    Returns (legs, summary: stops, reversal speed)."""
+    legs, t, v, stops, rev = [], 0.0, v0, 0, None
+    first = True
+    reverse_after = d.int(1, 2)   # runs before the stop that precedes the reversal
+    runs = 0
+    while t < duration:
+        leg = {"accel": d.u(*accel), "decel": d.u(*decel), "jerk": d.u(*jerk)}
+        if v == 0.0 and reversal and rev is None and stops > 0:
+            rev = -d.u(*reverse_speed)
+            new = [{**leg, "speed": _g(rev), "hold": d.u(3.0, 15.0)},
+                   {**leg, "speed": 0.0, "hold": d.u(*dwell)}]
+        elif v != 0.0 and not first and (d.chance(p_stop) or reversal and rev is None and runs >= reverse_after):
+            new = [{**leg, "speed": 0.0, "hold": d.u(*dwell)}]
+            stops += 1
+        else:
+            target = v_top if first else _g(v_top * d.u(*speeds))
+            new = [{**leg, "speed": target, "hold": d.u(*hold)}]
+            first = False
+            runs += 1
+        for n in new:
+            t += _leg_time(v, n)
+            v = n["speed"]
+            legs.append(n)
+    return legs, {"stops": stops, "reversal_speed_kmh": _g(rev * 3.6) if rev is not None else None}
+
+
+def _coarse(legs: list[dict], v0: float, duration: float) -> Trajectory:
+    """The profile's motion from chainage 0, on a 50 ms grid (extent and passing times only)."""
+    return Trajectory.from_legs([Leg(**leg) for leg in legs], 0.0, v0, duration, 0.05)
+
+
+def _alignment(d: _Draw, length: float, min_radius: float, max_radius: float) -> list[dict]:
+    out, s = [], 0.0
+    while s < length:
+        seg = min(d.u(300.0, 4000.0), length - s)
+        curvature = 0.0 if d.chance(0.5) else _g((1 if d.chance(0.5) else -1) / d.u(min_radius, max_radius))
+        out.append({"length": _g(seg), "curvature": curvature})
+        s += seg
+    return out
+
+
+def _spaced(d: _Draw, start: float, end: float, spacing: float, jitter: float) -> list[float]:
+    """Positions from ``start`` to ``end`` with gaps spacing x U(1 - jitter, 1 + jitter)."""
+    out, s = [], start
+    while s <= end:
+        out.append(_g(s, 8))
+        s += spacing * d.u(1.0 - jitter, 1.0 + jitter)
+    return out
+
+
+def _place(d: _Draw, traj: Trajectory, rear: float, length: float, margin: float) -> tuple[float, float]:
+    """(track length, start chainage) so that the whole run, train body included, stays on the track;
+    the drawn ``length`` grows if the run needs more."""
+    lo, hi = float(traj.position.min()) - rear - margin, float(traj.position.max()) + margin
+    length = max(length, _g(hi - lo + 2 * margin, 4))
+    return length, _g(d.u(-lo, length - hi), 8)
+
+
+def _doppler(d: _Draw, duration: float) -> dict:
+    """Doppler radar across its datasheet ranges (1 % class ground-speed radars): a mounting
+    angle off by up to 2 tolerances, and in one run of six a scale fault of 2-8 % lasting
+    5-40 s (water film, snow, a loosened mount)."""
+    p = {"spread": d.u(0.01, 0.04), "scale_sigma": d.u(0.002, 0.01), "scale_tau": d.u(2.0, 20.0),
+         "bias": d.u(-0.06, 0.06), "dropout_rate": d.logu(0.003, 0.3), "dropout_duration": d.u(0.2, 3.0),
+         "mount_angle_error": d.u(-0.4, 0.4)}
+    if d.chance(1.0 / 6.0):
+        t0 = d.u(0.1, 0.8) * duration
+        p["faults"] = f"{_g(t0, 4)}-{_g(t0 + d.u(5.0, 40.0), 4)}:{d.u(0.02, 0.08) * (1 if d.chance(0.5) else -1)}"
+    return p
+
+
+def _balise_rate(v_top: float) -> float:
+    """Eurobalise reader sample rate [Hz]: ~11 samples across the 0.31 m field peak at the top
+    speed (the 5 kHz default is sized for 500 km/h), in steps of 500 Hz, 1-5 kHz."""
+    return float(min(5000.0, max(1000.0, 500.0 * math.ceil(60.0 * v_top / 500.0))))
+
+
+def _reader(d: _Draw, v_top: float, location: tuple) -> dict:
+    return {"sample_rate": _balise_rate(v_top), "telegram_error_rate": d.logu(1e-4, 0.2),
+            "location_sigma": d.u(*location), "field_sigma": d.u(0.01, 0.08)}
+
+
+def wheel_sample_rate(max_speed: float, diameter: float, tolerance: float) -> float:
+    """Lowest sample rate [Hz] (a multiple of 500 Hz) at which the wheel simulator resolves
+    ``max_speed`` with the default disc (wheel.py ``resolvable_speed``)."""
+    p = {k: v.default for k, v in _wheel.PARAMS.items()}
+    per_hz = _wheel.resolvable_speed(1.0, int(p["pulses_per_revolution"]), diameter * (1.0 - tolerance),
+                                     p["phase_tolerance"], p["duty_tolerance"])
+    return 500.0 * math.ceil(max_speed / per_hz / 500.0 + 1e-9)
+
+
+def _delivery(d: _Draw, duration: float, sensors: list[str]) -> dict:
+    """Late/reordered delivery (each measurement U(0, max_delay) s late; a quarter of the runs
+    in order) and link outages (all measurements of one sensor class lost for a while)."""
+    max_delay = 0.0 if d.chance(0.25) else d.u(0.02, 0.5)
+    outages = []
+    for _ in range(d.int(0, 2)):
+        t0 = d.u(0.0, duration)
+        outages.append({"sensor": sensors[d.int(0, len(sensors) - 1)], "t0": t0, "t1": _g(t0 + d.u(0.3, 5.0))})
+    return {"max_delay": max_delay, "seed": d.seed(), "outages": outages}
+
+
+def _times_at(traj: Trajectory, x: float) -> np.ndarray:
+    """Times [s] at which the coarse motion passes chainage x."""
+    side = np.sign(traj.position - x)
+    return traj.t[1:][np.diff(side) != 0]
+
+
+def _conventional(d: _Draw) -> tuple[dict, dict]:
+    duration = d.u(100.0, 200.0)
+    v_top = d.u(40.0, 300.0) * KMH
+    v0 = _g(v_top * d.u(0.3, 1.0)) if d.chance(0.4) else 0.0
+    reversal = d.chance(0.45)   # effective when the train stops within the run
+    legs, prof = _stop_and_go_profile(d, duration, _g(v_top), v0, accel=(0.3, 1.0), decel=(0.5, 1.2),
+                                      jerk=(0.3, 1.0), dwell=(5.0, 30.0), hold=(5.0, 40.0), p_stop=0.4,
+                                      reversal=reversal, reverse_speed=(1.5, 6.0))
+    # vehicle: cars of two bogies with two axles each
+    cars = d.int(2, 8)
+    car_len = d.u(18.0, 27.0)
+    axles = []
+    for c in range(cars):
+        for bogie in (c * car_len + 2.5, (c + 1) * car_len - 5.0):
+            axles += [_g(bogie), _g(bogie + 2.5)]
+    wheel_d = d.u(0.84, 0.96)
+    vehicle = {"type": "conventional", "length": _g(cars * car_len), "wheel_diameter": wheel_d, "axles": axles}
+    traj = _coarse(legs, v0, duration)
+    length, start = _place(d, traj, vehicle["length"], d.u(8000.0, 40000.0), 300.0)
+    # wayside: balise locations (single balises or groups of two), axle-counter heads
+    balise_spacing, head_spacing = d.u(500.0, 2000.0), d.u(1000.0, 4000.0)
+    group_share = d.u(0.0, 1.0)
+    balises = []
+    for n, x in enumerate(_spaced(d, d.u(50.0, balise_spacing), length - 20.0, balise_spacing, 0.25)):
+        if d.chance(group_share):
+            balises += [{"id": f"BG{n:03d}a", "position": x, "group": f"BG{n:03d}"},
+                        {"id": f"BG{n:03d}b", "position": _g(x + 3.0, 8), "group": f"BG{n:03d}"}]
+        else:
+            balises.append({"id": f"EB{n:03d}", "position": x})
+    # no head under the train at the start: counters that start CLEAR with a train over a head
+    # (a reset with the section occupied) count its next axle as the first one
+    heads = [{"id": f"AC{n:02d}", "position": x}
+             for n, x in enumerate(_spaced(d, d.u(100.0, head_spacing), length - 100.0, head_spacing, 0.2))
+             if not start - vehicle["length"] - 10.0 <= x <= start + 10.0]
+    track = {"track_id": "campaign_conventional", "length": length,
+             "alignment": _alignment(d, length, 1500.0, 10000.0),
+             "equipment": {"eurobalise": balises, "axle_counter_head": heads}}
+    # one axle-counter evaluation unit for the heads the train passes (4 k samples/s per head);
+    # 50 m margins: the 50 ms motion of _coarse is within ~25 m of the simulated one
+    front = traj.position + start
+    lo, hi = float(front.min()) - vehicle["length"] - 50.0, float(front.max()) + 50.0
+    passed = [h for h in heads if lo <= h["position"] <= hi] or \
+        [min(heads, key=lambda h: abs(h["position"] - start))]
+    v_max = max([abs(v0)] + [abs(leg["speed"]) for leg in legs])
+    tolerance = d.u(0.002, 0.012)
+    wheel = {"max_speed": _g(1.05 * v_max), "diameter_tolerance": tolerance,
+             "diameter_error": _g(tolerance * d.u(-1.0, 1.0)), "creep_coefficient": d.u(0.001, 0.004),
+             "driven_axle": d.chance(0.7), "slip_rate": d.logu(0.005, 0.2),
+             "slip_accel_threshold": d.u(0.3, 0.9), "slip_ratio_min": d.u(0.01, 0.04),
+             "slip_ratio_max": d.u(0.05, 0.25), "slip_duration": d.u(0.5, 5.0), "glitch_rate": d.logu(0.001, 0.1)}
+    wheel["sample_rate"] = wheel_sample_rate(wheel["max_speed"], wheel_d, tolerance)
+    faults = []
+    if d.chance(0.25):   # a missed axle at a head shortly before the train passes it
+        head = passed[d.int(0, len(passed) - 1)]
+        when = _times_at(traj, head["position"] - start)
+        t_miss = float(when[0]) - d.u(1.0, 20.0) if when.size else d.u(0.0, duration)
+        faults.append(f"{head['id']}@{_g(max(t_miss, 0.0), 5)}:missed")
+    if d.chance(0.1):    # a spurious axle (EMI, a track machine) at any of the unit's heads
+        head = passed[d.int(0, len(passed) - 1)]
+        faults.append(f"{head['id']}@{d.u(0.0, duration):.5g}:{'extra' if d.chance(0.5) else 'extra-'}")
+    axle = {"heads": ",".join(h["id"] for h in passed), "sample_rate": 1000.0 if v_max <= 45.0 else 2000.0,
+            "first_axle_offset": axles[0], "last_axle_offset": axles[-1] if d.chance(0.5) else 0.0,
+            "noise_sigma": d.u(0.01, 0.04), "spike_rate": d.logu(0.001, 0.1),
+            "head_position_sigma": d.u(0.01, 0.05), "faults": ";".join(faults)}
+    sensors = {"wheel_sensor": wheel, "doppler_radar": _doppler(d, duration),
+               "eurobalise_reader": _reader(d, v_max, (0.1, 0.5)), "axle_counter": axle}
+    scenario = {"duration": duration, "vehicle": vehicle, "initial": {"position": start, "speed": v0},
+                "profile": legs, "track": track, "sensors": sensors}
+    conditions = {"duration": duration, "top_speed_kmh": _g(v_max * 3.6), "start_speed_kmh": _g(v0 * 3.6),
+                  **prof, "track_length": length, "balise_spacing": balise_spacing, "head_spacing": head_spacing,
+                  "heads_listed": len(passed), "axles": len(axles), "wheel_sample_rate": wheel["sample_rate"],
+                  **{k: wheel[k] for k in ("slip_rate", "slip_ratio_max", "slip_duration", "slip_accel_threshold",
+                                           "diameter_error", "driven_axle")},
+                  "axle_counter_faults": axle["faults"]}
+    return scenario, conditions
+
+
+def _urban(d: _Draw) -> tuple[dict, dict]:
+    duration = d.u(60.0, 120.0)
+    v_top = d.u(40.0, 100.0) * KMH
+    v0 = _g(v_top * d.u(0.3, 1.0)) if d.chance(0.3) else 0.0
+    reversal = d.chance(0.3)
+    legs, prof = _stop_and_go_profile(d, duration, _g(v_top), v0, accel=(0.8, 1.3), decel=(0.8, 1.3),
+                                      jerk=(0.5, 1.2), dwell=(5.0, 20.0), hold=(0.0, 10.0), p_stop=0.8,
+                                      reversal=reversal, reverse_speed=(1.0, 4.0), speeds=(0.3, 1.0))
+    vehicle = {"type": "maglev_urban", "length": d.u(30.0, 60.0)}
+    traj = _coarse(legs, v0, duration)
+    length, start = _place(d, traj, vehicle["length"], d.u(3000.0, 8000.0), 200.0)
+    tag_spacing = d.u(50.0, 300.0)
+    tags = [{"id": f"TG{n:03d}", "position": x}
+            for n, x in enumerate(_spaced(d, d.u(10.0, tag_spacing), length - 10.0, tag_spacing, 0.1))]
+    # belt sections: the belt is interrupted at switches (gaps within the run's extent)
+    front = traj.position + start
+    gaps = sorted(_g(d.u(float(front.min()), float(front.max()) + 1.0), 8) for _ in range(d.int(0, 3)))
+    belt, s0 = [], 0.0
+    for g in gaps + [length]:
+        if g - s0 > 20.0:
+            belt.append({"id": f"PB{len(belt):02d}", "position": _g(s0, 8), "end": _g(g, 8),
+                         "period": _g(0.6 * (1.0 + d.u(-6e-4, 6e-4)), 8)})   # FRP belt, thermal expansion
+            s0 = g + d.u(10.0, 40.0) if g < length else g
+    track = {"track_id": "campaign_urban", "length": length, "origin": {"x": 0.0, "y": 0.0, "heading": 1.5708},
+             "alignment": _alignment(d, length, 300.0, 1500.0),
+             "equipment": {"pattern_belt": belt, "eurobalise": tags}}
+    v_max = max([abs(v0)] + [abs(leg["speed"]) for leg in legs])
+    sensors = {"pattern_belt": {"noise": d.u(0.01, 0.03), "gap_sigma": d.u(0.001, 0.003),
+                                "gain_mismatch": d.u(0.01, 0.05)},
+               "doppler_radar": _doppler(d, duration), "eurobalise_reader": _reader(d, v_max, (0.05, 0.3))}
+    scenario = {"duration": duration, "vehicle": vehicle, "initial": {"position": start, "speed": v0},
+                "profile": legs, "track": track, "sensors": sensors}
+    conditions = {"duration": duration, "top_speed_kmh": _g(v_max * 3.6), "start_speed_kmh": _g(v0 * 3.6),
+                  **prof, "track_length": length, "tag_spacing": tag_spacing, "belt_gaps": len(belt) - 1,
+                  "telegram_error_rate": sensors["eurobalise_reader"]["telegram_error_rate"]}
+    return scenario, conditions
+
+
+def _highspeed_maglev(d: _Draw) -> tuple[dict, dict]:
+    duration = d.u(40.0, 80.0)
+    v0 = d.u(200.0, 500.0) * KMH
+    cruise, decel = d.u(5.0, 20.0), d.u(0.5, 1.0)
+    # a slowdown of 50-150 km/h (not below 150 km/h) that ends within the run
+    drop = min(d.u(50.0, 150.0) * KMH, 0.6 * decel * (duration - cruise))
+    v_slow = _g(max(v0 - drop, 150.0 * KMH))
+    leg = {"jerk": d.u(0.3, 0.8)}
+    legs = [{**leg, "speed": _g(v0), "accel": 0.5, "decel": 0.8, "hold": cruise},
+            {**leg, "speed": v_slow, "accel": 0.5, "decel": decel, "hold": d.u(2.0, 10.0)},
+            {**leg, "speed": _g(max(v_slow, v0 * d.u(0.85, 1.0))), "accel": d.u(0.3, 0.8), "decel": 0.8,
+             "hold": 200.0}]
+    vehicle = {"type": "maglev", "length": d.u(50.0, 130.0), "axles": []}
+    traj = _coarse(legs, _g(v0), duration)
+    length, start = _place(d, traj, vehicle["length"], d.u(8000.0, 20000.0), 300.0)
+    # INPO: blocks of adjacent sections, gaps without INPO between the blocks
+    sections, gap_lengths, s = [], [], d.u(0.0, 1500.0)
+    while s < length - 200.0:
+        block_end = min(s + d.u(1500.0, 6000.0), length)
+        while s < block_end - 100.0:
+            end = min(s + d.u(1000.0, 3000.0), block_end)
+            sections.append({"id": f"INPO{len(sections):02d}", "position": _g(s, 8), "end": _g(end, 8)})
+            s = end
+        gap = d.u(200.0, 2000.0)
+        gap_lengths.append(gap)
+        s = block_end + gap
+    lrl_spacing = d.u(300.0, 1000.0)
+    station_spacing = d.u(300.0, 800.0)
+    stations = [{"id": f"MW{n:03d}", "position": x, "offset": _g((1 if d.chance(0.5) else -1) * d.u(2.0, 10.0)),
+                 "height": d.u(4.0, 8.0)}
+                for n, x in enumerate(_spaced(d, d.u(0.0, station_spacing), length, station_spacing, 0.1))]
+    track = {"track_id": "campaign_maglev", "length": length, "alignment": _alignment(d, length, 4000.0, 20000.0),
+             "equipment": {"inpo_section": sections,
+                           "lrl_group": [{"every": lrl_spacing, "start": d.u(50.0, lrl_spacing), "end": length - 20.0,
+                                          "id": "LRL{n:03d}", "lugs": 3}],
+                           "mmwave_station": stations}}
+    faults, outage, biased = [], None, None
+    front = traj.position + start
+    pos = np.array([st["position"] for st in stations])
+    if d.chance(0.3):    # base-station outage: a block of consecutive stations around the train
+        t0 = d.u(0.0, 0.8 * duration)
+        t1 = _g(t0 + d.u(2.0, 10.0))
+        k = int(np.argmin(np.abs(pos - np.interp(t0, traj.t, front))))
+        n = d.int(2, 4)
+        first = min(max(k - n // 2, 0), len(stations) - n)
+        ids = [st["id"] for st in stations[first:first + n]]
+        faults += [f"{sid}@{t0}-{t1}:drop" for sid in ids]
+        outage = {"stations": ids, "t0": t0, "t1": t1}
+    if d.chance(0.3):    # one station ranging with a bias (antenna-delay fault, a reflector)
+        t0 = d.u(0.0, 0.8 * duration)
+        t1 = _g(t0 + d.u(2.0, 15.0))
+        k = int(np.argmin(np.abs(pos - np.interp(t0, traj.t, front) - d.u(-300.0, 600.0))))
+        bias = d.u(1.0, 4.0)
+        faults.append(f"{stations[k]['id']}@{t0}-{t1}:{bias}")
+        biased = {"station": stations[k]["id"], "t0": t0, "t1": t1, "bias": bias}
+    mmwave = {"nlos_rate": d.logu(0.01, 0.5), "nlos_bias_mean": d.u(0.3, 2.0), "dropout_prob": d.logu(0.005, 0.1),
+              "cal_sigma": d.u(0.01, 0.05), "faults": ";".join(faults)}
+    lrl = {"misread_probability": d.logu(1e-4, 0.05), "n_sensors": d.int(2, 4)}
+    sensors = {"doppler_radar": _doppler(d, duration), "inpo_receiver": {}, "lrl_scanner": lrl, "mmwave_ranging": mmwave}
+    scenario = {"duration": duration, "vehicle": vehicle, "initial": {"position": start, "speed": _g(v0)},
+                "profile": legs, "track": track, "sensors": sensors}
+    covered = sum(sec["end"] - sec["position"] for sec in sections) / length
+    conditions = {"duration": duration, "top_speed_kmh": _g(v0 * 3.6), "slow_speed_kmh": _g(v_slow * 3.6),
+                  "track_length": length, "inpo_coverage": _g(covered, 3),
+                  "inpo_gap_max": max(gap_lengths) if gap_lengths else 0.0, "lrl_spacing": lrl_spacing,
+                  "station_spacing": station_spacing, "station_outage": outage, "biased_station": biased,
+                  "nlos_rate": mmwave["nlos_rate"], "misread_probability": lrl["misread_probability"]}
+    return scenario, conditions
+
+
+_GENERATORS = {"conventional": _conventional, "urban_maglev": _urban, "highspeed_maglev": _highspeed_maglev}
+
+# sensor node -> the sensor class its measurements carry (outages name classes)
+_CLASSES = {"wheel_sensor": "wheel", "doppler_radar": "doppler", "eurobalise_reader": "eurobalise",
+            "axle_counter": "axle_counter", "pattern_belt": "pattern_belt", "inpo_receiver": "inpo",
+            "lrl_scanner": "lrl", "mmwave_ranging": "mmwave"}
+
+
+def generate(family: str, seed: int, max_duration: float | None = None) -> dict:
+    """The scenario dict of run (family, seed): ``Scenario.from_dict`` loads it.
+
+    ``max_duration`` [s] cuts the run short (tests); every drawn condition stays the same.
+    """
+    if family not in _GENERATORS:
+        raise ValueError(f"unknown family {family!r}; known: {', '.join(FAMILIES)}")
+    d = _Draw(seed)
+    body, conditions = _GENERATORS[family](d)
+    delivery = _delivery(d, body["duration"], [_CLASSES[n] for n in body["sensors"]])
+    conditions["max_delay"] = delivery["max_delay"]
+    conditions["outages"] = len(delivery["outages"])
+    if max_duration is not None and max_duration < body["duration"]:
+        body["duration"] = float(max_duration)
+    body["track"]["track_id"] = f"{body['track']['track_id']}_{seed}"
+    return {"name": f"campaign_{family}_{seed}", "seed": d.seed(), "truth_rate": 100.0, **body,
+            "fusion": fusion_overrides(family, conditions),
+            "campaign": {"family": family, "seed": int(seed), "conditions": conditions, "delivery": delivery}}
+
+
+# ----------------------------------------------------------------------------- running
+def deliver(arrivals: list, delivery: dict) -> list:
+    """(arrival time, measurement) pairs as the fusion gets them: link outages remove the
+    measurements of a sensor class published in [t0, t1), then each arrives U(0, max_delay) s late."""
+    kept = [(t, m) for t, m in arrivals
+            if not any(o["sensor"] == m.sensor and o["t0"] <= t < o["t1"] for o in delivery.get("outages", ()))]
+    if delivery.get("max_delay", 0.0) > 0.0:
+        kept = delayed(kept, delivery["max_delay"], delivery.get("seed", 1))
+    return kept
+
+
+def reference_positions(scenario: Scenario) -> np.ndarray:
+    """Chainages of the position references of ETCS: balises and axle-counter heads of the
+    scenario's devices (all heads of its axle counter's ``heads``, or all on the track)."""
+    track = scenario.track
+    refs = [b["position"] for b in track.items("eurobalise")]
+    if "axle_counter" in scenario.sensors:
+        wanted = {h.strip() for h in str(scenario.sensors["axle_counter"].get("heads", "")).split(",") if h.strip()}
+        refs += [h["position"] for h in track.items("axle_counter_head") if not wanted or h["id"] in wanted]
+    return np.sort(np.asarray(refs, dtype=float))
+
+
+def run_scenario(data: dict) -> dict:
+    """Simulate, deliver, fuse and score one generated scenario dict (see ``generate``)."""
+    sc = Scenario.from_dict(data)
+    camp = data.get("campaign", {})
+    family = camp.get("family", "")
+    pipes = sensor_pipelines(sc)
+    traj = sc.trajectory()
+    arrivals = scenario_measurements(sc, pipes=pipes, trajectory=traj)
+    delivered = deliver(arrivals, camp.get("delivery", {}))
+    runner, estimates, _, _ = fuse_arrivals(fusion_config(sc), delivered, sc.duration, FUSION_RATE)
+    truth = StateSeries.of_truth(traj.t, traj.position, traj.speed)
+    refs = passing_times(traj.t, traj.position, reference_positions(sc)) if family == "conventional" else None
+    scores = run_scores(truth, StateSeries.from_estimates(estimates), 1.0 / FUSION_RATE, refs)
+    per_sensor: dict[str, dict] = {}
+    for _, m in arrivals:
+        per_sensor.setdefault(m.sensor, {"measurements": 0, "delivered": 0})["measurements"] += 1
+    for _, m in delivered:
+        per_sensor[m.sensor]["delivered"] += 1
+    devices = {}
+    for pipe in pipes:
+        dev = {"decoder": dict(pipe.decoder.stats), "rejected_blocks": dict(pipe.rejected)}
+        slip_log = getattr(pipe.simulator, "slip_log", None)
+        if slip_log is not None:
+            dev["slip_episodes"] = len(slip_log)
+            dev["slip_ratio_max"] = max((abs(r) for _, _, r in slip_log), default=0.0)
+        devices[pipe.spec.node] = dev
+    return {"name": sc.name, "duration": sc.duration, "conditions": camp.get("conditions", {}),
+            "delivery": camp.get("delivery", {}), "sensor_params": data.get("sensors", {}), "scores": scores,
+            "fusion": runner.filter.counters(), "fusion_rejected": dict(runner.rejected), "sensors": per_sensor,
+            "devices": devices}
+
+
+def run_one(family: str, seed: int, max_duration: float | None = None) -> dict:
+    """Run (family, seed) and score it: a JSON-serialisable dict; never raises (an error entry
+    carries the traceback)."""
+    c0 = time.process_time()
+    out = {"family": family, "seed": int(seed), "max_duration": max_duration}
+    try:
+        out.update(run_scenario(generate(family, seed, max_duration)))
+    except Exception as exc:   # a failing run is a result of the campaign, not its end
+        out["error"] = f"{type(exc).__name__}: {exc}"
+        out["traceback"] = traceback.format_exc()
+    out["cpu_s"] = time.process_time() - c0
+    return jsonable(out)
+
+
+# ----------------------------------------------------------------------------- summary
+INSIDE_TARGET, RUN_TARGET, EXCURSION_LIMIT = 0.999, 0.995, 2.0   # over all states, per run, [s]
+
+
+def _summary(results: list[dict]) -> dict:
+    ok = [r for r in results if "error" not in r]
+    states = sum(r["scores"]["states"] for r in ok)
+    claimed = sum(r["scores"]["states_with_position"] for r in ok)
+    outside = sum(r["scores"]["integrity"]["outside_count"] for r in ok)
+    scored = [r for r in ok if r["scores"]["integrity"]["inside_fraction"] is not None]
+    fraction = sorted(scored, key=lambda r: r["scores"]["integrity"]["inside_fraction"])
+    longest = max(ok, key=lambda r: r["scores"]["excursions"]["longest_s"], default=None)
+    worst_err = max((r for r in ok if r["scores"]["position_error_m"]["max"] is not None),
+                    key=lambda r: r["scores"]["position_error_m"]["max"], default=None)
+    out = {
+        "runs": len(results), "errors": len(results) - len(ok),
+        "error_runs": [[r["family"], r["seed"]] for r in results if "error" in r],
+        "states": states, "states_with_position": claimed, "outside": outside,
+        "inside_fraction": (claimed - outside) / claimed if claimed else None,
+        "worst_run": ({"family": fraction[0]["family"], "seed": fraction[0]["seed"],
+                       "inside_fraction": fraction[0]["scores"]["integrity"]["inside_fraction"]}
+                      if fraction else None),
+        "runs_below_99_5": [[r["family"], r["seed"], r["scores"]["integrity"]["inside_fraction"]]
+                            for r in fraction if r["scores"]["integrity"]["inside_fraction"] < RUN_TARGET],
+        "longest_excursion": ({"family": longest["family"], "seed": longest["seed"],
+                               "s": longest["scores"]["excursions"]["longest_s"]} if longest else None),
+        "max_error": ({"family": worst_err["family"], "seed": worst_err["seed"],
+                       "m": worst_err["scores"]["position_error_m"]["max"]} if worst_err else None),
+        "mean_interval_width_m": (sum(r["scores"]["integrity"]["mean_interval_width_m"] *
+                                      r["scores"]["states_with_position"] for r in scored) / claimed
+                                  if claimed else None),
+    }
+    band = [r["scores"]["speed_band"] for r in ok]
+    out["speed_band"] = {"states": sum(b["states"] for b in band), "violations": sum(b["violations"] for b in band),
+                         "runs_with_violations": [[r["family"], r["seed"], r["scores"]["speed_band"]["violations"]]
+                                                  for r in ok if r["scores"]["speed_band"]["violations"]]}
+    env = [r for r in ok if "etcs_envelope" in r["scores"]]
+    if env:
+        n_env = sum(r["scores"]["etcs_envelope"]["states"] for r in env)
+        within = sum(r["scores"]["etcs_envelope"]["within"] for r in env)
+        worst = max(env, key=lambda r: r["scores"]["etcs_envelope"]["max_ratio"] or 0.0)
+        out["etcs_envelope"] = {"states": n_env, "within": within, "fraction": within / n_env if n_env else None,
+                                "worst": {"family": worst["family"], "seed": worst["seed"],
+                                          "max_ratio": worst["scores"]["etcs_envelope"]["max_ratio"]}}
+    z_n = sum(r["scores"]["states_with_position"] for r in scored)
+    counts = np.sum([r["scores"]["normalised_error"]["counts"] for r in scored], axis=0) if scored else []
+    out["normalised_error"] = {
+        "rms": math.sqrt(sum(r["scores"]["normalised_error"]["rms"] ** 2 * r["scores"]["states_with_position"]
+                             for r in scored) / z_n) if z_n else None,
+        "beyond": sum(r["scores"]["normalised_error"]["beyond"] for r in scored),
+        "edges": scored[0]["scores"]["normalised_error"]["edges"] if scored else [],
+        "counts": [int(c) for c in counts]}
+    cpu = [r["cpu_s"] for r in results]
+    out["cpu_s"] = {"total": sum(cpu), "mean": sum(cpu) / len(cpu) if cpu else None, "max": max(cpu, default=None),
+                    "per_simulated_s": (sum(r["cpu_s"] for r in ok) / sum(r["duration"] for r in ok)) if ok else None}
+    modes: dict[str, int] = {}
+    for r in ok:
+        for k, v in r["scores"]["modes"].items():
+            modes[k] = modes.get(k, 0) + v
+    out["mode_fractions"] = {k: v / states for k, v in sorted(modes.items())} if states else {}
+    out["slips"] = {"true_episodes": sum(dev.get("slip_episodes", 0) for r in ok for dev in r["devices"].values()),
+                    "fusion_episodes": sum(r["fusion"]["slips"]["episodes"] for r in ok)}
+    return out
+
+
+def summarise(results: list[dict]) -> dict:
+    """Figures over all runs and per family (see ``_summary``) and the pass/fail of the targets:
+    inside fraction over all states >= 99.9 %, every run >= 99.5 %, no excursion > 2 s, no error."""
+    families = sorted({r["family"] for r in results}, key=lambda f: FAMILIES.index(f) if f in FAMILIES else 99)
+    out = {"all": _summary(results), "families": {f: _summary([r for r in results if r["family"] == f])
+                                                  for f in families}}
+    a = out["all"]
+    out["checks"] = {
+        "inside_fraction": a["inside_fraction"] is not None and a["inside_fraction"] >= INSIDE_TARGET,
+        "every_run_above_99_5": not a["runs_below_99_5"],
+        "excursions_within_2_s": a["longest_excursion"] is None or a["longest_excursion"]["s"] <= EXCURSION_LIMIT,
+        "no_errors": a["errors"] == 0,
+    }
+    out["passed"] = all(out["checks"].values())
+    return jsonable(out)
+

@@ -1,0 +1,308 @@
+"""tl_campaign: Monte Carlo integrity campaign of the fusion's confidence interval.
+
+  tl_campaign --runs 600 [--families conventional,urban_maglev,highspeed_maglev] [--seed BASE]
+      [--out DIR] [--workers N] [--scheduler tcp://HOST:PORT | local] [--max-duration S] [--check]
+  tl_campaign --run FAMILY:SEED [FAMILY:SEED ...] [--out DIR]      one or more given runs again
+  tl_campaign --export FAMILY:SEED [-o file.yaml]                   a run's scenario as YAML
+
+Each run draws its own track, speed profile, adhesion, sensor noise, faults and
+delivery of the measurements to the fusion from (family, seed) (core/campaign.py),
+simulates the sensors once, fuses and scores the published states against the
+truth. The runs are split evenly over the families; run i's seed is derived from
+BASE and i and printed with its one-line result, so that any run can be
+reproduced (``--run``, ``--export``).
+
+Runs go to local worker processes (``--workers``, default: the CPU count), or with
+``--scheduler`` to a dask.distributed scheduler (``local``: a LocalCluster on
+127.0.0.1 with ``--workers`` single-threaded worker processes).
+
+Output in DIR (default out/campaign): runs/<family>-<seed>.json per run, summary.json,
+integrity.png (inside fraction per run, sorted), error_vs_half_width.png,
+normalised_error.png (histogram with the N(0, 1) density). The summary table is
+printed at the end. The exit code is 0 (a campaign is a measurement) unless
+``--check``: then 1 if the truth is inside the interval in < 99.9 % of all states,
+any run < 99.5 %, any excursion lasts > 2 s, or any run failed.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+import yaml
+
+from ..core.campaign import EXCURSION_LIMIT, FAMILIES, INSIDE_TARGET, RUN_TARGET, generate, jobs, run_one, summarise
+
+
+def _family_seed(text: str) -> tuple[str, int]:
+    try:
+        family, seed = text.split(":")
+        seed_value = int(seed)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected FAMILY:SEED, got {text!r}") from None
+    if family not in FAMILIES:
+        raise argparse.ArgumentTypeError(f"unknown family {family!r}; known: {', '.join(FAMILIES)}")
+    return family, seed_value
+
+
+def _families(text: str) -> tuple[str, ...]:
+    names = tuple(f.strip() for f in text.split(",") if f.strip())
+    unknown = [f for f in names if f not in FAMILIES]
+    if unknown or not names:
+        raise argparse.ArgumentTypeError(f"unknown families {unknown}; known: {', '.join(FAMILIES)}")
+    return names
+
+
+def one_line(i: int, n: int, r: dict) -> str:
+    """The printed result of one run (family and seed reproduce it)."""
+    head = f"[{i:>{len(str(n))}}/{n}] {r['family']}:{r['seed']}"
+    if "error" in r:
+        return f"{head} ERROR {r['error']} (cpu {r['cpu_s']:.1f} s)"
+    s = r["scores"]
+    inside = s["integrity"]["inside_fraction"]
+    err = s["position_error_m"]["max"]
+    return (f"{head} inside {'-' if inside is None else f'{100 * inside:.3f} %'} of "
+            f"{s['states_with_position']} states, longest excursion {s['excursions']['longest_s']:.3f} s, "
+            f"max |error| {'-' if err is None else f'{err:.3f} m'}, mean width "
+            f"{s['integrity']['mean_interval_width_m'] or 0.0:.3f} m (cpu {r['cpu_s']:.1f} s)")
+
+
+def execute(todo: list[tuple[str, int]], workers: int | None = None, scheduler: str | None = None,
+            max_duration: float | None = None, on_result=None) -> list[dict]:
+    """Run (family, seed) pairs with ``core.campaign.run_one`` in parallel; returns the results in
+    completion order and calls ``on_result(result)`` as each arrives.
+
+    ``scheduler``: None = a local process pool of ``workers`` processes; "local" = a dask
+    LocalCluster on 127.0.0.1 with ``workers`` single-threaded worker processes; "tcp://..." =
+    an existing dask.distributed scheduler (its workers must import this package).
+    """
+    workers = workers or os.cpu_count() or 1
+    results = []
+
+    def take(r: dict) -> None:
+        results.append(r)
+        if on_result:
+            on_result(r)
+
+    def lost(family: str, seed: int, exc: BaseException) -> dict:   # the worker itself died
+        return {"family": family, "seed": seed, "max_duration": max_duration, "cpu_s": 0.0,
+                "error": f"{type(exc).__name__}: {exc}", "traceback": repr(exc)}
+
+    if scheduler is None:
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            futures = {pool.submit(run_one, f, s, max_duration): (f, s) for f, s in todo}
+            for fut in as_completed(futures):
+                try:
+                    take(fut.result())
+                except Exception as exc:
+                    take(lost(*futures[fut], exc))
+        return results
+    from dask.distributed import Client, LocalCluster, as_completed
+    cluster = None
+    if scheduler == "local":
+        cluster = LocalCluster(host="127.0.0.1", n_workers=workers, threads_per_worker=1, processes=True,
+                               dashboard_address=None)
+        client = Client(cluster)
+    else:
+        client = Client(scheduler)
+    try:
+        futures = client.map(run_one, [f for f, _ in todo], [s for _, s in todo], [max_duration] * len(todo),
+                             pure=False)
+        keys = {fut.key: job for fut, job in zip(futures, todo)}
+        for fut in as_completed(futures):
+            try:
+                take(fut.result())
+            except Exception as exc:
+                take(lost(*keys[fut.key], exc))
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    return results
+
+
+def write_run(out: Path, r: dict) -> Path:
+    path = out / "runs" / f"{r['family']}-{r['seed']}.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(r, allow_nan=False, indent=1))
+    return path
+
+
+def plot(results: list[dict], summary: dict, out: Path) -> list[Path]:
+    """integrity.png, error_vs_half_width.png, normalised_error.png; returns the files."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    ok = [r for r in results if "error" not in r and r["scores"]["integrity"]["inside_fraction"] is not None]
+    colours = {f: f"C{i}" for i, f in enumerate(FAMILIES)}
+    files = []
+
+    def save(fig, name):
+        files.append(out / name)
+        fig.tight_layout()
+        fig.savefig(files[-1], dpi=110)
+        plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(9, 4.5))
+    rows = sorted(ok, key=lambda r: r["scores"]["integrity"]["inside_fraction"])
+    y = np.array([100 * r["scores"]["integrity"]["inside_fraction"] for r in rows])
+    for f in FAMILIES:
+        k = [i for i, r in enumerate(rows) if r["family"] == f]
+        if k:
+            ax.scatter(np.array(k), y[k], s=8, color=colours[f], label=f)
+    ax.axhline(100 * RUN_TARGET, color="tab:red", ls="--", lw=0.8, label="99.5 % (every run)")
+    ax.axhline(100 * INSIDE_TARGET, color="k", ls=":", lw=0.8, label="99.9 % (all states)")
+    ax.set_ylim(max(0.0, min(99.0, (y.min() if y.size else 100.0) - 0.2)), 100.05)
+    ax.set_xlabel("runs, sorted by their inside fraction")
+    ax.set_ylabel("truth inside [min, max] [% of the run's states]")
+    ax.set_title(f"integrity per run ({len(rows)} runs): all states "
+                 f"{100 * (summary['all']['inside_fraction'] or 0):.3f} %")
+    ax.legend(fontsize=8, loc="lower right")
+    ax.grid(alpha=0.3)
+    save(fig, "integrity.png")
+
+    fig, ax = plt.subplots(figsize=(6.5, 5.5))
+    for f in FAMILIES:
+        err = [abs(e) for r in ok if r["family"] == f for e in r["scores"]["error_vs_half_width"]["error_m"]]
+        half = [h for r in ok if r["family"] == f for h in r["scores"]["error_vs_half_width"]["half_width_m"]]
+        if err:
+            ax.scatter(half, np.maximum(err, 1e-6), s=2, alpha=0.4, color=colours[f], label=f)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    lim = ax.get_xlim()
+    ax.plot(lim, lim, "k--", lw=0.8, label="|error| = half-width (outside above)")
+    ax.set_xlabel("interval half-width [m]")
+    ax.set_ylabel("|position error| [m]")
+    ax.set_title("error vs interval half-width (subsampled)")
+    ax.legend(fontsize=8, markerscale=4)
+    ax.grid(alpha=0.3, which="both")
+    save(fig, "error_vs_half_width.png")
+
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    ne = summary["all"]["normalised_error"]
+    if ne["counts"] and sum(ne["counts"]):
+        edges, counts = np.array(ne["edges"]), np.array(ne["counts"], dtype=float)
+        width = np.diff(edges)
+        ax.stairs(counts / (counts.sum() * width), edges, label="error / position 1-sigma (all runs)")
+        x = np.linspace(edges[0], edges[-1], 400)
+        ax.plot(x, np.exp(-0.5 * x * x) / math.sqrt(2 * math.pi), "k--", lw=0.8, label="N(0, 1)")
+        ax.set_yscale("log")
+        ax.set_ylim(0.1 / counts.sum(), 1.0)
+    ax.set_xlabel("normalised position error (end bins hold everything beyond)")
+    ax.set_ylabel("density")
+    ax.set_title(f"normalised errors: rms {ne['rms'] or 0:.3f}")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    save(fig, "normalised_error.png")
+    return files
+
+
+def _pct(x) -> str:
+    return "-" if x is None else f"{100 * x:.3f} %"
+
+
+def summary_table(summary: dict) -> str:
+    """The summary as a text table: one row per family and one over all runs."""
+    cols = ("runs", "err", "states", "inside", "worst run", "<99.5 %", "longest exc.", "ETCS env.",
+            "speed band viol.", "cpu s/run")
+    lines = []
+    rows = [(f, s) for f, s in summary["families"].items()] + [("all", summary["all"])]
+    table = []
+    for name, s in rows:
+        worst = s["worst_run"]
+        exc = s["longest_excursion"]
+        env = s.get("etcs_envelope")
+        table.append((name, str(s["runs"]), str(s["errors"]), str(s["states_with_position"]),
+                      _pct(s["inside_fraction"]), f"{_pct(worst['inside_fraction'])} ({worst['seed']})" if worst else "-",
+                      str(len(s["runs_below_99_5"])),
+                      (f"{exc['s']:.3f} s ({exc['seed']})" if exc["s"] > 0 else "0 s") if exc else "-",
+                      _pct(env["fraction"]) if env else "-",
+                      f"{s['speed_band']['violations']} in {len(s['speed_band']['runs_with_violations'])} runs",
+                      f"{s['cpu_s']['mean']:.1f}" if s["cpu_s"]["mean"] is not None else "-"))
+    header = ("family",) + cols
+    widths = [max(len(r[i]) for r in table + [header]) for i in range(len(header))]
+    for r in [header] + table:
+        lines.append("  ".join(c.ljust(w) for c, w in zip(r, widths)))
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    checks = summary["checks"]
+    lines.append(f"targets: all states >= {100 * INSIDE_TARGET:.1f} % inside: {checks['inside_fraction']}; "
+                 f"every run >= {100 * RUN_TARGET:.1f} %: {checks['every_run_above_99_5']}; "
+                 f"no excursion > {EXCURSION_LIMIT:.0f} s: {checks['excursions_within_2_s']}; "
+                 f"no failed run: {checks['no_errors']} -> "
+                 f"{'PASSED' if summary['passed'] else 'FAILED'}")
+    return "\n".join(lines)
+
+
+def export(family: str, seed: int, path: str | None, max_duration: float | None) -> int:
+    text = yaml.safe_dump(generate(family, seed, max_duration), sort_keys=False)
+    if path:
+        Path(path).write_text(text)
+        print(f"wrote {path} ({family}:{seed})")
+    else:
+        sys.stdout.write(text)
+    return 0
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="tl_campaign", description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter,
+                                 epilog="\n\n".join(__doc__.split("\n\n")[1:]))
+    ap.add_argument("--runs", type=int, default=60, help="number of runs, split evenly over the families (60)")
+    ap.add_argument("--families", type=_families, default=FAMILIES, help="comma-separated (all three)")
+    ap.add_argument("--seed", type=int, default=0, help="base seed BASE of the run seeds (0)")
+    ap.add_argument("--run", type=_family_seed, nargs="+", metavar="FAMILY:SEED",
+                    help="run these (family, seed) pairs instead of --runs")
+    ap.add_argument("--out", default="out/campaign", help="output directory (out/campaign)")
+    ap.add_argument("--workers", type=int, default=None, help="worker processes (CPU count)")
+    ap.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT|local",
+                    help="run on a dask.distributed scheduler; 'local' starts a LocalCluster on 127.0.0.1")
+    ap.add_argument("--max-duration", type=float, default=None, metavar="S",
+                    help="cut every run to at most S simulated seconds (quick checks; conditions unchanged)")
+    ap.add_argument("--check", action="store_true", help="exit 1 when an integrity target fails or a run errors")
+    ap.add_argument("--export", type=_family_seed, metavar="FAMILY:SEED", help="write this run's scenario YAML")
+    ap.add_argument("-o", "--output", default=None, help="--export: file to write (default: stdout)")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    args = ap.parse_args(argv)
+    if args.export:
+        return export(*args.export, args.output, args.max_duration)
+    todo = list(args.run) if args.run else jobs(args.runs, args.families, args.seed)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    print(f"{len(todo)} runs ({', '.join(sorted({f for f, _ in todo}))}), base seed {args.seed}, "
+          f"{'dask ' + args.scheduler if args.scheduler else f'{args.workers or os.cpu_count()} local processes'}"
+          f" -> {out}", flush=True)
+    from tqdm import tqdm
+    bar = tqdm(total=len(todo), unit="run", disable=args.quiet, file=sys.stderr, smoothing=0.0)
+    done = []
+
+    def on_result(r: dict) -> None:
+        done.append(r)
+        write_run(out, r)
+        bar.write(one_line(len(done), len(todo), r), file=sys.stdout)
+        bar.update(1)
+
+    t0 = time.perf_counter()
+    try:
+        results = execute(todo, args.workers, args.scheduler, args.max_duration, on_result)
+    finally:
+        bar.close()
+    summary = summarise(results)
+    summary["campaign"] = {"runs": len(todo), "base_seed": args.seed, "families": sorted({f for f, _ in todo}),
+                           "max_duration": args.max_duration, "wall_s": time.perf_counter() - t0,
+                           "scheduler": args.scheduler or f"processes:{args.workers or os.cpu_count()}"}
+    (out / "summary.json").write_text(json.dumps(summary, allow_nan=False, indent=1))
+    files = plot(results, summary, out)
+    print(summary_table(summary))
+    print(f"wall {summary['campaign']['wall_s']:.0f} s; wrote {out / 'summary.json'}, "
+          f"{len(results)} run files in {out / 'runs'}, " + ", ".join(p.name for p in files))
+    return 1 if args.check and not summary["passed"] else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

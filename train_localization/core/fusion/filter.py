@@ -418,14 +418,26 @@ class TrainFilter:
                    if s != m.sensor and not aux.slip_until.get(s, -math.inf) > stamp)
 
     def _check_plausible(self) -> None:
-        """Re-learn the relative sensors' error states if one of them left its plausible range."""
+        """Re-learn the relative sensors' error states if one of them left its plausible range.
+
+        If the states of one sensor alone left it, that sensor is outside its own error
+        model (a radar scale fault with no other speed source to disagree with): it is also
+        suspended until it agrees again. States of several sensors: a fault was absorbed
+        between them (a slip learnt as scales), which one cannot be told."""
         idx = self.layout.relative_states
         if not len(idx):
             return
         x = self.ekf.x[idx, 0]
-        if np.all(np.abs(x) <= self.cfg.plausible_sigmas * self.layout.prior_sigma[idx]):
+        bad = np.abs(x) > self.cfg.plausible_sigmas * self.layout.prior_sigma[idx]
+        if not bad.any():
             return
+        owners = {self.layout.owner[i] for i in idx[bad]}
         self._relearn("implausible_error_state")
+        if len(owners) == 1:
+            (cls,) = owners
+            aux = self.aux
+            aux.suspended = {**aux.suspended, cls: (math.inf, ())}
+            aux.events = _inc(aux.events, "implausible_sensor_suspended")
 
     def _relearn(self, reason: str) -> None:
         """Error states of the relative sensors back to their priors; the position and speed

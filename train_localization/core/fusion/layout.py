@@ -67,6 +67,7 @@ class StateLayout:
         self.relative_states = np.array(sorted([*self.scale.values(), *self.offset.values(), *self.bias.values()]),
                                         dtype=np.intp)
         self.scale_terms = [(name, i, self.offset.get(name)) for name, i in self.scale.items()]
+        self.owner = {i: name for table in (self.scale, self.offset, self.bias, self.fix) for name, i in table.items()}
 
     def prior_covariance(self, speed_sigma: float, accel_sigma: float) -> np.ndarray:
         P = np.diag(self.prior_sigma ** 2)

@@ -284,7 +284,7 @@ class TrainFilter:
         if alt is not None and alt[0] == cls and alt[1] ** 2 <= self._slip_gate * self._alternative_spread(alt)[1]:
             aux.relative_alternative = None   # the episode ended without a separation: a false alarm
         window, summed = self._windowed(aux.slip_window.get(cls, ()), m, e, S)
-        if (nis > self._slip_gate or summed > self._slip_gate) and self._reference_ok(m):
+        if nis > self._slip_gate or summed > self._slip_gate:
             aux.slip_window = {**aux.slip_window, cls: ()}
             # the onset: the increments before this one that already disagreed the same way were
             # absorbed (a slip ramps up): take them out and re-apply the history without them
@@ -327,6 +327,8 @@ class TrainFilter:
         limit = self.cfg.slip_min_drive
         physical = ("slip" in faults and drive >= limit and excess > 0.0) or \
                    ("slide" in faults and drive <= -limit and excess < 0.0)
+        # without another speed source the disagreement is with the motion model alone
+        physical = physical and self._reference_ok(m)
         if not physical and aux.relative_alternative is None:
             aux.relative_alternative = (m.sensor, 0.0, 0.0, m.stamp, m.stamp, 0.0)
             aux.events = _inc(aux.events, "ambiguous_slip")

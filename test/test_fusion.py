@@ -365,9 +365,10 @@ def test_wheel_slip_is_detected_against_the_doppler_and_excluded():
     # without slip detection (and no gate for the wheel) the filter follows the wheel
     g, err_off = _slip_run(FusionConfig(overrides={"wheel": {"faults": (), "gate_probability": 1.0}}))
     assert np.max(np.abs(err_off)) > 1.0
-    # without another speed source the disagreement is no slip, just an outlier
     h, _ = _slip_run(FusionConfig(), with_doppler=False)
-    assert h.counters()["slips"]["episodes"] == 0
+    # without another speed source the wheel disagrees with the motion model alone: it is left
+    # out, but its view is kept as the alternative (the radar is not there to tell)
+    assert h.counters()["integrity"]["ambiguous_slip"] == 1
 
 
 # --------------------------------------------------------------------------- modes, init, reset

@@ -46,8 +46,8 @@ information; the filter may say it does not know, never be confidently wrong):
               absolute fix decides: if the fix agrees with the excluded sensor, the other
               speed sources are suspended until they agree again, the position is taken
               from the fix and the relative error states are re-learnt.
-Modes: INITIALISING until two absolute fixes of different references agree (NaN position,
-infinite interval: a single fix may be a misread or a miscount);
+Modes: INITIALISING until the first absolute fix, or for sensors that can misread their
+reference until two fixes of different references agree (NaN position, infinite interval);
 LOST when the position 1-sigma exceeds ``lost_stddev``; DEGRADED while a continuous
 sensor is past its timeout, an unexplained fix is pending, or the filter has not been
 confirmed by an accepted fix since a re-learn or an inflation; else NOMINAL.
@@ -507,10 +507,17 @@ class TrainFilter:
         aux.events = _inc(aux.events, "unexplained_fix")
 
     def _initialise(self, m) -> None:
-        """Before a position is claimed a fix is only a candidate (a misread balise, a miscounted
-        axle, a wrong first reference must not become the position): the position is set when
-        a fix of another reference agrees with it, moved by the dead reckoning since."""
+        """Claim the position from a fix. A fix of a sensor that can misread its reference (a
+        balise telegram, a lug code) is only a candidate: the position is set when a fix of
+        another reference agrees with it, moved by the dead reckoning since."""
         aux, cfg = self.aux, self.cfg
+        if "misread" not in self.models[m.sensor].faults:
+            # a reference that cannot be misidentified (wayside heads, loops, ranging): its decoder
+            # withholds what it cannot tell (a miscounted axle, an unresolved NLOS)
+            self._set_position(m)
+            aux.initialised = True
+            aux.candidate = None
+            return
         z, R, _, _ = measurement(self.layout, self.ekf.x, m)
         x0, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
         cand = aux.candidate

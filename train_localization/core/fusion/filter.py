@@ -601,10 +601,11 @@ class TrainFilter:
                     self._apply(m)
             except _Lookback as back:
                 i = j
-                while i > 0 and hist.stamps[i - 1] >= back.since and i - 1 >= 0:
+                while i > 0 and hist.stamps[i - 1] >= back.since:
                     i -= 1
-                hist.excluded.update(hist.keys[k] for k in range(i, j + 1) if hist.meas[k].sensor == back.sensor)
-                hist.rewind(i)
+                first = i
+                i = hist.rewind(i)
+                hist.exclude(first, j, back.sensor)
                 self._set(hist.snapshot_before(i))
                 j = i
                 continue

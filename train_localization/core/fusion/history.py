@@ -37,7 +37,9 @@ class History:
         self.n_applied = 0
         self.base = base
         self.base_key: tuple = (-math.inf,)
-        self.excluded: set[tuple] = set()   # keys a fault check excluded after the fact
+        # key of a measurement a fault check excluded after the fact -> key of the one whose
+        # check decided it (a rewind before the decision undoes it: it is taken again, or not)
+        self.excluded: dict[tuple, tuple] = {}
         self.rollbacks = 0                  # insertions before a measurement stamped later
 
     def insert(self, m) -> None:
@@ -60,11 +62,27 @@ class History:
         self.meas.insert(i, m)
         self.rewind(i)
 
-    def rewind(self, i: int) -> None:
-        """Forget the states from index i on (they are re-applied)."""
-        if i < self.n_applied:
-            del self.snaps[i:]
-            self.n_applied = i
+    def rewind(self, i: int) -> int:
+        """Forget the states from index i on (they are re-applied), and the exclusions decided
+        from there on, with the states they changed. Returns the index re-applied from."""
+        if i >= self.n_applied:
+            return self.n_applied
+        if self.excluded:
+            decided = self.keys[i]
+            undone = [k for k, by in self.excluded.items() if by >= decided]
+            for k in undone:
+                del self.excluded[k]
+                i = min(i, bisect.bisect_left(self.keys, k))
+        del self.snaps[i:]
+        self.n_applied = i
+        return i
+
+    def exclude(self, first: int, last: int, sensor: str) -> None:
+        """Exclude ``sensor``'s measurements at indices first..last, decided at ``last``."""
+        by = self.keys[last]
+        for k in range(first, last + 1):
+            if self.meas[k].sensor == sensor:
+                self.excluded[self.keys[k]] = by
 
     def snapshot_before(self, i: int):
         return self.snaps[i - 1] if i else self.base
@@ -84,7 +102,7 @@ class History:
             del self.keys[:cut], self.stamps[:cut], self.meas[:cut], self.snaps[:cut]
             self.n_applied -= cut
             if self.excluded:
-                self.excluded = {k for k in self.excluded if k > self.base_key}
+                self.excluded = {k: by for k, by in self.excluded.items() if k > self.base_key}
 
     def state_at(self, t: float):
         """Snapshot after every applied measurement stamped <= t (the base before the first)."""

@@ -92,9 +92,10 @@ Decoder:
     detection, so it holds the fix and follows the passage: the distances between the
     next axles at that head (time between detections x their mean speed) are matched
     against the spacings of ``axle_offsets`` under three hypotheses: nothing wrong,
-    first axle missed, one spurious axle before the first. It publishes (stamped at
-    the passage of the identified axle) as soon as exactly one hypothesis fits with
-    at least one matched spacing; after ``identify_time`` it publishes the most
+    first axle missed, one spurious axle before the first (consecutive axles must
+    also move at speeds one train can have). It publishes (stamped at the passage of
+    the identified axle) as soon as exactly one hypothesis has matched a spacing of
+    the layout and no other fits (normally at the second axle); after ``identify_time`` it publishes the most
     likely fitting one with its stddev inflated so that the fronts of all fitting
     hypotheses lie within 3.3 sigma, or withholds the fix (``stats``:
     front_identified_shifted, front_inflated, front_unidentified).
@@ -319,6 +320,7 @@ class _Episode:
 HYPOTHESES = ((0, 0), (0, 1), (1, 0))  # (spurious detections before the first axle, first axle's layout index)
 COVER = 3.3      # a fix covers its alternatives within COVER sigma (99.9 %, two-sided)
 GAP_REL, GAP_ABS = 0.10, 0.25   # tolerance of a measured axle spacing: fraction of the spacing + [m]
+SPEED_REL, ACCEL_MAX = 0.10, 1.5   # speeds of consecutive axles agree within 10 % + 1.5 m/s^2 x time between
 OVERDUE_REL, OVERDUE_ABS = 1.5, 0.2   # an axle expected after g / v has not come after 1.5 g / v + 0.2 s
 
 
@@ -341,6 +343,11 @@ class _Passage:
 
     def spacing(self, i: int) -> float:
         return 0.5 * (self.speeds[i] + self.speeds[i + 1]) * (self.times[i + 1] - self.times[i])
+
+    def same_train(self, i: int) -> bool:
+        """Whether detections i and i+1 move at speeds one train can have."""
+        v0, v1 = self.speeds[i], self.speeds[i + 1]
+        return abs(v1 - v0) <= SPEED_REL * max(v0, v1) + ACCEL_MAX * (self.times[i + 1] - self.times[i])
 
     def advance(self) -> float:
         """How far the train moved from the first detection to the second if the first was a
@@ -613,7 +620,7 @@ class AxleCounterDecoder(Decoder):
             j = first + i - skip
             if j >= len(gaps):
                 return False   # more axles than the train has
-            if abs(passage.spacing(i) - gaps[j]) > GAP_REL * gaps[j] + GAP_ABS:
+            if abs(passage.spacing(i) - gaps[j]) > GAP_REL * gaps[j] + GAP_ABS or not passage.same_train(i):
                 return False
         j = first + n - 1 - skip
         if n > skip and j < len(gaps):   # the next axle of the train is overdue
@@ -649,11 +656,17 @@ class AxleCounterDecoder(Decoder):
             return [self._fix(passage, (0, 0), max(passage.spacing(0), passage.advance()))]
         gaps = self._gaps(passage.d)
         fitting = [h for h in HYPOTHESES if self._fits(passage, h, gaps, t_now)]
-        if len(fitting) == 1 and len(passage.times) - fitting[0][0] >= 2:
+        # Identified: exactly one fitting hypothesis has matched a spacing (and the speeds) of
+        # the layout. A hypothesis that explains that spacing away as a spurious axle before
+        # the first is not monitored: the spurious axle would have to sit exactly one layout
+        # spacing ahead of the train's first axle and move at the train's speed, a coincidence
+        # for a count that is unrelated to the train (EMI, a trolley, a track machine).
+        matched = [h for h in fitting if len(passage.times) - h[0] >= 2]
+        if len(matched) == 1:
             del self._pending[hi]
-            if fitting[0] != (0, 0):
+            if matched[0] != (0, 0):
                 self.stats["front_identified_shifted"] += 1
-            return [self._fix(passage, fitting[0], 0.0)]
+            return [self._fix(passage, matched[0], 0.0)]
         if fitting and not late:
             return []
         del self._pending[hi]

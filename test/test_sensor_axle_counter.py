@@ -282,26 +282,33 @@ def _covered(sc, fixes, cover=3.3):
         assert abs(err) <= cover * f.position_stddev, (f, err)
 
 
-@pytest.mark.parametrize("speed,start,head", [(V300, 500.0, "AC00"), (-V300, 4000.0, "AC03"),
-                                              (20.0, 880.0, "AC00")])
-def test_missed_first_axle_gives_no_wrong_fix(speed, start, head):
+BACKING = {"orientation": 1, "last_axle_offset": axles()[-1]}   # the train backs: its last axle leads
+
+
+@pytest.mark.parametrize("speed,start,head,params", [(V300, 500.0, "AC00", {}), (-V300, 4000.0, "AC03", {}),
+                                                     (20.0, 880.0, "AC00", {}),
+                                                     (-V300, 3400.0 + axles()[-1] + 170.0, "AC03", BACKING)])
+def test_missed_first_axle_gives_no_wrong_fix(speed, start, head, params):
     # the head misses the first wheel of the train: the first counted axle is the second
-    sc = scenario(speed, start, duration=9.0, params={"faults": f"{head}@1.0:missed"})
+    sc = scenario(speed, start, duration=9.0, params={"faults": f"{head}@1.0:missed", **params})
     _, ms, pipe = run_offline(NODE, sc)
     fixes = [f for f in fixes_of(ms) if f.reference_id == head]
     _covered(sc, fixes)
     # the layout identifies the second axle: the fix is published for it, a few cm
-    assert len(fixes) == 1 and fixes[0].position_stddev < 0.1
+    assert len(fixes) == 1 and fixes[0].position_stddev < 0.1 and fixes[0].direction == np.sign(speed)
     assert pipe.decoder.stats["front_identified_shifted"] >= 1
 
 
-def test_extra_axle_before_the_first_gives_no_wrong_fix():
-    # a spurious axle through AC00 0.2 s before the train's first axle
-    sc = scenario(V300, 500.0, duration=9.0, params={"faults": f"AC00@{T_FIRST - 0.2:.4f}:extra"})
+@pytest.mark.parametrize("speed,start,head,fault,params", [
+    (V300, 500.0, "AC00", f"{T_FIRST - 0.2:.4f}:extra", {}),
+    (-V300, 3400.0 + axles()[-1] + 2.0 * V300, "AC03", "1.8:extra-", BACKING)])   # last axle at 2.0 s
+def test_extra_axle_before_the_first_gives_no_wrong_fix(speed, start, head, fault, params):
+    # a spurious axle through the head 0.2 s before the train's first axle
+    sc = scenario(speed, start, duration=9.0, params={"faults": f"{head}@{fault}", **params})
     _, ms, pipe = run_offline(NODE, sc)
-    fixes = [f for f in fixes_of(ms) if f.reference_id == "AC00"]
+    fixes = [f for f in fixes_of(ms) if f.reference_id == head]
     _covered(sc, fixes)
-    assert len(fixes) == 1 and fixes[0].position_stddev < 0.1
+    assert len(fixes) == 1 and fixes[0].position_stddev < 0.1 and fixes[0].direction == np.sign(speed)
     assert pipe.decoder.stats["front_identified_shifted"] == 1
 
 

@@ -125,5 +125,6 @@ def test_truth_inside_the_confidence_interval(runs, name):
     modes = np.array([e.mode for e in result.estimates])
     t = np.array([e.stamp for e in result.estimates])
     assert (modes[t < first.stamp] == MODE_INITIALISING).all()
-    assert (modes[t > confirming.stamp + 0.1] != MODE_INITIALISING).all()
+    # (+0.2 s: an axle-counter fix is delivered once the next axle has identified the first)
+    assert (modes[t > confirming.stamp + 0.2] != MODE_INITIALISING).all()
     assert np.mean(modes == MODE_NOMINAL) > 0.5

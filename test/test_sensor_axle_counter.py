@@ -269,3 +269,63 @@ def test_axles_counted_exactly_at_500_kmh():
     sc = scenario(500.0 / 3.6, 500.0, duration=25.0)
     _, _, pipe = run_offline(NODE, sc)
     assert pipe.decoder.stats["axles"] == 4 * 32
+
+
+# -- first-axle identification: a miscount must not give a confident wrong front fix ----------
+T_FIRST = FIRST_AXLE / V300 + 6.0   # the first axle reaches AC00 (1000 m) from 500 m at 300 km/h
+
+
+def _covered(sc, fixes, cover=3.3):
+    traj = sc.trajectory()
+    for f in fixes:
+        err = f.position - np.interp(f.stamp, traj.t, traj.position)
+        assert abs(err) <= cover * f.position_stddev, (f, err)
+
+
+BACKING = {"orientation": 1, "last_axle_offset": axles()[-1]}   # the train backs: its last axle leads
+
+
+@pytest.mark.parametrize("speed,start,head,params", [(V300, 500.0, "AC00", {}), (-V300, 4000.0, "AC03", {}),
+                                                     (20.0, 880.0, "AC00", {}),
+                                                     (-V300, 3400.0 + axles()[-1] + 170.0, "AC03", BACKING)])
+def test_missed_first_axle_gives_no_wrong_fix(speed, start, head, params):
+    # the head misses the first wheel of the train: the first counted axle is the second
+    sc = scenario(speed, start, duration=9.0, params={"faults": f"{head}@1.0:missed", **params})
+    _, ms, pipe = run_offline(NODE, sc)
+    fixes = [f for f in fixes_of(ms) if f.reference_id == head]
+    _covered(sc, fixes)
+    # the layout identifies the second axle: the fix is published for it, a few cm
+    assert len(fixes) == 1 and fixes[0].position_stddev < 0.1 and fixes[0].direction == np.sign(speed)
+    assert pipe.decoder.stats["front_identified_shifted"] >= 1
+
+
+@pytest.mark.parametrize("speed,start,head,fault,params", [
+    (V300, 500.0, "AC00", f"{T_FIRST - 0.2:.4f}:extra", {}),
+    (-V300, 3400.0 + axles()[-1] + 2.0 * V300, "AC03", "1.8:extra-", BACKING)])   # last axle at 2.0 s
+def test_extra_axle_before_the_first_gives_no_wrong_fix(speed, start, head, fault, params):
+    # a spurious axle through the head 0.2 s before the train's first axle
+    sc = scenario(speed, start, duration=9.0, params={"faults": f"{head}@{fault}", **params})
+    _, ms, pipe = run_offline(NODE, sc)
+    fixes = [f for f in fixes_of(ms) if f.reference_id == head]
+    _covered(sc, fixes)
+    assert len(fixes) == 1 and fixes[0].position_stddev < 0.1 and fixes[0].direction == np.sign(speed)
+    assert pipe.decoder.stats["front_identified_shifted"] == 1
+
+
+def test_lone_spurious_axle_gives_no_fix():
+    # a spurious axle into an empty region with no train behind it: no fix at all
+    sc = scenario(0.0, 100.0, duration=5.0, params={"faults": "AC01@1.0:extra"})
+    _, ms, pipe = run_offline(NODE, sc)
+    assert pipe.decoder.stats["axles"] == 1
+    assert not fixes_of(ms)
+    assert pipe.decoder.stats["front_unidentified"] == 1
+
+
+@pytest.mark.parametrize("fault", ["", "AC00@1.0:missed", f"AC00@{T_FIRST - 0.2:.4f}:extra"])
+def test_without_layout_the_stddev_covers_a_miscount(fault):
+    sc = scenario(V300, 500.0, duration=9.0, params={"axle_offsets": [], "faults": fault})
+    _, ms, pipe = run_offline(NODE, sc)
+    fixes = [f for f in fixes_of(ms) if f.reference_id == "AC00"]
+    assert len(fixes) == 1
+    _covered(sc, fixes)
+    assert fixes[0].position_stddev > 2.4 / 3.3   # the measured first spacing (>= 2.5 m) is covered

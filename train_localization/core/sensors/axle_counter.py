@@ -85,7 +85,20 @@ Decoder:
     front = head + o * ``first_axle_offset`` when the front leads (direction = o),
     or head + o * ``last_axle_offset`` when the train backs (skipped if that
     parameter is 0). Its stddev combines the head survey, the axle offset and the
-    timing (speed x 0.25 sample), plus 0.1 m if the axle stopped over the head.
+    timing (speed x 0.25 sample), plus 0.1 m if the axle stopped over the head;
+  * first-axle identification (see _Passage): when the first counted axle was not
+    the train's first (the real first axle missed, or a spurious axle before it),
+    the front fix would be one axle spacing off. The decoder cannot tell at the first
+    detection, so it holds the fix and follows the passage: the distances between the
+    next axles at that head (time between detections x their mean speed) are matched
+    against the spacings of ``axle_offsets`` under three hypotheses: nothing wrong,
+    first axle missed, one spurious axle before the first (consecutive axles must
+    also move at speeds one train can have). It publishes (stamped at the passage of
+    the identified axle) as soon as exactly one hypothesis has matched a spacing of
+    the layout and no other fits (normally at the second axle); after ``identify_time`` it publishes the most
+    likely fitting one with its stddev inflated so that the fronts of all fitting
+    hypotheses lie within 3.3 sigma, or withholds the fix (``stats``:
+    front_identified_shifted, front_inflated, front_unidentified).
 """
 from __future__ import annotations
 
@@ -123,6 +136,14 @@ PARAMS = {
     "first_axle_offset": Param(2.5, "distance of the first axle behind the train front [m] (vehicle data)"),
     "last_axle_offset": Param(0.0, "distance of the last axle behind the front [m]; 0 = unknown: no front "
                                    "fix while the train backs"),
+    "axle_offsets": Param([], "axle layout: offsets of all axles behind the front [m] (vehicle data; the "
+                              "vehicle's axles unless set). The spacings of the first axles of a passage "
+                              "identify its first axle (a missed or spurious one) before the front fix is "
+                              "published; empty = no layout: the fix's stddev covers the measured first "
+                              "spacing instead"),
+    "identify_time": Param(1.5, "longest wait after the first axle of a passage for the axles that identify "
+                                "it [s]; then the fix covers the hypotheses left or is withheld (the fusion "
+                                "takes measurements up to 2 s late)"),
     "axle_offset_sigma": Param(0.02, "1-sigma of the configured axle offsets [m]"),
     "head_position_sigma": Param(0.02, "1-sigma error of the surveyed head chainage in the track file [m] "
                                        "(simulated: real heads are displaced by it)"),
@@ -295,6 +316,45 @@ class _Episode:
         self.fall: list[float | None] = [None, None]
 
 
+# identification of the first axle of a passage (see _Passage)
+HYPOTHESES = ((0, 0), (0, 1), (1, 0))  # (spurious detections before the first axle, first axle's layout index)
+COVER = 3.3      # a fix covers its alternatives within COVER sigma (99.9 %, two-sided)
+GAP_REL, GAP_ABS = 0.10, 0.25   # tolerance of a measured axle spacing: fraction of the spacing + [m]
+SPEED_REL, ACCEL_MAX = 0.10, 1.5   # speeds of consecutive axles agree within 10 % + 1.5 m/s^2 x time between
+OVERDUE_REL, OVERDUE_ABS = 1.5, 0.2   # an axle expected after g / v has not come after 1.5 g / v + 0.2 s
+
+
+class _Passage:
+    """Axles counted at one head in one direction from an axle into an empty region.
+
+    A measured spacing between detections i and i+1 is (v_i + v_i+1) / 2 x (t_i+1 - t_i)
+    (trapezoid: exact for constant acceleration); the speeds from the sensor lag are good
+    to a few % (interpolated on-level crossings, the mean of rise and fall cancels the
+    gain difference of the two systems), hence the tolerance GAP_REL x spacing + GAP_ABS
+    (the interpolation at low speed, the head position within the 0.14 m pair).
+    """
+
+    __slots__ = ("head", "d", "times", "speeds")
+
+    def __init__(self, head: int, d: int):
+        self.head, self.d = head, d
+        self.times: list[float] = []
+        self.speeds: list[float] = []
+
+    def spacing(self, i: int) -> float:
+        return 0.5 * (self.speeds[i] + self.speeds[i + 1]) * (self.times[i + 1] - self.times[i])
+
+    def same_train(self, i: int) -> bool:
+        """Whether detections i and i+1 move at speeds one train can have."""
+        v0, v1 = self.speeds[i], self.speeds[i + 1]
+        return abs(v1 - v0) <= SPEED_REL * max(v0, v1) + ACCEL_MAX * (self.times[i + 1] - self.times[i])
+
+    def advance(self) -> float:
+        """How far the train moved from the first detection to the second if the first was a
+        spurious axle (not the train's: its speed is not the train's)."""
+        return self.speeds[1] * (self.times[1] - self.times[0])
+
+
 class AxleCounterDecoder(Decoder):
     sensor = "axle_counter"
     channels = ()  # layout depends on the track: checked in decode()
@@ -327,7 +387,10 @@ class AxleCounterDecoder(Decoder):
         self._last_report: float | None = None
         self._force_report = True
         self._fs = 0.0
-        self.stats.update(axles=0, rejected_sequences=0, fixes=0)
+        self._pending: dict[int, _Passage] = {}
+        self.layout = sorted(float(a) for a in p["axle_offsets"])
+        self.stats.update(axles=0, rejected_sequences=0, fixes=0, front_identified_shifted=0, front_inflated=0,
+                          front_unidentified=0)
 
     # -- public API -------------------------------------------------------------------
     def reset_section(self, section_id: str) -> None:
@@ -397,15 +460,15 @@ class AxleCounterDecoder(Decoder):
             self._force_report = False
         passages.sort(key=lambda q: q[0])
         for t_done, hi, d, t_c, v in passages:
-            fix = self._count(hi, d, t_c, v)
-            if fix is not None:
-                out.append(fix)
+            out.extend(self._count(hi, d, t_c, v))
             states = self.section_states()
             if states != self._reported_states:
                 out.append(self.occupancy(t_done))
                 self._reported_states = states
                 self._last_report = t_done
         t_last = t0 + (n - 1) * dt
+        for hi in list(self._pending):
+            out.extend(self._identify(hi, t_last))
         if t_last - self._last_report >= p["report_period"] - 1e-9:
             out.append(self.occupancy(t_last))
             self._last_report = t_last
@@ -515,19 +578,122 @@ class AxleCounterDecoder(Decoder):
                     if 0 < q < nh and not self.disturbed[q] and self.count[q] > 0 \
                             and self.last_event[q] == ("out", head):
                         self.disturbed[q] = True
+        out = []
+        passage = self._pending.get(hi)
+        if passage is not None:
+            if passage.d == d:
+                passage.times.append(t_c)
+                passage.speeds.append(speed)
+                return self._identify(hi, t_c)
+            del self._pending[hi]   # the train reversed over the head before its first axle was identified
+            self.stats["front_unidentified"] += 1
         if not into_empty:
-            return None
+            return out
         if self.orient is None:
             self.orient = d
+        if d != self.orient and p["last_axle_offset"] <= 0.0:
+            return out
+        passage = self._pending[hi] = _Passage(hi, d)
+        passage.times.append(t_c)
+        passage.speeds.append(speed)
+        return out + self._identify(hi, t_c)
+
+    # -- first-axle identification ----------------------------------------------------
+    def _gaps(self, d: int) -> list[float]:
+        """Layout spacings in the order the axles pass a head in direction d."""
+        gaps = np.diff(self.layout).tolist()
+        return gaps if d == self.orient else gaps[::-1]
+
+    def _offset(self, d: int, j: int) -> float:
+        """Distance behind the front of the j-th axle to pass a head in direction d."""
         if d == self.orient:
-            offset = p["first_axle_offset"]
-        elif p["last_axle_offset"] > 0.0:
-            offset = p["last_axle_offset"]
-        else:
-            return None
+            return self.params["first_axle_offset"] + (self.layout[j] - self.layout[0] if j else 0.0)
+        return self.params["last_axle_offset"] - (self.layout[-1] - self.layout[-1 - j] if j else 0.0)
+
+    def _fits(self, passage: _Passage, hyp: tuple[int, int], gaps: list[float], t_now: float) -> bool:
+        """Whether the detections of the passage fit the layout under hypothesis hyp."""
+        skip, first = hyp
+        n = len(passage.times)
+        if first >= len(self.layout):
+            return False
+        for i in range(skip, n - 1):
+            j = first + i - skip
+            if j >= len(gaps):
+                return False   # more axles than the train has
+            if abs(passage.spacing(i) - gaps[j]) > GAP_REL * gaps[j] + GAP_ABS or not passage.same_train(i):
+                return False
+        j = first + n - 1 - skip
+        if n > skip and j < len(gaps):   # the next axle of the train is overdue
+            v = max(passage.speeds[-1], 0.1)
+            if t_now - passage.times[-1] > OVERDUE_REL * gaps[j] / v + OVERDUE_ABS:
+                return False
+        return True
+
+    def _front_at_first(self, passage: _Passage, hyp: tuple[int, int]) -> float:
+        """Front position under hyp at the first detection's time (comparable between hypotheses)."""
+        skip, first = hyp
+        front = self.head_pos[passage.head] + self.orient * self._offset(passage.d, first)
+        return float(front - passage.d * passage.advance()) if skip else float(front)
+
+    def _identify(self, hi: int, t_now: float) -> list:
+        """Publish or withhold the front fix of the passage at head hi once its first axle is
+        identified (or identify_time has run out); [] while it waits."""
+        passage = self._pending[hi]
+        late = t_now - passage.times[0] >= self.params["identify_time"]
+        if not self.layout:
+            # No layout: a missed first axle puts the fix off by the first spacing of the train,
+            # a spurious axle by the train's advance to its first axle. The fix waits for the
+            # second axle and covers the measured spacing; on bogie vehicles the first spacing (the
+            # wheelbase) is the shortest of the train, so this covers a missed axle too (not
+            # on two-axle wagons with a shorter coupling gap: give the layout there).
+            if len(passage.times) < 2 and not late:
+                return []
+            del self._pending[hi]
+            if len(passage.times) < 2:
+                self.stats["front_unidentified"] += 1
+                return []
+            self.stats["front_inflated"] += 1
+            return [self._fix(passage, (0, 0), max(passage.spacing(0), passage.advance()))]
+        gaps = self._gaps(passage.d)
+        fitting = [h for h in HYPOTHESES if self._fits(passage, h, gaps, t_now)]
+        # Identified: exactly one fitting hypothesis has matched a spacing (and the speeds) of
+        # the layout. A hypothesis that explains that spacing away as a spurious axle before
+        # the first is not monitored: the spurious axle would have to sit exactly one layout
+        # spacing ahead of the train's first axle and move at the train's speed, a coincidence
+        # for a count that is unrelated to the train (EMI, a trolley, a track machine).
+        matched = [h for h in fitting if len(passage.times) - h[0] >= 2]
+        if len(matched) == 1:
+            del self._pending[hi]
+            if matched[0] != (0, 0):
+                self.stats["front_identified_shifted"] += 1
+            return [self._fix(passage, matched[0], 0.0)]
+        if fitting and not late:
+            return []
+        del self._pending[hi]
+        if not fitting or any(len(passage.times) <= skip for skip, _ in fitting):
+            self.stats["front_unidentified"] += 1   # no hypothesis fits, or one has not seen its first axle
+            return []
+        best = fitting[0]   # the fewest faults
+        ref = self._front_at_first(passage, best)
+        spread = max(abs(self._front_at_first(passage, h) - ref) for h in fitting)
+        if spread > 0.0:
+            self.stats["front_inflated"] += 1
+        return [self._fix(passage, best, spread)]
+
+    def _fix(self, passage: _Passage, hyp: tuple[int, int], spread: float) -> PositionFix:
+        """Front fix at the passage of the first axle under hyp; its stddev covers ``spread``
+        (the distance to the fronts of the other hypotheses, measured within the spacing
+        tolerance) within COVER sigma."""
+        p = self.params
+        skip, first = hyp
+        hi, d = passage.head, passage.d
+        t_c, speed = passage.times[skip], passage.speeds[skip]
+        offset = self._offset(d, first) if self.layout else (p["first_axle_offset"] if d == self.orient
+                                                             else p["last_axle_offset"])
         slow = 0.1 if speed < 1.0 else 0.0
         timing = min(speed, p["max_speed"]) * 0.25 / self._fs
-        sigma = math.sqrt(p["head_position_sigma"] ** 2 + p["axle_offset_sigma"] ** 2 + timing ** 2 + slow ** 2)
+        sigma = math.sqrt(p["head_position_sigma"] ** 2 + p["axle_offset_sigma"] ** 2 + timing ** 2 + slow ** 2
+                          + ((spread * (1.0 + GAP_REL) + GAP_ABS) / COVER if spread > 0.0 else 0.0) ** 2)
         self.stats["fixes"] += 1
         return PositionFix(float(t_c), self.sensor, self.unit_id, self.track.track_id, self.head_ids[hi],
                            float(self.head_pos[hi] + self.orient * offset), sigma, int(d))

@@ -71,10 +71,12 @@ def resolve_params(declared: dict[str, Param], overrides: dict | None) -> dict[s
 
 def sensor_params(spec: "SensorSpec", overrides: dict | None, vehicle: Vehicle) -> dict[str, Any]:
     """A sensor's resolved parameters for one vehicle (the decoder's nominal wheel diameter
-    is the vehicle's unless set)."""
+    and axle layout are the vehicle's unless set)."""
     params = dict(overrides or {})
     if "wheel_diameter" in spec.params and "wheel_diameter" not in params:
         params["wheel_diameter"] = vehicle.wheel_diameter
+    if "axle_offsets" in spec.params and "axle_offsets" not in params:
+        params["axle_offsets"] = list(vehicle.axles)
     return resolve_params(spec.params, params)
 
 

@@ -92,19 +92,19 @@ plus the calibration term.
     that agree (their +-k sigma intervals overlap) give the one whose sigma, widened to
     cover all of them, is smallest. Several that disagree: the fault is not identifiable
     (with 2-3 stations the largest residual is often a good range) and the epoch gives no
-    fix (``stats["unidentifiable"]``); no consistent subset: no fix
-    (``stats["inconsistent"]``).
+    fix (``stats["unidentifiable"]``), as does a failing test with no station to spare (2
+    stations); no consistent subset with a station to spare: no fix (more than one fault,
+    ``stats["inconsistent"]``).
   * Protection: a bias below the detection threshold still moves the solution, most where
     the redundancy is low (a range with a large leverage hides its bias in the residuals).
     The published sigma is PL / k (k = normal quantile of ``protection_probability``,
-    3.29) with the protection level PL of the used stations: per station j the separation
-    d_j of the solution without j and that solution's sigma sd_j bound the error under a
-    fault of j of any size that passed the test (error = -d_j + error of the solution
-    without j); PL solves (1 - n p) 2 Q(PL / sd) + p sum_j [Q((PL - d_j) / sd_j) +
-    Q((PL + d_j) / sd_j)] = 1 - ``protection_probability`` with the prior
-    ``fault_probability`` p per range (ARAIM's integrity allocation). Where a fault could
-    move the solution without bound (the other ranges do not fix x) there is no fix
-    (``stats["unbounded"]``).
+    3.29) with the solution-separation protection level PL = max(k sd, max_j d_j + k sd_j)
+    of the used stations: d_j is the separation of the solution without station j and sd_j
+    that solution's sigma; under a fault of j of any size that passed the test the error is
+    -d_j plus the error of the solution without j, so every single fault is covered with the
+    probability of the interval (not discounted by a fault prior: a bias may persist over
+    many epochs). Where a fault could move the solution without bound (the other ranges do
+    not fix x) there is no fix (``stats["unbounded"]``).
   * Output: one PositionFix per epoch (``fix_per_block`` false) or one per block. Per
     block the epochs' all-in-view solutions give the motion (a straight line in time);
     each station's mean residual about it over the block (noise averaged, calibration
@@ -124,7 +124,7 @@ import math
 import operator
 
 import numpy as np
-from scipy.special import chdtri, ndtr, ndtri
+from scipy.special import chdtri, ndtri
 
 from ..measurements import PositionFix
 from ..signals import InputRejected, RawBlock
@@ -139,7 +139,6 @@ PRED_SPEED_SIGMA = 0.5   # 1-sigma speed error of the prediction [m/s] (slope ov
 PRED_ACCEL = 1.5         # largest acceleration of the train [m/s^2]
 SINGLE_HOLD = 0.3        # a single-station fix needs a previous solution younger than this [s]
 SUBSET_ITERATIONS = 3    # Gauss-Newton steps of the subset solutions from the all-in-view one
-PROTECTION_GRID = 16     # grid points across the bracket of the protection level
 _BRANCH = np.array([-1.0, 1.0])[:, None, None]  # the two candidates s -+ along of a range
 # ndarray.sum/any/max/min go through Python wrappers (numpy 2); the decoder, called for every
 # block with small arrays, calls the ufunc reductions directly (axis 0 by default)
@@ -178,13 +177,13 @@ PARAMS = {
     "unchecked_sigma": Param(0.5, "1-sigma added to single-station fixes [m]: without redundancy an NLOS bias "
                                   "(exponential, mean ~1 m) cannot be detected"),
     "outlier_probability": Param(0.999, "chi-square gate probability of the NLOS test"),
+    "max_fault_bias": Param(10.0, "largest range error of one fault that the protection covers where a "
+                                  "single range is left to tell the side of its station (two stations, one "
+                                  "being passed) [m]: NLOS excess path (exponential, mean nlos_bias_mean 1 m: "
+                                  "beyond 10 m with probability 5e-5), calibration faults"),
     "protection_probability": Param(0.999, "probability of the interval +-k sigma (k its normal quantile, 3.29) "
                                            "that the published sigma is widened to cover under an undetected "
                                            "single range fault (the fused 99.9 % interval)"),
-    "fault_probability": Param(0.05, "prior probability that a given range is faulty in an epoch (NLOS / "
-                                     "multipath, calibration): the weight of its fault mode in the protection "
-                                     "level; twice the time fraction in NLOS of the default model "
-                                     "(nlos_rate x nlos_duration = 0.025)"),
     "fix_per_block": Param(False, "false: one PositionFix per epoch (5 ms, seed 002); true: one per block"),
     "hold_time": Param(1.0, "a previous solution older than this is not used to resolve ambiguity [s]"),
     "faults": Param("", "injected faults 'ID@T0-T1:BIAS' (range bias [m]) or 'ID@T0-T1:drop', "
@@ -334,11 +333,12 @@ class _Subsets:
 
     mask (S, m) bool and maskf (S, m) float: rows of each subset; bits (S,): i + 1; size
     (S,); loo (S, m): index of the subset less row j, valid where loo_ok (row j in the
-    subset, which has another row; 0 elsewhere); gate (S,): chi-square gate of the
+    subset, which has another row; 0 elsewhere); loo_row (S, m): the row left where
+    the subset less row j has a single row, else -1; gate (S,): chi-square gate of the
     subset's consistency test (dof = size - 1; inf for one row).
     """
 
-    __slots__ = ("mask", "maskf", "bits", "size", "loo", "loo_ok", "gate")
+    __slots__ = ("mask", "maskf", "bits", "size", "loo", "loo_ok", "loo_row", "gate")
 
     def __init__(self, m: int, gate_dof):
         bits = np.arange(1, 2 ** m)
@@ -348,6 +348,8 @@ class _Subsets:
         loo_ok = mask & (size[:, None] > 1)
         self.mask, self.maskf, self.bits, self.size = mask, mask.astype(float), bits, size
         self.loo, self.loo_ok = np.where(loo_ok, (bits[:, None] ^ row_bits) - 1, 0), loo_ok
+        other = np.argmax(mask[:, None, :] & ~np.eye(m, dtype=bool), axis=2)   # a row other than j
+        self.loo_row = np.where(loo_ok & (size[:, None] == 2), other, -1)
         self.gate = np.array([gate_dof(int(k) - 1) for k in size])
 
 
@@ -396,8 +398,9 @@ class MmWaveDecoder(Decoder):
         self._sig2_floor = not self._sig2_const >= 1e-6
         self._k_cover = float(-ndtri(0.5 * (1.0 - params["protection_probability"])))
         self._subset_tabs: dict = {}
-        self._grid = (np.arange(1, PROTECTION_GRID + 1) / PROTECTION_GRID)[:, None]
+        self._block_loo: dict = {}   # per number of stations: all of them, then without each
         self._slot_bits = 1 << np.arange(N_SLOTS)
+        self._single_index = self._slot_bits - 1   # subset index of each slot alone
         self._gate_size = np.array([self._gate_dof(k - 1) for k in range(N_SLOTS + 1)])   # by stations
         self._prev_t: float | None = None
         self._prev_x: float | None = None
@@ -580,69 +583,117 @@ class MmWaveDecoder(Decoder):
         den = float(np.dot(tt, tt))
         xm = float(x.mean())
         v = float(np.dot(tt, x - xm)) / den if den > 0.0 else 0.0
-        with np.errstate(invalid="ignore", divide="ignore"):
-            dx = (xm + v * (times - tm)) - pat.s
-            pred = np.sqrt(dx * dx + pat.d2)
-            h = dx / np.maximum(pred, 1e-9)
-        e = r - pred
         stations, loc = self._compact(pat)
         sel = (valid & ok0).T   # epoch-major, like loc
         ks = loc[sel]
         m_all = len(stations)
         cnt = np.bincount(ks, minlength=m_all)
         rows = np.flatnonzero(cnt)
-        cnt = cnt[rows]
-        e_bar = np.bincount(ks, e.T[sel], minlength=m_all)[rows] / cnt
-        h_bar = np.bincount(ks, h.T[sel], minlength=m_all)[rows] / cnt
-        cal2 = p["cal_sigma"] ** 2
-        noise = np.bincount(ks, (sig2 - cal2).T[sel], minlength=m_all)[rows] / cnt
-        w_bar = 1.0 / (np.maximum(noise, 1e-12) / cnt + cal2)
         m = len(rows)
-        tab = self._subsets(m)
-        wm = tab.maskf * w_bar                  # (n_subsets, m)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            info = wm @ (h_bar * h_bar)
-            delta = (wm @ (h_bar * e_bar)) / info
-            fit = e_bar - delta[:, None] * h_bar
-            chi2 = np.add.reduce(wm * fit * fit, axis=1)
-            var = np.where(info > 1e-6, 1.0 / info, np.inf)
-        delta = np.where(np.isfinite(delta), delta, 0.0)
-        full = np.array([len(tab.size) - 1])
+        row_of = np.zeros(m_all, dtype=np.int64)
+        row_of[rows] = np.arange(m)
+        rk = row_of[ks]
+        cnt = cnt[rows]
+        # per station (row) the mean over the block of a per-epoch, per-slot value (epoch-major)
+        avg = np.zeros((n * N_SLOTS, m))
+        avg[sel.ravel().nonzero()[0], rk] = 1.0 / cnt[rk]
+        cal2 = p["cal_sigma"] ** 2
+        noise = np.bincount(rk, (sig2 - cal2).T[sel], minlength=m) / cnt
+        w_bar = 1.0 / (np.maximum(noise, 1e-12) / cnt + cal2)
+        line = xm + v * (times - tm)
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-            chosen, ok, sd, unident, inconsistent = self._isolate(tab, delta[:, None], var[:, None], chi2[:, None],
-                                                                  full)
-        if not (ok[0] and sd[0] < np.inf):
-            self.stats["unidentifiable"] += int(unident[0])
-            self.stats["unbounded"] += int(ok[0])
-            self.stats["inconsistent"] += int(inconsistent[0])
+            # the all-in-view block solution and those without each station
+            sub = self._block_loo.get(m)
+            if sub is None:
+                sub = self._block_loo[m] = np.vstack([np.ones(m), 1.0 - np.eye(m)])
+            delta, var, chi2, e_bar = self._block_solutions(sub, line, r, pat, w_bar, avg)
+            if chi2[0] <= self._subsets(m).gate[-1] and var[0] < np.inf:
+                has = np.full((m, 1), m > 1)
+                sep = np.abs(delta[1:] - delta[0])
+                if m == 2:   # without one station the other is left alone: its mirror image
+                    mirror, reach = self._block_mirrors(delta[[2, 1]], line, r, pat, avg, rows, stations, xm)
+                    far = reach[[0, 1], [1, 0]]
+                    sep = np.where(far, np.maximum(sep, np.abs(mirror[[1, 0]] - delta[0])), sep)
+                sigma = float(self._protection(sep[:, None], np.sqrt(var[1:])[:, None], has, np.sqrt(var[:1]))[0])
+                ok, c, used_rows = sigma < np.inf, 0, np.ones(m, dtype=bool)
+                if not ok:
+                    self.stats["unbounded"] += 1
+            else:
+                tab = self._subsets(m)
+                delta, var, chi2, e_bar = self._block_solutions(tab.maskf, line, r, pat, w_bar, avg)
+                full = np.array([len(tab.size) - 1])
+                single = (1 << np.arange(m)) - 1
+                mirror, reach = self._block_mirrors(delta[single], line, r, pat, avg, rows, stations, xm)
+                chosen, good, sd, unident, inconsistent = self._isolate(tab, delta[:, None], var[:, None],
+                                                                        chi2[:, None], full,
+                                                                        (mirror[:, None], reach[:, :, None]))
+                ok, c, sigma = bool(good[0] and sd[0] < np.inf), int(chosen[0]), float(sd[0])
+                used_rows = tab.mask[c]
+                self.stats["unidentifiable"] += int(unident[0])
+                self.stats["inconsistent"] += int(inconsistent[0])
+                self.stats["unbounded"] += int(good[0] and not ok)
+        if not ok:
             self.stats["no_fix"] += n
             return []
-        c = int(chosen[0])
-        used_rows = tab.mask[c]
-        sigma = float(sd[0])
-        if int(tab.size[c]) == 1:
+        if int(used_rows.sum()) == 1:
             sigma = math.hypot(sigma, p["unchecked_sigma"])   # no redundancy in the block
         x_fix = xm + float(delta[c])
         self._remember(t, x_fix + v * tt, np.full(n_ok, sigma ** 2))
         self.stats["no_fix"] += n - n_ok
         self.stats["rejected_stations"] += int(cnt[~used_rows].sum())
         self.stats["fixes"] += 1
-        rank = rows.tolist()
+        rank = list(range(m))   # rows: stations in view by index
         if not self._pos_increasing:
             # by chainage, then in order of first appearance (epoch, slot)
             first: dict = {}
-            for j, k in enumerate(ks.tolist()):
+            for j, k in enumerate(rk.tolist()):
                 first.setdefault(k, j)
-            rank.sort(key=lambda k: (float(self.pos[stations[k]]), first[k]))
-        row_of = {k: i for i, k in enumerate(rows.tolist())}
-        u_sel = [k for k in rank if used_rows[row_of[k]]]
-        r_sel = [k for k in rank if not used_rows[row_of[k]]]
+            rank.sort(key=lambda k: (float(self.pos[stations[rows[k]]]), first[k]))
+        u_sel = [k for k in rank if used_rows[k]]
+        r_sel = [k for k in rank if not used_rows[k]]
         ids = self.ids
-        ref = ",".join([ids[stations[k]] for k in u_sel] + ["!" + ids[stations[k]] for k in r_sel])
-        resid = fit[c]
-        residuals = tuple(float(resid[row_of[k]]) for k in u_sel + r_sel)
+        ref = ",".join([ids[stations[rows[k]]] for k in u_sel] + ["!" + ids[stations[rows[k]]] for k in r_sel])
+        resid = e_bar[c].tolist()
+        residuals = tuple(resid[k] for k in u_sel + r_sel)
         front = x_fix + p["orientation"] * p["antenna_offset"]
         return [PositionFix(tm, self.sensor, self.unit_id, self.track.track_id, ref, front, sigma, 0, residuals)]
+
+    def _block_mirrors(self, delta_single, line, r, pat, avg, rows, stations, xm):
+        """(mirror (m,), reach (m, m)) of the block's single-station solutions (offsets
+        delta_single (m,) from ``line``) as _mirrors: the mirror image of the motion about
+        station k, as an offset at the block's mean time, and whether the mean residual of
+        station j there is within ``max_fault_bias``."""
+        s_k = self.pos[np.asarray(stations)[rows]]
+        m = len(rows)
+        x_mirror = 2.0 * s_k[:, None] - (line + delta_single[:, None])        # (m_k, n)
+        dx = x_mirror[:, None, :] - pat.s                                     # (m_k, N_SLOTS, n)
+        e = (r - np.sqrt(dx * dx + pat.d2)).transpose(0, 2, 1).reshape(m, -1) @ avg    # (m_k, m_j)
+        return 2.0 * (s_k - xm) - delta_single, np.abs(e.T) <= self.params["max_fault_bias"]
+
+    def _block_solutions(self, maskf, line, r, pat, w_bar, avg):
+        """Block solutions of subsets of the block's stations (maskf (S, m), 1 for a station in
+        the subset): the offset delta (S,) from the motion ``line`` (n,) that fits the
+        stations' mean residuals over the block (Gauss-Newton on the exact per-epoch ranges,
+        averaged: the range of a station being passed is far from linear), its LS variance
+        and chi-square (S,) and the mean residuals (S, m) there. w_bar: weights of the mean
+        residuals; avg: (n N_SLOTS, m) averaging matrix of epoch-major per-slot values."""
+        wm = maskf * w_bar
+        n_sub = len(maskf)
+        delta = np.zeros(n_sub)
+        for it in range(SUBSET_ITERATIONS + 1):
+            dx = (line + delta[:, None])[:, None, :] - pat.s       # (S, N_SLOTS, n)
+            pred = np.sqrt(dx * dx + pat.d2)
+            h = (dx / np.maximum(pred, 1e-9)).transpose(0, 2, 1).reshape(n_sub, -1) @ avg
+            e = (r - pred).transpose(0, 2, 1).reshape(n_sub, -1) @ avg
+            wh = wm * h
+            info = np.add.reduce(wh * h, axis=1)
+            if it == SUBSET_ITERATIONS:
+                break
+            step = np.add.reduce(wh * e, axis=1) / np.where(info > 1e-9, info, np.inf)
+            delta += np.clip(step, -50.0, 50.0)
+        chi2 = np.add.reduce(wm * e * e, axis=1)
+        var = np.where(info > 1e-6, 1.0 / np.maximum(info, 1e-300), np.inf)
+        return delta, var, chi2, e
 
     # -- fault detection and isolation ----------------------------------------------------
     def _subsets(self, m: int) -> "_Subsets":
@@ -658,15 +709,16 @@ class MmWaveDecoder(Decoder):
             return math.inf
         return float(chdtri(dof, 1.0 - self.params["outlier_probability"]))
 
-    def _isolate(self, tab, xs, var, chi2, full):
+    def _isolate(self, tab, xs, var, chi2, full, mirrors):
         """Fault detection and isolation by solution separation.
 
         xs, var, chi2: (n_subsets, n) solution, its LS variance and its chi-square per subset of
         the rows of ``tab`` and per epoch; full: (n,) index of the subset of the rows in view
-        (-1: none). Returns the chosen subset (n,), ok (n,), the published 1-sigma (n,; see
-        _protection; infinite where a fault would be unbounded: to be withheld) and two masks
-        (n,): unidentifiable (a fault that cannot be isolated) and inconsistent (no subset
-        passes).
+        (-1: none); mirrors: see _subset_protection. Returns the chosen subset (n,), ok (n,),
+        the published 1-sigma (n,; see _protection; infinite where a fault would be unbounded: to be withheld) and two masks
+        (n,): unidentifiable (a fault that cannot be isolated, also a failing test without a
+        station to spare) and inconsistent (no subset with a station to spare passes: more
+        than one fault).
 
         * Detection: the rows in view are used if their chi-square test passes.
         * Isolation: else the largest subsets (at least max(2, min_stations) rows) that pass
@@ -698,13 +750,13 @@ class MmWaveDecoder(Decoder):
         keep = ok & ~isolate
         if _any(keep):
             ki = keep.nonzero()[0]
-            sigma[ki] = self._subset_protection(tab, xs, var, chosen[ki], ki)
+            sigma[ki] = self._subset_protection(tab, xs, var, chosen[ki], ki, mirrors)
         if _any(isolate):
             ci = isolate.nonzero()[0]
             cand = eligible[:, ci] & (size == level[ci])
             sub, col = cand.nonzero()
             p_c = np.full(cand.shape, np.inf)
-            p_c[sub, col] = self._subset_protection(tab, xs, var, sub, ci[col])
+            p_c[sub, col] = self._subset_protection(tab, xs, var, sub, ci[col], mirrors)
             x_c = xs[:, ci]
             dist = np.abs(x_c[:, None, :] - x_c[None, :, :])      # (S, S', k)
             pair = cand[:, None, :] & cand[None, :, :]
@@ -719,66 +771,68 @@ class MmWaveDecoder(Decoder):
             unident[ci] = disagree
         else:
             unident = isolate
-        return chosen, ok, sigma, unident, (full >= 0) & (level == 0)
+        # nothing passes: a fault with no station to spare (2 stations: either may be the
+        # faulty one) is not identifiable; with stations to spare, more than one is faulty
+        none = (full >= 0) & (level == 0)
+        spare = n_full > min_keep
+        return chosen, ok, sigma, unident | (none & ~spare), none & spare
 
-    def _subset_protection(self, tab, xs, var, sub, col):
+    def _subset_protection(self, tab, xs, var, sub, col, mirrors):
         """Published 1-sigma (K,) of the solutions of subsets ``sub`` (K,) at epochs ``col``
-        (K,), from the solutions without each of their rows (_protection)."""
+        (K,), from the solutions without each of their rows (_protection).
+
+        mirrors: (mirror (m, n), reach (m, m, n)): the mirror image of each row's
+        single-row solution about its station, and whether a fault of row j within
+        ``max_fault_bias`` could put the train there (reach[j, k]); where a fault of row j
+        leaves row k alone, the separation covers that mirror too (_mirrors).
+        """
         loo = tab.loo[sub].T                     # (m, K)
         has = tab.loo_ok[sub].T
-        sep = np.abs(xs[loo, col] - xs[sub, col])
+        x_s = xs[sub, col]
+        sep = np.abs(xs[loo, col] - x_s)
+        k = tab.loo_row[sub].T
+        if mirrors is not None and _any(k >= 0, axis=None):
+            mirror, reach = mirrors
+            kk = np.maximum(k, 0)
+            far = (k >= 0) & reach[self._rows_col(len(k)), kk, col]
+            sep = np.where(far, np.maximum(sep, np.abs(mirror[kk, col] - x_s)), sep)
         return self._protection(sep, np.sqrt(var[loo, col]), has, np.sqrt(var[sub, col]))
 
+    @staticmethod
+    def _rows_col(m):
+        return np.arange(m)[:, None]
+
+    def _mirrors(self, x_single, s, r_fn):
+        """(mirror, reach) for _subset_protection. A single range leaves the side of its
+        station open: x_single (m, n) is each row's single-row solution, s (m, n) its
+        station's chainage, so the mirror image 2 s - x_single fits that range as well.
+        r_fn(mirror) -> (m_j, m_k, n) residuals of every row j at the mirror images of every
+        row k: a fault of row j can put the train at row k's mirror only with a bias of that
+        size, so it counts up to ``max_fault_bias``."""
+        mirror = 2.0 * s - x_single
+        return mirror, np.abs(r_fn(mirror)) <= self.params["max_fault_bias"]
+
     def _protection(self, sep, sd_j, has, sd):
-        """Published 1-sigma PL / k of a solution (sigma ``sd``, (K,)) whose rows j (axis 0
-        of the (m, K) arrays, where ``has``) have fault modes: separation ``sep`` from the
-        solution without row j, of sigma ``sd_j``. k is the normal quantile of
-        ``protection_probability``; the protection level PL solves (solution separation as in
-        ARAIM)
+        """Published 1-sigma (K,) of a solution of LS sigma ``sd`` (K,) whose rows j (axis 0
+        of the (m, K) arrays, where ``has``) may be faulty: ``sep`` is the separation from
+        the solution without row j, ``sd_j`` that solution's sigma.
 
-            (1 - n p) 2 Q(PL / sd) + p sum_j [Q((PL - sep_j) / sd_j) + Q((PL + sep_j) / sd_j)]
-                = 1 - protection_probability,
-
-        n the number of fault modes, p = ``fault_probability``. Were row j biased by any
-        amount that the test let pass, the solution without it would be unbiased: the error
-        is then -+sep_j plus that solution's own error (sigma sd_j), so PL bounds it with the
-        risk allotted to that mode, whether the bias was seen or not. This is what a test
-        cannot see at low redundancy: a row with a large leverage moves x and hides its bias
-        in the residuals, and the solution without it is much less precise (large sd_j). PL
-        lies between k sd and max(k sd, max_j sep_j + k sd_j) (every term within its share
-        there); the first of PROTECTION_GRID points evenly across that bracket that meets the
-        risk is taken (the upper end of the root's interval: conservative). A mode without a
-        solution (sd_j infinite) gives no bound: infinite sigma, no fix.
+        Were row j biased by any amount that the test let pass, the solution without it is
+        unbiased, so the error is -+sep_j plus that solution's own error: |error| <= sep_j +
+        k sd_j with the probability of the +-k sigma interval (k = normal quantile of
+        ``protection_probability``), for every size of the bias, seen by the test or not.
+        The published sigma max(sd, max_j sep_j / k + sd_j) therefore puts the error of any
+        single fault inside +-k sigma with that probability (solution-separation protection
+        level, as ARAIM, with every fault mode covered in full: a fault here is no rare
+        independent event but may persist over many epochs -- a biased calibration, a
+        structure in the line of sight -- so the risk is not discounted by a prior). It is
+        what the test cannot see at low redundancy: a row with a large leverage moves x and
+        hides its bias in the residuals, and the solution without it is much less precise
+        (large sd_j). A mode without a solution (sd_j infinite) gives no bound: infinite
+        sigma, no fix.
         """
-        kz = self._k_cover
-        p = self.params["fault_probability"]
-        n_modes = np.add.reduce(has, axis=0)
-        lo = kz * sd
-        reach = np.where(has, sep + kz * sd_j, 0.0)
-        hi = np.maximum(lo, np.maximum.reduce(reach, axis=0))
-        need = (n_modes > 0) & (hi > lo)
-        if p <= 0.0 or not _any(need):
-            return sd
-        out = hi / kz                       # infinite or NaN where a mode has no solution
-        fin = need & np.isfinite(hi)
-        if not _any(fin):
-            return np.where(need, np.inf, sd)
-        idx = fin.nonzero()[0]
-        lo, hi, sd_f = lo[idx], hi[idx], sd[idx]
-        has_f = has[:, idx]
-        sep_f = np.where(has_f, sep[:, idx], 0.0)[:, None, :]
-        inv_j = np.where(has_f, 1.0 / np.maximum(sd_j[:, idx], 1e-300), 0.0)[:, None, :]
-        inv_s = 1.0 / np.maximum(sd_f, 1e-300)
-        p0 = 1.0 - n_modes[idx] * p
-        off = (len(has) - n_modes[idx]) * p   # rows without a mode: Q(0) + Q(0) = 1 each
-        risk = 1.0 - self.params["protection_probability"]
-        g = lo + (hi - lo) * self._grid          # (G, K)
-        total = (p0 * 2.0 * ndtr(-g * inv_s)
-                 + p * np.add.reduce(ndtr((sep_f - g) * inv_j) + ndtr(-(sep_f + g) * inv_j), axis=0) - off)
-        inside = total <= risk
-        inside[-1] = True                        # hi (within round-off)
-        out[idx] = g[inside.argmax(axis=0), self._columns(len(idx))] / kz
-        return np.where(need, out, sd)
+        reach = np.where(has, sep * (1.0 / self._k_cover) + sd_j, 0.0)
+        return np.maximum(sd, np.maximum.reduce(reach, axis=0))
 
     def _subset_solutions(self, maskf, x0, r, s, d2, w):
         """Gauss-Newton solutions of subsets of the slots (maskf: (S, N_SLOTS), 1 for a slot
@@ -874,15 +928,28 @@ class MmWaveDecoder(Decoder):
             wh = w * h
             lev = wh * h * var                               # leverage of each range
             rest = info - wh * h                             # information without the range
-            sep = np.abs(wh * var * e / (1.0 - lev))         # |x without range j - x|
+            shift = wh * var * e / (1.0 - lev)               # x - x without range j
+            sep = np.abs(shift)
             sd_j = np.where(rest > 1e-6, 1.0 / np.sqrt(np.maximum(rest, 1e-300)), np.inf)
+            two = valid & (nv == 2)
+            if _any(two, axis=None):
+                # without range j one station k is left, which cannot tell its side: its
+                # mirror image counts if a fault of j within max_fault_bias reaches it
+                s_k = _sum(np.where(valid, s, 0.0)) - s         # the other station of each range
+                mirror = 2.0 * s_k - (x - shift)
+                need = r - np.sqrt((mirror - s) ** 2 + d2)
+                far = two & (np.abs(need) <= p["max_fault_bias"])
+                sep = np.where(far, np.maximum(sep, np.abs(mirror - x)), sep)
             var = self._protection(sep, sd_j, valid & (nv > 1), np.sqrt(var)) ** 2
             unbounded = ok & ~(var < np.inf)
         elif isolate and _any(ok):
             tab = self._subsets(N_SLOTS)
             xs, vs, chi2, es = self._subset_solutions(tab.maskf, x, r, s, d2, w)
             full = np.where(nv > 0, self._slot_bits @ valid - 1, -1)
-            chosen, good, sd, unident, inconsistent = self._isolate(tab, xs, vs, chi2, full)
+            single = self._single_index
+            mirrors = self._mirrors(xs[single], s, lambda mx: r[:, None, :] - np.sqrt(
+                (mx[None] - s[:, None]) ** 2 + d2[:, None]))
+            chosen, good, sd, unident, inconsistent = self._isolate(tab, xs, vs, chi2, full, mirrors)
             self.stats["unidentifiable"] += int(np.count_nonzero(ok & unident))
             self.stats["inconsistent"] += int(np.count_nonzero(ok & inconsistent))
             ok &= good

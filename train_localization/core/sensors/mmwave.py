@@ -677,23 +677,32 @@ class MmWaveDecoder(Decoder):
         averaged: the range of a station being passed is far from linear), its LS variance
         and chi-square (S,) and the mean residuals (S, m) there. w_bar: weights of the mean
         residuals; avg: (n N_SLOTS, m) averaging matrix of epoch-major per-slot values."""
-        wm = maskf * w_bar
         n_sub = len(maskf)
-        delta = np.zeros(n_sub)
-        for it in range(SUBSET_ITERATIONS + 1):
+
+        def mean_residuals(delta):
             dx = (line + delta[:, None])[:, None, :] - pat.s       # (S, N_SLOTS, n)
             pred = np.sqrt(dx * dx + pat.d2)
-            h = (dx / np.maximum(pred, 1e-9)).transpose(0, 2, 1).reshape(n_sub, -1) @ avg
-            e = (r - pred).transpose(0, 2, 1).reshape(n_sub, -1) @ avg
+            return ((dx / np.maximum(pred, 1e-9)).transpose(0, 2, 1).reshape(n_sub, -1) @ avg,
+                    (r - pred).transpose(0, 2, 1).reshape(n_sub, -1) @ avg)
+        return self._subsets_gauss_newton(np.zeros(n_sub), maskf * w_bar, mean_residuals)
+
+    @staticmethod
+    def _subsets_gauss_newton(x, wm, model):
+        """Gauss-Newton of many subsets at once: x (S, ...) start, wm (S, rows, ...) weights
+        (0 for a row not in the subset), model(x) -> partials and residuals (S, rows, ...)
+        at x. SUBSET_ITERATIONS steps (each within 50 m) from the start; returns x, the LS
+        variance, the chi-square (S, ...) and the residuals at x."""
+        for it in range(SUBSET_ITERATIONS + 1):
+            h, e = model(x)
             wh = wm * h
             info = np.add.reduce(wh * h, axis=1)
             if it == SUBSET_ITERATIONS:
                 break
             step = np.add.reduce(wh * e, axis=1) / np.where(info > 1e-9, info, np.inf)
-            delta += np.clip(step, -50.0, 50.0)
+            x = x + np.clip(step, -50.0, 50.0)
         chi2 = np.add.reduce(wm * e * e, axis=1)
         var = np.where(info > 1e-6, 1.0 / np.maximum(info, 1e-300), np.inf)
-        return delta, var, chi2, e
+        return x, var, chi2, e
 
     # -- fault detection and isolation ----------------------------------------------------
     def _subsets(self, m: int) -> "_Subsets":
@@ -839,24 +848,14 @@ class MmWaveDecoder(Decoder):
         in the subset), started from the all-in-view solution x0 (n,): x, LS variance,
         chi-square (S, n) and the residuals of all slots at each subset's solution
         (S, N_SLOTS, n)."""
-        ws = maskf[:, :, None] * w[None]            # (S, N_SLOTS, n)
-        xs = np.repeat(x0[None, :], len(maskf), axis=0)
-        for it in range(SUBSET_ITERATIONS + 1):
+        def ranges(xs):
             dx = xs[:, None, :] - s
             pred = dx * dx
             pred += d2
             np.sqrt(pred, out=pred)
-            h = dx / np.maximum(pred, 1e-9)
-            e = np.subtract(r, pred, out=pred)
-            wh = ws * h
-            info = np.add.reduce(wh * h, axis=1)
-            if it == SUBSET_ITERATIONS:
-                break
-            step = np.add.reduce(wh * e, axis=1) / np.where(info > 1e-9, info, np.inf)
-            xs += np.clip(step, -50.0, 50.0)
-        chi2 = np.add.reduce(ws * e * e, axis=1)
-        var = np.where(info > 1e-6, 1.0 / np.maximum(info, 1e-300), np.inf)
-        return xs, var, chi2, e
+            return dx / np.maximum(pred, 1e-9), np.subtract(r, pred, out=pred)
+        return self._subsets_gauss_newton(np.repeat(x0[None, :], len(maskf), axis=0), maskf[:, :, None] * w[None],
+                                          ranges)
 
     # -- per-epoch solution ---------------------------------------------------------------
     def _solve(self, times, r, pat, sig2, valid, isolate):

@@ -327,7 +327,8 @@ def _largest_positive_residual_is_good(run, biased):
         pred = np.hypot(x[:, None] - s, d)
         h = (x[:, None] - s) / pred
         e = rng_m - pred
-        z = np.where(valid, e / np.sqrt(np.maximum(1.0 / np.maximum(w, 1e-300) - h * h / info[:, None], 1e-12)), -np.inf)
+        norm = np.sqrt(np.maximum(1.0 / np.maximum(w, 1e-300) - h * h / info[:, None], 1e-12))
+        z = np.where(valid, e / norm, -np.inf)
         ids = np.array(dec.ids)[idx]
         worst = ids[np.arange(len(x)), z.argmax(axis=1)]
         count += int(np.count_nonzero((valid.sum(axis=1) == 3) & (worst != biased)))

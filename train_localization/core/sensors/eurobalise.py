@@ -133,8 +133,9 @@ PARAMS = {
                                   "(~25 sigma of field_noise, ~1/4 of the 2.18 mA/m peak)"),
     "group_length": Param(12.0, "balises of one group (same 'group' key) read within this distance of "
                                 "each other give the direction [m] (ETCS balise group extent; assumption)"),
-    "max_acceleration": Param(2.0, "largest |acceleration| of the train [m/s^2] for the plausibility of the "
-                                   "distance between two balise reads (assumption: above the emergency braking "
+    "max_acceleration": Param(2.0, "largest magnitude of the acceleration of the train [m/s^2] for the "
+                                   "plausibility of the distance between two balise reads (assumption: above the "
+                                   "emergency braking "
                                    "of high-speed and maglev trains, ~1.2-1.5 m/s^2, and the profiles of the "
                                    "scenarios, <= 1.1 m/s^2)"),
     "speed_tolerance": Param(0.15, "relative error bound of the speed measured from the width of the field "

@@ -724,10 +724,10 @@ class MmWaveDecoder(Decoder):
         xs, var, chi2: (n_subsets, n) solution, its LS variance and its chi-square per subset of
         the rows of ``tab`` and per epoch; full: (n,) index of the subset of the rows in view
         (-1: none); mirrors: see _subset_protection. Returns the chosen subset (n,), ok (n,),
-        the published 1-sigma (n,; see _protection; infinite where a fault would be unbounded: to be withheld) and two masks
-        (n,): unidentifiable (a fault that cannot be isolated, also a failing test without a
-        station to spare) and inconsistent (no subset with a station to spare passes: more
-        than one fault).
+        the published 1-sigma (n,; see _protection; infinite where a fault would be unbounded:
+        to be withheld) and two masks (n,): unidentifiable (a fault that cannot be isolated,
+        also a failing test without a station to spare) and inconsistent (no subset with a
+        station to spare passes: more than one fault).
 
         * Detection: the rows in view are used if their chi-square test passes.
         * Isolation: else the largest subsets (at least max(2, min_stations) rows) that pass
@@ -803,13 +803,9 @@ class MmWaveDecoder(Decoder):
         if mirrors is not None and _any(k >= 0, axis=None):
             mirror, reach = mirrors
             kk = np.maximum(k, 0)
-            far = (k >= 0) & reach[self._rows_col(len(k)), kk, col]
+            far = (k >= 0) & reach[np.arange(len(k))[:, None], kk, col]
             sep = np.where(far, np.maximum(sep, np.abs(mirror[kk, col] - x_s)), sep)
         return self._protection(sep, np.sqrt(var[loo, col]), has, np.sqrt(var[sub, col]))
-
-    @staticmethod
-    def _rows_col(m):
-        return np.arange(m)[:, None]
 
     def _mirrors(self, x_single, s, r_fn):
         """(mirror, reach) for _subset_protection. A single range leaves the side of its

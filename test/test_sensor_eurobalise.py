@@ -279,3 +279,102 @@ def test_telegrams_decoded_at_500_kmh():
     params = {k: v.default for k, v in eb.PARAMS.items()}
     dec = eb.EurobaliseDecoder(params, sc.track)
     assert sum(len(dec.decode(b)) for b in blocks) > 50
+
+
+# ---------------------------------------------------------------- plausibility of a telegram
+
+def _decode_with_wrong_telegrams(sc, corrupt):
+    """Simulate the scenario and decode it with the telegram id of the passages listed in
+    ``corrupt`` ({passage number: balise id}) replaced by another balise's id of the track (a
+    telegram decoded wrong). Returns fixes, the pipeline, the trajectory and the ids read."""
+    from train_localization.core.pipeline import SensorPipeline
+    from train_localization.core.sensors import spec
+    s = spec(NODE)
+    params = sc.sensors.get(NODE, {})
+    sim = SensorPipeline(s, params, sc.track, sc.vehicle, sc.rng(NODE, s.sensor))
+    dec = SensorPipeline(s, params, sc.track, sc.vehicle, simulate=False)
+    nid = eb.telegram_ids(sc.track.items("eurobalise"))
+    traj = sc.trajectory()
+    fixes, passage = [], 0
+    col = eb.EurobaliseSimulator.channels.index("telegram")
+    for k in range(int(sc.duration * sc.truth_rate) + 1):
+        for b in sim.on_truth(traj.state_at(k / sc.truth_rate)):
+            hits = np.flatnonzero(b.data[:, col] > 0)
+            if hits.size:
+                if passage in corrupt:
+                    data = b.data.copy()
+                    data[hits[0], col] = nid[corrupt[passage]]
+                    b = RawBlock.from_samples(b.sensor, b.unit_id, b.seq, b.t0, b.sample_rate, b.channels,
+                                              b.units, data)
+                passage += 1
+            fixes.extend(dec.on_block(b))
+    return fixes, dec, traj
+
+
+def _wrong(fixes, traj):
+    return [f for f in fixes if abs(f.position - np.interp(f.stamp, traj.t, traj.position)) > 4 * f.position_stddev]
+
+
+@pytest.mark.parametrize("scenario_file", ["config/scenario_conventional_300.yaml", "config/scenario_urban_stops.yaml",
+                                           "config/scenario_demo.yaml"])
+def test_a_telegram_naming_another_balise_gives_no_fix(scenario_file):
+    # drawn per seed: which reads (not the first: it has no reference) are decoded wrong, as
+    # which balise of the track at least 1.5 km from the right one (nearer ones may be within
+    # reach of the train after a stop: see the test below for neighbours at speed)
+    for seed in (1, 2):
+        sc = Scenario.from_yaml(scenario_file)
+        sc.seed = seed
+        clean, _, _ = _decode_with_wrong_telegrams(sc, {})
+        items = sc.track.items("eurobalise")
+        pos = {str(it["id"]): float(it["position"]) for it in items}
+        rng = np.random.default_rng(seed)
+        reads = [f.reference_id for f in clean]
+        corrupt = {}
+        for k in range(1, len(reads)):
+            if k - 1 not in corrupt and rng.random() < 0.4:        # isolated wrong reads
+                far = [b for b in pos if abs(pos[b] - pos[reads[k]]) >= 1500.0]
+                corrupt[k] = str(rng.choice(far))
+        assert corrupt
+        fixes, pipe, traj = _decode_with_wrong_telegrams(sc, corrupt)
+        assert not _wrong(clean, traj)                              # without wrong telegrams: as before
+        assert not _wrong(fixes, traj), [(f.stamp, f.reference_id) for f in _wrong(fixes, traj)]
+        assert pipe.decoder.stats["implausible"] == len(corrupt)    # withheld and counted ...
+        assert len(fixes) == len(clean) - len(corrupt)              # ... and nothing else lost
+
+
+@pytest.mark.parametrize("shift", [-2, -1, 1])
+def test_a_neighbour_at_speed_is_no_plausible_next_balise(shift):
+    # balises every 25 m at 40 m/s: the one behind the last read (-2) is at the right distance
+    # but the train cannot have reversed in between; the last read again (-1) or the one after
+    # next (+1) would need a reversal or twice the speed
+    sc = scenario(40.0, 10.0, start=1990.0)
+    clean, _, traj = _decode_with_wrong_telegrams(sc, {})
+    ids = [str(it["id"]) for it in sc.track.items("eurobalise")]
+    reads = [f.reference_id for f in clean]
+    corrupt = {k: ids[ids.index(reads[k]) + shift] for k in (4, 9, 14)}
+    fixes, pipe, traj = _decode_with_wrong_telegrams(sc, corrupt)
+    assert not _wrong(fixes, traj)
+    assert pipe.decoder.stats["implausible"] == 3 and len(fixes) == len(clean) - 3
+
+
+def test_reads_through_a_stop_and_a_reversal_stay_plausible():
+    profile = [{"speed": 15.0, "hold": 8.0}, {"speed": 0.0, "decel": 1.0, "hold": 3.0},
+               {"speed": -12.0, "accel": 1.0, "hold": 6.0}, {"speed": 0.0, "decel": 1.0, "hold": 2.0},
+               {"speed": 20.0, "accel": 1.0, "hold": 10.0}]
+    sc = Scenario.from_dict({
+        "name": "eb_reverse", "seed": 4, "duration": 50.0, "track": balise_track(),
+        "vehicle": {"type": "conventional", "length": 200.0},
+        "initial": {"position": 2050.0, "speed": 15.0}, "profile": profile, "sensors": {NODE: {}}})
+    _, fixes, rejected, pipe, traj = run(sc)
+    assert traj.speed.min() < -10.0 and len(fixes) > 10
+    assert pipe.decoder.stats["implausible"] == 0 and not rejected
+
+
+def test_reach_of_the_speed_profiles():
+    # constant speed: both bounds are v dt; from rest to rest the train may go either way
+    assert eb._reach(10.0, 10.0, 5.0, 1e-9) == pytest.approx((50.0, 50.0))
+    least, most = eb._reach(0.0, 0.0, 10.0, 1.0)
+    assert least == pytest.approx(-25.0) and most == pytest.approx(25.0)
+    assert eb._reach(30.0, -30.0, 10.0, 1.0) is None                   # a reversal needs 60 s
+    least, most = eb._reach(20.0, 10.0, 10.0, 1.0)
+    assert least == pytest.approx(150.0) and most == pytest.approx(150.0)   # exactly -1 m/s^2

@@ -193,7 +193,9 @@ def test_misreads_detected_and_outvoted(mode):
     ids = [f.reference_id for f in fixes]
     assert set(ids) <= set(expected) and len(ids) == len(set(ids))
     assert len(ids) + st["unresolved_lugs"] >= len(expected)      # a lost group has an unresolved lug
-    assert len(ids) >= 0.8 * len(expected)
+    # a lug needs a strict majority of the 4 sensors (>= 3 agree: P = 0.89 at 15 % misreads, so
+    # 0.89^3 = 70 % of the 3-lug groups); a 2-1-1 split is no longer taken (it was: >= 80 %)
+    assert len(ids) >= 0.6 * len(expected)
     err, sd = errors(fixes, traj)
     assert np.all(np.abs(err) < 3.5 * sd)
 
@@ -262,3 +264,79 @@ def test_lug_groups_decoded_at_500_kmh(mode):
     params = {k: v.default for k, v in lrl.PARAMS.items()} | {"scan_mode": mode}
     dec = lrl.LrlDecoder(params, sc.track)
     assert sum(len(dec.decode(b)) for b in blocks) >= 9
+
+
+# ---------------------------------------------------------------- redundant sensors that disagree
+
+# every 4-bit code is a group: a lug value voted wrong is a fix at another group
+EVERY_CODE = [{"id": f"E{k:02d}", "position": 1000.0 + 40.0 * k, "code": [k]} for k in range(16)]
+
+
+@pytest.mark.parametrize("flips,fix", [
+    ((0, None), False),              # 2 sensors disagree: either may be the misread one
+    ((0, 0, 1, None), False),        # 2-1-1: the pair is no majority (here it is the wrong one)
+    ((0, 1, None, None), False),     # 2-1-1 with the pair right: no majority either
+    ((0, 0, None, None), False),     # 2-2
+    ((0, None, None), True),         # 2-1: majority
+    ((0, None, None, None), True),   # 3-1: majority
+    ((None, None, None, None), True),
+])
+def test_a_lug_without_a_strict_majority_gives_no_fix(monkeypatch, flips, fix):
+    n = len(flips)
+
+    def forced(self):   # the same misread at every lug passage: sensor k reads bit flips[k] inverted
+        mask = np.zeros((n, 4))
+        for k, bit in enumerate(flips):
+            if bit is not None:
+                mask[k, bit] = 1.0
+        return mask
+    monkeypatch.setattr(lrl.LrlSimulator, "_flips", forced)
+    sc = scenario(60.0, 12.0, {"n_sensors": n}, start=990.0, groups=EVERY_CODE)
+    _, fixes, rejected, pipe, traj = run(sc)
+    passed = passed_groups(sc.track, traj)
+    st = pipe.decoder.stats
+    assert len(passed) >= 10 and not rejected
+    if fix:
+        assert [f.reference_id for f in fixes] == passed
+        err, sd = errors(fixes, traj)
+        assert np.all(np.abs(err) < 3.5 * sd)
+    else:
+        assert not fixes                                  # no fix from an arbitrary sensor ...
+        assert st["unresolved_lugs"] == st["lugs"] >= len(passed)   # ... and every lug counted
+    assert st["sensor_disagreements"] == (st["lugs"] if any(b is not None for b in flips) else 0)
+
+
+def test_one_valid_read_of_a_redundant_head_is_not_confirmed(monkeypatch):
+    # 3 of 4 sensors give no usable read: the one left is confirmed by nothing
+    original = lrl.LrlDecoder._sensor
+    calls = {"n": 0}
+
+    def sensor(self, t, lev, edges):
+        calls["n"] += 1
+        return original(self, t, lev, edges) if calls["n"] % 4 == 1 else None
+    monkeypatch.setattr(lrl.LrlDecoder, "_sensor", sensor)
+    sc = scenario(60.0, 5.0, {"n_sensors": 4}, start=990.0, groups=EVERY_CODE)
+    _, fixes, _, pipe, _ = run(sc)
+    st = pipe.decoder.stats
+    assert not fixes and st["lugs"] >= 4
+    assert st["unconfirmed_lugs"] == st["unresolved_lugs"] == st["lugs"]
+    assert st["sensor_invalid"] == 3 * st["lugs"]
+
+
+@pytest.mark.parametrize("n_sensors", [2, 3, 4, 5])
+def test_frequent_misreads_never_give_a_fix_at_another_group(n_sensors):
+    # 30 % of the sensor reads of a lug wrong, drawn over several seeds and both scan modes
+    for seed, mode in ((1, "single"), (2, "continuous"), (3, "single")):
+        sc = scenario(80.0, 50.0, {"n_sensors": n_sensors, "misread_probability": 0.3, "scan_mode": mode},
+                      seed=seed)
+        _, fixes, rejected, pipe, traj = run(sc)
+        st = pipe.decoder.stats
+        passed = passed_groups(sc.track, traj)
+        ids = [f.reference_id for f in fixes]
+        assert set(ids) <= set(passed) and len(ids) == len(set(ids))
+        err, sd = errors(fixes, traj)
+        assert np.all(np.abs(err) < 3.5 * sd)
+        assert st["sensor_disagreements"] > 10 and st["unresolved_lugs"] > 0
+        if n_sensors == 2:
+            assert st["unresolved_lugs"] == st["sensor_disagreements"]   # every disagreement withheld
+        assert fixes or n_sensors == 2

@@ -133,6 +133,14 @@ PARAMS = {
                                   "(~25 sigma of field_noise, ~1/4 of the 2.18 mA/m peak)"),
     "group_length": Param(12.0, "balises of one group (same 'group' key) read within this distance of "
                                 "each other give the direction [m] (ETCS balise group extent; assumption)"),
+    "max_acceleration": Param(2.0, "largest magnitude of the acceleration of the train [m/s^2] for the "
+                                   "plausibility of the distance between two balise reads (assumption: above the "
+                                   "emergency braking "
+                                   "of high-speed and maglev trains, ~1.2-1.5 m/s^2, and the profiles of the "
+                                   "scenarios, <= 1.1 m/s^2)"),
+    "speed_tolerance": Param(0.15, "relative error bound of the speed measured from the width of the field "
+                                   "peak for that plausibility (the width scales with the antenna height: "
+                                   "+-20 mm of vertical_distance = 10 %; sampling of the peak < 4 %)"),
 }
 
 
@@ -317,6 +325,7 @@ def _half_max_geometry(y: float) -> tuple[float, float]:
 # ----------------------------------------------------------------------------------
 
 NEAR_RANGE = 1.5   # [m] beyond this the field of a balise is < 1e-3 of its peak (ignored)
+PENDING_READS = 2  # withheld reads kept as references of the plausibility check
 
 
 class EurobaliseSimulator(Simulator):
@@ -408,6 +417,37 @@ class EurobaliseSimulator(Simulator):
 # Decoder
 # ----------------------------------------------------------------------------------
 
+def _reach(u1: float, u2: float, dt: float, acc: float) -> tuple[float, float] | None:
+    """(least, most) signed distance [m] covered in dt [s] from the signed speed u1 to u2
+    [m/s] with |acceleration| <= acc: brake then accelerate / accelerate then brake at the
+    bound (the speed may change sign on the way: a reversal). None if no such profile joins
+    u1 and u2."""
+    if abs(u2 - u1) > acc * dt * (1.0 + 1e-9) + 1e-9:
+        return None
+    t_up = min(max((u2 - u1 + acc * dt) / (2.0 * acc), 0.0), dt)     # the two ramps meet here
+    t_down = dt - t_up
+    v_top, v_low = u1 + acc * t_up, u1 - acc * t_down
+    return (0.5 * (u1 + v_low) * t_down + 0.5 * (v_low + u2) * t_up,
+            0.5 * (u1 + v_top) * t_up + 0.5 * (v_top + u2) * t_down)
+
+
+def _joinable(step: float, speeds1: tuple, speeds2: tuple, dt: float, acc: float, margin: float) -> bool:
+    """Whether signed speeds u1 in speeds1 = (lo, hi) and u2 in speeds2 can be joined in dt
+    with |acceleration| <= acc covering the signed distance step (+-margin). Both bounds
+    of _reach grow with u1 and u2: the extremes lie at the corners of the box of speeds,
+    moved along its edges into the band |u2 - u1| <= acc dt where needed."""
+    (lo1, hi1), (lo2, hi2) = speeds1, speeds2
+    band = acc * dt
+    if lo2 > hi1 + band or lo1 > hi2 + band:
+        return False
+
+    def corner(a, b):
+        return (a, min(b, a + band)) if b > a + band else (min(a, b + band), b)
+    least = _reach(*corner(lo1, lo2), dt, acc)[0]
+    most = _reach(*corner(hi1, hi2), dt, acc)[1]
+    return least - margin <= step <= most + margin
+
+
 class EurobaliseDecoder(Decoder):
     sensor = KIND
     channels = EurobaliseSimulator.channels
@@ -426,8 +466,12 @@ class EurobaliseDecoder(Decoder):
         self._buf: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self._buf_t0 = 0.0
         self._last_read: tuple[float, dict] | None = None
+        # plausibility of a read: (time, balise, speed, direction of travel) of the last
+        # published read and of the last withheld one
+        self._anchor: tuple[float, dict, float, int] | None = None
+        self._pending: list[tuple[float, dict, float, int]] = []
         self.stats = {"passages": 0, "reads": 0, "failed_reads": 0, "orphan_telegrams": 0,
-                      "unknown_id": 0, "dropped_passages": 0}
+                      "unknown_id": 0, "dropped_passages": 0, "implausible": 0}
 
     def decode(self, block: RawBlock):
         p = self.params
@@ -482,6 +526,64 @@ class EurobaliseDecoder(Decoder):
             raise errors[0]
         return out
 
+    def _plausible(self, read) -> bool:
+        """Whether the balise of a read (time, balise, speed) can be where the train is, given
+        the reads before it alone (no odometry).
+
+        Between two reads the train covers s2 - s1 (the balises' chainages) in t2 - t1,
+        passing them with the speeds v1, v2 measured from the widths of their field peaks
+        (within ``speed_tolerance``), its |acceleration| at most ``max_acceleration``: with
+        the signed speeds +-v1, +-v2 (the field gives no direction) the signed distance lies
+        between the areas under the lowest and the highest speed profiles that join them
+        (a reversal on the way included, _reach). The directions of travel at the read for
+        which some profile fits are kept: where only one fits it is known and checked at the
+        next read (a neighbour behind the train at the right distance is no plausible next
+        balise unless the train can have reversed in between).
+        A telegram decoded wrong but naming a balise of the track (a corrupted id that passes
+        the checks, cross-talk from a neighbouring track) would give a fix there with a
+        decimetre sigma: unless it names a balise at a plausible place, it is withheld
+        (``stats["implausible"]``). The references are the last published read and the
+        reads withheld since (the last PENDING_READS): a read that agrees with any of them is
+        taken (two reads that agree outvote a reference that was wrong itself), its direction
+        known only if every reference it agrees with gives the same one; it becomes the
+        reference. The first read has nothing to be checked against.
+        """
+        refs = ([self._anchor] if self._anchor is not None else []) + self._pending
+        if not refs:
+            self._anchor = (*read, 0)
+            return True
+        directions = {d for d in (self._consistent(ref, read) for ref in refs) if d is not None}
+        if not directions:
+            self._pending = self._pending[-(PENDING_READS - 1):] + [(*read, 0)]
+            return False
+        self._anchor, self._pending = (*read, directions.pop() if len(directions) == 1 else 0), []
+        return True
+
+    def _consistent(self, ref, read) -> int | None:
+        """None if a read (time, balise, speed) is not plausible after the read ``ref`` (time,
+        balise, speed, direction of travel there: +-1, 0 unknown), else the direction of travel
+        at the read (0 if both remain possible): see _plausible."""
+        p = self.params
+        (t1, b1, v1, dir1), (t2, b2, v2) = ref, read
+        dt = abs(t2 - t1)
+        step = float(b2["position"]) - float(b1["position"])
+        acc, tol = p["max_acceleration"], p["speed_tolerance"]
+        # the balises' real centres differ from the track file (3.29 sigma, both)
+        margin = 3.29 * math.sqrt(2.0) * p["location_sigma"] + 0.5
+        if t2 < t1:
+            step = -step
+        speeds1 = (max(0.0, v1 * (1.0 - tol) - 0.5), v1 * (1.0 + tol) + 0.5)
+        speeds2 = (max(0.0, v2 * (1.0 - tol) - 0.5), v2 * (1.0 + tol) + 0.5)
+
+        def signed(speeds, d):
+            return speeds if d > 0 else (-speeds[1], -speeds[0])
+        directions = [d2 for d2 in (1, -1)
+                      if any(_joinable(step, signed(speeds1, d1), signed(speeds2, d2), dt, acc, margin)
+                             for d1 in ((dir1,) if dir1 else (1, -1)))]
+        if not directions:
+            return None
+        return directions[0] if len(directions) == 1 else 0
+
     def _passage(self) -> PositionFix | None:
         p = self.params
         t = np.concatenate([c[0] for c in self._buf])
@@ -518,6 +620,10 @@ class EurobaliseDecoder(Decoder):
             raise InputRejected("unknown_id", f"telegram id {int(nids[0])} is no balise of track "
                                               f"{self.track.track_id}")
         self.stats["reads"] += 1
+        read = (t_c, item, speed)
+        if not self._plausible(read):
+            self.stats["implausible"] += 1
+            return None
         # peak-time uncertainty: noise over the field slope at half maximum, per crossing,
         # halved (in variance) by the midpoint; the interpolation error of a symmetric peak
         # cancels in the midpoint

@@ -55,9 +55,12 @@ channels see the lug gives the direction; a line t(ref) through the points (a
 quadratic when the train accelerates over the lug) gives the time t(0) at which the
 sensor passed the sync mark, the speed 1/t'(0) and the read instants: t(0) for
 P1..P4 (the D0 pulse centre), t(c_j) for D1 cell j (N4, N3, N2, N1 over the tab).
-Vote over the valid sensors: a strict majority, or at least two sensors agreeing
-while the others all read different values; else the lug is unresolved
-(``stats["unresolved_lugs"]``); every disagreement is counted
+Vote over the valid sensors: the value of a strict majority of them, read by at least
+two (on a head of ``n_sensors`` >= 2: one valid read is confirmed by nothing,
+``stats["unconfirmed_lugs"]``); else the lug is unresolved (``stats["unresolved_lugs"]``)
+and its group gives no fix -- two sensors that disagree, 2-2 or 2-1-1 on four sensors
+cannot tell which one misread, and taking the larger group of a split would turn one more
+misread into a fix at another group. Every disagreement is counted
 (``stats["sensor_disagreements"]``). Lugs less than ``group_gap`` apart form a
 group; travelling backwards the lug order is reversed to the track's order; the code
 is looked up in the track's ``lrl_group`` list -> PositionFix of the train front =
@@ -312,6 +315,13 @@ def _median(values: list) -> float:
     return v[h] if len(v) % 2 else (v[h - 1] + v[h]) / 2
 
 
+def vote(values: list) -> tuple:
+    """(value read by most sensors, how many read it) of a non-empty list of lug values;
+    a tie goes to the larger value (it is no majority anyway)."""
+    count, best = max((values.count(x), x) for x in set(values))
+    return best, count
+
+
 def _ramp_crossing(t: np.ndarray, lev: np.ndarray, i0: int, i1: int, thr: float) -> float:
     """Time at which the level crosses thr on the ramp of samples i0..i1 (inclusive): a
     straight line fitted to the ramp samples (2 samples at speed: linear interpolation)."""
@@ -378,6 +388,7 @@ class LrlDecoder(Decoder):
         self._rows_cache = np.zeros((0, 1), dtype=np.intp)
         self._group: list[dict] = []
         self.stats = {"lugs": 0, "sensor_invalid": 0, "sensor_disagreements": 0, "unresolved_lugs": 0,
+                      "unconfirmed_lugs": 0,
                       "groups": 0, "incomplete_groups": 0, "unknown_id": 0, "dropped_passages": 0}
 
     # -- block handling -------------------------------------------------------------
@@ -590,18 +601,14 @@ class LrlDecoder(Decoder):
             self.stats["unresolved_lugs"] += 1
             return
         values = [r[0] for r in reads]
-        counts = sorted(((values.count(x), x) for x in set(values)), reverse=True)
-        count, best = counts[0]
+        best, count = vote(values)
         if count < len(values):
             self.stats["sensor_disagreements"] += 1
-        # vote: a strict majority, or at least two sensors agreeing with every other
-        # sensor reading something different (two independent misreads of the same bit
-        # are improbable); a single sensor is taken as it reads
-        if len(values) == 1 or 2 * count > len(values) or (count >= 2 and counts[1][0] < count):
-            value = best
-        else:
+        value = best if 2 * count > len(values) and (count >= 2 or self.n_sensors == 1) else None
+        if value is None:
             self.stats["unresolved_lugs"] += 1
-            value = None
+            if count == len(values):
+                self.stats["unconfirmed_lugs"] += 1   # one valid read of a redundant head
         agree = [r for r in reads if r[0] == best]
         t_ref = float(np.mean([r[1] for r in agree]))
         v = float(np.mean([r[2] for r in agree]))

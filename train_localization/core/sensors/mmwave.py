@@ -83,24 +83,39 @@ plus the calibration term.
     0.3 s old, which catches the jump at an NLOS onset, and its variance gets
     ``unchecked_sigma``^2 added for the small biases that pass the gate. A longer
     NLOS episode breaks the chain: no fix until two stations are in view again.
-  * NLOS rejection: chi-square test of the weighted residuals against the
-    ``outlier_probability`` quantile (dof = stations - 1); if it fails, the station
-    with the largest normalised residual e_i / sqrt(sigma_i^2 - h_i^2 P) is dropped
-    and the fit repeated, as long as at least ``min_stations`` remain. The largest
-    *positive* residual is taken: a reflected first path only lengthens a range. A failing
-    test with no station left to drop gives no fix (2 stations cannot tell which one
-    is wrong); a station is only dropped if at least two remain.
-  * Output: one PositionFix per epoch (``fix_per_block`` false) or one per block (the
-    epoch solutions fitted with a straight line in time, evaluated at the block's
-    mean epoch time; a station whose mean residual over the block exceeds the gate
-    -- a small NLOS bias that the single epochs cannot see -- is excluded and the
-    block solved again). position = x + orientation * ``antenna_offset``; variance =
-    LS covariance P = 1 / sum(h_i^2 / sigma_i^2) (per block: noise averaged over the
-    epochs, calibration term not). ``reference_id`` = comma-separated ids of the
-    stations used (ascending chainage) followed by the rejected ones prefixed with
-    "!"; ``residuals`` = measured minus fitted range [m], one per entry of
-    ``reference_id`` in the same order (per block: mean over the epochs). direction
-    = 0 (ranging gives no direction of travel).
+  * Fault detection and isolation (solution separation, as GNSS RAIM / ARAIM): the
+    chi-square test of the weighted residuals (``outlier_probability`` quantile, dof =
+    stations - 1) detects a fault (NLOS / multipath lengthening a range, a calibration
+    fault). If it fails, every subset of the stations is solved and tested; the largest
+    consistent subsets (at least max(2, ``min_stations``) stations) are the candidates.
+    One candidate isolates the fault: the other stations are excluded. Several candidates
+    that agree (their +-k sigma intervals overlap) give the one whose sigma, widened to
+    cover all of them, is smallest. Several that disagree: the fault is not identifiable
+    (with 2-3 stations the largest residual is often a good range) and the epoch gives no
+    fix (``stats["unidentifiable"]``), as does a failing test with no station to spare (2
+    stations); no consistent subset with a station to spare: no fix (more than one fault,
+    ``stats["inconsistent"]``).
+  * Protection: a bias below the detection threshold still moves the solution, most where
+    the redundancy is low (a range with a large leverage hides its bias in the residuals).
+    The published sigma is PL / k (k = normal quantile of ``protection_probability``,
+    3.29) with the solution-separation protection level PL = max(k sd, max_j d_j + k sd_j)
+    of the used stations: d_j is the separation of the solution without station j and sd_j
+    that solution's sigma; under a fault of j of any size that passed the test the error is
+    -d_j plus the error of the solution without j, so every single fault is covered with the
+    probability of the interval (not discounted by a fault prior: a bias may persist over
+    many epochs). Where a fault could move the solution without bound (the other ranges do
+    not fix x) there is no fix (``stats["unbounded"]``).
+  * Output: one PositionFix per epoch (``fix_per_block`` false) or one per block. Per
+    block the epochs' all-in-view solutions give the motion (a straight line in time);
+    each station's mean residual about it over the block (noise averaged, calibration
+    bias not) forms one virtual epoch at the block's mean time, which goes through the same
+    detection, isolation and protection as an epoch -- so a small bias persisting over the
+    block, which the single epochs cannot see, is found there. position = x + orientation
+    * ``antenna_offset``; stddev = the protected sigma above. ``reference_id`` =
+    comma-separated ids of the stations used (ascending chainage) followed by the excluded
+    ones prefixed with "!"; ``residuals`` = measured minus fitted range [m], one per entry
+    of ``reference_id`` in the same order (per block: mean over the epochs). direction = 0
+    (ranging gives no direction of travel).
 """
 from __future__ import annotations
 
@@ -109,7 +124,7 @@ import math
 import operator
 
 import numpy as np
-from scipy.special import chdtri
+from scipy.special import chdtri, ndtri
 
 from ..measurements import PositionFix
 from ..signals import InputRejected, RawBlock
@@ -123,6 +138,7 @@ PRED_SIGMA = 0.25        # 1-sigma of the previous solution used for a predictio
 PRED_SPEED_SIGMA = 0.5   # 1-sigma speed error of the prediction [m/s] (slope over the history)
 PRED_ACCEL = 1.5         # largest acceleration of the train [m/s^2]
 SINGLE_HOLD = 0.3        # a single-station fix needs a previous solution younger than this [s]
+SUBSET_ITERATIONS = 3    # Gauss-Newton steps of the subset solutions from the all-in-view one
 _BRANCH = np.array([-1.0, 1.0])[:, None, None]  # the two candidates s -+ along of a range
 # ndarray.sum/any/max/min go through Python wrappers (numpy 2); the decoder, called for every
 # block with small arrays, calls the ufunc reductions directly (axis 0 by default)
@@ -161,6 +177,13 @@ PARAMS = {
     "unchecked_sigma": Param(0.5, "1-sigma added to single-station fixes [m]: without redundancy an NLOS bias "
                                   "(exponential, mean ~1 m) cannot be detected"),
     "outlier_probability": Param(0.999, "chi-square gate probability of the NLOS test"),
+    "max_fault_bias": Param(10.0, "largest range error of one fault that the protection covers where a "
+                                  "single range is left to tell the side of its station (two stations, one "
+                                  "being passed) [m]: NLOS excess path (exponential, mean nlos_bias_mean 1 m: "
+                                  "beyond 10 m with probability 5e-5), calibration faults"),
+    "protection_probability": Param(0.999, "probability of the interval +-k sigma (k its normal quantile, 3.29) "
+                                           "that the published sigma is widened to cover under an undetected "
+                                           "single range fault (the fused 99.9 % interval)"),
     "fix_per_block": Param(False, "false: one PositionFix per epoch (5 ms, seed 002); true: one per block"),
     "hold_time": Param(1.0, "a previous solution older than this is not used to resolve ambiguity [s]"),
     "faults": Param("", "injected faults 'ID@T0-T1:BIAS' (range bias [m]) or 'ID@T0-T1:drop', "
@@ -304,6 +327,32 @@ class _Pattern:
     __slots__ = ("idx", "s", "d2", "s4", "d4", "key", "lo", "hi", "stations", "loc")
 
 
+class _Subsets:
+    """The non-empty subsets of m rows (stations or slots): subset i holds the rows of the
+    bits of i + 1, so the last one holds them all.
+
+    mask (S, m) bool and maskf (S, m) float: rows of each subset; bits (S,): i + 1; size
+    (S,); loo (S, m): index of the subset less row j, valid where loo_ok (row j in the
+    subset, which has another row; 0 elsewhere); loo_row (S, m): the row left where
+    the subset less row j has a single row, else -1; gate (S,): chi-square gate of the
+    subset's consistency test (dof = size - 1; inf for one row).
+    """
+
+    __slots__ = ("mask", "maskf", "bits", "size", "loo", "loo_ok", "loo_row", "gate")
+
+    def __init__(self, m: int, gate_dof):
+        bits = np.arange(1, 2 ** m)
+        row_bits = 1 << np.arange(m)
+        mask = (bits[:, None] & row_bits) > 0
+        size = mask.sum(axis=1)
+        loo_ok = mask & (size[:, None] > 1)
+        self.mask, self.maskf, self.bits, self.size = mask, mask.astype(float), bits, size
+        self.loo, self.loo_ok = np.where(loo_ok, (bits[:, None] ^ row_bits) - 1, 0), loo_ok
+        other = np.argmax(mask[:, None, :] & ~np.eye(m, dtype=bool), axis=2)   # a row other than j
+        self.loo_row = np.where(loo_ok & (size[:, None] == 2), other, -1)
+        self.gate = np.array([gate_dof(int(k) - 1) for k in size])
+
+
 def _picker(order: list[int]):
     """Function list -> tuple of its items at the positions ``order`` (not empty)."""
     if len(order) == 1:
@@ -327,11 +376,7 @@ class MmWaveDecoder(Decoder):
         self._lut = np.full(int(self.codes.max()) + 1 if len(self.codes) else 1, -1, dtype=np.int64)
         for c, k in self._code_index.items():
             self._lut[c] = k
-        self._gate = np.array([np.inf] + [float(chdtri(df, 1.0 - params["outlier_probability"]))
-                                          for df in range(1, N_SLOTS)])
         self._max_delay = 2.0 * max(params["max_range"], 1.0) / C_AIR + 1e-6
-        # gate by the number of stations used (0..N_SLOTS): dof = n - 1, no test below 2 stations
-        self._gate_n = np.concatenate([[np.inf], self._gate])
         self._neg_slots = -np.arange(1, N_SLOTS + 1)[:, None]
         self._lut0 = self._lut.copy()
         self._lut0[0] = 0
@@ -351,7 +396,12 @@ class MmWaveDecoder(Decoder):
         self._sig2_exp = -math.log(10.0) / 10.0
         # the 1 mm floor of sigma^2 can only act if the constant part is below it
         self._sig2_floor = not self._sig2_const >= 1e-6
-        self._z_gate = math.sqrt(float(chdtri(1, 1.0 - params["outlier_probability"])))
+        self._k_cover = float(-ndtri(0.5 * (1.0 - params["protection_probability"])))
+        self._subset_tabs: dict = {}
+        self._block_loo: dict = {}   # per number of stations: all of them, then without each
+        self._slot_bits = 1 << np.arange(N_SLOTS)
+        self._single_index = self._slot_bits - 1   # subset index of each slot alone
+        self._gate_size = np.array([self._gate_dof(k - 1) for k in range(N_SLOTS + 1)])   # by stations
         self._prev_t: float | None = None
         self._prev_x: float | None = None
         self._prev_v = 0.0
@@ -359,7 +409,8 @@ class MmWaveDecoder(Decoder):
         self._hist: list = []     # solutions of the last hold_time: per block (t, x, var, first t, last t)
         self._hist_n = 0
         self._hist_sorted = True  # history times ascending (blocks in time order)
-        self.stats.update(epochs=0, fixes=0, rejected_stations=0, no_fix=0, ambiguous=0, inconsistent_single=0)
+        self.stats.update(epochs=0, fixes=0, rejected_stations=0, no_fix=0, ambiguous=0, inconsistent_single=0,
+                          unidentifiable=0, inconsistent=0, unbounded=0)
 
     # -- input checks -------------------------------------------------------------------
     def _check(self, data, codes_f, delay, snr) -> _Pattern:
@@ -468,81 +519,41 @@ class MmWaveDecoder(Decoder):
         sig2 = self._sig2_const + self._sig2_snr * np.exp(snr * self._sig2_exp)
         if self._sig2_floor:
             sig2 = np.maximum(sig2, 1e-6)
-        block_mode = p["fix_per_block"]
-        fit_valid = valid
-        for _ in range(N_SLOTS if block_mode else 1):
-            x, ok, used, resid, var, cal_var = self._solve(times, rng, pat, sig2, fit_valid, block_mode)
-            if not block_mode:
-                break
-            # a bias persisting over the block stands out in the station's mean residual
-            worst = self._block_outlier(pat, used & ok, resid, sig2)
-            if worst is None:
-                break
-            fit_valid = fit_valid & (pat.idx != worst)
+        self.stats["epochs"] += n
+        if p["fix_per_block"]:
+            return self._decode_block(times, rng, pat, sig2, valid)
+        x, ok, used, resid, var = self._solve(times, rng, pat, sig2, valid, True)
         n_ok = int(np.count_nonzero(ok))
         if n_ok:
             if n_ok == n:
                 self._remember(times, x, var)
             else:
                 self._remember(times[ok], x[ok], var[ok])
-        self.stats["epochs"] += n
         self.stats["no_fix"] += n - n_ok
-        if used is not valid:  # else no station was dropped or excluded
+        if used is not valid:  # else no station was excluded
             self.stats["rejected_stations"] += int(np.count_nonzero(valid & ~used & ok))
         if not n_ok:
             return []
         front = x + p["orientation"] * p["antenna_offset"]
-        if block_mode:
-            fixes = [self._block_fix(times, front, var, cal_var, ok, used, valid, resid, pat, n_ok == n)]
-        else:
-            fixes = []
-            # per slot one small integer, 4 x station index + 2 x used + valid: per epoch the
-            # cache key of its reference_id and residual order
-            code = pat.key + (valid * 3 if used is valid else used * 2 + valid)
-            epochs = zip(times.tolist(), front.tolist(), np.sqrt(var).tolist(), resid.T.tolist(),
-                         map(tuple, code.T.tolist()))
-            if n_ok < n:
-                epochs = itertools.compress(epochs, ok.tolist())
-            sensor, unit, track_id = self.sensor, self.unit_id, self.track.track_id
-            cache = self._ref_cache
-            if len(cache) > 4096:
-                cache.clear()
-            for t_i, front_i, sigma_i, resid_i, key in epochs:
-                hit = cache.get(key)
-                if hit is None:
-                    hit = cache[key] = self._ref_order(key)
-                fixes.append(PositionFix(t_i, sensor, unit, track_id, hit[0], front_i, sigma_i, 0, hit[1](resid_i)))
+        fixes = []
+        # per slot one small integer, 4 x station index + 2 x used + valid: per epoch the
+        # cache key of its reference_id and residual order
+        code = pat.key + (valid * 3 if used is valid else used * 2 + valid)
+        epochs = zip(times.tolist(), front.tolist(), np.sqrt(var).tolist(), resid.T.tolist(),
+                     map(tuple, code.T.tolist()))
+        if n_ok < n:
+            epochs = itertools.compress(epochs, ok.tolist())
+        sensor, unit, track_id = self.sensor, self.unit_id, self.track.track_id
+        cache = self._ref_cache
+        if len(cache) > 4096:
+            cache.clear()
+        for t_i, front_i, sigma_i, resid_i, key in epochs:
+            hit = cache.get(key)
+            if hit is None:
+                hit = cache[key] = self._ref_order(key)
+            fixes.append(PositionFix(t_i, sensor, unit, track_id, hit[0], front_i, sigma_i, 0, hit[1](resid_i)))
         self.stats["fixes"] += len(fixes)
         return fixes
-
-    def _block_outlier(self, pat, used, resid, sig2):
-        """Station index whose mean residual over the block fails the gate (largest positive), or None."""
-        stations, loc = self._compact(pat)
-        used = used.T   # epoch-major: the per-station sums add the epochs in time order
-        ks = loc[used]
-        if not ks.size:
-            return None
-        n_k = np.bincount(ks).tolist()
-        if max(n_k) < 3:
-            return None
-        # per station in view: mean residual over its (>= 3) epochs against its standard error
-        # (noise averaged, calibration bias not); the first largest wins, a NaN fails
-        cal2 = self.params["cal_sigma"] ** 2
-        sum_r = np.bincount(ks, resid.T[used]).tolist()
-        sum_s = np.bincount(ks, sig2.T[used]).tolist()
-        best, z_best = None, -math.inf
-        for j, c in enumerate(n_k):
-            if c >= 3:
-                z = (sum_r[j] / c) / math.sqrt(sum_s[j] / c / c + cal2)
-                if z != z:
-                    return None
-                if z > z_best:
-                    best, z_best = j, z
-        if not z_best > self._z_gate:
-            return None
-        if len(n_k) - n_k.count(0) <= max(2, self.params["min_stations"]):
-            return None  # no station to spare: the epoch tests decide
-        return stations[best]
 
     def _ref_order(self, code):
         """reference_id of one epoch and the function picking its residuals (used stations,
@@ -553,53 +564,308 @@ class MmWaveDecoder(Decoder):
         ref = ",".join([ids[code[j] >> 2] for j in order] + ["!" + ids[code[j] >> 2] for j in rej])
         return ref, _picker(order + rej)
 
-    def _block_fix(self, times, front, var, cal_var, ok, used, valid, resid, pat, all_ok):
-        if all_ok:
-            t, y, v, cv, sel = times, front, var, cal_var, valid
-        else:
-            t, y, v, cv, sel = times[ok], front[ok], var[ok], cal_var[ok], valid & ok
-        noise = np.maximum(v - cv, 1e-12)
-        w = 1.0 / noise
-        sw = float(_sum(w))
-        tm = float(np.dot(w, t) / sw)
-        # weighted straight line in (t - tm): the design columns are orthogonal under the
-        # weights (sum w (t - tm) = 0), so the value at tm is the weighted mean and its
-        # variance 1 / sum(w), with or without the slope
-        pos = float(np.dot(w, y) / sw)
-        noise_var = 1.0 / sw
-        # the calibration biases are common to the epochs: they do not average out
-        sigma = math.sqrt(noise_var + float(_sum(cv) / len(cv)))
+    # -- one fix per block ----------------------------------------------------------------
+    def _decode_block(self, times, r, pat, sig2, valid):
+        """One fix per block: the epochs' all-in-view solutions give the motion (a straight
+        line in time); the ranges' mean residuals about it, per station, form one virtual
+        epoch (noise averaged over the block, calibration bias not) that goes through the
+        same fault detection and isolation as a single epoch (_isolate)."""
+        p = self.params
+        n = len(times)
+        x0, ok0, _, _, _ = self._solve(times, r, pat, sig2, valid, False)
+        n_ok = int(np.count_nonzero(ok0))
+        if not n_ok:
+            self.stats["no_fix"] += n
+            return []
+        t, x = times[ok0], x0[ok0]
+        tm = float(t.mean())
+        tt = t - tm
+        den = float(np.dot(tt, tt))
+        xm = float(x.mean())
+        v = float(np.dot(tt, x - xm)) / den if den > 0.0 else 0.0
         stations, loc = self._compact(pat)
-        sel = sel.T   # epoch-major: the per-station sums add the epochs in time order
+        sel = (valid & ok0).T   # epoch-major, like loc
         ks = loc[sel]
-        cnt = np.bincount(ks).tolist()
-        sum_r = np.bincount(ks, resid.T[sel]).tolist()
-        n_used = np.bincount(ks, used.T[sel]).tolist()
-        rank = [j for j, c in enumerate(cnt) if c]   # stations in view, by index
+        m_all = len(stations)
+        cnt = np.bincount(ks, minlength=m_all)
+        rows = np.flatnonzero(cnt)
+        m = len(rows)
+        row_of = np.zeros(m_all, dtype=np.int64)
+        row_of[rows] = np.arange(m)
+        rk = row_of[ks]
+        cnt = cnt[rows]
+        # per station (row) the mean over the block of a per-epoch, per-slot value (epoch-major)
+        avg = np.zeros((n * N_SLOTS, m))
+        avg[sel.ravel().nonzero()[0], rk] = 1.0 / cnt[rk]
+        cal2 = p["cal_sigma"] ** 2
+        noise = np.bincount(rk, (sig2 - cal2).T[sel], minlength=m) / cnt
+        w_bar = 1.0 / (np.maximum(noise, 1e-12) / cnt + cal2)
+        line = xm + v * (times - tm)
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            # the all-in-view block solution and those without each station
+            sub = self._block_loo.get(m)
+            if sub is None:
+                sub = self._block_loo[m] = np.vstack([np.ones(m), 1.0 - np.eye(m)])
+            delta, var, chi2, e_bar = self._block_solutions(sub, line, r, pat, w_bar, avg)
+            if chi2[0] <= self._subsets(m).gate[-1] and var[0] < np.inf:
+                has = np.full((m, 1), m > 1)
+                sep = np.abs(delta[1:] - delta[0])
+                if m == 2:   # without one station the other is left alone: its mirror image
+                    mirror, reach = self._block_mirrors(delta[[2, 1]], line, r, pat, avg, rows, stations, xm)
+                    far = reach[[0, 1], [1, 0]]
+                    sep = np.where(far, np.maximum(sep, np.abs(mirror[[1, 0]] - delta[0])), sep)
+                sigma = float(self._protection(sep[:, None], np.sqrt(var[1:])[:, None], has, np.sqrt(var[:1]))[0])
+                ok, c, used_rows = sigma < np.inf, 0, np.ones(m, dtype=bool)
+                if not ok:
+                    self.stats["unbounded"] += 1
+            else:
+                tab = self._subsets(m)
+                delta, var, chi2, e_bar = self._block_solutions(tab.maskf, line, r, pat, w_bar, avg)
+                full = np.array([len(tab.size) - 1])
+                single = (1 << np.arange(m)) - 1
+                mirror, reach = self._block_mirrors(delta[single], line, r, pat, avg, rows, stations, xm)
+                chosen, good, sd, unident, inconsistent = self._isolate(tab, delta[:, None], var[:, None],
+                                                                        chi2[:, None], full,
+                                                                        (mirror[:, None], reach[:, :, None]))
+                ok, c, sigma = bool(good[0] and sd[0] < np.inf), int(chosen[0]), float(sd[0])
+                used_rows = tab.mask[c]
+                self.stats["unidentifiable"] += int(unident[0])
+                self.stats["inconsistent"] += int(inconsistent[0])
+                self.stats["unbounded"] += int(good[0] and not ok)
+        if not ok:
+            self.stats["no_fix"] += n
+            return []
+        if int(used_rows.sum()) == 1:
+            sigma = math.hypot(sigma, p["unchecked_sigma"])   # no redundancy in the block
+        x_fix = xm + float(delta[c])
+        self._remember(t, x_fix + v * tt, np.full(n_ok, sigma ** 2))
+        self.stats["no_fix"] += n - n_ok
+        self.stats["rejected_stations"] += int(cnt[~used_rows].sum())
+        self.stats["fixes"] += 1
+        rank = list(range(m))   # rows: stations in view by index
         if not self._pos_increasing:
             # by chainage, then in order of first appearance (epoch, slot)
             first: dict = {}
-            for j, k in enumerate(ks.tolist()):
+            for j, k in enumerate(rk.tolist()):
                 first.setdefault(k, j)
-            rank.sort(key=lambda j: (float(self.pos[stations[j]]), first[j]))
-        u_sel = [j for j in rank if n_used[j] > 0]
-        r_sel = [j for j in rank if not n_used[j] > 0]
+            rank.sort(key=lambda k: (float(self.pos[stations[rows[k]]]), first[k]))
+        u_sel = [k for k in rank if used_rows[k]]
+        r_sel = [k for k in rank if not used_rows[k]]
         ids = self.ids
-        ref = ",".join([ids[stations[j]] for j in u_sel] + ["!" + ids[stations[j]] for j in r_sel])
-        residuals = tuple([sum_r[j] / cnt[j] for j in u_sel + r_sel])
-        return PositionFix(tm, self.sensor, self.unit_id, self.track.track_id, ref, pos, sigma, 0, residuals)
+        ref = ",".join([ids[stations[rows[k]]] for k in u_sel] + ["!" + ids[stations[rows[k]]] for k in r_sel])
+        resid = e_bar[c].tolist()
+        residuals = tuple(resid[k] for k in u_sel + r_sel)
+        front = x_fix + p["orientation"] * p["antenna_offset"]
+        return [PositionFix(tm, self.sensor, self.unit_id, self.track.track_id, ref, front, sigma, 0, residuals)]
 
-    def _solve(self, times, r, pat, sig2, valid, need_cal):
-        """Vectorised robust 1-D LS over the epochs of a block (arrays (N_SLOTS, n)).
+    def _block_mirrors(self, delta_single, line, r, pat, avg, rows, stations, xm):
+        """(mirror (m,), reach (m, m)) of the block's single-station solutions (offsets
+        delta_single (m,) from ``line``) as _mirrors: the mirror image of the motion about
+        station k, as an offset at the block's mean time, and whether the mean residual of
+        station j there is within ``max_fault_bias``."""
+        s_k = self.pos[np.asarray(stations)[rows]]
+        m = len(rows)
+        x_mirror = 2.0 * s_k[:, None] - (line + delta_single[:, None])        # (m_k, n)
+        dx = x_mirror[:, None, :] - pat.s                                     # (m_k, N_SLOTS, n)
+        e = (r - np.sqrt(dx * dx + pat.d2)).transpose(0, 2, 1).reshape(m, -1) @ avg    # (m_k, m_j)
+        return 2.0 * (s_k - xm) - delta_single, np.abs(e.T) <= self.params["max_fault_bias"]
+
+    def _block_solutions(self, maskf, line, r, pat, w_bar, avg):
+        """Block solutions of subsets of the block's stations (maskf (S, m), 1 for a station in
+        the subset): the offset delta (S,) from the motion ``line`` (n,) that fits the
+        stations' mean residuals over the block (Gauss-Newton on the exact per-epoch ranges,
+        averaged: the range of a station being passed is far from linear), its LS variance
+        and chi-square (S,) and the mean residuals (S, m) there. w_bar: weights of the mean
+        residuals; avg: (n N_SLOTS, m) averaging matrix of epoch-major per-slot values."""
+        n_sub = len(maskf)
+
+        def mean_residuals(delta):
+            dx = (line + delta[:, None])[:, None, :] - pat.s       # (S, N_SLOTS, n)
+            pred = np.sqrt(dx * dx + pat.d2)
+            return ((dx / np.maximum(pred, 1e-9)).transpose(0, 2, 1).reshape(n_sub, -1) @ avg,
+                    (r - pred).transpose(0, 2, 1).reshape(n_sub, -1) @ avg)
+        return self._subsets_gauss_newton(np.zeros(n_sub), maskf * w_bar, mean_residuals)
+
+    @staticmethod
+    def _subsets_gauss_newton(x, wm, model):
+        """Gauss-Newton of many subsets at once: x (S, ...) start, wm (S, rows, ...) weights
+        (0 for a row not in the subset), model(x) -> partials and residuals (S, rows, ...)
+        at x. SUBSET_ITERATIONS steps (each within 50 m) from the start; returns x, the LS
+        variance, the chi-square (S, ...) and the residuals at x."""
+        for it in range(SUBSET_ITERATIONS + 1):
+            h, e = model(x)
+            wh = wm * h
+            info = np.add.reduce(wh * h, axis=1)
+            if it == SUBSET_ITERATIONS:
+                break
+            step = np.add.reduce(wh * e, axis=1) / np.where(info > 1e-9, info, np.inf)
+            x = x + np.clip(step, -50.0, 50.0)
+        chi2 = np.add.reduce(wm * e * e, axis=1)
+        var = np.where(info > 1e-6, 1.0 / np.maximum(info, 1e-300), np.inf)
+        return x, var, chi2, e
+
+    # -- fault detection and isolation ----------------------------------------------------
+    def _subsets(self, m: int) -> "_Subsets":
+        """Table of the non-empty subsets of m rows (cached per m)."""
+        tab = self._subset_tabs.get(m)
+        if tab is None:
+            tab = self._subset_tabs[m] = _Subsets(m, self._gate_dof)
+        return tab
+
+    def _gate_dof(self, dof: int) -> float:
+        """Chi-square gate of the consistency test with ``dof`` degrees of freedom (inf for 0)."""
+        if dof <= 0:
+            return math.inf
+        return float(chdtri(dof, 1.0 - self.params["outlier_probability"]))
+
+    def _isolate(self, tab, xs, var, chi2, full, mirrors):
+        """Fault detection and isolation by solution separation.
+
+        xs, var, chi2: (n_subsets, n) solution, its LS variance and its chi-square per subset of
+        the rows of ``tab`` and per epoch; full: (n,) index of the subset of the rows in view
+        (-1: none); mirrors: see _subset_protection. Returns the chosen subset (n,), ok (n,),
+        the published 1-sigma (n,; see _protection; infinite where a fault would be unbounded:
+        to be withheld) and two masks (n,): unidentifiable (a fault that cannot be isolated,
+        also a failing test without a station to spare) and inconsistent (no subset with a
+        station to spare passes: more than one fault).
+
+        * Detection: the rows in view are used if their chi-square test passes.
+        * Isolation: else the largest subsets (at least max(2, min_stations) rows) that pass
+          are the candidates; the largest positive residual is not necessarily the faulty
+          row when the redundancy is low. One candidate: its complement is excluded.
+          Several: if every two of them agree (their +-k sigma intervals overlap) the fix is
+          the candidate whose sigma, widened to cover every candidate's interval, is
+          smallest; if two of them disagree the fault cannot be identified: no fix (counted
+          in ``stats["unidentifiable"]``). Publishing one wide fix covering the disagreeing
+          candidates is not done: the truth is near one of them, not between them, and a
+          sigma spanning both would dress a bimodal error as a Gaussian one. No candidate at
+          all: no fix (``stats["inconsistent"]``).
+        """
+        n = xs.shape[1]
+        cols = self._columns(n)
+        kz = self._k_cover
+        size = tab.size[:, None]
+        fbits = (full + 1)[None, :]
+        avail = (tab.bits[:, None] & fbits) == tab.bits[:, None]
+        cons = avail & (chi2 <= tab.gate[:, None]) & (var < np.inf)
+        n_full = tab.size[full] * (full >= 0)
+        min_keep = max(2, self.params["min_stations"])
+        eligible = cons & ((size == n_full) | (size >= min_keep))
+        level = np.maximum.reduce(np.where(eligible, size, 0), axis=0)
+        chosen = np.where(full >= 0, full, 0)
+        ok = level > 0
+        isolate = ok & (level < n_full)
+        sigma = np.full(n, np.inf)
+        keep = ok & ~isolate
+        if _any(keep):
+            ki = keep.nonzero()[0]
+            sigma[ki] = self._subset_protection(tab, xs, var, chosen[ki], ki, mirrors)
+        if _any(isolate):
+            ci = isolate.nonzero()[0]
+            cand = eligible[:, ci] & (size == level[ci])
+            sub, col = cand.nonzero()
+            p_c = np.full(cand.shape, np.inf)
+            p_c[sub, col] = self._subset_protection(tab, xs, var, sub, ci[col], mirrors)
+            x_c = xs[:, ci]
+            dist = np.abs(x_c[:, None, :] - x_c[None, :, :])      # (S, S', k)
+            pair = cand[:, None, :] & cand[None, :, :]
+            disagree = _any((pair & (dist > kz * (p_c[:, None, :] + p_c[None, :, :]))).reshape(-1, len(ci)))
+            cover = np.where(pair, dist / kz + p_c[None, :, :], -np.inf)
+            cover = np.where(cand, np.maximum.reduce(cover, axis=1), np.inf)
+            pick = cover.argmin(axis=0)
+            chosen[ci] = pick
+            sigma[ci] = cover[pick, self._columns(len(ci))]
+            ok[ci] = ~disagree
+            unident = np.zeros(n, dtype=bool)
+            unident[ci] = disagree
+        else:
+            unident = isolate
+        # nothing passes: a fault with no station to spare (2 stations: either may be the
+        # faulty one) is not identifiable; with stations to spare, more than one is faulty
+        none = (full >= 0) & (level == 0)
+        spare = n_full > min_keep
+        return chosen, ok, sigma, unident | (none & ~spare), none & spare
+
+    def _subset_protection(self, tab, xs, var, sub, col, mirrors):
+        """Published 1-sigma (K,) of the solutions of subsets ``sub`` (K,) at epochs ``col``
+        (K,), from the solutions without each of their rows (_protection).
+
+        mirrors: (mirror (m, n), reach (m, m, n)): the mirror image of each row's
+        single-row solution about its station, and whether a fault of row j within
+        ``max_fault_bias`` could put the train there (reach[j, k]); where a fault of row j
+        leaves row k alone, the separation covers that mirror too (_mirrors).
+        """
+        loo = tab.loo[sub].T                     # (m, K)
+        has = tab.loo_ok[sub].T
+        x_s = xs[sub, col]
+        sep = np.abs(xs[loo, col] - x_s)
+        k = tab.loo_row[sub].T
+        if mirrors is not None and _any(k >= 0, axis=None):
+            mirror, reach = mirrors
+            kk = np.maximum(k, 0)
+            far = (k >= 0) & reach[np.arange(len(k))[:, None], kk, col]
+            sep = np.where(far, np.maximum(sep, np.abs(mirror[kk, col] - x_s)), sep)
+        return self._protection(sep, np.sqrt(var[loo, col]), has, np.sqrt(var[sub, col]))
+
+    def _mirrors(self, x_single, s, r_fn):
+        """(mirror, reach) for _subset_protection. A single range leaves the side of its
+        station open: x_single (m, n) is each row's single-row solution, s (m, n) its
+        station's chainage, so the mirror image 2 s - x_single fits that range as well.
+        r_fn(mirror) -> (m_j, m_k, n) residuals of every row j at the mirror images of every
+        row k: a fault of row j can put the train at row k's mirror only with a bias of that
+        size, so it counts up to ``max_fault_bias``."""
+        mirror = 2.0 * s - x_single
+        return mirror, np.abs(r_fn(mirror)) <= self.params["max_fault_bias"]
+
+    def _protection(self, sep, sd_j, has, sd):
+        """Published 1-sigma (K,) of a solution of LS sigma ``sd`` (K,) whose rows j (axis 0
+        of the (m, K) arrays, where ``has``) may be faulty: ``sep`` is the separation from
+        the solution without row j, ``sd_j`` that solution's sigma.
+
+        Were row j biased by any amount that the test let pass, the solution without it is
+        unbiased, so the error is -+sep_j plus that solution's own error: |error| <= sep_j +
+        k sd_j with the probability of the +-k sigma interval (k = normal quantile of
+        ``protection_probability``), for every size of the bias, seen by the test or not.
+        The published sigma max(sd, max_j sep_j / k + sd_j) therefore puts the error of any
+        single fault inside +-k sigma with that probability (solution-separation protection
+        level, as ARAIM, with every fault mode covered in full: a fault here is no rare
+        independent event but may persist over many epochs -- a biased calibration, a
+        structure in the line of sight -- so the risk is not discounted by a prior). It is
+        what the test cannot see at low redundancy: a row with a large leverage moves x and
+        hides its bias in the residuals, and the solution without it is much less precise
+        (large sd_j). A mode without a solution (sd_j infinite) gives no bound: infinite
+        sigma, no fix.
+        """
+        reach = np.where(has, sep * (1.0 / self._k_cover) + sd_j, 0.0)
+        return np.maximum(sd, np.maximum.reduce(reach, axis=0))
+
+    def _subset_solutions(self, maskf, x0, r, s, d2, w):
+        """Gauss-Newton solutions of subsets of the slots (maskf: (S, N_SLOTS), 1 for a slot
+        in the subset), started from the all-in-view solution x0 (n,): x, LS variance,
+        chi-square (S, n) and the residuals of all slots at each subset's solution
+        (S, N_SLOTS, n)."""
+        def ranges(xs):
+            dx = xs[:, None, :] - s
+            pred = dx * dx
+            pred += d2
+            np.sqrt(pred, out=pred)
+            return dx / np.maximum(pred, 1e-9), np.subtract(r, pred, out=pred)
+        return self._subsets_gauss_newton(np.repeat(x0[None, :], len(maskf), axis=0), maskf[:, :, None] * w[None],
+                                          ranges)
+
+    # -- per-epoch solution ---------------------------------------------------------------
+    def _solve(self, times, r, pat, sig2, valid, isolate):
+        """Vectorised 1-D LS over the epochs of a block (arrays (N_SLOTS, n)).
 
         Returns x (n,), ok (n,), used (N_SLOTS, n; ``valid`` itself if no station was
-        dropped), residuals (N_SLOTS, n), variance (n,) and, if ``need_cal``, the part of
-        the variance due to the per-station calibration biases (n,), else None.
+        excluded), residuals (N_SLOTS, n) and the published variance (n,). ``isolate``
+        false: the all-in-view solution without fault detection (the block fix tests the
+        block's mean residuals instead); its variance is then the LS one.
         """
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-            return self._solve_epochs(times, r, pat, sig2, valid, need_cal)
+            return self._solve_epochs(times, r, pat, sig2, valid, isolate)
 
-    def _solve_epochs(self, times, r, pat, sig2, valid, need_cal):
+    def _solve_epochs(self, times, r, pat, sig2, valid, isolate):
         p = self.params
         n = len(times)
         s, d2 = pat.s, pat.d2
@@ -642,48 +908,60 @@ class MmWaveDecoder(Decoder):
                 resolvable = ambiguous & (age <= p["hold_time"])
                 x = np.where(resolvable, pick, x)
                 ambiguous &= ~resolvable
-        used = valid   # copied before the first station is dropped
+        used = valid
         min_st = max(1, p["min_stations"])
         ok = (nv >= min_st) & ~ambiguous
         x, info, e, h = self._gauss_newton(x, r, s, d2, w)
-        nu, wu, range_var = nv, w, None
-        for _ in range(N_SLOTS):
-            chi2 = np.add.reduce(wu * e * e)
-            fail = ok & (chi2 > self._gate_n[nu])
-            if not _any(fail):
-                break
-            # identify the outlier only if >= 2 stations remain to check one another
-            can_drop = fail & (nu > max(2, p["min_stations"]))
-            ok &= ~(fail & ~can_drop)
-            if not _any(can_drop):
-                break
-            P = np.where(info > 0.0, 1.0 / np.maximum(info, 1e-300), np.inf)
-            if used is valid:
-                used = valid.copy()
-            if range_var is None:
-                range_var = 1.0 / np.maximum(w, 1e-300)   # sigma_i^2 of the used ranges
-            denom = np.maximum(range_var - h * h * P, 1e-12)
-            # NLOS / multipath only lengthens a range: drop the largest positive normalised residual
-            znorm = np.where(used, e / np.sqrt(denom), -np.inf)
-            worst = znorm.argmax(axis=0)
-            used[worst[can_drop], can_drop.nonzero()[0]] = False
-            nu = _sum(used)
-            wu = np.where(used, w, 0.0)
-            # h and e at x do not depend on the weights: the refit starts from them
-            x2, info2, e2, h2 = self._gauss_newton(x, r, s, d2, wu, start=(h, e))
-            x = np.where(can_drop, x2, x)
-            info = np.where(can_drop, info2, info)
-            e = np.where(can_drop, e2, e)
-            h = np.where(can_drop, h2, h)
-        # an ok epoch has >= min_st stations (none dropped below) and info > 1e-6, so its LS
-        # covariance P is 1 / info (the values of the other epochs are not used)
-        P = 1.0 / info
         ok &= np.isfinite(x) & (info > 1e-6)
-        var = np.where(ok, P, np.inf)
-        cal_var = None
-        if need_cal:
-            gain = wu * h * P
-            cal_var = np.add.reduce(gain * gain) * p["cal_sigma"] ** 2
+        var = 1.0 / info
+        nu = nv
+        unbounded = None
+        if isolate and _any(ok) and not _any(ok & (_sum(w * e * e) > self._gate_size[nv])):
+            # every epoch passes its test (the usual block): protect the all-in-view solutions
+            # from the solutions without each station, here one linear downdate of the LS
+            # solution (no bias large enough to leave the linear range passed the test)
+            wh = w * h
+            lev = wh * h * var                               # leverage of each range
+            rest = info - wh * h                             # information without the range
+            shift = wh * var * e / (1.0 - lev)               # x - x without range j
+            sep = np.abs(shift)
+            sd_j = np.where(rest > 1e-6, 1.0 / np.sqrt(np.maximum(rest, 1e-300)), np.inf)
+            two = valid & (nv == 2)
+            if _any(two, axis=None):
+                # without range j one station k is left, which cannot tell its side: its
+                # mirror image counts if a fault of j within max_fault_bias reaches it
+                s_k = _sum(np.where(valid, s, 0.0)) - s         # the other station of each range
+                mirror = 2.0 * s_k - (x - shift)
+                need = r - np.sqrt((mirror - s) ** 2 + d2)
+                far = two & (np.abs(need) <= p["max_fault_bias"])
+                sep = np.where(far, np.maximum(sep, np.abs(mirror - x)), sep)
+            var = self._protection(sep, sd_j, valid & (nv > 1), np.sqrt(var)) ** 2
+            unbounded = ok & ~(var < np.inf)
+        elif isolate and _any(ok):
+            tab = self._subsets(N_SLOTS)
+            xs, vs, chi2, es = self._subset_solutions(tab.maskf, x, r, s, d2, w)
+            full = np.where(nv > 0, self._slot_bits @ valid - 1, -1)
+            single = self._single_index
+            mirrors = self._mirrors(xs[single], s, lambda mx: r[:, None, :] - np.sqrt(
+                (mx[None] - s[:, None]) ** 2 + d2[:, None]))
+            chosen, good, sd, unident, inconsistent = self._isolate(tab, xs, vs, chi2, full, mirrors)
+            self.stats["unidentifiable"] += int(np.count_nonzero(ok & unident))
+            self.stats["inconsistent"] += int(np.count_nonzero(ok & inconsistent))
+            ok &= good
+            var = sd * sd
+            unbounded = ok & ~(var < np.inf)
+            excluded = ok & (chosen != full)
+            if _any(excluded):
+                # the all-in-view solution where it is kept (converged), else the subset's
+                x = np.where(excluded, xs[chosen, cols], x)
+                used = tab.mask[chosen].T & valid
+                nu = _sum(used)
+                e = np.where(excluded, es[chosen, :, cols].T, e)
+        if unbounded is not None and _any(unbounded):
+            # a fault of one range could move x without bound (the others cannot fix x alone)
+            self.stats["unbounded"] += int(np.count_nonzero(unbounded))
+            ok &= ~unbounded
+        var = np.where(ok, var, np.inf)
         if p["min_stations"] <= 1:  # else no epoch is left with a single station
             single = ok & (nu == 1)
             if _any(single):
@@ -692,13 +970,14 @@ class MmWaveDecoder(Decoder):
                     age, xp = self._prediction(times)
                     a = np.abs(age)
                     spread = PRED_SIGMA + PRED_SPEED_SIGMA * a + 0.5 * PRED_ACCEL * a * a
-                    consistent = (a <= SINGLE_HOLD) & (np.abs(x - xp) <= 3.0 * np.sqrt(P + spread ** 2))
+                    consistent = (a <= SINGLE_HOLD) & (np.abs(x - xp) <= 3.0 * np.sqrt(var + spread ** 2))
                 else:
                     consistent = np.zeros(n, dtype=bool)
                 self.stats["inconsistent_single"] += int((single & ~consistent).sum())
                 ok &= ~single | consistent
-                var = np.where(single, var + p["unchecked_sigma"] ** 2, var)
-        return x, ok, used, e, var, cal_var
+                if isolate:
+                    var = np.where(single, var + p["unchecked_sigma"] ** 2, var)
+        return x, ok, used, e, var
 
     def _columns(self, n):
         """np.arange(n), cached per block length."""

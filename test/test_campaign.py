@@ -262,6 +262,18 @@ def test_tiny_campaign_on_a_dask_cluster_gives_the_pool_scores(pool_campaign, tm
     assert _scores(out) == _scores(pool_campaign[0])
 
 
+def test_summarise_rebuilds_the_summary_from_the_run_files(pool_campaign, tmp_path, capsys):
+    out, _ = pool_campaign
+    again = tmp_path / "again"
+    (again / "runs").mkdir(parents=True)
+    for p in (out / "runs").glob("*.json"):
+        (again / "runs" / p.name).write_text(p.read_text())
+    assert tool.main(["--summarise", str(again)]) == 0
+    first, second = (json.loads((d / "summary.json").read_text()) for d in (out, again))
+    assert second["all"] == first["all"] and second["passed"] == first["passed"]
+    assert tool.main(["--summarise", str(tmp_path / "empty")]) == 2
+
+
 def test_export_round_trip(tmp_path, capsys):
     path = tmp_path / "run.yaml"
     assert tool.main(["--export", "highspeed_maglev:42", "-o", str(path), "--max-duration", "3"]) == 0

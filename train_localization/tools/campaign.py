@@ -249,6 +249,30 @@ def export(family: str, seed: int, path: str | None, max_duration: float | None)
     return 0
 
 
+def report(results: list[dict], out: Path, campaign: dict, check: bool) -> int:
+    """Write DIR/summary.json and the plots, print the table; the exit code of --check."""
+    summary = summarise(results)
+    summary["campaign"] = campaign
+    (out / "summary.json").write_text(json.dumps(summary, allow_nan=False, indent=1))
+    files = plot(results, summary, out)
+    print(summary_table(summary))
+    wall = campaign.get("wall_s")
+    print((f"wall {wall:.0f} s; " if wall is not None else "") + f"wrote {out / 'summary.json'}, "
+          f"{len(results)} run files in {out / 'runs'}, " + ", ".join(p.name for p in files))
+    return 1 if check and not summary["passed"] else 0
+
+
+def summarise_dir(out: Path, check: bool) -> int:
+    """Summary and plots of the run files in ``out``/runs."""
+    files = sorted((out / "runs").glob("*.json"))
+    if not files:
+        print(f"no run files in {out / 'runs'}", file=sys.stderr)
+        return 2
+    results = [json.loads(f.read_text()) for f in files]
+    return report(results, out, {"runs": len(results), "families": sorted({r["family"] for r in results}),
+                                 "summarised_from": str(out / "runs")}, check)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="tl_campaign", description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -267,10 +291,15 @@ def main(argv=None) -> int:
     ap.add_argument("--check", action="store_true", help="exit 1 when an integrity target fails or a run errors")
     ap.add_argument("--export", type=_family_seed, metavar="FAMILY:SEED", help="write this run's scenario YAML")
     ap.add_argument("-o", "--output", default=None, help="--export: file to write (default: stdout)")
+    ap.add_argument("--summarise", metavar="DIR", help="summarise the run files already in DIR/runs (an "
+                                                      "interrupted campaign, or runs gathered from several) "
+                                                      "instead of running")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     args = ap.parse_args(argv)
     if args.export:
         return export(*args.export, args.output, args.max_duration)
+    if args.summarise:
+        return summarise_dir(Path(args.summarise), args.check)
     todo = list(args.run) if args.run else jobs(args.runs, args.families, args.seed)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -292,16 +321,11 @@ def main(argv=None) -> int:
         results = execute(todo, args.workers, args.scheduler, args.max_duration, on_result)
     finally:
         bar.close()
-    summary = summarise(results)
-    summary["campaign"] = {"runs": len(todo), "base_seed": args.seed, "families": sorted({f for f, _ in todo}),
-                           "max_duration": args.max_duration, "wall_s": time.perf_counter() - t0,
-                           "scheduler": args.scheduler or f"processes:{args.workers or os.cpu_count()}"}
-    (out / "summary.json").write_text(json.dumps(summary, allow_nan=False, indent=1))
-    files = plot(results, summary, out)
-    print(summary_table(summary))
-    print(f"wall {summary['campaign']['wall_s']:.0f} s; wrote {out / 'summary.json'}, "
-          f"{len(results)} run files in {out / 'runs'}, " + ", ".join(p.name for p in files))
-    return 1 if args.check and not summary["passed"] else 0
+    return report(results, out, {"runs": len(todo), "base_seed": args.seed,
+                                 "families": sorted({f for f, _ in todo}), "max_duration": args.max_duration,
+                                 "wall_s": time.perf_counter() - t0,
+                                 "scheduler": args.scheduler or f"processes:{args.workers or os.cpu_count()}"},
+                  args.check)
 
 
 if __name__ == "__main__":

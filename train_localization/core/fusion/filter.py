@@ -106,7 +106,7 @@ class _Aux:
 
     __slots__ = ("initialised", "t", "last_accepted", "slip_until", "accepted", "gated", "slips",
                  "speed_sources", "nis", "fix_ref", "last_fix_accepted", "fix_nis", "slip_window",
-                 "alternative", "events", "unverified", "s_last_fix", "relative_alternative", "suspended",
+                 "alternative", "events", "unverified", "s_last_fix", "relative_alternatives", "suspended",
                  "candidate")
 
     def __init__(self):
@@ -127,9 +127,10 @@ class _Aux:
         self.events: dict[str, int] = {}
         self.unverified = ""                           # why the filter awaits a confirming fix
         self.s_last_fix = math.nan                     # filter position after the last accepted fix
-        # a slip sensor excluded although its disagreement does not look like a slip: it may be
-        # the other speed sources that are wrong: (sensor, distance it ran ahead D [m], var D)
-        self.relative_alternative: tuple | None = None
+        # sensors excluded although their disagreement does not look like a slip: the other speed
+        # sources may be the wrong ones: sensor -> (distance it ran ahead D [m], white variance
+        # of D [m^2], since [s], last stamp [s], distance run [m])
+        self.relative_alternatives: dict[str, tuple] = {}
         self.candidate: tuple | None = None             # first fix awaiting confirmation
         self.suspended: dict[str, tuple] = {}          # speed sources found faulty -> (agreeing since [s], window)
 
@@ -252,7 +253,7 @@ class TrainFilter:
             return
         if cls in self.layout.episode_sensors and self._slipping(m, z - hx, S, nis):
             return
-        if is_fix and aux.relative_alternative is not None and self._decide_relative(m, z, hx, S, nis):
+        if is_fix and aux.relative_alternatives and self._decide_relative(m, z, hx, S, nis):
             return
         if nis > self._gates[cls]:
             aux.gated = _inc(aux.gated, cls)
@@ -280,9 +281,10 @@ class TrainFilter:
             aux.gated = _inc(aux.gated, cls + "/slip")
             self._separate(m, e, S)
             return True
-        alt = aux.relative_alternative
-        if alt is not None and alt[0] == cls and alt[1] ** 2 <= self._slip_gate * self._alternative_spread(alt)[1]:
-            aux.relative_alternative = None   # the episode ended without a separation: a false alarm
+        alt = aux.relative_alternatives.get(cls)
+        if alt is not None and alt[0] ** 2 <= self._slip_gate * self._alternative_spread(cls, alt)[1]:
+            # the episode ended without a separation: a false alarm
+            aux.relative_alternatives = {k: v for k, v in aux.relative_alternatives.items() if k != cls}
         window, summed = self._windowed(aux.slip_window.get(cls, ()), m, e, S)
         if nis > self._slip_gate or summed > self._slip_gate:
             aux.slip_window = {**aux.slip_window, cls: ()}
@@ -329,54 +331,60 @@ class TrainFilter:
                    ("slide" in faults and drive <= -limit and excess < 0.0)
         # without another speed source the disagreement is with the motion model alone
         physical = physical and self._reference_ok(m)
-        if not physical and aux.relative_alternative is None:
-            aux.relative_alternative = (m.sensor, 0.0, 0.0, m.stamp, m.stamp, 0.0)
+        if not physical and m.sensor not in aux.relative_alternatives:
+            aux.relative_alternatives = {**aux.relative_alternatives, m.sensor: (0.0, 0.0, m.stamp, m.stamp, 0.0)}
             aux.events = _inc(aux.events, "ambiguous_slip")
 
     def _separate(self, m, e: float, S: float) -> None:
         """While a sensor is excluded as the alternative, add up how far it ran ahead [m], the
         white part of its variance and the distance run (its scale error is common to all)."""
-        alt = self.aux.relative_alternative
-        if alt is None or alt[0] != m.sensor:
+        aux = self.aux
+        alt = aux.relative_alternatives.get(m.sensor)
+        if alt is None:
             return
-        cls, D, white, since, last, run = alt
+        D, white, since, last, run = alt
         d = getattr(m, "duration", 0.0) or (m.stamp - last)   # a speed holds since the previous one
         R = max(S - float(self.ekf.P[1, 1]), 0.0)              # its own noise (speed units), roughly
-        self.aux.relative_alternative = (cls, D + e * d, white + R * d * d, since, m.stamp,
-                                         run + abs(float(self.ekf.x[1, 0])) * d)
+        aux.relative_alternatives = {**aux.relative_alternatives, m.sensor: (
+            D + e * d, white + R * d * d, since, m.stamp, run + abs(float(self.ekf.x[1, 0])) * d)}
 
-    def _alternative_spread(self, alt) -> tuple[float, float]:
-        """(separation D [m], its variance [m^2]) of the relative alternative."""
-        cls, D, white, _, _, run = alt
+    def _alternative_spread(self, cls: str, alt: tuple) -> tuple[float, float]:
+        """(separation D [m], its variance [m^2]) of a relative alternative."""
+        D, white, _, _, run = alt
         model = self.models[cls]
         scale = model.scale_sigma + model.scale_offset_sigma
         return D, white + (scale * run) ** 2
 
     def _decide_relative(self, m, z: float, hx: float, S: float, nis: float) -> bool:
-        """An absolute fix decides between the filter and the excluded slip sensor's view.
-        True if the fix was used for it (the position re-acquired)."""
+        """An absolute fix decides between the filter and the excluded sensors' views. True if
+        the fix was used for it (the position re-acquired)."""
         aux = self.aux
-        cls, since = aux.relative_alternative[0], aux.relative_alternative[3]
-        D, var_D = self._alternative_spread(aux.relative_alternative)
         gate = self._gates[m.sensor]
-        alt_fits = (z - hx - D) ** 2 / (S + var_D) <= gate
-        if nis <= gate and alt_fits:
-            return False                           # both explain it: still undecided
-        if nis <= gate or m.stamp - since > self.cfg.branch_timeout:
-            # the filter explains the fix and the excluded sensor's view does not: it was faulty
-            aux.relative_alternative = None
-            aux.events = _inc(aux.events, "excluded_sensor_confirmed_faulty")
-            if cls not in self.layout.slip_sensors:   # a slip ends by itself; a faulty radar may not
-                aux.suspended = {**aux.suspended, cls: (math.inf, ())}
-            return False
-        if not alt_fits:
-            return False                           # neither: an unexplained fix
-        # the excluded sensor was right: the other speed sources are faulty
+        keep, fitting = {}, []
+        for cls, alt in aux.relative_alternatives.items():
+            D, var_D = self._alternative_spread(cls, alt)
+            fits = (z - hx - D) ** 2 / (S + var_D)
+            if fits <= gate:
+                keep[cls] = alt                    # still explains the fix: undecided
+                fitting.append((fits, cls))
+            elif nis <= gate or m.stamp - alt[2] > self.cfg.branch_timeout:
+                # the filter explains the fix and this excluded sensor's view does not: it was faulty
+                aux.events = _inc(aux.events, "excluded_sensor_confirmed_faulty")
+                if cls not in self.layout.slip_sensors:   # a slip ends by itself; a faulty radar may not
+                    aux.suspended = {**aux.suspended, cls: (math.inf, ())}
+            else:
+                keep[cls] = alt
+        aux.relative_alternatives = keep
+        if nis <= gate or not fitting:
+            return False                           # the filter explains it, or nothing does
+        # an excluded sensor was right: the other speed sources are faulty
+        cls = min(fitting)[1]
         self._set_position(m)
         self._relearn("speed_source_faulty")
-        aux.relative_alternative = None
+        aux.relative_alternatives = {}
         aux.slip_until = {**aux.slip_until, cls: m.stamp}
-        aux.suspended = {**aux.suspended, **{s: (math.inf, ()) for s in aux.speed_sources if s != cls}}
+        aux.suspended = {**{k: v for k, v in aux.suspended.items() if k != cls},
+                         **{s: (math.inf, ()) for s in aux.speed_sources if s != cls}}
         return True
 
     def _suspended(self, m, e: float, S: float, nis: float) -> bool:
@@ -684,9 +692,8 @@ class TrainFilter:
             lo, hi = min(lo, p_alt - half), max(hi, p_alt + half)
             sd_s = max(sd_s, (hi - lo) / (2.0 * self._z))
         mode = self._mode(aux, t, sd_s)
-        rel = aux.relative_alternative
-        if rel is not None:   # the excluded sensor's view: the other speed sources may be wrong
-            D, var_D = self._alternative_spread(rel)
+        for cls, rel in aux.relative_alternatives.items():   # the excluded sensors' views
+            D, var_D = self._alternative_spread(cls, rel)
             half = self._z * math.sqrt(var_s + var_D)
             alt_lo, alt_hi = float(s) + D - half, float(s) + D + half
             if alt_lo < lo or alt_hi > hi:

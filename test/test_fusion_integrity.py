@@ -148,3 +148,14 @@ def test_disagreeing_speed_sources_are_arbitrated_by_a_fix(wheel_right):
         assert gated["wheel/slip"] > 200
     e = f.estimate(15.0)
     assert abs(e.position - 30.0 * 15.0) < 3.0 and e.position_min <= 450.0 <= e.position_max
+
+
+def test_exclusions_of_two_sensors_decided_after_the_fact_do_not_undo_each_other():
+    """A braking slide while the radar has its own episode: each sensor's onset is taken out
+    after the fact. Re-applying the history for one must keep the other's decision (they used
+    to undo each other for ever: a hang, found by tl_campaign run conventional:1205035877)."""
+    from train_localization.core.campaign import run_one
+    r = run_one("conventional", 1205035877)
+    assert "error" not in r, r.get("traceback")
+    assert r["fusion"]["integrity"]["slip_lookback"] >= 2
+    assert r["scores"]["integrity"]["inside_fraction"] >= 0.999

@@ -611,9 +611,8 @@ class TrainFilter:
                 i = j
                 while i > 0 and hist.stamps[i - 1] >= back.since:
                     i -= 1
-                first = i
-                i = hist.rewind(i)
-                hist.exclude(first, j, back.sensor)
+                hist.drop_states(i)
+                hist.exclude(i, j, back.sensor)
                 self._set(hist.snapshot_before(i))
                 j = i
                 continue

@@ -77,6 +77,13 @@ class History:
         self.n_applied = i
         return i
 
+    def drop_states(self, i: int) -> None:
+        """Forget the states from index i on, keeping every exclusion (a fault check re-applying
+        the history after its own decision: the decisions before it stand)."""
+        if i < self.n_applied:
+            del self.snaps[i:]
+            self.n_applied = i
+
     def exclude(self, first: int, last: int, sensor: str) -> None:
         """Exclude ``sensor``'s measurements at indices first..last, decided at ``last``."""
         by = self.keys[last]

@@ -68,15 +68,15 @@ class FusionConfig:
                                       "traction or braking force to slip or slide (running resistance): a "
                                       "disagreement then is as likely the other speed sources' fault")
     slip_holdoff: float = _doc(0.5, "a slip sensor stays excluded this long after its last disagreement [s]")
-    slip_reference_timeout: float = _doc(1.0, "slip is declared only if another speed source was accepted "
-                                              "within this time [s]")
+    slip_reference_timeout: float = _doc(1.0, "a disagreement is taken as a slip or slide (not as ambiguous) "
+                                              "only if another speed source was accepted within this time [s]")
     plausible_sigmas: float = _doc(4.0, "an error state (scale, bias) estimated beyond this many of its prior "
                                         "1-sigma is implausible: the filter absorbed a fault; the relative "
                                         "sensors' error states are re-learnt and the interval widened")
     consistency_fixes: int = _doc(5, "number of recent accepted absolute fixes whose mean NIS is monitored "
                                      "(fixes of sensors without a fix-bias state: independent references)")
     consistency_probability: float = _doc(0.99, "chi-square quantile of that mean NIS above which the filter "
-                                                "is inconsistent: its covariance is inflated by the mean NIS "
+                                                "is inconsistent: its covariance is scaled by the mean NIS "
                                                 "and the mode is DEGRADED until a fix agrees again")
     branch_timeout: float = _doc(120.0, "longest time an unexplained (gated) fix is kept as an alternative "
                                         "hypothesis [s]")

@@ -64,6 +64,9 @@ def test_sensor_node_rejects_bad_raw_blocks_and_keeps_running(ros_context, start
             m.header.stamp.sec, m.header.stamp.nanosec = int(t0), int(round((t0 % 1) * 1e9))
             m.data = np.asarray(data, dtype=np.float32)
             return m
+        # both ends matched; let discovery settle on the node's side too before the sequence, whose
+        # first block must not be lost (it failed once in a fresh clone under load)
+        spin_until(node, lambda: False, 0.5)
         good = np.column_stack([np.full(10, 1000.0), np.full(10, 25.0)]).reshape(-1)
         nan = good.copy()
         nan[3] = math.nan

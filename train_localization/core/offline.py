@@ -12,7 +12,6 @@ outputs (offline replay, DESIGN.md section 1).
 """
 from __future__ import annotations
 
-import math
 import multiprocessing
 import os
 import time

@@ -25,7 +25,6 @@ Parameters:
 from __future__ import annotations
 
 import math
-from dataclasses import fields
 
 from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry

@@ -742,7 +742,6 @@ class MmWaveDecoder(Decoder):
           all: no fix (``stats["inconsistent"]``).
         """
         n = xs.shape[1]
-        cols = self._columns(n)
         kz = self._k_cover
         size = tab.size[:, None]
         fbits = (full + 1)[None, :]

@@ -501,9 +501,7 @@ class TrainFilter:
         if alt is not None and m.stamp - alt[0] <= cfg.branch_timeout:
             t_a, z_a, R_a, s_a, P_a, cls_a, ref_a = alt
             independent = m.reference_id != ref_a or m.sensor != cls_a
-            predicted = z_a + (s - s_a)
-            var = R_a + R + max(P00 - P_a, 0.0)
-            if independent and (z - predicted) ** 2 / var <= self._gates[m.sensor]:
+            if independent and self._agrees(m, z, R, s, P00, z_a, R_a, s_a, P_a):
                 # two independent fixes agree with each other, not with the filter: it was wrong
                 self._set_position(m)
                 self._relearn("reacquired")
@@ -513,6 +511,13 @@ class TrainFilter:
                 return
         aux.alternative = (m.stamp, z, R, s, P00, m.sensor, m.reference_id)
         aux.events = _inc(aux.events, "unexplained_fix")
+
+    def _agrees(self, m, z: float, R: float, s: float, P00: float,
+                z_kept: float, R_kept: float, s_kept: float, P00_kept: float) -> bool:
+        """Whether fix ``m`` (z, R) agrees with a kept fix moved by the dead reckoning since:
+        filter position and its variance s, P00 now, s_kept, P00_kept when it was kept."""
+        var = R_kept + R + max(P00 - P00_kept, 0.0)
+        return (z - (z_kept + (s - s_kept))) ** 2 / var <= self._gates[m.sensor]
 
     def _initialise(self, m) -> None:
         """Claim the position from a fix. A fix of a sensor that can misread its reference (a
@@ -532,8 +537,7 @@ class TrainFilter:
         if cand is not None and m.stamp - cand[0] <= cfg.branch_timeout:
             if m.reference_id == cand[5] and m.sensor == cand[4]:
                 return                               # the same reference confirms nothing
-            predicted = cand[1] + (x0 - cand[3])
-            if (z - predicted) ** 2 / (cand[2] + R + max(P00 - cand[6], 0.0)) <= self._gates[m.sensor]:
+            if self._agrees(m, z, R, x0, P00, cand[1], cand[2], cand[3], cand[6]):
                 self._set_position(m)
                 aux.initialised = True
                 aux.candidate = None

@@ -89,15 +89,25 @@ def test_quadrature_decoding_counts_exactly_on_synthetic_block():
     (inc,) = dec.decode(block_of(a, b))
     assert dec.count == path[-1] - path[0] == 30
     edge = math.pi * D_NOM / (4 * PARAMS["pulses_per_revolution"].default)
-    assert inc.distance == pytest.approx(30 * edge, rel=1e-12)
-    assert inc.duration == pytest.approx((len(states) - 1) / 10_000.0)
+    # from the first sample (inside state 0) to the last edge, into state 30 going forwards
+    # (at 29.5 steps): the increment ends at an edge, not at the block's end
+    t_edges = (np.cumsum(dwell)[:-1] - 0.5) / 10_000.0
+    assert inc.distance == pytest.approx(29.5 * edge, rel=1e-12)
+    assert inc.stamp == pytest.approx(t_edges[-1]) and inc.duration == pytest.approx(t_edges[-1])
     assert dec.stats["illegal_transitions"] == 0
-    # the next block continues from the last state of this one (no edge lost between blocks)
+    # the next block continues from that edge: 8 steps back end at the edge into state 22
+    # (at 22.5 steps); no distance is lost or counted twice between the blocks
     a2, b2 = quad_levels(np.repeat(np.arange(path[-1], path[-1] - 9, -1), 3))
     (inc2,) = dec.decode(block_of(a2, b2, t0=len(states) / 10_000.0, seq=1))
     assert dec.count == 30 - 8
-    assert inc2.distance == pytest.approx(-8 * edge) and inc2.speed < 0
-    assert inc2.duration == pytest.approx(len(a2) / 10_000.0)
+    assert inc2.distance == pytest.approx(-7 * edge) and inc2.speed < 0
+    assert inc2.stamp == pytest.approx((len(states) + 3 * 8 - 0.5) / 10_000.0)
+    assert inc2.stamp - inc2.duration == pytest.approx(inc.stamp)
+    # a block without an edge: the train is somewhere inside state 22, half a step on
+    a3, b3 = quad_levels(np.full(20, 22))
+    (inc3,) = dec.decode(block_of(a3, b3, t0=(len(states) + len(a2)) / 10_000.0, seq=2))
+    assert inc3.distance == pytest.approx(-0.5 * edge)
+    assert inc.distance + inc2.distance + inc3.distance == pytest.approx(22 * edge)
 
 
 def test_skipped_state_is_counted_as_illegal_in_last_direction():
@@ -282,7 +292,9 @@ def test_lost_block_does_not_corrupt_the_count():
     for blk in blocks[:10] + blocks[11:]:
         out.extend(dec.decode(blk))
     assert dec.stats["gaps"] == 1
-    # after the gap the increment starts at the first sample of the next block
+    # after the gap the increment starts at the first sample of the next block (and ends at
+    # its last edge)
     after = out[10]
-    assert after.duration == pytest.approx((blocks[11].n_samples - 1) / blocks[11].sample_rate)
+    assert after.stamp - after.duration == pytest.approx(blocks[11].t0)
+    assert blocks[11].t0 < after.stamp <= blocks[11].t_end
     assert after.distance == pytest.approx(10.0 * after.duration, abs=0.03)

@@ -232,6 +232,19 @@ def half_duty_level(params: dict) -> float:
     return float(np.median(env)) * params["peak_voltage"]
 
 
+def transition_unevenness(params: dict) -> float:
+    """1-sigma offset [m] of a switching point from the even p/6 grid, fixed per coil and
+    switching direction: the coil's mounting error, and its receive chain's gain mismatch
+    and detector offset moving the threshold crossing along the envelope's slope."""
+    x, env = envelope_profile(params)
+    level = env * params["peak_voltage"]
+    mid = 0.5 * (params["threshold_on"] + params["threshold_off"])
+    crossing = np.nonzero(np.diff(np.sign(level - mid)))[0]
+    slope = float(np.min(np.abs(np.gradient(level, x)[crossing])))
+    return math.sqrt(params["spacing_error"] ** 2 + (params["gain_mismatch"] * mid / slope) ** 2
+                     + (params["detector_offset"] / slope) ** 2)
+
+
 def belt_sections(track: Track, default_period: float) -> np.ndarray:
     """(start, end, period) rows of the belt sections, sorted; whole track if none."""
     rows = []
@@ -346,7 +359,8 @@ class PatternBeltDecoder(Decoder):
         self.counter = CycleCounter(6, history=max(1.0, 2 * p["speed_window"]))
         self.estimator = IncrementEstimator(self.sensor, self.unit_id, self.counter, self.step, self.step,
                                             p["scale_sigma"], p["speed_window"],
-                                            position_jitter=p["transition_jitter"], timing_sigma=0.05)
+                                            position_jitter=p["transition_jitter"], timing_sigma=0.05,
+                                            unevenness=transition_unevenness(p))
         self._y = np.full(3, -1, dtype=np.int64)   # Schmitt outputs (-1 unknown)
         self._env_last: np.ndarray | None = None   # last envelope sample of the previous block
         self._rows = np.empty((0, 1), dtype=np.int64)  # 1..n as a column (Schmitt trigger)

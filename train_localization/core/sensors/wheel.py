@@ -137,6 +137,7 @@ class FeedResult:
     illegal: int          # skipped-state transitions in the block
     transitions: int      # state changes in the block
     dropped_steps: int    # steps of earlier segments (before a loss of signal)
+    continued: bool = False  # the segment starts at the last state of the previous block
 
 
 class CycleCounter:
@@ -218,7 +219,7 @@ class CycleCounter:
         if len(seq_s) == 0:
             if any_lost:
                 self.reset()
-            return FeedResult(0, None, None, 0, 0, 0)
+            return FeedResult(0, None, None, 0, 0, 0, False)
         g = self._unit[seq_s[1:] - seq_s[:-1]]
         ev = g.nonzero()[0]            # seq steps k -> k + 1 that change the state
         n_ev = len(ev)
@@ -307,7 +308,12 @@ class CycleCounter:
         if any_lost and lost_cum[-1] > seq_l[-1]:
             # the block ends without signal: the next valid sample starts afresh
             self.reset()
-        return FeedResult(seg_steps, t_start, t_end, illegal, n_ev, dropped)
+        return FeedResult(seg_steps, t_start, t_end, illegal, n_ev, dropped, seg0 < pre)
+
+    @property
+    def last_transition(self) -> tuple[float, int, int] | None:
+        """(time [s], count after it, its direction +-1) of the last transition in the history."""
+        return (self._tr_t[-1], self._tr_c[-1], self._tr_s[-1]) if self._tr_t else None
 
     def _seq_time(self, k: int, pre: int, idx, times) -> float:
         """Time [s] of entry k of the valid-sample sequence of ``feed``."""
@@ -409,15 +415,25 @@ def increment_or_reject(counter: "CycleCounter", estimator: "IncrementEstimator"
 class IncrementEstimator:
     """Turns counted steps of one block into a DistanceIncrement (shared with the belt).
 
-    step: distance of one step [m]; step_max: widest state [m] (quantisation);
-    scale_sigma: 1-sigma relative scale error; position_jitter: 1-sigma of a
+    An increment runs from the end of the previous one to the last transition of the
+    block, so that both ends are transitions whenever the train moves: the distance
+    between two transitions is a whole number of steps, known to the transitions'
+    position scatter (millimetres), while a block boundary falls anywhere inside a state
+    (up to a whole step, 0.1 m on the belt). Consecutive increments then add up to the
+    counted distance without a quantisation error at every block, and the fusion's white
+    noise model of an increment holds. A block without a transition ends its increment at
+    its last sample (the train stands or creeps: the quantisation is then the only
+    information there is).
+
+    step: distance of one step [m]; step_max: widest state [m] (quantisation of a block
+    boundary); scale_sigma: 1-sigma relative scale error; position_jitter: 1-sigma of a
     transition's position [m]; accel_sigma: prior 1-sigma of the train's acceleration
     [m/s^2], for a speed taken over a window that is not centred on the increment
     (the larger of it and the acceleration seen between the last two speeds is used);
     timing_sigma: 1-sigma error of a transition time [samples] (1/sqrt(12): the
     transition is only known to lie between two samples); unevenness: 1-sigma deviation
-    of a transition's position from the even grid of steps [m] (used when the speed
-    has to come from transitions of different kinds, at low speed).
+    of a transition's position from the even grid of steps [m] (transitions of different
+    kinds: coil or channel mounting, duty cycle).
     """
 
     def __init__(self, sensor: str, unit_id: str, counter: CycleCounter, step: float, step_max: float,
@@ -430,34 +446,53 @@ class IncrementEstimator:
         self.accel_sigma = accel_sigma
         self.step, self.step_max, self.scale_sigma = step, step_max, scale_sigma
         self.speed_window, self.position_jitter = speed_window, position_jitter
+        # variance of an increment's end [steps^2]: at a transition; inside a state (a block boundary)
+        self._var_edge = (position_jitter ** 2 + unevenness ** 2) / step ** 2
+        self._var_boundary = (step_max ** 2 / 12.0 + unevenness ** 2) / step ** 2
+        self.reset()
+
+    def reset(self) -> None:
         self._prev_v: float | None = None
         self._prev_t: float | None = None
         self._acc = 0.0
-
-    def reset(self) -> None:
-        self._prev_v = None
-        self._prev_t = None
-        self._acc = 0.0
+        self._end: tuple | None = None   # end of the last increment: (time [s], position, variance [steps])
 
     def make(self, res: FeedResult, sample_rate: float):
-        if res.t_end is None or res.t_start is None or res.t_end - res.t_start <= 0.0:
+        """Positions are in steps from the count's origin: state c spans [c - 1/2, c + 1/2],
+        so a transition into c in direction s lies at c - s/2 and a block boundary inside c
+        at c (uniform over the state)."""
+        if res.t_end is None or res.t_start is None:
             return None
+        counter = self.counter
+        if self._end is not None and res.continued:
+            t0, p0, var0 = self._end
+        else:   # first block, or the count restarted after a loss of signal
+            t0, p0, var0 = res.t_start, float(counter.count - res.steps), self._var_boundary
+        last = counter.last_transition
+        at_transition = last is not None and t0 < last[0] <= res.t_end and last[0] >= res.t_start
+        if at_transition:
+            t1, p1, var1 = last[0], last[1] - 0.5 * last[2], self._var_edge
+        else:
+            t1, p1, var1 = res.t_end, float(counter.count), self._var_boundary
+        if t1 <= t0:
+            return None
+        self._end = (t1, p1, var1)
+        t_last = counter.t_last_transition
         dt_s = 1.0 / sample_rate
-        duration = res.t_end - res.t_start
-        distance = res.steps * self.step
-        q = self.step_max / math.sqrt(6.0)  # two ends, each uniform over one state
-        dist_sigma = math.sqrt(q * q + 2 * self.position_jitter ** 2 + (self.scale_sigma * distance) ** 2
+        duration = t1 - t0
+        distance = (p1 - p0) * self.step
+        dist_sigma = math.sqrt((var0 + var1) * self.step ** 2 + (self.scale_sigma * distance) ** 2
                                + (2 * res.illegal * self.step) ** 2)
-        t_mid = 0.5 * (res.t_start + res.t_end)
+        t_mid = 0.5 * (t0 + t1)
         # edges of the same kind within the increment (the speed is its mean speed), else
         # reaching back at most speed_window, else (low speed) any two edges in the same
         # direction
         uneven = 0.0
-        est = self.counter.transition_speed(res.t_start, res.t_end)
+        est = counter.transition_speed(t0, t1)
         if est is None:
-            est = self.counter.transition_speed(res.t_end - self.speed_window, res.t_end)
+            est = counter.transition_speed(t1 - self.speed_window, t1)
         if est is None:
-            est = self.counter.transition_speed(res.t_end - self.speed_window, res.t_end, same_kind=False)
+            est = counter.transition_speed(t1 - self.speed_window, t1, same_kind=False)
             uneven = self.unevenness
         if est is not None and res.illegal == 0:
             rate, tj, tl = est
@@ -469,18 +504,18 @@ class IncrementEstimator:
             offset = abs(0.5 * (tj + tl) - t_mid)
             speed_sigma = math.sqrt((speed * rel_t) ** 2 + (speed * pos_t) ** 2 + (self.scale_sigma * speed) ** 2
                                     + (max(self._acc, self.accel_sigma) * offset) ** 2)
-        elif res.steps != 0 or self.counter.t_last_transition is None:
+        elif at_transition or t_last is None:
             speed = distance / duration
             speed_sigma = dist_sigma / duration
         else:
             # no transition since t_last: the train moved less than one state since then
             speed = 0.0
-            since = res.t_end - self.counter.t_last_transition
+            since = t1 - t_last
             speed_sigma = min(dist_sigma / duration, self.step_max / (math.sqrt(3.0) * max(since, duration)))
-        if self._prev_v is not None and res.t_end > self._prev_t:
-            self._acc = abs(speed - self._prev_v) / (res.t_end - self._prev_t)
-        self._prev_v, self._prev_t = speed, res.t_end
-        return DistanceIncrement(float(res.t_end), self.sensor, self.unit_id, float(duration), float(distance),
+        if self._prev_v is not None and t1 > self._prev_t:
+            self._acc = abs(speed - self._prev_v) / (t1 - self._prev_t)
+        self._prev_v, self._prev_t = speed, t1
+        return DistanceIncrement(float(t1), self.sensor, self.unit_id, float(duration), float(distance),
                                  float(dist_sigma), float(speed), float(max(speed_sigma, 1e-3)))
 
 

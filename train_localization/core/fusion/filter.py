@@ -100,6 +100,10 @@ class Estimate:
     biases: dict[str, float] = field(default_factory=dict)
 
 
+# fault modes by which an absolute sensor can report a confident wrong fix
+_OUTLIER_MODES = frozenset(("nlos", "misread", "miscount"))
+
+
 class _Aux:
     """Bookkeeping that rolls back with x and P. Copy-on-write: ``copy`` is shallow and the
     containers are never changed in place, only replaced."""
@@ -171,6 +175,7 @@ class TrainFilter:
             cfg.consistency_fixes
         self._z = float(norm.ppf(0.5 + cfg.confidence / 2.0))
         self.timeouts = {s: m.timeout for s, m in self.models.items() if math.isfinite(m.timeout)}
+        self._fix_streams = tuple(s for s, m in self.models.items() if m.measures == "position" and s in self.timeouts)
         self._est_cache: tuple = (None, None)
         self._eye = np.eye(self.n)
         self.rejected: dict[str, int] = {}
@@ -253,7 +258,7 @@ class TrainFilter:
             return
         if cls in self.layout.episode_sensors and self._slipping(m, z - hx, S, nis):
             return
-        if is_fix and aux.relative_alternatives and self._decide_relative(m, z, hx, S, nis):
+        if is_fix and aux.relative_alternatives and self._decide_relative(m, z, R, hx, S, nis):
             return
         if nis > self._gates[cls]:
             aux.gated = _inc(aux.gated, cls)
@@ -276,7 +281,9 @@ class TrainFilter:
         """Slip/slide check of one increment; True if it is excluded."""
         aux, cfg, cls = self.aux, self.cfg, m.sensor
         if aux.slip_until.get(cls, -math.inf) > m.stamp:
-            if nis > self._slip_gate:   # still slipping
+            # still slipping; or undecided and nothing to show that it agrees again: the motion
+            # model alone, its speed uncertainty growing, would let a faulty sensor back in
+            if nis > self._slip_gate or (cls in aux.relative_alternatives and not self._agreement_reference(m)):
                 aux.slip_until = {**aux.slip_until, cls: m.stamp + cfg.slip_holdoff}
             aux.gated = _inc(aux.gated, cls + "/slip")
             self._separate(m, e, S)
@@ -355,9 +362,12 @@ class TrainFilter:
         scale = model.scale_sigma + model.scale_offset_sigma
         return D, white + (scale * run) ** 2
 
-    def _decide_relative(self, m, z: float, hx: float, S: float, nis: float) -> bool:
+    def _decide_relative(self, m, z: float, R: float, hx: float, S: float, nis: float) -> bool:
         """An absolute fix decides between the filter and the excluded sensors' views. True if
-        the fix was used for it (the position re-acquired)."""
+        the fix was used for it (the position re-acquired). A fix that only an excluded view
+        explains overturns the filter only if its sensor cannot produce outliers (NLOS,
+        misread, miscount), or an unexplained fix of another reference agrees with it;
+        otherwise it is kept as the unexplained alternative and the views stay undecided."""
         aux = self.aux
         gate = self._gates[m.sensor]
         keep, fitting = {}, []
@@ -377,6 +387,8 @@ class TrainFilter:
         aux.relative_alternatives = keep
         if nis <= gate or not fitting:
             return False                           # the filter explains it, or nothing does
+        if _OUTLIER_MODES.intersection(self.models[m.sensor].faults) and not self._corroborated(m, z, R):
+            return False
         # an excluded sensor was right: the other speed sources are faulty
         cls = min(fitting)[1]
         self._set_position(m)
@@ -393,7 +405,7 @@ class TrainFilter:
         aux = self.aux
         since, window = aux.suspended[m.sensor]
         window, summed = self._windowed(window, m, e, S)
-        if nis > self._slip_gate or summed > self._slip_gate:
+        if nis > self._slip_gate or summed > self._slip_gate or not self._agreement_reference(m):
             since = math.inf
         elif since == math.inf:
             since = m.stamp
@@ -426,6 +438,17 @@ class TrainFilter:
         return any(aux.last_accepted.get(s, -math.inf) > stamp - self.cfg.slip_reference_timeout
                    for s in aux.speed_sources
                    if s != m.sensor and not aux.slip_until.get(s, -math.inf) > stamp)
+
+    def _agreement_reference(self, m) -> bool:
+        """Something the filter's speed rests on besides ``m.sensor`` and the motion model: another
+        speed source or a continuous absolute sensor (a fix stream gives the speed) accepted
+        within ``slip_reference_timeout`` s, and not itself in an episode. Only then can an
+        excluded sensor be seen to agree again."""
+        aux, stamp = self.aux, m.stamp
+        if self._reference_ok(m):
+            return True
+        return any(aux.last_accepted.get(s, -math.inf) > stamp - self.cfg.slip_reference_timeout
+                   for s in self._fix_streams if s != m.sensor)
 
     def _check_plausible(self) -> None:
         """Re-learn the relative sensors' error states if one of them left its plausible range.
@@ -511,6 +534,16 @@ class TrainFilter:
                 return
         aux.alternative = (m.stamp, z, R, s, P00, m.sensor, m.reference_id)
         aux.events = _inc(aux.events, "unexplained_fix")
+
+    def _corroborated(self, m, z: float, R: float) -> bool:
+        """An unexplained fix of another reference is kept and agrees with fix m (z, R)."""
+        alt = self.aux.alternative
+        if alt is None or m.stamp - alt[0] > self.cfg.branch_timeout:
+            return False
+        t_a, z_a, R_a, s_a, P_a, cls_a, ref_a = alt
+        if m.reference_id == ref_a and m.sensor == cls_a:
+            return False
+        return self._agrees(m, z, R, float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0]), z_a, R_a, s_a, P_a)
 
     def _agrees(self, m, z: float, R: float, s: float, P00: float,
                 z_kept: float, R_kept: float, s_kept: float, P00_kept: float) -> bool:

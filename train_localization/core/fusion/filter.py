@@ -175,7 +175,6 @@ class TrainFilter:
             cfg.consistency_fixes
         self._z = float(norm.ppf(0.5 + cfg.confidence / 2.0))
         self.timeouts = {s: m.timeout for s, m in self.models.items() if math.isfinite(m.timeout)}
-        self._fix_streams = tuple(s for s, m in self.models.items() if m.measures == "position" and s in self.timeouts)
         self._est_cache: tuple = (None, None)
         self._eye = np.eye(self.n)
         self.rejected: dict[str, int] = {}
@@ -281,9 +280,8 @@ class TrainFilter:
         """Slip/slide check of one increment; True if it is excluded."""
         aux, cfg, cls = self.aux, self.cfg, m.sensor
         if aux.slip_until.get(cls, -math.inf) > m.stamp:
-            # still slipping; or undecided and nothing to show that it agrees again: the motion
-            # model alone, its speed uncertainty growing, would let a faulty sensor back in
-            if nis > self._slip_gate or (cls in aux.relative_alternatives and not self._agreement_reference(m)):
+            # still slipping, or undecided and nothing to show that it agrees again
+            if nis > self._slip_gate or (cls in aux.relative_alternatives and not self._agreement_reference(m, S)):
                 aux.slip_until = {**aux.slip_until, cls: m.stamp + cfg.slip_holdoff}
             aux.gated = _inc(aux.gated, cls + "/slip")
             self._separate(m, e, S)
@@ -405,7 +403,7 @@ class TrainFilter:
         aux = self.aux
         since, window = aux.suspended[m.sensor]
         window, summed = self._windowed(window, m, e, S)
-        if nis > self._slip_gate or summed > self._slip_gate or not self._agreement_reference(m):
+        if nis > self._slip_gate or summed > self._slip_gate or not self._agreement_reference(m, S):
             since = math.inf
         elif since == math.inf:
             since = m.stamp
@@ -439,16 +437,14 @@ class TrainFilter:
                    for s in aux.speed_sources
                    if s != m.sensor and not aux.slip_until.get(s, -math.inf) > stamp)
 
-    def _agreement_reference(self, m) -> bool:
-        """Something the filter's speed rests on besides ``m.sensor`` and the motion model: another
-        speed source or a continuous absolute sensor (a fix stream gives the speed) accepted
-        within ``slip_reference_timeout`` s, and not itself in an episode. Only then can an
-        excluded sensor be seen to agree again."""
-        aux, stamp = self.aux, m.stamp
-        if self._reference_ok(m):
-            return True
-        return any(aux.last_accepted.get(s, -math.inf) > stamp - self.cfg.slip_reference_timeout
-                   for s in self._fix_streams if s != m.sensor)
+    def _agreement_reference(self, m, S: float) -> bool:
+        """Whether the filter's speed rests on more than ``m.sensor`` and the motion model:
+        another speed source accepted within ``slip_reference_timeout`` s and not itself in
+        an episode, or a speed known at least as well as the measurement's own noise (a
+        stream of fixes). Only then can an excluded sensor be seen to agree again; the
+        motion model alone, its speed uncertainty growing, would let a faulty sensor back in.
+        S: the measurement's innovation variance (filter part + its own noise)."""
+        return self._reference_ok(m) or float(self.ekf.P[1, 1]) <= 0.5 * S
 
     def _check_plausible(self) -> None:
         """Re-learn the relative sensors' error states if one of them left its plausible range.

@@ -585,10 +585,11 @@ class TrainFilter:
         P[0, 0] = R
         x[0, 0] = z
         f_idx = self.layout.fix.get(cls)
-        if f_idx is not None:
+        if f_idx is not None:   # s = z - e: its covariances are those of -e
             x[0, 0] -= x[f_idx, 0]
-            P[0, 0] += P[f_idx, f_idx]
-            P[0, f_idx] = P[f_idx, 0] = -P[f_idx, f_idx]
+            P[0, :] = -P[f_idx, :]
+            P[:, 0] = -P[:, f_idx]
+            P[0, 0] = R + P[f_idx, f_idx]
         self.ekf.x, self.ekf.P = x, P
         aux.accepted = _inc(aux.accepted, cls)
         aux.last_accepted = {**aux.last_accepted, cls: m.stamp}

@@ -504,6 +504,7 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
 SPEC = SensorSpec(
     node="pattern_belt", sensor="pattern_belt", simulator=PatternBeltSimulator, decoder=PatternBeltDecoder,
     params=PARAMS, description="HSST pattern belt (8-shaped HF loop, 3 coils at p/3): signed distance "
-    "increments at p/6 resolution and speed", seeds=("000", "002", "003"),
+    "increments at p/6 resolution, from switching point to switching point, and speed",
+    seeds=("000", "002", "003"),
     outputs=("distance",), error_model=error_model,
 )

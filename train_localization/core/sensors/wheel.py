@@ -711,6 +711,7 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
 SPEC = SensorSpec(
     node="wheel_sensor", sensor="wheel", simulator=WheelSimulator, decoder=WheelDecoder,
     params=PARAMS, description="on-board wheel pulse generator (quadrature): signed distance increments "
-    "and speed; affected by diameter error, creep, slip and slide", seeds=("002",),
+    "from edge to edge (no quantisation at block boundaries) and speed; affected by diameter error, creep, "
+    "slip and slide", seeds=("002",),
     outputs=("distance",), error_model=error_model,
 )

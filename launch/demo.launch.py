@@ -1,15 +1,28 @@
-"""ros2 launch train_localization demo.launch.py [scenario:=...] [bag:=...] [rate:=...]
+"""ros2 launch train_localization demo.launch.py [scenario:=...] [rate:=...] [record:=...] ...
 
-Starts the same graph as tools/demo.py (train_localization/graph.py): recorder,
-the scenario's sensor nodes in simulation mode, fusion and simulator, in /train
-with use_sim_time. Needs a full ROS 2 Jazzy install (launch is not on PyPI).
+Starts the same graph as tools/demo.py (train_localization/graph.py): recorder (unless
+record:=false), the scenario's sensor nodes in simulation mode, fusion and simulator,
+with use_sim_time (the simulator publishes /clock). ``ros2 launch ... --show-args``
+lists the arguments. Needs a full ROS 2 Jazzy install (launch is not on PyPI).
+
+Shutdown: when the simulator has played the scenario and exits, the launch shuts the
+whole graph down (the recorder closes its bag). Ctrl-C (SIGINT) does the same at any
+time; a supervisor should send SIGINT and allow the recorder a few seconds to finish
+its bag before escalating to SIGTERM/SIGKILL.
+
+DDS discovery: the nodes do not confine it themselves (a multi-computer train sets its
+own); this launch keeps ROS_AUTOMATIC_DISCOVERY_RANGE as the caller has it, LOCALHOST if
+unset.
 """
 import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import OpaqueFunction, DeclareLaunchArgument
-from launch.substitutions import LaunchConfiguration
+from launch.actions import (DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler,
+                            SetEnvironmentVariable)
+from launch.event_handlers import OnProcessExit
+from launch.events import Shutdown
+from launch.substitutions import EnvironmentVariable, LaunchConfiguration
 from launch_ros.actions import Node
 
 from train_localization.core.scenario import Scenario
@@ -18,22 +31,50 @@ from train_localization.graph import NAMESPACE, demo_graph
 SHARE = get_package_share_directory("train_localization")
 
 
+def _scenario_path(value: str) -> str:
+    """An absolute path as given; a relative one from the current directory if it exists
+    there (as the nodes resolve it), else from the package's share directory."""
+    if os.path.isabs(value) or os.path.exists(value):
+        return os.path.abspath(value)
+    return os.path.join(SHARE, value)
+
+
 def _nodes(context):
-    scenario = LaunchConfiguration("scenario").perform(context)
-    if not os.path.isabs(scenario):
-        scenario = os.path.join(SHARE, scenario)
-    bag = LaunchConfiguration("bag").perform(context)
+    scenario = _scenario_path(LaunchConfiguration("scenario").perform(context))
+    record = LaunchConfiguration("record").perform(context).lower() in ("true", "1", "yes")
+    bag = os.path.abspath(LaunchConfiguration("bag").perform(context))
     rate = float(LaunchConfiguration("rate").perform(context))
+    namespace = LaunchConfiguration("namespace").perform(context)
+    log_level = LaunchConfiguration("log_level").perform(context)
     sensors = list(Scenario.from_yaml(scenario).sensors)
-    return [Node(package="train_localization", executable=exe, name=name, namespace=NAMESPACE,
-                 parameters=[params], output="screen")
-            for exe, name, params in demo_graph(scenario, sensors, bag, rate)]
+    actions = []
+    for exe, name, params in demo_graph(scenario, sensors, bag, rate, record=record):
+        node = Node(package="train_localization", executable=exe, name=name, namespace=namespace,
+                    parameters=[params], output="screen", arguments=["--ros-args", "--log-level", log_level])
+        actions.append(node)
+        if exe == "simulator":
+            actions.append(RegisterEventHandler(OnProcessExit(
+                target_action=node, on_exit=[EmitEvent(event=Shutdown(reason="the simulator has ended"))])))
+    return actions
 
 
 def generate_launch_description():
     return LaunchDescription([
-        DeclareLaunchArgument("scenario", default_value="config/scenario_demo.yaml"),
-        DeclareLaunchArgument("bag", default_value="demo.mcap"),
-        DeclareLaunchArgument("rate", default_value="1.0"),
+        DeclareLaunchArgument("scenario", default_value="config/scenario_demo.yaml",
+                              description="scenario YAML (track, vehicle, profile, sensors); a relative path is "
+                                          "looked up in the current directory, then in the package's share"),
+        DeclareLaunchArgument("rate", default_value="1.0",
+                              description="simulation speed as a multiple of real time (> 0)"),
+        DeclareLaunchArgument("namespace", default_value=NAMESPACE,
+                              description="namespace of every node and topic of the graph"),
+        DeclareLaunchArgument("record", default_value="true", choices=["true", "false"],
+                              description="run the recorder (MCAP bag of every topic)"),
+        DeclareLaunchArgument("bag", default_value="demo.mcap",
+                              description="the recorder's output file (relative: to the current directory)"),
+        DeclareLaunchArgument("log_level", default_value="info",
+                              choices=["debug", "info", "warn", "error", "fatal"],
+                              description="log level of every node"),
+        SetEnvironmentVariable("ROS_AUTOMATIC_DISCOVERY_RANGE",
+                               EnvironmentVariable("ROS_AUTOMATIC_DISCOVERY_RANGE", default_value="LOCALHOST")),
         OpaqueFunction(function=_nodes),
     ])

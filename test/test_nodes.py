@@ -161,3 +161,43 @@ def test_sensor_node_in_sim_mode_rejects_bad_truth_states(ros_context, start_nod
         assert proc.proc.poll() is None and proc.interrupt() == 0
     finally:
         node.destroy_node()
+
+
+def test_fusion_diagnostics_level_follows_the_mode(ros_context, start_node):
+    """WARN while no position is claimed, ERROR when LOST (one wayside fix and no speed
+    source: the interval soon exceeds lost_stddev), OK when NOMINAL (after an operator
+    reset), with the mode named in the message."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from train_localization_msgs.msg import PositionFix
+    from train_localization_msgs.srv import SetPosition
+    from train_localization.nodes.common import STREAM_QOS
+
+    proc = start_node("fusion", "--ros-args", *NS, "-p", "sensors:=[axle_counter]", "-p", "lost_stddev:=5.0")
+    node = ros_context.create_node("probe_fusion_diag", namespace="/train")
+    pub = node.create_publisher(PositionFix, "sensors/axle_counter/position", STREAM_QOS)
+    client = node.create_client(SetPosition, "localization/set_position")
+    diags = []
+    node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+
+    def status():
+        for arr in reversed(diags):
+            for s in arr.status:
+                if "fusion" in s.name:
+                    return s.level[0] if isinstance(s.level, bytes) else s.level, s.message
+        return None, ""
+    try:
+        assert spin_until(node, lambda: pub.get_subscription_count() > 0 and client.service_is_ready(), 30.0), \
+            proc.output()
+        assert spin_until(node, lambda: status()[0] == 1 and "INITIALISING" in status()[1], 20.0), proc.output()
+        m = PositionFix(sensor="axle_counter", unit_id="ac", track_id="conventional_line", reference_id="AC01",
+                        position=500.0, position_stddev=0.05)
+        m.header.stamp = node.get_clock().now().to_msg()
+        pub.publish(m)
+        assert spin_until(node, lambda: status()[0] == 2 and "LOST" in status()[1], 30.0), proc.output()
+        future = client.call_async(SetPosition.Request(position=500.0, position_stddev=0.1, speed=0.0,
+                                                       speed_stddev=0.001))
+        assert spin_until(node, future.done, 10.0) and future.result().success, proc.output()
+        assert spin_until(node, lambda: status()[0] == 0 and "NOMINAL" in status()[1], 30.0), proc.output()
+        assert proc.interrupt() == 0
+    finally:
+        node.destroy_node()

@@ -43,3 +43,18 @@ def test_launch_file_is_a_list_of_node_actions_with_the_demo_graph():
     tree = ast.parse((ROOT / "launch" / "demo.launch.py").read_text())
     names = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)}
     assert {"Node", "demo_graph", "LaunchDescription"} <= names
+
+
+def test_package_xml_dependencies_are_rosdep_keys():
+    """rosdep install --from-paths . --ignore-src resolves every key: each is a key of
+    rosdistro's rosdep files or a Jazzy package (test/data/rosdep_keys.txt), except the
+    interface package built from msg_defs/. The launch file's imports are declared."""
+    import xml.etree.ElementTree as ET
+    known = {line.strip() for line in (ROOT / "test" / "data" / "rosdep_keys.txt").read_text().splitlines()
+             if line.strip() and not line.startswith("#")}
+    root = ET.parse(ROOT / "package.xml").getroot()
+    keys = {e.text.strip() for e in root if e.tag.endswith("depend")}
+    assert keys - {"train_localization_msgs"} <= known, sorted(keys - known - {"train_localization_msgs"})
+    launch = ast.parse((ROOT / "launch" / "demo.launch.py").read_text())
+    imported = {(n.module or "").split(".")[0] for n in ast.walk(launch) if isinstance(n, ast.ImportFrom)}
+    assert {"launch", "launch_ros", "ament_index_python"} <= imported <= keys | {"train_localization"}

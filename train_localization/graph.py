@@ -12,23 +12,26 @@ LEAN_EXCLUDE = ["/rosout", "/parameter_events", "/tf", f"{NAMESPACE}/localizatio
 
 
 def demo_graph(scenario: str, sensors: list[str], bag: str, rate: float = 1.0,
-               exclude: list[str] | None = None) -> list[tuple[str, str, dict]]:
-    """Recorder, one sensor node per entry of ``sensors`` (node names), fusion, simulator.
+               exclude: list[str] | None = None, record: bool = True) -> list[tuple[str, str, dict]]:
+    """Recorder (if ``record``), one sensor node per entry of ``sensors`` (node names),
+    fusion, simulator.
 
     ``exclude``: topics the recorder leaves out (default: only /rosout and
     /parameter_events; LEAN_EXCLUDE also drops what the fused state determines).
     """
     from .core.sensors import spec
     classes = [spec(n).sensor for n in sensors]
-    recorder = {"output": bag, "use_sim_time": True}
-    if exclude:
-        recorder["exclude"] = list(exclude)
-    nodes = [("recorder", "recorder", recorder)]
+    nodes = []
+    if record:
+        recorder = {"output": bag, "use_sim_time": True}
+        if exclude:
+            recorder["exclude"] = list(exclude)
+        nodes.append(("recorder", "recorder", recorder))
     nodes += [(name, name, {"mode": "sim", "scenario": scenario, "use_sim_time": True}) for name in sensors]
     nodes.append(("fusion", "fusion", {"scenario": scenario, "sensors": classes, "use_sim_time": True}))
     # the simulator starts once the recorder and every sensor node listen to the truth
     nodes.append(("simulator", "simulator", {"scenario": scenario, "rate": rate, "start_delay": 1.0,
-                                             "wait_for_subscribers": len(sensors) + 1}))
+                                             "wait_for_subscribers": len(sensors) + int(record)}))
     return nodes
 
 

@@ -6,7 +6,9 @@ core/offline.py FusionRunner, the same code as the offline runs):
   localization/state     TrainState (reliable, transient-local)
   localization/odometry  nav_msgs/Odometry, pose in map from the track alignment
   /tf                    map -> base_link
-  /diagnostics           counts of accepted, gated and rejected measurements, mode, NIS
+  /diagnostics           level from the mode (OK NOMINAL, WARN INITIALISING and DEGRADED, ERROR
+                         LOST; WARN also once input was rejected), counts of accepted, gated and
+                         rejected measurements, mode, NIS
 Service: localization/set_position (train_localization_msgs/SetPosition).
 
 Parameters:
@@ -31,7 +33,7 @@ from nav_msgs.msg import Odometry
 from rclpy.node import Node
 
 from ..core import convert, paths
-from ..core.fusion import FusionConfig, sensor_models
+from ..core.fusion import FusionConfig, Mode, sensor_models
 from ..core.offline import FusionRunner, estimate_to_msg, fusion_config
 from ..core.scenario import Scenario
 from ..core.signals import InputRejected
@@ -94,6 +96,20 @@ def declare_fusion_config(node: Node, base: FusionConfig, track_id: str) -> Fusi
         "per-sensor error-model fields replacing what the sensor's own model says, as "
         "'sensor.field:value' (fields of core/sensors/base.py ErrorModel, e.g. doppler.scale_sigma:0.01)"))
     return FusionConfig(track_id=track_id, sensors=base.sensors, overrides=overrides, **values)
+
+
+# diagnostic level per mode (diagnostic_msgs/DiagnosticStatus: 0 OK, 1 WARN, 2 ERROR): no position
+# yet and DEGRADED are warnings, LOST an error
+_MODE_LEVEL = {Mode.INITIALISING: 1, Mode.NOMINAL: 0, Mode.DEGRADED: 1, Mode.LOST: 2}
+
+
+def mode_status(est) -> tuple[int, str]:
+    """(diagnostic level, message) of the fused state ``est``."""
+    mode = Mode(est.mode)
+    if mode == Mode.INITIALISING:
+        return _MODE_LEVEL[mode], "INITIALISING: no position claimed yet"
+    return _MODE_LEVEL[mode], f"{mode.name}: position {est.position:.2f} m, interval " \
+                              f"[{est.position_min:.2f}, {est.position_max:.2f}] m"
 
 
 class FusionNode(Node):
@@ -187,6 +203,7 @@ class FusionNode(Node):
             self.publish_state(est, used)
         if states:
             est = states[-1][0]
+            self.diag.set_status(*mode_status(est))
             self.diag.values.update({"mode": str(est.mode), "position_stddev": f"{est.position_stddev:.3f}"})
             for group, values in self.filter.counters().items():
                 for k, v in values.items():

@@ -201,3 +201,27 @@ def test_fusion_diagnostics_level_follows_the_mode(ros_context, start_node):
         assert proc.interrupt() == 0
     finally:
         node.destroy_node()
+
+
+def test_parameters_take_integers_for_doubles_and_reject_bad_values_in_one_line(ros_context, start_node):
+    """``-p publish_rate:=50`` (an integer for a double) starts the fusion; a value that is
+    no number, or a scenario file that does not exist, stops it with exit code 2 and one
+    line naming the problem, no traceback."""
+    from train_localization_msgs.msg import TrainState
+    from train_localization.nodes.common import LATCHED_QOS
+
+    good = start_node("fusion", "--ros-args", *NS, "-p", "publish_rate:=50", "-p", "sensors:=[axle_counter]")
+    node = ros_context.create_node("probe_params", namespace="/train")
+    states = []
+    node.create_subscription(TrainState, "localization/state", states.append, LATCHED_QOS)
+    try:
+        assert spin_until(node, lambda: len(states) >= 5, 30.0), good.output()
+        assert good.proc.poll() is None and good.interrupt() == 0
+    finally:
+        node.destroy_node()
+    for args, expected in ((["-p", "publish_rate:=fast"], "parameter 'publish_rate' must be a number"),
+                           (["-p", "scenario:=no/such/scenario.yaml"], "no/such/scenario.yaml")):
+        bad = start_node("fusion", "--ros-args", *NS, *args)
+        assert bad.proc.wait(timeout=30) == 2, bad.output()
+        out = bad.output()
+        assert "[fatal]" in out and expected in out and "Traceback" not in out, out

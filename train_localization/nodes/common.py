@@ -15,12 +15,15 @@ from collections import Counter
 import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from ..core.convert import MsgClasses
+from ..core.scenario import ScenarioError
+from ..core.track import TrackError
 
 STREAM_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.VOLATILE)
@@ -99,9 +102,22 @@ def steady_clock():
     return Clock(clock_type=ClockType.STEADY_TIME)
 
 
+class ConfigurationError(ValueError):
+    """A parameter or file the node cannot start with: reported in one line, exit code 2."""
+
+
 def declare(node: Node, name: str, default, description: str = ""):
-    """Declare a parameter with a description and return its value."""
+    """Declare a parameter with a description and return its value.
+
+    A double parameter also takes an integer (``-p rate:=2``): it is declared with dynamic
+    typing and converted; anything else raises ConfigurationError naming the parameter."""
     from rcl_interfaces.msg import ParameterDescriptor
+    if isinstance(default, float):
+        value = node.declare_parameter(name, default, ParameterDescriptor(
+            description=description, dynamic_typing=True)).value
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigurationError(f"parameter {name!r} must be a number, got {value!r}")
+        return float(value)
     return node.declare_parameter(name, default, ParameterDescriptor(description=description)).value
 
 
@@ -141,6 +157,9 @@ def spin(node_factory, args=None) -> int:
                 last, quiet_since = now_activity, time.monotonic()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except (ConfigurationError, ScenarioError, TrackError, ParameterException, FileNotFoundError) as exc:
+        print(f"[fatal] {type(exc).__name__}: {exc}", flush=True)   # the user's input: one line
+        code = 2
     except Exception as exc:  # noqa: BLE001 - report and exit non-zero, never a traceback storm
         import traceback
         traceback.print_exc()

@@ -210,17 +210,24 @@ def test_parameters_take_integers_for_doubles_and_reject_bad_values_in_one_line(
     from train_localization_msgs.msg import TrainState
     from train_localization.nodes.common import LATCHED_QOS
 
-    good = start_node("fusion", "--ros-args", *NS, "-p", "publish_rate:=50", "-p", "sensors:=[axle_counter]")
+    good = start_node("fusion", "--ros-args", *NS, "-p", "publish_rate:=50",
+                      "-p", "sensors:=[axle_counter,wheel_sensor]")
     node = ros_context.create_node("probe_params", namespace="/train")
     states = []
     node.create_subscription(TrainState, "localization/state", states.append, LATCHED_QOS)
     try:
         assert spin_until(node, lambda: len(states) >= 5, 30.0), good.output()
+        # a node name stands for its class; only the outputs that kind of sensor has
+        assert node.count_subscribers("/train/sensors/wheel/distance") == 1
+        assert node.count_subscribers("/train/sensors/wheel/position") == 0
+        assert node.count_subscribers("/train/sensors/axle_counter/position") == 1
+        assert node.count_subscribers("/train/sensors/axle_counter/speed") == 0
         assert good.proc.poll() is None and good.interrupt() == 0
     finally:
         node.destroy_node()
     for args, expected in ((["-p", "publish_rate:=fast"], "parameter 'publish_rate' must be a number"),
-                           (["-p", "scenario:=no/such/scenario.yaml"], "no/such/scenario.yaml")):
+                           (["-p", "scenario:=no/such/scenario.yaml"], "no/such/scenario.yaml"),
+                           (["-p", "sensors:=[odometer]"], "parameter 'sensors': unknown odometer")):
         bad = start_node("fusion", "--ros-args", *NS, *args)
         assert bad.proc.wait(timeout=30) == 2, bad.output()
         out = bad.output()

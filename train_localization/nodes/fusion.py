@@ -1,7 +1,7 @@
 """Fusion node: absolute along-track position and speed from every sensor.
 
-Subscribes sensors/<sensor>/position | speed | distance for each sensor in
-``sensors``; publishes at a fixed rate, independent of the inputs (the grid of
+Subscribes sensors/<sensor>/position | speed | distance (what that kind of sensor
+publishes) for each sensor in ``sensors``; publishes at a fixed rate, independent of the inputs (the grid of
 core/offline.py FusionRunner, the same code as the offline runs):
   localization/state     TrainState (reliable, transient-local)
   localization/odometry  nav_msgs/Odometry, pose in map from the track alignment
@@ -15,7 +15,8 @@ Parameters:
   track (string)                track YAML (or take it from ``scenario``)
   scenario (string, "")         scenario YAML: the track, the sensors whose error models configure
                                 the filter, and the ``fusion:`` tuning (set parameters override it)
-  sensors (string[])            sensor classes to subscribe
+  sensors (string[])            sensor classes to subscribe (sensor node names map to their class;
+                                anything else stops the node with the list of known ones)
   sensor_params (string, "")    YAML file: sensor node name -> parameters; the error models of the
                                 subscribed sensors are built from it (without a scenario)
   publish_rate (double, 200.0)  [Hz] (MLX position system updates every 5 ms, seed 002)
@@ -38,7 +39,9 @@ from ..core.offline import FusionRunner, estimate_to_msg, fusion_config
 from ..core.scenario import Scenario
 from ..core.signals import InputRejected
 from ..core.track import Track
-from .common import LATCHED_QOS, STREAM_QOS, Diagnostics, declare, now_sec, rclpy_classes, spin
+from ..core.sensors import NODE_NAMES, spec
+from .common import (LATCHED_QOS, STREAM_QOS, ConfigurationError, Diagnostics, declare, now_sec, rclpy_classes,
+                     spin)
 
 ALL_SENSORS = ["doppler", "wheel", "eurobalise", "lrl", "inpo", "pattern_belt", "mmwave", "axle_counter"]
 
@@ -112,6 +115,26 @@ def mode_status(est) -> tuple[int, str]:
                               f"[{est.position_min:.2f}, {est.position_max:.2f}] m"
 
 
+def sensor_classes(names: list[str]) -> list[str]:
+    """Sensor classes (topic keys) from the ``sensors`` parameter: class names, or sensor
+    node names (``wheel_sensor`` -> ``wheel``); ConfigurationError for anything else."""
+    by_node = {n: spec(n).sensor for n in NODE_NAMES}
+    known = set(by_node.values())
+    out, unknown = [], []
+    for name in (n.strip() for n in names):
+        cls = by_node.get(name, name)
+        if not name:
+            continue
+        if cls not in known:
+            unknown.append(name)
+        elif cls not in out:
+            out.append(cls)
+    if unknown:
+        raise ConfigurationError(f"parameter 'sensors': unknown {', '.join(unknown)}; sensor classes are "
+                                 f"{', '.join(sorted(known))} (or the node names {', '.join(NODE_NAMES)})")
+    return out
+
+
 class FusionNode(Node):
     def __init__(self):
         super().__init__("fusion")
@@ -119,7 +142,8 @@ class FusionNode(Node):
         track = declare(self, "track", "config/track_conventional.yaml", "track YAML")
         scenario = Scenario.from_yaml(scenario_path) if scenario_path else None
         self.track = scenario.track if scenario else Track.from_yaml(paths.resolve(track))
-        sensors = declare(self, "sensors", ALL_SENSORS, "sensor classes to subscribe")
+        sensors = sensor_classes(declare(self, "sensors", ALL_SENSORS, "sensor classes to subscribe (a sensor "
+                                                                          "node's name is taken for its class)"))
         params_file = declare(self, "sensor_params", "", "YAML file: sensor node name -> its parameters (the "
                                                          "sensors' own parameter files); their error models "
                                                          "configure the filter (default: the scenario's sensors, "
@@ -139,8 +163,10 @@ class FusionNode(Node):
         parsers = {"position": (self.mc.PositionFix, convert.position_fix_from_msg),
                    "speed": (self.mc.SpeedMeasurement, convert.speed_from_msg),
                    "distance": (self.mc.DistanceIncrement, convert.distance_from_msg)}
+        outputs = {spec(n).sensor: spec(n).outputs for n in NODE_NAMES}
         for sensor in sensors:
-            for suffix, (cls, parse) in parsers.items():
+            for suffix in (o for o in outputs[sensor] if o in parsers):   # only what that sensor publishes
+                cls, parse = parsers[suffix]
                 topic = f"sensors/{sensor}/{suffix}"
                 self.create_subscription(cls, topic, lambda msg, t=topic, p=parse: self.on_measurement(t, p, msg),
                                          STREAM_QOS)
@@ -161,7 +187,6 @@ class FusionNode(Node):
         """Error models of the subscribed sensor classes, from their parameter file (if any)."""
         import yaml
         from ..core.scenario import Vehicle
-        from ..core.sensors import NODE_NAMES, spec
         by_class = {spec(n).sensor: n for n in NODE_NAMES}
         unknown = [c for c in classes if c not in by_class]
         if unknown:

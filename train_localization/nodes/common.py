@@ -4,7 +4,8 @@ QoS (DESIGN.md section 4): measurement and raw streams are published RELIABLE wi
 deep history so that a recorder gets every message; our own subscribers use the
 same profile. A subscriber that prefers the sensor-data profile (best effort) is
 compatible with these publishers. State and occupancy topics that a late joiner
-needs are reliable + transient-local.
+needs are reliable + transient-local: the fused state with depth 1 (a late joiner's first
+message is the current state), the section occupancy with the depth of all sections.
 """
 from __future__ import annotations
 
@@ -29,6 +30,10 @@ STREAM_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability
                         durability=DurabilityPolicy.VOLATILE)
 LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# the current fused state for late joiners: only the latest is kept (a subscriber that wants
+# the stream subscribes reliable with a deep queue, as the recorder does)
+STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
 CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.VOLATILE)
 

@@ -3,7 +3,8 @@
 Subscribes sensors/<sensor>/position | speed | distance (what that kind of sensor
 publishes) for each sensor in ``sensors``; publishes at a fixed rate, independent of the inputs (the grid of
 core/offline.py FusionRunner, the same code as the offline runs):
-  localization/state     TrainState (reliable, transient-local)
+  localization/state     TrainState (reliable, transient-local, depth 1: a late joiner gets the
+                         current state first)
   localization/odometry  nav_msgs/Odometry, pose in map from the track alignment
   /tf                    map -> base_link
   /diagnostics           level from the mode (OK NOMINAL, WARN INITIALISING and DEGRADED, ERROR
@@ -40,7 +41,7 @@ from ..core.scenario import Scenario
 from ..core.signals import InputRejected
 from ..core.track import Track
 from ..core.sensors import NODE_NAMES, spec
-from .common import (LATCHED_QOS, STREAM_QOS, ConfigurationError, Diagnostics, declare, now_sec, rclpy_classes,
+from .common import (STATE_QOS, STREAM_QOS, ConfigurationError, Diagnostics, declare, now_sec, rclpy_classes,
                      spin)
 
 ALL_SENSORS = ["doppler", "wheel", "eurobalise", "lrl", "inpo", "pattern_belt", "mmwave", "axle_counter"]
@@ -170,7 +171,7 @@ class FusionNode(Node):
                 topic = f"sensors/{sensor}/{suffix}"
                 self.create_subscription(cls, topic, lambda msg, t=topic, p=parse: self.on_measurement(t, p, msg),
                                          STREAM_QOS)
-        self.state_pub = self.create_publisher(self.mc.TrainState, "localization/state", LATCHED_QOS)
+        self.state_pub = self.create_publisher(self.mc.TrainState, "localization/state", STATE_QOS)
         self.odom_pub = self.create_publisher(Odometry, "localization/odometry", STREAM_QOS)
         try:
             from tf2_msgs.msg import TFMessage

@@ -25,7 +25,7 @@ from mcap.reader import make_reader
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 
-from .common import CLOCK_QOS, LATCHED_QOS, STREAM_QOS, declare, spin
+from .common import CLOCK_QOS, LATCHED_QOS, STATE_QOS, STREAM_QOS, declare, spin
 from .recorder import message_class
 
 
@@ -60,7 +60,8 @@ class ReplayerNode(Node):
         for cid, ch in self._channels.items():
             typename = summary.schemas[ch.schema_id].name
             topic = self.remap.get(ch.topic, ch.topic)
-            qos = CLOCK_QOS if topic == "/clock" else (LATCHED_QOS if topic.endswith(("localization/state", "sections")) else STREAM_QOS)
+            qos = CLOCK_QOS if topic == "/clock" else STATE_QOS if topic.endswith("localization/state") else \
+                LATCHED_QOS if topic.endswith("sections") else STREAM_QOS
             self.pubs[cid] = self.create_publisher(message_class(typename), topic, qos)
         self._own_clock = not any(ch.topic == "/clock" for ch in self._channels.values())
         self.clock_pub = self.create_publisher(Clock, "/clock", CLOCK_QOS) if self._own_clock else None

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 import pytest
@@ -256,6 +257,58 @@ def test_a_late_joiner_gets_the_current_state_first(ros_context, start_node):
         first, received = late[0]
         age = received - (first.header.stamp.sec + first.header.stamp.nanosec * 1e-9)
         assert age <= 0.5 + 0.2, age
+        assert proc.interrupt() == 0
+    finally:
+        node.destroy_node()
+
+
+def test_with_an_odom_frame_the_fusion_publishes_map_to_odom_only(ros_context, start_node):
+    """REP-105: with odom_frame set and another source publishing odom -> base_link, /tf
+    from the fusion holds map -> odom (map -> base_link composed with the inverse of
+    odom -> base_link), never a second parent of base_link; the odometry covariance lies
+    along the track heading."""
+    from geometry_msgs.msg import TransformStamped
+    from nav_msgs.msg import Odometry
+    from tf2_msgs.msg import TFMessage
+    from train_localization_msgs.srv import SetPosition
+    from train_localization.nodes.common import STREAM_QOS
+    from train_localization.nodes.fusion import compose_inverse
+    from train_localization.core.track import Track
+    from train_localization.core import paths
+
+    proc = start_node("fusion", "--ros-args", *NS, "-p", "sensors:=[axle_counter]", "-p", "odom_frame:=odom",
+                      "-p", "publish_rate:=20")
+    node = ros_context.create_node("probe_tf", namespace="/train")
+    tf_pub = node.create_publisher(TFMessage, "/tf", 100)
+    client = node.create_client(SetPosition, "localization/set_position")
+    from_fusion, odoms = [], []
+    node.create_subscription(TFMessage, "/tf", lambda m: from_fusion.extend(
+        t for t in m.transforms if t.header.frame_id == "map"), 100)
+    node.create_subscription(Odometry, "localization/odometry", odoms.append, STREAM_QOS)
+    try:
+        assert spin_until(node, client.service_is_ready, 30.0), proc.output()
+        future = client.call_async(SetPosition.Request(position=1200.0, position_stddev=0.5, speed=0.0,
+                                                       speed_stddev=0.001))
+        assert spin_until(node, future.done, 10.0) and future.result().success, proc.output()
+        ob = TransformStamped()
+        ob.header.frame_id, ob.child_frame_id = "odom", "base_link"
+        ob.transform.translation.x, ob.transform.translation.y = 40.0, -3.0
+        ob.transform.rotation.z, ob.transform.rotation.w = math.sin(0.1), math.cos(0.1)   # yaw 0.2
+        deadline = time.monotonic() + 20.0
+        while time.monotonic() < deadline and not (from_fusion and odoms):
+            ob.header.stamp = node.get_clock().now().to_msg()
+            tf_pub.publish(TFMessage(transforms=[ob]))
+            spin_until(node, lambda: False, 0.2)
+        assert from_fusion and odoms, proc.output()
+        assert {t.child_frame_id for t in from_fusion} == {"odom"}
+        x, y, yaw = Track.from_yaml(paths.resolve("config/track_conventional.yaml")).pose(1200.0)
+        mo = compose_inverse((x, y, yaw), (40.0, -3.0, 0.2))
+        t = from_fusion[-1].transform
+        assert (t.translation.x, t.translation.y) == pytest.approx(mo[:2], abs=1e-3)
+        assert 2 * math.atan2(t.rotation.z, t.rotation.w) == pytest.approx(mo[2], abs=1e-6)
+        cov = np.array(odoms[-1].pose.covariance).reshape(6, 6)[:2, :2]
+        heading = np.array([math.cos(yaw), math.sin(yaw)])
+        assert heading @ cov @ heading == pytest.approx(np.trace(cov), rel=1e-9) and np.trace(cov) > 0.2
         assert proc.interrupt() == 0
     finally:
         node.destroy_node()

@@ -6,7 +6,8 @@ core/offline.py FusionRunner, the same code as the offline runs):
   localization/state     TrainState (reliable, transient-local, depth 1: a late joiner gets the
                          current state first)
   localization/odometry  nav_msgs/Odometry, pose in map from the track alignment
-  /tf                    map -> base_link
+  /tf                    map -> base_frame, or map -> odom_frame when odom_frame is set (then
+                         odom -> base_frame comes from another source on /tf, REP-105)
   /diagnostics           level from the mode (OK NOMINAL, WARN INITIALISING and DEGRADED, ERROR
                          LOST; WARN also once input was rejected), counts of accepted, gated and
                          rejected measurements, mode, NIS
@@ -21,7 +22,7 @@ Parameters:
   sensor_params (string, "")    YAML file: sensor node name -> parameters; the error models of the
                                 subscribed sensors are built from it (without a scenario)
   publish_rate (double, 200.0)  [Hz] (MLX position system updates every 5 ms, seed 002)
-  map_frame ("map"), base_frame ("base_link")
+  map_frame ("map"), base_frame ("base_link"), odom_frame ("": none)
   error_model_overrides (string[]) per-sensor error-model fields, "sensor.field:value"
   and every global tuning field of core/fusion/config.py FusionConfig under its own name,
   with the same default and description.
@@ -116,6 +117,16 @@ def mode_status(est) -> tuple[int, str]:
                               f"[{est.position_min:.2f}, {est.position_max:.2f}] m"
 
 
+def compose_inverse(a: tuple, b: tuple) -> tuple:
+    """Planar transform a * b^-1 of (x, y, yaw) poses: map -> odom from map -> base and
+    odom -> base."""
+    xa, ya, ta = a
+    xb, yb, tb = b
+    t = ta - tb
+    c, s = math.cos(t), math.sin(t)
+    return xa - (c * xb - s * yb), ya - (s * xb + c * yb), math.atan2(math.sin(t), math.cos(t))
+
+
 def sensor_classes(names: list[str]) -> list[str]:
     """Sensor classes (topic keys) from the ``sensors`` parameter: class names, or sensor
     node names (``wheel_sensor`` -> ``wheel``); ConfigurationError for anything else."""
@@ -155,8 +166,12 @@ class FusionNode(Node):
             base = FusionConfig(**{**{f.name: getattr(base, f.name) for f in FusionConfig.tuning_fields()},
                                    "sensors": self._models(sensors, params_file), "overrides": base.overrides})
         cfg = declare_fusion_config(self, base, self.track.track_id)
-        self.map_frame = declare(self, "map_frame", "map", "fixed frame")
+        self.map_frame = declare(self, "map_frame", "map", "fixed frame (REP-105 map)")
         self.base_frame = declare(self, "base_frame", "base_link", "vehicle frame")
+        self.odom_frame = declare(self, "odom_frame", "", "REP-105 odom frame of a source that publishes "
+                                  "odom -> base_frame on /tf: then this node publishes map -> odom (as "
+                                  "robot_localization does); empty: map -> base_frame")
+        self._odom_base = None   # latest odom -> base_frame from /tf: (x, y, yaw)
         self.runner = FusionRunner(cfg, rate)
         self.filter = self.runner.filter
         self.mc = rclpy_classes()
@@ -177,6 +192,8 @@ class FusionNode(Node):
             from tf2_msgs.msg import TFMessage
             self.tf_pub = self.create_publisher(TFMessage, "/tf", 100)
             self._tf_cls = TFMessage
+            if self.odom_frame:
+                self.create_subscription(TFMessage, "/tf", self.on_tf, 100)
         except ImportError:
             self.tf_pub = None
             self.get_logger().warn("tf2_msgs is not installed: /tf is not published")
@@ -247,21 +264,38 @@ class FusionNode(Node):
         odom.child_frame_id = self.base_frame
         odom.pose.pose.position.x, odom.pose.pose.position.y = x, y
         odom.pose.pose.orientation.z, odom.pose.pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
+        # along-track variance along the track heading; no cross-track freedom (on the track)
+        var, c, s_ = est.position_stddev ** 2, math.cos(yaw), math.sin(yaw)
         cov = [0.0] * 36
-        cov[0] = cov[7] = est.position_stddev ** 2
+        cov[0], cov[7] = var * c * c, var * s_ * s_
+        cov[1] = cov[6] = var * c * s_
         odom.pose.covariance = cov
         odom.twist.twist.linear.x = est.speed
         tcov = [0.0] * 36
         tcov[0] = est.speed_stddev ** 2
         odom.twist.covariance = tcov
         self.odom_pub.publish(odom)
-        if self.tf_pub is not None:
-            tf = TransformStamped()
-            tf.header = odom.header
-            tf.child_frame_id = self.base_frame
-            tf.transform.translation.x, tf.transform.translation.y = x, y
-            tf.transform.rotation = odom.pose.pose.orientation
-            self.tf_pub.publish(self._tf_cls(transforms=[tf]))
+        if self.tf_pub is None:
+            return
+        child = self.base_frame
+        if self.odom_frame:   # map -> odom = (map -> base) (odom -> base)^-1, in the plane
+            if self._odom_base is None:
+                return
+            x, y, yaw = compose_inverse((x, y, yaw), self._odom_base)
+            child = self.odom_frame
+        tf = TransformStamped()
+        tf.header = odom.header
+        tf.child_frame_id = child
+        tf.transform.translation.x, tf.transform.translation.y = x, y
+        tf.transform.rotation.z, tf.transform.rotation.w = math.sin(yaw / 2), math.cos(yaw / 2)
+        self.tf_pub.publish(self._tf_cls(transforms=[tf]))
+
+    def on_tf(self, msg):
+        for t in msg.transforms:
+            if t.header.frame_id == self.odom_frame and t.child_frame_id == self.base_frame:
+                q = t.transform.rotation
+                yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+                self._odom_base = (t.transform.translation.x, t.transform.translation.y, yaw)
 
 
 def main(args=None):

@@ -312,3 +312,53 @@ def test_with_an_odom_frame_the_fusion_publishes_map_to_odom_only(ros_context, s
         assert proc.interrupt() == 0
     finally:
         node.destroy_node()
+
+
+def test_run_time_parameter_changes_take_effect_or_are_refused_with_a_reason(ros_context, start_node):
+    """``ros2 param set``: publish_rate 2 -> 20 Hz takes effect; 2000 Hz is refused with its
+    range; a start-up parameter (gate_probability) is read-only and refused."""
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+    from train_localization_msgs.msg import TrainState
+    from train_localization.nodes.common import LATCHED_QOS
+
+    proc = start_node("fusion", "--ros-args", *NS, "-p", "publish_rate:=2", "-p", "sensors:=[axle_counter]")
+    node = ros_context.create_node("probe_set", namespace="/train")
+    client = node.create_client(SetParameters, "fusion/set_parameters")
+    stamps = []
+    node.create_subscription(TrainState, "localization/state",
+                             lambda m: stamps.append(time.monotonic()), LATCHED_QOS)
+
+    def set_param(name, value):
+        v = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value)
+        future = client.call_async(SetParameters.Request(parameters=[Parameter(name=name, value=v)]))
+        assert spin_until(node, future.done, 10.0)
+        return future.result().results[0]
+
+    def rate_over(seconds):
+        n0, t0 = len(stamps), time.monotonic()
+        spin_until(node, lambda: False, seconds)
+        return (len(stamps) - n0) / (time.monotonic() - t0)
+    try:
+        assert spin_until(node, lambda: client.service_is_ready() and len(stamps) >= 2, 30.0), proc.output()
+        assert rate_over(2.0) < 4.0
+        assert set_param("publish_rate", 20.0).successful
+        spin_until(node, lambda: False, 0.5)
+        assert rate_over(2.0) > 10.0
+        refused = set_param("publish_rate", 2000.0)
+        assert not refused.successful and "(0, 1000]" in refused.reason
+        refused = set_param("gate_probability", 2.0)
+        assert not refused.successful and "read-only" in refused.reason.lower()
+        assert proc.interrupt() == 0
+    finally:
+        node.destroy_node()
+
+
+def test_fusion_parameters_out_of_range_stop_the_node_in_one_line(start_node):
+    """A probability outside (0, 1) or a negative tuning value names the parameter."""
+    for arg, expected in (("gate_probability:=2.0", "gate_probability must be in (0, 1)"),
+                          ("slip_window:=-1.0", "slip_window must be >= 0"),
+                          ("publish_rate:=0", "publish_rate' must be in (0, 1000]")):
+        proc = start_node("fusion", "--ros-args", *NS, "-p", arg, "-p", "sensors:=[axle_counter]")
+        assert proc.proc.wait(timeout=30) == 2, proc.output()
+        assert expected in proc.output() and "Traceback" not in proc.output(), proc.output()

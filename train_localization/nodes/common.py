@@ -111,19 +111,21 @@ class ConfigurationError(ValueError):
     """A parameter or file the node cannot start with: reported in one line, exit code 2."""
 
 
-def declare(node: Node, name: str, default, description: str = ""):
+def declare(node: Node, name: str, default, description: str = "", read_only: bool = False):
     """Declare a parameter with a description and return its value.
 
     A double parameter also takes an integer (``-p rate:=2``): it is declared with dynamic
-    typing and converted; anything else raises ConfigurationError naming the parameter."""
+    typing and converted; anything else raises ConfigurationError naming the parameter.
+    ``read_only``: read at start-up only, so ``ros2 param set`` refuses to change it."""
     from rcl_interfaces.msg import ParameterDescriptor
     if isinstance(default, float):
         value = node.declare_parameter(name, default, ParameterDescriptor(
-            description=description, dynamic_typing=True)).value
+            description=description, dynamic_typing=True, read_only=read_only)).value
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigurationError(f"parameter {name!r} must be a number, got {value!r}")
         return float(value)
-    return node.declare_parameter(name, default, ParameterDescriptor(description=description)).value
+    return node.declare_parameter(name, default, ParameterDescriptor(description=description,
+                                                                     read_only=read_only)).value
 
 
 def now_sec(node: Node) -> float:

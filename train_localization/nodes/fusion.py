@@ -21,7 +21,9 @@ Parameters:
                                 anything else stops the node with the list of known ones)
   sensor_params (string, "")    YAML file: sensor node name -> parameters; the error models of the
                                 subscribed sensors are built from it (without a scenario)
-  publish_rate (double, 200.0)  [Hz] (MLX position system updates every 5 ms, seed 002)
+  publish_rate (double, 200.0)  [Hz], (0, 1000] (MLX position system updates every 5 ms, seed 002);
+                                the only parameter that may change at run time (the others are
+                                read-only); an integer is taken for a double everywhere
   map_frame ("map"), base_frame ("base_link"), odom_frame ("": none)
   error_model_overrides (string[]) per-sensor error-model fields, "sensor.field:value"
   and every global tuning field of core/fusion/config.py FusionConfig under its own name,
@@ -95,12 +97,17 @@ def declare_fusion_config(node: Node, base: FusionConfig, track_id: str) -> Fusi
         if f.name == "track_id":
             continue
         default = getattr(base, f.name)
-        values[f.name] = _from_ros(default, declare(node, f.name, _ros_value(default), f.metadata.get("doc", "")))
+        values[f.name] = _from_ros(default, declare(node, f.name, _ros_value(default), f.metadata.get("doc", ""),
+                                                    read_only=True))
     overrides = overrides_from_ros(declare(
         node, "error_model_overrides", overrides_to_ros(base.overrides),
         "per-sensor error-model fields replacing what the sensor's own model says, as "
-        "'sensor.field:value' (fields of core/sensors/base.py ErrorModel, e.g. doppler.scale_sigma:0.01)"))
-    return FusionConfig(track_id=track_id, sensors=base.sensors, overrides=overrides, **values)
+        "'sensor.field:value' (fields of core/sensors/base.py ErrorModel, e.g. doppler.scale_sigma:0.01)",
+        read_only=True))
+    try:
+        return FusionConfig(track_id=track_id, sensors=base.sensors, overrides=overrides, **values)
+    except ValueError as exc:
+        raise ConfigurationError(f"fusion parameters: {exc}") from None
 
 
 # diagnostic level per mode (diagnostic_msgs/DiagnosticStatus: 0 OK, 1 WARN, 2 ERROR): no position
@@ -150,27 +157,30 @@ def sensor_classes(names: list[str]) -> list[str]:
 class FusionNode(Node):
     def __init__(self):
         super().__init__("fusion")
-        scenario_path = declare(self, "scenario", "", "scenario YAML (gives the track and the fusion tuning)")
-        track = declare(self, "track", "config/track_conventional.yaml", "track YAML")
+        scenario_path = declare(self, "scenario", "", "scenario YAML (gives the track and the fusion tuning)",
+                                read_only=True)
+        track = declare(self, "track", "config/track_conventional.yaml", "track YAML", read_only=True)
         scenario = Scenario.from_yaml(scenario_path) if scenario_path else None
         self.track = scenario.track if scenario else Track.from_yaml(paths.resolve(track))
         sensors = sensor_classes(declare(self, "sensors", ALL_SENSORS, "sensor classes to subscribe (a sensor "
-                                                                          "node's name is taken for its class)"))
+                                                                          "node's name is taken for its class)", read_only=True))
         params_file = declare(self, "sensor_params", "", "YAML file: sensor node name -> its parameters (the "
                                                          "sensors' own parameter files); their error models "
                                                          "configure the filter (default: the scenario's sensors, "
-                                                         "else default parameters)")
-        rate = float(declare(self, "publish_rate", 200.0, "state publish rate [Hz]"))
+                                                         "else default parameters)", read_only=True)
+        rate = declare(self, "publish_rate", 200.0, "state publish rate [Hz], (0, 1000]; may change at run time")
+        if not 0.0 < rate <= 1000.0:
+            raise ConfigurationError(f"parameter 'publish_rate' must be in (0, 1000] Hz, not {rate}")
         base = fusion_config(scenario)
         if params_file or not scenario:
             base = FusionConfig(**{**{f.name: getattr(base, f.name) for f in FusionConfig.tuning_fields()},
                                    "sensors": self._models(sensors, params_file), "overrides": base.overrides})
         cfg = declare_fusion_config(self, base, self.track.track_id)
-        self.map_frame = declare(self, "map_frame", "map", "fixed frame (REP-105 map)")
-        self.base_frame = declare(self, "base_frame", "base_link", "vehicle frame")
+        self.map_frame = declare(self, "map_frame", "map", "fixed frame (REP-105 map)", read_only=True)
+        self.base_frame = declare(self, "base_frame", "base_link", "vehicle frame", read_only=True)
         self.odom_frame = declare(self, "odom_frame", "", "REP-105 odom frame of a source that publishes "
                                   "odom -> base_frame on /tf: then this node publishes map -> odom (as "
-                                  "robot_localization does); empty: map -> base_frame")
+                                  "robot_localization does); empty: map -> base_frame", read_only=True)
         self._odom_base = None   # latest odom -> base_frame from /tf: (x, y, yaw)
         self.runner = FusionRunner(cfg, rate)
         self.filter = self.runner.filter
@@ -199,7 +209,27 @@ class FusionNode(Node):
             self.get_logger().warn("tf2_msgs is not installed: /tf is not published")
         from train_localization_msgs.srv import SetPosition
         self.create_service(SetPosition, "localization/set_position", self.on_set_position)
-        self.create_timer(1.0 / rate, self.on_timer)
+        self._timer = self.create_timer(1.0 / rate, self.on_timer)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+    def _on_set_parameters(self, params):
+        """Run-time changes: publish_rate (> 0, <= 1000 Hz) takes effect at once; the other
+        parameters are read-only (rclpy refuses them before this is called)."""
+        from rcl_interfaces.msg import SetParametersResult
+        for p in params:
+            if p.name == "publish_rate":
+                value = p.value
+                if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 < value <= 1000.0:
+                    return SetParametersResult(successful=False,
+                                               reason=f"publish_rate must be a number in (0, 1000] Hz, not {value!r}")
+        for p in params:
+            if p.name == "publish_rate":
+                rate = float(p.value)
+                self.runner.set_rate(rate)
+                self.destroy_timer(self._timer)
+                self._timer = self.create_timer(1.0 / rate, self.on_timer)
+                self.get_logger().info(f"publish_rate set to {rate:g} Hz")
+        return SetParametersResult(successful=True)
 
     def _models(self, classes: list[str], params_file: str) -> dict:
         """Error models of the subscribed sensor classes, from their parameter file (if any)."""

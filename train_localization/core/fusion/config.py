@@ -85,8 +85,13 @@ class FusionConfig:
     lost_stddev: float = _doc(100.0, "position 1-sigma above which the mode is LOST [m]")
 
     def __post_init__(self):
-        if not 0.0 < self.confidence < 1.0:
-            raise ValueError("confidence must be in (0, 1)")
+        for f in self.tuning_fields():
+            value = getattr(self, f.name)
+            if f.name.endswith("probability") or f.name == "confidence":
+                if not 0.0 < value < 1.0:
+                    raise ValueError(f"{f.name} must be in (0, 1), not {value}")
+            elif isinstance(value, (int, float)) and not isinstance(value, bool) and not value >= 0.0:
+                raise ValueError(f"{f.name} must be >= 0, not {value}")
         if self.history <= 0.0:
             raise ValueError("history must be > 0 s")
         if self.consistency_fixes < 2:

@@ -40,6 +40,13 @@ class FusionRunner:
         self._used.add(m.sensor)
         return True
 
+    def set_rate(self, rate: float) -> None:
+        """Change the output rate [Hz]: the grid continues from the next grid time not produced."""
+        if self._next_k is not None:
+            t_next = self._next_k * self.period
+            self._next_k = math.ceil(t_next * rate - 1e-9)
+        self.period = 1.0 / rate
+
     def due(self, t: float) -> bool:
         """Whether ``advance(t)`` would produce an estimate (a grid time <= t not produced yet)."""
         return self._next_k is None or math.floor(t / self.period + 1e-9) >= self._next_k

@@ -162,8 +162,9 @@ class FusionNode(Node):
         track = declare(self, "track", "config/track_conventional.yaml", "track YAML", read_only=True)
         scenario = Scenario.from_yaml(scenario_path) if scenario_path else None
         self.track = scenario.track if scenario else Track.from_yaml(paths.resolve(track))
-        sensors = sensor_classes(declare(self, "sensors", ALL_SENSORS, "sensor classes to subscribe (a sensor "
-                                                                          "node's name is taken for its class)", read_only=True))
+        sensors = sensor_classes(declare(
+            self, "sensors", ALL_SENSORS, "sensor classes to subscribe (a sensor node's name is taken for its class)",
+            read_only=True))
         params_file = declare(self, "sensor_params", "", "YAML file: sensor node name -> its parameters (the "
                                                          "sensors' own parameter files); their error models "
                                                          "configure the filter (default: the scenario's sensors, "

@@ -29,18 +29,22 @@ from ..core.sensors import NODE_NAMES, spec as sensor_spec
 from ..core.signals import InputRejected
 from ..core.track import Track
 from ..core import paths
-from .common import LATCHED_QOS, STREAM_QOS, Diagnostics, declare, rclpy_classes, spin
+from .common import LATCHED_QOS, STREAM_QOS, ConfigurationError, Diagnostics, declare, rclpy_classes, spin
 
 
 class SensorNode(Node):
     def __init__(self, node_name: str):
         super().__init__(node_name)
         self.spec = sensor_spec(node_name)
-        mode = declare(self, "mode", "sim", "sim: simulate from ground_truth/state; ingest: decode sensors/<sensor>/raw")
-        scenario_path = declare(self, "scenario", "", "scenario YAML (track, vehicle, seed, sensor overrides)")
-        track_path = declare(self, "track", "config/track_conventional.yaml", "track YAML when no scenario is given")
+        # every parameter is read at start-up: read-only (``ros2 param set`` refuses a change)
+        mode = declare(self, "mode", "sim",
+                       "sim: simulate from ground_truth/state; ingest: decode sensors/<sensor>/raw", read_only=True)
+        scenario_path = declare(self, "scenario", "", "scenario YAML (track, vehicle, seed, sensor overrides)",
+                                read_only=True)
+        track_path = declare(self, "track", "config/track_conventional.yaml", "track YAML when no scenario is given",
+                             read_only=True)
         if mode not in ("sim", "ingest"):
-            raise ValueError(f"parameter mode must be 'sim' or 'ingest', not {mode!r}")
+            raise ConfigurationError(f"parameter 'mode' must be 'sim' or 'ingest', not {mode!r}")
         overrides: dict = {}
         if scenario_path:
             scenario = Scenario.from_yaml(scenario_path)
@@ -56,7 +60,7 @@ class SensorNode(Node):
                 default = float(default)
             if isinstance(p.default, list) and not default:
                 continue  # empty lists have no ROS parameter type; keep the default
-            overrides[name] = declare(self, name, default, p.description)
+            overrides[name] = declare(self, name, default, p.description, read_only=True)
         unit = overrides.get("unit_id") or self.spec.sensor
         rng = scenario.rng(node_name, unit) if scenario else None
         if mode == "sim" and rng is None:

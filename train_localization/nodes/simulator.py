@@ -22,19 +22,24 @@ from rclpy.node import Node
 
 from ..core.convert import sec_to_ns, train_state_to_msg
 from ..core.scenario import Scenario
-from .common import CLOCK_QOS, LATCHED_QOS, STREAM_QOS, Diagnostics, declare, rclpy_classes, spin
+from .common import (CLOCK_QOS, LATCHED_QOS, STREAM_QOS, ConfigurationError, Diagnostics, declare, rclpy_classes,
+                     spin)
 
 
 class SimulatorNode(Node):
     def __init__(self):
         super().__init__("simulator")
-        path = declare(self, "scenario", "", "scenario YAML file")
-        self.rate = float(declare(self, "rate", 1.0, "speed-up over real time; 0 = as fast as possible"))
-        self.start_delay = float(declare(self, "start_delay", 1.0, "wall seconds before t = 0 [s]"))
-        self.exit_at_end = bool(declare(self, "exit_at_end", True, "shut down after the last state"))
-        self.wait_for = int(declare(self, "wait_for_subscribers", 0, "subscribers of ground_truth/state to wait for"))
+        path = declare(self, "scenario", "", "scenario YAML file", read_only=True)
+        self.rate = float(declare(self, "rate", 1.0, "speed-up over real time; 0 = as fast as possible",
+                                  read_only=True))
+        self.start_delay = float(declare(self, "start_delay", 1.0, "wall seconds before t = 0 [s]", read_only=True))
+        self.exit_at_end = bool(declare(self, "exit_at_end", True, "shut down after the last state", read_only=True))
+        self.wait_for = int(declare(self, "wait_for_subscribers", 0, "subscribers of ground_truth/state to wait for",
+                                    read_only=True))
         if not path:
-            raise ValueError("parameter 'scenario' is required (a scenario YAML file)")
+            raise ConfigurationError("parameter 'scenario' is required (a scenario YAML file)")
+        if not self.rate >= 0.0:
+            raise ConfigurationError(f"parameter 'rate' must be >= 0 (0: as fast as possible), not {self.rate}")
         self.scenario = Scenario.from_yaml(path)
         self.trajectory = self.scenario.trajectory()
         self.mc = rclpy_classes()

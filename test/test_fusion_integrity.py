@@ -162,3 +162,29 @@ def test_exclusions_of_two_sensors_decided_after_the_fact_do_not_undo_each_other
     assert "error" not in r, r.get("traceback")
     assert r["fusion"]["integrity"]["slip_lookback"] >= 2
     assert r["scores"]["integrity"]["inside_fraction"] >= 0.999
+
+
+def _revisit_run(revisit: bool):
+    """At rest on a balise whose installation error is 1 m: its fix, then (a reversal
+    over it, or a second read) the same balise again."""
+    models = sensor_models(["doppler_radar", "eurobalise_reader"], None, Vehicle())
+    f = TrainFilter(FusionConfig(sensors=models))
+    f.reset(position=100.0, position_stddev=3.0, speed=0.0, speed_stddev=0.05, stamp=0.0)
+    for j in range(1, 61):
+        t = j * 0.05
+        f.add(SpeedMeasurement(t - 0.025, "doppler", "doppler", 0.0, 0.05))
+        if j == 20 or (revisit and j == 50):
+            f.add(PositionFix(t, "eurobalise", "eb", "T", "EB7", 101.0, 0.5))
+    return f
+
+
+def test_a_reference_read_again_is_not_counted_as_new_information():
+    """The same balise twice carries the same installation error: while the filter knows its
+    position better than the fix, the second read is not applied (reference_revisited),
+    so the interval does not shrink on the same error twice."""
+    once, twice = _revisit_run(False), _revisit_run(True)
+    assert twice.counters()["integrity"].get("reference_revisited") == 1
+    assert "reference_revisited" not in once.counters()["integrity"]
+    e1, e2 = once.estimate(3.0), twice.estimate(3.0)
+    assert e2.position_stddev == pytest.approx(e1.position_stddev, rel=1e-9)
+    assert e2.position == pytest.approx(e1.position, abs=1e-9)

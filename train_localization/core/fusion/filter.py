@@ -100,6 +100,9 @@ class Estimate:
     biases: dict[str, float] = field(default_factory=dict)
 
 
+# references whose fixes the filter remembers (a reversal passes the last few again)
+_REMEMBERED_REFS = 32
+
 # fault modes by which an absolute sensor can report a confident wrong fix
 _OUTLIER_MODES = frozenset(("nlos", "misread", "miscount"))
 
@@ -111,7 +114,7 @@ class _Aux:
     __slots__ = ("initialised", "t", "last_accepted", "slip_until", "accepted", "gated", "slips",
                  "speed_sources", "nis", "fix_ref", "last_fix_accepted", "fix_nis", "slip_window",
                  "alternative", "events", "unverified", "s_last_fix", "relative_alternatives", "suspended",
-                 "candidate")
+                 "candidate", "used_refs")
 
     def __init__(self):
         self.initialised = False
@@ -136,6 +139,7 @@ class _Aux:
         # of D [m^2], since [s], last stamp [s], distance run [m])
         self.relative_alternatives: dict[str, tuple] = {}
         self.candidate: tuple | None = None             # first fix awaiting confirmation
+        self.used_refs: tuple = ()                     # (sensor, reference) of the last accepted fixes
         self.suspended: dict[str, tuple] = {}          # speed sources found faulty -> (agreeing since [s], window)
 
     def copy(self) -> "_Aux":
@@ -263,6 +267,8 @@ class TrainFilter:
             aux.gated = _inc(aux.gated, cls)
             if is_fix and aux.initialised:
                 self._unexplained(m, z, R)
+            return
+        if is_fix and self._remembered(m, R):
             return
         self._update(z, R, h, hx, PHt, S)
         count, total = aux.nis.get(cls, (0, 0.0))
@@ -491,8 +497,26 @@ class TrainFilter:
         aux.events = _inc(aux.events, reason)
         aux.unverified = reason
 
+    def _remembered(self, m, R: float) -> bool:
+        """A fix of a reference whose earlier fix the filter still holds: its error (a balise's
+        or a head's installation error, part of R) is the same as then, so it is no new
+        information while the filter knows its position better than the fix (P00 < R): not
+        applied, counted (``reference_revisited``). Sensors with a fix-bias state model this
+        themselves."""
+        if m.sensor in self.layout.fix:
+            return False
+        aux = self.aux
+        key = (m.sensor, m.reference_id)
+        if key in aux.used_refs and float(self.ekf.P[0, 0]) < R:
+            aux.events = _inc(aux.events, "reference_revisited")
+            return True
+        return False
+
     def _fix_accepted(self, m, nis: float) -> None:
         aux, cfg = self.aux, self.cfg
+        if m.sensor not in self.layout.fix:
+            key = (m.sensor, m.reference_id)
+            aux.used_refs = tuple(k for k in aux.used_refs if k != key)[-(_REMEMBERED_REFS - 1):] + (key,)
         alt = aux.alternative
         if alt is not None and (m.reference_id != alt[6] or m.sensor != alt[5]):
             aux.alternative = None               # the filter explains an independent fix: that one was wrong

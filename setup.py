@@ -37,6 +37,7 @@ setup(
         ("share/" + PACKAGE, ["package.xml"]),
         ("share/" + PACKAGE + "/launch", glob("launch/*.py")),
         ("share/" + PACKAGE + "/config", glob("config/*.yaml")),
+        ("share/" + PACKAGE + "/config/params", glob("config/params/*.yaml")),
     ],
     install_requires=["setuptools"],
     zip_safe=True,

@@ -474,12 +474,18 @@ def test_runner_publishes_on_a_fixed_grid_and_reports_rejections():
 
 
 def test_every_tuning_field_is_a_documented_node_parameter():
-    from train_localization.nodes.fusion import _from_ros, _ros_value, overrides_from_ros, overrides_to_ros
+    from train_localization.nodes.fusion import (_from_ros, _ros_value, error_model_parameters,
+                                                 overrides_from_parameters)
     cfg = FusionConfig()
     for f in FusionConfig.tuning_fields():
         assert f.metadata.get("doc"), f"{f.name} has no description"
         value = getattr(cfg, f.name)
         assert _from_ros(value, _ros_value(value)) == value, f.name
-    overrides = {"doppler": {"scale_sigma": 0.01, "timeout": 2.0}, "wheel": {"faults": ("slide",)}}
-    assert overrides_from_ros(overrides_to_ros(overrides)) == overrides
-    assert overrides_from_ros(["doppler.scale_sigma:0.01", ""]) == {"doppler": {"scale_sigma": 0.01}}
+    # per-sensor error models as nested parameters: unchanged values are no override
+    wheel = sensor_models(["wheel_sensor"], None, Vehicle())["wheel"]
+    params = error_model_parameters(wheel)
+    assert params["faults"] == "slip,slide" and math.isnan(params["gate_probability"])
+    assert overrides_from_parameters(wheel, params) == {}
+    changed = {**params, "timeout": 2.0, "faults": "slide"}
+    assert overrides_from_parameters(wheel, changed) == {"timeout": 2.0, "faults": ("slide",)}
+    assert wheel.overridden(overrides_from_parameters(wheel, changed)).faults == ("slide",)

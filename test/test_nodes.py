@@ -362,3 +362,36 @@ def test_fusion_parameters_out_of_range_stop_the_node_in_one_line(start_node):
         proc = start_node("fusion", "--ros-args", *NS, "-p", arg, "-p", "sensors:=[axle_counter]")
         assert proc.proc.wait(timeout=30) == 2, proc.output()
         assert expected in proc.output() and "Traceback" not in proc.output(), proc.output()
+
+
+def test_fusion_takes_nested_per_sensor_parameters_from_a_params_file(ros_context, start_node, tmp_path):
+    """The usual YAML params-file form: ``doppler: {scale_sigma: ...}`` nested under the node
+    overrides that field of the Doppler's own error model (logged), integers are taken for
+    doubles, and the example file in config/params starts the node."""
+    from rcl_interfaces.srv import GetParameters
+    from conftest import ROOT
+
+    params = tmp_path / "fusion.yaml"
+    params.write_text("/train/fusion:\n  ros__parameters:\n    sensors: [doppler, eurobalise]\n"
+                      "    publish_rate: 20\n    doppler:\n      scale_sigma: 0.02\n      timeout: 3\n")
+    proc = start_node("fusion", "--ros-args", *NS, "--params-file", str(params))
+    node = ros_context.create_node("probe_params_file", namespace="/train")
+    client = node.create_client(GetParameters, "fusion/get_parameters")
+    try:
+        assert spin_until(node, client.service_is_ready, 30.0), proc.output()
+        future = client.call_async(GetParameters.Request(names=["doppler.scale_sigma", "doppler.timeout",
+                                                                "publish_rate", "eurobalise.faults"]))
+        assert spin_until(node, future.done, 10.0), proc.output()
+        values = future.result().values   # an integer stays an integer parameter; the node takes it as a double
+        assert [v.double_value or float(v.integer_value) for v in values[:3]] == [0.02, 3.0, 20.0]
+        assert values[3].string_value == "misread"
+        assert "error model of doppler overridden: scale_sigma=0.02, timeout=3.0" in proc.output()
+        assert "eurobalise overridden" not in proc.output()
+        assert proc.interrupt() == 0
+    finally:
+        node.destroy_node()
+    example = start_node("fusion", "--ros-args", *NS, "--params-file", str(ROOT / "config" / "params" / "fusion.yaml"))
+    spin_until(ros_context.create_node("probe_example"), lambda: "overridden" in example.output(), 20.0)
+    assert example.proc.poll() is None, example.output()
+    assert "error model of doppler overridden: scale_sigma=0.004" in example.output()
+    assert example.interrupt() == 0

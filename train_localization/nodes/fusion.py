@@ -25,7 +25,9 @@ Parameters:
                                 the only parameter that may change at run time (the others are
                                 read-only); an integer is taken for a double everywhere
   map_frame ("map"), base_frame ("base_link"), odom_frame ("": none)
-  error_model_overrides (string[]) per-sensor error-model fields, "sensor.field:value"
+  <sensor>.<field>              per configured sensor, its error-model fields (core/sensors/base.py
+                                ErrorModel, e.g. doppler.scale_sigma; faults as "slip,slide"):
+                                default the sensor's own model; a different value overrides it
   and every global tuning field of core/fusion/config.py FusionConfig under its own name,
   with the same default and description.
 """
@@ -63,35 +65,38 @@ def _from_ros(default, value):
     return value
 
 
-def overrides_to_ros(overrides: dict) -> list[str]:
-    """{sensor: {field: value}} -> ["sensor.field:value", ...] (a tuple value as a|b|c)."""
-    out = []
-    for sensor, values in overrides.items():
-        for name, value in values.items():
-            text = "|".join(value) if isinstance(value, (tuple, list)) else repr(value)
-            out.append(f"{sensor}.{name}:{text}")
-    return out or [""]
-
-
-def overrides_from_ros(items: list[str]) -> dict:
-    """Inverse of overrides_to_ros; ValueError names a malformed entry."""
-    out: dict = {}
-    for item in items:
-        if not item:
+def error_model_parameters(model) -> dict:
+    """The fields of a sensor's error model (core/sensors/base.py ErrorModel) as ROS parameter
+    values: numbers, booleans, and the fault modes as one comma-separated string."""
+    from dataclasses import fields
+    out = {}
+    for f in fields(model):
+        if f.name in ("sensor", "measures"):
             continue
-        key, sep, text = item.partition(":")
-        sensor, dot, name = key.strip().partition(".")
-        if not (sep and dot and sensor and name):
-            raise ValueError(f"expected 'sensor.field:value' in error_model_overrides, got {item!r}")
-        value = tuple(v for v in text.split("|") if v) if name == "faults" else \
-            (text.strip().lower() == "true" if name == "fix_bias_per_reference" else float(text))
-        out.setdefault(sensor, {})[name] = value
+        value = getattr(model, f.name)
+        out[f.name] = ",".join(value) if f.name == "faults" else value
+    return out
+
+
+def overrides_from_parameters(model, values: dict) -> dict:
+    """The fields whose parameter value differs from the sensor's own model (``values``:
+    field -> parameter value): what the user overrides."""
+    own = error_model_parameters(model)
+    out = {}
+    for name, value in values.items():
+        if name == "faults":
+            if value != own[name]:
+                out[name] = tuple(v.strip() for v in value.split(",") if v.strip())
+        elif value != own[name] and not (isinstance(value, float) and math.isnan(value) and math.isnan(own[name])):
+            out[name] = value
     return out
 
 
 def declare_fusion_config(node: Node, base: FusionConfig, track_id: str) -> FusionConfig:
-    """Declare every global tuning field (default: ``base``) and the per-sensor error-model
-    overrides as parameters, and build the config."""
+    """Declare every global tuning field (default: ``base``) and, per configured sensor, its
+    error-model fields as nested parameters ``<sensor>.<field>`` (default: the sensor's own
+    model with ``base``'s overrides, e.g. a scenario's), and build the config. A value that
+    differs from the sensor's own model is an override (logged)."""
     values = {}
     for f in FusionConfig.tuning_fields():
         if f.name == "track_id":
@@ -99,12 +104,18 @@ def declare_fusion_config(node: Node, base: FusionConfig, track_id: str) -> Fusi
         default = getattr(base, f.name)
         values[f.name] = _from_ros(default, declare(node, f.name, _ros_value(default), f.metadata.get("doc", ""),
                                                     read_only=True))
-    overrides = overrides_from_ros(declare(
-        node, "error_model_overrides", overrides_to_ros(base.overrides),
-        "per-sensor error-model fields replacing what the sensor's own model says, as "
-        "'sensor.field:value' (fields of core/sensors/base.py ErrorModel, e.g. doppler.scale_sigma:0.01)",
-        read_only=True))
+    overrides: dict = {}
     try:
+        for sensor, own in base.sensors.items():
+            start = own.overridden((base.overrides or {}).get(sensor))
+            given = {name: declare(node, f"{sensor}.{name}", value, f"{sensor} error model: {name} (core/sensors/"
+                                   "base.py ErrorModel; default: the sensor's own model)", read_only=True)
+                     for name, value in error_model_parameters(start).items()}
+            changed = overrides_from_parameters(own, given)
+            if changed:
+                overrides[sensor] = changed
+                node.get_logger().info(f"error model of {sensor} overridden: "
+                                       + ", ".join(f"{k}={v}" for k, v in sorted(changed.items())))
         return FusionConfig(track_id=track_id, sensors=base.sensors, overrides=overrides, **values)
     except ValueError as exc:
         raise ConfigurationError(f"fusion parameters: {exc}") from None

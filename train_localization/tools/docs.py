@@ -35,8 +35,8 @@ def sensor_params_markdown() -> str:
 
 def fusion_params_markdown() -> str:
     """Parameters of the fusion node beyond scenario/track/sensors/publish_rate/frames:
-    every global tuning field of core.fusion.FusionConfig, then the error-model fields that
-    ``error_model_overrides`` can replace per sensor."""
+    every global tuning field of core.fusion.FusionConfig, then the per-sensor error-model
+    fields (nested parameters ``<sensor>.<field>``)."""
     from dataclasses import fields
 
     from ..core.fusion import FusionConfig
@@ -49,8 +49,10 @@ def fusion_params_markdown() -> str:
         value = getattr(base, f.name)
         lines.append(f"| `{f.name}` | {_value(value)} | {f.metadata.get('doc', '').replace('|', '/')} |")
     names = ", ".join(f"`{f.name}`" for f in fields(ErrorModel) if f.name not in ("sensor", "measures"))
-    lines += ["", "`error_model_overrides` (string array, `sensor.field:value`) replaces fields of a sensor's "
-              f"own error model (core/sensors/base.py `ErrorModel`): {names}."]
+    lines += ["", "Per configured sensor, the fields of its own error model (core/sensors/base.py "
+              f"`ErrorModel`) are nested parameters `<sensor>.<field>`: {names} (`faults` as a comma-separated "
+              "string). Their defaults are the sensor's own model; a different value (a params file, `-p "
+              "doppler.scale_sigma:=0.01`) overrides it and is logged at start-up."]
     return "\n".join(lines) + "\n"
 
 

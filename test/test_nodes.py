@@ -395,3 +395,15 @@ def test_fusion_takes_nested_per_sensor_parameters_from_a_params_file(ros_contex
     assert example.proc.poll() is None, example.output()
     assert "error model of doppler overridden: scale_sigma=0.004" in example.output()
     assert example.interrupt() == 0
+
+
+@pytest.mark.parametrize("exe", ["wheel_sensor", "eurobalise_reader"])
+def test_a_sensor_node_starts_from_its_example_params_file(exe, start_node):
+    """config/params/<node>.yaml (every parameter at its default, NaN included) is read by
+    ROS's own params-file parser; the node then runs until interrupted."""
+    from conftest import ROOT
+    proc = start_node(exe, "--ros-args", *NS, "--params-file", str(ROOT / "config" / "params" / f"{exe}.yaml"),
+                      "-p", "mode:=ingest")
+    time.sleep(3.0)
+    assert proc.proc.poll() is None, proc.output()
+    assert proc.interrupt() == 0, proc.output()

@@ -26,3 +26,10 @@ def test_every_node_is_documented_with_its_current_parameters():
     assert fusion.strip() == fusion_params_markdown().strip(), "run: python -m train_localization.tools.docs --write"
     for node in ("simulator", "fusion", "recorder", "replayer", *NODE_NAMES):
         assert f"`{node}`" in README
+
+
+def test_example_params_files_hold_every_sensor_parameter_at_its_default():
+    from train_localization.tools.docs import params_files
+    for name, body in params_files().items():
+        path = ROOT / "config" / "params" / name
+        assert path.read_text() == body, "run: python -m train_localization.tools.docs --write"

@@ -1,7 +1,8 @@
-"""Markdown tables of every sensor node's parameters (kept in README.md).
+"""Markdown tables of every sensor node's parameters (kept in README.md) and the example
+params files of the sensor nodes (config/params/<node>.yaml).
 
-  python -m train_localization.tools.docs            # print them
-  python -m train_localization.tools.docs --write    # update README.md
+  python -m train_localization.tools.docs            # print the tables
+  python -m train_localization.tools.docs --write    # update README.md and config/params
 test/test_readme.py checks that README.md holds exactly this text between the
 markers ``<!-- sensor-params:begin/end -->`` and ``<!-- fusion-params:begin/end -->``.
 """
@@ -56,6 +57,47 @@ def fusion_params_markdown() -> str:
     return "\n".join(lines) + "\n"
 
 
+def sensor_params_file(node: str) -> str:
+    """Example ROS params file of a sensor node: every parameter at its default, described."""
+    s = spec(node)
+    lines = [f"# Parameters of the {node} node at their defaults (generated: python -m "
+             "train_localization.tools.docs --write).",
+             f"# ros2 run train_localization {node} --ros-args --params-file config/params/{node}.yaml",
+             f"/train/{node}:", "  ros__parameters:",
+             '    mode: sim                  # sim: from ground_truth/state; ingest: decode sensors/<sensor>/raw',
+             '    scenario: ""               # scenario YAML (track, vehicle, seed, sensor overrides)',
+             "    track: config/track_conventional.yaml   # track YAML when no scenario is given"]
+    for name, p in {**COMMON_PARAMS, **s.params}.items():
+        if isinstance(p.default, list) and not p.default:
+            continue   # an empty list has no ROS parameter type: the default applies
+        value = _yaml_value(p.default)
+        lines.append(f"    {name}: {value}  # {p.description}")
+    return "\n".join(lines) + "\n"
+
+
+def _yaml_value(v) -> str:
+    """A parameter default in YAML that every parser reads with its type (a float keeps a
+    '.' in its mantissa: PyYAML reads 5e-05 as a string)."""
+    import json
+    import math
+    if isinstance(v, bool):
+        return str(v).lower()
+    if isinstance(v, float):
+        if math.isnan(v):
+            return ".nan"
+        if math.isinf(v):
+            return ".inf" if v > 0 else "-.inf"
+        text = repr(v)
+        mantissa, e, exponent = text.partition("e")
+        return (mantissa if "." in mantissa else mantissa + ".0") + (e + exponent if e else "")
+    return json.dumps(v)
+
+
+def params_files() -> dict[str, str]:
+    """config/params/<node>.yaml for every sensor node."""
+    return {f"{node}.yaml": sensor_params_file(node) for node in NODE_NAMES}
+
+
 def splice(text: str, begin: str, end: str, body: str) -> str:
     """``text`` with the part between the markers replaced by ``body``."""
     head, rest = text.split(begin, 1)
@@ -69,5 +111,7 @@ if __name__ == "__main__":
     if sys.argv[1:] == ["--write"]:
         text = splice(readme.read_text(), BEGIN, END, sensor_params_markdown())
         readme.write_text(splice(text, FUSION_BEGIN, FUSION_END, fusion_params_markdown()))
+        for name, body in params_files().items():
+            (SOURCE_ROOT / "config" / "params" / name).write_text(body)
     else:
         print(sensor_params_markdown() + "\n" + fusion_params_markdown(), end="")

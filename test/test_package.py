@@ -34,7 +34,8 @@ def test_colcon_build_registers_package_and_executables(tmp_path):
     for exe in EXECUTABLES:
         assert os.access(lib / exe, os.X_OK), f"{exe} missing in {lib}"
     share = install / "train_localization" / "share" / "train_localization"
-    assert (share / "launch" / "demo.launch.py").exists()
+    assert (share / "launch" / "demo.launch.py").exists() and (share / "launch" / "maglev.launch.py").exists()
+    assert (share / "config" / "params" / "fusion.yaml").exists()
     assert (share / "config" / "scenario_demo.yaml").exists()
     assert (install / "train_localization_msgs" / "share" / "train_localization_msgs" / "msg" / "TrainState.msg").exists()
 

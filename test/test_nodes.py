@@ -407,3 +407,42 @@ def test_a_sensor_node_starts_from_its_example_params_file(exe, start_node):
     time.sleep(3.0)
     assert proc.proc.poll() is None, proc.output()
     assert proc.interrupt() == 0, proc.output()
+
+
+def test_fusion_reports_each_input_with_its_frequency_and_silence(ros_context, start_node):
+    """One diagnostic status per subscribed sensor: the Doppler at 20 Hz is OK with its
+    frequency; silent beyond its timeout it is WARN; the axle counter (an event sensor, no
+    timeout) stays OK."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from train_localization_msgs.msg import SpeedMeasurement
+    from train_localization.nodes.common import STREAM_QOS
+
+    proc = start_node("fusion", "--ros-args", *NS, "-p", "sensors:=[doppler,axle_counter]")
+    node = ros_context.create_node("probe_inputs", namespace="/train")
+    pub = node.create_publisher(SpeedMeasurement, "sensors/doppler/speed", STREAM_QOS)
+    diags = []
+    node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+
+    def latest(name):
+        for arr in reversed(diags):
+            for s in arr.status:
+                if s.name.endswith(name):
+                    return s.level[0] if isinstance(s.level, bytes) else s.level, {v.key: v.value for v in s.values}
+        return None, {}
+    try:
+        assert spin_until(node, lambda: pub.get_subscription_count() > 0, 30.0), proc.output()
+        diags.clear()
+        deadline = time.monotonic() + 3.0
+        while time.monotonic() < deadline:
+            m = SpeedMeasurement(sensor="doppler", unit_id="radar", speed=10.0, speed_stddev=0.1)
+            m.header.stamp = node.get_clock().now().to_msg()
+            pub.publish(m)
+            spin_until(node, lambda: False, 0.05)
+        level, values = latest("input doppler")
+        assert level == 0 and 12.0 < float(values["frequency_hz"]) < 25.0, values
+        assert latest("input axle_counter")[0] == 0
+        assert spin_until(node, lambda: latest("input doppler")[0] == 1, 10.0), proc.output()
+        assert latest("input axle_counter")[0] == 0
+        assert proc.interrupt() == 0
+    finally:
+        node.destroy_node()

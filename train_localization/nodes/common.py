@@ -69,6 +69,7 @@ class Diagnostics:
         self.last_error = ""
         self.level = 0  # 0 OK, 1 WARN, 2 ERROR, 3 STALE (diagnostic_msgs/DiagnosticStatus)
         self.message = "starting"
+        self._extra = None
         self.pub = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
         node.create_timer(period, self.publish, clock=steady_clock())  # also before /clock runs
 
@@ -83,6 +84,11 @@ class Diagnostics:
     def set_status(self, level: int, message: str) -> None:
         self.level, self.message = level, message
 
+    def extra(self, statuses) -> None:
+        """``statuses()``: further DiagnosticStatus entries published with this one (one per
+        input, as diagnostic_updater's per-topic tasks)."""
+        self._extra = statuses
+
     def publish(self) -> None:
         status = DiagnosticStatus(name=self.name, hardware_id=self.node.get_fully_qualified_name())
         level = self.level
@@ -96,7 +102,7 @@ class Diagnostics:
         if self.last_error:
             kv.append(KeyValue(key="last_error", value=self.last_error))
         status.values = kv
-        arr = DiagnosticArray(status=[status])
+        arr = DiagnosticArray(status=[status] + (self._extra() if self._extra else []))
         arr.header.stamp = self.node.get_clock().now().to_msg()
         self.pub.publish(arr)
 

@@ -10,7 +10,8 @@ core/offline.py FusionRunner, the same code as the offline runs):
                          odom -> base_frame comes from another source on /tf, REP-105)
   /diagnostics           level from the mode (OK NOMINAL, WARN INITIALISING and DEGRADED, ERROR
                          LOST; WARN also once input was rejected), counts of accepted, gated and
-                         rejected measurements, mode, NIS
+                         rejected measurements, mode, NIS; one status per sensor input (frequency,
+                         age of the last message, WARN when silent beyond its timeout)
 Service: localization/set_position (train_localization_msgs/SetPosition).
 
 Parameters:
@@ -34,6 +35,7 @@ Parameters:
 from __future__ import annotations
 
 import math
+import time
 
 from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
@@ -198,6 +200,10 @@ class FusionNode(Node):
         self.filter = self.runner.filter
         self.mc = rclpy_classes()
         self.diag = Diagnostics(self, "fusion")
+        self.sensors = sensors
+        self._inputs: dict[str, list] = {}   # sensor -> [accepted since the last report, wall time, age]
+        self._inputs_since = time.monotonic()
+        self.diag.extra(self.input_statuses)
         parsers = {"position": (self.mc.PositionFix, convert.position_fix_from_msg),
                    "speed": (self.mc.SpeedMeasurement, convert.speed_from_msg),
                    "distance": (self.mc.DistanceIncrement, convert.distance_from_msg)}
@@ -268,6 +274,37 @@ class FusionNode(Node):
             self.diag.reject(topic, exc.reason, str(exc))
             return
         self.diag.accept(topic)
+        seen = self._inputs.setdefault(m.sensor, [0, None, None])
+        seen[0] += 1
+        seen[1], seen[2] = time.monotonic(), now_sec(self) - m.stamp
+
+    def input_statuses(self) -> list:
+        """One status per subscribed sensor (diagnostic_updater's frequency and timestamp
+        checks): accepted messages per second since the last report, age of the last one
+        (node clock - its stamp); WARN when a continuous sensor is silent beyond its timeout,
+        or its last message was older than the history or stamped in the future."""
+        from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+        now = time.monotonic()
+        elapsed = max(now - self._inputs_since, 1e-9)
+        self._inputs_since = now
+        out = []
+        for sensor in self.sensors:
+            count, last_wall, age = self._inputs.get(sensor, [0, None, None])
+            self._inputs[sensor] = [0, last_wall, age]
+            timeout = self.filter.timeouts.get(sensor)
+            silent = now - last_wall if last_wall is not None else math.inf
+            level, message = 0, "OK"
+            if timeout is not None and silent > timeout:
+                level, message = 1, f"no accepted measurement for {silent:.1f} s (timeout {timeout:g} s)"
+            elif age is not None and not -0.05 <= age <= self.filter.cfg.history:
+                level, message = 1, f"last measurement stamped {age:.3f} s before the node clock"
+            values = [KeyValue(key="frequency_hz", value=f"{count / elapsed:.2f}"),
+                      KeyValue(key="last_age_s", value="none" if age is None else f"{age:.3f}"),
+                      KeyValue(key="timeout_s", value="none" if timeout is None else f"{timeout:g}")]
+            out.append(DiagnosticStatus(level=bytes([level]), name=f"{self.get_name()}: input {sensor}",
+                                        message=message, hardware_id=self.get_fully_qualified_name(),
+                                        values=values))
+        return out
 
     def on_set_position(self, request, response):
         t = now_sec(self)

@@ -36,10 +36,11 @@ def test_node_starts_with_sim_time_and_stops_on_sigint(exe, ros_context, start_n
 
 
 def _diag_values(msgs, name_part):
+    """Key/values of the latest status of a node (its own, not its per-input statuses)."""
     values = {}
     for arr in msgs:
         for st in arr.status:
-            if name_part in st.name:
+            if name_part in st.name and ": input " not in st.name:
                 values = {kv.key: kv.value for kv in st.values}
     return values
 
@@ -444,5 +445,68 @@ def test_fusion_reports_each_input_with_its_frequency_and_silence(ros_context, s
         assert spin_until(node, lambda: latest("input doppler")[0] == 1, 10.0), proc.output()
         assert latest("input axle_counter")[0] == 0
         assert proc.interrupt() == 0
+    finally:
+        node.destroy_node()
+
+
+def test_managed_fusion_follows_its_lifecycle_transitions(ros_context, start_node):
+    """managed:=true: unconfigured at start (nothing published); configure -> inactive;
+    activate -> states published; deactivate -> none; activate again -> published; cleanup
+    after deactivate -> unconfigured; a bad configuration fails the configure transition
+    with its reason logged, and the node stays up."""
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState, GetState
+    from train_localization_msgs.msg import TrainState
+    from train_localization.nodes.common import LATCHED_QOS
+
+    proc = start_node("fusion", "--ros-args", *NS, "-p", "managed:=true", "-p", "publish_rate:=20",
+                      "-p", "sensors:=[axle_counter]")
+    node = ros_context.create_node("probe_lifecycle", namespace="/train")
+    change = node.create_client(ChangeState, "fusion/change_state")
+    get = node.create_client(GetState, "fusion/get_state")
+    states = []
+    node.create_subscription(TrainState, "localization/state", states.append, LATCHED_QOS)
+
+    def call(client, request):
+        future = client.call_async(request)
+        assert spin_until(node, future.done, 10.0), proc.output()
+        return future.result()
+
+    def transition(tid):
+        return call(change, ChangeState.Request(transition=Transition(id=tid))).success
+
+    def label():
+        return call(get, GetState.Request()).current_state.label
+    try:
+        assert spin_until(node, lambda: change.service_is_ready() and get.service_is_ready(), 30.0), proc.output()
+        assert label() == "unconfigured"
+        spin_until(node, lambda: False, 1.0)
+        assert not states
+        assert transition(Transition.TRANSITION_CONFIGURE) and label() == "inactive"
+        spin_until(node, lambda: False, 1.0)
+        assert not states
+        assert transition(Transition.TRANSITION_ACTIVATE) and label() == "active"
+        assert spin_until(node, lambda: len(states) >= 5, 10.0), proc.output()
+        assert transition(Transition.TRANSITION_DEACTIVATE) and label() == "inactive"
+        spin_until(node, lambda: False, 0.5)
+        n = len(states)
+        spin_until(node, lambda: False, 1.0)
+        assert len(states) == n
+        assert transition(Transition.TRANSITION_ACTIVATE)
+        assert spin_until(node, lambda: len(states) >= n + 5, 10.0), proc.output()
+        assert transition(Transition.TRANSITION_DEACTIVATE) and transition(Transition.TRANSITION_CLEANUP)
+        assert label() == "unconfigured" and proc.proc.poll() is None
+        assert proc.interrupt() == 0
+    finally:
+        node.destroy_node()
+    bad = start_node("fusion", "--ros-args", *NS, "-p", "managed:=true", "-p", "scenario:=no/such.yaml")
+    node = ros_context.create_node("probe_lifecycle_bad", namespace="/train")
+    change = node.create_client(ChangeState, "fusion/change_state")
+    try:
+        assert spin_until(node, change.service_is_ready, 30.0), bad.output()
+        future = change.call_async(ChangeState.Request(transition=Transition(id=Transition.TRANSITION_CONFIGURE)))
+        assert spin_until(node, future.done, 10.0) and not future.result().success
+        assert "configure failed" in bad.output() and "no/such.yaml" in bad.output()
+        assert bad.proc.poll() is None and bad.interrupt() == 0
     finally:
         node.destroy_node()

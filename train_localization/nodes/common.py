@@ -86,7 +86,7 @@ class Diagnostics:
 
     def extra(self, statuses) -> None:
         """``statuses()``: further DiagnosticStatus entries published with this one (one per
-        input, as diagnostic_updater's per-topic tasks)."""
+        input, as diagnostic_updater's per-topic tasks); None: none."""
         self._extra = statuses
 
     def publish(self) -> None:
@@ -124,6 +124,9 @@ def declare(node: Node, name: str, default, description: str = "", read_only: bo
     typing and converted; anything else raises ConfigurationError naming the parameter.
     ``read_only``: read at start-up only, so ``ros2 param set`` refuses to change it."""
     from rcl_interfaces.msg import ParameterDescriptor
+    if node.has_parameter(name):   # a lifecycle node configured again
+        value = node.get_parameter(name).value
+        return float(value) if isinstance(default, float) else value
     if isinstance(default, float):
         value = node.declare_parameter(name, default, ParameterDescriptor(
             description=description, dynamic_typing=True, read_only=read_only)).value

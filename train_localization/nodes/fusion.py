@@ -15,6 +15,8 @@ core/offline.py FusionRunner, the same code as the offline runs):
 Service: localization/set_position (train_localization_msgs/SetPosition).
 
 Parameters:
+  managed (bool, false)         true: a lifecycle manager drives configure/activate/deactivate/cleanup;
+                                false: configure and activate at start (the plain executable)
   track (string)                track YAML (or take it from ``scenario``)
   scenario (string, "")         scenario YAML: the track, the sensors whose error models configure
                                 the filter, and the ``fusion:`` tuning (set parameters override it)
@@ -39,14 +41,15 @@ import time
 
 from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
+from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from rclpy.node import Node
 
 from ..core import convert, paths
 from ..core.fusion import FusionConfig, Mode, sensor_models
 from ..core.offline import FusionRunner, estimate_to_msg, fusion_config
-from ..core.scenario import Scenario
+from ..core.scenario import Scenario, ScenarioError
 from ..core.signals import InputRejected
-from ..core.track import Track
+from ..core.track import Track, TrackError
 from ..core.sensors import NODE_NAMES, spec
 from .common import (STATE_QOS, STREAM_QOS, ConfigurationError, Diagnostics, declare, now_sec, rclpy_classes,
                      spin)
@@ -167,9 +170,43 @@ def sensor_classes(names: list[str]) -> list[str]:
     return out
 
 
-class FusionNode(Node):
+class FusionNode(LifecycleNode):
+    """A managed (lifecycle) node. With ``managed`` false (the default, the plain executable)
+    it configures and activates itself at start; with ``managed`` true a lifecycle manager
+    drives it: configure (read the parameters, build the filter, create the publishers and
+    the service), activate (subscribe, publish at ``publish_rate``), deactivate (unsubscribe,
+    stop publishing; the filter keeps its state), cleanup (drop the filter)."""
+
     def __init__(self):
         super().__init__("fusion")
+        managed = declare(self, "managed", False, "true: wait for lifecycle transitions (configure, activate) "
+                          "from a manager; false: configure and activate at start", read_only=True)
+        rate = declare(self, "publish_rate", 200.0, "state publish rate [Hz], (0, 1000]; may change at run time")
+        if not 0.0 < rate <= 1000.0:
+            raise ConfigurationError(f"parameter 'publish_rate' must be in (0, 1000] Hz, not {rate}")
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.diag = Diagnostics(self, "fusion")
+        self.diag.set_status(1, "unconfigured")
+        self.runner = None
+        self._config_error = ""
+        self._subs: list = []
+        self._timer = None
+        if not managed:
+            if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
+                raise ConfigurationError(self._config_error or "configuration failed")
+            self.trigger_activate()
+
+    def on_configure(self, state) -> TransitionCallbackReturn:
+        try:
+            self._configure()
+        except (ConfigurationError, ScenarioError, TrackError, FileNotFoundError) as exc:
+            self._config_error = f"{type(exc).__name__}: {exc}"
+            self.get_logger().error(f"configure failed: {self._config_error}")
+            return TransitionCallbackReturn.FAILURE
+        self.diag.set_status(1, "inactive (configured)")
+        return TransitionCallbackReturn.SUCCESS
+
+    def _configure(self) -> None:
         scenario_path = declare(self, "scenario", "", "scenario YAML (gives the track and the fusion tuning)",
                                 read_only=True)
         track = declare(self, "track", "config/track_conventional.yaml", "track YAML", read_only=True)
@@ -182,9 +219,6 @@ class FusionNode(Node):
                                                          "sensors' own parameter files); their error models "
                                                          "configure the filter (default: the scenario's sensors, "
                                                          "else default parameters)", read_only=True)
-        rate = declare(self, "publish_rate", 200.0, "state publish rate [Hz], (0, 1000]; may change at run time")
-        if not 0.0 < rate <= 1000.0:
-            raise ConfigurationError(f"parameter 'publish_rate' must be in (0, 1000] Hz, not {rate}")
         base = fusion_config(scenario)
         if params_file or not scenario:
             base = FusionConfig(**{**{f.name: getattr(base, f.name) for f in FusionConfig.tuning_fields()},
@@ -196,39 +230,60 @@ class FusionNode(Node):
                                   "odom -> base_frame on /tf: then this node publishes map -> odom (as "
                                   "robot_localization does); empty: map -> base_frame", read_only=True)
         self._odom_base = None   # latest odom -> base_frame from /tf: (x, y, yaw)
-        self.runner = FusionRunner(cfg, rate)
+        self.runner = FusionRunner(cfg, float(self.get_parameter("publish_rate").value))
         self.filter = self.runner.filter
         self.mc = rclpy_classes()
-        self.diag = Diagnostics(self, "fusion")
         self.sensors = sensors
         self._inputs: dict[str, list] = {}   # sensor -> [accepted since the last report, wall time, age]
         self._inputs_since = time.monotonic()
         self.diag.extra(self.input_statuses)
-        parsers = {"position": (self.mc.PositionFix, convert.position_fix_from_msg),
-                   "speed": (self.mc.SpeedMeasurement, convert.speed_from_msg),
-                   "distance": (self.mc.DistanceIncrement, convert.distance_from_msg)}
-        outputs = {spec(n).sensor: spec(n).outputs for n in NODE_NAMES}
-        for sensor in sensors:
-            for suffix in (o for o in outputs[sensor] if o in parsers):   # only what that sensor publishes
-                cls, parse = parsers[suffix]
-                topic = f"sensors/{sensor}/{suffix}"
-                self.create_subscription(cls, topic, lambda msg, t=topic, p=parse: self.on_measurement(t, p, msg),
-                                         STREAM_QOS)
-        self.state_pub = self.create_publisher(self.mc.TrainState, "localization/state", STATE_QOS)
-        self.odom_pub = self.create_publisher(Odometry, "localization/odometry", STREAM_QOS)
+        self.state_pub = self.create_lifecycle_publisher(self.mc.TrainState, "localization/state", STATE_QOS)
+        self.odom_pub = self.create_lifecycle_publisher(Odometry, "localization/odometry", STREAM_QOS)
         try:
             from tf2_msgs.msg import TFMessage
-            self.tf_pub = self.create_publisher(TFMessage, "/tf", 100)
+            self.tf_pub = self.create_lifecycle_publisher(TFMessage, "/tf", 100)
             self._tf_cls = TFMessage
-            if self.odom_frame:
-                self.create_subscription(TFMessage, "/tf", self.on_tf, 100)
         except ImportError:
             self.tf_pub = None
             self.get_logger().warn("tf2_msgs is not installed: /tf is not published")
         from train_localization_msgs.srv import SetPosition
-        self.create_service(SetPosition, "localization/set_position", self.on_set_position)
-        self._timer = self.create_timer(1.0 / rate, self.on_timer)
-        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._service = self.create_service(SetPosition, "localization/set_position", self.on_set_position)
+
+    def on_activate(self, state) -> TransitionCallbackReturn:
+        parsers = {"position": (self.mc.PositionFix, convert.position_fix_from_msg),
+                   "speed": (self.mc.SpeedMeasurement, convert.speed_from_msg),
+                   "distance": (self.mc.DistanceIncrement, convert.distance_from_msg)}
+        outputs = {spec(n).sensor: spec(n).outputs for n in NODE_NAMES}
+        for sensor in self.sensors:
+            for suffix in (o for o in outputs[sensor] if o in parsers):   # only what that sensor publishes
+                cls, parse = parsers[suffix]
+                topic = f"sensors/{sensor}/{suffix}"
+                self._subs.append(self.create_subscription(
+                    cls, topic, lambda msg, t=topic, p=parse: self.on_measurement(t, p, msg), STREAM_QOS))
+        if self.odom_frame and self.tf_pub is not None:
+            self._subs.append(self.create_subscription(self._tf_cls, "/tf", self.on_tf, 100))
+        self._timer = self.create_timer(self.runner.period, self.on_timer)
+        self.diag.set_status(1, "active, no state yet")
+        return super().on_activate(state)
+
+    def on_deactivate(self, state) -> TransitionCallbackReturn:
+        for sub in self._subs:
+            self.destroy_subscription(sub)
+        self._subs = []
+        self.destroy_timer(self._timer)
+        self._timer = None
+        self.diag.set_status(1, "inactive (deactivated)")
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state) -> TransitionCallbackReturn:
+        for pub in (self.state_pub, self.odom_pub, self.tf_pub):
+            if pub is not None:
+                self.destroy_lifecycle_publisher(pub)
+        self.destroy_service(self._service)
+        self.runner = None
+        self.diag.extra(None)
+        self.diag.set_status(1, "unconfigured")
+        return TransitionCallbackReturn.SUCCESS
 
     def _on_set_parameters(self, params):
         """Run-time changes: publish_rate (> 0, <= 1000 Hz) takes effect at once; the other
@@ -241,11 +296,12 @@ class FusionNode(Node):
                     return SetParametersResult(successful=False,
                                                reason=f"publish_rate must be a number in (0, 1000] Hz, not {value!r}")
         for p in params:
-            if p.name == "publish_rate":
+            if p.name == "publish_rate" and self.runner is not None:
                 rate = float(p.value)
                 self.runner.set_rate(rate)
-                self.destroy_timer(self._timer)
-                self._timer = self.create_timer(1.0 / rate, self.on_timer)
+                if self._timer is not None:
+                    self.destroy_timer(self._timer)
+                    self._timer = self.create_timer(1.0 / rate, self.on_timer)
                 self.get_logger().info(f"publish_rate set to {rate:g} Hz")
         return SetParametersResult(successful=True)
 

@@ -510,3 +510,53 @@ def test_managed_fusion_follows_its_lifecycle_transitions(ros_context, start_nod
         assert bad.proc.poll() is None and bad.interrupt() == 0
     finally:
         node.destroy_node()
+
+
+def test_managed_sensor_node_decodes_only_while_active(ros_context, start_node):
+    """A managed Doppler node in ingest mode: inactive after configure (a raw block is not
+    decoded), active after activate (decoded); deactivate stops it again."""
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState
+    from train_localization_msgs.msg import RawBlock, SpeedMeasurement
+    from train_localization.core.convert import raw_block_to_msg
+    from train_localization.core.pipeline import run_offline
+    from train_localization.core.scenario import Scenario
+    from train_localization.nodes.common import STREAM_QOS, rclpy_classes
+    from conftest import ROOT
+
+    proc = start_node("doppler_radar", "--ros-args", *NS, "-p", "managed:=true", "-p", "mode:=ingest")
+    node = ros_context.create_node("probe_sensor_lifecycle", namespace="/train")
+    change = node.create_client(ChangeState, "doppler_radar/change_state")
+    pub = node.create_publisher(RawBlock, "sensors/doppler/raw", STREAM_QOS)
+    speeds = []
+    node.create_subscription(SpeedMeasurement, "sensors/doppler/speed", speeds.append, STREAM_QOS)
+    sc = Scenario.from_yaml(ROOT / "config" / "scenario_demo.yaml")
+    sc.duration = 30.0
+    blocks = [b for b in run_offline("doppler_radar", sc)[0] if b.t0 > 20.0]   # the train moves
+    mc = rclpy_classes()
+
+    def transition(tid):
+        future = change.call_async(ChangeState.Request(transition=Transition(id=tid)))
+        assert spin_until(node, future.done, 10.0), proc.output()
+        return future.result().success
+
+    def feed(k):
+        pub.publish(raw_block_to_msg(blocks[k], mc))
+        spin_until(node, lambda: False, 0.5)
+    try:
+        assert spin_until(node, change.service_is_ready, 30.0), proc.output()
+        assert transition(Transition.TRANSITION_CONFIGURE)
+        assert spin_until(node, lambda: pub.get_subscription_count() == 0, 2.0)   # not subscribed yet
+        assert transition(Transition.TRANSITION_ACTIVATE)
+        assert spin_until(node, lambda: pub.get_subscription_count() == 1, 10.0), proc.output()
+        for k in range(3):
+            feed(k)
+        assert spin_until(node, lambda: len(speeds) >= 2, 10.0), proc.output()
+        assert transition(Transition.TRANSITION_DEACTIVATE)
+        assert spin_until(node, lambda: pub.get_subscription_count() == 0, 10.0), proc.output()
+        n = len(speeds)
+        feed(3)
+        assert len(speeds) == n
+        assert proc.interrupt() == 0
+    finally:
+        node.destroy_node()

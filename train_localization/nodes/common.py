@@ -18,6 +18,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
+from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -137,6 +138,47 @@ def declare(node: Node, name: str, default, description: str = "", read_only: bo
                                                                      read_only=read_only)).value
 
 
+# what a user's parameters or files can get wrong: one line, exit code 2 (or a failed configure)
+CONFIG_ERRORS = (ConfigurationError, ScenarioError, TrackError, ParameterException, FileNotFoundError)
+
+
+class ManagedNode(LifecycleNode):
+    """A lifecycle node whose ``managed`` parameter decides who drives it: false (the plain
+    executable) configures and activates it at start (``start``); true waits for a lifecycle
+    manager. Subclasses implement ``_configure`` (raise CONFIG_ERRORS for bad input: the
+    configure transition then fails with the reason logged, the node stays up) and the
+    other transitions."""
+
+    def __init__(self, node_name: str, diag_name: str):
+        super().__init__(node_name)
+        self._managed = declare(self, "managed", False, "true: wait for lifecycle transitions (configure, "
+                                "activate) from a manager; false: configure and activate at start", read_only=True)
+        self.diag = Diagnostics(self, diag_name)
+        self.diag.set_status(1, "unconfigured")
+        self._config_error = ""
+
+    def start(self) -> None:
+        """Configure and activate now unless managed; ConfigurationError if configuring fails."""
+        if self._managed:
+            return
+        if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
+            raise ConfigurationError(self._config_error or "configuration failed")
+        self.trigger_activate()
+
+    def _configure(self) -> None:
+        raise NotImplementedError
+
+    def on_configure(self, state) -> TransitionCallbackReturn:
+        try:
+            self._configure()
+        except CONFIG_ERRORS + (ValueError,) as exc:
+            self._config_error = f"{type(exc).__name__}: {exc}"
+            self.get_logger().error(f"configure failed: {self._config_error}")
+            return TransitionCallbackReturn.FAILURE
+        self.diag.set_status(1, "inactive (configured)")
+        return TransitionCallbackReturn.SUCCESS
+
+
 def now_sec(node: Node) -> float:
     return node.get_clock().now().nanoseconds * 1e-9
 
@@ -173,7 +215,7 @@ def spin(node_factory, args=None) -> int:
                 last, quiet_since = now_activity, time.monotonic()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except (ConfigurationError, ScenarioError, TrackError, ParameterException, FileNotFoundError) as exc:
+    except CONFIG_ERRORS as exc:
         print(f"[fatal] {type(exc).__name__}: {exc}", flush=True)   # the user's input: one line
         code = 2
     except Exception as exc:  # noqa: BLE001 - report and exit non-zero, never a traceback storm

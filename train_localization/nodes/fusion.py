@@ -41,17 +41,17 @@ import time
 
 from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
-from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
+from rclpy.lifecycle import TransitionCallbackReturn
 from rclpy.node import Node
 
 from ..core import convert, paths
 from ..core.fusion import FusionConfig, Mode, sensor_models
 from ..core.offline import FusionRunner, estimate_to_msg, fusion_config
-from ..core.scenario import Scenario, ScenarioError
+from ..core.scenario import Scenario
 from ..core.signals import InputRejected
-from ..core.track import Track, TrackError
+from ..core.track import Track
 from ..core.sensors import NODE_NAMES, spec
-from .common import (STATE_QOS, STREAM_QOS, ConfigurationError, Diagnostics, declare, now_sec, rclpy_classes,
+from .common import (STATE_QOS, STREAM_QOS, ConfigurationError, ManagedNode, declare, now_sec, rclpy_classes,
                      spin)
 
 ALL_SENSORS = ["doppler", "wheel", "eurobalise", "lrl", "inpo", "pattern_belt", "mmwave", "axle_counter"]
@@ -170,7 +170,7 @@ def sensor_classes(names: list[str]) -> list[str]:
     return out
 
 
-class FusionNode(LifecycleNode):
+class FusionNode(ManagedNode):
     """A managed (lifecycle) node. With ``managed`` false (the default, the plain executable)
     it configures and activates itself at start; with ``managed`` true a lifecycle manager
     drives it: configure (read the parameters, build the filter, create the publishers and
@@ -178,33 +178,15 @@ class FusionNode(LifecycleNode):
     stop publishing; the filter keeps its state), cleanup (drop the filter)."""
 
     def __init__(self):
-        super().__init__("fusion")
-        managed = declare(self, "managed", False, "true: wait for lifecycle transitions (configure, activate) "
-                          "from a manager; false: configure and activate at start", read_only=True)
+        super().__init__("fusion", "fusion")
         rate = declare(self, "publish_rate", 200.0, "state publish rate [Hz], (0, 1000]; may change at run time")
         if not 0.0 < rate <= 1000.0:
             raise ConfigurationError(f"parameter 'publish_rate' must be in (0, 1000] Hz, not {rate}")
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self.diag = Diagnostics(self, "fusion")
-        self.diag.set_status(1, "unconfigured")
         self.runner = None
-        self._config_error = ""
         self._subs: list = []
         self._timer = None
-        if not managed:
-            if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
-                raise ConfigurationError(self._config_error or "configuration failed")
-            self.trigger_activate()
-
-    def on_configure(self, state) -> TransitionCallbackReturn:
-        try:
-            self._configure()
-        except (ConfigurationError, ScenarioError, TrackError, FileNotFoundError) as exc:
-            self._config_error = f"{type(exc).__name__}: {exc}"
-            self.get_logger().error(f"configure failed: {self._config_error}")
-            return TransitionCallbackReturn.FAILURE
-        self.diag.set_status(1, "inactive (configured)")
-        return TransitionCallbackReturn.SUCCESS
+        self.start()
 
     def _configure(self) -> None:
         scenario_path = declare(self, "scenario", "", "scenario YAML (gives the track and the fusion tuning)",

@@ -13,14 +13,15 @@ Decoded output: sensors/<sensor>/position | speed | distance, and wayside/sectio
 for occupancy. Common parameters: mode, scenario (YAML: track, vehicle, seed and
 this sensor's parameter overrides), track (track YAML, used when no scenario is
 given), plus every parameter of the sensor kind (README and core/sensors/*.py list
-them with units and sources). Bad raw blocks or truth states are rejected with a
-diagnostic and counted; the node keeps running.
+them with units and sources), and ``managed`` (a lifecycle node: see SensorNode). Bad
+raw blocks or truth states are rejected with a diagnostic and counted; the node keeps
+running.
 """
 from __future__ import annotations
 
 import sys
 
-from rclpy.node import Node
+from rclpy.lifecycle import TransitionCallbackReturn
 
 from ..core import convert
 from ..core.pipeline import SensorPipeline
@@ -29,13 +30,31 @@ from ..core.sensors import NODE_NAMES, spec as sensor_spec
 from ..core.signals import InputRejected
 from ..core.track import Track
 from ..core import paths
-from .common import LATCHED_QOS, STREAM_QOS, ConfigurationError, Diagnostics, declare, rclpy_classes, spin
+from .common import LATCHED_QOS, STREAM_QOS, ConfigurationError, ManagedNode, declare, rclpy_classes, spin
 
 
-class SensorNode(Node):
+class SensorNode(ManagedNode):
+    """A managed (lifecycle) sensor node, like the fusion: with ``managed`` false (the plain
+    executable) it configures and activates itself at start; with ``managed`` true a
+    lifecycle manager drives it: configure (parameters, the sensor pipeline, the
+    publishers), activate (subscribe to the truth or the raw blocks), deactivate
+    (unsubscribe; the pipeline keeps its state), cleanup (drop the pipeline)."""
+
     def __init__(self, node_name: str):
-        super().__init__(node_name)
         self.spec = sensor_spec(node_name)
+        super().__init__(node_name, self.spec.sensor)
+        self._subs: list = []
+        self.pubs: dict = {}
+        self.start()
+
+    def on_configure(self, state) -> TransitionCallbackReturn:
+        result = super().on_configure(state)
+        if result == TransitionCallbackReturn.SUCCESS:
+            self.diag.set_status(1, f"inactive (configured, {self.mode})")
+        return result
+
+    def _configure(self) -> None:
+        node_name = self.get_name()
         # every parameter is read at start-up: read-only (``ros2 param set`` refuses a change)
         mode = declare(self, "mode", "sim",
                        "sim: simulate from ground_truth/state; ingest: decode sensors/<sensor>/raw", read_only=True)
@@ -45,11 +64,12 @@ class SensorNode(Node):
                              read_only=True)
         if mode not in ("sim", "ingest"):
             raise ConfigurationError(f"parameter 'mode' must be 'sim' or 'ingest', not {mode!r}")
+        self.mode = mode
         overrides: dict = {}
         if scenario_path:
             scenario = Scenario.from_yaml(scenario_path)
             track, vehicle = scenario.track, scenario.vehicle
-            overrides = dict(scenario.sensors.get(node_name, {}))
+            overrides = dict(scenario.sensors.get(self.spec.node, {}))
         else:
             scenario, track, vehicle = None, Track.from_yaml(paths.resolve(track_path)), Vehicle()
         # every sensor parameter is a ROS parameter; the scenario gives the defaults
@@ -62,36 +82,55 @@ class SensorNode(Node):
                 continue  # empty lists have no ROS parameter type; keep the default
             overrides[name] = declare(self, name, default, p.description, read_only=True)
         unit = overrides.get("unit_id") or self.spec.sensor
-        rng = scenario.rng(node_name, unit) if scenario else None
+        rng = scenario.rng(self.spec.node, unit) if scenario else None
         if mode == "sim" and rng is None:
             import numpy as np
             rng = np.random.default_rng(0)
         self.pipe = SensorPipeline(self.spec, overrides, track, vehicle, rng, simulate=(mode == "sim"))
         self.mc = rclpy_classes()
-        self.diag = Diagnostics(self, f"{self.spec.sensor} {unit} ({mode})")
+        self.diag.name = f"{node_name}: {self.spec.sensor} {unit} ({mode})"
         base = f"sensors/{self.spec.sensor}"
-        self.pubs = {}
         self.raw_pub = None
         if mode == "sim":
-            self.raw_pub = self.create_publisher(self.mc.RawBlock, f"{base}/raw", STREAM_QOS)
-            self.create_subscription(self.mc.TrainState, "ground_truth/state", self.on_truth, STREAM_QOS)
-        else:
-            self.create_subscription(self.mc.RawBlock, f"{base}/raw", self.on_raw, STREAM_QOS)
+            self.raw_pub = self.create_lifecycle_publisher(self.mc.RawBlock, f"{base}/raw", STREAM_QOS)
         # publishers exist from the start, so subscribers match before the first output
         from ..core.convert import MEASUREMENT_TOPICS
         for kind in self.spec.outputs:
             if kind == "sections":
-                self.pubs[convert.SECTIONS_TOPIC] = self.create_publisher(
+                self.pubs[convert.SECTIONS_TOPIC] = self.create_lifecycle_publisher(
                     self.mc.SectionOccupancy, convert.SECTIONS_TOPIC, LATCHED_QOS)
             else:
                 cls = getattr(self.mc, MEASUREMENT_TOPICS[kind][0])
-                self.pubs[f"{base}/{kind}"] = self.create_publisher(cls, f"{base}/{kind}", STREAM_QOS)
+                self.pubs[f"{base}/{kind}"] = self.create_lifecycle_publisher(cls, f"{base}/{kind}", STREAM_QOS)
+
+    def on_activate(self, state) -> TransitionCallbackReturn:
+        if self.mode == "sim":
+            self._subs.append(self.create_subscription(self.mc.TrainState, "ground_truth/state", self.on_truth,
+                                                       STREAM_QOS))
+        else:
+            self._subs.append(self.create_subscription(self.mc.RawBlock, f"sensors/{self.spec.sensor}/raw",
+                                                       self.on_raw, STREAM_QOS))
         self.diag.set_status(0, "running")
+        return super().on_activate(state)
+
+    def on_deactivate(self, state) -> TransitionCallbackReturn:
+        for sub in self._subs:
+            self.destroy_subscription(sub)
+        self._subs = []
+        self.diag.set_status(1, "inactive (deactivated)")
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state) -> TransitionCallbackReturn:
+        for pub in list(self.pubs.values()) + ([self.raw_pub] if self.raw_pub is not None else []):
+            self.destroy_lifecycle_publisher(pub)
+        self.pubs, self.raw_pub, self.pipe = {}, None, None
+        self.diag.set_status(1, "unconfigured")
+        return TransitionCallbackReturn.SUCCESS
 
     def _publisher(self, topic: str, msg):
         if topic not in self.pubs:
             qos = LATCHED_QOS if topic == convert.SECTIONS_TOPIC else STREAM_QOS
-            self.pubs[topic] = self.create_publisher(type(msg), topic, qos)
+            self.pubs[topic] = self.create_lifecycle_publisher(type(msg), topic, qos)
         return self.pubs[topic]
 
     def on_truth(self, msg):

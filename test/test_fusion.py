@@ -489,3 +489,25 @@ def test_every_tuning_field_is_a_documented_node_parameter():
     changed = {**params, "timeout": 2.0, "faults": "slide"}
     assert overrides_from_parameters(wheel, changed) == {"timeout": 2.0, "faults": ("slide",)}
     assert wheel.overridden(overrides_from_parameters(wheel, changed)).faults == ("slide",)
+
+
+@pytest.mark.parametrize("bad", [
+    PositionFix(1.0, "eurobalise", "b", "T", "EB1", 100.0, 1e200),          # stddev overflows the filter
+    PositionFix(1.0, "eurobalise", "b", "T", "EB1", 1e12, 1.0),             # no line is that long
+    PositionFix(1.0, "eurobalise", "b", "T", "EB1", 100.0, 1e-9),           # finer than any sensor
+    SpeedMeasurement(1.0, "doppler", "d", 10.0, 1e200),
+    SpeedMeasurement(1.0, "doppler", "d", 900.0, 0.1),                      # faster than any train
+    DistanceIncrement(1.0, "wheel", "w", 1e-300, 0.5, 0.01, 10.0, 0.1),     # overflows as a speed
+    DistanceIncrement(1.0, "wheel", "w", 0.05, 50.0, 0.01, 10.0, 0.1),      # 1000 m/s
+])
+def test_implausible_measurements_are_rejected_and_the_filter_stays_finite(bad):
+    """One absurd value (issue: a speed stddev of 1e200 turned the state to NaN for good) is
+    rejected with reason 'implausible'; the filter goes on with the next valid input."""
+    f = TrainFilter(config("doppler_radar", "wheel_sensor", "eurobalise_reader"))
+    f.reset(position=100.0, position_stddev=1.0, speed=10.0, speed_stddev=0.1, stamp=0.0)
+    with pytest.raises(InputRejected) as exc:
+        f.add(bad)
+    assert exc.value.reason == "implausible" and f.rejected == {"implausible": 1}
+    f.add(SpeedMeasurement(1.5, "doppler", "d", 10.0, 0.1))
+    e = f.estimate(2.0)
+    assert math.isfinite(e.position) and abs(e.position - 120.0) < 1.0 and e.mode != MODE_LOST

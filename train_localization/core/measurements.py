@@ -11,6 +11,22 @@ from dataclasses import dataclass, field
 from .signals import InputRejected
 
 
+# Physical limits of any measurement (reason "implausible" beyond them): no line is longer
+# than MAX_CHAINAGE, no train faster than MAX_SPEED (maglev record 603 km/h); a stddev is
+# between STDDEV_RANGE (below: finer than any sensor resolves, which would pin the filter;
+# above: no information, and it overflows the filter's arithmetic); an increment lasts
+# at most MAX_DURATION.
+MAX_CHAINAGE = 1.0e7          # [m]
+MAX_SPEED = 200.0             # [m/s]
+STDDEV_RANGE = (1.0e-6, 1.0e5)   # [m] or [m/s]
+MAX_DURATION = 60.0           # [s]
+
+
+def _require_range(kind: str, name: str, value: float, lo: float, hi: float) -> None:
+    if not lo <= value <= hi:
+        raise InputRejected("implausible", f"{kind}.{name} = {value!r} outside [{lo:g}, {hi:g}]")
+
+
 def _require_finite(kind: str, **values: float) -> None:
     """Raises InputRejected("nan") naming the first of ``values`` that is NaN or inf."""
     for name, value in values.items():
@@ -39,6 +55,8 @@ class PositionFix:
                             position_stddev=self.position_stddev)
         if self.position_stddev <= 0.0:
             raise InputRejected("stddev", f"PositionFix stddev {self.position_stddev} must be > 0")
+        _require_range("PositionFix", "position", self.position, -MAX_CHAINAGE, MAX_CHAINAGE)
+        _require_range("PositionFix", "position_stddev", self.position_stddev, *STDDEV_RANGE)
 
 
 @dataclass(frozen=True)
@@ -58,6 +76,8 @@ class SpeedMeasurement:
                             speed_stddev=self.speed_stddev)
         if self.speed_stddev <= 0.0:
             raise InputRejected("stddev", f"SpeedMeasurement stddev {self.speed_stddev} must be > 0")
+        _require_range("SpeedMeasurement", "speed", self.speed, -MAX_SPEED, MAX_SPEED)
+        _require_range("SpeedMeasurement", "speed_stddev", self.speed_stddev, *STDDEV_RANGE)
 
 
 @dataclass(frozen=True)
@@ -79,6 +99,12 @@ class DistanceIncrement:
                         speed=self.speed, speed_stddev=self.speed_stddev)
         if self.duration <= 0.0 or self.distance_stddev <= 0.0 or self.speed_stddev <= 0.0:
             raise InputRejected("stddev", "DistanceIncrement duration and stddevs must be > 0")
+        kind = "DistanceIncrement"
+        _require_range(kind, "duration", self.duration, 1.0e-6, MAX_DURATION)
+        _require_range(kind, "distance", self.distance, -MAX_SPEED * self.duration, MAX_SPEED * self.duration)
+        _require_range(kind, "speed", self.speed, -MAX_SPEED, MAX_SPEED)
+        _require_range(kind, "distance_stddev", self.distance_stddev, *STDDEV_RANGE)
+        _require_range(kind, "speed_stddev", self.speed_stddev, *STDDEV_RANGE)
 
 
 CLEAR, OCCUPIED, DISTURBED = 0, 1, 2

@@ -48,6 +48,7 @@ from ..core import convert, paths
 from ..core.fusion import FusionConfig, Mode, sensor_models
 from ..core.offline import FusionRunner, estimate_to_msg, fusion_config
 from ..core.scenario import Scenario
+from ..core.measurements import PositionFix
 from ..core.signals import InputRejected
 from ..core.track import Track
 from ..core.sensors import NODE_NAMES, spec
@@ -304,6 +305,7 @@ class FusionNode(ManagedNode):
     def on_measurement(self, topic, parse, msg):
         try:
             m = parse(msg)
+            self._check_against_node(m)
         except InputRejected as exc:
             self.diag.reject(topic, exc.reason, str(exc))
             return
@@ -315,6 +317,22 @@ class FusionNode(ManagedNode):
         seen = self._inputs.setdefault(m.sensor, [0, None, None])
         seen[0] += 1
         seen[1], seen[2] = time.monotonic(), now_sec(self) - m.stamp
+
+    def _check_against_node(self, m) -> None:
+        """What only the node can check: a fix on another track (``wrong_track``) or off this
+        one (``off_track``: beyond its ends by more than 100 m + 5 sigma), and a stamp ahead of
+        the node clock by more than the history (``future``: it would make every later
+        measurement too late)."""
+        ahead = m.stamp - now_sec(self)
+        if ahead > self.filter.cfg.history:
+            raise InputRejected("future", f"stamp {ahead:.3f} s ahead of the node clock")
+        if isinstance(m, PositionFix):
+            if m.track_id and m.track_id != self.track.track_id:
+                raise InputRejected("wrong_track", f"fix on track {m.track_id!r}, not {self.track.track_id!r}")
+            margin = 100.0 + 5.0 * m.position_stddev
+            if not -margin <= m.position <= self.track.length + margin:
+                raise InputRejected("off_track", f"fix at {m.position:.3f} m, off the track "
+                                    f"(0 .. {self.track.length:.3f} m)")
 
     def input_statuses(self) -> list:
         """One status per subscribed sensor (diagnostic_updater's frequency and timestamp

@@ -45,7 +45,15 @@ information; the filter may say it does not know, never be confidently wrong):
               distance as the alternative (the interval covers it, DEGRADED) until an
               absolute fix decides: if the fix agrees with the excluded sensor, the other
               speed sources are suspended until they agree again, the position is taken
-              from the fix and the relative error states are re-learnt.
+              from the fix and the relative error states are re-learnt. An excluded or
+              suspended sensor is only judged to agree again while the filter's speed rests
+              on something else (another speed source, or fixes that give the speed better
+              than the sensor's own noise), never on the motion model alone. A fix that only
+              an excluded view explains overturns the filter only if a fix of another
+              reference agrees with it, unless its sensor has no outlier fault mode.
+  revisit     a fix of a reference the filter accepted before (a reversal over a balise)
+              carries the same installation error: not applied while the filter knows its
+              position better than the fix.
 Modes: INITIALISING until the first absolute fix, or for sensors that can misread their
 reference until two fixes of different references agree (NaN position, infinite interval);
 LOST when the position 1-sigma exceeds ``lost_stddev``; DEGRADED while a continuous

@@ -168,7 +168,7 @@ def test_sensor_node_in_sim_mode_rejects_bad_truth_states(ros_context, start_nod
 def test_fusion_diagnostics_level_follows_the_mode(ros_context, start_node):
     """WARN while no position is claimed, ERROR when LOST (one wayside fix and no speed
     source: the interval soon exceeds lost_stddev), OK when NOMINAL (after an operator
-    reset), with the mode named in the message."""
+    reset), WARN when DEGRADED (a continuous sensor silent), with the mode named."""
     from diagnostic_msgs.msg import DiagnosticArray
     from train_localization_msgs.msg import PositionFix
     from train_localization_msgs.srv import SetPosition
@@ -200,6 +200,21 @@ def test_fusion_diagnostics_level_follows_the_mode(ros_context, start_node):
                                                        speed_stddev=0.001))
         assert spin_until(node, future.done, 10.0) and future.result().success, proc.output()
         assert spin_until(node, lambda: status()[0] == 0 and "NOMINAL" in status()[1], 30.0), proc.output()
+        assert proc.interrupt() == 0
+    finally:
+        node.destroy_node()
+    # a continuous sensor (the Doppler) silent beyond its timeout: DEGRADED, WARN
+    proc = start_node("fusion", "--ros-args", *NS, "-p", "sensors:=[doppler,axle_counter]")
+    node = ros_context.create_node("probe_fusion_degraded", namespace="/train")
+    client = node.create_client(SetPosition, "localization/set_position")
+    diags.clear()
+    node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+    try:
+        assert spin_until(node, client.service_is_ready, 30.0), proc.output()
+        future = client.call_async(SetPosition.Request(position=500.0, position_stddev=0.1, speed=0.0,
+                                                       speed_stddev=0.001))
+        assert spin_until(node, future.done, 10.0) and future.result().success, proc.output()
+        assert spin_until(node, lambda: status()[0] == 1 and "DEGRADED" in status()[1], 30.0), proc.output()
         assert proc.interrupt() == 0
     finally:
         node.destroy_node()

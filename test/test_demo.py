@@ -52,3 +52,18 @@ def test_demo_summary_is_recomputed_from_the_bag(demo_run):
     assert again["score"] == summary["score"]
     assert again["messages"] == summary["messages"]
     assert set(summary["exit_codes"].values()) == {0}
+
+
+def test_every_diagnostics_report_is_stamped_in_the_simulated_time(demo_run):
+    """The graph runs on /clock: no node's /diagnostics stamp is wall time (the simulator,
+    which makes the time, stamps its reports in it too)."""
+    from mcap_ros2.reader import read_ros2_messages
+    out, scenario = demo_run
+    stamps = {}
+    for m in read_ros2_messages(str(out / "scenario_short.mcap"), topics=["/diagnostics"]):
+        for status in m.ros_msg.status:
+            t = m.ros_msg.header.stamp.sec + m.ros_msg.header.stamp.nanosec * 1e-9
+            stamps.setdefault(status.name.split(":")[0], []).append(t)
+    assert "simulator" in stamps and "fusion" in stamps
+    assert all(0.0 <= t <= scenario.duration + 5.0 for ts in stamps.values() for t in ts), \
+        {k: max(v) for k, v in stamps.items()}

@@ -71,6 +71,7 @@ class Diagnostics:
         self.level = 0  # 0 OK, 1 WARN, 2 ERROR, 3 STALE (diagnostic_msgs/DiagnosticStatus)
         self.message = "starting"
         self._extra = None
+        self.clock = None   # optional: () -> stamp [s] of the reports (default: the node clock)
         self.pub = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
         node.create_timer(period, self.publish, clock=steady_clock())  # also before /clock runs
 
@@ -104,7 +105,10 @@ class Diagnostics:
             kv.append(KeyValue(key="last_error", value=self.last_error))
         status.values = kv
         arr = DiagnosticArray(status=[status] + (self._extra() if self._extra else []))
-        arr.header.stamp = self.node.get_clock().now().to_msg()
+        if self.clock is not None:   # a node that makes the simulated time stamps in it too
+            arr.header.stamp.sec, arr.header.stamp.nanosec = divmod(int(round(self.clock() * 1e9)), 1_000_000_000)
+        else:
+            arr.header.stamp = self.node.get_clock().now().to_msg()
         self.pub.publish(arr)
 
 

@@ -49,6 +49,10 @@ class SimulatorNode(Node):
         self.scenario_pub = self.create_publisher(String, "scenario", LATCHED_QOS)
         self.scenario_pub.publish(String(data=self.scenario.to_yaml()))
         self.diag = Diagnostics(self, "simulator")
+        # the simulator makes the time (/clock) and runs on the wall clock: its reports are
+        # stamped in the simulated time like every other node's
+        self.sim_time = 0.0
+        self.diag.clock = lambda: self.sim_time
         self.diag.values["scenario"] = self.scenario.name
         self.finished = False
         self.published = 0
@@ -82,6 +86,7 @@ class SimulatorNode(Node):
             self.truth_pub.publish(train_state_to_msg(self.mc, st.stamp, sc.track.track_id, st.position,
                                                       st.speed, st.acceleration))
             self.published += 1
+            self.sim_time = t
             self.diag.values["sim_time"] = f"{t:.2f}"
         self.diag.set_status(0, "scenario finished")
         self.get_logger().info(f"scenario '{sc.name}' finished: {self.published} states")

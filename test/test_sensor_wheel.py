@@ -298,3 +298,43 @@ def test_lost_block_does_not_corrupt_the_count():
     assert after.stamp - after.duration == pytest.approx(blocks[11].t0)
     assert blocks[11].t0 < after.stamp <= blocks[11].t_end
     assert after.distance == pytest.approx(10.0 * after.duration, abs=0.03)
+
+
+@pytest.mark.parametrize("poison", ["stamp_ahead", "seq_near_wrap"])
+def test_one_bad_block_does_not_blind_the_input(poison):
+    """A block stamped 1e6 s ahead (or numbered 2^32 - 1) with valid samples is decoded; the
+    device's next blocks then look repeated or back in time: the first RESYNC_BLOCKS - 1 of
+    them are refused, then the guard takes the device's sequence again and every later
+    block is decoded, with the count still right."""
+    import dataclasses
+    from train_localization.core.pipeline import SensorPipeline
+    from train_localization.core.signals import RESYNC_BLOCKS
+    scen = scenario([{"speed": 10.0, "hold": 10}], 3.0, {**CLEAN, "diameter_error": 0.0}, v0=10.0)
+    blocks, _, _ = run_offline(NODE, scen)
+    pipe = SensorPipeline(spec(NODE), {**CLEAN, "diameter_error": 0.0}, scen.track, scen.vehicle, simulate=False)
+    for b in blocks[:20]:
+        pipe.on_block(b)
+    bad = dataclasses.replace(blocks[20], t0=blocks[20].t0 + 1e6) if poison == "stamp_ahead" else \
+        dataclasses.replace(blocks[20], seq=2 ** 32 - 1)
+    pipe.on_block(bad)
+    refused = 0
+    for b in blocks[21:]:
+        try:
+            pipe.on_block(b)
+        except InputRejected as exc:
+            assert exc.reason in ("stamp_back", "duplicate")
+            refused += 1
+    assert refused == RESYNC_BLOCKS - 1 and pipe.guard.resyncs == 1
+    assert pipe.accepted == len(blocks) - refused
+
+
+def test_absurd_sample_rates_and_huge_blocks_are_refused():
+    """A sample rate of 1e-300 Hz (a block spanning ages: it overflowed the decoders) or a
+    block of 10^7 samples is rejected before any decoding."""
+    for rate in (1e-300, 1e12):
+        with pytest.raises(InputRejected) as exc:
+            RawBlock.from_samples("wheel", "wheel", 0, 0.0, rate, ("A", "B"), ("level", "level"), np.zeros((10, 2)))
+        assert exc.value.reason == "sample_rate"
+    with pytest.raises(InputRejected) as exc:
+        RawBlock.from_samples("wheel", "wheel", 0, 0.0, 1e4, ("A", "B"), ("level", "level"), np.zeros((5_000_000, 2)))
+    assert exc.value.reason == "too_large"

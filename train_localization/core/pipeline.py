@@ -61,6 +61,7 @@ class SensorPipeline:
         except InputRejected as exc:
             self.rejected[exc.reason] += 1
             raise
+        self.guard.commit(block)
         self.accepted += 1
         self.measurements_out += len(out)
         # whole-nanosecond stamps, as they will be in a message: live, offline and

@@ -90,6 +90,12 @@ class RawBlock:
         sample_rate, t0 = float(sample_rate), float(t0)
         if not (math.isfinite(sample_rate) and sample_rate > 0.0):
             raise InputRejected("sample_rate", f"sample rate {sample_rate!r} Hz is not a positive number")
+        if not SAMPLE_RATE_RANGE[0] <= sample_rate <= SAMPLE_RATE_RANGE[1]:
+            raise InputRejected("sample_rate", f"sample rate {sample_rate!r} Hz outside {SAMPLE_RATE_RANGE[0]:g} "
+                                f".. {SAMPLE_RATE_RANGE[1]:g} Hz")
+        if flat.size > MAX_BLOCK_VALUES:
+            raise InputRejected("too_large", f"{flat.size} values in one block (at most {MAX_BLOCK_VALUES}: "
+                                "blocks are tens of milliseconds)")
         if not math.isfinite(t0):
             raise InputRejected("stamp", f"first-sample stamp {t0!r} is not finite")
         if flat.size == 0 or flat.size % len(channels):
@@ -110,6 +116,14 @@ class RawBlock:
         return cls.from_flat(sensor, unit_id, seq, t0, sample_rate, channels, units, samples.reshape(-1))
 
 
+# A raw block's sample rate [Hz] (below: a block would span ages; above: no device here
+# samples faster) and its size (blocks are tens of milliseconds; a huge one would stall the
+# decoder and its memory)
+SAMPLE_RATE_RANGE = (1.0, 1.0e8)
+MAX_BLOCK_VALUES = 2_000_000
+RESYNC_BLOCKS = 3   # rejected blocks in a row that continue one another: the device's sequence again
+
+
 class BlockSequenceGuard:
     """Checks that the blocks of one device arrive in order and are not repeated.
 
@@ -117,25 +131,53 @@ class BlockSequenceGuard:
     before the end of the previous accepted block by more than half a sample
     (``stamp_back``), or if its channel layout differs from the expected one
     (``channels``). Gaps (lost blocks) are accepted and counted in ``gaps``.
+
+    ``check`` only looks; ``commit`` makes a block the reference for the next ones, once
+    it was decoded: a block that is rejected later (by the decoder) sets nothing. One bad
+    block that was accepted (a stamp far ahead, a seq near 2^32) would make every later
+    one a duplicate or go back in time: when RESYNC_BLOCKS rejected blocks in a row
+    continue one another (consecutive seq, contiguous in time), the guard takes them as
+    the device's sequence again (counted in ``resyncs``).
     """
 
     def __init__(self, expected_channels: tuple[str, ...] | None = None):
         self.expected_channels = tuple(expected_channels) if expected_channels else None
         self._last: dict[str, RawBlock] = {}
+        self._refused: dict[str, list[RawBlock]] = {}   # rejected blocks in a row that continue one another
         self.gaps = 0
+        self.resyncs = 0
 
     def check(self, block: RawBlock) -> None:
         if self.expected_channels is not None and block.channels != self.expected_channels:
             raise InputRejected(
                 "channels", f"channels {block.channels} differ from expected {self.expected_channels}")
         last = self._last.get(block.unit_id)
-        if last is not None:
-            if block.seq <= last.seq:
-                raise InputRejected("duplicate", f"{block.unit_id}: seq {block.seq} after {last.seq}")
-            if block.t0 < last.t_end - 0.5 / block.sample_rate:
-                raise InputRejected(
-                    "stamp_back", f"{block.unit_id}: block starts at {block.t0:.6f} s, "
-                    f"before the end of the previous one at {last.t_end:.6f} s")
-            if block.seq != last.seq + 1:
-                self.gaps += block.seq - last.seq - 1
+        if last is None:
+            return
+        if block.seq <= last.seq:
+            self._refuse(block, InputRejected("duplicate", f"{block.unit_id}: seq {block.seq} after {last.seq}"))
+        elif block.t0 < last.t_end - 0.5 / block.sample_rate:
+            self._refuse(block, InputRejected(
+                "stamp_back", f"{block.unit_id}: block starts at {block.t0:.6f} s, "
+                f"before the end of the previous one at {last.t_end:.6f} s"))
+
+    def _refuse(self, block: RawBlock, exc: InputRejected) -> None:
+        run = self._refused.get(block.unit_id, [])
+        prev = run[-1] if run else None
+        if prev is not None and block.seq == prev.seq + 1 and abs(block.t0 - prev.t_end) <= 0.5 / block.sample_rate:
+            run = run + [block]
+        else:
+            run = [block]
+        if len(run) >= RESYNC_BLOCKS:
+            self._refused[block.unit_id] = []
+            self.resyncs += 1
+            return                    # the device's sequence again: accepted, committed after decoding
+        self._refused[block.unit_id] = run
+        raise exc
+
+    def commit(self, block: RawBlock) -> None:
+        last = self._last.get(block.unit_id)
+        if last is not None and block.seq > last.seq + 1:
+            self.gaps += block.seq - last.seq - 1
         self._last[block.unit_id] = block
+        self._refused[block.unit_id] = []

@@ -609,3 +609,42 @@ def test_fusion_rejects_fixes_off_its_track_and_stamps_from_the_future(ros_conte
         assert proc.interrupt() == 0
     finally:
         node.destroy_node()
+
+
+def test_a_stopped_clock_makes_the_fusion_report_stale(ros_context, start_node):
+    """Under use_sim_time, states follow /clock; when /clock stops (the simulator or the
+    replayer died), the fusion's diagnostics go STALE within seconds of wall time instead of
+    repeating the last mode."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rosgraph_msgs.msg import Clock
+    from train_localization_msgs.msg import TrainState
+    from train_localization.nodes.common import CLOCK_QOS, LATCHED_QOS
+
+    proc = start_node("fusion", "--ros-args", *NS, "-p", "use_sim_time:=true", "-p", "sensors:=[axle_counter]")
+    node = ros_context.create_node("probe_clock", namespace="/train")
+    clock_pub = node.create_publisher(Clock, "/clock", CLOCK_QOS)
+    states, diags = [], []
+    node.create_subscription(TrainState, "localization/state", states.append, LATCHED_QOS)
+    node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+
+    def level():
+        for arr in reversed(diags):
+            for s in arr.status:
+                if s.name.endswith(": fusion"):
+                    return s.level[0] if isinstance(s.level, bytes) else s.level
+        return None
+    try:
+        assert spin_until(node, lambda: clock_pub.get_subscription_count() > 0, 30.0), proc.output()
+        t = 100.0
+        deadline = time.monotonic() + 3.0
+        while time.monotonic() < deadline:
+            t += 0.05
+            msg = Clock()
+            msg.clock.sec, msg.clock.nanosec = int(t), int(round((t % 1) * 1e9))
+            clock_pub.publish(msg)
+            spin_until(node, lambda: False, 0.05)
+        assert states and level() != 3, proc.output()
+        assert spin_until(node, lambda: level() == 3, 10.0), proc.output()
+        assert proc.interrupt() == 0
+    finally:
+        node.destroy_node()

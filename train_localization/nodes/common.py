@@ -88,10 +88,12 @@ class Diagnostics:
 
     def extra(self, statuses) -> None:
         """``statuses()``: further DiagnosticStatus entries published with this one (one per
-        input, as diagnostic_updater's per-topic tasks); None: none."""
+        input, as diagnostic_updater's per-topic tasks); called first, on the wall clock, so
+        it may also update this node's own status; None: none."""
         self._extra = statuses
 
     def publish(self) -> None:
+        extra = self._extra() if self._extra else []   # first: it may update this node's own status
         status = DiagnosticStatus(name=self.name, hardware_id=self.node.get_fully_qualified_name())
         level = self.level
         if self.rejected and level == 0:
@@ -104,7 +106,7 @@ class Diagnostics:
         if self.last_error:
             kv.append(KeyValue(key="last_error", value=self.last_error))
         status.values = kv
-        arr = DiagnosticArray(status=[status] + (self._extra() if self._extra else []))
+        arr = DiagnosticArray(status=[status] + extra)
         if self.clock is not None:   # a node that makes the simulated time stamps in it too
             arr.header.stamp.sec, arr.header.stamp.nanosec = divmod(int(round(self.clock() * 1e9)), 1_000_000_000)
         else:

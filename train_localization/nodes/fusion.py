@@ -246,6 +246,7 @@ class FusionNode(ManagedNode):
         if self.odom_frame and self.tf_pub is not None:
             self._subs.append(self.create_subscription(self._tf_cls, "/tf", self.on_tf, 100))
         self._timer = self.create_timer(self.runner.period, self.on_timer)
+        self._last_state_wall = time.monotonic()
         self.diag.set_status(1, "active, no state yet")
         return super().on_activate(state)
 
@@ -341,6 +342,11 @@ class FusionNode(ManagedNode):
         or its last message was older than the history or stamped in the future."""
         from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
         now = time.monotonic()
+        silent = now - self._last_state_wall
+        if self._timer is not None and silent > max(2.0, 5.0 * self.runner.period):
+            # active, but no state for seconds of wall time: the clock (/clock) stopped
+            self.diag.set_status(3, f"STALE: no state published for {silent:.1f} s of wall time "
+                                    "(is the clock running?)")
         elapsed = max(now - self._inputs_since, 1e-9)
         self._inputs_since = now
         out = []
@@ -388,6 +394,7 @@ class FusionNode(ManagedNode):
                     self.diag.values[f"filter/{group}/{k}"] = f"{v:.3f}" if isinstance(v, float) else str(v)
 
     def publish_state(self, est, used):
+        self._last_state_wall = time.monotonic()
         msg = estimate_to_msg(self.mc, est, self.track.track_id, used)
         self.state_pub.publish(msg)
         if not math.isfinite(est.position):

@@ -177,6 +177,7 @@ def _with(block, data, seq=None):
 @pytest.mark.parametrize("mutate,reason", [
     (lambda d: d.__setitem__((3, 0), 99.0), "unknown_id"),          # station code not on the track
     (lambda d: d.__setitem__((3, 0), 2.5), "unknown_id"),           # not an integer code
+    (lambda d: d.__setitem__((3, 0), 1e19), "unknown_id"),          # wraps to a negative int64 (it crashed)
     (lambda d: d.__setitem__((3, 1), -1e-7), "implausible"),        # negative delay
     (lambda d: d.__setitem__((3, 1), 1e-3), "implausible"),         # 300 km
     (lambda d: d.__setitem__((3, slice(3, 6)), d[3, 0:3]), "implausible"),  # one station in two slots

@@ -483,6 +483,10 @@ class MmWaveDecoder(Decoder):
     def _check_detail(self, codes_f, delay, snr):
         if np.any(codes_f != np.round(codes_f)) or np.any(codes_f < 0):
             raise InputRejected("unknown_id", "station channel holds a non-integer or negative code")
+        beyond = codes_f > len(self._lut) - 1   # before the cast: 1e19 would wrap to a negative int64
+        if beyond.any():
+            raise InputRejected("unknown_id", f"station code {codes_f[beyond][0]:.0f} is not on track "
+                                              f"{self.track.track_id}")
         codes = codes_f.astype(np.int64)
         present = codes > 0
         bad = present & ((codes >= len(self._lut)) | (self._lut[np.minimum(codes, len(self._lut) - 1)] < 0))

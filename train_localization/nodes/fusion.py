@@ -218,7 +218,7 @@ class FusionNode(ManagedNode):
         self.mc = rclpy_classes()
         self.sensors = sensors
         self._inputs: dict[str, list] = {}   # sensor -> [accepted since the last report, wall time, age]
-        self._inputs_since = time.monotonic()
+        self._inputs_since = self._last_state_wall = time.monotonic()
         self.diag.extra(self.input_statuses)
         self.state_pub = self.create_lifecycle_publisher(self.mc.TrainState, "localization/state", STATE_QOS)
         self.odom_pub = self.create_lifecycle_publisher(Odometry, "localization/odometry", STREAM_QOS)

@@ -187,6 +187,12 @@ def test_fusion_diagnostics_level_follows_the_mode(ros_context, start_node):
                 if "fusion" in s.name:
                     return s.level[0] if isinstance(s.level, bytes) else s.level, s.message
         return None, ""
+
+    def set_position(client):
+        """Operator reset to 500 m, standing (SetPosition), answered successfully."""
+        future = client.call_async(SetPosition.Request(position=500.0, position_stddev=0.1, speed=0.0,
+                                                       speed_stddev=0.001))
+        assert spin_until(node, future.done, 10.0) and future.result().success, proc.output()
     try:
         assert spin_until(node, lambda: pub.get_subscription_count() > 0 and client.service_is_ready(), 30.0), \
             proc.output()
@@ -196,9 +202,7 @@ def test_fusion_diagnostics_level_follows_the_mode(ros_context, start_node):
         m.header.stamp = node.get_clock().now().to_msg()
         pub.publish(m)
         assert spin_until(node, lambda: status()[0] == 2 and "LOST" in status()[1], 30.0), proc.output()
-        future = client.call_async(SetPosition.Request(position=500.0, position_stddev=0.1, speed=0.0,
-                                                       speed_stddev=0.001))
-        assert spin_until(node, future.done, 10.0) and future.result().success, proc.output()
+        set_position(client)
         assert spin_until(node, lambda: status()[0] == 0 and "NOMINAL" in status()[1], 30.0), proc.output()
         assert proc.interrupt() == 0
     finally:
@@ -211,9 +215,7 @@ def test_fusion_diagnostics_level_follows_the_mode(ros_context, start_node):
     node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
     try:
         assert spin_until(node, client.service_is_ready, 30.0), proc.output()
-        future = client.call_async(SetPosition.Request(position=500.0, position_stddev=0.1, speed=0.0,
-                                                       speed_stddev=0.001))
-        assert spin_until(node, future.done, 10.0) and future.result().success, proc.output()
+        set_position(client)
         assert spin_until(node, lambda: status()[0] == 1 and "DEGRADED" in status()[1], 30.0), proc.output()
         assert proc.interrupt() == 0
     finally:

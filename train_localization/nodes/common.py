@@ -153,7 +153,8 @@ class ManagedNode(LifecycleNode):
     executable) configures and activates it at start (``start``); true waits for a lifecycle
     manager. Subclasses implement ``_configure`` (raise CONFIG_ERRORS for bad input: the
     configure transition then fails with the reason logged, the node stays up) and the
-    other transitions."""
+    other transitions; the subscriptions they make on activate go into ``_subs``, which
+    deactivate removes."""
 
     def __init__(self, node_name: str, diag_name: str):
         super().__init__(node_name)
@@ -162,6 +163,7 @@ class ManagedNode(LifecycleNode):
         self.diag = Diagnostics(self, diag_name)
         self.diag.set_status(1, "unconfigured")
         self._config_error = ""
+        self._subs: list = []   # subscriptions made on activate
 
     def start(self) -> None:
         """Configure and activate now unless managed; ConfigurationError if configuring fails."""
@@ -183,6 +185,13 @@ class ManagedNode(LifecycleNode):
             return TransitionCallbackReturn.FAILURE
         self.diag.set_status(1, "inactive (configured)")
         return TransitionCallbackReturn.SUCCESS
+
+    def on_deactivate(self, state) -> TransitionCallbackReturn:
+        for sub in self._subs:
+            self.destroy_subscription(sub)
+        self._subs = []
+        self.diag.set_status(1, "inactive (deactivated)")
+        return super().on_deactivate(state)
 
 
 def now_sec(node: Node) -> float:

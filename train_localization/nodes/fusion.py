@@ -185,7 +185,6 @@ class FusionNode(ManagedNode):
             raise ConfigurationError(f"parameter 'publish_rate' must be in (0, 1000] Hz, not {rate}")
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.runner = None
-        self._subs: list = []
         self._timer = None
         self.start()
 
@@ -251,12 +250,8 @@ class FusionNode(ManagedNode):
         return super().on_activate(state)
 
     def on_deactivate(self, state) -> TransitionCallbackReturn:
-        for sub in self._subs:
-            self.destroy_subscription(sub)
-        self._subs = []
         self.destroy_timer(self._timer)
         self._timer = None
-        self.diag.set_status(1, "inactive (deactivated)")
         return super().on_deactivate(state)
 
     def on_cleanup(self, state) -> TransitionCallbackReturn:

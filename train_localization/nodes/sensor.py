@@ -43,7 +43,6 @@ class SensorNode(ManagedNode):
     def __init__(self, node_name: str):
         self.spec = sensor_spec(node_name)
         super().__init__(node_name, self.spec.sensor)
-        self._subs: list = []
         self.pubs: dict = {}
         self.start()
 
@@ -112,13 +111,6 @@ class SensorNode(ManagedNode):
                                                        self.on_raw, STREAM_QOS))
         self.diag.set_status(0, "running")
         return super().on_activate(state)
-
-    def on_deactivate(self, state) -> TransitionCallbackReturn:
-        for sub in self._subs:
-            self.destroy_subscription(sub)
-        self._subs = []
-        self.diag.set_status(1, "inactive (deactivated)")
-        return super().on_deactivate(state)
 
     def on_cleanup(self, state) -> TransitionCallbackReturn:
         for pub in list(self.pubs.values()) + ([self.raw_pub] if self.raw_pub is not None else []):

@@ -32,10 +32,12 @@ def test_recorder_interrupted_by_sigint_keeps_every_message(ros_context, start_n
             imu.linear_acceleration.x = float(i)
             pubs["/rec_test/b"].publish(imu)
             pubs["/rec_test/c"].publish(SpeedMeasurement(sensor="doppler", speed=float(i), speed_stddev=0.1))
-        # reliable delivery is asynchronous: give the 2100 messages a second to reach the recorder, so
-        # the test checks that SIGINT keeps what was delivered (twice under load it interrupted a
-        # recorder that had received 76-550 of 700; issue 13 owns how fast the recorder closes)
-        time.sleep(1.0)
+        # reliable delivery is asynchronous: wait until the recorder's readers acknowledged all 2100
+        # messages, so the test checks that SIGINT keeps what was delivered (a fixed 1 s wait
+        # interrupted recorders under load that had received 76-550 of 700; issue 13 owns how
+        # fast the recorder closes)
+        from rclpy.duration import Duration
+        assert all(p.wait_for_all_acked(Duration(seconds=30)) for p in pubs.values()), proc.output()
         assert proc.interrupt() == 0, proc.output()
     finally:
         node.destroy_node()

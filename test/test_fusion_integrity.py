@@ -188,3 +188,51 @@ def test_a_reference_read_again_is_not_counted_as_new_information():
     e1, e2 = once.estimate(3.0), twice.estimate(3.0)
     assert e2.position_stddev == pytest.approx(e1.position_stddev, rel=1e-9)
     assert e2.position == pytest.approx(e1.position, abs=1e-9)
+
+
+def _recalibration_run(fix_error: float):
+    """A train at 20 m/s on an exact wheel (diameter tolerance 1 %: 7 m after 1.2 km, 1-sigma)
+    between two axle-counter fixes; the second fix is ``fix_error`` m off although it claims 5 cm."""
+    models = sensor_models({"wheel_sensor": {"diameter_tolerance": 0.01}, "axle_counter": {}}, None, Vehicle())
+    f = TrainFilter(FusionConfig(sensors=models))
+    f.reset(position=0.0, position_stddev=0.05, speed=20.0, speed_stddev=0.1, stamp=0.0)
+    for j in range(1, 1201):
+        t = j * 0.05
+        f.add(DistanceIncrement(t, "wheel", "w", 0.05, 1.0, 0.005, 20.0, 0.1))
+        if j == 1200:
+            f.add(PositionFix(t, "axle_counter", "ac", "T", "AC02", 20.0 * t + fix_error, 0.05))
+    return f.estimate(60.0), f.counters()
+
+
+def test_one_fix_cannot_make_the_filter_sure_of_a_speed_recalibration():
+    """An innovation larger than expected (NIS > 1) re-calibrates the wheel scale by more than
+    the model expected; the speed uncertainty keeps that excess (innovation-based covariance
+    matching), so the speed interval still holds the true 20 m/s; an expected innovation
+    leaves the filter as sure as before."""
+    est, counters = _recalibration_run(10.0)
+    assert counters["accepted"]["axle_counter"] == 1
+    assert abs(est.speed - 20.0) > 0.1                       # the fix moved the speed
+    assert abs(est.speed - 20.0) <= 3.29 * est.speed_stddev  # ... and the filter knows it may be wrong
+    small, _ = _recalibration_run(0.02)
+    assert abs(small.speed - 20.0) < 0.01 and small.speed_stddev < 0.1 * est.speed_stddev
+
+
+def test_an_alternative_view_that_stops_being_tracked_stays_inside_the_interval():
+    """An excluded sensor that agrees again, with a separation D its own scale error explains,
+    is no longer tracked as a view of its own: D is merged into the position covariance, so
+    the interval still covers where that sensor put the train (no confident collapse)."""
+    models = sensor_models(["wheel_sensor", "doppler_radar"], None, Vehicle())
+    f = TrainFilter(FusionConfig(sensors=models))
+    f.reset(position=0.0, position_stddev=0.1, speed=20.0, speed_stddev=0.05, stamp=0.0)
+    for j in range(1, 21):
+        t = j * 0.05
+        f.add(DistanceIncrement(t, "wheel", "w", 0.05, 1.0, 0.005, 20.0, 0.1))
+        f.add(SpeedMeasurement(t - 0.025, "doppler", "d", 20.0, 0.05))
+    before = f.estimate(1.0)
+    D = -4.0   # the radar ran 4 m behind over 5 km while it was excluded (its scale: 0.5 %, 27 m)
+    f.aux.relative_alternatives = {"doppler": (D, 0.01, 0.0, 1.0, 5000.0)}
+    f.add(SpeedMeasurement(1.025, "doppler", "d", 20.0, 0.05))
+    after = f.estimate(1.05)
+    assert f.counters()["integrity"]["alternative_merged"] == 1
+    assert after.position_stddev ** 2 >= before.position_stddev ** 2 + D ** 2 - 0.01
+    assert after.position_min <= after.position + D

@@ -51,6 +51,11 @@ information; the filter may say it does not know, never be confidently wrong):
               than the sensor's own noise), never on the motion model alone. A fix that only
               an excluded view explains overturns the filter only if a fix of another
               reference agrees with it, unless its sensor has no outlier fault mode.
+  recalibration a fix whose innovation exceeds its expected size (NIS > 1) re-calibrates
+              the speed and error states by more than the model expected: the covariance
+              keeps that excess along the correction, so only the next fix can confirm it.
+  merge       an excluded sensor's view that stops being tracked (its episode ended with a
+              separation its own errors explain) is merged into the position covariance.
   revisit     a fix of a reference the filter accepted before (a reversal over a balise)
               carries the same installation error: not applied while the filter knows its
               position better than the fix.
@@ -278,7 +283,10 @@ class TrainFilter:
             return
         if is_fix and self._remembered(m, R):
             return
+        x_before = self.ekf.x
         self._update(z, R, h, hx, PHt, S)
+        if is_fix and nis > 1.0:
+            self._correction_unconfirmed(x_before, nis)
         count, total = aux.nis.get(cls, (0, 0.0))
         aux.nis = {**aux.nis, cls: (count + 1, total + nis)}
         aux.accepted = _inc(aux.accepted, cls)
@@ -302,8 +310,14 @@ class TrainFilter:
             return True
         alt = aux.relative_alternatives.get(cls)
         if alt is not None and alt[0] ** 2 <= self._slip_gate * self._alternative_spread(cls, alt)[1]:
-            # the episode ended without a separation: a false alarm
+            # the episode ended with a separation that the sensor's own errors explain: no longer
+            # tracked as a view of its own, but merged into the position covariance (moment
+            # matching of the two views, the filter's mean kept), so the interval still covers it
             aux.relative_alternatives = {k: v for k, v in aux.relative_alternatives.items() if k != cls}
+            P = self.ekf.P.copy()
+            P[0, 0] += alt[0] ** 2
+            self.ekf.P = P
+            aux.events = _inc(aux.events, "alternative_merged")
         window, summed = self._windowed(aux.slip_window.get(cls, ()), m, e, S)
         if nis > self._slip_gate or summed > self._slip_gate:
             aux.slip_window = {**aux.slip_window, cls: ()}
@@ -504,6 +518,18 @@ class TrainFilter:
         self.ekf.x, self.ekf.P = x, P
         aux.events = _inc(aux.events, reason)
         aux.unverified = reason
+
+    def _correction_unconfirmed(self, x_before, nis: float) -> None:
+        """A fix whose innovation exceeds its expected size (NIS > 1) corrected the speed and
+        error states by d = K nu, more than the model expected (K S K^T): the excess may be the
+        error states' doing (the model's reading) or a one-off the model lacks (an undetected slip
+        onset, a fix error beyond its stddev). The covariance keeps that excess,
+        (1 - 1/NIS) d d^T, along d (innovation-based covariance matching, Mehra 1972), so one
+        fix cannot make the filter sure of a speed re-calibration that only the next fix can
+        confirm. The position, which the fix itself gives, is left as updated."""
+        d = (self.ekf.x - x_before)[:, 0].copy()
+        d[0] = 0.0
+        self.ekf.P = self.ekf.P + (1.0 - 1.0 / nis) * np.outer(d, d)
 
     def _remembered(self, m, R: float) -> bool:
         """A fix of a reference whose earlier fix the filter still holds: its error (a balise's

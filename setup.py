@@ -22,6 +22,7 @@ TOOLS = {
     "tl_replay": "train_localization.tools.replay:main",
     "tl_bench": "train_localization.tools.bench:main",
     "tl_campaign": "train_localization.tools.campaign:main",
+    "tl_bag": "train_localization.tools.bag:main",
 }
 
 console_scripts = [f"{name} = {target}" for name, target in NODES.items()]

@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections import Counter
 from functools import lru_cache
 from pathlib import Path
+from struct import error as struct_error
 from typing import Iterator
 
 import numpy as np
@@ -194,3 +195,40 @@ def topic_counts(path: str | Path) -> dict[str, int]:
     for cid, n in summary.statistics.channel_message_counts.items():
         counts[channels[cid].topic] += n
     return dict(counts)
+
+
+def recover_bag(src: str | Path, dst: str | Path) -> tuple[dict[str, int], str | None]:
+    """Rewrite a truncated MCAP file (its writer was killed: no summary, a chunk cut off) into
+    a valid one: every message up to the last complete record, schemas and channels as they
+    were. Returns (messages per topic copied, why the input ended early or None if it was
+    complete)."""
+    from mcap.exceptions import McapError
+    from mcap.records import Channel, Message, Schema
+    from mcap.stream_reader import StreamReader
+
+    counts: Counter[str] = Counter()
+    schemas: dict[int, int] = {}
+    channels: dict[int, tuple[int, str]] = {}
+    problem = None
+    Path(dst).parent.mkdir(parents=True, exist_ok=True)
+    with open(src, "rb") as fh, open(dst, "wb") as out:
+        writer = Writer(out, compression=CompressionType.ZSTD)
+        writer.start(profile="ros2", library="train_localization recover")
+        try:
+            for rec in StreamReader(fh).records:
+                if isinstance(rec, Schema):
+                    schemas[rec.id] = writer.register_schema(rec.name, rec.encoding, rec.data)
+                elif isinstance(rec, Channel):
+                    channels[rec.id] = (writer.register_channel(rec.topic, rec.message_encoding,
+                                                                schemas.get(rec.schema_id, 0), rec.metadata),
+                                        rec.topic)
+                elif isinstance(rec, Message) and rec.channel_id in channels:
+                    cid, topic = channels[rec.channel_id]
+                    writer.add_message(cid, rec.log_time, rec.data, rec.publish_time, rec.sequence)
+                    counts[topic] += 1
+        except (McapError, EOFError, ValueError, struct_error) as exc:   # the cut: a record runs past the end
+            problem = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+        except Exception as exc:  # noqa: BLE001 - zstd/lz4 on a cut chunk raise their own errors
+            problem = f"{type(exc).__name__}: {exc}"
+        writer.finish()
+    return dict(counts), problem

@@ -198,6 +198,10 @@ def now_sec(node: Node) -> float:
     return node.get_clock().now().nanoseconds * 1e-9
 
 
+# longest time a stopping node keeps taking already delivered messages [s]
+DRAIN_TIMEOUT = 1.5
+
+
 def spin(node_factory, args=None) -> int:
     """Create the node, spin it until SIGINT/SIGTERM or it asks to stop, shut down cleanly.
 
@@ -220,9 +224,10 @@ def spin(node_factory, args=None) -> int:
         executor.add_node(node)
         while not stop["flag"] and not getattr(node, "finished", False) and rclpy.ok():
             executor.spin_once(timeout_sec=0.05)
-        # take what is already delivered before closing (a recorder loses nothing):
-        # spin until the node's ``activity`` counter stops moving for 0.3 s (max 20 s)
-        deadline, quiet_since, last = time.monotonic() + 20.0, time.monotonic(), None
+        # take what is already delivered before closing (a recorder loses nothing): spin until
+        # the node's ``activity`` counter stops moving for 0.3 s, at most DRAIN_TIMEOUT s (under
+        # a launch a stop escalates to SIGKILL after a few seconds while outside nodes publish)
+        deadline, quiet_since, last = time.monotonic() + DRAIN_TIMEOUT, time.monotonic(), None
         while rclpy.ok() and time.monotonic() < deadline and time.monotonic() - quiet_since < 0.3:
             executor.spin_once(timeout_sec=0.02)
             now_activity = getattr(node, "activity", None)

@@ -7,8 +7,9 @@ lists the arguments. Needs a full ROS 2 Jazzy install (launch is not on PyPI).
 
 Shutdown: when the simulator has played the scenario and exits, the launch shuts the
 whole graph down (the recorder closes its bag). Ctrl-C (SIGINT) does the same at any
-time; a supervisor should send SIGINT and allow the recorder a few seconds to finish
-its bag before escalating to SIGTERM/SIGKILL.
+time; the recorder closes its bag within 2 s of SIGINT. Supervision: fusion and sensor
+nodes that exit or crash are restarted after ``respawn_delay`` s (``respawn:=false`` to
+turn it off); the fusion comes back INITIALISING and claims a position again from fixes.
 
 DDS discovery: the nodes do not confine it themselves (a multi-computer train sets its
 own); this launch keeps ROS_AUTOMATIC_DISCOVERY_RANGE as the caller has it, LOCALHOST if
@@ -46,11 +47,18 @@ def _nodes(context):
     rate = float(LaunchConfiguration("rate").perform(context))
     namespace = LaunchConfiguration("namespace").perform(context)
     log_level = LaunchConfiguration("log_level").perform(context)
+    respawn = LaunchConfiguration("respawn").perform(context).lower() in ("true", "1", "yes")
+    respawn_delay = float(LaunchConfiguration("respawn_delay").perform(context))
     sensors = list(Scenario.from_yaml(scenario).sensors)
     actions = []
     for exe, name, params in demo_graph(scenario, sensors, bag, rate, record=record):
+        # supervision: a crashed fusion or sensor node is restarted (the fusion comes back
+        # INITIALISING); not the simulator (its exit ends the run) nor the recorder (a new
+        # one would start the bag afresh)
+        supervised = respawn and exe not in ("simulator", "recorder")
         node = Node(package="train_localization", executable=exe, name=name, namespace=namespace,
-                    parameters=[params], output="screen", arguments=["--ros-args", "--log-level", log_level])
+                    parameters=[params], output="screen", arguments=["--ros-args", "--log-level", log_level],
+                    respawn=supervised, respawn_delay=respawn_delay if supervised else None)
         actions.append(node)
         if exe == "simulator":
             actions.append(RegisterEventHandler(OnProcessExit(
@@ -74,6 +82,11 @@ def generate_launch_description():
         DeclareLaunchArgument("log_level", default_value="info",
                               choices=["debug", "info", "warn", "error", "fatal"],
                               description="log level of every node"),
+        DeclareLaunchArgument("respawn", default_value="true", choices=["true", "false"],
+                              description="restart a fusion or sensor node that exits or crashes (not the "
+                                          "simulator or the recorder)"),
+        DeclareLaunchArgument("respawn_delay", default_value="2.0",
+                              description="seconds before such a node is restarted (>= 0)"),
         SetEnvironmentVariable("ROS_AUTOMATIC_DISCOVERY_RANGE",
                                EnvironmentVariable("ROS_AUTOMATIC_DISCOVERY_RANGE", default_value="LOCALHOST")),
         OpaqueFunction(function=_nodes),

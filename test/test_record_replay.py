@@ -80,7 +80,7 @@ def test_replayer_drives_an_ingest_node_to_the_recorded_measurements(ros_context
     assert [convert.speed_from_msg(m) for m in got] == expected
 
 
-def test_a_truncated_bag_is_recovered_up_to_its_last_complete_chunk(tmp_path):
+def test_a_truncated_bag_is_recovered_up_to_its_last_complete_chunk(tmp_path, caplog):
     """A recorder killed mid-write leaves no summary and a cut chunk: tl_bag recover writes a
     valid bag with every message of the complete chunks, and says the input was cut."""
     from train_localization.core.bagio import BagWriter, read_bag, recover_bag, topic_counts, typestore
@@ -107,3 +107,8 @@ def test_a_truncated_bag_is_recovered_up_to_its_last_complete_chunk(tmp_path):
     assert tl_bag(["recover", str(cut), str(tmp_path / "cli.mcap")]) == 0
     assert topic_counts(tmp_path / "cli.mcap") == {"/chatter": n}
     assert tl_bag(["recover", str(tmp_path / "missing.mcap"), str(tmp_path / "x.mcap")]) == 2
+    # readers (replayer, tl_replay) take a cut bag up to its last complete chunk, with a warning
+    import logging
+    with caplog.at_level(logging.WARNING):
+        assert [m.data for _, _, _, m in read_bag(cut)] == msgs
+    assert "truncated" in caplog.text

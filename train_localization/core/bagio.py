@@ -9,6 +9,8 @@ The message definitions of train_localization_msgs come from the installed packa
 """
 from __future__ import annotations
 
+import logging
+import tempfile
 from collections import Counter
 from functools import lru_cache
 from pathlib import Path
@@ -140,7 +142,9 @@ class BagWriter:
 class BagReader:
     """One bag, read in log-time order: messages as CDR bytes, and their deserialiser.
 
-    Types are taken from the bag's own schemas, so bags from other versions decode.
+    Types are taken from the bag's own schemas, so bags from other versions decode. A
+    truncated MCAP file (its writer killed) is read up to its last complete chunk, with a
+    warning.
     ``deserialize`` keeps working after the reader is closed (it only needs the types),
     so the bytes can be decoded later or in another process (core/offline.py).
     """
@@ -150,14 +154,29 @@ class BagReader:
         self.path = Path(path)
         self._reader = AnyReader([self.path], default_typestore=typestore())
         self._store = None
+        self._recovered: Path | None = None   # temporary copy of a truncated bag
 
     def __enter__(self) -> "BagReader":
-        self._reader.open()
+        try:
+            self._reader.open()
+        except Exception as exc:   # rosbags: a file without summary (its writer was killed)
+            if not _is_mcap(self.path):
+                raise
+            self._recovered = Path(tempfile.mkstemp(suffix=".mcap")[1])
+            counts, _ = recover_bag(self.path, self._recovered)
+            logging.getLogger(__name__).warning(
+                "%s is truncated (%s): reading the %d messages of its complete chunks",
+                self.path, exc, sum(counts.values()))
+            from rosbags.highlevel import AnyReader
+            self._reader = AnyReader([self._recovered], default_typestore=typestore())
+            self._reader.open()
         self._store = self._reader.typestore
         return self
 
     def __exit__(self, *exc) -> None:
         self._reader.close()
+        if self._recovered is not None:
+            self._recovered.unlink(missing_ok=True)
 
     def cdr(self, topics: list[str] | None = None) -> Iterator[tuple[str, str, int, bytes]]:
         """(topic, typename, log_time_ns, CDR bytes) of the messages of ``topics`` (all if None)."""
@@ -173,6 +192,11 @@ class BagReader:
             return self._store.deserialize_cdr(data, typename)
         except Exception as exc:   # rosbags raises SerdeError, struct.error, IndexError, ...
             raise InputRejected("malformed", f"{typename} message does not deserialise: {exc}") from None
+
+
+def _is_mcap(path: Path) -> bool:
+    with open(path, "rb") as fh:
+        return fh.read(8) == b"\x89MCAP0\r\n"
 
 
 def read_bag(path: str | Path, topics: list[str] | None = None) -> Iterator[tuple[str, str, int, object]]:

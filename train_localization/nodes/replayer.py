@@ -15,16 +15,22 @@ Parameters:
   exit_at_end (bool, true)   shut down after the last message (ignored with loop)
   wait_for_subscribers (int, 0)  before playing, wait (at most 60 s) until the
                              played topics have this many matched subscribers in all
+A truncated bag (its recorder killed) is played up to its last complete chunk, with a
+warning.
 """
 from __future__ import annotations
 
+import os
+import tempfile
 import threading
 import time
 
+from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 
+from ..core.bagio import recover_bag
 from .common import CLOCK_QOS, LATCHED_QOS, STATE_QOS, STREAM_QOS, declare, spin
 from .recorder import message_class
 
@@ -53,8 +59,8 @@ class ReplayerNode(Node):
         self.published = 0
         self.finished = False
         self._stop = threading.Event()
-        with open(self.bag, "rb") as fh:
-            summary = make_reader(fh).get_summary()
+        self._recovered = None
+        summary = self._summary()
         self._channels = {cid: ch for cid, ch in summary.channels.items()
                           if not self.topics or ch.topic in self.topics}
         for cid, ch in self._channels.items():
@@ -67,6 +73,25 @@ class ReplayerNode(Node):
         self.clock_pub = self.create_publisher(Clock, "/clock", CLOCK_QOS) if self._own_clock else None
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
+
+    def _summary(self):
+        """The bag's summary; a truncated bag (its recorder killed) is first rewritten to a
+        temporary file up to its last complete chunk (core/bagio.py recover_bag), with a warning."""
+        try:
+            with open(self.bag, "rb") as fh:
+                summary = make_reader(fh).get_summary()
+            if summary is not None:
+                return summary
+            problem = "no summary"
+        except McapError as exc:
+            problem = str(exc) or type(exc).__name__
+        self._recovered = tempfile.mkstemp(suffix=".mcap")[1]
+        counts, _ = recover_bag(self.bag, self._recovered)
+        self.get_logger().warn(f"{self.bag} is truncated ({problem}): playing the {sum(counts.values())} "
+                               f"messages of its complete chunks")
+        self.bag = self._recovered
+        with open(self.bag, "rb") as fh:
+            return make_reader(fh).get_summary()
 
     def _publish_clock(self, t_ns: int):
         msg = Clock()
@@ -117,6 +142,8 @@ class ReplayerNode(Node):
         """Stop the publishing thread before the node goes away (no publish after destroy)."""
         self._stop.set()
         self._thread.join(timeout=5.0)
+        if self._recovered is not None:
+            os.unlink(self._recovered)
 
 
 def main(args=None):

@@ -51,9 +51,10 @@ information; the filter may say it does not know, never be confidently wrong):
               than the sensor's own noise), never on the motion model alone. A fix that only
               an excluded view explains overturns the filter only if a fix of another
               reference agrees with it, unless its sensor has no outlier fault mode.
-  recalibration a fix whose innovation exceeds its expected size (NIS > 1) re-calibrates
-              the speed and error states by more than the model expected: the covariance
-              keeps that excess along the correction, so only the next fix can confirm it.
+  recalibration a fix of an independent reference whose innovation exceeds its expected
+              size (NIS > 1) re-calibrates the speed and error states by more than the model
+              expected: the covariance keeps that excess along the correction, so only the
+              next fix can confirm it.
   merge       an excluded sensor's view that stops being tracked (its episode ended with a
               separation its own errors explain) is merged into the position covariance.
   revisit     a fix of a reference the filter accepted before (a reversal over a balise)
@@ -528,9 +529,8 @@ class TrainFilter:
         fix cannot make the filter sure of a speed re-calibration that only the next fix can
         confirm. The position, which the fix itself gives, is left as updated. Only for fixes of
         independent references (no fix-bias state): a stream of fixes (mm-wave, INPO) confirms
-        or undoes the re-calibration milliseconds later, and there the extra rank-1 update cost
-        a quarter of the maglev replay speed (tl_bench replay)."""
-        d = (self.ekf.x - x_before)[:, 0].copy()
+        or undoes a re-calibration milliseconds later."""
+        d = (self.ekf.x - x_before)[:, 0]   # a new array: zeroing its position entry changes nothing else
         d[0] = 0.0
         self.ekf.P = self.ekf.P + (1.0 - 1.0 / nis) * np.outer(d, d)
 
@@ -575,21 +575,18 @@ class TrainFilter:
 
     def _unexplained(self, m, z: float, R: float) -> None:
         """A gated absolute fix: keep it as the alternative, or let it confirm the one kept."""
-        aux, cfg = self.aux, self.cfg
-        s, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
+        aux = self.aux
+        if self._corroborated(m, z, R):
+            # two independent fixes agree with each other, not with the filter: it was wrong
+            self._set_position(m)
+            self._relearn("reacquired")
+            aux.alternative = None
+            return
         alt = aux.alternative
-        if alt is not None and m.stamp - alt[0] <= cfg.branch_timeout:
-            t_a, z_a, R_a, s_a, P_a, cls_a, ref_a = alt
-            independent = m.reference_id != ref_a or m.sensor != cls_a
-            if independent and self._agrees(m, z, R, s, P00, z_a, R_a, s_a, P_a):
-                # two independent fixes agree with each other, not with the filter: it was wrong
-                self._set_position(m)
-                self._relearn("reacquired")
-                aux.alternative = None
-                return
-            if not independent:
-                return
-        aux.alternative = (m.stamp, z, R, s, P00, m.sensor, m.reference_id)
+        if alt is not None and m.stamp - alt[0] <= self.cfg.branch_timeout and \
+                (m.sensor, m.reference_id) == (alt[5], alt[6]):
+            return   # the kept reference read again confirms nothing and stays the alternative
+        aux.alternative = (m.stamp, z, R, float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0]), m.sensor, m.reference_id)
         aux.events = _inc(aux.events, "unexplained_fix")
 
     def _corroborated(self, m, z: float, R: float) -> bool:

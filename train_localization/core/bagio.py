@@ -10,11 +10,11 @@ The message definitions of train_localization_msgs come from the installed packa
 from __future__ import annotations
 
 import logging
+import os
 import tempfile
 from collections import Counter
 from functools import lru_cache
 from pathlib import Path
-from struct import error as struct_error
 from typing import Iterator
 
 import numpy as np
@@ -159,14 +159,11 @@ class BagReader:
     def __enter__(self) -> "BagReader":
         try:
             self._reader.open()
-        except Exception as exc:   # rosbags: a file without summary (its writer was killed)
+        except Exception:   # rosbags: a file without summary (its writer was killed)
             if not _is_mcap(self.path):
                 raise
-            self._recovered = Path(tempfile.mkstemp(suffix=".mcap")[1])
-            counts, _ = recover_bag(self.path, self._recovered)
-            logging.getLogger(__name__).warning(
-                "%s is truncated (%s): reading the %d messages of its complete chunks",
-                self.path, exc, sum(counts.values()))
+            self._recovered, warning = recovered_copy(self.path)
+            logging.getLogger(__name__).warning(warning)
             from rosbags.highlevel import AnyReader
             self._reader = AnyReader([self._recovered], default_typestore=typestore())
             self._reader.open()
@@ -226,7 +223,6 @@ def recover_bag(src: str | Path, dst: str | Path) -> tuple[dict[str, int], str |
     a valid one: every message up to the last complete record, schemas and channels as they
     were. Returns (messages per topic copied, why the input ended early or None if it was
     complete)."""
-    from mcap.exceptions import McapError
     from mcap.records import Channel, Message, Schema
     from mcap.stream_reader import StreamReader
 
@@ -250,9 +246,18 @@ def recover_bag(src: str | Path, dst: str | Path) -> tuple[dict[str, int], str |
                     cid, topic = channels[rec.channel_id]
                     writer.add_message(cid, rec.log_time, rec.data, rec.publish_time, rec.sequence)
                     counts[topic] += 1
-        except (McapError, EOFError, ValueError, struct_error) as exc:   # the cut: a record runs past the end
+        except Exception as exc:  # noqa: BLE001 - the cut: a record runs past the end (McapError,
+            # EOFError, struct.error) or a cut chunk does not decompress (zstd/lz4 errors)
             problem = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
-        except Exception as exc:  # noqa: BLE001 - zstd/lz4 on a cut chunk raise their own errors
-            problem = f"{type(exc).__name__}: {exc}"
         writer.finish()
     return dict(counts), problem
+
+
+def recovered_copy(path: str | Path) -> tuple[Path, str]:
+    """A truncated bag rewritten by ``recover_bag`` to a temporary file (the caller deletes
+    it), and the warning to log about it."""
+    fd, tmp = tempfile.mkstemp(suffix=".mcap")
+    os.close(fd)
+    counts, problem = recover_bag(path, tmp)
+    return Path(tmp), (f"{path} is truncated ({problem or 'no summary'}): reading the "
+                       f"{sum(counts.values())} messages of its complete chunks")

@@ -20,8 +20,6 @@ warning.
 """
 from __future__ import annotations
 
-import os
-import tempfile
 import threading
 import time
 
@@ -30,7 +28,7 @@ from mcap.reader import make_reader
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 
-from ..core.bagio import recover_bag
+from ..core.bagio import recovered_copy
 from .common import CLOCK_QOS, LATCHED_QOS, STATE_QOS, STREAM_QOS, declare, spin
 from .recorder import message_class
 
@@ -82,14 +80,11 @@ class ReplayerNode(Node):
                 summary = make_reader(fh).get_summary()
             if summary is not None:
                 return summary
-            problem = "no summary"
-        except McapError as exc:
-            problem = str(exc) or type(exc).__name__
-        self._recovered = tempfile.mkstemp(suffix=".mcap")[1]
-        counts, _ = recover_bag(self.bag, self._recovered)
-        self.get_logger().warn(f"{self.bag} is truncated ({problem}): playing the {sum(counts.values())} "
-                               f"messages of its complete chunks")
-        self.bag = self._recovered
+        except McapError:
+            pass
+        self._recovered, warning = recovered_copy(self.bag)
+        self.get_logger().warn(warning)
+        self.bag = str(self._recovered)
         with open(self.bag, "rb") as fh:
             return make_reader(fh).get_summary()
 
@@ -143,7 +138,7 @@ class ReplayerNode(Node):
         self._stop.set()
         self._thread.join(timeout=5.0)
         if self._recovered is not None:
-            os.unlink(self._recovered)
+            self._recovered.unlink(missing_ok=True)
 
 
 def main(args=None):

@@ -171,6 +171,18 @@ def sensor_classes(names: list[str]) -> list[str]:
     return out
 
 
+MAX_PUBLISH_RATE = 1000.0   # [Hz]
+
+
+def publish_rate_problem(value) -> str | None:
+    """Why ``value`` is no valid publish_rate (a number in (0, MAX_PUBLISH_RATE] Hz), or None."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return f"'publish_rate' must be a number in (0, {MAX_PUBLISH_RATE:g}] Hz, not {value!r}"
+    if not 0.0 < value <= MAX_PUBLISH_RATE:
+        return f"'publish_rate' must be in (0, {MAX_PUBLISH_RATE:g}] Hz, not {value!r}"
+    return None
+
+
 class FusionNode(ManagedNode):
     """A managed (lifecycle) node. With ``managed`` false (the default, the plain executable)
     it configures and activates itself at start; with ``managed`` true a lifecycle manager
@@ -181,8 +193,9 @@ class FusionNode(ManagedNode):
     def __init__(self):
         super().__init__("fusion", "fusion")
         rate = declare(self, "publish_rate", 200.0, "state publish rate [Hz], (0, 1000]; may change at run time")
-        if not 0.0 < rate <= 1000.0:
-            raise ConfigurationError(f"parameter 'publish_rate' must be in (0, 1000] Hz, not {rate}")
+        problem = publish_rate_problem(rate)
+        if problem:
+            raise ConfigurationError(f"parameter {problem}")
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.runner = None
         self._timer = None
@@ -269,11 +282,9 @@ class FusionNode(ManagedNode):
         parameters are read-only (rclpy refuses them before this is called)."""
         from rcl_interfaces.msg import SetParametersResult
         for p in params:
-            if p.name == "publish_rate":
-                value = p.value
-                if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 < value <= 1000.0:
-                    return SetParametersResult(successful=False,
-                                               reason=f"publish_rate must be a number in (0, 1000] Hz, not {value!r}")
+            problem = publish_rate_problem(p.value) if p.name == "publish_rate" else None
+            if problem:
+                return SetParametersResult(successful=False, reason=problem)
         for p in params:
             if p.name == "publish_rate" and self.runner is not None:
                 rate = float(p.value)

@@ -78,7 +78,7 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from scipy.stats import chi2, norm
 
-from ..measurements import PositionFix
+from ..measurements import PositionFix, SpeedMeasurement
 from ..signals import InputRejected
 from .config import FusionConfig, gate_probability
 from .history import History, order_key
@@ -128,7 +128,7 @@ class _Aux:
     __slots__ = ("initialised", "t", "last_accepted", "slip_until", "accepted", "gated", "slips",
                  "speed_sources", "nis", "fix_ref", "last_fix_accepted", "fix_nis", "slip_window",
                  "alternative", "events", "unverified", "s_last_fix", "relative_alternatives", "suspended",
-                 "candidate", "used_refs")
+                 "candidate", "used_refs", "peer_speeds", "peers_agree_since")
 
     def __init__(self):
         self.initialised = False
@@ -155,6 +155,10 @@ class _Aux:
         self.candidate: tuple | None = None             # first fix awaiting confirmation
         self.used_refs: tuple = ()                     # (sensor, reference) of the last accepted fixes
         self.suspended: dict[str, tuple] = {}          # speed sources found faulty -> (agreeing since [s], window)
+        # while no speed source is accepted: each excluded one's last speed -> (stamp [s], speed [m/s],
+        # variance [m^2/s^2]), and (first, last) stamp of their uninterrupted agreement
+        self.peer_speeds: dict[str, tuple] = {}
+        self.peers_agree_since: tuple | None = None
 
     def copy(self) -> "_Aux":
         new = object.__new__(_Aux)
@@ -271,6 +275,12 @@ class TrainFilter:
         PHt = self.ekf.P.dot(h)
         S = float(h.dot(PHt)) + R
         nis = (z - hx) ** 2 / S
+        if not is_fix and (cls in aux.suspended or aux.slip_until.get(cls, -math.inf) > m.stamp) \
+                and not self._agreement_reference(m, S) and self._peers_agree(m, z, R):
+            z, R, h, hx = measurement(self.layout, self.ekf.x, m)
+            PHt = self.ekf.P.dot(h)
+            S = float(h.dot(PHt)) + R
+            nis = (z - hx) ** 2 / S
         if cls in aux.suspended and self._suspended(m, z - hx, S, nis):
             return
         if cls in self.layout.episode_sensors and self._slipping(m, z - hx, S, nis):
@@ -442,6 +452,67 @@ class TrainFilter:
             return False
         aux.suspended = {**aux.suspended, m.sensor: (since, window)}
         aux.gated = _inc(aux.gated, m.sensor + "/suspended")
+        return True
+
+    def _implied_speed(self, m, z: float, R: float) -> tuple[float, float]:
+        """(train speed [m/s], its variance) that a speed or increment measurement implies with
+        the sensor's current error-state estimates; the variance holds the measurement noise,
+        the error states' uncertainty and the creep the model would add."""
+        lay, x, P = self.layout, self.ekf.x, self.ekf.P
+        k, o, b = lay.scale.get(m.sensor), lay.offset.get(m.sensor), lay.bias.get(m.sensor)
+        g = 1.0 + (x[k, 0] if k is not None else 0.0) + (x[o, 0] if o is not None else 0.0)
+        var_g = (P[k, k] if k is not None else 0.0) + (P[o, o] if o is not None else 0.0)
+        sgn = 1.0 if z >= 0.0 else -1.0
+        u = z / g - (sgn * x[b, 0] if b is not None else 0.0)
+        if not isinstance(m, SpeedMeasurement):
+            u += 0.5 * m.duration * float(x[2, 0])    # the interval's mean speed -> speed at its end
+        creep = self.models[m.sensor].creep_coefficient * abs(float(x[2, 0])) * abs(u)
+        var = R / (g * g) + var_g * u * u + (P[b, b] if b is not None else 0.0) + creep * creep
+        return float(u), float(var)
+
+    def _peers_agree(self, m, z: float, R: float) -> bool:
+        """Every speed source excluded (slip episodes, suspensions) and the filter's speed resting
+        on the motion model alone: the exclusions cannot end, since each excluded sensor waits
+        for a reference to agree with, and the dead reckoning drifts without bound. Two
+        independent speed sources that agree with each other (each speed inside the slip gate
+        of their combined variance) without a break for ``slip_window`` s give that reference:
+        a slip and a radar fault do not give the same speed for long. Then the speed is taken
+        from them (acceleration back to its prior) and every exclusion ends; the excluded
+        sensors' views stay in the interval until a fix decides between them, and the filter
+        awaits a confirming fix (DEGRADED). True if the speed was re-acquired."""
+        aux, cfg = self.aux, self.cfg
+        u, var = self._implied_speed(m, z, R)
+        stamp = m.stamp
+        peers = {c: p for c, p in aux.peer_speeds.items()
+                 if c != m.sensor and p[0] > stamp - cfg.slip_reference_timeout}
+        aux.peer_speeds = {**peers, m.sensor: (stamp, u, var)}
+        agreeing = [(u_p, var_p) for _, u_p, var_p in peers.values()
+                    if (u - u_p) ** 2 <= self._slip_gate * (var + var_p)]
+        since = aux.peers_agree_since
+        if not agreeing:
+            aux.peers_agree_since = None
+            return False
+        if since is None or stamp - since[1] > cfg.slip_reference_timeout:
+            since = (stamp, stamp)
+        aux.peers_agree_since = (since[0], stamp)
+        if stamp - since[0] < cfg.slip_window:
+            return False
+        weights = [1.0 / var] + [1.0 / v for _, v in agreeing]
+        speeds = [u] + [s for s, _ in agreeing]
+        u_hat = sum(w * s for w, s in zip(weights, speeds)) / sum(weights)
+        spread = max(abs(s - u_hat) for s in speeds)
+        x, P = self.ekf.x.copy(), self.ekf.P.copy()
+        P[1:3, :] = 0.0
+        P[:, 1:3] = 0.0
+        x[1, 0], P[1, 1] = u_hat, 1.0 / sum(weights) + spread * spread
+        x[2, 0], P[2, 2] = 0.0, cfg.initial_accel_stddev ** 2
+        self.ekf.x, self.ekf.P = x, P
+        aux.suspended = {}
+        aux.slip_until = {c: min(t, stamp) for c, t in aux.slip_until.items()}
+        aux.slip_window = {}
+        aux.peer_speeds, aux.peers_agree_since = {}, None
+        aux.events = _inc(aux.events, "speed_reacquired")
+        aux.unverified = "speed_reacquired"
         return True
 
     def _excluded(self, m) -> None:

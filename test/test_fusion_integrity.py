@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from train_localization.core.fusion import MODE_DEGRADED, MODE_NOMINAL, FusionConfig, TrainFilter, sensor_models
+from train_localization.core.fusion import MODE_DEGRADED, MODE_LOST, MODE_NOMINAL, FusionConfig, TrainFilter, sensor_models
 from train_localization.core.measurements import DistanceIncrement, PositionFix, SpeedMeasurement
 from train_localization.core.offline import fusion_config, simulate_scenario
 from train_localization.core.scenario import Scenario, Vehicle
@@ -238,10 +238,10 @@ def test_an_alternative_view_that_stops_being_tracked_stays_inside_the_interval(
     assert after.position_min <= after.position + D
 
 
-def _blind_run():
-    """Braking from 30 m/s at 0.8 m/s^2: the radar reads 8 % high from 3 to 8 s (a scale
-    fault) while the wheel slides 15 % from 4 to 9 s, so both speed sources are excluded at
-    once; afterwards they agree again. Balises at 40 s and 50 s."""
+def _blind_run(radar_fault_end: float = 8.0, braking_end: float = 30.0):
+    """Braking from 30 m/s at 0.8 m/s^2 from 2 s: the radar reads 8 % high from 3 s while the
+    wheel slides 15 % from 4 to 9 s, so both speed sources are excluded at once. Balises at
+    40 s and 50 s."""
     models = sensor_models(["doppler_radar", "wheel_sensor", "eurobalise_reader"], None, Vehicle())
     f = TrainFilter(FusionConfig(sensors=models))
     f.reset(position=0.0, position_stddev=0.1, speed=30.0, speed_stddev=0.1, stamp=0.0)
@@ -249,11 +249,11 @@ def _blind_run():
     s, v, checked = 0.0, 30.0, []
     for j in range(1, 1201):
         t = j * 0.05
-        a = -0.8 if 2.0 <= t < 30.0 else 0.0
+        a = -0.8 if 2.0 <= t < braking_end else 0.0
         v_old = v
         v = max(v + a * 0.05, 0.0)
         s += 0.5 * (v + v_old) * 0.05
-        rv = v * (1.08 if 3.0 <= t < 8.0 else 1.0)
+        rv = v * (1.08 if 3.0 <= t < radar_fault_end else 1.0)
         wv = v * (0.85 if 4.0 <= t < 9.0 else 1.0)
         f.add(SpeedMeasurement(t - 0.025, "doppler", "doppler", rv + rng.normal(0, 0.03), 0.1543))
         f.add(DistanceIncrement(t, "wheel", "wheel", 0.05, wv * 0.05 + rng.normal(0, 0.002), 0.03, wv, 0.6))
@@ -276,3 +276,14 @@ def test_speed_sources_excluded_together_are_restored_by_agreeing_with_each_othe
     assert all(e.mode == MODE_DEGRADED for t, e, _, _ in checked if 10.0 <= t < 40.0)
     t, e, s, _ = checked[-1]
     assert e.mode == MODE_NOMINAL and e.position_max - e.position_min < 3.0
+
+
+def test_speed_sources_that_never_agree_again_leave_the_filter_honest():
+    """As above, but the radar stays 8 % high until 60 s and the braking ends at 12 s: the two
+    sources never agree again and nothing says which one is right until a balise (the wheel's
+    steady readings do not: a slide can outlast the braking). The filter says so, DEGRADED
+    or LOST with an interval that holds the truth, never a confident wrong speed."""
+    f, checked = _blind_run(radar_fault_end=60.0, braking_end=12.0)
+    assert all(e.position_min <= s <= e.position_max for _, e, s, _ in checked)
+    assert all(e.mode in (MODE_DEGRADED, MODE_LOST) for t, e, _, _ in checked if t >= 4.0)
+    assert "speed_reacquired" not in f.counters()["integrity"]

@@ -128,7 +128,7 @@ class _Aux:
     __slots__ = ("initialised", "t", "last_accepted", "slip_until", "accepted", "gated", "slips",
                  "speed_sources", "nis", "fix_ref", "last_fix_accepted", "fix_nis", "slip_window",
                  "alternative", "events", "unverified", "s_last_fix", "relative_alternatives", "suspended",
-                 "candidate", "used_refs", "peer_speeds", "peers_agree_since")
+                 "candidate", "used_refs", "peer_speeds", "peer_run")
 
     def __init__(self):
         self.initialised = False
@@ -155,10 +155,11 @@ class _Aux:
         self.candidate: tuple | None = None             # first fix awaiting confirmation
         self.used_refs: tuple = ()                     # (sensor, reference) of the last accepted fixes
         self.suspended: dict[str, tuple] = {}          # speed sources found faulty -> (agreeing since [s], window)
-        # while no speed source is accepted: each excluded one's last speed -> (stamp [s], speed [m/s],
-        # variance [m^2/s^2]), and (first, last) stamp of their uninterrupted agreement
+        # while no speed source is accepted: each excluded one's last reading -> (stamp [s], speed
+        # [m/s], white and common variance [m^2/s^2]), and the run of agreement
+        # of a pair: ((sensor, sensor), first and last stamp [s], readings, sum of differences, of white variances)
         self.peer_speeds: dict[str, tuple] = {}
-        self.peers_agree_since: tuple | None = None
+        self.peer_run: tuple | None = None
 
     def copy(self) -> "_Aux":
         new = object.__new__(_Aux)
@@ -276,7 +277,7 @@ class TrainFilter:
         S = float(h.dot(PHt)) + R
         nis = (z - hx) ** 2 / S
         if not is_fix and (cls in aux.suspended or aux.slip_until.get(cls, -math.inf) > m.stamp) \
-                and not self._agreement_reference(m, S) and self._peers_agree(m, z, R):
+                and not self._agreement_reference(m, S) and self._blind_speed(m, z, R):
             z, R, h, hx = measurement(self.layout, self.ekf.x, m)
             PHt = self.ekf.P.dot(h)
             S = float(h.dot(PHt)) + R
@@ -312,14 +313,18 @@ class TrainFilter:
     def _slipping(self, m, e: float, S: float, nis: float) -> bool:
         """Slip/slide check of one increment; True if it is excluded."""
         aux, cfg, cls = self.aux, self.cfg, m.sensor
-        if aux.slip_until.get(cls, -math.inf) > m.stamp:
-            # still slipping, or undecided and nothing to show that it agrees again
-            if nis > self._slip_gate or (cls in aux.relative_alternatives and not self._agreement_reference(m, S)):
+        alt = aux.relative_alternatives.get(cls)
+        # a view of its own, not accepted since, and nothing to show that it agrees again (its
+        # holdoff may have passed without a measurement: a dropout)
+        undecided = alt is not None and aux.last_accepted.get(cls, -math.inf) < alt[2] and \
+            not self._agreement_reference(m, S)
+        if aux.slip_until.get(cls, -math.inf) > m.stamp or undecided:
+            # still slipping, or undecided
+            if nis > self._slip_gate or undecided:
                 aux.slip_until = {**aux.slip_until, cls: m.stamp + cfg.slip_holdoff}
             aux.gated = _inc(aux.gated, cls + "/slip")
             self._separate(m, e, S)
             return True
-        alt = aux.relative_alternatives.get(cls)
         if alt is not None and alt[0] ** 2 <= self._slip_gate * self._alternative_spread(cls, alt)[1]:
             # the episode ended with a separation that the sensor's own errors explain: no longer
             # tracked as a view of its own, but merged into the position covariance (moment
@@ -454,10 +459,11 @@ class TrainFilter:
         aux.gated = _inc(aux.gated, m.sensor + "/suspended")
         return True
 
-    def _implied_speed(self, m, z: float, R: float) -> tuple[float, float]:
-        """(train speed [m/s], its variance) that a speed or increment measurement implies with
-        the sensor's current error-state estimates; the variance holds the measurement noise,
-        the error states' uncertainty and the creep the model would add."""
+    def _implied_speed(self, m, z: float, R: float) -> tuple[float, float, float]:
+        """(train speed [m/s], white variance, common variance [m^2/s^2]) that a speed or
+        increment measurement implies with the sensor's current error-state estimates: the
+        white part is the measurement noise, the common part (shared by its readings) the
+        error states' uncertainty and the creep the model would add."""
         lay, x, P = self.layout, self.ekf.x, self.ekf.P
         k, o, b = lay.scale.get(m.sensor), lay.offset.get(m.sensor), lay.bias.get(m.sensor)
         g = 1.0 + (x[k, 0] if k is not None else 0.0) + (x[o, 0] if o is not None else 0.0)
@@ -467,53 +473,77 @@ class TrainFilter:
         if not isinstance(m, SpeedMeasurement):
             u += 0.5 * m.duration * float(x[2, 0])    # the interval's mean speed -> speed at its end
         creep = self.models[m.sensor].creep_coefficient * abs(float(x[2, 0])) * abs(u)
-        var = R / (g * g) + var_g * u * u + (P[b, b] if b is not None else 0.0) + creep * creep
-        return float(u), float(var)
+        common = var_g * u * u + (P[b, b] if b is not None else 0.0) + creep * creep
+        return float(u), float(R / (g * g)), float(common)
 
-    def _peers_agree(self, m, z: float, R: float) -> bool:
+    def _blind_speed(self, m, z: float, R: float) -> bool:
         """Every speed source excluded (slip episodes, suspensions) and the filter's speed resting
         on the motion model alone: the exclusions cannot end, since each excluded sensor waits
-        for a reference to agree with, and the dead reckoning drifts without bound. Two
-        independent speed sources that agree with each other (each speed inside the slip gate
-        of their combined variance) without a break for ``slip_window`` s give that reference:
-        a slip and a radar fault do not give the same speed for long. Then the speed is taken
-        from them (acceleration back to its prior) and every exclusion ends; the excluded
-        sensors' views stay in the interval until a fix decides between them, and the filter
-        awaits a confirming fix (DEGRADED). True if the speed was re-acquired."""
+        for a reference to agree with, and the dead reckoning drifts without bound. The
+        excluded sensors' own readings end it: two independent speed sources that give the same
+        speed (each reading inside the slip gate of their combined variance, and their mean
+        difference inside that of its own) for ``slip_window`` s without a break: a slip and a
+        radar fault do not give the same speed for long. (A wheel whose readings show no
+        acceleration is no such evidence: a slide can outlast the braking that started it.)
+        Then the speed is taken from those sensors (the acceleration back to its prior) and
+        their exclusions end; the excluded views stay in the interval until a fix decides
+        between them, and the filter awaits a confirming fix (DEGRADED). True if the speed
+        was re-acquired."""
+        aux, cfg, cls, stamp = self.aux, self.cfg, m.sensor, m.stamp
+        u, white, common = self._implied_speed(m, z, R)
+        recent = stamp - cfg.slip_reference_timeout
+        peers = {c: p for c, p in aux.peer_speeds.items() if c != cls and p[0] > recent}
+        aux.peer_speeds = {**peers, cls: (stamp, u, white, common)}
+        if not self._peer_run(cls, stamp, u, white, common, peers):
+            return False
+        peer = next(c for c in aux.peer_run[0] if c != cls)
+        p = peers[peer]
+        self._take_speed(stamp, [(u, white + common), (p[1], p[2] + p[3])], {cls, peer}, "speed_reacquired")
+        return True
+
+    def _peer_run(self, cls: str, stamp: float, u: float, white: float, common: float, peers: dict) -> bool:
+        """Extend the run of agreement of ``cls`` with an excluded peer: each reading inside the
+        slip gate of the pair's variance, and their mean difference inside the slip gate of its
+        own (white parts averaged, common parts not). True once it has lasted ``slip_window`` s."""
+        aux, cfg, gate = self.aux, self.cfg, self._slip_gate
+        run = aux.peer_run
+        fits = [c for c, p in peers.items() if (u - p[1]) ** 2 <= gate * (white + common + p[2] + p[3])]
+        if not fits:
+            aux.peer_run = None
+            return False
+        pairs = {tuple(sorted((cls, c))): c for c in fits}
+        pair = run[0] if run is not None and run[0] in pairs else next(iter(pairs))
+        if run is None or run[0] != pair or run[2] < stamp - cfg.slip_reference_timeout:
+            run = (pair, stamp, stamp, 0, 0.0, 0.0)
+        p = peers[pairs[pair]]
+        d = (u - p[1]) if pair[0] == cls else (p[1] - u)
+        n, sum_d, sum_white = run[3] + 1, run[4] + d, run[5] + white + p[2]
+        if (sum_d / n) ** 2 > gate * (sum_white / (n * n) + common + p[3]):
+            aux.peer_run = None
+            return False
+        aux.peer_run = (pair, run[1], stamp, n, sum_d, sum_white)
+        return stamp - run[1] >= cfg.slip_window
+
+    def _take_speed(self, stamp: float, readings: list, sensors: set, reason: str) -> None:
+        """Speed from independent readings [(speed, variance)], their spread added; the
+        acceleration back to its prior; the exclusions of ``sensors`` end."""
         aux, cfg = self.aux, self.cfg
-        u, var = self._implied_speed(m, z, R)
-        stamp = m.stamp
-        peers = {c: p for c, p in aux.peer_speeds.items()
-                 if c != m.sensor and p[0] > stamp - cfg.slip_reference_timeout}
-        aux.peer_speeds = {**peers, m.sensor: (stamp, u, var)}
-        agreeing = [(u_p, var_p) for _, u_p, var_p in peers.values()
-                    if (u - u_p) ** 2 <= self._slip_gate * (var + var_p)]
-        since = aux.peers_agree_since
-        if not agreeing:
-            aux.peers_agree_since = None
-            return False
-        if since is None or stamp - since[1] > cfg.slip_reference_timeout:
-            since = (stamp, stamp)
-        aux.peers_agree_since = (since[0], stamp)
-        if stamp - since[0] < cfg.slip_window:
-            return False
-        weights = [1.0 / var] + [1.0 / v for _, v in agreeing]
-        speeds = [u] + [s for s, _ in agreeing]
-        u_hat = sum(w * s for w, s in zip(weights, speeds)) / sum(weights)
-        spread = max(abs(s - u_hat) for s in speeds)
+        weights = [1.0 / v for _, v in readings]
+        u_hat = sum(w * u for w, (u, _) in zip(weights, readings)) / sum(weights)
+        spread = max(abs(u - u_hat) for u, _ in readings)
         x, P = self.ekf.x.copy(), self.ekf.P.copy()
         P[1:3, :] = 0.0
         P[:, 1:3] = 0.0
         x[1, 0], P[1, 1] = u_hat, 1.0 / sum(weights) + spread * spread
         x[2, 0], P[2, 2] = 0.0, cfg.initial_accel_stddev ** 2
         self.ekf.x, self.ekf.P = x, P
-        aux.suspended = {}
-        aux.slip_until = {c: min(t, stamp) for c, t in aux.slip_until.items()}
-        aux.slip_window = {}
-        aux.peer_speeds, aux.peers_agree_since = {}, None
-        aux.events = _inc(aux.events, "speed_reacquired")
-        aux.unverified = "speed_reacquired"
-        return True
+        aux.suspended = {c: v for c, v in aux.suspended.items() if c not in sensors}
+        aux.slip_until = {c: (min(t, stamp) if c in sensors else t) for c, t in aux.slip_until.items()}
+        aux.slip_window = {c: w for c, w in aux.slip_window.items() if c not in sensors}
+        aux.last_accepted = {**aux.last_accepted, **{c: stamp for c in sensors}}
+        aux.peer_speeds, aux.peer_run = {}, None
+        aux.events = _inc(aux.events, reason)
+        aux.unverified = reason
 
     def _excluded(self, m) -> None:
         """Apply a measurement that a fault check excluded after the fact (a slip's onset)."""

@@ -57,6 +57,11 @@ information; the filter may say it does not know, never be confidently wrong):
               next fix can confirm it.
   merge       an excluded sensor's view that stops being tracked (its episode ended with a
               separation its own errors explain) is merged into the position covariance.
+  blind       every speed source excluded at once and the speed resting on the motion model
+              alone: two excluded sources that agree with each other (reading by reading and
+              in their mean) for ``slip_window`` s give the speed back; their views stay in
+              the interval until a fix decides. A sensor whose view is undecided stays
+              excluded while nothing can show that it agrees, also after a dropout.
   revisit     a fix of a reference the filter accepted before (a reversal over a balise)
               carries the same installation error: not applied while the filter knows its
               position better than the fix.

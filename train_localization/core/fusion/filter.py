@@ -83,12 +83,12 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from scipy.stats import chi2, norm
 
-from ..measurements import PositionFix, SpeedMeasurement
+from ..measurements import PositionFix
 from ..signals import InputRejected
 from .config import FusionConfig, gate_probability
 from .history import History, order_key
 from .layout import StateLayout
-from .models import ProcessModel, measurement
+from .models import ProcessModel, implied_speed, measurement
 
 
 class Mode(IntEnum):
@@ -277,16 +277,11 @@ class TrainFilter:
         if is_fix and not aux.initialised:
             self._initialise(m)
             return
-        z, R, h, hx = measurement(self.layout, self.ekf.x, m)
-        PHt = self.ekf.P.dot(h)
-        S = float(h.dot(PHt)) + R
-        nis = (z - hx) ** 2 / S
+        z, R, h, hx, PHt, S = self._innovation(m)
         if not is_fix and (cls in aux.suspended or aux.slip_until.get(cls, -math.inf) > m.stamp) \
                 and not self._agreement_reference(m, S) and self._blind_speed(m, z, R):
-            z, R, h, hx = measurement(self.layout, self.ekf.x, m)
-            PHt = self.ekf.P.dot(h)
-            S = float(h.dot(PHt)) + R
-            nis = (z - hx) ** 2 / S
+            z, R, h, hx, PHt, S = self._innovation(m)   # at the re-acquired speed
+        nis = (z - hx) ** 2 / S
         if cls in aux.suspended and self._suspended(m, z - hx, S, nis):
             return
         if cls in self.layout.episode_sensors and self._slipping(m, z - hx, S, nis):
@@ -313,6 +308,12 @@ class TrainFilter:
         elif cls not in aux.speed_sources:
             aux.speed_sources = aux.speed_sources | {cls}
         self._check_plausible()
+
+    def _innovation(self, m):
+        """(z, R, H row, h(x), P H, innovation variance S) of a measurement at the current state."""
+        z, R, h, hx = measurement(self.layout, self.ekf.x, m)
+        PHt = self.ekf.P.dot(h)
+        return z, R, h, hx, PHt, float(h.dot(PHt)) + R
 
     # -- fault policy ----------------------------------------------------------
     def _slipping(self, m, e: float, S: float, nis: float) -> bool:
@@ -464,23 +465,6 @@ class TrainFilter:
         aux.gated = _inc(aux.gated, m.sensor + "/suspended")
         return True
 
-    def _implied_speed(self, m, z: float, R: float) -> tuple[float, float, float]:
-        """(train speed [m/s], white variance, common variance [m^2/s^2]) that a speed or
-        increment measurement implies with the sensor's current error-state estimates: the
-        white part is the measurement noise, the common part (shared by its readings) the
-        error states' uncertainty and the creep the model would add."""
-        lay, x, P = self.layout, self.ekf.x, self.ekf.P
-        k, o, b = lay.scale.get(m.sensor), lay.offset.get(m.sensor), lay.bias.get(m.sensor)
-        g = 1.0 + (x[k, 0] if k is not None else 0.0) + (x[o, 0] if o is not None else 0.0)
-        var_g = (P[k, k] if k is not None else 0.0) + (P[o, o] if o is not None else 0.0)
-        sgn = 1.0 if z >= 0.0 else -1.0
-        u = z / g - (sgn * x[b, 0] if b is not None else 0.0)
-        if not isinstance(m, SpeedMeasurement):
-            u += 0.5 * m.duration * float(x[2, 0])    # the interval's mean speed -> speed at its end
-        creep = self.models[m.sensor].creep_coefficient * abs(float(x[2, 0])) * abs(u)
-        common = var_g * u * u + (P[b, b] if b is not None else 0.0) + creep * creep
-        return float(u), float(R / (g * g)), float(common)
-
     def _blind_speed(self, m, z: float, R: float) -> bool:
         """Every speed source excluded (slip episodes, suspensions) and the filter's speed resting
         on the motion model alone: the exclusions cannot end, since each excluded sensor waits
@@ -495,27 +479,28 @@ class TrainFilter:
         between them, and the filter awaits a confirming fix (DEGRADED). True if the speed
         was re-acquired."""
         aux, cfg, cls, stamp = self.aux, self.cfg, m.sensor, m.stamp
-        u, white, common = self._implied_speed(m, z, R)
+        u, white, common = implied_speed(self.layout, self.ekf.x, self.ekf.P, m, z, R)
         recent = stamp - cfg.slip_reference_timeout
         peers = {c: p for c, p in aux.peer_speeds.items() if c != cls and p[0] > recent}
         aux.peer_speeds = {**peers, cls: (stamp, u, white, common)}
-        if not self._peer_run(cls, stamp, u, white, common, peers):
+        peer = self._peer_run(cls, stamp, u, white, common, peers)
+        if peer is None:
             return False
-        peer = next(c for c in aux.peer_run[0] if c != cls)
         p = peers[peer]
-        self._take_speed(stamp, [(u, white + common), (p[1], p[2] + p[3])], {cls, peer}, "speed_reacquired")
+        self._take_speed(stamp, [(u, white + common), (p[1], p[2] + p[3])], {cls, peer})
         return True
 
-    def _peer_run(self, cls: str, stamp: float, u: float, white: float, common: float, peers: dict) -> bool:
+    def _peer_run(self, cls: str, stamp: float, u: float, white: float, common: float,
+                  peers: dict) -> str | None:
         """Extend the run of agreement of ``cls`` with an excluded peer: each reading inside the
         slip gate of the pair's variance, and their mean difference inside the slip gate of its
-        own (white parts averaged, common parts not). True once it has lasted ``slip_window`` s."""
+        own (white parts averaged, common parts not). The peer once it has lasted ``slip_window`` s."""
         aux, cfg, gate = self.aux, self.cfg, self._slip_gate
         run = aux.peer_run
         fits = [c for c, p in peers.items() if (u - p[1]) ** 2 <= gate * (white + common + p[2] + p[3])]
         if not fits:
             aux.peer_run = None
-            return False
+            return None
         pairs = {tuple(sorted((cls, c))): c for c in fits}
         pair = run[0] if run is not None and run[0] in pairs else next(iter(pairs))
         if run is None or run[0] != pair or run[2] < stamp - cfg.slip_reference_timeout:
@@ -525,11 +510,11 @@ class TrainFilter:
         n, sum_d, sum_white = run[3] + 1, run[4] + d, run[5] + white + p[2]
         if (sum_d / n) ** 2 > gate * (sum_white / (n * n) + common + p[3]):
             aux.peer_run = None
-            return False
+            return None
         aux.peer_run = (pair, run[1], stamp, n, sum_d, sum_white)
-        return stamp - run[1] >= cfg.slip_window
+        return pairs[pair] if stamp - run[1] >= cfg.slip_window else None
 
-    def _take_speed(self, stamp: float, readings: list, sensors: set, reason: str) -> None:
+    def _take_speed(self, stamp: float, readings: list, sensors: set) -> None:
         """Speed from independent readings [(speed, variance)], their spread added; the
         acceleration back to its prior; the exclusions of ``sensors`` end."""
         aux, cfg = self.aux, self.cfg
@@ -547,16 +532,15 @@ class TrainFilter:
         aux.slip_window = {c: w for c, w in aux.slip_window.items() if c not in sensors}
         aux.last_accepted = {**aux.last_accepted, **{c: stamp for c in sensors}}
         aux.peer_speeds, aux.peer_run = {}, None
-        aux.events = _inc(aux.events, reason)
-        aux.unverified = reason
+        aux.events = _inc(aux.events, "speed_reacquired")
+        aux.unverified = "speed_reacquired"
 
     def _excluded(self, m) -> None:
         """Apply a measurement that a fault check excluded after the fact (a slip's onset)."""
         aux = self.aux = self.aux.copy()
         self._predict_to(m.stamp)
         cls = m.sensor
-        z, R, h, hx = measurement(self.layout, self.ekf.x, m)
-        S = float(h.dot(self.ekf.P.dot(h))) + R
+        z, R, h, hx, _, S = self._innovation(m)
         if not aux.slip_until.get(cls, -math.inf) > m.stamp:
             self._episode_starts(m, z - hx)
             aux.events = _inc(aux.events, "slip_lookback")

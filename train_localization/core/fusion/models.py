@@ -133,3 +133,23 @@ def measurement(layout: StateLayout, x_col, m):
     if model.stddev_factor != 1.0:
         R *= model.stddev_factor ** 2
     return z, R, h, hx
+
+
+def implied_speed(layout: StateLayout, x_col, P, m, z: float, R: float) -> tuple[float, float, float]:
+    """The speed measurement model inverted: (train speed [m/s], white variance, common
+    variance [m^2/s^2]) that a speed or increment measurement (z, R of ``measurement``)
+    implies with the sensor's current error-state estimates x (n, 1) and covariance P. The
+    white part is the measurement noise; the common part, shared by the sensor's readings,
+    is the error states' uncertainty and the creep the model would add."""
+    cls = m.sensor
+    k, o, b = layout.scale.get(cls), layout.offset.get(cls), layout.bias.get(cls)
+    g = 1.0 + (x_col[k, 0] if k is not None else 0.0) + (x_col[o, 0] if o is not None else 0.0)
+    var_g = (P[k, k] if k is not None else 0.0) + (P[o, o] if o is not None else 0.0)
+    a = float(x_col[2, 0])
+    sgn = 1.0 if z >= 0.0 else -1.0
+    u = z / g - (sgn * x_col[b, 0] if b is not None else 0.0)
+    if not isinstance(m, SpeedMeasurement):
+        u += 0.5 * m.duration * a    # the interval's mean speed -> speed at its end
+    creep = layout.models[cls].creep_coefficient * abs(a) * abs(u)
+    common = var_g * u * u + (P[b, b] if b is not None else 0.0) + creep * creep
+    return float(u), float(R / (g * g)), float(common)

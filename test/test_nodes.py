@@ -580,8 +580,8 @@ def test_managed_sensor_node_decodes_only_while_active(ros_context, start_node):
 
 
 def test_fusion_rejects_fixes_off_its_track_and_stamps_from_the_future(ros_context, start_node):
-    """A fix of another track, one 1e6 m off this one, and a measurement stamped an hour
-    ahead are rejected with their reasons; the next valid fix is still accepted (an hour-
+    """A fix of another track, one 1e6 m off this one, a measurement stamped an hour ahead
+    and one naming another sensor than its topic's are rejected with their reasons; the next valid fix is still accepted (an hour-
     ahead stamp no longer makes every later one too late)."""
     from diagnostic_msgs.msg import DiagnosticArray
     from train_localization_msgs.msg import PositionFix
@@ -593,21 +593,23 @@ def test_fusion_rejects_fixes_off_its_track_and_stamps_from_the_future(ros_conte
     diags = []
     node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
 
-    def fix(ahead, pos, track="conventional_line", ref="AC01"):
-        m = PositionFix(sensor="axle_counter", unit_id="ac", track_id=track, reference_id=ref, position=pos,
+    def fix(ahead, pos, track="conventional_line", ref="AC01", sensor="axle_counter"):
+        m = PositionFix(sensor=sensor, unit_id="ac", track_id=track, reference_id=ref, position=pos,
                         position_stddev=0.05)
         t = node.get_clock().now().nanoseconds * 1e-9 + ahead
         m.header.stamp.sec, m.header.stamp.nanosec = int(t), int(round((t % 1) * 1e9))
         return m
     try:
         assert spin_until(node, lambda: pub.get_subscription_count() > 0, 30.0), proc.output()
-        for m in (fix(0.0, 500.0, track="maglev_line"), fix(0.0, 1.0e6), fix(3600.0, 500.0), fix(0.0, 500.0)):
+        for m in (fix(0.0, 500.0, track="maglev_line"), fix(0.0, 1.0e6), fix(3600.0, 500.0),
+                  fix(0.0, 500.0, sensor="eurobalise"), fix(0.0, 500.0)):
             pub.publish(m)
         topic = "sensors/axle_counter/position"
         assert spin_until(node, lambda: _diag_values(diags, "fusion").get(f"accepted/{topic}") == "1", 20.0), \
             proc.output()
         values = _diag_values(diags, "fusion")
-        assert [values.get(f"rejected/{topic}/{r}") for r in ("wrong_track", "off_track", "future")] == ["1"] * 3
+        assert [values.get(f"rejected/{topic}/{r}") for r in ("wrong_track", "off_track", "future",
+                                                              "wrong_sensor")] == ["1"] * 4
         assert proc.interrupt() == 0
     finally:
         node.destroy_node()

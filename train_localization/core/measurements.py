@@ -8,14 +8,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from .signals import InputRejected
+from .signals import MAX_STAMP, InputRejected
 
 
 # Physical limits of any measurement (reason "implausible" beyond them): no line is longer
 # than MAX_CHAINAGE, no train faster than MAX_SPEED (maglev record 603 km/h); a stddev is
 # between STDDEV_RANGE (below: finer than any sensor resolves, which would pin the filter;
 # above: no information, and it overflows the filter's arithmetic); an increment lasts
-# at most MAX_DURATION.
+# at most MAX_DURATION; a stamp lies within the reach of a ROS time (signals.MAX_STAMP).
 MAX_CHAINAGE = 1.0e7          # [m]
 MAX_SPEED = 200.0             # [m/s]
 STDDEV_RANGE = (1.0e-6, 1.0e5)   # [m] or [m/s]
@@ -55,6 +55,7 @@ class PositionFix:
                             position_stddev=self.position_stddev)
         if self.position_stddev <= 0.0:
             raise InputRejected("stddev", f"PositionFix stddev {self.position_stddev} must be > 0")
+        _require_range("PositionFix", "stamp", self.stamp, -MAX_STAMP, MAX_STAMP)
         _require_range("PositionFix", "position", self.position, -MAX_CHAINAGE, MAX_CHAINAGE)
         _require_range("PositionFix", "position_stddev", self.position_stddev, *STDDEV_RANGE)
 
@@ -76,6 +77,7 @@ class SpeedMeasurement:
                             speed_stddev=self.speed_stddev)
         if self.speed_stddev <= 0.0:
             raise InputRejected("stddev", f"SpeedMeasurement stddev {self.speed_stddev} must be > 0")
+        _require_range("SpeedMeasurement", "stamp", self.stamp, -MAX_STAMP, MAX_STAMP)
         _require_range("SpeedMeasurement", "speed", self.speed, -MAX_SPEED, MAX_SPEED)
         _require_range("SpeedMeasurement", "speed_stddev", self.speed_stddev, *STDDEV_RANGE)
 
@@ -100,6 +102,7 @@ class DistanceIncrement:
         if self.duration <= 0.0 or self.distance_stddev <= 0.0 or self.speed_stddev <= 0.0:
             raise InputRejected("stddev", "DistanceIncrement duration and stddevs must be > 0")
         kind = "DistanceIncrement"
+        _require_range(kind, "stamp", self.stamp, -MAX_STAMP, MAX_STAMP)
         _require_range(kind, "duration", self.duration, 1.0e-6, MAX_DURATION)
         _require_range(kind, "distance", self.distance, -MAX_SPEED * self.duration, MAX_SPEED * self.duration)
         _require_range(kind, "speed", self.speed, -MAX_SPEED, MAX_SPEED)
@@ -133,6 +136,7 @@ class SectionOccupancy:
 
     def validate(self) -> None:
         _require_finite("SectionOccupancy", stamp=self.stamp)
+        _require_range("SectionOccupancy", "stamp", self.stamp, -MAX_STAMP, MAX_STAMP)
 
 
 Measurement = PositionFix | SpeedMeasurement | DistanceIncrement | SectionOccupancy

@@ -6,6 +6,7 @@ in the same order. In ingest mode only ``on_block`` is used.
 """
 from __future__ import annotations
 
+import math
 from collections import Counter
 from dataclasses import dataclass
 
@@ -21,6 +22,9 @@ class SensorPipeline:
     """Simulator (optional) + sequence guard + decoder of one device.
 
     ``rejected`` counts rejected blocks by reason; ``accepted`` counts decoded blocks.
+    A block must come at the configured sample rate (``sample_rate``) and last at most
+    ``max_block_duration``: the decoders' time and memory per block are bounded by the
+    configuration, not by what a publisher sends.
     """
 
     def __init__(self, spec: SensorSpec, params: dict | None, track: Track, vehicle: Vehicle,
@@ -29,6 +33,12 @@ class SensorPipeline:
         self.params = sensor_params(spec, params, vehicle)
         self.track = track
         self.decoder = spec.decoder(self.params, track)
+        self.sample_rate = float(self.params["sample_rate"] or spec.simulator.default_sample_rate)
+        longest = float(self.params["max_block_duration"])
+        if not float(self.params["block_duration"]) <= longest <= 60.0:
+            raise ValueError(f"{spec.node}: max_block_duration {longest} s must lie in block_duration "
+                             f"({self.params['block_duration']} s) .. 60 s")
+        self.max_block_samples = math.ceil(longest * self.sample_rate)
         self.simulator = spec.simulator(self.params, track, vehicle, rng) if simulate else None
         self.truth = TruthBuffer()
         self.guard = BlockSequenceGuard(spec.decoder.channels or None)
@@ -56,6 +66,12 @@ class SensorPipeline:
         try:
             if block.sensor != self.spec.sensor:
                 raise InputRejected("sensor", f"block of sensor {block.sensor!r} sent to a {self.spec.sensor} decoder")
+            if abs(block.sample_rate - self.sample_rate) > 1e-9 * self.sample_rate:
+                raise InputRejected("sample_rate", f"block at {block.sample_rate:g} Hz; the device is configured "
+                                    f"for {self.sample_rate:g} Hz (parameter sample_rate)")
+            if block.n_samples > self.max_block_samples:
+                raise InputRejected("too_large", f"block of {block.n_samples} samples ({block.duration:g} s); at "
+                                    f"most {self.max_block_samples} (parameter max_block_duration)")
             self.guard.check(block)
             out = self.decoder.decode(block)
         except InputRejected as exc:

@@ -96,8 +96,8 @@ class RawBlock:
         if flat.size > MAX_BLOCK_VALUES:
             raise InputRejected("too_large", f"{flat.size} values in one block (at most {MAX_BLOCK_VALUES}: "
                                 "blocks are tens of milliseconds)")
-        if not math.isfinite(t0):
-            raise InputRejected("stamp", f"first-sample stamp {t0!r} is not finite")
+        if not abs(t0) <= MAX_STAMP:
+            raise InputRejected("stamp", f"first-sample stamp {t0!r} s is not within +-{MAX_STAMP:g} s")
         if flat.size == 0 or flat.size % len(channels):
             raise InputRejected(
                 "shape", f"{flat.size} samples cannot be split into {len(channels)} channels")
@@ -121,6 +121,7 @@ class RawBlock:
 # decoder and its memory)
 SAMPLE_RATE_RANGE = (1.0, 1.0e8)
 MAX_BLOCK_VALUES = 2_000_000
+MAX_STAMP = 2.0 ** 31   # [s]: the reach of a ROS time stamp (int32 seconds)
 RESYNC_BLOCKS = 3   # rejected blocks in a row that continue one another: the device's sequence again
 
 

@@ -312,7 +312,7 @@ class FusionNode(ManagedNode):
     def on_measurement(self, topic, parse, msg):
         try:
             m = parse(msg)
-            self._check_against_node(m)
+            self._check_against_node(topic, m)
         except InputRejected as exc:
             self.diag.reject(topic, exc.reason, str(exc))
             return
@@ -325,11 +325,15 @@ class FusionNode(ManagedNode):
         seen[0] += 1
         seen[1], seen[2] = time.monotonic(), now_sec(self) - m.stamp
 
-    def _check_against_node(self, m) -> None:
-        """What only the node can check: a fix on another track (``wrong_track``) or off this
+    def _check_against_node(self, topic: str, m) -> None:
+        """What only the node can check: a measurement of another sensor than its topic's
+        (``wrong_sensor``), a fix on another track (``wrong_track``) or off this
         one (``off_track``: beyond its ends by more than 100 m + 5 sigma), and a stamp ahead of
         the node clock by more than the history (``future``: it would make every later
         measurement too late)."""
+        sensor = topic.split("/")[1]
+        if m.sensor != sensor:
+            raise InputRejected("wrong_sensor", f"measurement of sensor {m.sensor!r} on the topic of {sensor!r}")
         ahead = m.stamp - now_sec(self)
         if ahead > self.filter.cfg.history:
             raise InputRejected("future", f"stamp {ahead:.3f} s ahead of the node clock")

@@ -83,7 +83,7 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from scipy.stats import chi2, norm
 
-from ..measurements import PositionFix
+from ..measurements import MAX_SPEED, DistanceIncrement, PositionFix, SpeedMeasurement
 from ..signals import InputRejected
 from .config import FusionConfig, gate_probability
 from .history import History, order_key
@@ -118,6 +118,9 @@ class Estimate:
     scales: dict[str, float]
     biases: dict[str, float] = field(default_factory=dict)
 
+
+# the measurement type of each kind of sensor (ErrorModel.measures)
+_KIND_OF = {"position": PositionFix, "speed": SpeedMeasurement, "distance": DistanceIncrement}
 
 # references whose fixes the filter remembers (a reversal passes the last few again)
 _REMEMBERED_REFS = 32
@@ -759,7 +762,8 @@ class TrainFilter:
         """Insert a measurement at its stamp (the filter catches up when next queried).
 
         Raises InputRejected for NaN or non-positive stddevs (``nan``/``stddev``), a sensor
-        class that is not configured (``unknown_sensor``), a measurement already seen
+        class that is not configured (``unknown_sensor``) or measures something else
+        (``wrong_kind``: a position fix of a speed sensor), a measurement already seen
         (``duplicate``) or one older than the history or the last reset (``too_late``).
         """
         try:
@@ -767,6 +771,10 @@ class TrainFilter:
             if m.sensor not in self.models:
                 raise InputRejected("unknown_sensor", f"measurement of sensor {m.sensor!r}, which the fusion "
                                     f"is not configured for (configured: {', '.join(sorted(self.models))})")
+            measures = self.models[m.sensor].measures
+            if not isinstance(m, _KIND_OF[measures]):
+                raise InputRejected("wrong_kind", f"{type(m).__name__} of sensor {m.sensor!r}, which "
+                                    f"measures {measures} ({_KIND_OF[measures].__name__})")
             self.hist.insert(m)
         except InputRejected as exc:
             self.rejected[exc.reason] = self.rejected.get(exc.reason, 0) + 1
@@ -859,6 +867,11 @@ class TrainFilter:
                 for i, tau, _ in self.layout.gauss_markov:
                     x_err[i] *= math.exp(-dt / tau)
         sd_s, sd_v = math.sqrt(max(var_s, 0.0)), math.sqrt(max(var_v, 0.0))
+        if not all(map(math.isfinite, (s, v, a, sd_s, sd_v))) or abs(v) > 2.0 * MAX_SPEED:
+            # input validation keeps the state finite and physical; should it ever not be, the
+            # filter cannot stand behind any position
+            return Estimate(t, math.nan, math.nan, math.nan, math.inf, math.inf, -math.inf, math.inf,
+                            self.cfg.confidence, Mode.LOST, {}, {})
         scales = {name: x_err[i] + (x_err[o] if o is not None else 0.0) for name, i, o in self.layout.scale_terms}
         biases = {name: x_err[i] for name, i in self.layout.bias.items()}
         if not aux.initialised:

@@ -42,6 +42,8 @@ COMMON_PARAMS = {
     "unit_id": Param("", "device instance name; empty = the sensor name"),
     "sample_rate": Param(0.0, "raw sample rate [Hz]; 0 = the sensor's default"),
     "block_duration": Param(0.05, "length of one raw block [s] (DESIGN.md section 4)"),
+    "max_block_duration": Param(1.0, "longest raw block decoded [s], block_duration .. 60; a longer one is "
+                                     "refused (too_large): it bounds the decoding time and memory per block"),
 }
 
 
@@ -225,6 +227,9 @@ class Decoder(ABC):
 
     sensor: str = ""
     channels: tuple[str, ...] = ()
+    # attributes that only memoise (bounded, results do not depend on them): the only state a
+    # rejected block may change
+    caches: tuple[str, ...] = ()
 
     def __init__(self, params: dict, track: Track):
         self.params = params

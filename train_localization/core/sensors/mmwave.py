@@ -368,6 +368,7 @@ class MmWaveDecoder(Decoder):
 
     sensor = "mmwave"
     channels = CHANNELS
+    caches = ("_patterns", "_offsets")
 
     def __init__(self, params: dict, track: Track):
         super().__init__(params, track)

@@ -112,3 +112,56 @@ def test_a_truncated_bag_is_recovered_up_to_its_last_complete_chunk(tmp_path, ca
     with caplog.at_level(logging.WARNING):
         assert [m.data for _, _, _, m in read_bag(cut)] == msgs
     assert "truncated" in caplog.text
+
+
+def test_the_replayer_plays_a_truncated_bag_up_to_its_last_complete_chunk(ros_context, start_node, tmp_path):
+    """A bag whose recorder was killed (no summary, a chunk cut off) is played by the replayer
+    node up to its last complete chunk, with a warning; an ingest node decodes every block of
+    it, and the replayer exits 0."""
+    from train_localization.core.bagio import BagReader, BagWriter, recover_bag
+    from train_localization.core.offline import simulate_scenario
+    from train_localization.core.pipeline import SensorPipeline
+    from train_localization.core.scenario import Scenario
+    from train_localization.core.sensors import spec
+    from train_localization_msgs.msg import SpeedMeasurement
+    from train_localization.nodes.common import STREAM_QOS
+    data = yaml.safe_load((ROOT / "config" / "scenario_demo.yaml").read_text())
+    data.update(duration=12.0, sensors={"doppler_radar": {}}, initial={"position": 100.0, "speed": 20.0})
+    data["track"] = str(ROOT / "config" / "track_conventional.yaml")
+    scenario = Scenario.from_dict(data)
+    whole = tmp_path / "whole.mcap"
+    simulate_scenario(scenario, whole)
+    small_chunks = tmp_path / "chunked.mcap"      # chunks of 4 kB: a cut leaves complete ones
+    raw_topic = "/train/sensors/doppler/raw"
+    with BagReader(whole) as reader, BagWriter(small_chunks, chunk_size=4096) as w:
+        for topic, typename, t_ns, cdr in reader.cdr([raw_topic, "/clock"]):
+            w.write_cdr(topic, typename, cdr, t_ns)
+    cut = tmp_path / "cut.mcap"
+    blob = small_chunks.read_bytes()
+    cut.write_bytes(blob[: len(blob) * 6 // 10])
+    recovered = tmp_path / "recovered.mcap"
+    counts, problem = recover_bag(cut, recovered)
+    assert problem is not None and 0 < counts[raw_topic] < 12.0 / 0.05   # a strict prefix of 240 blocks
+    # what the ingest node must publish: the same decoder over the blocks that survived
+    pipe = SensorPipeline(spec("doppler_radar"), {}, scenario.track, scenario.vehicle, simulate=False)
+    expected = []
+    with BagReader(recovered) as reader:
+        for _, typename, _, cdr in reader.cdr([raw_topic]):
+            expected.extend(pipe.on_block(convert.raw_block_from_msg(reader.deserialize(cdr, typename))))
+    node_proc = start_node("doppler_radar", "--ros-args", "-r", "__ns:=/train", "-p", "mode:=ingest",
+                           "-p", "use_sim_time:=true")
+    node = ros_context.create_node("probe_replay_cut", namespace="/train")
+    got = []
+    node.create_subscription(SpeedMeasurement, "sensors/doppler/speed", got.append, STREAM_QOS)
+    try:
+        assert spin_until(node, lambda: node.count_publishers("sensors/doppler/speed") > 0
+                          and node.count_subscribers("sensors/doppler/raw") > 0, 30.0), node_proc.output()
+        replay = start_node("replayer", "--ros-args", "-p", f"bag:={cut}", "-p", "rate:=4.0",
+                            "-p", f"topics:=[{raw_topic}]", "-p", "wait_for_subscribers:=1")
+        assert spin_until(node, lambda: len(got) >= len(expected) or replay.proc.poll() is not None, 60.0)
+        spin_until(node, lambda: len(got) >= len(expected), 5.0)
+        assert replay.proc.wait(timeout=30) == 0, replay.output()
+    finally:
+        node.destroy_node()
+    assert "truncated" in replay.output()
+    assert [convert.speed_from_msg(m) for m in got] == expected

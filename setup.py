@@ -23,6 +23,7 @@ TOOLS = {
     "tl_bench": "train_localization.tools.bench:main",
     "tl_campaign": "train_localization.tools.campaign:main",
     "tl_bag": "train_localization.tools.bag:main",
+    "tl_fuzz": "train_localization.tools.fuzz:main",
 }
 
 console_scripts = [f"{name} = {target}" for name, target in NODES.items()]

@@ -338,3 +338,44 @@ def test_absurd_sample_rates_and_huge_blocks_are_refused():
     with pytest.raises(InputRejected) as exc:
         RawBlock.from_samples("wheel", "wheel", 0, 0.0, 1e4, ("A", "B"), ("level", "level"), np.zeros((5_000_000, 2)))
     assert exc.value.reason == "too_large"
+
+
+def test_a_resync_block_the_decoder_refuses_does_not_use_the_resync_up():
+    """After a poison block (seq 2^32 - 1, accepted), the third refused block that continues the
+    device's sequence passes the guard; if the decoder then refuses it (levels other than 0/1),
+    the next block that continues the sequence passes too, instead of the input staying blind."""
+    import dataclasses
+    from train_localization.core.pipeline import SensorPipeline
+    from train_localization.core.signals import RESYNC_BLOCKS
+    scen = scenario([{"speed": 10.0, "hold": 10}], 3.0, {**CLEAN, "diameter_error": 0.0}, v0=10.0)
+    blocks, _, _ = run_offline(NODE, scen)
+    pipe = SensorPipeline(spec(NODE), {**CLEAN, "diameter_error": 0.0}, scen.track, scen.vehicle, simulate=False)
+    for b in blocks[:20]:
+        pipe.on_block(b)
+    pipe.on_block(dataclasses.replace(blocks[20], seq=2 ** 32 - 1))
+    reasons = []
+    for k, b in enumerate(blocks[21:30]):
+        if k == RESYNC_BLOCKS - 1:   # the block that completes the resync: undecodable
+            b = dataclasses.replace(b, data=np.full_like(b.data, 0.5))
+        try:
+            pipe.on_block(b)
+            reasons.append("ok")
+        except InputRejected as exc:
+            reasons.append(exc.reason)
+    assert reasons == ["duplicate"] * (RESYNC_BLOCKS - 1) + ["implausible"] + ["ok"] * (9 - RESYNC_BLOCKS)
+    assert pipe.guard.resyncs == 1
+
+
+def test_blocks_of_another_unit_are_refused():
+    """One pipeline decodes one device: the same block under another unit_id (it was decoded a
+    second time, and the guard kept one reference per unit_id it saw) is refused."""
+    import dataclasses
+    from train_localization.core.pipeline import SensorPipeline
+    scen = scenario([{"speed": 10.0, "hold": 10}], 1.0, CLEAN, v0=10.0)
+    blocks, _, _ = run_offline(NODE, scen)
+    pipe = SensorPipeline(spec(NODE), CLEAN, scen.track, scen.vehicle, simulate=False)
+    pipe.on_block(blocks[0])
+    with pytest.raises(InputRejected) as exc:
+        pipe.on_block(dataclasses.replace(blocks[0], unit_id="wheel_2"))
+    assert exc.value.reason == "unit_id" and list(pipe.guard._last) == [blocks[0].unit_id]
+    assert len(pipe.on_block(blocks[1])) == 1

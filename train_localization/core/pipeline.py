@@ -66,6 +66,10 @@ class SensorPipeline:
         try:
             if block.sensor != self.spec.sensor:
                 raise InputRejected("sensor", f"block of sensor {block.sensor!r} sent to a {self.spec.sensor} decoder")
+            if block.unit_id != self.decoder.unit_id:
+                # one decoder decodes one device: another unit's blocks would be decoded twice
+                raise InputRejected("unit_id", f"block of unit {block.unit_id!r}; this pipeline decodes unit "
+                                    f"{self.decoder.unit_id!r} (parameter unit_id)")
             if abs(block.sample_rate - self.sample_rate) > 1e-9 * self.sample_rate:
                 raise InputRejected("sample_rate", f"block at {block.sample_rate:g} Hz; the device is configured "
                                     f"for {self.sample_rate:g} Hz (parameter sample_rate)")

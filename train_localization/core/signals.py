@@ -169,16 +169,20 @@ class BlockSequenceGuard:
             run = run + [block]
         else:
             run = [block]
-        if len(run) >= RESYNC_BLOCKS:
-            self._refused[block.unit_id] = []
-            self.resyncs += 1
-            return                    # the device's sequence again: accepted, committed after decoding
         self._refused[block.unit_id] = run
+        if len(run) >= RESYNC_BLOCKS:
+            # the device's sequence again: passed on, and the reference once decoded. The run is
+            # kept until then: should the decoder refuse this block, the next one that continues
+            # it passes too (else one undecodable block would use the resync up for good)
+            return
         raise exc
 
     def commit(self, block: RawBlock) -> None:
         last = self._last.get(block.unit_id)
-        if last is not None and block.seq > last.seq + 1:
+        run = self._refused.get(block.unit_id)
+        if run and run[-1] is block:
+            self.resyncs += 1
+        elif last is not None and block.seq > last.seq + 1:
             self.gaps += block.seq - last.seq - 1
         self._last[block.unit_id] = block
         self._refused[block.unit_id] = []

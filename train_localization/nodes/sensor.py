@@ -30,7 +30,10 @@ from ..core.sensors import NODE_NAMES, spec as sensor_spec
 from ..core.signals import InputRejected
 from ..core.track import Track
 from ..core import paths
-from .common import LATCHED_QOS, STREAM_QOS, ConfigurationError, ManagedNode, declare, rclpy_classes, spin
+from .common import LATCHED_QOS, STREAM_QOS, ConfigurationError, ManagedNode, declare, now_sec, rclpy_classes, spin
+
+# default of the parameter future_tolerance [s]
+FUTURE_TOLERANCE = 2.0
 
 
 class SensorNode(ManagedNode):
@@ -80,6 +83,12 @@ class SensorNode(ManagedNode):
             if isinstance(p.default, list) and not default:
                 continue  # empty lists have no ROS parameter type; keep the default
             overrides[name] = declare(self, name, default, p.description, read_only=True)
+        self.future_tolerance = declare(
+            self, "future_tolerance", FUTURE_TOLERANCE, "ingest: a raw block whose last sample is stamped further ahead of "
+            "the node clock than this [s] is refused (future): one block stamped far ahead would become "
+            "the reference of the next ones", read_only=True)
+        if not self.future_tolerance > 0.0:
+            raise ConfigurationError(f"parameter 'future_tolerance' must be > 0 s, not {self.future_tolerance}")
         unit = overrides.get("unit_id") or self.spec.sensor
         rng = scenario.rng(self.spec.node, unit) if scenario else None
         if mode == "sim" and rng is None:
@@ -139,6 +148,10 @@ class SensorNode(ManagedNode):
     def on_raw(self, msg):
         try:
             block = convert.raw_block_from_msg(msg)
+            now = now_sec(self)
+            if now > 0.0 and block.t_end - now > self.future_tolerance:   # 0: no /clock received yet
+                raise InputRejected("future", f"block ends {block.t_end - now:.3f} s ahead of the node clock "
+                                    f"(parameter future_tolerance: {self.future_tolerance:g} s)")
         except InputRejected as exc:
             self.pipe.rejected[exc.reason] += 1
             self.diag.reject("raw", exc.reason, str(exc))

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from ..core.sensors import NODE_NAMES, spec
 from ..core.sensors.base import COMMON_PARAMS
+from ..nodes.sensor import FUTURE_TOLERANCE
 
 BEGIN, END = "<!-- sensor-params:begin -->", "<!-- sensor-params:end -->"
 FUSION_BEGIN, FUSION_END = "<!-- fusion-params:begin -->", "<!-- fusion-params:end -->"
@@ -19,9 +20,12 @@ def _value(v) -> str:
     return f"`{v!r}`" if not isinstance(v, str) else f"`\"{v}\"`"
 
 
+
 def sensor_params_markdown() -> str:
     lines = ["Common to every sensor node: `mode` (`\"sim\"` | `\"ingest\"`), `scenario` (YAML: track, "
-             "vehicle, seed, overrides), `track` (YAML, when no scenario), and:", "",
+             "vehicle, seed, overrides), `track` (YAML, when no scenario), `future_tolerance` (double, "
+             f"default {FUTURE_TOLERANCE} s, > 0: in ingest mode a raw block ending further ahead of the node "
+             "clock is refused as `future`), and:", "",
              "| parameter | default | meaning |", "|---|---|---|"]
     lines += [f"| `{n}` | {_value(p.default)} | {p.description} |" for n, p in COMMON_PARAMS.items()]
     for node in NODE_NAMES:

@@ -238,10 +238,12 @@ def test_an_alternative_view_that_stops_being_tracked_stays_inside_the_interval(
     assert after.position_min <= after.position + D
 
 
-def _blind_run(radar_fault_end: float = 8.0, braking_end: float = 30.0):
+def _blind_run(radar_fault_end: float = 8.0, braking_end: float = 30.0, accel: float = -0.8,
+               wheel_factor: float = 0.85):
     """Braking from 30 m/s at 0.8 m/s^2 from 2 s: the radar reads 8 % high from 3 s while the
     wheel slides 15 % from 4 to 9 s, so both speed sources are excluded at once. Balises at
-    40 s and 50 s."""
+    40 s and 50 s. ``accel`` [m/s^2] and ``wheel_factor`` (wheel speed / true speed from 4 to
+    9 s) give other cases."""
     models = sensor_models(["doppler_radar", "wheel_sensor", "eurobalise_reader"], None, Vehicle())
     f = TrainFilter(FusionConfig(sensors=models))
     f.reset(position=0.0, position_stddev=0.1, speed=30.0, speed_stddev=0.1, stamp=0.0)
@@ -249,12 +251,12 @@ def _blind_run(radar_fault_end: float = 8.0, braking_end: float = 30.0):
     s, v, checked = 0.0, 30.0, []
     for j in range(1, 1201):
         t = j * 0.05
-        a = -0.8 if 2.0 <= t < braking_end else 0.0
+        a = accel if 2.0 <= t < braking_end else 0.0
         v_old = v
         v = max(v + a * 0.05, 0.0)
         s += 0.5 * (v + v_old) * 0.05
         rv = v * (1.08 if 3.0 <= t < radar_fault_end else 1.0)
-        wv = v * (0.85 if 4.0 <= t < 9.0 else 1.0)
+        wv = v * (wheel_factor if 4.0 <= t < 9.0 else 1.0)
         f.add(SpeedMeasurement(t - 0.025, "doppler", "doppler", rv + rng.normal(0, 0.03), 0.1543))
         f.add(DistanceIncrement(t, "wheel", "wheel", 0.05, wv * 0.05 + rng.normal(0, 0.002), 0.03, wv, 0.6))
         if j in (800, 1000):
@@ -287,3 +289,23 @@ def test_speed_sources_that_never_agree_again_leave_the_filter_honest():
     assert all(e.position_min <= s <= e.position_max for _, e, s, _ in checked)
     assert all(e.mode in (MODE_DEGRADED, MODE_LOST) for t, e, _, _ in checked if t >= 4.0)
     assert "speed_reacquired" not in f.counters()["integrity"]
+    # it coasts on the middle of the two readings, not on the braking it saw last: the speed
+    # error stays within half their disagreement (the radar's 8 %), where the motion model
+    # alone had run 24 m/s off
+    assert f.counters()["integrity"]["coasting_between_speed_sources"] == 1
+    assert all(abs(e.speed - v) < 0.5 * 0.08 * v + 0.1 for t, e, _, v in checked if t >= 12.0)
+
+
+def test_speed_sources_wrong_the_same_way_leave_the_motion_model_in_the_interval():
+    """Under traction the wheel slips 15 % high while the radar reads 8 % high: both speed
+    sources are wrong the same way, and the middle of their readings too. The motion model's
+    own hypothesis from the start of the coasting stays in the interval: the truth is inside
+    throughout (DEGRADED, then LOST as it widens), never a confident wrong position."""
+    f, checked = _blind_run(radar_fault_end=60.0, braking_end=12.0, accel=0.5, wheel_factor=1.15)
+    assert f.counters()["integrity"]["coasting_between_speed_sources"] == 1
+    assert all(e.position_min <= s <= e.position_max for _, e, s, _ in checked)
+    assert all(e.mode in (MODE_DEGRADED, MODE_LOST) for t, e, _, _ in checked if t >= 5.0)
+    # without the motion model's hypothesis the interval would not hold the truth: the filter
+    # and the sensors' views are all ahead of it
+    t, e, s, _ = checked[-1]
+    assert e.position - s > 50.0

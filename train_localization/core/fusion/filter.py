@@ -62,6 +62,12 @@ information; the filter may say it does not know, never be confidently wrong):
               in their mean) for ``slip_window`` s give the speed back; their views stay in
               the interval until a fix decides. A sensor whose view is undecided stays
               excluded while nothing can show that it agrees, also after a dropout.
+  coasting    excluded sources that disagree: once the motion model knows the speed worse
+              than the middle of their readings does, the filter coasts on that middle
+              (not on the last acceleration). The motion model's own hypothesis from the
+              start of the coasting stays in the interval (both sources may be wrong the same
+              way), moved with the filter after the coasting, until a fix rules it out or,
+              the filter back on its speed sources, a fix confirms the filter.
   revisit     a fix of a reference the filter accepted before (a reversal over a balise)
               carries the same installation error: not applied while the filter knows its
               position better than the fix.
@@ -125,6 +131,9 @@ _KIND_OF = {"position": PositionFix, "speed": SpeedMeasurement, "distance": Dist
 # references whose fixes the filter remembers (a reversal passes the last few again)
 _REMEMBERED_REFS = 32
 
+# motion-model hypotheses kept at once (coastings between disagreeing speed sources)
+_MAX_MOTION_VIEWS = 4
+
 # fault modes by which an absolute sensor can report a confident wrong fix
 _OUTLIER_MODES = frozenset(("nlos", "misread", "miscount"))
 
@@ -136,7 +145,7 @@ class _Aux:
     __slots__ = ("initialised", "t", "last_accepted", "slip_until", "accepted", "gated", "slips",
                  "speed_sources", "nis", "fix_ref", "last_fix_accepted", "fix_nis", "slip_window",
                  "alternative", "events", "unverified", "s_last_fix", "relative_alternatives", "suspended",
-                 "candidate", "used_refs", "peer_speeds", "peer_run")
+                 "candidate", "used_refs", "peer_speeds", "peer_run", "motion_views")
 
     def __init__(self):
         self.initialised = False
@@ -168,6 +177,11 @@ class _Aux:
         # of a pair: ((sensor, sensor), first and last stamp [s], readings, sum of differences, of white variances)
         self.peer_speeds: dict[str, tuple] = {}
         self.peer_run: tuple | None = None
+        # the motion model's own hypotheses of coastings between disagreeing speed sources, each
+        # ("model", t [s], s [m], v [m/s], a [m/s^2], (P00, P01, P02, P11, P12, P22)) from the start
+        # of a coasting in progress, or ("moved", s [m], var [m^2], filter s [m], filter P00 [m^2])
+        # at its end, since moved with the filter
+        self.motion_views: tuple = ()
 
     def copy(self) -> "_Aux":
         new = object.__new__(_Aux)
@@ -280,11 +294,32 @@ class TrainFilter:
         if is_fix and not aux.initialised:
             self._initialise(m)
             return
+        if aux.motion_views and aux.motion_views[-1][0] == "model" and not all(
+                c in aux.suspended or aux.slip_until.get(c, -math.inf) > m.stamp for c in aux.speed_sources):
+            # a speed source is in use again: the coasting ends, its motion-model hypothesis moves
+            # with the filter from now on until a fix rules it out
+            s_m, var_m = self._motion_view(aux.motion_views[-1], m.stamp, 0.0, 0.0)
+            aux.motion_views = aux.motion_views[:-1] + (
+                ("moved", s_m, var_m, float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])),)
         z, R, h, hx, PHt, S = self._innovation(m)
+        if is_fix and aux.motion_views:
+            # a fix rules out the motion-model hypotheses it does not fit
+            s_f, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
+            gate = self._gates[cls]
+            kept = []
+            for view in aux.motion_views:
+                s_m, var_m = self._motion_view(view, m.stamp, s_f, P00)
+                if (z - s_m) ** 2 / (R + var_m) <= gate:
+                    kept.append(view)
+            aux.motion_views = tuple(kept)
         if not is_fix and (cls in aux.suspended or aux.slip_until.get(cls, -math.inf) > m.stamp) \
                 and not self._agreement_reference(m, S) and self._blind_speed(m, z, R):
             z, R, h, hx, PHt, S = self._innovation(m)   # at the re-acquired speed
         nis = (z - hx) ** 2 / S
+        if is_fix and nis <= self._gates[cls] and any(v[0] == "moved" for v in aux.motion_views):
+            # the filter, on its speed sources again, explains an absolute fix: it is confirmed,
+            # and an old coasting's motion-model hypothesis (however vague) is no longer needed
+            aux.motion_views = tuple(v for v in aux.motion_views if v[0] != "moved")
         if cls in aux.suspended and self._suspended(m, z - hx, S, nis):
             return
         if cls in self.layout.episode_sensors and self._slipping(m, z - hx, S, nis):
@@ -488,9 +523,34 @@ class TrainFilter:
         aux.peer_speeds = {**peers, cls: (stamp, u, white, common)}
         peer = self._peer_run(cls, stamp, u, white, common, peers)
         if peer is None:
-            return False
+            if not peers:
+                return False
+            return self._coast(stamp, [(u, white + common)] + [(p[1], p[2] + p[3]) for p in peers.values()])
         p = peers[peer]
         self._take_speed(stamp, [(u, white + common), (p[1], p[2] + p[3])], {cls, peer})
+        return True
+
+    def _coast(self, stamp: float, readings: list) -> bool:
+        """The excluded speed sources disagree: one of them, or both, is wrong. Once the motion
+        model knows the speed worse than the middle of their readings does (its variance beyond
+        the squared half-range: it runs away with the last acceleration, a braking that ended,
+        a reversal through a standstill), the filter coasts on that middle instead. The interval
+        keeps every hypothesis: each sensor's view, and the motion model's own from the start
+        of the coasting (both sensors may be wrong the same way, a radar scale fault during a
+        wheel slip under traction). True if the speed was set."""
+        aux = self.aux
+        coasting = bool(aux.motion_views) and aux.motion_views[-1][0] == "model"
+        half_range = 0.5 * (max(u for u, _ in readings) - min(u for u, _ in readings))
+        if not coasting and float(self.ekf.P[1, 1]) <= half_range * half_range:
+            return False                    # a short slip: the motion model still knows better
+        if not coasting:
+            x, P = self.ekf.x[:3, 0].tolist(), self.ekf.P
+            aux.motion_views = aux.motion_views[-(_MAX_MOTION_VIEWS - 1):] + (
+                ("model", stamp, x[0], x[1], x[2], (float(P[0, 0]), float(P[0, 1]), float(P[0, 2]),
+                                                    float(P[1, 1]), float(P[1, 2]), float(P[2, 2]))),)
+            aux.events = _inc(aux.events, "coasting_between_speed_sources")
+            aux.unverified = aux.unverified or "speed_sources_disagree"
+        self._set_speed(readings, middle=True)
         return True
 
     def _peer_run(self, cls: str, stamp: float, u: float, white: float, common: float,
@@ -517,19 +577,28 @@ class TrainFilter:
         aux.peer_run = (pair, run[1], stamp, n, sum_d, sum_white)
         return pairs[pair] if stamp - run[1] >= cfg.slip_window else None
 
-    def _take_speed(self, stamp: float, readings: list, sensors: set) -> None:
-        """Speed from independent readings [(speed, variance)], their spread added; the
-        acceleration back to its prior; the exclusions of ``sensors`` end."""
-        aux, cfg = self.aux, self.cfg
+    def _set_speed(self, readings: list, middle: bool = False) -> None:
+        """Speed from readings [(speed, variance)]: their weighted mean (``middle``: the middle
+        of their range), the largest distance to a reading added to its variance; the
+        acceleration back to its prior."""
         weights = [1.0 / v for _, v in readings]
-        u_hat = sum(w * u for w, (u, _) in zip(weights, readings)) / sum(weights)
+        if middle:
+            u_hat = 0.5 * (min(u for u, _ in readings) + max(u for u, _ in readings))
+        else:
+            u_hat = sum(w * u for w, (u, _) in zip(weights, readings)) / sum(weights)
         spread = max(abs(u - u_hat) for u, _ in readings)
         x, P = self.ekf.x.copy(), self.ekf.P.copy()
         P[1:3, :] = 0.0
         P[:, 1:3] = 0.0
         x[1, 0], P[1, 1] = u_hat, 1.0 / sum(weights) + spread * spread
-        x[2, 0], P[2, 2] = 0.0, cfg.initial_accel_stddev ** 2
+        x[2, 0], P[2, 2] = 0.0, self.cfg.initial_accel_stddev ** 2
         self.ekf.x, self.ekf.P = x, P
+
+    def _take_speed(self, stamp: float, readings: list, sensors: set) -> None:
+        """Speed from independent readings that agree (weighted); the exclusions of ``sensors``
+        end."""
+        aux = self.aux
+        self._set_speed(readings)
         aux.suspended = {c: v for c, v in aux.suspended.items() if c not in sensors}
         aux.slip_until = {c: (min(t, stamp) if c in sensors else t) for c, t in aux.slip_until.items()}
         aux.slip_window = {c: w for c, w in aux.slip_window.items() if c not in sensors}
@@ -565,7 +634,10 @@ class TrainFilter:
         an episode, or a speed known at least as well as the measurement's own noise (a
         stream of fixes). Only then can an excluded sensor be seen to agree again; the
         motion model alone, its speed uncertainty growing, would let a faulty sensor back in.
-        S: the measurement's innovation variance (filter part + its own noise)."""
+        S: the measurement's innovation variance (filter part + its own noise). While the filter
+        coasts between excluded sources, its speed is theirs: no reference."""
+        if self.aux.motion_views and self.aux.motion_views[-1][0] == "model":
+            return self._reference_ok(m)
         return self._reference_ok(m) or float(self.ekf.P[1, 1]) <= 0.5 * S
 
     def _check_plausible(self) -> None:
@@ -895,8 +967,29 @@ class TrainFilter:
                 sd_s = max(sd_s, (hi - lo) / (2.0 * self._z))
                 mode = self._mode(aux, t, sd_s)
                 mode = Mode.DEGRADED if mode == Mode.NOMINAL else mode
+        for view in aux.motion_views:   # the motion model's own hypotheses of coastings
+            s_m, var_m = self._motion_view(view, t, float(s), var_s)
+            half = self._z * math.sqrt(var_m)
+            if s_m - half < lo or s_m + half > hi:
+                lo, hi = min(lo, s_m - half), max(hi, s_m + half)
+                sd_s = max(sd_s, (hi - lo) / (2.0 * self._z))
+                mode = self._mode(aux, t, sd_s)
         return Estimate(t, float(s), float(v), float(a), sd_s, sd_v, lo, hi, self.cfg.confidence,
                         mode, scales, biases)
+
+    def _motion_view(self, view: tuple, t: float, s_f: float, var_f: float) -> tuple[float, float]:
+        """(position [m], variance [m^2]) at t of a motion-model hypothesis: during its coasting
+        the kinematic block from its start predicted with the white-jerk process noise; after it
+        moved with the filter (position s_f [m], variance var_f [m^2] at t)."""
+        if view[0] == "moved":
+            _, s_m, var_m, s_end, P00_end = view
+            return s_m + (s_f - s_end), var_m + max(var_f - P00_end, 0.0)
+        _, t_c, s, v, a, (p00, p01, p02, p11, p12, p22) = view
+        dt = max(t - t_c, 0.0)
+        h, dt2 = 0.5 * dt * dt, dt * dt
+        var = (p00 + 2 * dt * p01 + 2 * h * p02 + dt2 * p11 + 2 * dt * h * p12 + h * h * p22
+               + self.cfg.jerk_psd * dt2 * dt2 * dt / 20)
+        return s + v * dt + a * h, var
 
     def _mode(self, aux: _Aux, t: float, position_stddev: float) -> Mode:
         if not aux.initialised:

@@ -19,15 +19,12 @@ import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import (DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler,
-                            SetEnvironmentVariable)
-from launch.event_handlers import OnProcessExit
-from launch.events import Shutdown
-from launch.substitutions import EnvironmentVariable, LaunchConfiguration
-from launch_ros.actions import Node
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.substitutions import LaunchConfiguration
 
 from train_localization.core.scenario import Scenario
 from train_localization.graph import NAMESPACE, demo_graph
+from train_localization.launch_common import common_arguments, flag, graph_actions
 
 SHARE = get_package_share_directory("train_localization")
 
@@ -42,28 +39,12 @@ def _scenario_path(value: str) -> str:
 
 def _nodes(context):
     scenario = _scenario_path(LaunchConfiguration("scenario").perform(context))
-    record = LaunchConfiguration("record").perform(context).lower() in ("true", "1", "yes")
     bag = os.path.abspath(LaunchConfiguration("bag").perform(context))
     rate = float(LaunchConfiguration("rate").perform(context))
     namespace = LaunchConfiguration("namespace").perform(context)
-    log_level = LaunchConfiguration("log_level").perform(context)
-    respawn = LaunchConfiguration("respawn").perform(context).lower() in ("true", "1", "yes")
-    respawn_delay = float(LaunchConfiguration("respawn_delay").perform(context))
     sensors = list(Scenario.from_yaml(scenario).sensors)
-    actions = []
-    for exe, name, params in demo_graph(scenario, sensors, bag, rate, record=record):
-        # supervision: a crashed fusion or sensor node is restarted (the fusion comes back
-        # INITIALISING); not the simulator (its exit ends the run) nor the recorder (a new
-        # one would start the bag afresh)
-        supervised = respawn and exe not in ("simulator", "recorder")
-        node = Node(package="train_localization", executable=exe, name=name, namespace=namespace,
-                    parameters=[params], output="screen", arguments=["--ros-args", "--log-level", log_level],
-                    respawn=supervised, respawn_delay=respawn_delay if supervised else None)
-        actions.append(node)
-        if exe == "simulator":
-            actions.append(RegisterEventHandler(OnProcessExit(
-                target_action=node, on_exit=[EmitEvent(event=Shutdown(reason="the simulator has ended"))])))
-    return actions
+    graph = demo_graph(scenario, sensors, bag, rate, record=flag(context, "record"))
+    return graph_actions(context, graph, namespace)
 
 
 def generate_launch_description():
@@ -79,15 +60,6 @@ def generate_launch_description():
                               description="run the recorder (MCAP bag of every topic)"),
         DeclareLaunchArgument("bag", default_value="demo.mcap",
                               description="the recorder's output file (relative: to the current directory)"),
-        DeclareLaunchArgument("log_level", default_value="info",
-                              choices=["debug", "info", "warn", "error", "fatal"],
-                              description="log level of every node"),
-        DeclareLaunchArgument("respawn", default_value="true", choices=["true", "false"],
-                              description="restart a fusion or sensor node that exits or crashes (not the "
-                                          "simulator or the recorder)"),
-        DeclareLaunchArgument("respawn_delay", default_value="2.0",
-                              description="seconds before such a node is restarted (>= 0)"),
-        SetEnvironmentVariable("ROS_AUTOMATIC_DISCOVERY_RANGE",
-                               EnvironmentVariable("ROS_AUTOMATIC_DISCOVERY_RANGE", default_value="LOCALHOST")),
+        *common_arguments(),
         OpaqueFunction(function=_nodes),
     ])

@@ -165,3 +165,35 @@ def test_the_replayer_plays_a_truncated_bag_up_to_its_last_complete_chunk(ros_co
         node.destroy_node()
     assert "truncated" in replay.output()
     assert [convert.speed_from_msg(m) for m in got] == expected
+
+
+def test_the_replay_graph_fuses_a_recorded_bag_again_and_ends_with_the_replay(tmp_path):
+    """The replay graph (launch/replay.launch.py; graph.replay_graph): the replayer plays a
+    bag's raw topics, ground truth and scenario; ingest nodes decode, the fusion fuses, the
+    recorder writes the re-fused run. The replayer ends by itself when the bag is played;
+    every node then stops cleanly, and the new bag holds every raw block and truth state
+    played and the fused state of the whole run, in the bag's time line."""
+    from train_localization.core.bagio import topic_counts
+    from train_localization.core.offline import FUSED_TOPIC, TRUTH_TOPIC, simulate_scenario
+    from train_localization.core.scenario import Scenario
+    from train_localization.graph import replay_graph
+    from train_localization.tools.demo import run_nodes
+    data = yaml.safe_load((ROOT / "config" / "scenario_demo.yaml").read_text())
+    data.update(duration=12.0, sensors={"doppler_radar": {}, "wheel_sensor": {}},
+                initial={"position": 100.0, "speed": 20.0})
+    data["track"] = str(ROOT / "config" / "track_conventional.yaml")
+    scenario = Scenario.from_dict(data)
+    bag, out = tmp_path / "recorded.mcap", tmp_path / "fused_again.mcap"
+    simulate_scenario(scenario, bag)
+    scenario_file = tmp_path / "scenario.yaml"
+    scenario_file.write_text(scenario.to_yaml())
+    graph = replay_graph(str(bag), str(scenario_file), ["doppler_radar", "wheel_sensor"], str(out), rate=2.0)
+    codes = run_nodes(graph, "replayer", tmp_path / "logs", timeout=90.0)
+    assert codes == {"doppler_radar": 0, "wheel_sensor": 0, "fusion": 0, "recorder": 0, "replayer": 0}, \
+        {n: (tmp_path / "logs" / f"{n}.log").read_text()[-2000:] for n in codes}
+    played, got = topic_counts(bag), topic_counts(out)
+    for topic in ("/train/sensors/doppler/raw", "/train/sensors/wheel/raw", TRUTH_TOPIC):
+        assert got[topic] == played[topic], topic
+    states = [m for _, _, _, m in read_bag(out, [FUSED_TOPIC])]
+    stamps = [m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in states]
+    assert len(states) >= 0.9 * 200.0 * 12.0 and stamps[0] < 1.0 and stamps[-1] > 11.5

@@ -1,7 +1,7 @@
-"""The node graph of the demo, in one place: used by tools/demo.py and launch/.
+"""The node graphs, in one place: used by tools/demo.py and launch/.
 
 Each entry is (executable, node name, parameters). Everything runs in the
-``/train`` namespace with use_sim_time (the simulator publishes /clock).
+``/train`` namespace with use_sim_time (the simulator or the replayer publishes /clock).
 """
 from __future__ import annotations
 
@@ -32,6 +32,32 @@ def demo_graph(scenario: str, sensors: list[str], bag: str, rate: float = 1.0,
     # the simulator starts once the recorder and every sensor node listen to the truth
     nodes.append(("simulator", "simulator", {"scenario": scenario, "rate": rate, "start_delay": 1.0,
                                              "wait_for_subscribers": len(sensors) + int(record)}))
+    return nodes
+
+
+def replay_graph(bag: str, scenario: str, sensors: list[str], out_bag: str, rate: float = 1.0,
+                 record: bool = True, namespace: str = NAMESPACE) -> list[tuple[str, str, dict]]:
+    """Recorder (if ``record``) of the re-fused run, one sensor node per entry of ``sensors``
+    (node names) in ingest mode, fusion, and the replayer of ``bag`` (recorded under
+    NAMESPACE): its raw topics, ground truth and scenario, moved to ``namespace``.
+
+    The replayer publishes /clock from the bag's time line and starts once every sensor
+    node (and the recorder) listens to what it plays."""
+    from .core.sensors import spec
+    classes = [spec(n).sensor for n in sensors]
+    played = [f"{NAMESPACE}/sensors/{c}/raw" for c in classes] + [f"{NAMESPACE}/ground_truth/state",
+                                                                   f"{NAMESPACE}/scenario"]
+    nodes = []
+    if record:
+        nodes.append(("recorder", "recorder", {"output": out_bag, "use_sim_time": True}))
+    nodes += [(name, name, {"mode": "ingest", "scenario": scenario, "use_sim_time": True}) for name in sensors]
+    nodes.append(("fusion", "fusion", {"scenario": scenario, "sensors": classes, "use_sim_time": True}))
+    replayer = {"bag": bag, "rate": rate, "topics": played,
+                # one subscriber per raw topic (its sensor node), and the recorder on every played topic
+                "wait_for_subscribers": len(classes) + (len(played) if record else 0)}
+    if namespace.rstrip("/") != NAMESPACE:
+        replayer["remap"] = [f"{t}:={namespace.rstrip('/')}{t[len(NAMESPACE):]}" for t in played]
+    nodes.append(("replayer", "replayer", replayer))
     return nodes
 
 

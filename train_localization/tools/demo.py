@@ -46,8 +46,19 @@ def executable(name: str) -> str:
 
 def run_graph(scenario_path: str, bag: Path, rate: float, log_dir: Path, timeout: float | None = None,
               exclude: list[str] | None = None) -> dict:
-    """Start the graph, wait for the simulator to finish, stop everything; exit codes by node."""
+    """Start the demo graph, wait for the simulator to finish, stop everything; exit codes by node."""
     scenario = Scenario.from_yaml(scenario_path)
+    if bag.exists():
+        bag.unlink()
+    graph = demo_graph(str(paths.resolve(scenario_path)), list(scenario.sensors), str(bag), rate, exclude)
+    return run_nodes(graph, "simulator", log_dir, timeout or (scenario.duration / max(rate, 1e-3) + 60.0))
+
+
+def run_nodes(graph: list, driver: str, log_dir: Path, timeout: float) -> dict:
+    """Start a graph's nodes (graph.py entries) as processes, wait at most ``timeout`` s for
+    the ``driver`` (simulator or replayer) to finish, stop the others with SIGINT (the
+    recorder last); exit codes by node. DDS on loopback and a domain of its own unless
+    TL_DOMAIN_FROM_ENV=1."""
     env = dict(os.environ)
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = env.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     if env.get("TL_DOMAIN_FROM_ENV") != "1":
@@ -55,24 +66,20 @@ def run_graph(scenario_path: str, bag: Path, rate: float, log_dir: Path, timeout
     env.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
     env["PYTHONUNBUFFERED"] = "1"
     log_dir.mkdir(parents=True, exist_ok=True)
-    bag.parent.mkdir(parents=True, exist_ok=True)
-    if bag.exists():
-        bag.unlink()
     procs = {}
-    graph = demo_graph(str(paths.resolve(scenario_path)), list(scenario.sensors), str(bag), rate, exclude)
     for exe, name, params in graph:
+        if exe == "recorder":
+            Path(params["output"]).parent.mkdir(parents=True, exist_ok=True)
         log = open(log_dir / f"{name}.log", "w")
         procs[name] = (subprocess.Popen([executable(exe)] + ros_args(name, params), env=env, stdout=log,
                                         stderr=subprocess.STDOUT, start_new_session=True), log)
-    sim = procs["simulator"][0]
-    limit = timeout or (scenario.duration / max(rate, 1e-3) + 60.0)
     try:
-        sim.wait(timeout=limit)
+        procs[driver][0].wait(timeout=timeout)
     except subprocess.TimeoutExpired:
-        print(f"[demo] simulator did not finish within {limit:.0f} s", file=sys.stderr)
+        print(f"[demo] {driver} did not finish within {timeout:.0f} s", file=sys.stderr)
     time.sleep(1.0)
     codes = {}
-    order = [n for n in procs if n not in ("simulator", "recorder")] + ["recorder", "simulator"]
+    order = [n for n in procs if n not in (driver, "recorder")] + [n for n in ("recorder", driver) if n in procs]
     for name in order:
         proc, log = procs[name]
         if proc.poll() is None:

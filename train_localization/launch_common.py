@@ -1,0 +1,58 @@
+"""What the launch files share (launch/*.launch.py): the supervision and logging arguments,
+DDS confinement by default, and turning a graph.py graph into Node actions that shut the
+launch down when the graph's driver (simulator, replayer) exits.
+
+Needs a full ROS 2 install (launch and launch_ros are not on PyPI); only the launch files
+import it.
+"""
+from launch.actions import DeclareLaunchArgument, EmitEvent, RegisterEventHandler, SetEnvironmentVariable
+from launch.event_handlers import OnProcessExit
+from launch.events import Shutdown
+from launch.substitutions import EnvironmentVariable, LaunchConfiguration
+from launch_ros.actions import Node
+
+# nodes whose exit ends the run: not restarted, their exit shuts the launch down
+DRIVERS = ("simulator", "replayer")
+
+
+def common_arguments() -> list:
+    """log_level, respawn, respawn_delay, and DDS discovery kept as the caller has it
+    (LOCALHOST if unset): the nodes do not confine it themselves."""
+    return [
+        DeclareLaunchArgument("log_level", default_value="info",
+                              choices=["debug", "info", "warn", "error", "fatal"],
+                              description="log level of every node"),
+        DeclareLaunchArgument("respawn", default_value="true", choices=["true", "false"],
+                              description="restart a fusion or sensor node that exits or crashes (not the "
+                                          "simulator, the replayer or the recorder)"),
+        DeclareLaunchArgument("respawn_delay", default_value="2.0",
+                              description="seconds before such a node is restarted (>= 0)"),
+        SetEnvironmentVariable("ROS_AUTOMATIC_DISCOVERY_RANGE",
+                               EnvironmentVariable("ROS_AUTOMATIC_DISCOVERY_RANGE", default_value="LOCALHOST")),
+    ]
+
+
+def flag(context, name: str) -> bool:
+    """A true/false launch argument."""
+    return LaunchConfiguration(name).perform(context).lower() in ("true", "1", "yes")
+
+
+def graph_actions(context, graph: list, namespace: str) -> list:
+    """Node actions of a graph.py graph in ``namespace``. Supervision: a crashed fusion or
+    sensor node is restarted after respawn_delay (the fusion comes back INITIALISING); not
+    the driver (its exit ends the run) nor the recorder (a new one would start the bag
+    afresh)."""
+    log_level = LaunchConfiguration("log_level").perform(context)
+    respawn = flag(context, "respawn")
+    respawn_delay = float(LaunchConfiguration("respawn_delay").perform(context))
+    actions = []
+    for exe, name, params in graph:
+        supervised = respawn and exe not in DRIVERS + ("recorder",)
+        node = Node(package="train_localization", executable=exe, name=name, namespace=namespace,
+                    parameters=[params], output="screen", arguments=["--ros-args", "--log-level", log_level],
+                    respawn=supervised, respawn_delay=respawn_delay if supervised else None)
+        actions.append(node)
+        if exe in DRIVERS:
+            actions.append(RegisterEventHandler(OnProcessExit(
+                target_action=node, on_exit=[EmitEvent(event=Shutdown(reason=f"the {exe} has ended"))])))
+    return actions

@@ -187,7 +187,7 @@ def test_the_replay_graph_fuses_a_recorded_bag_again_and_ends_with_the_replay(tm
     simulate_scenario(scenario, bag)
     scenario_file = tmp_path / "scenario.yaml"
     scenario_file.write_text(scenario.to_yaml())
-    graph = replay_graph(str(bag), str(scenario_file), ["doppler_radar", "wheel_sensor"], str(out), rate=2.0)
+    graph = replay_graph(str(bag), str(scenario_file), ["doppler_radar", "wheel_sensor"], str(out), rate=4.0)
     codes = run_nodes(graph, "replayer", tmp_path / "logs", timeout=90.0)
     assert codes == {"doppler_radar": 0, "wheel_sensor": 0, "fusion": 0, "recorder": 0, "replayer": 0}, \
         {n: (tmp_path / "logs" / f"{n}.log").read_text()[-2000:] for n in codes}

@@ -313,7 +313,11 @@ def test_bad_input_is_rejected_with_its_reason():
     with pytest.raises(InputRejected) as exc:
         f.add(PositionFix(12.1, "doppler", "radar", "T", "R", 521.0, 0.5))   # a speed sensor's "fix"
     assert exc.value.reason == "wrong_kind"
-    assert f.rejected == {"too_late": 1, "duplicate": 1, "nan": 1, "stddev": 1, "wrong_kind": 1}
+    with pytest.raises(InputRejected) as exc:
+        f.add(SpeedMeasurement(12.1, "gnss", "gnss", 5.0, 0.1))            # a sensor it does not model
+    assert exc.value.reason == "unknown_sensor"
+    assert f.rejected == {"too_late": 1, "duplicate": 1, "nan": 1, "stddev": 1, "wrong_kind": 1,
+                          "unknown_sensor": 1}
     f.add(fix(11.5, 515.0))               # late but inside the history: inserted
     # the first is the candidate that the second (now the late one) confirms, the third is accepted
     assert f.rollbacks == 1 and f.counters()["accepted"]["eurobalise"] == 2

@@ -71,3 +71,22 @@ def test_package_xml_dependencies_are_rosdep_keys():
         launch = ast.parse((ROOT / launch_file).read_text())
         imported = {(n.module or "").split(".")[0] for n in ast.walk(launch) if isinstance(n, ast.ImportFrom)}
         assert {"launch"} <= imported <= keys | {"train_localization"}, launch_file
+
+
+def test_no_node_changes_the_discovery_variables():
+    """Confining DDS discovery is the user's choice (a train with several computers sets its
+    own; an empty value is theirs too): nothing the nodes import writes ROS_DOMAIN_ID,
+    ROS_AUTOMATIC_DISCOVERY_RANGE or ROS_STATIC_PEERS. Only the project's own scripts, tools
+    and launch defaults set them, for what they start."""
+    import re
+    pattern = re.compile(r"(environ\s*(\[|\.setdefault|\.update)|putenv)[^\n]*"
+                         r"(ROS_DOMAIN_ID|ROS_AUTOMATIC_DISCOVERY_RANGE|ROS_STATIC_PEERS)")
+    files = [p for d in ("core", "nodes") for p in (ROOT / "train_localization" / d).rglob("*.py")]
+    files += [ROOT / "train_localization" / "graph.py"]
+    assert len(files) > 20
+    offenders = [f"{p.relative_to(ROOT)}:{i}" for p in files
+                 for i, line in enumerate(p.read_text().splitlines(), 1) if pattern.search(line)]
+    assert offenders == []
+    # the pattern finds what it is meant to find
+    assert pattern.search('os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")')
+    assert pattern.search('os.environ["ROS_DOMAIN_ID"] = "5"')

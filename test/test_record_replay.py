@@ -197,3 +197,87 @@ def test_the_replay_graph_fuses_a_recorded_bag_again_and_ends_with_the_replay(tm
     states = [m for _, _, _, m in read_bag(out, [FUSED_TOPIC])]
     stamps = [m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in states]
     assert len(states) >= 0.9 * 200.0 * 12.0 and stamps[0] < 1.0 and stamps[-1] > 11.5
+
+
+def _publish_strings(node, pub, n: int, start: int = 0):
+    from std_msgs.msg import String
+    for i in range(start, start + n):
+        pub.publish(String(data=f"message {i:06d} " + "x" * 60))
+
+
+def test_a_sigkilled_recording_is_recovered_up_to_one_chunk_before_the_kill(ros_context, start_node, tmp_path):
+    """kill -9 of the recorder mid-recording: the file has no summary, but every chunk that
+    was full reached it (flushed when complete), so `tl_bag recover` gives a bag that the mcap reader and
+    rosbags both read, with the messages in order and at most one chunk's worth lost."""
+    import signal
+    from rclpy.duration import Duration
+    from std_msgs.msg import String
+    from train_localization.core.bagio import recover_bag
+    from train_localization.nodes.common import STREAM_QOS
+    out, chunk = tmp_path / "killed.mcap", 16 * 1024
+    proc = start_node("recorder", "--ros-args", "-p", f"output:={out}", "-p", "topics:=[/kill_test/a]",
+                      "-p", f"chunk_size:={chunk}", "-p", "compression:=none")
+    node = ros_context.create_node("probe_kill")
+    pub = node.create_publisher(String, "/kill_test/a", STREAM_QOS)
+    try:
+        assert spin_until(node, lambda: pub.get_subscription_count() > 0, 30.0), proc.output()
+        time.sleep(0.5)
+        n = 3000
+        for start in range(0, n, 250):         # bursts well within the streams' history depth (1000)
+            _publish_strings(node, pub, 250, start)
+            time.sleep(0.2)
+        assert pub.wait_for_all_acked(Duration(seconds=30)), proc.output()
+        size, since = -1, time.monotonic()    # the recorder has written what it took when the
+        while time.monotonic() - since < 1.0:  # file stops growing for a second
+            time.sleep(0.1)
+            if out.exists() and out.stat().st_size != size:
+                size, since = out.stat().st_size, time.monotonic()
+        proc.proc.send_signal(signal.SIGKILL)
+        proc.proc.wait(timeout=10)
+    finally:
+        node.destroy_node()
+    recovered = tmp_path / "recovered.mcap"
+    counts, problem = recover_bag(out, recovered)
+    assert problem is not None                # no summary: it was cut
+    per_chunk = chunk // 80 + 1               # a message record is more than 80 bytes
+    assert n - per_chunk <= counts["/kill_test/a"] < n
+    from mcap.reader import make_reader
+    with open(recovered, "rb") as fh:          # the mcap library reads it (summary and all)
+        assert sum(1 for _ in make_reader(fh).iter_messages()) == counts["/kill_test/a"]
+    from rosbags.highlevel import AnyReader
+    with AnyReader([recovered]) as reader:    # so does rosbags
+        texts = [reader.deserialize(raw, conn.msgtype).data for conn, _, raw in reader.messages()]
+    assert texts == [f"message {i:06d} " + "x" * 60 for i in range(counts["/kill_test/a"])]
+
+
+def test_sigint_while_an_outside_node_keeps_publishing_closes_the_bag_promptly(ros_context, start_node, tmp_path):
+    """Ctrl-C of a graph while a node outside it still publishes: the recorder takes what was
+    delivered for at most its drain time, then closes a valid bag (it waited for quiet
+    before, and was SIGKILLed by the launch's escalation after 10 s)."""
+    import signal
+    from std_msgs.msg import String
+    from train_localization.core.bagio import topic_counts
+    from train_localization.nodes.common import DRAIN_TIMEOUT, STREAM_QOS
+    out = tmp_path / "busy.mcap"
+    proc = start_node("recorder", "--ros-args", "-p", f"output:={out}", "-p", "topics:=[/busy_test/a]")
+    node = ros_context.create_node("probe_busy")
+    pub = node.create_publisher(String, "/busy_test/a", STREAM_QOS)
+    sent = 0
+    try:
+        assert spin_until(node, lambda: pub.get_subscription_count() > 0, 30.0), proc.output()
+        for _ in range(20):
+            _publish_strings(node, pub, 50, sent)
+            sent += 50
+            time.sleep(0.01)
+        t0 = time.monotonic()
+        proc.proc.send_signal(signal.SIGINT)
+        while proc.proc.poll() is None and time.monotonic() - t0 < 15.0:
+            _publish_strings(node, pub, 20, sent)   # the outside node goes on publishing
+            sent += 20
+            time.sleep(0.01)
+        took = time.monotonic() - t0
+    finally:
+        node.destroy_node()
+    assert proc.proc.returncode == 0 and took < DRAIN_TIMEOUT + 2.0, (took, proc.output())
+    counts = topic_counts(out)                 # a summary: the file was closed properly
+    assert 1000 <= counts["/busy_test/a"] <= sent

@@ -93,6 +93,7 @@ class BagWriter:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._fh = open(self.path, "wb")
+        self._written = 0       # file position after the last chunk, flushed to the OS
         comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}[compression]
         self._writer = Writer(self._fh, chunk_size=chunk_size, compression=comp)
         self._writer.start(profile="ros2", library="train_localization")
@@ -120,6 +121,9 @@ class BagWriter:
                                  publish_time=int(log_time_ns if publish_time_ns is None else publish_time_ns),
                                  sequence=self.counts[topic])
         self.counts[topic] += 1
+        if self._fh.tell() != self._written:   # a chunk was completed: to the OS at once, so that a
+            self._fh.flush()                   # SIGKILL loses only the open chunk
+            self._written = self._fh.tell()
 
     def write(self, topic: str, msg, log_time_ns: int) -> None:
         """Serialise a typestore message object and write it."""

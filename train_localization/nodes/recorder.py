@@ -11,6 +11,9 @@ Parameters:
   exclude (string[], ["/rosout", "/parameter_events"])
   discovery_period (double, 0.2)      [s]
   compression (string, "zstd")        zstd | lz4 | none
+  chunk_size (int, 262144)            bytes of messages per chunk, 1024 .. 67108864; a full
+                                      chunk is flushed to the file at once, so a SIGKILL or power
+                                      loss loses only the open chunk (tl_bag recover)
 Log time of each message = the node clock at reception (sim time with
 use_sim_time:=true). On SIGINT/SIGTERM every message received so far is written and
 the file is closed properly; ``counts`` in the final log line are per topic.
@@ -22,7 +25,7 @@ import importlib
 from rclpy.node import Node
 
 from ..core.bagio import BagWriter
-from .common import CLOCK_QOS, LATCHED_QOS, STREAM_QOS, declare, spin, steady_clock
+from .common import CLOCK_QOS, LATCHED_QOS, STREAM_QOS, ConfigurationError, declare, spin, steady_clock
 
 
 def message_class(typename: str):
@@ -39,7 +42,11 @@ class RecorderNode(Node):
         self.exclude = set(declare(self, "exclude", ["/rosout", "/parameter_events"], "topics never recorded"))
         period = float(declare(self, "discovery_period", 0.2, "topic discovery period [s]"))
         compression = declare(self, "compression", "zstd", "chunk compression: zstd, lz4 or none")
-        self.writer = BagWriter(self.output, compression=compression)
+        chunk_size = declare(self, "chunk_size", 256 * 1024, "bytes of messages per chunk (1024 .. 67108864): "
+                             "a chunk reaches the file when full, a SIGKILL loses only the open one")
+        if not 1024 <= chunk_size <= 64 * 1024 * 1024:
+            raise ConfigurationError(f"parameter 'chunk_size' must be in 1024 .. 67108864 bytes, not {chunk_size}")
+        self.writer = BagWriter(self.output, chunk_size=chunk_size, compression=compression)
         self.subs = {}
         self._discover()
         # wall-clock timer: with use_sim_time there is no /clock before the simulator runs

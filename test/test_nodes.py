@@ -652,3 +652,29 @@ def test_a_stopped_clock_makes_the_fusion_report_stale(ros_context, start_node):
         assert proc.interrupt() == 0
     finally:
         node.destroy_node()
+
+
+def test_numeric_parameters_carry_their_range_and_a_value_beyond_it_stops_the_node(ros_context, start_node):
+    """A sensor node's limited parameters have the range in their descriptor (what ``ros2
+    param describe`` shows); a value beyond it, given as a double or as an integer, stops the
+    node with exit code 2 and one line naming the parameter, no traceback."""
+    from rclpy.parameter_client import AsyncParameterClient
+    good = start_node("doppler_radar", "--ros-args", *NS, "-p", "mode:=ingest", "-r", "__node:=radar_limits")
+    node = ros_context.create_node("probe_limits", namespace="/train")
+    try:
+        client = AsyncParameterClient(node, "/train/radar_limits")
+        assert client.wait_for_services(timeout_sec=30.0), good.output()
+        future = client.describe_parameters(["max_block_duration", "future_tolerance", "carrier_frequency"])
+        assert spin_until(node, future.done, 10.0)
+        limited, tolerance, free = future.result().descriptors
+        assert (limited.floating_point_range[0].from_value, limited.floating_point_range[0].to_value) == (1e-3, 60.0)
+        assert (tolerance.floating_point_range[0].from_value, tolerance.floating_point_range[0].to_value) == (1e-3, 3600.0)
+        assert not free.floating_point_range and limited.read_only
+        assert good.interrupt() == 0
+    finally:
+        node.destroy_node()
+    for value in ("100.0", "100"):
+        bad = start_node("doppler_radar", "--ros-args", *NS, "-p", "mode:=ingest", "-p", f"max_block_duration:={value}")
+        assert bad.proc.wait(timeout=30) == 2, bad.output()
+        out = bad.output()
+        assert "[fatal]" in out and "max_block_duration" in out and "Traceback" not in out, out

@@ -124,24 +124,38 @@ class ConfigurationError(ValueError):
     """A parameter or file the node cannot start with: reported in one line, exit code 2."""
 
 
-def declare(node: Node, name: str, default, description: str = "", read_only: bool = False):
+def declare(node: Node, name: str, default, description: str = "", read_only: bool = False,
+            limits: tuple | None = None):
     """Declare a parameter with a description and return its value.
 
     A double parameter also takes an integer (``-p rate:=2``): it is declared with dynamic
     typing and converted; anything else raises ConfigurationError naming the parameter.
-    ``read_only``: read at start-up only, so ``ros2 param set`` refuses to change it."""
-    from rcl_interfaces.msg import ParameterDescriptor
+    ``read_only``: read at start-up only, so ``ros2 param set`` refuses to change it.
+    ``limits`` (lo, hi): the inclusive range of a number, in the descriptor (``ros2 param
+    describe`` shows it, ``ros2 param set`` beyond it is refused) and checked here."""
+    from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
     if node.has_parameter(name):   # a lifecycle node configured again
         value = node.get_parameter(name).value
         return float(value) if isinstance(default, float) else value
+    desc = ParameterDescriptor(description=description, read_only=read_only)
+    if limits is not None:
+        lo, hi = limits
+        desc.description += f" [{lo:g} .. {hi:g}]"
+        if isinstance(default, float):
+            desc.floating_point_range = [FloatingPointRange(from_value=float(lo), to_value=float(hi), step=0.0)]
+        else:
+            desc.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
     if isinstance(default, float):
-        value = node.declare_parameter(name, default, ParameterDescriptor(
-            description=description, dynamic_typing=True, read_only=read_only)).value
+        desc.dynamic_typing = True
+        value = node.declare_parameter(name, default, desc).value
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigurationError(f"parameter {name!r} must be a number, got {value!r}")
-        return float(value)
-    return node.declare_parameter(name, default, ParameterDescriptor(description=description,
-                                                                     read_only=read_only)).value
+        value = float(value)
+    else:
+        value = node.declare_parameter(name, default, desc).value
+    if limits is not None and not (isinstance(value, (int, float)) and limits[0] <= value <= limits[1]):
+        raise ConfigurationError(f"parameter {name!r} must be in {limits[0]:g} .. {limits[1]:g}, not {value!r}")
+    return value
 
 
 # what a user's parameters or files can get wrong: one line, exit code 2 (or a failed configure)

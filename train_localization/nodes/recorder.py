@@ -25,7 +25,7 @@ import importlib
 from rclpy.node import Node
 
 from ..core.bagio import BagWriter
-from .common import CLOCK_QOS, LATCHED_QOS, STREAM_QOS, ConfigurationError, declare, spin, steady_clock
+from .common import CLOCK_QOS, LATCHED_QOS, STREAM_QOS, declare, spin, steady_clock
 
 
 def message_class(typename: str):
@@ -42,10 +42,8 @@ class RecorderNode(Node):
         self.exclude = set(declare(self, "exclude", ["/rosout", "/parameter_events"], "topics never recorded"))
         period = float(declare(self, "discovery_period", 0.2, "topic discovery period [s]"))
         compression = declare(self, "compression", "zstd", "chunk compression: zstd, lz4 or none")
-        chunk_size = declare(self, "chunk_size", 256 * 1024, "bytes of messages per chunk (1024 .. 67108864): "
-                             "a chunk reaches the file when full, a SIGKILL loses only the open one")
-        if not 1024 <= chunk_size <= 64 * 1024 * 1024:
-            raise ConfigurationError(f"parameter 'chunk_size' must be in 1024 .. 67108864 bytes, not {chunk_size}")
+        chunk_size = declare(self, "chunk_size", 256 * 1024, "bytes of messages per chunk: a chunk reaches the "
+                             "file when full, a SIGKILL loses only the open one", limits=(1024, 64 * 1024 * 1024))
         self.writer = BagWriter(self.output, chunk_size=chunk_size, compression=compression)
         self.subs = {}
         self._discover()

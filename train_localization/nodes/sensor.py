@@ -82,13 +82,11 @@ class SensorNode(ManagedNode):
                 default = float(default)
             if isinstance(p.default, list) and not default:
                 continue  # empty lists have no ROS parameter type; keep the default
-            overrides[name] = declare(self, name, default, p.description, read_only=True)
+            overrides[name] = declare(self, name, default, p.description, read_only=True, limits=p.limits)
         self.future_tolerance = declare(
             self, "future_tolerance", FUTURE_TOLERANCE, "ingest: a raw block whose last sample is stamped further ahead of "
             "the node clock than this [s] is refused (future): one block stamped far ahead would become "
-            "the reference of the next ones", read_only=True)
-        if not self.future_tolerance > 0.0:
-            raise ConfigurationError(f"parameter 'future_tolerance' must be > 0 s, not {self.future_tolerance}")
+            "the reference of the next ones", read_only=True, limits=(1.0e-3, 3600.0))
         unit = overrides.get("unit_id") or self.spec.sensor
         rng = scenario.rng(self.spec.node, unit) if scenario else None
         if mode == "sim" and rng is None:

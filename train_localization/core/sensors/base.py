@@ -36,14 +36,16 @@ from ..track import Track
 class Param:
     default: Any
     description: str
+    limits: tuple | None = None     # inclusive (lo, hi) of a number: the node refuses a value beyond
 
 
 COMMON_PARAMS = {
     "unit_id": Param("", "device instance name; empty = the sensor name"),
-    "sample_rate": Param(0.0, "raw sample rate [Hz]; 0 = the sensor's default"),
-    "block_duration": Param(0.05, "length of one raw block [s] (DESIGN.md section 4)"),
-    "max_block_duration": Param(1.0, "longest raw block decoded [s], block_duration .. 60; a longer one is "
-                                     "refused (too_large): it bounds the decoding time and memory per block"),
+    "sample_rate": Param(0.0, "raw sample rate [Hz]; 0 = the sensor's default", (0.0, 1.0e8)),
+    "block_duration": Param(0.05, "length of one raw block [s] (DESIGN.md section 4)", (1.0e-3, 10.0)),
+    "max_block_duration": Param(1.0, "longest raw block decoded [s], at least block_duration; a longer one is "
+                                     "refused (too_large): it bounds the decoding time and memory per block",
+                                (1.0e-3, 60.0)),
 }
 
 

@@ -373,9 +373,12 @@ def test_run_time_parameter_changes_take_effect_or_are_refused_with_a_reason(ros
 
 
 def test_fusion_parameters_out_of_range_stop_the_node_in_one_line(start_node):
-    """A probability outside (0, 1) or a negative tuning value names the parameter."""
-    for arg, expected in (("gate_probability:=2.0", "gate_probability must be in (0, 1)"),
-                          ("slip_window:=-1.0", "slip_window must be >= 0"),
+    """A tuning value beyond its limits (in the parameter's descriptor: rclpy refuses it, or for
+    an integer given to a double, the node) names the parameter."""
+    for arg, expected in (("gate_probability:=2.0", "gate_probability out of range"),
+                          ("slip_window:=-1.0", "slip_window out of range"),
+                          ("slip_window:=100", "parameter 'slip_window' must be in 0.05 .. 30, not 100.0"),
+                          ("consistency_fixes:=1", "consistency_fixes out of range"),
                           ("publish_rate:=0", "publish_rate' must be in (0, 1000]")):
         proc = start_node("fusion", "--ros-args", *NS, "-p", arg, "-p", "sensors:=[axle_counter]")
         assert proc.proc.wait(timeout=30) == 2, proc.output()

@@ -109,7 +109,7 @@ def declare_fusion_config(node: Node, base: FusionConfig, track_id: str) -> Fusi
             continue
         default = getattr(base, f.name)
         values[f.name] = _from_ros(default, declare(node, f.name, _ros_value(default), f.metadata.get("doc", ""),
-                                                    read_only=True))
+                                                    read_only=True, limits=f.metadata.get("limits")))
     overrides: dict = {}
     try:
         for sensor, own in base.sensors.items():

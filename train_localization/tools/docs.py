@@ -57,7 +57,9 @@ def fusion_params_markdown() -> str:
         if f.name == "track_id":
             continue
         value = getattr(base, f.name)
-        lines.append(f"| `{f.name}` | {_value(value)} | {f.metadata.get('doc', '').replace('|', '/')} |")
+        limits = f.metadata.get("limits")
+        doc = f.metadata.get("doc", "") + (f" [{limits[0]:g} .. {limits[1]:g}]" if limits else "")
+        lines.append(f"| `{f.name}` | {_value(value)} | {doc.replace('|', '/')} |")
     names = ", ".join(f"`{f.name}`" for f in fields(ErrorModel) if f.name not in ("sensor", "measures"))
     lines += ["", "Per configured sensor, the fields of its own error model (core/sensors/base.py "
               f"`ErrorModel`) are nested parameters `<sensor>.<field>`: {names} (`faults` as a comma-separated "

@@ -14,10 +14,14 @@ from ..sensors import NODE_NAMES, spec as sensor_spec
 from ..sensors.base import ErrorModel, sensor_params
 
 
-def _doc(default, text: str, factory: bool = False):
+def _doc(default, text: str, factory: bool = False, limits: tuple | None = None):
+    """A field with its description and, for a number, its inclusive (lo, hi) limits."""
     if factory:
         return field(default_factory=default, metadata={"doc": text})
-    return field(default=default, metadata={"doc": text})
+    return field(default=default, metadata={"doc": text, "limits": limits})
+
+
+PROBABILITY = (1.0e-9, 1.0 - 1.0e-9)
 
 
 def sensor_models(sensors: dict[str, dict] | list[str], track, vehicle) -> dict[str, ErrorModel]:
@@ -51,51 +55,44 @@ class FusionConfig:
     overrides: dict = _doc(dict, "sensor class -> {error-model field: value}: replaces what the sensor's "
                                  "own model says (core/sensors/base.py ErrorModel)", True)
     jerk_psd: float = _doc(0.1, "white-jerk spectral density of the motion model [m^2/s^5] (jerk-limited "
-                                "profiles, 0.5 m/s^3)")
-    scale_psd: float = _doc(1e-9, "random-walk spectral density of the constant scale states [1/s]")
-    bias_psd: float = _doc(0.0, "random-walk spectral density of the bias states [m^2/s^3]")
-    initial_speed_stddev: float = _doc(100.0, "prior 1-sigma of the speed [m/s] (unknown at start-up)")
-    initial_accel_stddev: float = _doc(1.0, "prior 1-sigma of the acceleration [m/s^2]")
+                                "profiles, 0.5 m/s^3)", limits=(0.0, 100.0))
+    scale_psd: float = _doc(1e-9, "random-walk spectral density of the constant scale states [1/s]", limits=(0.0, 1.0e-3))
+    bias_psd: float = _doc(0.0, "random-walk spectral density of the bias states [m^2/s^3]", limits=(0.0, 1.0))
+    initial_speed_stddev: float = _doc(100.0, "prior 1-sigma of the speed [m/s] (unknown at start-up)", limits=(0.01, 1000.0))
+    initial_accel_stddev: float = _doc(1.0, "prior 1-sigma of the acceleration [m/s^2]", limits=(0.01, 10.0))
     gate_probability: float = _doc(0.9999, "chi-square gate (1 dof) of every measurement (a sensor's error "
-                                           "model may set its own)")
+                                           "model may set its own)", limits=PROBABILITY)
     slip_gate_probability: float = _doc(0.999, "chi-square quantile above which a slip sensor's increment, or "
                                                "its disagreement accumulated over slip_window, starts or "
-                                               "extends a slip/slide episode")
+                                               "extends a slip/slide episode", limits=PROBABILITY)
     slip_window: float = _doc(1.0, "window of the accumulated slip test [s]: a slip too small to show in one "
                                    "increment (low speed, slow onset) shows in the sum; the increments of the "
-                                   "window are then excluded retroactively")
+                                   "window are then excluded retroactively", limits=(0.05, 30.0))
     slip_min_drive: float = _doc(0.2, "|acceleration| [m/s^2] below which a wheel transmits too little "
                                       "traction or braking force to slip or slide (running resistance): a "
-                                      "disagreement then is as likely the other speed sources' fault")
-    slip_holdoff: float = _doc(0.5, "a slip sensor stays excluded this long after its last disagreement [s]")
+                                      "disagreement then is as likely the other speed sources' fault", limits=(0.0, 5.0))
+    slip_holdoff: float = _doc(0.5, "a slip sensor stays excluded this long after its last disagreement [s]", limits=(0.0, 30.0))
     slip_reference_timeout: float = _doc(1.0, "a disagreement is taken as a slip or slide (not as ambiguous) "
-                                              "only if another speed source was accepted within this time [s]")
+                                              "only if another speed source was accepted within this time [s]", limits=(0.0, 30.0))
     plausible_sigmas: float = _doc(4.0, "an error state (scale, bias) estimated beyond this many of its prior "
                                         "1-sigma is implausible: the filter absorbed a fault; the relative "
-                                        "sensors' error states are re-learnt and the interval widened")
+                                        "sensors' error states are re-learnt and the interval widened", limits=(1.0, 100.0))
     consistency_fixes: int = _doc(5, "number of recent accepted absolute fixes whose mean NIS is monitored "
-                                     "(fixes of sensors without a fix-bias state: independent references)")
+                                     "(fixes of sensors without a fix-bias state: independent references)", limits=(2, 100))
     consistency_probability: float = _doc(0.99, "chi-square quantile of that mean NIS above which the filter "
                                                 "is inconsistent: its covariance is scaled by the mean NIS "
-                                                "and the mode is DEGRADED until a fix agrees again")
+                                                "and the mode is DEGRADED until a fix agrees again", limits=PROBABILITY)
     branch_timeout: float = _doc(120.0, "longest time an unexplained (gated) fix is kept as an alternative "
-                                        "hypothesis [s]")
-    history: float = _doc(2.0, "how late a measurement may be [s]")
-    confidence: float = _doc(0.999, "probability of [position_min, position_max]")
-    lost_stddev: float = _doc(100.0, "position 1-sigma above which the mode is LOST [m]")
+                                        "hypothesis [s]", limits=(0.0, 3600.0))
+    history: float = _doc(2.0, "how late a measurement may be [s]", limits=(0.01, 60.0))
+    confidence: float = _doc(0.999, "probability of [position_min, position_max]", limits=(0.5, 1.0 - 1.0e-9))
+    lost_stddev: float = _doc(100.0, "position 1-sigma above which the mode is LOST [m]", limits=(0.01, 1.0e6))
 
     def __post_init__(self):
         for f in self.tuning_fields():
-            value = getattr(self, f.name)
-            if f.name.endswith("probability") or f.name == "confidence":
-                if not 0.0 < value < 1.0:
-                    raise ValueError(f"{f.name} must be in (0, 1), not {value}")
-            elif isinstance(value, (int, float)) and not isinstance(value, bool) and not value >= 0.0:
-                raise ValueError(f"{f.name} must be >= 0, not {value}")
-        if self.history <= 0.0:
-            raise ValueError("history must be > 0 s")
-        if self.consistency_fixes < 2:
-            raise ValueError("consistency_fixes must be >= 2")
+            value, limits = getattr(self, f.name), f.metadata.get("limits")
+            if limits is not None and not limits[0] <= value <= limits[1]:
+                raise ValueError(f"{f.name} must be in {limits[0]:g} .. {limits[1]:g}, not {value}")
         models = dict(self.sensors)
         for name, values in (self.overrides or {}).items():
             if name not in models:

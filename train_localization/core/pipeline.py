@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from .measurements import Measurement
 from .scenario import Scenario, TruthBuffer, TruthState, Vehicle
 from .sensors import spec as sensor_spec
-from .sensors.base import SensorSpec, sensor_params
+from .sensors.base import COMMON_PARAMS, SensorSpec, sensor_params
 from .signals import BlockSequenceGuard, InputRejected, RawBlock
 from .track import Track
 
@@ -34,10 +34,10 @@ class SensorPipeline:
         self.track = track
         self.decoder = spec.decoder(self.params, track)
         self.sample_rate = float(self.params["sample_rate"] or spec.simulator.default_sample_rate)
-        longest = float(self.params["max_block_duration"])
-        if not float(self.params["block_duration"]) <= longest <= 60.0:
+        longest, most = float(self.params["max_block_duration"]), COMMON_PARAMS["max_block_duration"].limits[1]
+        if not float(self.params["block_duration"]) <= longest <= most:
             raise ValueError(f"{spec.node}: max_block_duration {longest} s must lie in block_duration "
-                             f"({self.params['block_duration']} s) .. 60 s")
+                             f"({self.params['block_duration']} s) .. {most:g} s")
         self.max_block_samples = math.ceil(longest * self.sample_rate)
         self.simulator = spec.simulator(self.params, track, vehicle, rng) if simulate else None
         self.truth = TruthBuffer()

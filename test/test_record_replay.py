@@ -10,6 +10,42 @@ from train_localization.core.bagio import read_bag, topic_counts
 from train_localization.core import convert
 
 
+RAW_DOPPLER = "/train/sensors/doppler/raw"
+
+
+def _short_scenario(sensors: dict):
+    """12 s of the demo line at 20 m/s from 100 m, with ``sensors`` (node name -> parameters)."""
+    from train_localization.core.scenario import Scenario
+    data = yaml.safe_load((ROOT / "config" / "scenario_demo.yaml").read_text())
+    data.update(duration=12.0, sensors=sensors, initial={"position": 100.0, "speed": 20.0})
+    data["track"] = str(ROOT / "config" / "track_conventional.yaml")
+    return Scenario.from_dict(data)
+
+
+def _replay_into_doppler_node(ros_context, start_node, bag, n_expected: int, probe: str):
+    """Play a bag's Doppler raw topic (replayer at 4x, /clock from the bag) into a Doppler node
+    in ingest mode; (the speeds it published, the replayer process) once the replayer has
+    ended by itself."""
+    from train_localization_msgs.msg import SpeedMeasurement
+    from train_localization.nodes.common import STREAM_QOS
+    node_proc = start_node("doppler_radar", "--ros-args", "-r", "__ns:=/train", "-p", "mode:=ingest",
+                           "-p", "use_sim_time:=true")
+    node = ros_context.create_node(probe, namespace="/train")
+    got = []
+    node.create_subscription(SpeedMeasurement, "sensors/doppler/speed", got.append, STREAM_QOS)
+    try:
+        assert spin_until(node, lambda: node.count_publishers("sensors/doppler/speed") > 0
+                          and node.count_subscribers("sensors/doppler/raw") > 0, 30.0), node_proc.output()
+        replay = start_node("replayer", "--ros-args", "-p", f"bag:={bag}", "-p", "rate:=4.0",
+                            "-p", f"topics:=[{RAW_DOPPLER}]", "-p", "wait_for_subscribers:=1")
+        assert spin_until(node, lambda: len(got) >= n_expected or replay.proc.poll() is not None, 60.0)
+        spin_until(node, lambda: len(got) >= n_expected, 5.0)
+        assert replay.proc.wait(timeout=30) == 0, replay.output()
+    finally:
+        node.destroy_node()
+    return got, replay
+
+
 def test_recorder_interrupted_by_sigint_keeps_every_message(ros_context, start_node, tmp_path):
     from std_msgs.msg import String
     from sensor_msgs.msg import Imu
@@ -50,32 +86,9 @@ def test_recorder_interrupted_by_sigint_keeps_every_message(ros_context, start_n
 
 def test_replayer_drives_an_ingest_node_to_the_recorded_measurements(ros_context, start_node, tmp_path):
     from train_localization.core.offline import simulate_scenario
-    from train_localization.core.scenario import Scenario
-    from train_localization_msgs.msg import SpeedMeasurement
-    from train_localization.nodes.common import STREAM_QOS
-    data = yaml.safe_load((ROOT / "config" / "scenario_demo.yaml").read_text())
-    data.update(duration=12.0, sensors={"doppler_radar": {}}, initial={"position": 100.0, "speed": 20.0})
-    data["track"] = str(ROOT / "config" / "track_conventional.yaml")
-    scenario = Scenario.from_dict(data)
     bag = tmp_path / "doppler.mcap"
-    result = simulate_scenario(scenario, bag)
-    expected = [m for m in result.measurements]
-    # the raw topic is played under another name and remapped back
-    node_proc = start_node("doppler_radar", "--ros-args", "-r", "__ns:=/train", "-p", "mode:=ingest",
-                           "-p", "use_sim_time:=true")
-    node = ros_context.create_node("probe_replay", namespace="/train")
-    got = []
-    node.create_subscription(SpeedMeasurement, "sensors/doppler/speed", got.append, STREAM_QOS)
-    try:
-        assert spin_until(node, lambda: node.count_publishers("sensors/doppler/speed") > 0
-                          and node.count_subscribers("sensors/doppler/raw") > 0, 30.0), node_proc.output()
-        replay = start_node("replayer", "--ros-args", "-p", f"bag:={bag}", "-p", "rate:=4.0",
-                            "-p", "topics:=[/train/sensors/doppler/raw]", "-p", "wait_for_subscribers:=1")
-        assert spin_until(node, lambda: len(got) >= len(expected) or replay.proc.poll() is not None, 60.0)
-        spin_until(node, lambda: len(got) >= len(expected), 5.0)
-        assert replay.proc.wait(timeout=30) == 0, replay.output()
-    finally:
-        node.destroy_node()
+    expected = list(simulate_scenario(_short_scenario({"doppler_radar": {}}), bag).measurements)
+    got, _ = _replay_into_doppler_node(ros_context, start_node, bag, len(expected), "probe_replay")
     assert len(got) == len(expected)
     assert [convert.speed_from_msg(m) for m in got] == expected
 
@@ -121,18 +134,12 @@ def test_the_replayer_plays_a_truncated_bag_up_to_its_last_complete_chunk(ros_co
     from train_localization.core.bagio import BagReader, BagWriter, recover_bag
     from train_localization.core.offline import simulate_scenario
     from train_localization.core.pipeline import SensorPipeline
-    from train_localization.core.scenario import Scenario
     from train_localization.core.sensors import spec
-    from train_localization_msgs.msg import SpeedMeasurement
-    from train_localization.nodes.common import STREAM_QOS
-    data = yaml.safe_load((ROOT / "config" / "scenario_demo.yaml").read_text())
-    data.update(duration=12.0, sensors={"doppler_radar": {}}, initial={"position": 100.0, "speed": 20.0})
-    data["track"] = str(ROOT / "config" / "track_conventional.yaml")
-    scenario = Scenario.from_dict(data)
+    scenario = _short_scenario({"doppler_radar": {}})
     whole = tmp_path / "whole.mcap"
     simulate_scenario(scenario, whole)
     small_chunks = tmp_path / "chunked.mcap"      # chunks of 4 kB: a cut leaves complete ones
-    raw_topic = "/train/sensors/doppler/raw"
+    raw_topic = RAW_DOPPLER
     with BagReader(whole) as reader, BagWriter(small_chunks, chunk_size=4096) as w:
         for topic, typename, t_ns, cdr in reader.cdr([raw_topic, "/clock"]):
             w.write_cdr(topic, typename, cdr, t_ns)
@@ -148,21 +155,7 @@ def test_the_replayer_plays_a_truncated_bag_up_to_its_last_complete_chunk(ros_co
     with BagReader(recovered) as reader:
         for _, typename, _, cdr in reader.cdr([raw_topic]):
             expected.extend(pipe.on_block(convert.raw_block_from_msg(reader.deserialize(cdr, typename))))
-    node_proc = start_node("doppler_radar", "--ros-args", "-r", "__ns:=/train", "-p", "mode:=ingest",
-                           "-p", "use_sim_time:=true")
-    node = ros_context.create_node("probe_replay_cut", namespace="/train")
-    got = []
-    node.create_subscription(SpeedMeasurement, "sensors/doppler/speed", got.append, STREAM_QOS)
-    try:
-        assert spin_until(node, lambda: node.count_publishers("sensors/doppler/speed") > 0
-                          and node.count_subscribers("sensors/doppler/raw") > 0, 30.0), node_proc.output()
-        replay = start_node("replayer", "--ros-args", "-p", f"bag:={cut}", "-p", "rate:=4.0",
-                            "-p", f"topics:=[{raw_topic}]", "-p", "wait_for_subscribers:=1")
-        assert spin_until(node, lambda: len(got) >= len(expected) or replay.proc.poll() is not None, 60.0)
-        spin_until(node, lambda: len(got) >= len(expected), 5.0)
-        assert replay.proc.wait(timeout=30) == 0, replay.output()
-    finally:
-        node.destroy_node()
+    got, replay = _replay_into_doppler_node(ros_context, start_node, cut, len(expected), "probe_replay_cut")
     assert "truncated" in replay.output()
     assert [convert.speed_from_msg(m) for m in got] == expected
 
@@ -175,14 +168,9 @@ def test_the_replay_graph_fuses_a_recorded_bag_again_and_ends_with_the_replay(tm
     played and the fused state of the whole run, in the bag's time line."""
     from train_localization.core.bagio import topic_counts
     from train_localization.core.offline import FUSED_TOPIC, TRUTH_TOPIC, simulate_scenario
-    from train_localization.core.scenario import Scenario
     from train_localization.graph import replay_graph
     from train_localization.tools.demo import run_nodes
-    data = yaml.safe_load((ROOT / "config" / "scenario_demo.yaml").read_text())
-    data.update(duration=12.0, sensors={"doppler_radar": {}, "wheel_sensor": {}},
-                initial={"position": 100.0, "speed": 20.0})
-    data["track"] = str(ROOT / "config" / "track_conventional.yaml")
-    scenario = Scenario.from_dict(data)
+    scenario = _short_scenario({"doppler_radar": {}, "wheel_sensor": {}})
     bag, out = tmp_path / "recorded.mcap", tmp_path / "fused_again.mcap"
     simulate_scenario(scenario, bag)
     scenario_file = tmp_path / "scenario.yaml"

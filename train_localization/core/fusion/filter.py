@@ -40,17 +40,26 @@ information; the filter may say it does not know, never be confidently wrong):
               taken from the fixes and the relative error states are re-learnt.
   arbitration a wheel slips only under traction and slides only under braking: a slip
               sensor's disagreement of another kind (it turns slower while the train
-              accelerates, or any at a steady speed) may be the other speed sources' fault.
-              The filter still follows the majority view, but keeps the excluded sensor's
-              distance as the alternative (the interval covers it, DEGRADED) until an
-              absolute fix decides: if the fix agrees with the excluded sensor, the other
-              speed sources are suspended until they agree again, the position is taken
-              from the fix and the relative error states are re-learnt. An excluded or
-              suspended sensor is only judged to agree again while the filter's speed rests
-              on something else (another speed source, or fixes that give the speed better
-              than the sensor's own noise), never on the motion model alone. A fix that only
-              an excluded view explains overturns the filter only if a fix of another
-              reference agrees with it, unless its sensor has no outlier fault mode.
+              accelerates, or any at a steady speed), and any of the radar, may be the other
+              speed sources' fault. The filter still follows the majority view, but keeps the
+              excluded sensor's distance as the alternative (the interval covers it, DEGRADED)
+              and suspends the sensor: it is back only after agreeing for ``slip_window`` s
+              without being applied (one reading that slips through the gate while the
+              reference is quiet would be adopted at full weight). An absolute fix decides:
+              if it agrees with the excluded sensor, the other speed sources are suspended
+              until they agree again, the position is taken from the fix and the relative
+              error states are re-learnt; if the filter explains it and the view does not, or
+              far less well (likelihood ratio beyond the gate: a view wide with its own scale
+              error), the sensor was faulty; if both explain it, the view is conditioned on
+              the fix (it locates the train under either hypothesis) and, its sensor in use
+              again, merged. An excluded or suspended sensor is only judged to agree again
+              while the filter's speed rests on something else (another speed source, or fixes
+              that give the speed better than the sensor's own noise), never on the motion
+              model or a coasting alone; a suspended sensor's own scale and bias errors, no
+              longer learnt, count as common to its readings in that test. A fix that only an
+              excluded view explains overturns the filter only if a fix of another,
+              independent reference agrees with it (not one of the same sensor with a fix-bias
+              state: mm-wave fixes share stations), unless its sensor has no outlier fault mode.
   recalibration a fix of an independent reference whose innovation exceeds its expected
               size (NIS > 1) re-calibrates the speed and error states by more than the model
               expected: the covariance keeps that excess along the correction, so only the
@@ -349,7 +358,7 @@ class TrainFilter:
             # the filter, on its speed sources again, explains an absolute fix: it is confirmed,
             # and an old coasting's motion-model hypothesis (however vague) is no longer needed
             aux.motion_views = tuple(v for v in aux.motion_views if v[0] != "moved")
-        if cls in aux.suspended and self._suspended(m, z - hx, S, nis):
+        if cls in aux.suspended and self._suspended(m, z - hx, S, nis, self._common(cls, h)):
             return
         if cls in self.layout.episode_sensors and self._slipping(m, z - hx, S, nis):
             return
@@ -376,9 +385,15 @@ class TrainFilter:
             aux.speed_sources = aux.speed_sources | {cls}
         self._check_plausible()
 
+    def _measurement(self, m):
+        """(z, R, H row, h(x)) of a measurement at the current state (models.measurement), with
+        the time since its sensor's previous accepted fix (a fix's persistent error)."""
+        since = m.stamp - self.aux.last_accepted.get(m.sensor, -math.inf)
+        return measurement(self.layout, self.ekf.x, m, since)
+
     def _innovation(self, m):
         """(z, R, H row, h(x), P H, innovation variance S) of a measurement at the current state."""
-        z, R, h, hx = measurement(self.layout, self.ekf.x, m)
+        z, R, h, hx = self._measurement(m)
         PHt = self.ekf.P.dot(h)
         return z, R, h, hx, PHt, float(h.dot(PHt)) + R
 
@@ -387,10 +402,13 @@ class TrainFilter:
         """Slip/slide check of one increment; True if it is excluded."""
         aux, cfg, cls = self.aux, self.cfg, m.sensor
         alt = aux.relative_alternatives.get(cls)
-        # a view of its own, not accepted since, and nothing to show that it agrees again (its
-        # holdoff may have passed without a measurement: a dropout)
-        undecided = alt is not None and aux.last_accepted.get(cls, -math.inf) < alt[2] and \
-            not self._agreement_reference(m, S)
+        # excluded (a view of its own, or an episode) and not accepted since, and nothing to show
+        # that it agrees again: the filter's speed rests on the motion model or on a coasting
+        # between excluded sources (its holdoff may have passed without a measurement: a dropout)
+        accepted = aux.last_accepted.get(cls, -math.inf)
+        out = (alt is not None and accepted < alt[2]) or \
+            accepted < aux.slip_until.get(cls, -math.inf) - cfg.slip_holdoff
+        undecided = out and not self._agreement_reference(m, S)
         if aux.slip_until.get(cls, -math.inf) > m.stamp or undecided:
             # still slipping, or undecided
             if nis > self._slip_gate or undecided:
@@ -425,16 +443,31 @@ class TrainFilter:
         aux.slip_window = {**aux.slip_window, cls: window}
         return False
 
-    def _windowed(self, window: tuple, m, e: float, S: float) -> tuple[tuple, float]:
+    def _windowed(self, window: tuple, m, e: float, S: float, common: float = 0.0) -> tuple[tuple, float]:
         """The disagreement window of a relative sensor with this measurement added, and its
         test statistic: the innovations summed over ``slip_window`` s (as distances), squared,
-        over the sum of their variances (0 with fewer than 3)."""
+        over the variance of that sum (0 with fewer than 3). common [m^2/s^2]: for a suspended
+        sensor, whose error states are no longer learnt from its readings, the part of S from
+        them (scale, bias): the same error in every reading of the window, so its standard
+        deviations add up where the rest's variances do (its scale error is no disagreement
+        beyond its model). A sensor in use has those states learnt: its innovations are white."""
         d = getattr(m, "duration", 0.0) or 0.0
         weight = d if d > 0.0 else 1.0
         window = tuple(w for w in window if w[0] > m.stamp - self.cfg.slip_window)
-        window += ((m.stamp, e * weight, S * weight * weight),)
-        summed = sum(w[1] for w in window) ** 2 / sum(w[2] for w in window) if len(window) >= 3 else 0.0
-        return window, summed
+        window += ((m.stamp, e * weight, (S - common) * weight * weight, math.sqrt(common) * weight),)
+        if len(window) < 3:
+            return window, 0.0
+        var = sum(w[2] for w in window) + sum(w[3] for w in window) ** 2
+        return window, sum(w[1] for w in window) ** 2 / var
+
+    def _common(self, cls: str, h) -> float:
+        """The part [m^2/s^2] of a relative measurement's innovation variance that its sensor's
+        own error states (scale, offset, bias) contribute: h_k P_kk h_k over their indices."""
+        idx = self.layout.own_states.get(cls)
+        if idx is None:
+            return 0.0
+        hk = h[idx]
+        return max(float(hk.dot(self.ekf.P[np.ix_(idx, idx)]).dot(hk)), 0.0)
 
     def _episode_starts(self, m, e: float) -> None:
         """A fault episode of ``m.sensor`` starts with the disagreement e [m/s]. A wheel slips
@@ -456,6 +489,10 @@ class TrainFilter:
         if not physical and m.sensor not in aux.relative_alternatives:
             aux.relative_alternatives = {**aux.relative_alternatives, m.sensor: (0.0, 0.0, m.stamp, m.stamp, 0.0)}
             aux.events = _inc(aux.events, "ambiguous_slip")
+        if not physical and m.sensor not in aux.suspended:
+            # suspected faulty: back only after agreeing for slip_window s without being applied
+            # (one reading that slips through the gate would be adopted at full weight)
+            aux.suspended = {**aux.suspended, m.sensor: (math.inf, ())}
 
     def _separate(self, m, e: float, S: float) -> None:
         """While a sensor is excluded as the alternative, add up how far it ran ahead [m], the
@@ -489,11 +526,29 @@ class TrainFilter:
         for cls, alt in aux.relative_alternatives.items():
             D, var_D = self._alternative_spread(cls, alt)
             fits = (z - hx - D) ** 2 / (S + var_D)
-            if fits <= gate:
-                keep[cls] = alt                    # still explains the fix: undecided
+            # -2 ln of the fix's likelihood under the view against under the filter: a view wide
+            # with its own scale error still "fits" a precise fix that the filter explains far better
+            worse = fits + math.log((S + var_D) / S) - nis
+            if fits <= gate and not (nis <= gate and worse > gate):
+                # still explains the fix: undecided; where the filter takes the fix, the view takes
+                # it too (it locates the train under either hypothesis): its separation and spread
+                # conditioned on the fix, its scale error counted from here
                 fitting.append((fits, cls))
+                if nis > gate:
+                    keep[cls] = alt
+                    continue
+                view = self._view_conditioned(alt, D, var_D, z - hx, S, R)
+                if _speed_excluded(aux, cls, m.stamp):
+                    keep[cls] = view
+                else:
+                    # its sensor in use again and both located by the fix: merged (moment matching)
+                    P = self.ekf.P.copy()
+                    P[0, 0] += view[0] ** 2 + view[1]
+                    self.ekf.P = P
+                    aux.events = _inc(aux.events, "alternative_merged")
             elif nis <= gate or m.stamp - alt[2] > self.cfg.branch_timeout:
-                # the filter explains the fix and this excluded sensor's view does not: it was faulty
+                # the filter explains the fix and this excluded sensor's view does not (or far
+                # worse): it was faulty
                 aux.events = _inc(aux.events, "excluded_sensor_confirmed_faulty")
                 if cls not in self.layout.slip_sensors:   # a slip ends by itself; a faulty radar may not
                     aux.suspended = {**aux.suspended, cls: (math.inf, ())}
@@ -514,12 +569,25 @@ class TrainFilter:
                          **{s: (math.inf, ()) for s in aux.speed_sources if s != cls}}
         return True
 
-    def _suspended(self, m, e: float, S: float, nis: float) -> bool:
+    @staticmethod
+    def _view_conditioned(alt: tuple, D: float, var_D: float, nu: float, S: float, R: float) -> tuple:
+        """An excluded sensor's view (separation D [m], variance var_D [m^2]) after a fix of
+        innovation nu [m] and innovation variance S = A + R [m^2] that the filter applies: the
+        view's position, predicted with variance A + var_D, and the filter's are both updated
+        by the fix (scalar Kalman updates); the new separation and the difference of their
+        posterior variances."""
+        A = max(S - R, 0.0)
+        S_v = S + var_D
+        D_new = D + (A + var_D) / S_v * (nu - D) - A / S * nu
+        var_new = max(R * ((A + var_D) / S_v - A / S), 0.0)
+        return (D_new, var_new, alt[2], alt[3], 0.0)
+
+    def _suspended(self, m, e: float, S: float, nis: float, common: float) -> bool:
         """A speed source found faulty: excluded until it agrees again (neither its single nor
         its windowed disagreement test fires) for ``slip_window`` s."""
         aux = self.aux
         since, window = aux.suspended[m.sensor]
-        window, summed = self._windowed(window, m, e, S)
+        window, summed = self._windowed(window, m, e, S, common)
         if nis > self._slip_gate or summed > self._slip_gate or not self._agreement_reference(m, S):
             since = math.inf
         elif since == math.inf:
@@ -530,6 +598,7 @@ class TrainFilter:
             return False
         aux.suspended = {**aux.suspended, m.sensor: (since, window)}
         aux.gated = _inc(aux.gated, m.sensor + "/suspended")
+        self._separate(m, e, S)
         return True
 
     def _blind_speed(self, m, z: float, R: float) -> bool:
@@ -783,12 +852,15 @@ class TrainFilter:
         aux.events = _inc(aux.events, "unexplained_fix")
 
     def _corroborated(self, m, z: float, R: float) -> bool:
-        """An unexplained fix of another reference is kept and agrees with fix m (z, R)."""
+        """An unexplained fix of another, independent reference is kept and agrees with fix m
+        (z, R). Fixes of one sensor with a fix-bias state are not independent, whatever their
+        reference ids (mm-wave ranging: overlapping sets of stations, one NLOS or calibration
+        fault in all of them)."""
         alt = self.aux.alternative
         if alt is None or m.stamp - alt[0] > self.cfg.branch_timeout:
             return False
         t_a, z_a, R_a, s_a, P_a, cls_a, ref_a = alt
-        if m.reference_id == ref_a and m.sensor == cls_a:
+        if m.sensor == cls_a and (m.reference_id == ref_a or m.sensor in self.layout.fix):
             return False
         return self._agrees(m, z, R, float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0]), z_a, R_a, s_a, P_a)
 
@@ -811,7 +883,7 @@ class TrainFilter:
             aux.initialised = True
             aux.candidate = None
             return
-        z, R, _, _ = measurement(self.layout, self.ekf.x, m)
+        z, R, _, _ = self._measurement(m)
         x0, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
         cand = aux.candidate
         if cand is not None and m.stamp - cand[0] <= cfg.branch_timeout:
@@ -828,7 +900,7 @@ class TrainFilter:
     def _set_position(self, m) -> None:
         """Take the position from a fix alone (first fix, re-acquisition): s = z - e."""
         aux, cls = self.aux, m.sensor
-        z, R, _, _ = measurement(self.layout, self.ekf.x, m)
+        z, R, _, _ = self._measurement(m)
         x = self.ekf.x.copy()
         P = self.ekf.P.copy()
         P[0, :] = 0.0

@@ -68,6 +68,12 @@ class StateLayout:
                                         dtype=np.intp)
         self.scale_terms = [(name, i, self.offset.get(name)) for name, i in self.scale.items()]
         self.owner = {i: name for table in (self.scale, self.offset, self.bias, self.fix) for name, i in table.items()}
+        # a relative sensor's own error states (scale, offset, bias): indices
+        owned: dict[str, list] = {}
+        for table in (self.scale, self.offset, self.bias):
+            for name, i in table.items():
+                owned.setdefault(name, []).append(i)
+        self.own_states = {name: np.array(sorted(idx), dtype=np.intp) for name, idx in owned.items()}
 
     def prior_covariance(self, speed_sigma: float, accel_sigma: float) -> np.ndarray:
         P = np.diag(self.prior_sigma ** 2)

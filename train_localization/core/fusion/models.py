@@ -17,7 +17,10 @@ Measurement models
                      (under traction only on a driven axle).
 Honest noise: a decoder reports a measurement's 1-sigma including its slowly varying
 errors as if white; the parts the states carry (``reported_*`` of the error model) are
-removed from R (floored at 1 % of it); ``stddev_factor`` scales what is left.
+removed from R (floored at 1 % of it); ``stddev_factor`` scales what is left. A fix reported
+less certain than its model's ``fix_white_sigma`` (a decoder's protection level against an
+undetected fault) has the excess weighted as shared by the fixes within its correlation
+time (``fix_noise``).
 """
 from __future__ import annotations
 
@@ -81,23 +84,21 @@ class ProcessModel:
         return x, P
 
 
-def measurement(layout: StateLayout, x_col, m):
-    """(z, R, H row (1-D), h(x)) of a measurement at the state x (n, 1)."""
+def measurement(layout: StateLayout, x_col, m, since: float = math.inf):
+    """(z, R, H row (1-D), h(x)) of a measurement at the state x (n, 1); since: time [s]
+    since its sensor's previous fix (``fix_noise``)."""
     model = layout.models[m.sensor]
     x = x_col[:, 0].tolist()   # plain floats: the same doubles, without numpy scalars
     h = np.zeros(layout.n)
     cls = m.sensor
     if isinstance(m, PositionFix):
         h[0] = 1.0
-        R = m.position_stddev ** 2
         z, hx = m.position, x[0]
         f_idx = layout.fix.get(cls)
         if f_idx is not None:
             h[f_idx] = 1.0
             hx = hx + x[f_idx]
-            fixed = model.reported_fix_bias
-            if fixed > 0.0:
-                R = max(R - fixed * fixed, 0.01 * R)
+        R = fix_noise(layout, m, abs(x[1]), since)
     else:
         k_idx = layout.scale.get(cls)
         o_idx = layout.offset.get(cls)
@@ -133,6 +134,28 @@ def measurement(layout: StateLayout, x_col, m):
     if model.stddev_factor != 1.0:
         R *= model.stddev_factor ** 2
     return z, R, h, hx
+
+
+def fix_noise(layout: StateLayout, m, speed: float, since: float) -> float:
+    """Variance [m^2] of a position fix as white noise: its reported variance without the
+    fix-bias part the state carries (``reported_fix_bias``). What it reports beyond its
+    model's ``fix_white_sigma`` (a decoder's protection against an undetected fault) persists
+    as long as the fault's cause, the fix-bias correlation time at this speed [m/s]
+    (``fix_bias_tau``, ``fix_bias_length``): the fixes within it share one such error, so
+    each of them counts for the fraction ``since`` / that time of one fix (R of the excess
+    multiplied by the number of fixes that share it; since [s]: time since the sensor's
+    previous fix)."""
+    model = layout.models[m.sensor]
+    R = m.position_stddev ** 2
+    fixed = model.reported_fix_bias
+    if fixed > 0.0 and m.sensor in layout.fix:
+        R = max(R - fixed * fixed, 0.01 * R)
+    white = model.fix_white_sigma ** 2
+    if R <= white:
+        return R
+    rate = 1.0 / model.fix_bias_tau + speed / model.fix_bias_length
+    shared = 1.0 / (rate * since) if rate > 0.0 and since > 0.0 else 1.0
+    return white + (R - white) * max(shared, 1.0)
 
 
 def implied_speed(layout: StateLayout, x_col, P, m, z: float, R: float) -> tuple[float, float, float]:

@@ -108,6 +108,9 @@ class ErrorModel:
     fix_bias_length: float = math.inf    # its correlation length along the track [m]
     fix_bias_tau: float = math.inf       # its correlation time [s]
     fix_bias_per_reference: bool = False  # a new reference_id draws a new, independent fix bias
+    fix_white_sigma: float = math.inf    # largest white 1-sigma of one fix [m]; what a fix reports beyond
+                                         # it (the decoder's protection against an undetected fault)
+                                         # persists over the fix-bias correlation time: not averaged
     reported_scale: float = 0.0          # scale 1-sigma included in the reported stddev
     reported_bias: float = 0.0           # bias 1-sigma [m/s] included in the reported stddev
     reported_fix_bias: float = 0.0       # fix-bias 1-sigma [m] included in the reported stddev

@@ -1102,12 +1102,16 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
     small enough to pass the decoder's test (of the order of the ranging noise floor).
     One fix-bias state of hypot(cal_sigma, range_sigma_floor) carries them; it
     decorrelates as the stations in view change (the mean station spacing of the
-    track) and as NLOS episodes end (``nlos_duration``)."""
+    track) and as NLOS episodes end (``nlos_duration``). The white part of a fix is at most
+    the noise of one range at 20 dB SNR: what a fix reports beyond it is the protection
+    against an undetected fault (a biased range the test let pass), which lasts as long as
+    its cause: the fusion does not average it over the fixes within that time."""
     positions = sorted(float(it["position"]) for it in track.items(STATION_KIND)) if track is not None else []
     spacing = (positions[-1] - positions[0]) / (len(positions) - 1) if len(positions) > 1 else math.inf
     return ErrorModel("mmwave", "position", fix_bias_sigma=math.hypot(params["cal_sigma"],
                                                                       params["range_sigma_floor"]),
                       fix_bias_length=spacing, fix_bias_tau=params["nlos_duration"],
+                      fix_white_sigma=math.hypot(params["range_sigma_floor"], params["range_sigma_snr"]),
                       faults=("nlos", "outage"))
 
 

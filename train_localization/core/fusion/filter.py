@@ -421,10 +421,7 @@ class TrainFilter:
             # tracked as a view of its own, but merged into the position covariance (moment
             # matching of the two views, the filter's mean kept), so the interval still covers it
             aux.relative_alternatives = {k: v for k, v in aux.relative_alternatives.items() if k != cls}
-            P = self.ekf.P.copy()
-            P[0, 0] += alt[0] ** 2
-            self.ekf.P = P
-            aux.events = _inc(aux.events, "alternative_merged")
+            self._merge_view(alt[0] ** 2)
         window, summed = self._windowed(aux.slip_window.get(cls, ()), m, e, S)
         if nis > self._slip_gate or summed > self._slip_gate:
             aux.slip_window = {**aux.slip_window, cls: ()}
@@ -542,10 +539,7 @@ class TrainFilter:
                     keep[cls] = view
                 else:
                     # its sensor in use again and both located by the fix: merged (moment matching)
-                    P = self.ekf.P.copy()
-                    P[0, 0] += view[0] ** 2 + view[1]
-                    self.ekf.P = P
-                    aux.events = _inc(aux.events, "alternative_merged")
+                    self._merge_view(view[0] ** 2 + view[1])
             elif nis <= gate or m.stamp - alt[2] > self.cfg.branch_timeout:
                 # the filter explains the fix and this excluded sensor's view does not (or far
                 # worse): it was faulty
@@ -569,6 +563,15 @@ class TrainFilter:
                          **{s: (math.inf, ()) for s in aux.speed_sources if s != cls}}
         return True
 
+    def _merge_view(self, spread: float) -> None:
+        """An excluded sensor's view no longer tracked of its own: its squared separation (plus
+        its own variance) [m^2] added to the position variance, the filter's mean kept (moment
+        matching of the two views), so the interval still covers it."""
+        P = self.ekf.P.copy()
+        P[0, 0] += spread
+        self.ekf.P = P
+        self.aux.events = _inc(self.aux.events, "alternative_merged")
+
     @staticmethod
     def _view_conditioned(alt: tuple, D: float, var_D: float, nu: float, S: float, R: float) -> tuple:
         """An excluded sensor's view (separation D [m], variance var_D [m^2]) after a fix of
@@ -583,8 +586,9 @@ class TrainFilter:
         return (D_new, var_new, alt[2], alt[3], 0.0)
 
     def _suspended(self, m, e: float, S: float, nis: float, common: float) -> bool:
-        """A speed source found faulty: excluded until it agrees again (neither its single nor
-        its windowed disagreement test fires) for ``slip_window`` s."""
+        """A speed source found or suspected faulty: excluded until it agrees again (neither its
+        single nor its windowed disagreement test fires, with a reference to judge it by) for
+        ``slip_window`` s."""
         aux = self.aux
         since, window = aux.suspended[m.sensor]
         window, summed = self._windowed(window, m, e, S, common)

@@ -56,7 +56,9 @@ information; the filter may say it does not know, never be confidently wrong):
               while the filter's speed rests on something else (another speed source, or fixes
               that give the speed better than the sensor's own noise), never on the motion
               model or a coasting alone; a suspended sensor's own scale and bias errors, no
-              longer learnt, count as common to its readings in that test. A fix that only an
+              longer learnt, count as common to its readings in that test, and it agrees only
+              where the fault it was suspended for would stand out of its noise (a radar scale
+              fault agrees at standstill). A fix that only an
               excluded view explains overturns the filter only if a fix of another,
               independent reference agrees with it (not one of the same sensor with a fix-bias
               state: mm-wave fixes share stations), unless its sensor has no outlier fault mode.
@@ -180,7 +182,9 @@ class _Aux:
         self.relative_alternatives: dict[str, tuple] = {}
         self.candidate: tuple | None = None             # first fix awaiting confirmation
         self.used_refs: tuple = ()                     # (sensor, reference) of the last accepted fixes
-        self.suspended: dict[str, tuple] = {}          # speed sources found faulty -> (agreeing since [s], window)
+        # speed sources found faulty -> (agreeing since [s], window, fault seen: (disagreement [m/s],
+        # at speed [m/s]) or None)
+        self.suspended: dict[str, tuple] = {}
         # while no speed source is accepted: each excluded one's last reading -> (stamp [s], speed
         # [m/s], white and common variance [m^2/s^2]), and the run of agreement
         # of a pair: ((sensor, sensor), first and last stamp [s], readings, sum of differences, of white variances)
@@ -238,9 +242,9 @@ def _inc(counter: dict, key: str) -> dict:
 class _Lookback(Exception):
     """Raised inside an update: exclude ``sensor``'s measurements from ``since`` and re-apply."""
 
-    def __init__(self, sensor: str, since: float):
+    def __init__(self, sensor: str, since: float, shown: float):
         super().__init__(sensor)
-        self.sensor, self.since = sensor, since
+        self.sensor, self.since, self.shown = sensor, since, shown
 
 
 class TrainFilter:
@@ -430,9 +434,11 @@ class TrainFilter:
             k = len(window) - 1
             while k > 0 and (window[k - 1][1] > 0.0) == (e > 0.0):
                 k -= 1
+            # the disagreement that showed: this one, or the window's mean
+            shown = e if nis > self._slip_gate else sum(w[1] for w in window) / sum(w[4] for w in window)
             if k < len(window) - 1:
-                raise _Lookback(cls, window[k][0])
-            self._episode_starts(m, e)
+                raise _Lookback(cls, window[k][0], shown)
+            self._episode_starts(m, e, shown)
             aux.slip_until = {**aux.slip_until, cls: m.stamp + cfg.slip_holdoff}
             aux.gated = _inc(aux.gated, cls + "/slip")
             self._separate(m, e, S)
@@ -447,11 +453,15 @@ class TrainFilter:
         sensor, whose error states are no longer learnt from its readings, the part of S from
         them (scale, bias): the same error in every reading of the window, so its standard
         deviations add up where the rest's variances do (its scale error is no disagreement
-        beyond its model). A sensor in use has those states learnt: its innovations are white."""
+        beyond its model). A sensor in use has those states learnt: its innovations are white.
+        Entries: (stamp [s], e d [m], white variance [m^2], common stddev [m], d [s], speed [m/s]),
+        d the increment's duration (1 for a speed)."""
         d = getattr(m, "duration", 0.0) or 0.0
         weight = d if d > 0.0 else 1.0
         window = tuple(w for w in window if w[0] > m.stamp - self.cfg.slip_window)
-        window += ((m.stamp, e * weight, (S - common) * weight * weight, math.sqrt(common) * weight),)
+        speed = abs(float(self.ekf.x[1, 0]))
+        window += ((m.stamp, e * weight, (S - common) * weight * weight, math.sqrt(common) * weight,
+                    weight, speed),)
         if len(window) < 3:
             return window, 0.0
         var = sum(w[2] for w in window) + sum(w[3] for w in window) ** 2
@@ -466,8 +476,9 @@ class TrainFilter:
         hk = h[idx]
         return max(float(hk.dot(self.ekf.P[np.ix_(idx, idx)]).dot(hk)), 0.0)
 
-    def _episode_starts(self, m, e: float) -> None:
-        """A fault episode of ``m.sensor`` starts with the disagreement e [m/s]. A wheel slips
+    def _episode_starts(self, m, e: float, shown: float | None = None) -> None:
+        """A fault episode of ``m.sensor`` starts with the disagreement e [m/s] (``shown``: the
+        disagreement the test saw, e or its mean over the window). A wheel slips
         only under traction (it turns faster) and slides only under braking (slower); a
         disagreement of another kind, or of a sensor without slip physics (the radar), may
         be the other speed sources' fault: then the sensor's own view is kept as the
@@ -489,7 +500,7 @@ class TrainFilter:
         if not physical and m.sensor not in aux.suspended:
             # suspected faulty: back only after agreeing for slip_window s without being applied
             # (one reading that slips through the gate would be adopted at full weight)
-            aux.suspended = {**aux.suspended, m.sensor: (math.inf, ())}
+            self._suspend(m.sensor, (e if shown is None else shown, v))
 
     def _separate(self, m, e: float, S: float) -> None:
         """While a sensor is excluded as the alternative, add up how far it ran ahead [m], the
@@ -545,7 +556,7 @@ class TrainFilter:
                 # worse): it was faulty
                 aux.events = _inc(aux.events, "excluded_sensor_confirmed_faulty")
                 if cls not in self.layout.slip_sensors:   # a slip ends by itself; a faulty radar may not
-                    aux.suspended = {**aux.suspended, cls: (math.inf, ())}
+                    self._suspend(cls, self._view_fault(alt, m.stamp))
             else:
                 keep[cls] = alt
         aux.relative_alternatives = keep
@@ -555,12 +566,15 @@ class TrainFilter:
             return False
         # an excluded sensor was right: the other speed sources are faulty
         cls = min(fitting)[1]
+        fault = self._view_fault(aux.relative_alternatives[cls], m.stamp)
+        fault = None if fault is None else (-fault[0], fault[1])   # the others ran behind it
         self._set_position(m)
         self._relearn("speed_source_faulty")
         aux.relative_alternatives = {}
         aux.slip_until = {**aux.slip_until, cls: m.stamp}
-        aux.suspended = {**{k: v for k, v in aux.suspended.items() if k != cls},
-                         **{s: (math.inf, ()) for s in aux.speed_sources if s != cls}}
+        aux.suspended = {k: v for k, v in aux.suspended.items() if k != cls}
+        for other in aux.speed_sources - {cls}:
+            self._suspend(other, fault)
         return True
 
     def _merge_view(self, spread: float) -> None:
@@ -585,25 +599,51 @@ class TrainFilter:
         var_new = max(R * ((A + var_D) / S_v - A / S), 0.0)
         return (D_new, var_new, alt[2], alt[3], 0.0)
 
+    def _suspend(self, cls: str, fault: tuple | None) -> None:
+        """Suspend speed source ``cls`` for the fault seen: (disagreement [m/s], at speed [m/s]),
+        or None if its size is not known."""
+        self.aux.suspended = {**self.aux.suspended, cls: (math.inf, (), fault)}
+
+    @staticmethod
+    def _view_fault(alt: tuple, stamp: float) -> tuple | None:
+        """The fault an excluded sensor's view shows: its mean disagreement [m/s] at the mean
+        speed [m/s] since the view began."""
+        D, _, since, _, run = alt
+        dt = stamp - since
+        return (D / dt, run / dt) if dt > 0.0 else None
+
     def _suspended(self, m, e: float, S: float, nis: float, common: float) -> bool:
         """A speed source found or suspected faulty: excluded until it agrees again (neither its
         single nor its windowed disagreement test fires, with a reference to judge it by) for
-        ``slip_window`` s."""
+        ``slip_window`` s, in a window where the fault seen would have shown (``_would_show``)."""
         aux = self.aux
-        since, window = aux.suspended[m.sensor]
+        since, window, fault = aux.suspended[m.sensor]
         window, summed = self._windowed(window, m, e, S, common)
         if nis > self._slip_gate or summed > self._slip_gate or not self._agreement_reference(m, S):
             since = math.inf
         elif since == math.inf:
             since = m.stamp
-        if since != math.inf and m.stamp - since >= self.cfg.slip_window:
+        if since != math.inf and m.stamp - since >= self.cfg.slip_window and self._would_show(fault, window):
             aux.suspended = {k: v for k, v in aux.suspended.items() if k != m.sensor}
             aux.events = _inc(aux.events, "speed_source_restored")
             return False
-        aux.suspended = {**aux.suspended, m.sensor: (since, window)}
+        aux.suspended = {**aux.suspended, m.sensor: (since, window, fault)}
         aux.gated = _inc(aux.gated, m.sensor + "/suspended")
         self._separate(m, e, S)
         return True
+
+    def _would_show(self, fault: tuple | None, window: tuple) -> bool:
+        """Whether the fault a sensor was suspended for, had it persisted, would stand out of the
+        readings' white noise over ``window`` (noncentrality of the summed disagreement at least
+        the slip gate, as when it was seen in use): agreement proves nothing where the fault
+        cannot show. The fault seen, e0 at speed v0, may be a scale error (e0 v / v0) or a bias
+        (e0); the smaller of the two at each reading's speed v counts. A radar reading 6 % low
+        agrees at standstill."""
+        if fault is None or len(window) < 3:
+            return fault is None
+        e0, v0 = abs(fault[0]), abs(fault[1])
+        shown = sum(w[4] * e0 * (min(1.0, w[5] / v0) if v0 > 0.0 else 1.0) for w in window)
+        return shown * shown >= self._slip_gate * sum(w[2] for w in window)
 
     def _blind_speed(self, m, z: float, R: float) -> bool:
         """Every speed source excluded (slip episodes, suspensions) and the filter's speed resting
@@ -708,14 +748,15 @@ class TrainFilter:
         aux.events = _inc(aux.events, "speed_reacquired")
         aux.unverified = "speed_reacquired"
 
-    def _excluded(self, m) -> None:
-        """Apply a measurement that a fault check excluded after the fact (a slip's onset)."""
+    def _excluded(self, m, shown: float) -> None:
+        """Apply a measurement that a fault check excluded after the fact (a slip's onset), the
+        check having seen a disagreement of ``shown`` [m/s]."""
         aux = self.aux = self.aux.copy()
         self._predict_to(m.stamp)
         cls = m.sensor
         z, R, h, hx, _, S = self._innovation(m)
         if not aux.slip_until.get(cls, -math.inf) > m.stamp:
-            self._episode_starts(m, z - hx)
+            self._episode_starts(m, z - hx, shown)
             aux.events = _inc(aux.events, "slip_lookback")
         self._separate(m, z - hx, S)
         aux.slip_until = {**aux.slip_until, cls: m.stamp + self.cfg.slip_holdoff}
@@ -756,12 +797,21 @@ class TrainFilter:
         if not bad.any():
             return
         owners = {self.layout.owner[i] for i in idx[bad]}
+        x_before = self.ekf.x
         self._relearn("implausible_error_state")
         if len(owners) == 1:
             (cls,) = owners
-            aux = self.aux
-            aux.suspended = {**aux.suspended, cls: (math.inf, ())}
-            aux.events = _inc(aux.events, "implausible_sensor_suspended")
+            self._suspend(cls, self._state_fault(cls, x_before))
+            self.aux.events = _inc(self.aux.events, "implausible_sensor_suspended")
+
+    def _state_fault(self, cls: str, x) -> tuple:
+        """The fault that relative sensor ``cls``'s error states in x had absorbed: (its scale and
+        bias error at the speed, [m/s]; the speed [m/s])."""
+        lay, v = self.layout, float(x[1, 0])
+        k = sum(float(x[i, 0]) + (float(x[o, 0]) if o is not None else 0.0)
+                for name, i, o in lay.scale_terms if name == cls)
+        b = float(x[lay.bias[cls], 0]) if cls in lay.bias else 0.0
+        return k * v + (b if v >= 0.0 else -b), v
 
     def _relearn(self, reason: str) -> None:
         """Error states of the relative sensors back to their priors; the position and speed
@@ -970,7 +1020,7 @@ class TrainFilter:
             m = hist.meas[j]
             try:
                 if hist.keys[j] in hist.excluded:
-                    self._excluded(m)
+                    self._excluded(m, hist.excluded[hist.keys[j]][1])
                 else:
                     self._apply(m)
             except _Lookback as back:
@@ -978,7 +1028,7 @@ class TrainFilter:
                 while i > 0 and hist.stamps[i - 1] >= back.since:
                     i -= 1
                 hist.drop_states(i)
-                hist.exclude(i, j, back.sensor)
+                hist.exclude(i, j, back.sensor, back.shown)
                 self._set(hist.snapshot_before(i))
                 j = i
                 continue

@@ -37,8 +37,9 @@ class History:
         self.n_applied = 0
         self.base = base
         self.base_key: tuple = (-math.inf,)
-        # key of a measurement a fault check excluded after the fact -> key of the one whose
-        # check decided it (a rewind before the decision undoes it: it is taken again, or not)
+        # key of a measurement a fault check excluded after the fact -> (key of the one whose
+        # check decided it, the disagreement it saw [m/s]) (a rewind before the decision undoes
+        # it: it is taken again, or not)
         self.excluded: dict[tuple, tuple] = {}
         self.rollbacks = 0                  # insertions before a measurement stamped later
 
@@ -69,7 +70,7 @@ class History:
             return self.n_applied
         if self.excluded:
             decided = self.keys[i]
-            undone = [k for k, by in self.excluded.items() if by >= decided]
+            undone = [k for k, (by, _) in self.excluded.items() if by >= decided]
             for k in undone:
                 del self.excluded[k]
                 i = min(i, bisect.bisect_left(self.keys, k))
@@ -84,9 +85,10 @@ class History:
             del self.snaps[i:]
             self.n_applied = i
 
-    def exclude(self, first: int, last: int, sensor: str) -> None:
-        """Exclude ``sensor``'s measurements at indices first..last, decided at ``last``."""
-        by = self.keys[last]
+    def exclude(self, first: int, last: int, sensor: str, shown: float) -> None:
+        """Exclude ``sensor``'s measurements at indices first..last, decided at ``last`` by a
+        disagreement of ``shown`` [m/s]."""
+        by = self.keys[last], shown
         for k in range(first, last + 1):
             if self.meas[k].sensor == sensor:
                 self.excluded[self.keys[k]] = by

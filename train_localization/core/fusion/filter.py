@@ -444,6 +444,13 @@ class TrainFilter:
             self._separate(m, e, S)
             return True
         aux.slip_window = {**aux.slip_window, cls: window}
+        if out and len(window) < 3:
+            # back from an episode: its first readings are judged together before one is applied
+            # (a slide that goes on passes one reading's test while the reference is noisy, and
+            # the precise sensor would be adopted at full weight)
+            aux.gated = _inc(aux.gated, cls + "/slip")
+            self._separate(m, e, S)
+            return True
         return False
 
     def _windowed(self, window: tuple, m, e: float, S: float, common: float = 0.0) -> tuple[tuple, float]:
@@ -625,6 +632,8 @@ class TrainFilter:
             since = m.stamp
         if since != math.inf and m.stamp - since >= self.cfg.slip_window and self._would_show(fault, window):
             aux.suspended = {k: v for k, v in aux.suspended.items() if k != m.sensor}
+            # its readings of the agreement so far are the slip test's window from here
+            aux.slip_window = {**aux.slip_window, m.sensor: window}
             aux.events = _inc(aux.events, "speed_source_restored")
             return False
         aux.suspended = {**aux.suspended, m.sensor: (since, window, fault)}

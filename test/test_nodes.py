@@ -667,12 +667,14 @@ def test_numeric_parameters_carry_their_range_and_a_value_beyond_it_stops_the_no
     try:
         client = AsyncParameterClient(node, "/train/radar_limits")
         assert client.wait_for_services(timeout_sec=30.0), good.output()
-        future = client.describe_parameters(["max_block_duration", "future_tolerance", "carrier_frequency"])
+        future = client.describe_parameters(["max_block_duration", "future_tolerance", "carrier_frequency", "faults"])
         assert spin_until(node, future.done, 10.0)
-        limited, tolerance, free = future.result().descriptors
+        limited, tolerance, carrier, free = future.result().descriptors
         assert (limited.floating_point_range[0].from_value, limited.floating_point_range[0].to_value) == (1e-3, 60.0)
         assert (tolerance.floating_point_range[0].from_value, tolerance.floating_point_range[0].to_value) == (1e-3, 3600.0)
-        assert not free.floating_point_range and limited.read_only
+        assert (carrier.floating_point_range[0].from_value, carrier.floating_point_range[0].to_value) == (1e9, 1e11)
+        assert carrier.description.endswith("[1e+09 .. 1e+11]")
+        assert not free.floating_point_range and not free.integer_range and limited.read_only
         assert good.interrupt() == 0
     finally:
         node.destroy_node()

@@ -115,27 +115,30 @@ HEAD_KIND = "axle_counter_head"
 
 PARAMS = {
     "sensor_spacing": Param(0.14, "distance of the two sensor systems Sa, Sb of a head along the rail [m] "
-                                  "(double wheel sensor)"),
+                                  "(double wheel sensor)", (0.01, 1.0)),
     "zone_width": Param(0.085, "1-sigma half-width of a system's damping zone [m] (~0.2 m FWHM, flange "
-                               "chord of a 0.92 m wheel, S1002 profile)"),
+                               "chord of a 0.92 m wheel, S1002 profile)", (5.0e-3, 0.5)),
     "damping_spread": Param(0.10, "1-sigma spread of the damping amplitude between wheels (flange height "
-                                  "and wear), fraction"),
-    "gain_spread": Param(0.05, "1-sigma spread of the gain between sensor systems, fraction"),
-    "noise_sigma": Param(0.02, "1-sigma white noise of the normalised damping (electronics, EMI)"),
-    "drift_sigma": Param(0.02, "1-sigma slow drift of the idle level (temperature)"),
-    "drift_tau": Param(60.0, "correlation time of the idle-level drift [s]"),
-    "spike_rate": Param(0.01, "EMI spikes per sensor system per second (traction current, rail brakes)"),
-    "spike_amplitude": Param(0.8, "peak normalised damping of an EMI spike"),
-    "threshold_on": Param(0.5, "damping above which a system is occupied by a wheel"),
-    "threshold_off": Param(0.3, "damping below which a system is free again (hysteresis)"),
+                                  "and wear) [fraction]", (0.0, 1.0)),
+    "gain_spread": Param(0.05, "1-sigma spread of the gain between sensor systems [fraction]", (0.0, 1.0)),
+    "noise_sigma": Param(0.02, "1-sigma white noise of the normalised damping [1] (electronics, EMI)", (0.0, 1.0)),
+    "drift_sigma": Param(0.02, "1-sigma slow drift of the idle level [1] (temperature)", (0.0, 1.0)),
+    "drift_tau": Param(60.0, "correlation time of the idle-level drift [s]", (1.0e-3, 1.0e6)),
+    "spike_rate": Param(0.01, "EMI spikes per sensor system per second [1/s] (traction current, rail brakes)",
+                        (0.0, 100.0)),
+    "spike_amplitude": Param(0.8, "peak normalised damping of an EMI spike [1]", (0.0, 2.0)),
+    "threshold_on": Param(0.5, "damping above which a system is occupied by a wheel [1]", (0.0, 1.0)),
+    "threshold_off": Param(0.3, "damping below which a system is free again (hysteresis) [1]", (0.0, 1.0)),
     "max_speed": Param(200.0, "sequences faster than this (sensor_spacing / lag) are not axles [m/s]; "
-                              "500 km/h = 139 m/s plus the lag error of a 2 kHz sampled pulse (~10 %)"),
+                              "500 km/h = 139 m/s plus the lag error of a 2 kHz sampled pulse (~10 %)",
+                       (1.0, 500.0)),
     "heads": Param("", "comma-separated head ids of this evaluation unit; empty = all heads of the track"),
     "orientation": Param(0, "+1: train front faces increasing chainage, -1: decreasing, 0: auto (first motion "
-                            "/ first counted axle)"),
-    "first_axle_offset": Param(2.5, "distance of the first axle behind the train front [m] (vehicle data)"),
+                            "/ first counted axle) [1]", (-1, 1)),
+    "first_axle_offset": Param(2.5, "distance of the first axle behind the train front [m] (vehicle data); "
+                                    "within a train of up to 1 km", (0.0, 1000.0)),
     "last_axle_offset": Param(0.0, "distance of the last axle behind the front [m]; 0 = unknown: no front "
-                                   "fix while the train backs"),
+                                   "fix while the train backs", (0.0, 1000.0)),
     "axle_offsets": Param([], "axle layout: offsets of all axles behind the front [m] (vehicle data; the "
                               "vehicle's axles unless set). The spacings of the first axles of a passage "
                               "identify its first axle (a missed or spurious one) before the front fix is "
@@ -143,11 +146,12 @@ PARAMS = {
                               "spacing instead"),
     "identify_time": Param(1.5, "longest wait after the first axle of a passage for the axles that identify "
                                 "it [s]; then the fix covers the hypotheses left or is withheld (the fusion "
-                                "takes measurements up to 2 s late)"),
-    "axle_offset_sigma": Param(0.02, "1-sigma of the configured axle offsets [m]"),
+                                "takes measurements up to 2 s late)", (0.0, 60.0)),
+    "axle_offset_sigma": Param(0.02, "1-sigma of the configured axle offsets [m]", (0.0, 1.0)),
     "head_position_sigma": Param(0.02, "1-sigma error of the surveyed head chainage in the track file [m] "
-                                       "(simulated: real heads are displaced by it)"),
-    "report_period": Param(1.0, "period of the SectionOccupancy report without state changes [s]"),
+                                       "(simulated: real heads are displaced by it)", (0.0, 1.0)),
+    "report_period": Param(1.0, "period of the SectionOccupancy report without state changes [s]",
+                           (1.0e-3, 3600.0)),
     "start_disturbed": Param(False, "sections start DISTURBED (as after power-up) instead of CLEAR"),
     "faults": Param("", "injected miscounts 'HEAD@T:missed', 'HEAD@T:extra', 'HEAD@T:extra-' separated by "
                         "';' (tests)"),

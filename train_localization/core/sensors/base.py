@@ -13,9 +13,10 @@ computed from the same resolved parameters that the simulator and the decoder us
 (DESIGN.md section 7). Nothing else copies a sensor's noise figures.
 
 Parameters: every sensor module declares ``PARAMS``, a dict name -> Param(default,
-description). The description carries the unit and where the default comes from
-(seed file or datasheet). Nodes declare them as ROS parameters; scenarios override
-them per sensor.
+description, limits). The description carries the unit and where the default comes from
+(seed file or datasheet); every number has ``limits``, the range the device or the physics
+admits (not a tuning range). Nodes declare them as ROS parameters; scenarios override
+them per sensor; a number beyond its limits is refused by both (``resolve_params``).
 """
 from __future__ import annotations
 
@@ -36,7 +37,37 @@ from ..track import Track
 class Param:
     default: Any
     description: str
-    limits: tuple | None = None     # inclusive (lo, hi) of a number: the node refuses a value beyond
+    limits: tuple | None = None     # inclusive (lo, hi) of a number: node and resolve_params refuse beyond
+
+    @property
+    def numeric(self) -> bool:
+        """An int or float parameter (not a bool): one that has limits."""
+        return isinstance(self.default, (int, float)) and not isinstance(self.default, bool)
+
+    def refusal(self, name: str, value) -> str | None:
+        """Why ``value`` is refused by the limits (one line, as the node says), or None.
+        NaN is taken only where the default is NaN (the parameter's 'not set')."""
+        if self.limits is None or isinstance(value, bool) or not isinstance(value, (int, float)):
+            return None
+        lo, hi = self.limits
+        if lo <= value <= hi or (math.isnan(value) and math.isnan(self.default)):
+            return None
+        return f"parameter {name!r} must be in {lo:g} .. {hi:g}, not {value!r}"
+
+
+def check_declared(params: dict[str, "Param"], owner: str) -> None:
+    """Every number of ``params`` has limits (lo <= hi, integers for an integer) that hold
+    its default; ValueError naming ``owner`` and the parameter otherwise."""
+    for name, p in params.items():
+        if not p.numeric:
+            continue
+        if p.limits is None or len(p.limits) != 2 or not p.limits[0] <= p.limits[1]:
+            raise ValueError(f"{owner}: numeric parameter {name!r} needs limits (lo, hi), not {p.limits!r}")
+        if isinstance(p.default, int) and not all(isinstance(v, int) and not isinstance(v, bool) for v in p.limits):
+            raise ValueError(f"{owner}: integer parameter {name!r} needs integer limits, not {p.limits!r}")
+        why = p.refusal(name, p.default)
+        if why:
+            raise ValueError(f"{owner}: default of {why}")
 
 
 COMMON_PARAMS = {
@@ -47,15 +78,19 @@ COMMON_PARAMS = {
                                      "refused (too_large): it bounds the decoding time and memory per block",
                                 (1.0e-3, 60.0)),
 }
+check_declared(COMMON_PARAMS, "COMMON_PARAMS")
 
 
 def resolve_params(declared: dict[str, Param], overrides: dict | None) -> dict[str, Any]:
     """Defaults of ``declared`` (plus the common ones) updated by ``overrides``.
 
     Unknown names raise ValueError so that a typo in a scenario or YAML file is not
-    silently ignored; values are cast to the type of the default.
+    silently ignored; values are cast to the type of the default; a number beyond its
+    ``limits`` raises ValueError in one line (the node's message: a scenario file is
+    refused like a ROS parameter).
     """
-    params = {name: p.default for name, p in {**COMMON_PARAMS, **declared}.items()}
+    known = {**COMMON_PARAMS, **declared}
+    params = {name: p.default for name, p in known.items()}
     for name, value in (overrides or {}).items():
         if name not in params:
             raise ValueError(f"unknown parameter {name!r}; known: {', '.join(sorted(params))}")
@@ -70,6 +105,9 @@ def resolve_params(declared: dict[str, Param], overrides: dict | None) -> dict[s
             params[name] = list(value)
         else:
             params[name] = value
+        why = known[name].refusal(name, params[name])
+        if why:
+            raise ValueError(why)
     return params
 
 
@@ -262,6 +300,9 @@ class SensorSpec:
     outputs: tuple[str, ...] = ("position", "speed", "distance")
     # (resolved params, track, vehicle) -> ErrorModel
     error_model: Callable[[dict, Track, Vehicle], ErrorModel] | None = None
+
+    def __post_init__(self):
+        check_declared(self.params, self.node)
 
     def errors(self, params: dict, track: Track, vehicle: Vehicle) -> ErrorModel:
         """The sensor's error model for its resolved ``params``."""

@@ -38,22 +38,24 @@ from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator, continuous_
 C = 299_792_458.0  # speed of light [m/s]
 
 PARAMS = {
-    "carrier_frequency": Param(24.125e9, "radar carrier f0 [Hz] (24 GHz ISM band ground-speed radar)"),
-    "mount_angle": Param(45.0, "angle between beam and track [deg]"),
-    "spread": Param(0.02, "1-sigma spectral spread of one peak estimate, fraction of f_d"),
-    "scale_sigma": Param(0.005, "1-sigma slowly varying scale error (pitch, surface), fraction"),
-    "scale_tau": Param(5.0, "correlation time of the scale error [s]"),
-    "bias": Param(0.02, "constant speed bias of the device [m/s]"),
-    "min_speed": Param(0.3, "below this speed no Doppler peak is found [m/s]"),
-    "snr_nominal": Param(25.0, "SNR of a good echo [dB]"),
-    "snr_threshold": Param(10.0, "samples below this SNR are invalid [dB]"),
-    "dropout_rate": Param(0.01, "dropout episodes per second"),
-    "dropout_duration": Param(0.5, "mean dropout length [s]"),
+    "carrier_frequency": Param(24.125e9, "radar carrier f0 [Hz] (24 GHz ISM band ground-speed radar; microwave "
+                                         "radars 1-100 GHz)", (1.0e9, 1.0e11)),
+    "mount_angle": Param(45.0, "angle between beam and track [deg]; below 90 (a beam across the track sees no "
+                               "Doppler shift)", (0.0, 89.0)),
+    "spread": Param(0.02, "1-sigma spectral spread of one peak estimate [fraction of f_d]", (0.0, 1.0)),
+    "scale_sigma": Param(0.005, "1-sigma slowly varying scale error (pitch, surface) [fraction]", (0.0, 1.0)),
+    "scale_tau": Param(5.0, "correlation time of the scale error [s]", (1.0e-3, 1.0e6)),
+    "bias": Param(0.02, "constant speed bias of the device [m/s]", (-1.0, 1.0)),
+    "min_speed": Param(0.3, "below this speed no Doppler peak is found [m/s]", (0.0, 10.0)),
+    "snr_nominal": Param(25.0, "SNR of a good echo [dB]", (-20.0, 60.0)),
+    "snr_threshold": Param(10.0, "samples below this SNR are invalid [dB]", (-20.0, 60.0)),
+    "dropout_rate": Param(0.01, "dropout episodes per second [1/s]", (0.0, 100.0)),
+    "dropout_duration": Param(0.5, "mean dropout length [s]", (0.0, 3600.0)),
     "mount_angle_tolerance": Param(0.2, "1-sigma uncertainty of the installed beam angle [deg] (installation "
                                         "tolerance); a constant scale error of tan(theta) x this (0.35 % at 45 "
-                                        "deg) in the error model"),
+                                        "deg) in the error model", (0.0, 10.0)),
     "mount_angle_error": Param(0.0, "simulator: true deviation of the installed beam angle from mount_angle "
-                                    "[deg]"),
+                                    "[deg]", (-10.0, 10.0)),
     "faults": Param("", "injected scale faults 'T0-T1:SCALE' (scale error added, fraction), separated by ';' "
                         "(tests, campaigns)"),
 }

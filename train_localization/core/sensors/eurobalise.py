@@ -109,38 +109,41 @@ TABLE4_MAPM = {100: 2.182, 200: 2.112, 300: 1.957, 400: 1.746, 500: 1.514, 600: 
 
 PARAMS = {
     "antenna_offset": Param(2.0, "distance of the antenna centre behind the train front [m] "
-                                 "(assumption: antenna under the leading bogie)"),
+                                 "(assumption: antenna under the leading bogie); within a train of up to 1 km",
+                            (0.0, 1000.0)),
     "telegram_bits": Param(1023, "telegram length l_t [bit] (seed 001 Table 1: standard telegram 1023; "
-                                 "short telegram 341)"),
-    "bit_rate": Param(564e3, "up-link bit rate r_t [bit/s] (seed 001 Table 1)"),
-    "vertical_distance": Param(0.200, "vertical distance antenna-balise y [m] (seed 001 Table 1)"),
-    "balise_current": Param(10e-3, "balise loop current I_w [A] (seed 001 Table 1)"),
+                                 "short telegram 341)", (341, 1023)),
+    "bit_rate": Param(564e3, "up-link bit rate r_t [bit/s] (seed 001 Table 1)", (1.0e5, 1.0e6)),
+    "vertical_distance": Param(0.200, "vertical distance antenna-balise y [m] (seed 001 Table 1)", (0.05, 1.0)),
+    "balise_current": Param(10e-3, "balise loop current I_w [A] (seed 001 Table 1)", (1.0e-4, 1.0)),
     "read_threshold": Param(1.40e-3, "BTM read sensitivity H_th [A/m]: seed 001 Table 4 needs 1.514 mA/m "
                                      "at 500 km/h (Eurobalise design speed, seed 001 sec. 1); 0.7 dB design "
-                                     "margin -> long telegram readable up to ~549 km/h"),
-    "field_sigma": Param(0.03, "1-sigma per-passage relative variation of the up-link field (balise "
+                                     "margin -> long telegram readable up to ~549 km/h", (1.0e-5, 0.1)),
+    "field_sigma": Param(0.03, "1-sigma per-passage relative variation of the up-link field [1] (balise "
                                "current tolerance, metal masses/rebar near the balise: seed 001 ref. 2, "
-                               "antenna height; assumption)"),
+                               "antenna height; assumption)", (0.0, 1.0)),
     "field_noise": Param(20e-6, "1-sigma white noise of the field-strength channel [A/m] (envelope "
                                 "detector/ADC incl. EMI, ~1 % of the peak; assumption, well above the "
-                                "~1 uA/m thermal floor of R_L through eq. 6)"),
-    "telegram_error_rate": Param(1e-3, "probability that one received telegram copy is corrupt (CRC): "
-                                       "1023 bit x BER 1e-6 of the Eurobalise contact zone (SUBSET-036)"),
+                                "~1 uA/m thermal floor of R_L through eq. 6)", (0.0, 0.01)),
+    "telegram_error_rate": Param(1e-3, "probability that one received telegram copy is corrupt (CRC) [1]: "
+                                       "1023 bit x BER 1e-6 of the Eurobalise contact zone (SUBSET-036)",
+                                 (0.0, 1.0)),
     "location_sigma": Param(0.33, "1-sigma error of a balise's real centre vs its chainage in the track "
                                   "file [m] (installation + survey; ETCS balise location accuracy +-1 m "
-                                  "(SUBSET-036) taken as 3 sigma)"),
+                                  "(SUBSET-036) taken as 3 sigma)", (0.0, 10.0)),
     "detect_level": Param(0.5e-3, "field above which the decoder considers a balise passage [A/m] "
-                                  "(~25 sigma of field_noise, ~1/4 of the 2.18 mA/m peak)"),
+                                  "(~25 sigma of field_noise, ~1/4 of the 2.18 mA/m peak)", (1.0e-6, 0.1)),
     "group_length": Param(12.0, "balises of one group (same 'group' key) read within this distance of "
-                                "each other give the direction [m] (ETCS balise group extent; assumption)"),
+                                "each other give the direction [m] (ETCS balise group extent; assumption)",
+                          (1.0, 100.0)),
     "max_acceleration": Param(2.0, "largest magnitude of the acceleration of the train [m/s^2] for the "
                                    "plausibility of the distance between two balise reads (assumption: above the "
                                    "emergency braking "
                                    "of high-speed and maglev trains, ~1.2-1.5 m/s^2, and the profiles of the "
-                                   "scenarios, <= 1.1 m/s^2)"),
+                                   "scenarios, <= 1.1 m/s^2)", (0.1, 10.0)),
     "speed_tolerance": Param(0.15, "relative error bound of the speed measured from the width of the field "
-                                   "peak for that plausibility (the width scales with the antenna height: "
-                                   "+-20 mm of vertical_distance = 10 %; sampling of the peak < 4 %)"),
+                                   "peak for that plausibility [1] (the width scales with the antenna height: "
+                                   "+-20 mm of vertical_distance = 10 %; sampling of the peak < 4 %)", (0.0, 1.0)),
 }
 
 

@@ -97,54 +97,61 @@ SQRT3 = math.sqrt(3.0)
 
 PARAMS = {
     "period": Param(0.516, "loop period p [m] for sections without 'period': 2 x 258 mm Transrapid pole "
-                           "pitch, so that 8 deg = 11.5 mm ~ the 12 mm of seed 002 section 2.2.1"),
-    "n_pairs": Param(3, "loop pairs evaluated: 3 (U, V, W at p/3; Transrapid INPO) or 6 (MLU: each phase "
-                        "twice, second set shifted p/2, cancels 2nd/3rd harmonics; seed 000 section 2.1.1)"),
+                           "pitch, so that 8 deg = 11.5 mm ~ the 12 mm of seed 002 section 2.2.1", (0.05, 5.0)),
+    "n_pairs": Param(3, "loop pairs evaluated [1]: 3 (U, V, W at p/3; Transrapid INPO) or 6 (MLU: each phase "
+                        "twice, second set shifted p/2, cancels 2nd/3rd harmonics; seed 000 section 2.1.1)", (3, 6)),
     "antenna_offset": Param(1.5, "transmitter antenna distance behind the train front [m], i.e. at front "
-                                 "chainage - offset (vehicle layout)"),
+                                 "chainage - offset (vehicle layout); within a train of up to 1 km", (0.0, 1000.0)),
     "antenna_length": Param(0.3, "length of the transmitter antenna along the track [m]; the coupling ramps "
-                                 "up/down over it at a section end (antenna size a, seed 000 section 2.1.1)"),
+                                 "up/down over it at a section end (antenna size a, seed 000 section 2.1.1)",
+                            (0.01, 5.0)),
     "amplitude": Param(1.0, "envelope amplitude E0 of one pair at the nominal gap, full coupling [V] "
-                            "(receiver output level, seed 000 eq. 1)"),
+                            "(receiver output level, seed 000 eq. 1)", (1.0e-3, 10.0)),
     "noise": Param(0.01, "1-sigma white noise of each envelope channel [V] (40 dB SNR in the 1 kHz "
-                         "envelope bandwidth; calibrated into the +-8 deg budget of seed 002 section 2.2.1)"),
-    "harmonic2": Param(0.07, "2nd harmonic of the envelope, fraction of the fundamental at the nominal gap "
+                         "envelope bandwidth; calibrated into the +-8 deg budget of seed 002 section 2.2.1)",
+                   (0.0, 1.0)),
+    "harmonic2": Param(0.07, "2nd harmonic of the envelope, fraction of the fundamental at the nominal gap [1] "
                               "(non-ideal loop/antenna geometry, seed 000 section 2.1.1); with 3 pairs it gives "
-                              "up to asin(h2) = 4.0 deg of phase error"),
-    "harmonic2_phase": Param(30.0, "phase of the 2nd harmonic [deg]"),
-    "harmonic3": Param(0.10, "3rd harmonic of the envelope, fraction of the fundamental (cancels in the "
-                             "Clarke transform except for the channel-to-channel spread)"),
-    "harmonic3_phase": Param(-20.0, "phase of the 3rd harmonic [deg]"),
+                              "up to asin(h2) = 4.0 deg of phase error", (0.0, 1.0)),
+    "harmonic2_phase": Param(30.0, "phase of the 2nd harmonic [deg]", (-180.0, 180.0)),
+    "harmonic3": Param(0.10, "3rd harmonic of the envelope, fraction of the fundamental [1] (cancels in the "
+                             "Clarke transform except for the channel-to-channel spread)", (0.0, 1.0)),
+    "harmonic3_phase": Param(-20.0, "phase of the 3rd harmonic [deg]", (-180.0, 180.0)),
     "harmonic_spread": Param(0.12, "1-sigma channel-to-channel spread of the harmonic amplitudes (fraction) "
-                                  "and phases [rad] (loop manufacturing tolerance)"),
-    "gain_tolerance": Param(0.01, "1-sigma gain mismatch between the pair channels (fraction; receiver and "
-                                   "loop tolerance)"),
-    "offset_sigma": Param(0.005, "1-sigma DC offset of each envelope detector [V]"),
-    "skew_sigma": Param(0.001, "1-sigma laying error of each loop pair along the track [m]"),
-    "nominal_gap": Param(0.03, "antenna-to-loop distance z at the nominal levitation gap [m]"),
+                                  "and phases [rad] (loop manufacturing tolerance)", (0.0, 1.0)),
+    "gain_tolerance": Param(0.01, "1-sigma gain mismatch between the pair channels [1] (fraction; receiver and "
+                                   "loop tolerance)", (0.0, 1.0)),
+    "offset_sigma": Param(0.005, "1-sigma DC offset of each envelope detector [V]", (0.0, 1.0)),
+    "skew_sigma": Param(0.001, "1-sigma laying error of each loop pair along the track [m]", (0.0, 0.1)),
+    "nominal_gap": Param(0.03, "antenna-to-loop distance z at the nominal levitation gap [m]", (1.0e-3, 0.5)),
     "gap_variation": Param(0.0015, "1-sigma variation of that distance along the guideway [m] (levitation "
-                                   "gap control +-2..3 mm, girder deflection)"),
-    "loop_half_width": Param(0.05, "half width b of the crossed loop across the track [m] (seed 003 eq. 2)"),
+                                   "gap control +-2..3 mm, girder deflection)", (0.0, 0.05)),
+    "loop_half_width": Param(0.05, "half width b of the crossed loop across the track [m] (seed 003 eq. 2)",
+                             (5.0e-3, 1.0)),
     "detector_delay": Param(5e-5, "group delay of the envelope detector [s] (first-order low pass, 3.2 kHz); "
-                                  "the decoder back-dates the samples by it (7 mm at 139 m/s otherwise)"),
-    "survey_sigma": Param(0.002, "1-sigma error of the surveyed chainage of a section start [m]"),
-    "squelch": Param(0.2, "carrier level (fraction of full coupling) above which the evaluation unit "
-                          "switches to a receiver"),
-    "on_threshold": Param(0.5, "decoder: amplitude (fraction of 'amplitude') at which the antenna is taken "
-                               "to have entered a section"),
-    "off_threshold": Param(0.3, "decoder: amplitude below which the antenna has left (hysteresis)"),
+                                  "the decoder back-dates the samples by it (7 mm at 139 m/s otherwise)",
+                            (0.0, 0.01)),
+    "survey_sigma": Param(0.002, "1-sigma error of the surveyed chainage of a section start [m]", (0.0, 1.0)),
+    "squelch": Param(0.2, "carrier level (fraction of full coupling) [1] above which the evaluation unit "
+                          "switches to a receiver", (0.0, 1.0)),
+    "on_threshold": Param(0.5, "decoder: amplitude (fraction of 'amplitude') [1] at which the antenna is taken "
+                               "to have entered a section", (0.0, 1.0)),
+    "off_threshold": Param(0.3, "decoder: amplitude below which the antenna has left (hysteresis) [fraction of "
+                                "'amplitude']", (0.0, 1.0)),
     "max_amplitude": Param(1.6, "decoder: amplitude above this fraction of 'amplitude' is implausible (more "
-                                "than any air gap gives)"),
+                                "than any air gap gives) [1]", (1.0, 10.0)),
     "zero_sequence_limit": Param(0.3, "decoder: |U+V+W|/3 above this fraction of 'amplitude' in a section "
-                                      "is implausible (a broken or stuck pair)"),
-    "adc_range": Param(5.0, "receiver output range [V]; a sample at or beyond it is saturated (implausible)"),
-    "max_step": Param(0.3, "decoder: phase step per sample above this many periods is implausible "
-                           "(0.3 x 0.516 m x 2 kHz = 310 m/s)"),
+                                      "is implausible (a broken or stuck pair) [1]", (0.0, 1.0)),
+    "adc_range": Param(5.0, "receiver output range [V]; a sample at or beyond it is saturated (implausible)",
+                       (0.1, 10.0)),
+    "max_step": Param(0.3, "decoder: phase step per sample above this many periods is implausible [1] "
+                           "(0.3 x 0.516 m x 2 kHz = 310 m/s); at most 1/2 (a larger step is ambiguous)",
+                      (0.0, 0.5)),
     "accuracy_deg": Param(8.0, "INPO phase accuracy +-[deg] (seed 000 section 2.1.2, seed 002 section 2.2.1), "
-                               "taken as 2.5 sigma of one sample for the fix stddev"),
-    "fix_samples": Param(0, "samples per PositionFix; 0 = one fix per block"),
-    "min_fix_samples": Param(5, "fewest tracked samples that make a fix"),
-    "max_bridge": Param(0.2, "longest gap (lost/rejected blocks) bridged with the phase rate [s]"),
+                               "taken as 2.5 sigma of one sample for the fix stddev", (0.0, 180.0)),
+    "fix_samples": Param(0, "samples per PositionFix [1]; 0 = one fix per block", (0, 1000000)),
+    "min_fix_samples": Param(5, "fewest tracked samples that make a fix [1]", (1, 1000000)),
+    "max_bridge": Param(0.2, "longest gap (lost/rejected blocks) bridged with the phase rate [s]", (0.0, 10.0)),
 }
 
 

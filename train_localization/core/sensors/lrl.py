@@ -107,24 +107,27 @@ CHANNEL_NAMES = {"single": ("P1", "P2", "P3", "P4", "D0"), "continuous": ("N1", 
 PARAMS = {
     "scan_mode": Param("single", "scan mode of the U-sensor: 'single' (P1..P4 + D0 sync) or 'continuous' "
                                  "(N1..N4 sync + D1 data), seed 002 section 3.1"),
-    "n_sensors": Param(4, "redundant sensors on the vehicle head (seed 002 section 2.2.1: 4), all at the "
-                          "same along-track position"),
+    "n_sensors": Param(4, "redundant sensors on the vehicle head [1] (seed 002 section 2.2.1: 4), all at the "
+                          "same along-track position", (1, 8)),
     "sensor_offset": Param(1.5, "distance of the sensor reference point behind the train front [m] "
-                                "(on the vehicle head; assumption)"),
-    "lug_spacing": Param(3.0, "default spacing of the lugs of a group [m] (assumption; >= 2.5 m)"),
-    "lugs_per_group": Param(3, "lugs of a group without an explicit code (12 bits = 4096 codes)"),
+                                "(on the vehicle head; assumption); within a train of up to 1 km", (0.0, 1000.0)),
+    "lug_spacing": Param(3.0, "default spacing of the lugs of a group [m] (assumption; >= 2.5 m)", (0.1, 100.0)),
+    "lugs_per_group": Param(3, "lugs of a group without an explicit code [1] (12 bits = 4096 codes)", (1, 16)),
     "bit_pitch": Param(0.35, "continuous scan: data cell length = N-channel pitch [m] (assumption: >= 2.5 "
-                             "samples per cell at 500 km/h and 1 kHz)"),
-    "edge_width": Param(0.02, "width of the level ramp at a lug edge (channel footprint) [m] (assumption)"),
-    "attenuation": Param(0.95, "fraction of the HF signal a conductive lug blocks (level ~1 -> ~0.05)"),
-    "level_noise": Param(0.05, "1-sigma white noise of a receive level [1] (assumption: 26 dB SNR)"),
-    "gain_sigma": Param(0.05, "1-sigma gain error of one sensor [1] (assumption)"),
-    "threshold": Param(0.5, "receive level below which a channel sees conductive material [1]"),
-    "misread_probability": Param(1e-3, "probability that one sensor reads one bit of a lug wrong "
-                                       "(dirt, ice, foreign metal; assumption)"),
+                             "samples per cell at 500 km/h and 1 kHz)", (0.01, 2.0)),
+    "edge_width": Param(0.02, "width of the level ramp at a lug edge (channel footprint) [m] (assumption)",
+                        (1.0e-4, 0.5)),
+    "attenuation": Param(0.95, "fraction of the HF signal a conductive lug blocks [1] (level ~1 -> ~0.05)",
+                         (0.01, 1.0)),
+    "level_noise": Param(0.05, "1-sigma white noise of a receive level [1] (assumption: 26 dB SNR)", (0.0, 1.0)),
+    "gain_sigma": Param(0.05, "1-sigma gain error of one sensor [1] (assumption)", (0.0, 1.0)),
+    "threshold": Param(0.5, "receive level below which a channel sees conductive material [1]", (0.0, 1.0)),
+    "misread_probability": Param(1e-3, "probability that one sensor reads one bit of a lug wrong [1] "
+                                       "(dirt, ice, foreign metal; assumption)", (0.0, 1.0)),
     "install_sigma": Param(0.005, "1-sigma error of a lug's real position vs the track file [m] "
-                                  "(guideway manufacturing tolerance; assumption)"),
-    "group_gap": Param(10.0, "a group is closed when the train has moved this far past its last lug [m]"),
+                                  "(guideway manufacturing tolerance; assumption)", (0.0, 1.0)),
+    "group_gap": Param(10.0, "a group is closed when the train has moved this far past its last lug [m]",
+                       (0.1, 1000.0)),
 }
 
 

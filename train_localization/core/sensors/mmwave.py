@@ -148,44 +148,49 @@ SNR_NOISE_REF = 20.0  # SNR [dB] at which the SNR-dependent ranging term equals 
 
 PARAMS = {
     "max_range": Param(1000.0, "radio range of a base station [m]; the nearest 4 stations within it are ranged "
-                               "(38 GHz line-of-sight radio link, seed 002 section 2.2.1; ~1 km cells)"),
+                               "(38 GHz line-of-sight radio link, seed 002 section 2.2.1; ~1 km cells)",
+                       (1.0, 10000.0)),
     "snr_ref": Param(35.0, "first-path SNR at ref_range with line of sight [dB]; falls with free-space path "
-                           "loss 20 log10(r) (15 dB at 1 km)"),
-    "ref_range": Param(100.0, "range at which the SNR equals snr_ref [m]"),
-    "snr_fading": Param(1.5, "1-sigma fading of the reported SNR [dB]"),
-    "snr_threshold": Param(10.0, "replies below this SNR are not detected / not used [dB]"),
+                           "loss 20 log10(r) (15 dB at 1 km)", (-20.0, 60.0)),
+    "ref_range": Param(100.0, "range at which the SNR equals snr_ref [m]", (1.0, 10000.0)),
+    "snr_fading": Param(1.5, "1-sigma fading of the reported SNR [dB]", (0.0, 20.0)),
+    "snr_threshold": Param(10.0, "replies below this SNR are not detected / not used [dB]", (-20.0, 60.0)),
     "range_sigma_floor": Param(0.08, "1-sigma ranging noise at high SNR [m] (UWB/mm-wave TWR transceivers: "
-                                     "+-10 cm, Decawave DW1000 / Qorvo DW3000 datasheets)"),
+                                     "+-10 cm, Decawave DW1000 / Qorvo DW3000 datasheets)", (0.0, 10.0)),
     "range_sigma_snr": Param(0.10, "1-sigma SNR-dependent ranging noise at 20 dB SNR [m], scales as "
-                                   "10^((20-SNR)/20) (time-of-arrival Cramer-Rao bound ~ 1/sqrt(SNR))"),
+                                   "10^((20-SNR)/20) (time-of-arrival Cramer-Rao bound ~ 1/sqrt(SNR))",
+                             (0.0, 10.0)),
     "cal_sigma": Param(0.03, "1-sigma constant range bias per station [m] (antenna-delay calibration "
-                             "residual, Decawave APS014)"),
-    "nlos_rate": Param(0.05, "NLOS/multipath episodes per station per second (structures, passing trains)"),
-    "nlos_duration": Param(0.5, "mean NLOS episode length [s]"),
+                             "residual, Decawave APS014)", (0.0, 1.0)),
+    "nlos_rate": Param(0.05, "NLOS/multipath episodes per station per second [1/s] (structures, passing trains)",
+                       (0.0, 100.0)),
+    "nlos_duration": Param(0.5, "mean NLOS episode length [s]", (0.0, 3600.0)),
     "nlos_bias_mean": Param(1.0, "mean positive range bias of an NLOS episode [m], exponential "
-                                 "(UWB NLOS bias 0.3-2 m, Decawave APS006 part 3)"),
+                                 "(UWB NLOS bias 0.3-2 m, Decawave APS006 part 3)", (0.0, 50.0)),
     "nlos_snr_loss": Param(6.0, "first-path SNR loss during NLOS [dB] (APS006 part 3: > 6 dB first-path "
-                                "to total power difference indicates NLOS)"),
-    "dropout_prob": Param(0.02, "probability that a reply is lost in an epoch (packet loss)"),
-    "station_height": Param(6.0, "default station antenna height above rail level [m] (mast)"),
-    "antenna_height": Param(3.0, "train antenna height above rail level [m]"),
-    "antenna_offset": Param(0.0, "train antenna distance behind the front [m]"),
+                                "to total power difference indicates NLOS)", (0.0, 60.0)),
+    "dropout_prob": Param(0.02, "probability that a reply is lost in an epoch (packet loss) [1]", (0.0, 1.0)),
+    "station_height": Param(6.0, "default station antenna height above rail level [m] (mast)", (0.0, 50.0)),
+    "antenna_height": Param(3.0, "train antenna height above rail level [m]", (0.0, 10.0)),
+    "antenna_offset": Param(0.0, "train antenna distance behind the front [m]; within a train of up to 1 km",
+                            (0.0, 1000.0)),
     "orientation": Param(1, "+1: the train front faces increasing chainage (antenna at front - offset), "
-                            "-1: decreasing"),
-    "min_stations": Param(2, "minimum number of consistent stations for a fix (1 = allow single-station "
-                             "fixes resolved by the previous solution)"),
+                            "-1: decreasing [1]", (-1, 1)),
+    "min_stations": Param(2, "minimum number of consistent stations for a fix [1] (1 = allow single-station "
+                             "fixes resolved by the previous solution); at most the 4 stations ranged", (1, 4)),
     "unchecked_sigma": Param(0.5, "1-sigma added to single-station fixes [m]: without redundancy an NLOS bias "
-                                  "(exponential, mean ~1 m) cannot be detected"),
-    "outlier_probability": Param(0.999, "chi-square gate probability of the NLOS test"),
+                                  "(exponential, mean ~1 m) cannot be detected", (0.0, 50.0)),
+    "outlier_probability": Param(0.999, "chi-square gate probability of the NLOS test [1]", (0.0, 1.0)),
     "max_fault_bias": Param(10.0, "largest range error of one fault that the protection covers where a "
                                   "single range is left to tell the side of its station (two stations, one "
                                   "being passed) [m]: NLOS excess path (exponential, mean nlos_bias_mean 1 m: "
-                                  "beyond 10 m with probability 5e-5), calibration faults"),
+                                  "beyond 10 m with probability 5e-5), calibration faults", (0.0, 1000.0)),
     "protection_probability": Param(0.999, "probability of the interval +-k sigma (k its normal quantile, 3.29) "
                                            "that the published sigma is widened to cover under an undetected "
-                                           "single range fault (the fused 99.9 % interval)"),
+                                           "single range fault (the fused 99.9 % interval) [1]", (0.0, 1.0)),
     "fix_per_block": Param(False, "false: one PositionFix per epoch (5 ms, seed 002); true: one per block"),
-    "hold_time": Param(1.0, "a previous solution older than this is not used to resolve ambiguity [s]"),
+    "hold_time": Param(1.0, "a previous solution older than this is not used to resolve ambiguity [s]",
+                       (0.0, 60.0)),
     "faults": Param("", "injected faults 'ID@T0-T1:BIAS' (range bias [m]) or 'ID@T0-T1:drop', "
                         "separated by ';' (tests)"),
 }

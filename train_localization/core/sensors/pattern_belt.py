@@ -84,45 +84,52 @@ MIN_STATE_FRACTION = 0.75   # shortest state / (p/6) allowed for by the speed li
 
 PARAMS = {
     "period": Param(0.6, "nominal pattern period p [m]: HSST 0.6 m (1/6 period = 10 cm, seed 000 "
-                         "2.2.1, seed 002 2.1.1); seed 003 uses 0.21 m"),
+                         "2.2.1, seed 002 2.1.1); seed 003 uses 0.21 m", (0.05, 5.0)),
     "wide_fraction": Param(0.5, "fraction of a period where the loop is wide [1] (widened and narrowed "
-                                "at equal intervals, seed 003 section 2 / Fig. 2)"),
+                                "at equal intervals, seed 003 section 2 / Fig. 2)", (0.01, 0.99)),
     "loop_width": Param(0.12, "width 2b of the wide parts of the loop [m] (assumed; belt of the "
-                              "order of 0.1 m, seed 000 Fig. 15)"),
+                              "order of 0.1 m, seed 000 Fig. 15)", (0.01, 1.0)),
     "crossed": Param(True, "8-shaped (crossed) loop: consecutive wide parts carry opposite currents "
                            "(seed 002 2.1.1); False = plain widened/narrowed loop (seed 003)"),
     "coil_length": Param(0.0, "receiving coil length along the track [m]; 0 = wide_fraction x period "
-                              "(coil shaped like the loop pattern, seed 002 2.1.1)"),
-    "coil_width": Param(0.0, "receiving coil width [m]; 0 = loop_width"),
-    "gap": Param(0.04, "nominal height of the coils above the loop [m] (assumed)"),
-    "gap_sigma": Param(0.002, "1-sigma variation of the gap [m] (levitation / suspension)"),
-    "gap_tau": Param(1.0, "correlation time of the gap variation [s]"),
+                              "(coil shaped like the loop pattern, seed 002 2.1.1)", (0.0, 5.0)),
+    "coil_width": Param(0.0, "receiving coil width [m]; 0 = loop_width", (0.0, 1.0)),
+    "gap": Param(0.04, "nominal height of the coils above the loop [m] (assumed)", (1.0e-3, 0.5)),
+    "gap_sigma": Param(0.002, "1-sigma variation of the gap [m] (levitation / suspension)", (0.0, 0.05)),
+    "gap_tau": Param(1.0, "correlation time of the gap variation [s]", (1.0e-3, 1.0e6)),
     "antenna_offset": Param(1.0, "distance of coil 1 (the front one) behind the train front [m]; "
-                                 "coils 2 and 3 follow at p/3 and 2p/3 (seed 003 section 2)"),
-    "spacing_error": Param(0.001, "1-sigma mounting error of each coil's position [m], per device"),
-    "carrier_frequency": Param(190e3, "loop carrier [Hz] (seed 003 section 3.1: 190 kHz)"),
+                                 "coils 2 and 3 follow at p/3 and 2p/3 (seed 003 section 2); within a train "
+                                 "of up to 1 km", (0.0, 1000.0)),
+    "spacing_error": Param(0.001, "1-sigma mounting error of each coil's position [m], per device", (0.0, 0.1)),
+    "carrier_frequency": Param(190e3, "loop carrier [Hz] (seed 003 section 3.1: 190 kHz); inductive loop "
+                                      "carriers 10 kHz-10 MHz", (1.0e4, 1.0e7)),
     "peak_voltage": Param(2.0, "envelope at the peak of the pattern at the nominal gap [V] "
-                               "(amplifier gain set at commissioning)"),
-    "gain_mismatch": Param(0.03, "1-sigma gain difference between the 3 receive chains [1], per device"),
-    "detector_offset": Param(0.01, "1-sigma DC offset of each envelope detector [V], per device"),
+                               "(amplifier gain set at commissioning); receiver outputs within 10 V",
+                          (0.01, 10.0)),
+    "gain_mismatch": Param(0.03, "1-sigma gain difference between the 3 receive chains [1], per device",
+                           (0.0, 1.0)),
+    "detector_offset": Param(0.01, "1-sigma DC offset of each envelope detector [V], per device", (0.0, 1.0)),
     "noise": Param(0.02, "1-sigma receiver noise per quadrature component at the detector [V] "
-                         "(SNR 40 dB at the peak)"),
-    "detector_bandwidth": Param(1000.0, "-3 dB bandwidth of the envelope detector's RC low-pass [Hz]"),
-    "saturation": Param(5.0, "output swing of the detector [V]"),
+                         "(SNR 40 dB at the peak)", (0.0, 1.0)),
+    "detector_bandwidth": Param(1000.0, "-3 dB bandwidth of the envelope detector's RC low-pass [Hz]; 1 MHz, "
+                                        "beyond the carrier, is no low-pass (an ideal detector, tests)",
+                                (1.0, 1.0e6)),
+    "saturation": Param(5.0, "output swing of the detector [V]", (0.1, 10.0)),
     "threshold_on": Param(1.02, "Schmitt trigger: output goes high above this [V]; with threshold_off "
                                 "centred on 0.97 V = 48.7 % of the peak, the level at which the default "
-                                "geometry gives 50 % duty (even p/6 states)"),
+                                "geometry gives 50 % duty (even p/6 states)", (0.0, 10.0)),
     "threshold_off": Param(0.92, "Schmitt trigger: output goes low below this [V] (hysteresis "
-                                 "0.1 V = 5 x noise)"),
-    "loss_threshold": Param(0.4, "decoder: all three envelopes below this = no belt [V]"),
+                                 "0.1 V = 5 x noise)", (0.0, 10.0)),
+    "loss_threshold": Param(0.4, "decoder: all three envelopes below this = no belt [V]", (0.0, 10.0)),
     "max_speed": Param(30.6, "highest speed the configuration must resolve [m/s] (110 km/h, HSST "
-                             "urban maglev); the simulator refuses a sample rate that cannot"),
+                             "urban maglev); the simulator refuses a sample rate that cannot; at most the "
+                             "maglev speed record, 603 km/h", (0.0, 170.0)),
     "scale_sigma": Param(0.0006, "decoder: 1-sigma relative error of the installed period "
-                                 "(FRP belt, thermal expansion ~1.5e-5/K over +-40 K) [1]"),
+                                 "(FRP belt, thermal expansion ~1.5e-5/K over +-40 K) [1]", (0.0, 1.0)),
     "transition_jitter": Param(0.006, "decoder: 1-sigma scatter of a switching point [m] "
-                                      "(noise / slope, gap and gain changes, hysteresis)"),
+                                      "(noise / slope, gap and gain changes, hysteresis)", (0.0, 0.5)),
     "speed_window": Param(0.25, "decoder: longest time span of the switching points used for the "
-                                "speed [s]"),
+                                "speed [s]", (1.0e-3, 10.0)),
 }
 
 DEFAULT_SAMPLE_RATE = 2000.0

@@ -65,52 +65,57 @@ PARAMS = {
     "pulses_per_revolution": Param(
         60, "pulses per wheel revolution per channel [1]; rail speed sensors give 60-300 "
         "(Wikipedia 'Wheel speed sensor'); 4 edges per pulse are counted (one edge = pi D / 240 "
-        "= 12 mm at D = 0.92 m)"),
+        "= 12 mm at D = 0.92 m)", (1, 1000)),
     "wheel_diameter": Param(
         0.92, "NOMINAL wheel diameter configured in the on-board unit [m]; must equal "
         "vehicle.wheel_diameter of the scenario (the simulator checks it; the decoder has no "
-        "access to the vehicle)"),
+        "access to the vehicle)", (0.1, 2.0)),
     "max_speed": Param(
         83.4, "highest speed the configuration must resolve [m/s] (300 km/h, conventional rail; "
         "a maglev uses wheels only at low speed, seed 002 2.2.2). The simulator refuses a "
         "sample rate at which the narrowest quadrature state (tolerances included) would last "
-        "less than one sample at this speed with a wheel at the lower diameter tolerance"),
+        "less than one sample at this speed with a wheel at the lower diameter tolerance; at most "
+        "the wheel-rail speed record, 574.8 km/h", (0.0, 160.0)),
     "phase_tolerance": Param(
         15.0, "max deviation of the A-B phase from 90 deg [deg], drawn per device uniformly "
-        "(typical two-channel rail speed-sensor datasheet figure)"),
+        "(typical two-channel rail speed-sensor datasheet figure); below 90 (A and B would coincide)",
+        (0.0, 90.0)),
     "duty_tolerance": Param(
         0.03, "max deviation of each channel's duty cycle from 0.5 [fraction of a pulse], drawn "
-        "per device uniformly (typical datasheet figure)"),
+        "per device uniformly (typical datasheet figure)", (0.0, 0.5)),
     "diameter_tolerance": Param(
         0.01, "max |true/nominal - 1| of the wheel diameter [fraction]: wear between two "
         "re-calibrations (wheel wear up to 1 %, task statement); the decoder uses "
-        "tolerance/sqrt(3) as 1-sigma scale error"),
+        "tolerance/sqrt(3) as 1-sigma scale error; a wheel worn from new to scrap loses < 10 %",
+        (0.0, 0.1)),
     "diameter_error": Param(
         float("nan"), "true/nominal - 1 of this wheel [fraction]; NaN (default) = drawn per device "
-        "uniformly within +-diameter_tolerance"),
+        "uniformly within +-diameter_tolerance", (-0.1, 0.1)),
     "creep_coefficient": Param(
         0.002, "steady creep per unit acceleration [s^2/m]: wheel speed = v (1 + c a sign v); "
-        "0.2 % at 1 m/s^2 (creep of a few 0.1 % at adhesion use 0.1, Kalker/Polach creep curves)"),
+        "0.2 % at 1 m/s^2 (creep of a few 0.1 % at adhesion use 0.1, Kalker/Polach creep curves)",
+        (0.0, 0.1)),
     "driven_axle": Param(
         True, "the sensor sits on a motored axle: traction slip and creep occur; False = trailer "
         "axle: only braking creep and slides"),
     "slip_rate": Param(
         0.02, "random slip/slide episodes per second while |a| >= slip_accel_threshold [1/s] "
-        "(poor adhesion: about one episode per 50 s of hard traction or braking)"),
-    "slip_accel_threshold": Param(0.6, "|acceleration| above which random episodes can start [m/s^2]"),
-    "slip_ratio_min": Param(0.02, "smallest |slip ratio| of a random episode [fraction]"),
+        "(poor adhesion: about one episode per 50 s of hard traction or braking)", (0.0, 100.0)),
+    "slip_accel_threshold": Param(0.6, "|acceleration| above which random episodes can start [m/s^2]",
+                                  (0.0, 5.0)),
+    "slip_ratio_min": Param(0.02, "smallest |slip ratio| of a random episode [fraction]", (0.0, 1.0)),
     "slip_ratio_max": Param(0.20, "largest |slip ratio| of a random episode [fraction] (wheel-slide "
-                                  "protection keeps slides below ~20 %)"),
-    "slip_duration": Param(2.0, "mean length of a random episode [s] (exponential, 0.5..10 s)"),
+                                  "protection keeps slides below ~20 %)", (0.0, 1.0)),
+    "slip_duration": Param(2.0, "mean length of a random episode [s] (exponential, 0.5..10 s)", (0.0, 60.0)),
     "slip_episodes": Param(
         [], "forced episodes, flat list t_start [s], duration [s], slip_ratio, t_start, ... (nested "
         "triples are accepted too); slip_ratio > 0: wheel faster than the train (traction slip), "
         "< 0: slower (braking slide)"),
     "vibration": Param(0.0003, "1-sigma longitudinal/torsional vibration of the wheel, as "
-                               "circumferential displacement [m]"),
-    "vibration_tau": Param(0.02, "correlation time of the vibration [s]"),
-    "glitch_rate": Param(0.01, "EMI glitches per second: one channel flipped for one sample [1/s]"),
-    "speed_window": Param(0.1, "decoder: longest time span of the edges used for the speed [s]"),
+                               "circumferential displacement [m]", (0.0, 0.01)),
+    "vibration_tau": Param(0.02, "correlation time of the vibration [s]", (1.0e-4, 10.0)),
+    "glitch_rate": Param(0.01, "EMI glitches per second: one channel flipped for one sample [1/s]", (0.0, 100.0)),
+    "speed_window": Param(0.1, "decoder: longest time span of the edges used for the speed [s]", (1.0e-3, 10.0)),
 }
 
 DEFAULT_SAMPLE_RATE = 10_000.0

@@ -234,12 +234,28 @@ def test_an_alternative_view_that_stops_being_tracked_stays_inside_the_interval(
         f.add(SpeedMeasurement(t - 0.025, "doppler", "d", 20.0, 0.05))
     before = f.estimate(1.0)
     D = -4.0   # the radar ran 4 m behind over 5 km while it was excluded (its scale: 0.5 %, 27 m)
-    f.aux.relative_alternatives = {"doppler": (D, 0.01, 0.0, 1.0, 5000.0)}
+    f.aux.relative_alternatives = {"doppler": (D, 0.01, 0.0, 1.0, 5000.0, D)}
     f.add(SpeedMeasurement(1.025, "doppler", "d", 20.0, 0.05))
     after = f.estimate(1.05)
     assert f.counters()["integrity"]["alternative_merged"] == 1
     assert after.position_stddev ** 2 >= before.position_stddev ** 2 + D ** 2 - 0.01
     assert after.position_min <= after.position + D
+
+
+def test_an_excluded_sensors_view_keeps_its_farthest_separation():
+    """A radar read 4 % low while reversing and the wheel, excluded as the odd one out, was the
+    right one until it slid under braking: its view came back towards the filter while the truth
+    stayed 4.5 m away (conventional:3576851534, 32 s outside). The excluded sensor is no more
+    trusted than the others: the interval covers its view from its current separation to the
+    farthest one it reached."""
+    models = sensor_models(["wheel_sensor", "doppler_radar"], None, Vehicle())
+    f = TrainFilter(FusionConfig(sensors=models))
+    f.reset(position=0.0, position_stddev=0.1, speed=20.0, speed_stddev=0.05, stamp=0.0)
+    f.add(SpeedMeasurement(0.025, "doppler", "d", 20.0, 0.05))
+    f.aux.relative_alternatives = {"wheel": (-1.0, 0.0, 0.0, 0.025, 0.0, -3.0)}
+    e = f.estimate(0.05)
+    assert e.position_min <= e.position - 3.0 - 2.5 * 0.1 and e.position_max < e.position + 1.0
+    assert e.mode == MODE_DEGRADED
 
 
 def _train_run(sensors, speed, accel, steps, seed, feed):

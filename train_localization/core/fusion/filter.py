@@ -43,7 +43,8 @@ information; the filter may say it does not know, never be confidently wrong):
               accelerates, or any at a steady speed), and any of the radar, may be the other
               speed sources' fault. The filter still follows the majority view, but keeps the
               excluded sensor's distance as the alternative (the interval covers it, DEGRADED)
-              and suspends the sensor: it is back only after agreeing for ``slip_window`` s
+              (from its current separation to the farthest it reached: it may have slipped back
+              since) and suspends the sensor: it is back only after agreeing for ``slip_window`` s
               without being applied (one reading that slips through the gate while the
               reference is quiet would be adopted at full weight). An absolute fix decides:
               if it agrees with the excluded sensor, the other speed sources are suspended
@@ -178,7 +179,7 @@ class _Aux:
         self.s_last_fix = math.nan                     # filter position after the last accepted fix
         # sensors excluded although their disagreement does not look like a slip: the other speed
         # sources may be the wrong ones: sensor -> (distance it ran ahead D [m], white variance
-        # of D [m^2], since [s], last stamp [s], distance run [m])
+        # of D [m^2], since [s], last stamp [s], distance run [m], the D farthest from 0 so far [m])
         self.relative_alternatives: dict[str, tuple] = {}
         self.candidate: tuple | None = None             # first fix awaiting confirmation
         self.used_refs: tuple = ()                     # (sensor, reference) of the last accepted fixes
@@ -420,12 +421,12 @@ class TrainFilter:
             aux.gated = _inc(aux.gated, cls + "/slip")
             self._separate(m, e, S)
             return True
-        if alt is not None and alt[0] ** 2 <= self._slip_gate * self._alternative_spread(cls, alt)[1]:
+        if alt is not None and alt[5] ** 2 <= self._slip_gate * self._alternative_spread(cls, alt)[1]:
             # the episode ended with a separation that the sensor's own errors explain: no longer
             # tracked as a view of its own, but merged into the position covariance (moment
             # matching of the two views, the filter's mean kept), so the interval still covers it
             aux.relative_alternatives = {k: v for k, v in aux.relative_alternatives.items() if k != cls}
-            self._merge_view(alt[0] ** 2)
+            self._merge_view(alt[5] ** 2)
         window, summed = self._windowed(aux.slip_window.get(cls, ()), m, e, S)
         if nis > self._slip_gate or summed > self._slip_gate:
             aux.slip_window = {**aux.slip_window, cls: ()}
@@ -502,7 +503,7 @@ class TrainFilter:
         # without another speed source the disagreement is with the motion model alone
         physical = physical and self._reference_ok(m)
         if not physical and m.sensor not in aux.relative_alternatives:
-            aux.relative_alternatives = {**aux.relative_alternatives, m.sensor: (0.0, 0.0, m.stamp, m.stamp, 0.0)}
+            aux.relative_alternatives = {**aux.relative_alternatives, m.sensor: (0.0, 0.0, m.stamp, m.stamp, 0.0, 0.0)}
             aux.events = _inc(aux.events, "ambiguous_slip")
         if not physical and m.sensor not in aux.suspended:
             # suspected faulty: back only after agreeing for slip_window s without being applied
@@ -516,15 +517,17 @@ class TrainFilter:
         alt = aux.relative_alternatives.get(m.sensor)
         if alt is None:
             return
-        D, white, since, last, run = alt
+        D, white, since, last, run, far = alt
         d = getattr(m, "duration", 0.0) or (m.stamp - last)   # a speed holds since the previous one
         R = max(S - float(self.ekf.P[1, 1]), 0.0)              # its own noise (speed units), roughly
+        D += e * d
         aux.relative_alternatives = {**aux.relative_alternatives, m.sensor: (
-            D + e * d, white + R * d * d, since, m.stamp, run + abs(float(self.ekf.x[1, 0])) * d)}
+            D, white + R * d * d, since, m.stamp, run + abs(float(self.ekf.x[1, 0])) * d,
+            D if abs(D) > abs(far) else far)}
 
     def _alternative_spread(self, cls: str, alt: tuple) -> tuple[float, float]:
         """(separation D [m], its variance [m^2]) of a relative alternative."""
-        D, white, _, _, run = alt
+        D, white, _, _, run, _ = alt
         model = self.models[cls]
         scale = model.scale_sigma + model.scale_offset_sigma
         return D, white + (scale * run) ** 2
@@ -604,7 +607,7 @@ class TrainFilter:
         S_v = S + var_D
         D_new = D + (A + var_D) / S_v * (nu - D) - A / S * nu
         var_new = max(R * ((A + var_D) / S_v - A / S), 0.0)
-        return (D_new, var_new, alt[2], alt[3], 0.0)
+        return (D_new, var_new, alt[2], alt[3], 0.0, D_new)
 
     def _suspend(self, cls: str, fault: tuple | None) -> None:
         """Suspend speed source ``cls`` for the fault seen: (disagreement [m/s], at speed [m/s]),
@@ -615,7 +618,7 @@ class TrainFilter:
     def _view_fault(alt: tuple, stamp: float) -> tuple | None:
         """The fault an excluded sensor's view shows: its mean disagreement [m/s] at the mean
         speed [m/s] since the view began."""
-        D, _, since, _, run = alt
+        D, _, since, _, run, _ = alt
         dt = stamp - since
         return (D / dt, run / dt) if dt > 0.0 else None
 
@@ -1118,7 +1121,10 @@ class TrainFilter:
         for cls, rel in aux.relative_alternatives.items():   # the excluded sensors' views
             D, var_D = self._alternative_spread(cls, rel)
             half = self._z * math.sqrt(var_s + var_D)
-            alt_lo, alt_hi = float(s) + D - half, float(s) + D + half
+            # from its current separation to the farthest one: the excluded sensor is no more
+            # trusted than the others (right until then, it may have slipped back since)
+            near, far = sorted((D, rel[5]))
+            alt_lo, alt_hi = float(s) + near - half, float(s) + far + half
             if alt_lo < lo or alt_hi > hi:
                 lo, hi = min(lo, alt_lo), max(hi, alt_hi)
                 sd_s = max(sd_s, (hi - lo) / (2.0 * self._z))

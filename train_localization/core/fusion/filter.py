@@ -611,8 +611,20 @@ class TrainFilter:
 
     def _suspend(self, cls: str, fault: tuple | None) -> None:
         """Suspend speed source ``cls`` for the fault seen: (disagreement [m/s], at speed [m/s]),
-        or None if its size is not known."""
+        or None if its size is not known or its own error model explains it (within the slip
+        gate of the spread its scale and bias priors give at that speed): such a disagreement
+        needs no proof of its absence before the sensor is back."""
+        if fault is not None and fault[0] ** 2 <= self._slip_gate * self._model_variance(cls, fault[1]):
+            fault = None
         self.aux.suspended = {**self.aux.suspended, cls: (math.inf, (), fault)}
+
+    def _model_variance(self, cls: str, speed: float) -> float:
+        """The variance [m^2/s^2] of relative sensor ``cls``'s reading at ``speed`` [m/s] that its
+        error model's scale and bias priors allow."""
+        lay, sigma = self.layout, self.layout.prior_sigma
+        scale = sum(sigma[table[cls]] ** 2 for table in (lay.scale, lay.offset) if cls in table)
+        bias = sigma[lay.bias[cls]] ** 2 if cls in lay.bias else 0.0
+        return scale * speed * speed + bias
 
     @staticmethod
     def _view_fault(alt: tuple, stamp: float) -> tuple | None:

@@ -34,13 +34,21 @@ MAGLEV = {
     "profile": [{"speed": 35.0, "hold": 30.0}],
     "sensors": {"inpo_receiver": {}, "pattern_belt": {}},
 }
+LZB = {
+    "name": "identity_lzb", "seed": 5, "duration": 15.0,
+    "track": yaml.safe_load((ROOT / "config" / "track_lzb.yaml").read_text()),
+    "vehicle": {"type": "conventional", "length": 60.0, "axles": [2.5, 5.0, 30.0, 32.5]},
+    "initial": {"position": 480.0, "speed": 40.0},  # the LZB count starts at the loop joint at 600 m
+    "profile": [{"speed": 45.0, "hold": 30.0}],
+    "sensors": {"lzb_receiver": {}, "doppler_radar": {}},
+}
 
 
-def test_the_two_scenarios_cover_every_sensor():
-    assert set(CONVENTIONAL["sensors"]) | set(MAGLEV["sensors"]) == set(NODE_NAMES)
+def test_the_scenarios_cover_every_sensor():
+    assert set(CONVENTIONAL["sensors"]) | set(MAGLEV["sensors"]) | set(LZB["sensors"]) == set(NODE_NAMES)
 
 
-@pytest.fixture(scope="module", params=[CONVENTIONAL, MAGLEV], ids=lambda d: d["name"])
+@pytest.fixture(scope="module", params=[CONVENTIONAL, MAGLEV, LZB], ids=lambda d: d["name"])
 def recorded(request, tmp_path_factory):
     """(scenario data, the bag simulate_scenario wrote, its in-process run)."""
     data = request.param

@@ -9,6 +9,16 @@ Equipment is listed per kind. Each entry is a dict with at least ``id`` and
 ``position`` [m]; a generator entry ``{every: d, start: s0, end: s1, id: "BG{n:03d}"}``
 expands to one item every ``d`` metres. Extra keys (a balise telegram, an LRL code,
 a base station's lateral offset, ...) stay in the dict for the sensor models.
+
+Equipment that extends along the track (INPO sections ``inpo_section``, pattern belts
+``pattern_belt``, LZB cable loops ``lzb_loop``) gives its start as ``position`` (or
+``start``) and its extent as ``end`` or ``length`` [m]; the sensor module checks the rest
+(e.g. core/sensors/lzb.py ``loop_table``: loop ``number``, crossing ``spacing``, feeder
+cases ``feeders``; at most 12.7 km, fed within 300 m)::
+
+    lzb_loop:
+      - {id: L01, number: 1, start: 0.0, end: 600.0}
+      - {id: L02, number: 2, position: 600.0, length: 1200.0, spacing: 100.0, feeders: [900.0, 1500.0]}
 """
 from __future__ import annotations
 
@@ -38,12 +48,28 @@ def _expand(kind: str, entries: list) -> list[dict]:
             for n, pos in enumerate(np.arange(start, end + 1e-9, every)):
                 items.append({**extra, "id": template.format(n=n), "position": float(pos)})
         else:
-            if "position" not in entry:
+            if "position" not in entry and "start" not in entry:
                 raise TrackError(f"equipment '{kind}': entry {entry!r} has no 'position'")
+            # an extended item (a loop, a belt) may name its start 'start'
             items.append({**entry, "id": str(entry.get("id", f"{kind}{len(items):03d}")),
-                          "position": float(entry["position"])})
+                          "position": float(entry.get("position", entry.get("start")))})
     items.sort(key=lambda item: item["position"])
     return items
+
+
+def extent(kind: str, item: dict, default_end: float | None = None) -> tuple[float, float]:
+    """(start, end) [m] of an item that extends along the track: its ``position`` (or ``start``)
+    and its ``end`` or ``length``; ``default_end`` if it gives neither (TrackError if None)."""
+    start = float(item.get("start", item["position"]))
+    if "end" in item:
+        end = float(item["end"])
+    elif "length" in item:
+        end = start + float(item["length"])
+    elif default_end is not None:
+        end = float(default_end)
+    else:
+        raise TrackError(f"{kind} '{item['id']}' has neither 'end' nor 'length'")
+    return start, end
 
 
 def nearest(positions: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

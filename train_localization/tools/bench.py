@@ -28,6 +28,7 @@ V500 = 500 / 3.6
 SPEEDS = {
     "wheel_sensor": (83.0, {}),          # 10 kHz default resolves 60 ppr up to 300 km/h (wheel.py)
     "axle_counter": (83.0, {"heads": "AC00,AC01"}),  # conventional rail, 300 km/h
+    "lzb_receiver": (83.0, {}),          # LZB serves conventional trains, ICE up to 300 km/h
 }
 
 
@@ -36,6 +37,9 @@ def _scenario(node: str, speed: float) -> Scenario:
     track["length"] = 20000.0
     track["equipment"]["inpo_section"] = [{"id": "INPO01", "position": 10.0, "end": 19000.0, "period": 0.516}]
     track["equipment"]["pattern_belt"] = [{"id": "PB01", "position": 0.0, "end": 20000.0}]
+    track["equipment"]["lzb_loop"] = [{"id": "L01", "position": 0.0, "end": 600.0},
+                                      {"id": "L02", "position": 600.0, "end": 13300.0},
+                                      {"id": "L03", "position": 13300.0, "end": 20000.0}]
     params = SPEEDS.get(node, (V500, {}))[1]
     return Scenario.from_dict({
         "name": f"bench_{node}", "seed": 1, "duration": 12.0, "track": track,

@@ -15,6 +15,7 @@ _MODULES = {
     "pattern_belt": "pattern_belt",
     "mmwave_ranging": "mmwave",
     "axle_counter": "axle_counter",
+    "lzb_receiver": "lzb",
 }
 
 NODE_NAMES = tuple(_MODULES)

@@ -88,7 +88,7 @@ import numpy as np
 
 from ..measurements import PositionFix
 from ..signals import InputRejected, RawBlock
-from ..track import Track, TrackError
+from ..track import Track, TrackError, extent
 from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator
 
 SECTION_KIND = "inpo_section"
@@ -159,13 +159,7 @@ def section_table(track: Track, default_period: float) -> list[dict]:
     """The inpo_section entries of a track as dicts id, start, end, period, receiver."""
     out, receivers = [], set()
     for i, item in enumerate(track.items(SECTION_KIND)):
-        start = float(item.get("start", item["position"]))
-        if "end" in item:
-            end = float(item["end"])
-        elif "length" in item:
-            end = start + float(item["length"])
-        else:
-            raise TrackError(f"{SECTION_KIND} '{item['id']}' has neither 'end' nor 'length'")
+        start, end = extent(SECTION_KIND, item)
         period = float(item.get("period", default_period))
         receiver = int(item.get("receiver", i + 1))
         if not (end > start and period > 0.0):

@@ -75,7 +75,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from ..signals import InputRejected, RawBlock
-from ..track import Track
+from ..track import Track, extent
 from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator, continuous_timeout
 from .wheel import CycleCounter, IncrementEstimator, increment_or_reject, restart_after_gap
 
@@ -256,13 +256,7 @@ def belt_sections(track: Track, default_period: float) -> np.ndarray:
     """(start, end, period) rows of the belt sections, sorted; whole track if none."""
     rows = []
     for item in track.items(KIND):
-        start = float(item["position"])
-        if "end" in item:
-            end = float(item["end"])
-        elif "length" in item:
-            end = start + float(item["length"])
-        else:
-            end = track.length
+        start, end = extent(KIND, item, default_end=track.length)
         period = float(item.get("period", default_period))
         if end <= start or period <= 0:
             raise ValueError(f"pattern belt {item['id']}: needs end > position and period > 0")

@@ -611,10 +611,14 @@ class TrainFilter:
 
     def _suspend(self, cls: str, fault: tuple | None) -> None:
         """Suspend speed source ``cls`` for the fault seen: (disagreement [m/s], at speed [m/s]),
-        or None if its size is not known or its own error model explains it (within the slip
-        gate of the spread its scale and bias priors give at that speed): such a disagreement
-        needs no proof of its absence before the sensor is back."""
-        if fault is not None and fault[0] ** 2 <= self._slip_gate * self._model_variance(cls, fault[1]):
+        or None if its size is not known, if its own error model explains it (within the slip
+        gate of the spread its scale and bias priors give at that speed), or if the sensor has
+        no persistent fault mode (a wheel: a slip or slide ends with the adhesion, and the
+        others may have been the wrong ones): such a disagreement needs no proof of its absence
+        before the sensor is back (a wheel that agrees at a standstill is back)."""
+        persistent = "scale_fault" in self.models[cls].faults
+        if fault is not None and (not persistent or
+                                  fault[0] ** 2 <= self._slip_gate * self._model_variance(cls, fault[1])):
             fault = None
         self.aux.suspended = {**self.aux.suspended, cls: (math.inf, (), fault)}
 

@@ -42,7 +42,7 @@ def replay_graph(bag: str, scenario: str, sensors: list[str], out_bag: str, rate
     NAMESPACE): its raw topics, ground truth and scenario, moved to ``namespace``.
 
     The replayer publishes /clock from the bag's time line and starts once every sensor
-    node (and the recorder) listens to what it plays."""
+    node (and the recorder) listens to what it plays and every node listens to /clock."""
     from .core.sensors import spec
     classes = [spec(n).sensor for n in sensors]
     played = [f"{NAMESPACE}/sensors/{c}/raw" for c in classes] + [f"{NAMESPACE}/ground_truth/state",
@@ -53,8 +53,11 @@ def replay_graph(bag: str, scenario: str, sensors: list[str], out_bag: str, rate
     nodes += [(name, name, {"mode": "ingest", "scenario": scenario, "use_sim_time": True}) for name in sensors]
     nodes.append(("fusion", "fusion", {"scenario": scenario, "sensors": classes, "use_sim_time": True}))
     replayer = {"bag": bag, "rate": rate, "topics": played,
-                # one subscriber per raw topic (its sensor node), and the recorder on every played topic
-                "wait_for_subscribers": len(classes) + (len(played) if record else 0)}
+                # one subscriber per raw topic (its sensor node), and the recorder on every played topic;
+                # every node on /clock (the fusion listens to no played topic: without it, the first
+                # seconds were played before it was up on a loaded machine)
+                "wait_for_subscribers": len(classes) + (len(played) if record else 0),
+                "wait_for_clock_subscribers": len(classes) + 1 + int(record)}
     if namespace.rstrip("/") != NAMESPACE:
         replayer["remap"] = [f"{t}:={namespace.rstrip('/')}{t[len(NAMESPACE):]}" for t in played]
     nodes.append(("replayer", "replayer", replayer))

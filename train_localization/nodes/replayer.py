@@ -15,6 +15,9 @@ Parameters:
   exit_at_end (bool, true)   shut down after the last message (ignored with loop)
   wait_for_subscribers (int, 0)  before playing, wait (at most 60 s) until the
                              played topics have this many matched subscribers in all
+  wait_for_clock_subscribers (int, 0)  ... and /clock this many (every node with
+                             use_sim_time: a node that listens to no played topic, the
+                             fusion, is up once it has /clock)
 A truncated bag (its recorder killed) is played up to its last complete chunk, with a
 warning.
 """
@@ -53,6 +56,8 @@ class ReplayerNode(Node):
         self.clock_period = 1.0 / float(declare(self, "clock_rate", 100.0, "/clock rate [Hz of bag time]"))
         self.exit_at_end = bool(declare(self, "exit_at_end", True, "shut down at the end"))
         self.wait_for = int(declare(self, "wait_for_subscribers", 0, "matched subscribers to wait for"))
+        self.wait_for_clock = int(declare(self, "wait_for_clock_subscribers", 0,
+                                          "matched /clock subscribers to wait for (nodes with use_sim_time)"))
         self.pubs = {}
         self.published = 0
         self.finished = False
@@ -95,7 +100,8 @@ class ReplayerNode(Node):
 
     def _run(self):
         deadline = time.monotonic() + 60.0
-        while (sum(p.get_subscription_count() for p in self.pubs.values()) < self.wait_for
+        while ((sum(p.get_subscription_count() for p in self.pubs.values()) < self.wait_for
+                or (self.clock_pub is not None and self.clock_pub.get_subscription_count() < self.wait_for_clock))
                and time.monotonic() < deadline and not self._stop.is_set()):
             self._stop.wait(0.05)
         self._stop.wait(0.5)  # let subscribers match

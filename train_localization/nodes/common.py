@@ -25,6 +25,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from ..core.convert import MsgClasses
+from ..core.sensors.base import out_of_limits
 from ..core.scenario import ScenarioError
 from ..core.track import TrackError
 
@@ -126,16 +127,16 @@ class ConfigurationError(ValueError):
 
 
 def declare(node: Node, name: str, default, description: str = "", read_only: bool = False,
-            limits: tuple | None = None, nan_ok: bool = False):
+            limits: tuple | None = None):
     """Declare a parameter with a description and return its value.
 
     A double parameter also takes an integer (``-p rate:=2``): it is declared with dynamic
     typing and converted; anything else raises ConfigurationError naming the parameter.
     ``read_only``: read at start-up only, so ``ros2 param set`` refuses to change it.
     ``limits`` (lo, hi): the inclusive range of a number, in the descriptor (``ros2 param
-    describe`` shows it, ``ros2 param set`` beyond it is refused) and checked here.
-    ``nan_ok``: NaN is a value too (a parameter's 'not set', e.g. the wheel's diameter_error):
-    the range is then in the description only (rclpy's range check refuses NaN)."""
+    describe`` shows it, ``ros2 param set`` beyond it is refused) and checked here. A NaN
+    default is a value too (a parameter's 'not set', e.g. the wheel's diameter_error): its
+    range is then in the description only (rclpy's range check refuses NaN)."""
     from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
     if node.has_parameter(name):   # a lifecycle node configured again
         value = node.get_parameter(name).value
@@ -145,7 +146,7 @@ def declare(node: Node, name: str, default, description: str = "", read_only: bo
         lo, hi = limits
         desc.description += f" [{lo:g} .. {hi:g}]"
         if isinstance(default, float):
-            if not nan_ok:
+            if not math.isnan(default):
                 desc.floating_point_range = [FloatingPointRange(from_value=float(lo), to_value=float(hi), step=0.0)]
         else:
             desc.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
@@ -157,9 +158,9 @@ def declare(node: Node, name: str, default, description: str = "", read_only: bo
         value = float(value)
     else:
         value = node.declare_parameter(name, default, desc).value
-    if limits is not None and not (isinstance(value, (int, float)) and limits[0] <= value <= limits[1]) \
-            and not (nan_ok and isinstance(value, float) and math.isnan(value)):
-        raise ConfigurationError(f"parameter {name!r} must be in {limits[0]:g} .. {limits[1]:g}, not {value!r}")
+    why = out_of_limits(name, value, limits, default)
+    if why:
+        raise ConfigurationError(why)
     return value
 
 

@@ -19,7 +19,6 @@ running.
 """
 from __future__ import annotations
 
-import math
 import sys
 
 from rclpy.lifecycle import TransitionCallbackReturn
@@ -83,8 +82,7 @@ class SensorNode(ManagedNode):
                 default = float(default)
             if isinstance(p.default, list) and not default:
                 continue  # empty lists have no ROS parameter type; keep the default
-            overrides[name] = declare(self, name, default, p.description, read_only=True, limits=p.limits,
-                                      nan_ok=isinstance(p.default, float) and math.isnan(p.default))
+            overrides[name] = declare(self, name, default, p.description, read_only=True, limits=p.limits)
         self.future_tolerance = declare(
             self, "future_tolerance", FUTURE_TOLERANCE, "ingest: a raw block whose last sample is stamped further ahead of "
             "the node clock than this [s] is refused (future): one block stamped far ahead would become "

@@ -45,14 +45,20 @@ class Param:
         return isinstance(self.default, (int, float)) and not isinstance(self.default, bool)
 
     def refusal(self, name: str, value) -> str | None:
-        """Why ``value`` is refused by the limits (one line, as the node says), or None.
-        NaN is taken only where the default is NaN (the parameter's 'not set')."""
-        if self.limits is None or isinstance(value, bool) or not isinstance(value, (int, float)):
-            return None
-        lo, hi = self.limits
-        if lo <= value <= hi or (math.isnan(value) and math.isnan(self.default)):
-            return None
-        return f"parameter {name!r} must be in {lo:g} .. {hi:g}, not {value!r}"
+        """Why ``value`` is refused by the limits (one line, as the node says), or None."""
+        return out_of_limits(name, value, self.limits, self.default)
+
+
+def out_of_limits(name: str, value, limits: tuple | None, default=None) -> str | None:
+    """Why a number ``value`` of parameter ``name`` is refused by its inclusive ``limits`` (lo,
+    hi), in one line, or None (no limits, not a number, inside). NaN is taken only where the
+    ``default`` is NaN (the parameter's 'not set')."""
+    if limits is None or isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    lo, hi = limits
+    if lo <= value <= hi or (math.isnan(value) and isinstance(default, float) and math.isnan(default)):
+        return None
+    return f"parameter {name!r} must be in {lo:g} .. {hi:g}, not {value!r}"
 
 
 def check_declared(params: dict[str, "Param"], owner: str) -> None:

@@ -278,13 +278,25 @@ class Decoder(ABC):
     channels: tuple[str, ...] = ()
     # attributes that only memoise (bounded, results do not depend on them): the only state a
     # rejected block may change
-    caches: tuple[str, ...] = ()
+    caches: tuple[str, ...] = ("_offsets",)
 
     def __init__(self, params: dict, track: Track):
         self.params = params
         self.track = track
         self.unit_id = params.get("unit_id") or self.sensor
         self.stats: dict[str, float] = {}
+        self._offsets: dict = {}   # sample times - t0 per (n, sample rate)
+
+    def sample_offsets(self, n: int, rate: float) -> np.ndarray:
+        """Sample times of an n-sample block at ``rate`` [Hz] relative to its first sample [s]
+        (as RawBlock.times), memoised per block shape (a few; read-only arrays)."""
+        offsets = self._offsets.get((n, rate))
+        if offsets is None:
+            if len(self._offsets) > 8:
+                self._offsets.clear()
+            offsets = self._offsets[n, rate] = np.arange(n) / rate
+            offsets.flags.writeable = False
+        return offsets
 
     @abstractmethod
     def decode(self, block: RawBlock) -> list[Measurement]:

@@ -349,7 +349,6 @@ class InpoDecoder(Decoder):
         self.expected = self.pairs + ("receiver",)
         self.sections = {s["receiver"]: s for s in section_table(track, params["period"])}
         self._known_rx = set(self.sections) | {0}
-        self._offsets: dict = {}
         # state carried between blocks
         self._t_last: float | None = None   # time of the last processed sample [s]
         self._in = False                     # hysteresis state of the last sample
@@ -454,20 +453,12 @@ class InpoDecoder(Decoder):
         inside_l, rx_l = inside.tolist(), rx.tolist()
         return [(i0, i1, inside_l[i0], rx_l[i0]) for i0, i1 in zip(bounds[:-1], bounds[1:])]
 
-    def _sample_offsets(self, n: int, rate: float) -> np.ndarray:
-        """Sample times - t0 [s] of a block, cached per (n, sample rate)."""
-        offsets = self._offsets.get((n, rate))
-        if offsets is None:
-            offsets = self._offsets[n, rate] = np.arange(n) / rate
-            offsets.flags.writeable = False
-        return offsets
-
     # --- decoding ---------------------------------------------------------------
     def decode(self, block: RawBlock):
         p = self.params
         theta, amp, rx, all_strong, d, dmod = self._check(block)  # raises before any state changes
         n = block.n_samples
-        t = block.t0 + self._sample_offsets(n, block.sample_rate)   # = block.times()
+        t = block.t0 + self.sample_offsets(n, block.sample_rate)   # = block.times()
         dt = 1.0 / block.sample_rate
         mode, w_last, theta_last = self._mode, self._w_last, self._theta_last
         w_entry, offset, rate, prev_in, prev_rx = self._w_entry, self._offset, self._rate, self._in, self._rx

@@ -470,7 +470,6 @@ def _wrap_deg(a: float) -> float:
 class LzbDecoder(Decoder):
     sensor = SENSOR
     channels = LzbSimulator.channels
-    caches = ("_offsets",)
 
     def __init__(self, params: dict, track: Track):
         super().__init__(params, track)
@@ -478,7 +477,6 @@ class LzbDecoder(Decoder):
         self._by_number = {row["number"]: k for k, row in enumerate(self.loops)}
         self._known = set(self._by_number) | {0}
         self._min_cell = {k: float(np.min(np.diff(row["crossings"]))) for k, row in enumerate(self.loops)}
-        self._offsets: dict = {}
         # state carried between blocks (plain numbers: a rejected block changes none of it)
         self._t_last: float | None = None   # time of the last sample [s]
         self._phi: float | None = None      # phase of the last strong sample [rad]; None: no carrier yet
@@ -520,21 +518,12 @@ class LzbDecoder(Decoder):
                                                   f"{self.track.track_id}")
         return level, phase, loop, tel
 
-    def _sample_offsets(self, n: int, rate: float) -> np.ndarray:
-        offsets = self._offsets.get((n, rate))
-        if offsets is None:
-            if len(self._offsets) > 8:
-                self._offsets.clear()
-            offsets = self._offsets[n, rate] = np.arange(n) / rate
-            offsets.flags.writeable = False
-        return offsets
-
     # --- decoding -----------------------------------------------------------------
     def decode(self, block: RawBlock):
         p = self.params
         level, phase, loop, tel = self._check(block)   # raises before any state changes
         n = block.n_samples
-        t = block.t0 + self._sample_offsets(n, block.sample_rate)
+        t = block.t0 + self.sample_offsets(n, block.sample_rate)
         dt = 1.0 / block.sample_rate
         out: list[PositionFix] = []
         if self._t_last is not None and t[0] - self._t_last > 1.5 * dt:

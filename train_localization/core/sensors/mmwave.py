@@ -394,7 +394,6 @@ class MmWaveDecoder(Decoder):
         self._pos_increasing = bool(np.all(self.pos[1:] > self.pos[:-1]))
         self._patterns: dict = {}
         self._ref_cache: dict = {}
-        self._offsets: dict = {}   # sample times - t0 per (n, sample rate)
         self._cols: dict = {}
         # range_sigma(snr)^2 + cal_sigma^2 = const + coef * exp(snr * expo)
         self._sig2_const = params["range_sigma_floor"] ** 2 + params["cal_sigma"] ** 2
@@ -517,11 +516,7 @@ class MmWaveDecoder(Decoder):
         codes_f, delay, snr = data[0::3], data[1::3], data[2::3]
         pat = self._check(data, codes_f, delay, snr)
         n = block.n_samples
-        offsets = self._offsets.get((n, block.sample_rate))
-        if offsets is None:
-            offsets = self._offsets[n, block.sample_rate] = np.arange(n) / block.sample_rate
-            offsets.flags.writeable = False
-        times = block.t0 + offsets   # = block.times()
+        times = block.t0 + self.sample_offsets(n, block.sample_rate)   # = block.times()
         # an empty slot has delay 0 (checked), so a positive delay implies a station
         valid = (delay > 0.0) & (snr >= p["snr_threshold"])
         rng = delay * C_AIR

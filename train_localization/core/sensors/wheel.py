@@ -666,8 +666,6 @@ class WheelDecoder(Decoder):
             position_jitter=p["vibration"],
             unevenness=(p["phase_tolerance"] / 360.0 + p["duty_tolerance"]) * 4.0 * self.edge / math.sqrt(3.0))
         self._t_next: float | None = None
-        self._offsets_key: tuple | None = None
-        self._offsets_cache = np.empty(0)
         self.stats = {"edges": 0, "illegal_transitions": 0, "gaps": 0}
 
     @property
@@ -687,18 +685,11 @@ class WheelDecoder(Decoder):
         fs = block.sample_rate
         restart_after_gap(self, block)
         q = _QUAD_INDEX[(ab @ _CODE_WEIGHTS).astype(np.intp)]
-        res = self.counter.feed(block.t0 + self._offsets(len(ab), fs), q, sample_period=1.0 / fs, all_valid=True)
+        res = self.counter.feed(block.t0 + self.sample_offsets(len(ab), fs), q, sample_period=1.0 / fs, all_valid=True)
         self.stats["edges"] += res.transitions
         self.stats["illegal_transitions"] += res.illegal
         return increment_or_reject(self.counter, self.estimator, res, fs, max(2, 0.1 * res.transitions),
                                    "quadrature transitions", "channel")
-
-    def _offsets(self, n: int, fs: float) -> np.ndarray:
-        """Sample times of a block relative to its first sample [s] (as RawBlock.times), cached."""
-        if self._offsets_key != (n, fs):
-            self._offsets_key = (n, fs)
-            self._offsets_cache = np.arange(n) / fs
-        return self._offsets_cache
 
 
 def error_model(params: dict, track, vehicle) -> ErrorModel:

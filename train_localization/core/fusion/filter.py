@@ -484,7 +484,7 @@ class TrainFilter:
         hk = h[idx]
         return max(float(hk.dot(self.ekf.P[np.ix_(idx, idx)]).dot(hk)), 0.0)
 
-    def _episode_starts(self, m, e: float, shown: float | None = None) -> None:
+    def _episode_starts(self, m, e: float, shown: float) -> None:
         """A fault episode of ``m.sensor`` starts with the disagreement e [m/s] (``shown``: the
         disagreement the test saw, e or its mean over the window). A wheel slips
         only under traction (it turns faster) and slides only under braking (slower); a
@@ -508,7 +508,7 @@ class TrainFilter:
         if not physical and m.sensor not in aux.suspended:
             # suspected faulty: back only after agreeing for slip_window s without being applied
             # (one reading that slips through the gate would be adopted at full weight)
-            self._suspend(m.sensor, (e if shown is None else shown, v))
+            self._suspend(m.sensor, (shown, v))
 
     def _separate(self, m, e: float, S: float) -> None:
         """While a sensor is excluded as the alternative, add up how far it ran ahead [m], the

@@ -87,3 +87,30 @@ def spin_until(node, predicate, timeout: float = 20.0) -> bool:
         return predicate()
     finally:
         ex.remove_node(node)
+
+
+def ask(node, client, request, attempts: int = 3, wait: float = 5.0):
+    """Send an idempotent service request and return its reply, sending it again when none came.
+
+    DDS matches a service's request path before its reply path: a request sent as soon as
+    ``service_is_ready()`` can be answered into the void (seen in fresh-clone CI runs). Only for
+    requests that may be applied twice; None when no reply came after every attempt."""
+    for _ in range(attempts):
+        future = client.call_async(request)
+        if spin_until(node, future.done, wait):
+            return future.result()
+    return None
+
+
+def lifecycle_replies(node, change_client, timeout: float = 30.0) -> bool:
+    """Wait until a lifecycle change_state service answers, probing it with a transition label
+    no node has (refused, no state change), so the first real transition's reply is not lost."""
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if spin_until(node, change_client.service_is_ready, deadline - time.monotonic()) and \
+                ask(node, change_client, ChangeState.Request(transition=Transition(label="no_such_transition")),
+                    attempts=1, wait=2.0) is not None:
+            return True
+    return False

@@ -7,7 +7,7 @@ import time
 import numpy as np
 import pytest
 
-from conftest import spin_until
+from conftest import ask, lifecycle_replies, spin_until
 from train_localization.core.sensors import NODE_NAMES
 
 NS = ["-r", "__ns:=/train"]
@@ -190,9 +190,9 @@ def test_fusion_diagnostics_level_follows_the_mode(ros_context, start_node):
 
     def set_position(client):
         """Operator reset to 500 m, standing (SetPosition), answered successfully."""
-        future = client.call_async(SetPosition.Request(position=500.0, position_stddev=0.1, speed=0.0,
-                                                       speed_stddev=0.001))
-        assert spin_until(node, future.done, 10.0) and future.result().success, proc.output()
+        reply = ask(node, client, SetPosition.Request(position=500.0, position_stddev=0.1, speed=0.0,
+                                                      speed_stddev=0.001))
+        assert reply is not None and reply.success, proc.output()
     try:
         assert spin_until(node, lambda: pub.get_subscription_count() > 0 and client.service_is_ready(), 30.0), \
             proc.output()
@@ -305,9 +305,9 @@ def test_with_an_odom_frame_the_fusion_publishes_map_to_odom_only(ros_context, s
     node.create_subscription(Odometry, "localization/odometry", odoms.append, STREAM_QOS)
     try:
         assert spin_until(node, client.service_is_ready, 30.0), proc.output()
-        future = client.call_async(SetPosition.Request(position=1200.0, position_stddev=0.5, speed=0.0,
-                                                       speed_stddev=0.001))
-        assert spin_until(node, future.done, 10.0) and future.result().success, proc.output()
+        reply = ask(node, client, SetPosition.Request(position=1200.0, position_stddev=0.5, speed=0.0,
+                                                      speed_stddev=0.001))
+        assert reply is not None and reply.success, proc.output()
         ob = TransformStamped()
         ob.header.frame_id, ob.child_frame_id = "odom", "base_link"
         ob.transform.translation.x, ob.transform.translation.y = 40.0, -3.0
@@ -349,9 +349,9 @@ def test_run_time_parameter_changes_take_effect_or_are_refused_with_a_reason(ros
 
     def set_param(name, value):
         v = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value)
-        future = client.call_async(SetParameters.Request(parameters=[Parameter(name=name, value=v)]))
-        assert spin_until(node, future.done, 10.0)
-        return future.result().results[0]
+        reply = ask(node, client, SetParameters.Request(parameters=[Parameter(name=name, value=v)]))
+        assert reply is not None, proc.output()
+        return reply.results[0]
 
     def rate_over(seconds):
         n0, t0 = len(stamps), time.monotonic()
@@ -400,10 +400,10 @@ def test_fusion_takes_nested_per_sensor_parameters_from_a_params_file(ros_contex
     client = node.create_client(GetParameters, "fusion/get_parameters")
     try:
         assert spin_until(node, client.service_is_ready, 30.0), proc.output()
-        future = client.call_async(GetParameters.Request(names=["doppler.scale_sigma", "doppler.timeout",
-                                                                "publish_rate", "eurobalise.faults"]))
-        assert spin_until(node, future.done, 10.0), proc.output()
-        values = future.result().values   # an integer stays an integer parameter; the node takes it as a double
+        reply = ask(node, client, GetParameters.Request(names=["doppler.scale_sigma", "doppler.timeout",
+                                                               "publish_rate", "eurobalise.faults"]))
+        assert reply is not None, proc.output()
+        values = reply.values   # an integer stays an integer parameter; the node takes it as a double
         assert [v.double_value or float(v.integer_value) for v in values[:3]] == [0.02, 3.0, 20.0]
         assert values[3].string_value == "misread"
         assert "error model of doppler overridden: scale_sigma=0.02, timeout=3.0" in proc.output()
@@ -487,18 +487,17 @@ def test_managed_fusion_follows_its_lifecycle_transitions(ros_context, start_nod
     states = []
     node.create_subscription(TrainState, "localization/state", states.append, LATCHED_QOS)
 
-    def call(client, request):
-        future = client.call_async(request)
-        assert spin_until(node, future.done, 10.0), proc.output()
-        return future.result()
-
     def transition(tid):
-        return call(change, ChangeState.Request(transition=Transition(id=tid))).success
+        future = change.call_async(ChangeState.Request(transition=Transition(id=tid)))
+        assert spin_until(node, future.done, 10.0), proc.output()
+        return future.result().success
 
     def label():
-        return call(get, GetState.Request()).current_state.label
+        reply = ask(node, get, GetState.Request())
+        assert reply is not None, proc.output()
+        return reply.current_state.label
     try:
-        assert spin_until(node, lambda: change.service_is_ready() and get.service_is_ready(), 30.0), proc.output()
+        assert lifecycle_replies(node, change), proc.output()
         assert label() == "unconfigured"
         spin_until(node, lambda: False, 1.0)
         assert not states
@@ -523,7 +522,7 @@ def test_managed_fusion_follows_its_lifecycle_transitions(ros_context, start_nod
     node = ros_context.create_node("probe_lifecycle_bad", namespace="/train")
     change = node.create_client(ChangeState, "fusion/change_state")
     try:
-        assert spin_until(node, change.service_is_ready, 30.0), bad.output()
+        assert lifecycle_replies(node, change), bad.output()
         future = change.call_async(ChangeState.Request(transition=Transition(id=Transition.TRANSITION_CONFIGURE)))
         assert spin_until(node, future.done, 10.0) and not future.result().success
         assert "configure failed" in bad.output() and "no/such.yaml" in bad.output()
@@ -564,7 +563,7 @@ def test_managed_sensor_node_decodes_only_while_active(ros_context, start_node):
         pub.publish(raw_block_to_msg(blocks[k], mc))
         spin_until(node, lambda: False, 0.5)
     try:
-        assert spin_until(node, change.service_is_ready, 30.0), proc.output()
+        assert lifecycle_replies(node, change), proc.output()
         assert transition(Transition.TRANSITION_CONFIGURE)
         assert spin_until(node, lambda: pub.get_subscription_count() == 0, 2.0)   # not subscribed yet
         assert transition(Transition.TRANSITION_ACTIVATE)
@@ -661,21 +660,16 @@ def test_numeric_parameters_carry_their_range_and_a_value_beyond_it_stops_the_no
     """A sensor node's limited parameters have the range in their descriptor (what ``ros2
     param describe`` shows); a value beyond it, given as a double or as an integer, stops the
     node with exit code 2 and one line naming the parameter, no traceback."""
-    from rclpy.parameter_client import AsyncParameterClient
+    from rcl_interfaces.srv import DescribeParameters
     good = start_node("doppler_radar", "--ros-args", *NS, "-p", "mode:=ingest", "-r", "__node:=radar_limits")
     node = ros_context.create_node("probe_limits", namespace="/train")
     try:
-        client = AsyncParameterClient(node, "/train/radar_limits")
-        assert client.wait_for_services(timeout_sec=30.0), good.output()
-        names = ["max_block_duration", "future_tolerance", "carrier_frequency", "faults"]
-        # a request sent as soon as the service is discovered can be lost while the reply path is
-        # still being matched (DDS discovery; one fresh-clone CI run waited 10 s for nothing): ask again
-        for _ in range(3):
-            future = client.describe_parameters(names)
-            if spin_until(node, future.done, 5.0):
-                break
-        assert future.done(), good.output()
-        limited, tolerance, carrier, free = future.result().descriptors
+        client = node.create_client(DescribeParameters, "/train/radar_limits/describe_parameters")
+        assert spin_until(node, client.service_is_ready, 30.0), good.output()
+        reply = ask(node, client, DescribeParameters.Request(names=["max_block_duration", "future_tolerance", "carrier_frequency",
+                                                            "faults"]))
+        assert reply is not None, good.output()
+        limited, tolerance, carrier, free = reply.descriptors
         assert (limited.floating_point_range[0].from_value, limited.floating_point_range[0].to_value) == (1e-3, 60.0)
         assert (tolerance.floating_point_range[0].from_value, tolerance.floating_point_range[0].to_value) == (1e-3, 3600.0)
         assert (carrier.floating_point_range[0].from_value, carrier.floating_point_range[0].to_value) == (1e9, 1e11)

@@ -170,6 +170,17 @@ def test_fixes_match_truth_both_directions(v):
         assert np.mean(np.abs(z) <= 1.0) > 0.5
 
 
+def test_installation_errors_stay_within_the_location_accuracy_bound():
+    """A balise's real centre is off its track-file chainage by a Gaussian error of
+    location_sigma, within the commissioned accuracy bound (3 sigma: +-1 m for the default
+    0.33 m): the 3-sigma-truncated normal's spread, and nothing beyond the bound."""
+    _, _, _, pipe, _ = run(scenario(40.0, 0.5, sensors={"location_sigma": 0.4}))
+    err = pipe.simulator._installation_errors(200_000)
+    assert np.max(np.abs(err)) <= 3.0 * 0.4
+    assert np.std(err) == pytest.approx(0.4 * math.sqrt(0.97334), rel=0.01)   # truncated at +-3 sigma
+    assert np.mean(np.abs(err) > 2.0 * 0.4) == pytest.approx(0.0428, abs=0.002)
+
+
 @pytest.mark.parametrize("v", [60.0, -500 / 3.6])
 def test_peak_timing_alone_is_mm_accurate(v):
     """Without the installation error the stamp of the field peak puts the fix within mm."""

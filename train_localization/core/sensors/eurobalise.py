@@ -39,7 +39,10 @@ balises of the track (equipment kind ``eurobalise``). Raw signal (default 5 kHz)
     all copies corrupt) the passage is a failed read.
 
   The balise's real centre differs from the chainage in the track file by a constant
-  installation/survey error of 1-sigma ``location_sigma`` per balise (drawn once).
+  installation/survey error of 1-sigma ``location_sigma`` per balise (drawn once), within
+  the location accuracy it is commissioned to (+-``LOCATION_BOUND`` sigma: ETCS gives the
+  balise location accuracy as a bound, Q_LOCACC, and a balise surveyed beyond it is re-laid,
+  so a draw beyond it is drawn again).
 
 Sample rate: the field peak is 0.31 m wide at half maximum (eq. 3, y = 200 mm),
 2.2 ms at 500 km/h: 5 kHz gives 11 samples across it; 2 channels -> 10 k samples/s.
@@ -329,6 +332,7 @@ def _half_max_geometry(y: float) -> tuple[float, float]:
 
 NEAR_RANGE = 1.5   # [m] beyond this the field of a balise is < 1e-3 of its peak (ignored)
 PENDING_READS = 2  # withheld reads kept as references of the plausibility check
+LOCATION_BOUND = 3.0  # location accuracy bound / location_sigma (the +-1 m of SUBSET-036 is 3 sigma)
 
 
 class EurobaliseSimulator(Simulator):
@@ -344,13 +348,23 @@ class EurobaliseSimulator(Simulator):
         items = self.track.items(KIND)
         nid = telegram_ids(items)
         pos = np.array([it["position"] for it in items], dtype=float)
-        # installation / survey error: the real centre differs from the track file
-        pos = pos + self.rng.normal(0.0, p["location_sigma"], len(items))
+        pos = pos + self._installation_errors(len(items))
         order = np.argsort(pos, kind="stable")
         self._pos = pos[order]
         self._nid = np.array([nid[str(items[i]["id"])] for i in order], dtype=float)
         self._t_r = telegram_time(p["telegram_bits"], p["bit_rate"])
         self._passage: dict | None = None
+
+    def _installation_errors(self, n: int) -> np.ndarray:
+        """Real centre minus track-file chainage of n balises [m]: Gaussian of 1-sigma
+        ``location_sigma`` within the commissioned accuracy bound (beyond it: re-laid, drawn again)."""
+        sigma = self.params["location_sigma"]
+        err = self.rng.normal(0.0, sigma, n)
+        beyond = np.abs(err) > LOCATION_BOUND * sigma
+        while beyond.any():
+            err[beyond] = self.rng.normal(0.0, sigma, int(beyond.sum()))
+            beyond = np.abs(err) > LOCATION_BOUND * sigma
+        return err
 
     def _new_passage(self, k: int) -> dict:
         p = self.params

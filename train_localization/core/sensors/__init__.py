@@ -16,6 +16,7 @@ _MODULES = {
     "mmwave_ranging": "mmwave",
     "axle_counter": "axle_counter",
     "lzb_receiver": "lzb",
+    "track_circuit_receiver": "track_circuit",
 }
 
 NODE_NAMES = tuple(_MODULES)

@@ -42,13 +42,22 @@ LZB = {
     "profile": [{"speed": 45.0, "hold": 30.0}],
     "sensors": {"lzb_receiver": {}, "doppler_radar": {}},
 }
+TRACK_CIRCUIT = {
+    "name": "identity_track_circuit", "seed": 6, "duration": 12.0,
+    "track": yaml.safe_load((ROOT / "config" / "track_highspeed.yaml").read_text()),
+    "vehicle": {"type": "conventional", "length": 60.0, "axles": [2.5, 5.0, 30.0, 32.5]},
+    "initial": {"position": 1800.0, "speed": 60.0},  # TC00 -> TC01 at 2000 m: a hand-over and its fix
+    "profile": [{"speed": 60.0, "hold": 30.0}],
+    "sensors": {"track_circuit_receiver": {"first_axle_offset": 2.5, "block_duration": 0.2}, "doppler_radar": {}},
+}
+SCENARIOS = [CONVENTIONAL, MAGLEV, LZB, TRACK_CIRCUIT]
 
 
 def test_the_scenarios_cover_every_sensor():
-    assert set(CONVENTIONAL["sensors"]) | set(MAGLEV["sensors"]) | set(LZB["sensors"]) == set(NODE_NAMES)
+    assert set().union(*(d["sensors"] for d in SCENARIOS)) == set(NODE_NAMES)
 
 
-@pytest.fixture(scope="module", params=[CONVENTIONAL, MAGLEV, LZB], ids=lambda d: d["name"])
+@pytest.fixture(scope="module", params=SCENARIOS, ids=lambda d: d["name"])
 def recorded(request, tmp_path_factory):
     """(scenario data, the bag simulate_scenario wrote, its in-process run)."""
     data = request.param

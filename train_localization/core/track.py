@@ -11,7 +11,7 @@ expands to one item every ``d`` metres. Extra keys (a balise telegram, an LRL co
 a base station's lateral offset, ...) stay in the dict for the sensor models.
 
 Equipment that extends along the track (INPO sections ``inpo_section``, pattern belts
-``pattern_belt``, LZB cable loops ``lzb_loop``) gives its start as ``position`` (or
+``pattern_belt``, LZB cable loops ``lzb_loop``, track circuits ``track_circuit``) gives its start as ``position`` (or
 ``start``) and its extent as ``end`` or ``length`` [m]; the sensor module checks the rest
 (e.g. core/sensors/lzb.py ``loop_table``: loop ``number``, crossing ``spacing``, feeder
 cases ``feeders``; at most 12.7 km, fed within 300 m)::

@@ -29,6 +29,7 @@ SPEEDS = {
     "wheel_sensor": (83.0, {}),          # 10 kHz default resolves 60 ppr up to 300 km/h (wheel.py)
     "axle_counter": (83.0, {"heads": "AC00,AC01"}),  # conventional rail, 300 km/h
     "lzb_receiver": (83.0, {}),          # LZB serves conventional trains, ICE up to 300 km/h
+    "track_circuit_receiver": (83.0, {}),  # UM71C high-speed line, 300 km/h
 }
 
 
@@ -40,6 +41,8 @@ def _scenario(node: str, speed: float) -> Scenario:
     track["equipment"]["lzb_loop"] = [{"id": "L01", "position": 0.0, "end": 600.0},
                                       {"id": "L02", "position": 600.0, "end": 13300.0},
                                       {"id": "L03", "position": 13300.0, "end": 20000.0}]
+    track["equipment"]["track_circuit"] = [{"every": 1500.0, "start": 500.0, "end": 17000.0, "id": "TC{n:02d}",
+                                            "length": 1500.0, "system": "UM71C", "line": "T1"}]
     params = SPEEDS.get(node, (V500, {}))[1]
     return Scenario.from_dict({
         "name": f"bench_{node}", "seed": 1, "duration": 12.0, "track": track,

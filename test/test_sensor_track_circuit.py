@@ -241,7 +241,9 @@ def test_passage_every_circuit_occupied_while_an_axle_is_in_it_then_clear_with_t
     for f in fixes:
         err = f.position - np.interp(f.stamp, traj.t, traj.position)
         zone = table[0]["zone"]
-        assert abs(err) <= 0.5 * zone + abs(speed) * dt + 0.1 and abs(err) < f.position_stddev, (f, err)
+        # the drop is where the new circuit's line begins (near edge of the zone): the fix is
+        # centred there, off by the sampling of the onset only
+        assert abs(err) <= abs(speed) * dt + 0.1, (f, err)
         assert f.position_stddev == pytest.approx(math.sqrt(1.25) * 0.5 * zone, rel=0.01)
     assert sum(pipe.rejected.values()) == 0
 

@@ -96,18 +96,17 @@ Decoder: per circuit a hysteresis (low below ``threshold_drop``, high again abov
     ``reset_section`` (``stats["train_lost"]``). A circuit at the end of the monitored
     circuits (or before a gap) has no neighbour there: a train leaving the area is no loss;
   * boundary fix: when a CLEAR circuit drops while its neighbour on one side is OCCUPIED
-    (a hand-over), a PositionFix of the train front at the boundary: boundary + o x
-    ``first_axle_offset`` (the train leads), or + o x ``last_axle_offset`` (the train
-    backs; skipped if 0), stamped at the onset of the drop (the first sample below the
-    threshold, not the decision after the delay). Where in the tuned zone the entering
-    axle shunts the circuit down is not known to the decoder: the first axle is on the new
-    circuit's rails from the near edge of the zone, half a zone before the boundary (this
-    model: a good shunt drops it there, so the fix is half a zone ahead of the truth in
-    the running direction, the same for every boundary). Its stddev: half the zone as a
-    persistent part (the error model's fix bias, so that consecutive fixes do not average
-    it away), a quarter zone white (the detection point moves with the shunt and the
-    ballast), the axle offset and the timing (``max_speed`` x a sample / sqrt 12):
-    1-sigma 13.4 m for UM71C, 11.2 m for TI21. No fix when the drop has no occupied
+    (a hand-over), a PositionFix of the train front where the entering axle shunted the
+    new circuit down: the new circuit's line begins at the tuned unit on the near edge of
+    the zone, half a zone before the boundary in the running direction d, so the front is
+    at boundary - d x zone/2 + o x ``first_axle_offset`` (the train leads), or + o x
+    ``last_axle_offset`` (the train backs; skipped if 0), stamped at the onset of the drop
+    (the first sample below the threshold, not the decision after the delay). Its stddev:
+    half the zone as a persistent part (a poorer shunt or wetter ballast moves the drop
+    into the zone, the same way for every hand-over: the error model's fix bias, so that
+    consecutive fixes do not average it away), a quarter zone white, the axle offset and
+    the timing (``max_speed`` x a sample / sqrt 12): 1-sigma 13.4 m for UM71C, 11.2 m
+    for TI21. No fix when the drop has no occupied
     neighbour (a train appearing, a broken rail), when the neighbour is DISTURBED, or when
     the train that entered the neighbour by a hand-over cannot have crossed it yet at
     ``max_speed`` (a broken rail or failed transmitter ahead of the train:
@@ -675,13 +674,16 @@ class TrackCircuitDecoder(Decoder):
             self.stats["fix_withheld"] += 1
             return []
         boundary = c["start"] if d > 0 else c["end"]
+        # the entering axle shunts the new circuit down where its line begins: the tuned
+        # unit at the near edge of the zone, half a zone before the boundary
+        drop_point = boundary - d * 0.5 * c["zone"]
         p = self.params
         timing = p["max_speed"] / self._fs / math.sqrt(12.0)
         sigma = math.sqrt(1.25 * (0.5 * c["zone"]) ** 2 + p["axle_offset_sigma"] ** 2 + timing ** 2)
         self.stats["fixes"] += 1
         ref = f"{self.circuits[nb]['id']}/{c['id']}" if d > 0 else f"{c['id']}/{self.circuits[nb]['id']}"
         return [PositionFix(t_on, self.sensor, self.unit_id, self.track.track_id, ref,
-                            float(boundary + self.orient * offset), sigma, int(d))]
+                            float(drop_point + self.orient * offset), sigma, int(d))]
 
     def _picked(self, k: int, t: float) -> None:
         """Circuit k decided CLEAR at t: if no neighbour holds the train, it was lost."""

@@ -146,6 +146,36 @@ class Track:
                 float(np.interp(chainage, self._s, self._y)),
                 float(np.interp(chainage, self._s, self._h)))
 
+    def xy(self, chainage) -> tuple[np.ndarray, np.ndarray]:
+        """Map coordinates (x [m], y [m]) of chainages (array), on the polyline ``pose`` uses."""
+        s = np.asarray(chainage, dtype=float)
+        return np.interp(s, self._s, self._x), np.interp(s, self._s, self._y)
+
+    def project(self, x, y) -> tuple[np.ndarray, np.ndarray]:
+        """Map points (x, y) [m] onto the alignment: (chainage [m], signed lateral offset [m],
+        + to the left of the reference direction) of the nearest point of the polyline that
+        ``pose`` and ``xy`` interpolate, so that project(xy(s)) = (s, 0). A point beyond an end
+        of the track projects onto that end (chainage 0 or ``length``), its lateral offset then
+        being its distance from it, signed by its side. Where two parts of the alignment are
+        equally near (a track that comes back near itself) the lower chainage wins."""
+        px = np.atleast_1d(np.asarray(x, dtype=float))
+        py = np.atleast_1d(np.asarray(y, dtype=float))
+        x0, y0 = self._x[:-1], self._y[:-1]
+        dx, dy = np.diff(self._x), np.diff(self._y)
+        seg2 = np.maximum(dx * dx + dy * dy, 1e-18)
+        ds = np.diff(self._s)
+        chain = np.empty(px.size)
+        lateral = np.empty(px.size)
+        for i in range(px.size):
+            rx, ry = px[i] - x0, py[i] - y0
+            f = np.clip((rx * dx + ry * dy) / seg2, 0.0, 1.0)
+            ex, ey = rx - f * dx, ry - f * dy
+            k = int(np.argmin(ex * ex + ey * ey))
+            chain[i] = self._s[k] + f[k] * ds[k]
+            side = dx[k] * ry[k] - dy[k] * rx[k]      # cross product: > 0 to the left
+            lateral[i] = math.copysign(math.hypot(ex[k], ey[k]), side) if side != 0.0 else 0.0
+        return chain, lateral
+
     def items(self, kind: str) -> list[dict]:
         """Equipment of one kind, sorted by position (empty if the track has none)."""
         return self.equipment.get(kind, [])

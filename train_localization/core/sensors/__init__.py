@@ -16,6 +16,8 @@ _MODULES = {
     "mmwave_ranging": "mmwave",
     "axle_counter": "axle_counter",
     "lzb_receiver": "lzb",
+    "dgps_receiver": "dgps",
+    "tag_reader": "transponder",
 }
 
 NODE_NAMES = tuple(_MODULES)

@@ -43,12 +43,22 @@ LZB = {
     "sensors": {"lzb_receiver": {}, "doppler_radar": {}},
 }
 
+UTM = {
+    "name": "identity_utm", "seed": 6, "duration": 10.0,
+    "track": yaml.safe_load((ROOT / "config" / "track_utm.yaml").read_text()),
+    "vehicle": {"type": "maglev_urban", "length": 40.0},
+    "initial": {"position": 1150.0, "speed": 25.0},  # DGPS fixes, then none under the building at 1200 m
+    "profile": [{"speed": 25.0, "hold": 30.0}],
+    "sensors": {"dgps_receiver": {}, "tag_reader": {}, "doppler_radar": {}},
+}
+SCENARIOS = [CONVENTIONAL, MAGLEV, LZB, UTM]
+
 
 def test_the_scenarios_cover_every_sensor():
-    assert set(CONVENTIONAL["sensors"]) | set(MAGLEV["sensors"]) | set(LZB["sensors"]) == set(NODE_NAMES)
+    assert set().union(*(set(d["sensors"]) for d in SCENARIOS)) == set(NODE_NAMES)
 
 
-@pytest.fixture(scope="module", params=[CONVENTIONAL, MAGLEV, LZB], ids=lambda d: d["name"])
+@pytest.fixture(scope="module", params=SCENARIOS, ids=lambda d: d["name"])
 def recorded(request, tmp_path_factory):
     """(scenario data, the bag simulate_scenario wrote, its in-process run)."""
     data = request.param

@@ -217,6 +217,7 @@ class DgpsDecoder(Decoder):
         super().__init__(params, track)
         p = self.params
         self._spans = structures(track)
+        track.segments_table()      # the alignment's segments for the projection, built once
         # a fix near a structure may lie this far along the track from the antenna (its multipath
         # bound and 4 sigma of its noise there): the decoder's zone is that much wider, so that it
         # never takes such a fix for one in the open

@@ -151,7 +151,7 @@ class Track:
         s = np.asarray(chainage, dtype=float)
         return np.interp(s, self._s, self._x), np.interp(s, self._s, self._y)
 
-    PROJECT_CHUNK = 256   # polyline segments searched at once: bounds project()'s memory per point
+    PROJECT_CHUNK = 256   # polyline segments compared at once: bounds project()'s memory per point
 
     def segments_table(self) -> tuple[np.ndarray, ...]:
         """(x0, y0, dx, dy, squared length, chainage at start, length) of the polyline's segments,
@@ -170,8 +170,8 @@ class Track:
         ``pose`` and ``xy`` interpolate, so that project(xy(s)) = (s, 0). A point beyond an end
         of the track projects onto that end (chainage 0 or ``length``), its lateral offset then
         being its distance from it, signed by its side. Where two parts of the alignment are
-        equally near (a track that comes back near itself) the lower chainage wins. The search
-        runs over PROJECT_CHUNK segments at a time (memory independent of the track's length)."""
+        equally near (a track that comes back near itself) the lower chainage wins. The segments
+        are compared PROJECT_CHUNK at a time (memory independent of the track's length)."""
         px = np.atleast_1d(np.asarray(x, dtype=float))
         py = np.atleast_1d(np.asarray(y, dtype=float))
         x0, y0, dx, dy, seg2, s0, ds = self.segments_table()

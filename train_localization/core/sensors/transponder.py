@@ -38,14 +38,16 @@ file by its installation error, 1-sigma ``install_sigma`` (drawn once per tag, w
 Decoder (the same for simulated, recorded and ingested blocks): an answer is a run of
 samples above ``detect_level``; it began ``boot_time`` after the antenna entered the
 window and ended when it left it, so the antenna was over the tag at
-t_c = (t_on - boot_time + t_off) / 2 (the window is symmetric; the interpolated edges); the
+t_c = (t_on - boot_time + t_off) / 2 (the window is symmetric; each edge taken midway through the
+sample interval in which the level stepped); the
 window's nominal length over its duration gives the speed. Under an acceleration a the
 antenna is over the tag at t_c only within a D^2 / 8 (D: the answer's duration,
 ``max_acceleration``); where that exceeds the window's half length (a stop or a reversal
 over the tag) the read is stamped when the answer ended, the antenna then at the window's
 edge (1-sigma: the half length). A run with a tag code -> the tag
 (track file) -> PositionFix of the train front = tag chainage + ``antenna_offset`` at t_c,
-1-sigma hypot(``install_sigma``, edge timing x speed); a tag gives no direction (0). An
+1-sigma the root sum of squares of ``install_sigma``, the edge timing x speed and the
+acceleration term; a tag gives no direction (0). An
 answer without a code is a failed read (``stats["failed_reads"]``: too fast for two
 copies, corrupt copies); a tag passed too fast to boot gives no answer at all. A read whose
 tag cannot be reached from the previous read at ``max_speed`` is withheld

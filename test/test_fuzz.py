@@ -38,7 +38,10 @@ from conftest import ROOT
 SCENARIO_OF = {"doppler_radar": "demo", "wheel_sensor": "demo", "eurobalise_reader": "demo",
                "axle_counter": "demo", "lrl_scanner": "maglev_500", "inpo_receiver": "maglev_500",
                "mmwave_ranging": "maglev_500", "pattern_belt": "urban_stops", "lzb_receiver": "lzb",
-               "track_circuit_receiver": "track_circuit"}
+               "track_circuit_receiver": "track_circuit", "dgps_receiver": "utm", "tag_reader": "utm"}
+# simulated time that gives WARM_UP + RESYNC_BLOCKS + 2 blocks: 2 s, but the DGPS delivers one
+# epoch per 0.1 s block
+T_END = {"dgps_receiver": 3.0}
 WARM_UP = 20            # valid blocks decoded before the fuzzed one
 FUZZ = settings(max_examples=60, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
@@ -48,7 +51,7 @@ FUZZ = settings(max_examples=60, deadline=None, derandomize=True,
 def _device(node: str):
     """(pipeline after WARM_UP valid blocks, the valid blocks that follow) of one sensor."""
     scen = Scenario.from_yaml(ROOT / "config" / f"scenario_{SCENARIO_OF[node]}.yaml")
-    blocks = simulate_and_decode(node, scen, t_end=2.0).blocks
+    blocks = simulate_and_decode(node, scen, t_end=T_END.get(node, 2.0)).blocks
     pipe = SensorPipeline(spec(node), scen.sensors.get(node, {}), scen.track, scen.vehicle, simulate=False)
     for b in blocks[:WARM_UP]:
         pipe.on_block(b)

@@ -52,9 +52,19 @@ TRACK_CIRCUIT = {
 }
 SCENARIOS = [CONVENTIONAL, MAGLEV, LZB, TRACK_CIRCUIT]
 
+UTM = {
+    "name": "identity_utm", "seed": 6, "duration": 10.0,
+    "track": yaml.safe_load((ROOT / "config" / "track_utm.yaml").read_text()),
+    "vehicle": {"type": "maglev_urban", "length": 40.0},
+    "initial": {"position": 1150.0, "speed": 25.0},  # DGPS fixes, then none under the building at 1200 m
+    "profile": [{"speed": 25.0, "hold": 30.0}],
+    "sensors": {"dgps_receiver": {}, "tag_reader": {}, "doppler_radar": {}},
+}
+SCENARIOS = [CONVENTIONAL, MAGLEV, LZB, UTM]
+
 
 def test_the_scenarios_cover_every_sensor():
-    assert set().union(*(d["sensors"] for d in SCENARIOS)) == set(NODE_NAMES)
+    assert set().union(*(set(d["sensors"]) for d in SCENARIOS)) == set(NODE_NAMES)
 
 
 @pytest.fixture(scope="module", params=SCENARIOS, ids=lambda d: d["name"])

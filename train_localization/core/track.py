@@ -146,6 +146,56 @@ class Track:
                 float(np.interp(chainage, self._s, self._y)),
                 float(np.interp(chainage, self._s, self._h)))
 
+    def xy(self, chainage) -> tuple[np.ndarray, np.ndarray]:
+        """Map coordinates (x [m], y [m]) of chainages (array), on the polyline ``pose`` uses."""
+        s = np.asarray(chainage, dtype=float)
+        return np.interp(s, self._s, self._x), np.interp(s, self._s, self._y)
+
+    PROJECT_CHUNK = 256   # polyline segments compared at once: bounds project()'s memory per point
+
+    def segments_table(self) -> tuple[np.ndarray, ...]:
+        """(x0, y0, dx, dy, squared length, chainage at start, length) of the polyline's segments,
+        computed once (project() uses them; a decoder builds them when it is made)."""
+        table = getattr(self, "_segments_table", None)
+        if table is None:
+            dx, dy = np.diff(self._x), np.diff(self._y)
+            table = (self._x[:-1], self._y[:-1], dx, dy, np.maximum(dx * dx + dy * dy, 1e-18), self._s[:-1],
+                     np.diff(self._s))
+            self._segments_table = table
+        return table
+
+    def project(self, x, y) -> tuple[np.ndarray, np.ndarray]:
+        """Map points (x, y) [m] onto the alignment: (chainage [m], signed lateral offset [m],
+        + to the left of the reference direction) of the nearest point of the polyline that
+        ``pose`` and ``xy`` interpolate, so that project(xy(s)) = (s, 0). A point beyond an end
+        of the track projects onto that end (chainage 0 or ``length``), its lateral offset then
+        being its distance from it, signed by its side. Where two parts of the alignment are
+        equally near (a track that comes back near itself) the lower chainage wins. The segments
+        are compared PROJECT_CHUNK at a time (memory independent of the track's length)."""
+        px = np.atleast_1d(np.asarray(x, dtype=float))
+        py = np.atleast_1d(np.asarray(y, dtype=float))
+        x0, y0, dx, dy, seg2, s0, ds = self.segments_table()
+        chain = np.empty(px.size)
+        lateral = np.empty(px.size)
+        step = self.PROJECT_CHUNK
+        for i in range(px.size):
+            best = (math.inf, 0, 0.0)
+            for a in range(0, dx.size, step):
+                b = a + step
+                rx, ry = px[i] - x0[a:b], py[i] - y0[a:b]
+                f = np.clip((rx * dx[a:b] + ry * dy[a:b]) / seg2[a:b], 0.0, 1.0)
+                d2 = np.square(rx - f * dx[a:b]) + np.square(ry - f * dy[a:b])
+                k = int(np.argmin(d2))
+                if d2[k] < best[0]:
+                    best = (float(d2[k]), a + k, float(f[k]))
+            _, k, f = best
+            chain[i] = s0[k] + f * ds[k]
+            rx, ry = px[i] - x0[k], py[i] - y0[k]
+            side = dx[k] * ry - dy[k] * rx      # cross product: > 0 to the left
+            dist = math.hypot(rx - f * dx[k], ry - f * dy[k])
+            lateral[i] = math.copysign(dist, side) if side != 0.0 else 0.0
+        return chain, lateral
+
     def items(self, kind: str) -> list[dict]:
         """Equipment of one kind, sorted by position (empty if the track has none)."""
         return self.equipment.get(kind, [])

@@ -30,6 +30,8 @@ SPEEDS = {
     "axle_counter": (83.0, {"heads": "AC00,AC01"}),  # conventional rail, 300 km/h
     "lzb_receiver": (83.0, {}),          # LZB serves conventional trains, ICE up to 300 km/h
     "track_circuit_receiver": (83.0, {}),  # UM71C high-speed line, 300 km/h
+    "dgps_receiver": (30.6, {}),         # UTM-02 urban maglev, ~110 km/h (dgps.py)
+    "tag_reader": (30.6, {}),            # the reader's window reads up to ~140 km/h (transponder.py)
 }
 
 
@@ -43,6 +45,8 @@ def _scenario(node: str, speed: float) -> Scenario:
                                       {"id": "L03", "position": 13300.0, "end": 20000.0}]
     track["equipment"]["track_circuit"] = [{"every": 1500.0, "start": 500.0, "end": 17000.0, "id": "TC{n:02d}",
                                             "length": 1500.0, "system": "UM71C", "line": "T1"}]
+    track["equipment"]["transponder_tag"] = [{"every": 100.0, "start": 50.0, "end": 19950.0, "id": "TG{n:03d}"}]
+    track["equipment"]["structure"] = [{"id": "BR1", "type": "bridge", "start": 200.0, "end": 220.0}]
     params = SPEEDS.get(node, (V500, {}))[1]
     return Scenario.from_dict({
         "name": f"bench_{node}", "seed": 1, "duration": 12.0, "track": track,

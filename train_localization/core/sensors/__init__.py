@@ -17,6 +17,8 @@ _MODULES = {
     "axle_counter": "axle_counter",
     "lzb_receiver": "lzb",
     "track_circuit_receiver": "track_circuit",
+    "dgps_receiver": "dgps",
+    "tag_reader": "transponder",
 }
 
 NODE_NAMES = tuple(_MODULES)

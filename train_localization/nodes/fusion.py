@@ -55,7 +55,8 @@ from ..core.sensors import NODE_NAMES, spec
 from .common import (STATE_QOS, STREAM_QOS, ConfigurationError, ManagedNode, declare, now_sec, rclpy_classes,
                      spin)
 
-ALL_SENSORS = ["doppler", "wheel", "eurobalise", "lrl", "inpo", "pattern_belt", "mmwave", "axle_counter", "lzb"]
+ALL_SENSORS = ["doppler", "wheel", "eurobalise", "lrl", "inpo", "pattern_belt", "mmwave", "axle_counter", "lzb",
+               "coil_counter", "emf_observer"]
 
 
 def _ros_value(value):

@@ -16,6 +16,8 @@ _MODULES = {
     "mmwave_ranging": "mmwave",
     "axle_counter": "axle_counter",
     "lzb_receiver": "lzb",
+    "coil_counter": "coil_counter",
+    "emf_observer": "emf_observer",
 }
 
 NODE_NAMES = tuple(_MODULES)

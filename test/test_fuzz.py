@@ -37,7 +37,8 @@ from conftest import ROOT
 # a checked-in scenario that has each sensor
 SCENARIO_OF = {"doppler_radar": "demo", "wheel_sensor": "demo", "eurobalise_reader": "demo",
                "axle_counter": "demo", "lrl_scanner": "maglev_500", "inpo_receiver": "maglev_500",
-               "mmwave_ranging": "maglev_500", "pattern_belt": "urban_stops", "lzb_receiver": "lzb"}
+               "mmwave_ranging": "maglev_500", "pattern_belt": "urban_stops", "lzb_receiver": "lzb",
+               "coil_counter": "mlx", "emf_observer": "mlx"}
 WARM_UP = 20            # valid blocks decoded before the fuzzed one
 FUZZ = settings(max_examples=60, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])

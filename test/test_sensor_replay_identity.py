@@ -42,13 +42,22 @@ LZB = {
     "profile": [{"speed": 45.0, "hold": 30.0}],
     "sensors": {"lzb_receiver": {}, "doppler_radar": {}},
 }
+MLX = {
+    "name": "identity_mlx", "seed": 6, "duration": 12.0,
+    "track": yaml.safe_load((ROOT / "config" / "track_mlx.yaml").read_text()),
+    "vehicle": {"type": "maglev", "length": 75.0, "axles": []},
+    "initial": {"position": 500.0, "speed": 30.0},  # above the EMF observer's 20 m/s cut-off
+    "profile": [{"speed": 40.0, "hold": 30.0}],
+    "sensors": {"coil_counter": {}, "emf_observer": {}},
+}
 
 
 def test_the_scenarios_cover_every_sensor():
-    assert set(CONVENTIONAL["sensors"]) | set(MAGLEV["sensors"]) | set(LZB["sensors"]) == set(NODE_NAMES)
+    assert set(CONVENTIONAL["sensors"]) | set(MAGLEV["sensors"]) | set(LZB["sensors"]) | set(MLX["sensors"]) \
+        == set(NODE_NAMES)
 
 
-@pytest.fixture(scope="module", params=[CONVENTIONAL, MAGLEV, LZB], ids=lambda d: d["name"])
+@pytest.fixture(scope="module", params=[CONVENTIONAL, MAGLEV, LZB, MLX], ids=lambda d: d["name"])
 def recorded(request, tmp_path_factory):
     """(scenario data, the bag simulate_scenario wrote, its in-process run)."""
     data = request.param

@@ -119,8 +119,8 @@ PARAMS = {
                         (0.1, 10.0)),
     "hysteresis": Param(0.1, "decoder: width of the Schmitt triggers' hysteresis around the half-duty level "
                              "[V] (10 x noise)", (0.0, 5.0)),
-    "loss_threshold": Param(0.3, "decoder: both pickups below this = no coils [V]; the valley between two "
-                                 "coils stays above it (the higher of the two stays above 0.78 V along a row at the default geometry)", (0.0, 10.0)),
+    "loss_threshold": Param(0.3, "decoder: both pickups below this = no coils [V]; along a row the higher of the "
+                                 "two never falls below 0.78 V at the default geometry", (0.0, 10.0)),
     "max_speed": Param(150.0, "highest speed the configuration must resolve [m/s] (540 km/h: the MLX runs at "
                               "500 km/h); the simulator refuses a sample rate that cannot", (0.0, 170.0)),
     "speed_window": Param(0.1, "decoder: longest time span of the switching points used for the speed [s]",

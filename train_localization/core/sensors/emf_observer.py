@@ -132,13 +132,15 @@ PARAMS = {
                              "seed 002 section 2.2.2: medium and high speed only; assumption: the EMF, 400 V "
                              "there, is 20 x the voltage noise)", (0.1, 150.0)),
     "amplitude_tolerance": Param(0.3, "decoder: largest relative deviation of the observed EMF amplitude from "
-                                      "K_e |v| [1]; beyond it the block is not the train's EMF", (0.01, 1.0)),
+                                      "K_e times the speed [1]; beyond it the block is not the train's EMF",
+                                (0.01, 1.0)),
     "accuracy_deg": Param(5.0, "accuracy of the electrical angle +-[deg] (seed 002 section 2.2.2: +-5 deg, "
                                "5 ms update), taken as 2.5 sigma of one increment end", (0.0, 90.0)),
     "fit_samples": Param(10, "decoder: samples of the line fitted to the angle at an increment end [1] (5 ms at "
                              "2 kHz: the seed's update cycle)", (2, 100000)),
-    "zero_sequence_limit": Param(0.05, "decoder: |u + v + w| / 3 (|i_u + i_v + i_w| / 3) above this fraction of "
-                                       "the voltage (current) range is implausible [1]", (0.0, 1.0)),
+    "zero_sequence_limit": Param(0.05, "decoder: a zero-sequence voltage (u + v + w) / 3 or current "
+                                       "(i_u + i_v + i_w) / 3 beyond this fraction of its range is implausible [1]",
+                                (0.0, 1.0)),
 }
 
 CHANNELS = ("u", "v", "w", "i_u", "i_v", "i_w")

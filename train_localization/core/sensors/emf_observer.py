@@ -62,9 +62,10 @@ block gives nothing and the angle track is dropped (``stats["below_min_speed"]``
 ``stats["amplitude_mismatch"]``); the first good block afterwards starts a new track. A
 good block gives one DistanceIncrement from the end of the previous one: distance =
 (change of the unwrapped angle) / (2 pi) x 2 tau, the angle at each end taken from a line
-fitted to the last ``fit_samples`` samples (5 ms, the seed's update cycle); speed from the
+fitted to the last ``fit_samples`` samples (5 ms, the seed's update cycle) at the centre of
+that window (an increment ends there, a few ms before the block's end); speed from the
 line over the whole block. ``pole_position`` holds the last position of the magnets within
-the pole pair [m], 0 .. 2 tau from the pole origin. 1-sigma of an end: the seed's +-5 deg
+the pole pair [m], 0 .. 2 tau from the pole origin, at ``pole_time``. 1-sigma of an end: the seed's +-5 deg
 taken as 2.5 sigma (``accuracy_deg``) and the fit's own error; the pole pitch's scale
 error on top. Blocks with a sample beyond the converters' ranges, or a zero-sequence
 voltage or current (the star point has no neutral: u + v + w = 0 and i_u + i_v + i_w = 0;
@@ -209,6 +210,7 @@ class EmfObserverDecoder(Decoder):
         self._angle: float | None = None      # unwrapped EMF angle of the last observed sample [rad]
         self._end: tuple | None = None        # end of the last increment: (t [s], unwrapped angle [rad], var)
         self.pole_position = math.nan         # magnets' position within the pole pair [m], 0 .. 2 tau
+        self.pole_time = math.nan             # its time [s]: the end of the last increment
         self.stats = {"increments": 0, "below_min_speed": 0, "amplitude_mismatch": 0, "gaps": 0}
 
     def _check(self, block: RawBlock) -> np.ndarray:
@@ -288,6 +290,7 @@ class EmfObserverDecoder(Decoder):
         t_end, a_end, var_end = self._line_end(tt, ang)
         theta = a_end + 0.5 * math.pi * direction      # the EMF lags the magnets by 90 deg moving forwards
         self.pole_position = float((theta / math.pi * self.tau) % (2.0 * self.tau))
+        self.pole_time = t_end
         self._angle = float(ang[-1])
         if self._end is None:
             self._end = (t_end, a_end, var_end)
@@ -314,21 +317,19 @@ class EmfObserverDecoder(Decoder):
                                   float(max(dist_sigma, 1e-6)), float(speed), float(max(speed_sigma, 1e-3)))]
 
     def _line_end(self, tt: np.ndarray, ang: np.ndarray) -> tuple[float, float, float]:
-        """(time [s], angle [rad], its variance [rad^2]) at the last sample of a
-        line fitted to the last ``fit_samples`` angles; the variance is the accuracy's 1-sigma
-        squared plus the fit's own error."""
+        """(time [s], angle [rad], its variance [rad^2]) of an increment end: a line fitted to the
+        last ``fit_samples`` angles, taken at the centre of its window (the mean time and angle,
+        where the line is known best); the variance is the accuracy's 1-sigma squared plus the
+        line's own error there (its residual / sqrt(samples))."""
         p = self.params
         k = min(int(p["fit_samples"]), tt.size)
-        x, y = tt[-k:] - tt[-1], ang[-k:]
+        x, y = tt[-k:], ang[-k:]
+        fit_var = 0.0
         if k >= 3:
-            slope, icpt = np.polyfit(x, y, 1)
-            res = float(np.sqrt(((y - (slope * x + icpt)) ** 2).sum() / (k - 2)))
-            sxx = float(((x - x.mean()) ** 2).sum())
-            fit_var = res ** 2 * (1.0 / k + x.mean() ** 2 / sxx)
-        else:
-            icpt, fit_var = float(y[-1]), 0.0
+            slope, icpt = np.polyfit(x - x[-1], y, 1)
+            fit_var = float(((y - (slope * (x - x[-1]) + icpt)) ** 2).sum()) / (k - 2) / k
         acc = math.radians(p["accuracy_deg"]) / 2.5
-        return float(tt[-1]), float(icpt), acc * acc + fit_var
+        return float(x.mean()), float(y.mean()), acc * acc + fit_var
 
 
 def error_model(params: dict, track, vehicle) -> ErrorModel:

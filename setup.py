@@ -16,7 +16,7 @@ NODES = {
 SENSOR_NODES = [
     "doppler_radar", "wheel_sensor", "eurobalise_reader", "lrl_scanner",
     "inpo_receiver", "pattern_belt", "mmwave_ranging", "axle_counter", "lzb_receiver",
-    "track_circuit_receiver", "dgps_receiver", "tag_reader",
+    "track_circuit_receiver", "dgps_receiver", "tag_reader", "coil_counter", "emf_observer",
 ]
 TOOLS = {
     "tl_demo": "train_localization.tools.demo:main",

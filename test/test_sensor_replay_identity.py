@@ -50,8 +50,6 @@ TRACK_CIRCUIT = {
     "profile": [{"speed": 60.0, "hold": 30.0}],
     "sensors": {"track_circuit_receiver": {"first_axle_offset": 2.5, "block_duration": 0.2}, "doppler_radar": {}},
 }
-SCENARIOS = [CONVENTIONAL, MAGLEV, LZB, TRACK_CIRCUIT]
-
 UTM = {
     "name": "identity_utm", "seed": 6, "duration": 10.0,
     "track": yaml.safe_load((ROOT / "config" / "track_utm.yaml").read_text()),
@@ -60,7 +58,15 @@ UTM = {
     "profile": [{"speed": 25.0, "hold": 30.0}],
     "sensors": {"dgps_receiver": {}, "tag_reader": {}, "doppler_radar": {}},
 }
-SCENARIOS = [CONVENTIONAL, MAGLEV, LZB, UTM]
+MLX = {
+    "name": "identity_mlx", "seed": 6, "duration": 12.0,
+    "track": yaml.safe_load((ROOT / "config" / "track_mlx.yaml").read_text()),
+    "vehicle": {"type": "maglev", "length": 75.0, "axles": []},
+    "initial": {"position": 500.0, "speed": 30.0},  # above the EMF observer's 20 m/s cut-off
+    "profile": [{"speed": 40.0, "hold": 30.0}],
+    "sensors": {"coil_counter": {}, "emf_observer": {}},
+}
+SCENARIOS = [CONVENTIONAL, MAGLEV, LZB, TRACK_CIRCUIT, UTM, MLX]
 
 
 def test_the_scenarios_cover_every_sensor():

@@ -19,6 +19,8 @@ _MODULES = {
     "track_circuit_receiver": "track_circuit",
     "dgps_receiver": "dgps",
     "tag_reader": "transponder",
+    "coil_counter": "coil_counter",
+    "emf_observer": "emf_observer",
 }
 
 NODE_NAMES = tuple(_MODULES)

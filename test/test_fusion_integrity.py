@@ -234,7 +234,7 @@ def test_an_alternative_view_that_stops_being_tracked_stays_inside_the_interval(
         f.add(SpeedMeasurement(t - 0.025, "doppler", "d", 20.0, 0.05))
     before = f.estimate(1.0)
     D = -4.0   # the radar ran 4 m behind over 5 km while it was excluded (its scale: 0.5 %, 27 m)
-    f.aux.relative_alternatives = {"doppler": (D, 0.01, 0.0, 1.0, 5000.0, D)}
+    f.aux.relative_alternatives = {"doppler": (D, 0.01, 0.0, 1.0, 5000.0, D, 0.01)}
     f.add(SpeedMeasurement(1.025, "doppler", "d", 20.0, 0.05))
     after = f.estimate(1.05)
     assert f.counters()["integrity"]["alternative_merged"] == 1
@@ -252,7 +252,7 @@ def test_an_excluded_sensors_view_keeps_its_farthest_separation():
     f = TrainFilter(FusionConfig(sensors=models))
     f.reset(position=0.0, position_stddev=0.1, speed=20.0, speed_stddev=0.05, stamp=0.0)
     f.add(SpeedMeasurement(0.025, "doppler", "d", 20.0, 0.05))
-    f.aux.relative_alternatives = {"wheel": (-1.0, 0.0, 0.0, 0.025, 0.0, -3.0)}
+    f.aux.relative_alternatives = {"wheel": (-1.0, 0.0, 0.0, 0.025, 0.0, -3.0, 0.01)}
     e = f.estimate(0.05)
     assert e.position_min <= e.position - 3.0 - 2.5 * 0.1 and e.position_max < e.position + 1.0
     assert e.mode == MODE_DEGRADED
@@ -324,6 +324,20 @@ def test_speed_sources_that_never_agree_again_leave_the_filter_honest():
     assert all(abs(e.speed - v) < 0.5 * 0.08 * v + 0.1 for t, e, _, v in checked if t >= 12.0)
 
 
+def test_a_coasting_keeps_its_speed_error_so_the_next_fixes_are_taken():
+    """Coasting between disagreeing speed sources (the radar 8 % high, the wheel sliding 15 %
+    low), the filter's speed is the middle of their readings, set again at each reading; its
+    error is the faults', which persist. Taken as a new, independent error at every reading,
+    the filter's own position variance grew as a sum of them, and the balises at 40 and 50 s
+    (27 m and 9 m from its position) were gated as unexplained: it stayed 45 m off. With the
+    speed error's correlations kept, both fixes are taken."""
+    f, checked = _blind_run(radar_fault_end=60.0, braking_end=12.0)
+    counters = f.counters()
+    assert counters["accepted"]["eurobalise"] == 2 and "unexplained_fix" not in counters["integrity"]
+    assert max(abs(e.position - s) for t, e, s, _ in checked if 40.0 <= t < 40.2 or 50.0 <= t < 50.2) < 0.5
+    assert all(e.position_min <= s <= e.position_max for _, e, s, _ in checked)
+
+
 def test_speed_sources_wrong_the_same_way_leave_the_motion_model_in_the_interval():
     """Under traction the wheel slips 15 % high while the radar reads 8 % high: both speed
     sources are wrong the same way, and the middle of their readings too. The motion model's
@@ -333,10 +347,12 @@ def test_speed_sources_wrong_the_same_way_leave_the_motion_model_in_the_interval
     assert f.counters()["integrity"]["coasting_between_speed_sources"] >= 1
     assert all(e.position_min <= s <= e.position_max for _, e, s, _ in checked)
     assert all(e.mode in (MODE_DEGRADED, MODE_LOST) for t, e, _, _ in checked if t >= 5.0)
-    # without the motion model's hypothesis the interval would not hold the truth: the filter
-    # and the sensors' views are all ahead of it
-    t, e, s, _ = checked[-1]
+    # without the motion model's hypothesis the interval would not hold the truth: before the
+    # first balise the filter and the sensors' views are all ahead of it
+    t, e, s, _ = [c for c in checked if c[0] < 40.0][-1]
     assert e.position - s > 50.0
+    # the balises, inside the coasting filter's own (correlated) uncertainty, are taken
+    assert f.counters()["accepted"]["eurobalise"] == 2
 
 
 def _quiet_reference_run():

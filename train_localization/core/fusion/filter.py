@@ -179,7 +179,8 @@ class _Aux:
         self.s_last_fix = math.nan                     # filter position after the last accepted fix
         # sensors excluded although their disagreement does not look like a slip: the other speed
         # sources may be the wrong ones: sensor -> (distance it ran ahead D [m], white variance
-        # of D [m^2], since [s], last stamp [s], distance run [m], the D farthest from 0 so far [m])
+        # of D [m^2], since [s], last stamp [s], distance run [m], the D farthest from 0 so far [m],
+        # the filter's position variance when the view began or a fix last located it [m^2])
         self.relative_alternatives: dict[str, tuple] = {}
         self.candidate: tuple | None = None             # first fix awaiting confirmation
         self.used_refs: tuple = ()                     # (sensor, reference) of the last accepted fixes
@@ -503,7 +504,8 @@ class TrainFilter:
         # without another speed source the disagreement is with the motion model alone
         physical = physical and self._reference_ok(m)
         if not physical and m.sensor not in aux.relative_alternatives:
-            aux.relative_alternatives = {**aux.relative_alternatives, m.sensor: (0.0, 0.0, m.stamp, m.stamp, 0.0, 0.0)}
+            aux.relative_alternatives = {**aux.relative_alternatives, m.sensor: (
+                0.0, 0.0, m.stamp, m.stamp, 0.0, 0.0, float(self.ekf.P[0, 0]))}
             aux.events = _inc(aux.events, "ambiguous_slip")
         if not physical and m.sensor not in aux.suspended:
             # suspected faulty: back only after agreeing for slip_window s without being applied
@@ -517,17 +519,17 @@ class TrainFilter:
         alt = aux.relative_alternatives.get(m.sensor)
         if alt is None:
             return
-        D, white, since, last, run, far = alt
+        D, white, since, last, run, far, base = alt
         d = getattr(m, "duration", 0.0) or (m.stamp - last)   # a speed holds since the previous one
         R = max(S - float(self.ekf.P[1, 1]), 0.0)              # its own noise (speed units), roughly
         D += e * d
         aux.relative_alternatives = {**aux.relative_alternatives, m.sensor: (
             D, white + R * d * d, since, m.stamp, run + abs(float(self.ekf.x[1, 0])) * d,
-            D if abs(D) > abs(far) else far)}
+            D if abs(D) > abs(far) else far, base)}
 
     def _alternative_spread(self, cls: str, alt: tuple) -> tuple[float, float]:
         """(separation D [m], its variance [m^2]) of a relative alternative."""
-        D, white, _, _, run, _ = alt
+        D, white, _, _, run, _, _ = alt
         model = self.models[cls]
         scale = model.scale_sigma + model.scale_offset_sigma
         return D, white + (scale * run) ** 2
@@ -540,14 +542,19 @@ class TrainFilter:
         otherwise it is kept as the unexplained alternative and the views stay undecided."""
         aux = self.aux
         gate = self._gates[m.sensor]
-        keep, fitting = {}, []
+        explained = nis <= gate
+        keep, fitting, ruled_out = {}, [], 0
         for cls, alt in aux.relative_alternatives.items():
             D, var_D = self._alternative_spread(cls, alt)
-            fits = (z - hx - D) ** 2 / (S + var_D)
+            # the view's position: the filter's when it began (or was last located by a fix),
+            # moved by its own sensor since; the filter's uncertainty from a coasting since is
+            # not the view's
+            S_v = min(S, R + alt[6]) + var_D
+            fits = (z - hx - D) ** 2 / S_v
             # -2 ln of the fix's likelihood under the view against under the filter: a view wide
             # with its own scale error still "fits" a precise fix that the filter explains far better
-            worse = fits + math.log((S + var_D) / S) - nis
-            if fits <= gate and not (nis <= gate and worse > gate):
+            worse = fits + math.log(S_v / S) - nis
+            if fits <= gate and not (explained and worse > gate):
                 # still explains the fix: undecided; where the filter takes the fix, the view takes
                 # it too (it locates the train under either hypothesis): its separation and spread
                 # conditioned on the fix, its scale error counted from here
@@ -561,16 +568,32 @@ class TrainFilter:
                 else:
                     # its sensor in use again and both located by the fix: merged (moment matching)
                     self._merge_view(view[0] ** 2 + view[1])
-            elif nis <= gate or m.stamp - alt[2] > self.cfg.branch_timeout:
+            elif explained or m.stamp - alt[2] > self.cfg.branch_timeout:
                 # the filter explains the fix and this excluded sensor's view does not (or far
                 # worse): it was faulty
                 aux.events = _inc(aux.events, "excluded_sensor_confirmed_faulty")
+                ruled_out += 1
                 if cls not in self.layout.slip_sensors:   # a slip ends by itself; a faulty radar may not
                     self._suspend(cls, self._view_fault(alt, m.stamp))
             else:
                 keep[cls] = alt
         aux.relative_alternatives = keep
-        if nis <= gate or not fitting:
+        if explained and ruled_out and len(fitting) == 1 and _coasting(aux):
+            # coasting between the excluded sensors, the fix rules out all views but one: that
+            # sensor was right and is back (its view located by the fix merges into the filter's)
+            cls = fitting[0][1]
+            view = aux.relative_alternatives.pop(cls, None)
+            aux.relative_alternatives = dict(aux.relative_alternatives)
+            self._end_exclusion(cls, m.stamp)
+            reading = aux.peer_speeds.get(cls)
+            if reading is not None and reading[0] > m.stamp - self.cfg.slip_reference_timeout:
+                self._set_speed([(reading[1], reading[2] + reading[3])])   # its speed, not the middle
+            aux.slip_window = {k: w for k, w in aux.slip_window.items() if k != cls}
+            if view is not None:
+                self._merge_view(view[0] ** 2 + view[1])
+            aux.events = _inc(aux.events, "excluded_sensor_confirmed_right")
+            return False
+        if explained or not fitting:
             return False                           # the filter explains it, or nothing does
         if _OUTLIER_MODES.intersection(self.models[m.sensor].faults) and not self._corroborated(m, z, R):
             return False
@@ -581,11 +604,19 @@ class TrainFilter:
         self._set_position(m)
         self._relearn("speed_source_faulty")
         aux.relative_alternatives = {}
-        aux.slip_until = {**aux.slip_until, cls: m.stamp}
-        aux.suspended = {k: v for k, v in aux.suspended.items() if k != cls}
+        self._end_exclusion(cls, m.stamp)
         for other in aux.speed_sources - {cls}:
             self._suspend(other, fault)
         return True
+
+    def _end_exclusion(self, cls: str, stamp: float) -> None:
+        """Speed source ``cls`` found right by a fix: its slip episode or suspension ends, and it
+        counts as in use from ``stamp`` (not as a sensor back from an episode that waits for a
+        reference to agree with)."""
+        aux = self.aux
+        aux.slip_until = {**aux.slip_until, cls: stamp}
+        aux.suspended = {k: v for k, v in aux.suspended.items() if k != cls}
+        aux.last_accepted = {**aux.last_accepted, cls: stamp}
 
     def _merge_view(self, spread: float) -> None:
         """An excluded sensor's view no longer tracked of its own: its squared separation (plus
@@ -602,12 +633,12 @@ class TrainFilter:
         innovation nu [m] and innovation variance S = A + R [m^2] that the filter applies: the
         view's position, predicted with variance A + var_D, and the filter's are both updated
         by the fix (scalar Kalman updates); the new separation and the difference of their
-        posterior variances."""
+        posterior variances, and the filter's position variance after the fix (the view's base)."""
         A = max(S - R, 0.0)
         S_v = S + var_D
         D_new = D + (A + var_D) / S_v * (nu - D) - A / S * nu
         var_new = max(R * ((A + var_D) / S_v - A / S), 0.0)
-        return (D_new, var_new, alt[2], alt[3], 0.0, D_new)
+        return (D_new, var_new, alt[2], alt[3], 0.0, D_new, A * R / S if S > 0.0 else 0.0)
 
     def _suspend(self, cls: str, fault: tuple | None) -> None:
         """Suspend speed source ``cls`` for the fault seen: (disagreement [m/s], at speed [m/s]),
@@ -634,7 +665,7 @@ class TrainFilter:
     def _view_fault(alt: tuple, stamp: float) -> tuple | None:
         """The fault an excluded sensor's view shows: its mean disagreement [m/s] at the mean
         speed [m/s] since the view began."""
-        D, _, since, _, run, _ = alt
+        D, _, since, _, run, _, _ = alt
         dt = stamp - since
         return (D / dt, run / dt) if dt > 0.0 else None
 
@@ -749,17 +780,30 @@ class TrainFilter:
     def _set_speed(self, readings: list, middle: bool = False) -> None:
         """Speed from readings [(speed, variance)]: their weighted mean (``middle``: the middle
         of their range), the largest distance to a reading added to its variance; the
-        acceleration back to its prior."""
+        acceleration back to its prior. Agreeing readings (a re-acquisition) give a speed
+        whose error is new: uncorrelated with the rest. The middle of disagreeing ones (a
+        coasting) keeps the error it had, of the faults that persist while it lasts: its
+        correlations are kept, rescaled to the new variance (a congruence, so P stays positive
+        semi-definite), and the position variance grows with the square of the time, not as a
+        sum of independent speed errors."""
         weights = [1.0 / v for _, v in readings]
         if middle:
             u_hat = 0.5 * (min(u for u, _ in readings) + max(u for u, _ in readings))
         else:
             u_hat = sum(w * u for w, (u, _) in zip(weights, readings)) / sum(weights)
         spread = max(abs(u - u_hat) for u, _ in readings)
+        var = 1.0 / sum(weights) + spread * spread
         x, P = self.ekf.x.copy(), self.ekf.P.copy()
-        P[1:3, :] = 0.0
-        P[:, 1:3] = 0.0
-        x[1, 0], P[1, 1] = u_hat, 1.0 / sum(weights) + spread * spread
+        if middle and P[1, 1] > 0.0:
+            scale = math.sqrt(var / P[1, 1])
+            P[1, :] *= scale
+            P[:, 1] *= scale
+        else:
+            P[1, :] = 0.0
+            P[:, 1] = 0.0
+        P[2, :] = 0.0
+        P[:, 2] = 0.0
+        x[1, 0], P[1, 1] = u_hat, var
         x[2, 0], P[2, 2] = 0.0, self.cfg.initial_accel_stddev ** 2
         self.ekf.x, self.ekf.P = x, P
 

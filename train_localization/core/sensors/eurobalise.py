@@ -133,7 +133,7 @@ PARAMS = {
                                  (0.0, 1.0)),
     "location_sigma": Param(0.33, "1-sigma error of a balise's real centre vs its chainage in the track "
                                   "file [m] (installation + survey; ETCS balise location accuracy +-1 m "
-                                  "(SUBSET-036) taken as 3 sigma)", (0.0, 10.0)),
+                                  "(SUBSET-036) taken as 3 sigma, the bound of the simulated error)", (0.0, 10.0)),
     "detect_level": Param(0.5e-3, "field above which the decoder considers a balise passage [A/m] "
                                   "(~25 sigma of field_noise, ~1/4 of the 2.18 mA/m peak)", (1.0e-6, 0.1)),
     "group_length": Param(12.0, "balises of one group (same 'group' key) read within this distance of "

@@ -18,6 +18,8 @@ NODE_ARGS = {
     "fusion": [],
     "recorder": [],
     **{name: [] for name in NODE_NAMES},
+    # a device of the track's own equipment: the default track has no track circuits
+    "track_circuit_receiver": ["-p", "track:=config/track_highspeed.yaml"],
 }
 
 

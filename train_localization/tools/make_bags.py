@@ -33,6 +33,10 @@ BAGS = {
     "conventional_slip": ("config/scenario_conventional_slip.yaml", 90.0, 1.0),
     "faults": ("config/scenario_faults.yaml", 60.0, 1.0),
     "stop_and_go": ("config/scenario_stop_and_go.yaml", 140.0, 2.0),
+    "lzb": ("config/scenario_lzb.yaml", 80.0, 1.0),
+    "track_circuit": ("config/scenario_track_circuit.yaml", 90.0, 1.0),
+    "utm": ("config/scenario_utm.yaml", 90.0, 1.0),
+    "mlx": ("config/scenario_mlx.yaml", 40.0, 1.0),
 }
 
 

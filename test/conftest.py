@@ -10,7 +10,12 @@ import time
 from pathlib import Path
 
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-os.environ["ROS_DOMAIN_ID"] = str(random.Random(os.getpid() ^ time.time_ns()).randint(1, 100))
+# Test domains are 102..221, apart from the 10..99 that tl_demo picks for its own runs. Under
+# pytest-xdist (scripts/test.sh) every worker process gets a domain of its own: the first
+# process draws the base, the workers inherit it and add their index (gw0, gw1, ...).
+os.environ.setdefault("TL_TEST_DOMAIN_BASE", str(random.Random(os.getpid() ^ time.time_ns()).randint(0, 119)))
+_WORKER = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
+os.environ["ROS_DOMAIN_ID"] = str(102 + (int(os.environ["TL_TEST_DOMAIN_BASE"]) + int(_WORKER[2:] or 0)) % 120)
 os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
 os.environ["PYTHONUNBUFFERED"] = "1"
 

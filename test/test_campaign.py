@@ -163,6 +163,7 @@ def _synthetic():
     speed[1500:1520] += 1.0
     sd_v = np.full(t.size, 0.1)
     sd_v[:100] = 100.0
+    sd_v[1510:1520] = 0.5        # claims the 1.0 m/s error within 2 sigma: inside its speed interval
     fused = StateSeries(t, pos, speed, sd, sd_v, pos - half, pos + half, mode)
     return StateSeries.of_truth(t, s_true, v_true), fused
 
@@ -190,6 +191,9 @@ def test_scorer_exact_on_a_synthetic_series():
     band = out["speed_band"]
     assert band["states"] == claimed and band["violations"] == 20
     assert band["max_ratio"] == pytest.approx(1.0 / ((2.0 + 6.0 / 47.0) / 3.6))
+    speed = out["speed_interval"]   # 1.0 m/s off at 0.1 m/s claimed: 10 sigma, beyond z = 3.29
+    assert speed["states"] == 2001 - 100 and speed["outside"] == 10
+    assert speed["max_normalised"] == pytest.approx(10.0)
     assert out["mode_fractions"] == {"0": 100 / 2001, "1": claimed / 2001}
     assert out["first_position_s"] == pytest.approx(0.5)
     pairs = out["error_vs_half_width"]

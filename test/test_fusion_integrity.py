@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.stats import norm
 import pytest
 
 from train_localization.core.fusion import MODE_DEGRADED, MODE_LOST, MODE_NOMINAL, FusionConfig, TrainFilter, sensor_models
@@ -336,6 +337,26 @@ def test_a_coasting_keeps_its_speed_error_so_the_next_fixes_are_taken():
     assert counters["accepted"]["eurobalise"] == 2 and "unexplained_fix" not in counters["integrity"]
     assert max(abs(e.position - s) for t, e, s, _ in checked if 40.0 <= t < 40.2 or 50.0 <= t < 50.2) < 0.5
     assert all(e.position_min <= s <= e.position_max for _, e, s, _ in checked)
+
+
+def test_the_published_speed_covers_the_speed_of_an_excluded_sensors_view():
+    """A radar reading low by up to 5 % (a ramp over 5 s from 3 s) at a steady 30 m/s, a
+    healthy wheel, no fix to decide between them: the sensor left out keeps a view, the
+    interval covers its position, and the published speed 1-sigma covers its speed the same
+    way. Before, the filter claimed its speed to +-0.1 m/s while it followed one of the two
+    1.5 m/s apart, and the truth was outside speed +- z sigma in 299 of 400 states."""
+    def feed(f, j, t, s, v, v_old, rng):
+        fault = -0.05 * min(max(t - 3.0, 0.0) / 5.0, 1.0)
+        f.add(SpeedMeasurement(t - 0.025, "doppler", "doppler", v * (1.0 + fault) + rng.normal(0, 0.03), 0.1543))
+        f.add(DistanceIncrement(t, "wheel", "wheel", 0.05, v * 0.05 + rng.normal(0, 0.02), 0.03, v, 0.6))
+    f, checked = _train_run(["doppler_radar", "wheel_sensor", "eurobalise_reader"], 30.0,
+                            lambda t: 0.0, 400, 7, feed)
+    z = norm.ppf(0.5 + f.cfg.confidence / 2.0)
+    assert f.counters()["integrity"]["ambiguous_slip"] >= 1       # a sensor left out, its view kept
+    assert all(abs(e.speed - v) <= z * e.speed_stddev for _, e, _, v in checked)
+    assert all(e.position_min <= s <= e.position_max for _, e, s, _ in checked)
+    late = [e for t, e, _, _ in checked if t >= 10.0]
+    assert all(e.mode == MODE_DEGRADED for e in late) and min(e.speed_stddev for e in late) > 0.3
 
 
 def test_speed_sources_wrong_the_same_way_leave_the_motion_model_in_the_interval():

@@ -460,10 +460,12 @@ def run_scenario(data: dict) -> dict:
     traj = sc.trajectory()
     arrivals = scenario_measurements(sc, pipes=pipes, trajectory=traj)
     delivered = deliver(arrivals, camp.get("delivery", {}))
-    runner, estimates, _, _ = fuse_arrivals(fusion_config(sc), delivered, sc.duration, FUSION_RATE)
+    config = fusion_config(sc)
+    runner, estimates, _, _ = fuse_arrivals(config, delivered, sc.duration, FUSION_RATE)
     truth = StateSeries.of_truth(traj.t, traj.position, traj.speed)
     refs = passing_times(traj.t, traj.position, reference_positions(sc)) if family == "conventional" else None
-    scores = run_scores(truth, StateSeries.from_estimates(estimates), 1.0 / FUSION_RATE, refs)
+    scores = run_scores(truth, StateSeries.from_estimates(estimates), 1.0 / FUSION_RATE, refs,
+                        confidence=config.confidence)
     per_sensor: dict[str, dict] = {}
     for _, m in arrivals:
         per_sensor.setdefault(m.sensor, {"measurements": 0, "delivered": 0})["measurements"] += 1
@@ -533,6 +535,11 @@ def _summary(results: list[dict]) -> dict:
     out["speed_band"] = {"states": sum(b["states"] for b in band), "violations": sum(b["violations"] for b in band),
                          "runs_with_violations": [[r["family"], r["seed"], r["scores"]["speed_band"]["violations"]]
                                                   for r in ok if r["scores"]["speed_band"]["violations"]]}
+    speed_iv = [r["scores"].get("speed_interval", {"states": 0, "outside": 0}) for r in ok]
+    out["speed_interval"] = {"states": sum(b["states"] for b in speed_iv),
+                             "outside": sum(b["outside"] for b in speed_iv),
+                             "runs_with_outside": [[r["family"], r["seed"], b["outside"]]
+                                                   for r, b in zip(ok, speed_iv) if b["outside"]]}
     env = [r for r in ok if "etcs_envelope" in r["scores"]]
     if env:
         n_env = sum(r["scores"]["etcs_envelope"]["states"] for r in env)

@@ -25,17 +25,11 @@ from pathlib import Path
 import numpy as np
 
 from .measurements import DistanceIncrement, PositionFix, SpeedMeasurement
+from .scoring import ENVELOPE_FIXED, ENVELOPE_RATE, speed_envelope
 
 KMH = 1 / 3.6
 REFERENCE_READERS = ("eurobalise", "lrl", "axle_counter")  # point references, in order of preference
 SPEED_SETTLING = 1.0  # [s] after the first measurement before speed errors count
-
-
-def speed_band(speed_mps: np.ndarray) -> np.ndarray:
-    """Allowed |speed error| [m/s] of SUBSET-041: 2 km/h below 30 km/h, 12 km/h at 500 km/h."""
-    v = np.abs(speed_mps) / KMH
-    band_kmh = np.where(v < 30.0, 2.0, 2.0 + 10.0 * (np.minimum(v, 500.0) - 30.0) / 470.0)
-    return band_kmh * KMH
 
 
 def _stats(err) -> dict:
@@ -89,8 +83,8 @@ def evaluate(truth, estimates, measurements) -> tuple[dict, dict]:
         idx = np.searchsorted(ref_times, f["t"], side="right") - 1
         has_ref = idx >= 0
         odo_ref = np.interp(ref_times[np.maximum(idx, 0)], tt, odo)
-        envelope = np.where(has_ref, 5.0 + 0.05 * (odo_now - odo_ref), np.inf)
-    band = speed_band(v_true[scored])
+        envelope = np.where(has_ref, ENVELOPE_FIXED + ENVELOPE_RATE * (odo_now - odo_ref), np.inf)
+    band = speed_envelope(v_true[scored])
     inside = (s_true >= f["position_min"]) & (s_true <= f["position_max"])
     pe = pos_err[claimed]
     env_c = envelope[claimed]

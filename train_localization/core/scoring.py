@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import norm
 
 from .convert import stamp_to_sec
 
@@ -106,7 +107,7 @@ NORMALISED_EDGES = np.linspace(-8.0, 8.0, 65)
 def speed_envelope(speed):
     """SUBSET-041 speed accuracy [m/s]: +-2 km/h below 30 km/h, linearly to +-12 km/h at 500 km/h."""
     kmh = np.abs(np.asarray(speed)) * 3.6
-    return (2.0 + np.clip(kmh - 30.0, 0.0, None) * 10.0 / 470.0) / 3.6
+    return (2.0 + np.clip(kmh - 30.0, 0.0, 470.0) * 10.0 / 470.0) / 3.6
 
 
 def distance_since(t, truth_t, truth_position, ref_times):
@@ -138,7 +139,7 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
 
 
 def run_scores(truth: StateSeries, fused: StateSeries, period: float, reference_times=None,
-               max_pairs: int = 300) -> dict:
+               max_pairs: int = 300, confidence: float = 0.999) -> dict:
     """``score`` plus the per-run figures of an integrity campaign.
 
     ``period``: spacing of the fused states [s] (an excursion of n consecutive states
@@ -147,6 +148,8 @@ def run_scores(truth: StateSeries, fused: StateSeries, period: float, reference_
     axle-counter heads); given, the ETCS SUBSET-041 envelope ratio |error| / (5 m + 5 %
     of the distance run since the last of them) is scored. ``max_pairs``: (error,
     interval half-width) pairs kept, evenly subsampled, plus states outside the interval.
+    ``confidence``: the fusion's two-sided interval probability; the true speed is scored
+    against speed +- z speed_stddev with the same z (``speed_interval``).
     """
     out = score(truth, fused)
     f, s_true, v_true, claimed = _aligned(truth, fused)
@@ -192,4 +195,10 @@ def run_scores(truth: StateSeries, fused: StateSeries, period: float, reference_
     vratio = np.abs(f["speed"][known] - v_true[known]) / speed_envelope(v_true[known])
     out["speed_band"] = {"states": int(vratio.size), "violations": int(np.count_nonzero(vratio > 1.0)),
                          "max_ratio": float(vratio.max()) if vratio.size else None}
+    # a known speed claims v +- z sigma: the truth outside it is a confident wrong speed
+    z = float(norm.ppf(0.5 + confidence / 2.0))
+    dv = np.abs(f["speed"][known] - v_true[known])
+    zs = dv / np.maximum(f["speed_stddev"][known], 1e-12)
+    out["speed_interval"] = {"states": int(dv.size), "outside": int(np.count_nonzero(zs > z)),
+                             "max_normalised": float(zs.max()) if zs.size else None}
     return out

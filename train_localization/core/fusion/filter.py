@@ -157,7 +157,7 @@ class _Aux:
     __slots__ = ("initialised", "t", "last_accepted", "slip_until", "accepted", "gated", "slips",
                  "speed_sources", "nis", "fix_ref", "last_fix_accepted", "fix_nis", "slip_window",
                  "alternative", "events", "unverified", "s_last_fix", "relative_alternatives", "suspended",
-                 "candidate", "used_refs", "peer_speeds", "peer_run", "motion_views")
+                 "candidate", "used_refs", "peer_speeds", "peer_run", "motion_views", "view_speeds")
 
     def __init__(self):
         self.initialised = False
@@ -182,6 +182,9 @@ class _Aux:
         # of D [m^2], since [s], last stamp [s], distance run [m], the D farthest from 0 so far [m],
         # the filter's position variance when the view began or a fix last located it [m^2])
         self.relative_alternatives: dict[str, tuple] = {}
+        # the speed each of those sensors last read -> (stamp [s], speed [m/s], its own variance
+        # [m^2/s^2]): the published speed uncertainty covers it while its view is undecided
+        self.view_speeds: dict[str, tuple] = {}
         self.candidate: tuple | None = None             # first fix awaiting confirmation
         self.used_refs: tuple = ()                     # (sensor, reference) of the last accepted fixes
         # speed sources found faulty -> (agreeing since [s], window, fault seen: (disagreement [m/s],
@@ -523,6 +526,7 @@ class TrainFilter:
         d = getattr(m, "duration", 0.0) or (m.stamp - last)   # a speed holds since the previous one
         R = max(S - float(self.ekf.P[1, 1]), 0.0)              # its own noise (speed units), roughly
         D += e * d
+        aux.view_speeds = {**aux.view_speeds, m.sensor: (m.stamp, float(self.ekf.x[1, 0]) + e, R)}
         aux.relative_alternatives = {**aux.relative_alternatives, m.sensor: (
             D, white + R * d * d, since, m.stamp, run + abs(float(self.ekf.x[1, 0])) * d,
             D if abs(D) > abs(far) else far, base)}
@@ -1190,6 +1194,9 @@ class TrainFilter:
                 sd_s = max(sd_s, (hi - lo) / (2.0 * self._z))
                 mode = self._mode(aux, t, sd_s)
                 mode = Mode.DEGRADED if mode == Mode.NOMINAL else mode
+        sd_v_views = self._speed_covering_views(aux, t, float(v), sd_v)
+        if sd_v_views > sd_v:
+            sd_v, mode = sd_v_views, (Mode.DEGRADED if mode == Mode.NOMINAL else mode)
         for view in aux.motion_views:   # the motion model's own hypotheses of coastings
             s_m, var_m = self._motion_view(view, t, float(s), var_s)
             half = self._z * math.sqrt(var_m)
@@ -1199,6 +1206,21 @@ class TrainFilter:
                 mode = self._mode(aux, t, sd_s)
         return Estimate(t, float(s), float(v), float(a), sd_s, sd_v, lo, hi, self.cfg.confidence,
                         mode, scales, biases)
+
+    def _speed_covering_views(self, aux: _Aux, t: float, v: float, sd_v: float) -> float:
+        """The speed 1-sigma [m/s] to publish: the filter's, widened so that v +- z sd_v also
+        covers the speed each excluded sensor with an undecided view last read (within
+        ``slip_reference_timeout`` s), with its own noise: while no fix has decided which
+        source is faulty, the speed of either may be the true one (the position interval
+        covers their views the same way)."""
+        half = self._z * sd_v
+        for cls in aux.relative_alternatives:
+            reading = aux.view_speeds.get(cls)
+            if reading is None or t - reading[0] > self.cfg.slip_reference_timeout:
+                continue
+            _, u, R = reading
+            half = max(half, abs(u - v) + self._z * math.sqrt(R + sd_v * sd_v))
+        return half / self._z
 
     def _motion_view(self, view: tuple, t: float, s_f: float, var_f: float) -> tuple[float, float]:
         """(position [m], variance [m^2]) at t of a motion-model hypothesis: during its coasting

@@ -58,8 +58,11 @@ the samples). Per block a count of stored check-ins and the detailed state:
   * CHECKED_OUT: the rear's carrier is received (the tail is in the block);
   * OCCUPIED: a check-in is stored, neither carrier is received (the body spans the block);
   * CLEAR: no check-in stored, no carrier received.
-A check-in (the front's carrier appears) stores one check-in; a check-out (the rear's
-carrier disappears) releases one. The rear's carrier appearing in a block with nothing
+A check-in (the front's carrier appears) stores one check-in; a check-out releases one: the
+rear's carrier disappears from the block and the block ahead (running direction
+``orientation``) receives it, at once or within ``handover_time`` (the tail has passed the
+boundary; a carrier that vanishes inside the block, a failed rear transmitter, releases
+nothing); at the end of the equipped blocks the disappearance alone. The rear's carrier appearing in a block with nothing
 stored stores one too (the train is there, whatever the front said). Both carriers
 appearing within ``burst_window`` of each other (an appearance is taken that long after its onset
 at the earliest) in one block is interference, not a train
@@ -80,8 +83,8 @@ Outputs:
     one per boundary), the antenna height's tolerance, the onset's timing (``max_speed`` x
     a sample / sqrt 12) and the offset's tolerance. No fix without a hand-over (a burst, the
     first block, a train appearing);
-  * integrity: a check-out while the neighbouring block ahead receives the rear's carrier
-    confirms that the tail followed the head (``stats["integrity_confirmed"]``); a block
+  * integrity: each check-out handed over to the block ahead confirms that the tail followed
+    the head (``stats["integrity_confirmed"]``); a block
     still holding a check-in when the front checks in farther than ``max_train_length``
     beyond it has missed its check-out (a failed rear transmitter): it stays OCCUPIED and
     is counted once (``stats["checkout_missing"]``, ``missing_checkout`` lists the blocks).
@@ -117,10 +120,12 @@ PARAMS = {
                                  "the width of the level's transition at a loop end", (0.02, 2.0)),
     "height_sigma": Param(0.02, "1-sigma variation of that height [m] (levitation gap, load; assumption)",
                           (0.0, 0.5)),
-    "front_antenna_offset": Param(1.0, "distance of the front (check-in) antenna behind the train front [m] "
-                                       "(assumption)", (0.0, 1000.0)),
-    "rear_antenna_offset": Param(1.0, "distance of the rear (check-out) antenna ahead of the train's tail [m] "
-                                      "(assumption)", (0.0, 1000.0)),
+    "front_antenna_offset": Param(0.0, "distance of the front (check-in) antenna behind the train front [m] "
+                                       "(seed 000 section 2.2.1: antennas at the front and the rear of the train)",
+                                  (0.0, 1000.0)),
+    "rear_antenna_offset": Param(0.0, "distance of the rear (check-out) antenna ahead of the train's tail [m] "
+                                      "(seed 000 section 2.2.1); the tail is released that much minus "
+                                      "the onset depth inside the block", (0.0, 1000.0)),
     "offset_sigma": Param(0.02, "1-sigma of the configured antenna offset [m]", (0.0, 1.0)),
     "loop_attenuation": Param(2.0, "attenuation of the HF signal along a block loop towards its receiver at the "
                                    "loop's start [dB/km] (assumption)", (0.0, 100.0)),
@@ -348,6 +353,7 @@ class CheckinDecoder(Decoder):
         self.edge = np.full((nb, 2), -math.inf)         # onset of the last hysteresis edge [s]
         self.present = np.zeros((nb, 2), dtype=bool)    # confirmed: carrier received
         self.lost = np.full((nb, 2), -math.inf)         # onset of the last disappearance [s]
+        self.leaving = [-math.inf] * nb                 # onset of the rear's carrier leaving, not yet handed over
         self.stored = [0] * nb                          # check-ins stored
         self.burst = [False] * nb                       # interference: edges ignored until both gone
         self.block_states = [CLEAR] * nb
@@ -498,13 +504,31 @@ class CheckinDecoder(Decoder):
             self.stored[k] = 1
             self.stats["checkout_without_checkin"] += 1
         if c == 1 and not appeared and self.stored[k] > 0:
-            self.stored[k] -= 1
-            self.checkouts[k] += 1
-            self.stats["checkouts"] += 1
-            ahead = self.blocks[k]["above"] if self.orient > 0 else self.blocks[k]["below"]
-            if ahead >= 0 and self.up[ahead, 1]:
+            ahead = self._ahead(k)
+            if ahead < 0:
+                self._checked_out(k)        # the tail leaves the equipped area
+            elif self.up[ahead, 1]:
+                self._checked_out(k)
+                self.stats["integrity_confirmed"] += 1
+            else:
+                self.leaving[k] = float(self.edge[k, 1])   # released once the block ahead receives it
+        if c == 1 and appeared:
+            behind = self._ahead(k, -1)
+            if behind >= 0 and abs(self.leaving[behind] - self.edge[k, 1]) <= self.params["handover_time"] \
+                    and self.stored[behind] > 0:
+                self._checked_out(behind)
                 self.stats["integrity_confirmed"] += 1
         return []
+
+    def _ahead(self, k: int, sign: int = 1) -> int:
+        """The neighbour of block k in the running direction (``sign`` -1: behind), or -1."""
+        return self.blocks[k]["above"] if sign * self.orient > 0 else self.blocks[k]["below"]
+
+    def _checked_out(self, k: int) -> None:
+        self.stored[k] -= 1
+        self.checkouts[k] += 1
+        self.stats["checkouts"] += 1
+        self.leaving[k] = -math.inf
 
     def _checked_in(self, k: int) -> list:
         """The front's carrier appeared in block k: a check-in; a hand-over gives a fix."""

@@ -193,7 +193,7 @@ class PolePositionDecoder(Decoder):
             if len(self._refs) > 8:
                 self._refs.clear()
             k = (n // m) * m
-            ref = np.exp(-1j * TWO_PI * self.params["carrier_frequency"] * self.sample_offsets(k, fs))
+            ref = np.exp(-1j * TWO_PI * self.params["carrier_frequency"] * self.sample_offsets(k, fs)).astype(np.complex64)
             ref.flags.writeable = False
             self._refs[key] = ref, m
             return ref, m
@@ -203,11 +203,11 @@ class PolePositionDecoder(Decoder):
         p = self.params
         if block.channels != self.channels:
             raise InputRejected("channels", f"pole-position channels {block.channels}, expected {self.channels}")
-        data = block.data.astype(float)
+        data = block.data
         vr = p["voltage_range"]
-        if float(np.abs(data).max()) >= vr:
+        if max(float(data.max()), -float(data.min())) >= vr:
             raise InputRejected("implausible", f"a pickup voltage at or beyond the converter range (+-{vr:g} V)")
-        if float(np.median(np.abs(data.sum(axis=1)))) / 3.0 > p["zero_sequence_limit"] * vr:
+        if float(np.abs(data.sum(axis=1, dtype=np.float64)).mean()) / 3.0 > p["zero_sequence_limit"] * vr:
             raise InputRejected("implausible", "zero-sequence voltage: the phases do not sum to zero (a broken "
                                                "pickup)")
         return data
@@ -233,7 +233,7 @@ class PolePositionDecoder(Decoder):
         k = ref.size
         nf = k // m
         rot = np.exp(-1j * TWO_PI * p["carrier_frequency"] * block.t0)
-        c = (data[:k] * ref[:, None]).reshape(nf, m, 3).sum(axis=1) * (2.0 / m) * rot   # (frames, 3)
+        c = (data[:k] * ref[:, None]).reshape(nf, m, 3).sum(axis=1, dtype=np.complex128) * ((2.0 / m) * rot)
         tt = block.t0 + (np.arange(nf) + 0.5) * (m / fs)
         self.stats["frames"] += nf
         power = (np.abs(c) ** 2).sum(axis=1) / 1.5
@@ -262,10 +262,12 @@ class PolePositionDecoder(Decoder):
             return []
         distance = (a_end - a0) * to_m
         if nf >= 2:
-            x = tt - tt[-1]
-            slope, icpt = np.polyfit(x, ang, 1)
-            res = float(np.sqrt(((ang - slope * x - icpt) ** 2).sum() / max(nf - 2, 1)))
-            sxx = float(((tt - tt.mean()) ** 2).sum())
+            x = tt - tt.mean()
+            sxx = float(x @ x)
+            y = ang - ang.mean()
+            slope = float(x @ y) / sxx
+            r = y - slope * x
+            res = math.sqrt(float(r @ r) / max(nf - 2, 1))
         else:
             slope, res, sxx = (a_end - a0) / (t_end - t0), 0.0, (t_end - t0) ** 2
         speed = slope * to_m

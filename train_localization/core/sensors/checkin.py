@@ -62,32 +62,34 @@ A check-in (the front's carrier appears) stores one check-in; a check-out releas
 rear's carrier disappears from the block and the block ahead (running direction
 ``orientation``) receives it, at once or within ``handover_time`` (the tail has passed the
 boundary; a carrier that vanishes inside the block, a failed rear transmitter, releases
-nothing); at the end of the equipped blocks the disappearance alone. The rear's carrier appearing in a block with nothing
-stored stores one too (the train is there, whatever the front said). Both carriers
-appearing within ``burst_window`` of each other (an appearance is taken that long after its onset
-at the earliest) in one block is interference, not a train
-(a front and a rear cannot enter together): the edges are ignored until both are gone,
-the block reads OCCUPIED meanwhile (``stats["noise_bursts"]``). At start the levels set
-the states: a block receiving either carrier holds a check-in, and the blocks between a
-block receiving the front's and one receiving the rear's carrier too (the body).
+nothing); at the end of the equipped blocks the disappearance alone. The rear's carrier
+appearing in a block with nothing stored stores one too (the train is there, whatever the
+front said: ``stats["checkout_without_checkin"]``). Both carriers appearing within
+``burst_window`` of each other in one block (an appearance is taken that long after its
+onset at the earliest) is interference, not a train (a front and a rear cannot enter
+together): the edges are ignored until both are gone, the block reads OCCUPIED meanwhile
+(``stats["noise_bursts"]``). At start the levels set the states: a block receiving either
+carrier holds a check-in, and so do the blocks between a block receiving the front's and
+one receiving the rear's carrier (the body).
 Outputs:
   * SectionOccupancy (source = unit id) of every block at the first block, on every change
     and every ``report_period``: state OCCUPIED for CHECKED_IN, OCCUPIED and CHECKED_OUT
     (the message's states), axle_count = stored check-ins, axles_in / axles_out = the
     check-ins and check-outs counted; ``block_states`` holds the detailed states;
   * boundary fix: a check-in while a neighbouring block receives the front's carrier, or lost
-    it within ``handover_time`` of the onset (the hand-over at the boundary), gives a PositionFix of the train front: the boundary, plus
-    the distance inside the new loop at which its level reaches ``threshold_on`` (the
-    nominal coupling curve), plus ``front_antenna_offset``, stamped at the onset; 1-sigma
-    from the receiver's gain error (persistent per loop: the error model's fix bias, a new
-    one per boundary), the antenna height's tolerance, the onset's timing (``max_speed`` x
-    a sample / sqrt 12) and the offset's tolerance. No fix without a hand-over (a burst, the
-    first block, a train appearing);
+    it within ``handover_time`` of the onset (the hand-over at the boundary), gives a
+    PositionFix of the train front: the boundary, plus the distance inside the new loop at
+    which its level reaches ``threshold_on`` (the nominal coupling curve), plus
+    ``front_antenna_offset``, stamped at the onset; 1-sigma from the receiver's gain error
+    (persistent per loop: the error model's fix bias, a new one per boundary), the antenna
+    height's tolerance, the onset's timing (``max_speed`` x a sample / sqrt 12) and the
+    offset's tolerance. No fix without a hand-over (a burst, the first block, a train
+    appearing), nor for a front antenna that trails (a train backing);
   * integrity: each check-out handed over to the block ahead confirms that the tail followed
-    the head (``stats["integrity_confirmed"]``); a block
-    still holding a check-in when the front checks in farther than ``max_train_length``
-    beyond it has missed its check-out (a failed rear transmitter): it stays OCCUPIED and
-    is counted once (``stats["checkout_missing"]``, ``missing_checkout`` lists the blocks).
+    the head (``stats["integrity_confirmed"]``); a block still holding a check-in when the
+    front checks in farther than ``max_train_length`` beyond it has missed its check-out (a
+    failed rear transmitter): it stays OCCUPIED and is counted once
+    (``stats["checkout_missing"]``, ``missing_checkout`` lists the blocks).
 
 Not modelled: the ATC telegrams sharing the loop (seed 000 section 2.2.1), crossovers in
 the loop, loops that overlap at the boundaries, a train reversing inside a block (its

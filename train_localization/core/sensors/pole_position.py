@@ -193,7 +193,8 @@ class PolePositionDecoder(Decoder):
             if len(self._refs) > 8:
                 self._refs.clear()
             k = (n // m) * m
-            ref = np.exp(-1j * TWO_PI * self.params["carrier_frequency"] * self.sample_offsets(k, fs)).astype(np.complex64)
+            omega = TWO_PI * self.params["carrier_frequency"]
+            ref = np.exp(-1j * omega * self.sample_offsets(k, fs)).astype(np.complex64)
             ref.flags.writeable = False
             self._refs[key] = ref, m
             return ref, m

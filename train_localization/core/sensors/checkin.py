@@ -19,6 +19,8 @@ Physics of the raw signal (assumptions: the seeds give no frequencies, heights o
     to an antenna at chainage a: 1 inside, 1/2 at a boundary, falling like h / (pi |u|)
     outside. Adjacent loops meet at the boundary, so the two loops see a passing antenna
     cross over there.
+  * the loops are laid with their ends off the surveyed boundaries by ``boundary_sigma``
+    (the same shift for the two loops meeting at a boundary);
   * the HF signal travels along the loop to the receiver at the loop's ``start``: an
     attenuation of ``loop_attenuation`` dB/km from the antenna's place to the receiver;
   * the front transmitter sends the check-in carrier ``f_checkin``, the rear one the
@@ -80,8 +82,9 @@ Outputs:
     it within ``handover_time`` of the onset (the hand-over at the boundary), gives a
     PositionFix of the train front: the boundary, plus the distance inside the new loop at
     which its level reaches ``threshold_on`` (the nominal coupling curve), plus
-    ``front_antenna_offset``, stamped at the onset; 1-sigma from the receiver's gain error
-    (persistent per loop: the error model's fix bias, a new one per boundary), the antenna
+    ``front_antenna_offset``, stamped at the onset; 1-sigma from the boundary's installation
+    error and the receiver's gain error (persistent per boundary: the error model's fix bias,
+    a new one per boundary), the antenna
     height's tolerance, the onset's timing (``max_speed`` x a sample / sqrt 12) and the
     offset's tolerance. No fix without a hand-over (a burst, the first block, a train
     appearing), nor for a front antenna that trails (a train backing);
@@ -129,6 +132,10 @@ PARAMS = {
                                       "(seed 000 section 2.2.1); the tail is released that much minus "
                                       "the onset depth inside the block", (0.0, 1000.0)),
     "offset_sigma": Param(0.02, "1-sigma of the configured antenna offset [m]", (0.0, 1.0)),
+    "boundary_sigma": Param(0.05, "1-sigma installation error of a loop end (a block boundary) against its chainage "
+                                  "in the track file [m] (assumption: cable laid in the guideway, surveyed to "
+                                  "+-0.15 m = 3 sigma); the loops on both sides of a boundary share it",
+                            (0.0, 10.0)),
     "loop_attenuation": Param(2.0, "attenuation of the HF signal along a block loop towards its receiver at the "
                                    "loop's start [dB/km] (assumption)", (0.0, 100.0)),
     "adjust_length": Param(300.0, "loop length at which a receiver's level is adjusted to 1 for an antenna at the "
@@ -298,6 +305,11 @@ class CheckinSimulator(Simulator):
         self.blocks = block_table(self.track, p)
         self.channels, self.units = channel_layout(self.blocks)
         self.faults = parse_faults(p["faults"], [b["id"] for b in self.blocks])
+        # the loops as laid: each boundary off its surveyed chainage, the same for both loops at it
+        edges = sorted({round(b[e], 6) for b in self.blocks for e in ("start", "end")})
+        shift = dict(zip(edges, self.rng.normal(0.0, p["boundary_sigma"], len(edges))))
+        self.laid = [{**b, "start": b["start"] + shift[round(b["start"], 6)],
+                      "end": b["end"] + shift[round(b["end"], 6)]} for b in self.blocks]
         self.gains = np.maximum(0.1, 1.0 + self.rng.normal(0.0, p["adjust_sigma"], (len(self.blocks), 2)))
         self.orient = int(p["orientation"]) or 1
 
@@ -320,7 +332,7 @@ class CheckinSimulator(Simulator):
         front, rear = self.antennas(times, position)
         heights = np.maximum(0.2 * p["antenna_height"],
                              p["antenna_height"] + self.rng.normal(0.0, p["height_sigma"]) * np.ones(len(times)))
-        lv = loop_levels(self.blocks, p, [front], [rear], self.gains, heights)
+        lv = loop_levels(self.laid, p, [front], [rear], self.gains, heights)
         n1 = self.rng.normal(0.0, p["noise_sigma"], lv.shape)
         n2 = self.rng.normal(0.0, p["noise_sigma"], lv.shape)
         ids = [b["id"] for b in self.blocks]
@@ -576,12 +588,13 @@ class CheckinDecoder(Decoder):
 
 
 def fix_bias_sigma(params: dict) -> float:
-    """1-sigma [m] of the persistent part of a boundary fix: a receiver's gain error moves the
-    point where its level reaches threshold_on (slope of the coupling there)."""
+    """1-sigma [m] of the persistent part of a boundary fix: the boundary's installation error
+    and the receiver's gain error, which moves the point where its level reaches threshold_on
+    (slope of the coupling there)."""
     h, thr = params["antenna_height"], params["threshold_on"]
     u = onset_depth(thr, h)
     slope = 1.0 / (math.pi * h * (1.0 + (u / h) ** 2))
-    return params["adjust_sigma"] * thr / slope
+    return math.hypot(params["boundary_sigma"], params["adjust_sigma"] * thr / slope)
 
 
 def depth_sigma(params: dict) -> float:
@@ -590,8 +603,8 @@ def depth_sigma(params: dict) -> float:
 
 
 def error_model(params: dict, track, vehicle) -> ErrorModel:
-    """Boundary fixes for the fusion: a receiver's gain error moves its loop's detection point,
-    the same for every passage of that boundary and independent between boundaries (a fix bias
+    """Boundary fixes for the fusion: a boundary's installation error and a receiver's gain error
+    move its detection point, the same for every passage of that boundary and independent between boundaries (a fix bias
     drawn anew per reference, included in the reported stddev); fault mode: a miscount (a
     check-in that is no train's front, e.g. interference longer than the burst window)."""
     bias = fix_bias_sigma(params)

@@ -17,6 +17,7 @@ SENSOR_NODES = [
     "doppler_radar", "wheel_sensor", "eurobalise_reader", "lrl_scanner",
     "inpo_receiver", "pattern_belt", "mmwave_ranging", "axle_counter", "lzb_receiver",
     "track_circuit_receiver", "dgps_receiver", "tag_reader", "coil_counter", "emf_observer",
+    "checkin_loop", "pole_position",
 ]
 TOOLS = {
     "tl_demo": "train_localization.tools.demo:main",

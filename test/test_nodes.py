@@ -20,6 +20,7 @@ NODE_ARGS = {
     **{name: [] for name in NODE_NAMES},
     # a device of the track's own equipment: the default track has no track circuits
     "track_circuit_receiver": ["-p", "track:=config/track_highspeed.yaml"],
+    "checkin_loop": ["-p", "track:=config/track_hsst.yaml"],
 }
 
 

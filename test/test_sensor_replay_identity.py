@@ -66,7 +66,23 @@ MLX = {
     "profile": [{"speed": 40.0, "hold": 30.0}],
     "sensors": {"coil_counter": {}, "emf_observer": {}},
 }
-SCENARIOS = [CONVENTIONAL, MAGLEV, LZB, TRACK_CIRCUIT, UTM, MLX]
+HSST = {
+    "name": "identity_hsst", "seed": 7, "duration": 10.0,
+    "track": yaml.safe_load((ROOT / "config" / "track_hsst.yaml").read_text()),
+    "vehicle": {"type": "maglev_urban", "length": 45.0},
+    "initial": {"position": 250.0, "speed": 20.0},  # B00 -> B01 at 300 m: a check-in, its fix, the check-out
+    "profile": [{"speed": 20.0, "hold": 30.0}],
+    "sensors": {"checkin_loop": {}, "pattern_belt": {}},
+}
+MBAHN = {
+    "name": "identity_mbahn", "seed": 7, "duration": 8.0,
+    "track": yaml.safe_load((ROOT / "config" / "track_mbahn.yaml").read_text()),
+    "vehicle": {"type": "maglev_urban", "length": 12.0},
+    "initial": {"position": 130.0, "speed": 15.0},  # the tags at 150 m and 250 m
+    "profile": [{"speed": 15.0, "hold": 30.0}],
+    "sensors": {"pole_position": {}, "tag_reader": {}},
+}
+SCENARIOS = [CONVENTIONAL, MAGLEV, LZB, TRACK_CIRCUIT, UTM, MLX, HSST, MBAHN]
 
 
 def test_the_scenarios_cover_every_sensor():

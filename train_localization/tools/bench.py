@@ -32,6 +32,8 @@ SPEEDS = {
     "track_circuit_receiver": (83.0, {}),  # UM71C high-speed line, 300 km/h
     "dgps_receiver": (30.6, {}),         # UTM-02 urban maglev, ~110 km/h (dgps.py)
     "tag_reader": (30.6, {}),            # the reader's window reads up to ~140 km/h (transponder.py)
+    "checkin_loop": (30.0, {}),          # HSST urban maglev, ~110 km/h (checkin.py max_speed)
+    "pole_position": (22.2, {}),         # M-Bahn, 80 km/h (pole_position.py)
 }
 
 
@@ -47,6 +49,8 @@ def _scenario(node: str, speed: float) -> Scenario:
                                             "length": 1500.0, "system": "UM71C", "line": "T1"}]
     track["equipment"]["transponder_tag"] = [{"every": 100.0, "start": 50.0, "end": 19950.0, "id": "TG{n:03d}"}]
     track["equipment"]["structure"] = [{"id": "BR1", "type": "bridge", "start": 200.0, "end": 220.0}]
+    track["equipment"]["checkin_block"] = [{"every": 300.0, "start": 0.0, "end": 19700.0, "id": "B{n:02d}",
+                                            "length": 300.0}]
     params = SPEEDS.get(node, (V500, {}))[1]
     return Scenario.from_dict({
         "name": f"bench_{node}", "seed": 1, "duration": 12.0, "track": track,

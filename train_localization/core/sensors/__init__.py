@@ -21,6 +21,8 @@ _MODULES = {
     "tag_reader": "transponder",
     "coil_counter": "coil_counter",
     "emf_observer": "emf_observer",
+    "checkin_loop": "checkin",
+    "pole_position": "pole_position",
 }
 
 NODE_NAMES = tuple(_MODULES)

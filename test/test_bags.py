@@ -51,7 +51,7 @@ def test_offline_replay_scores_stay_within_stored_bounds(replayed):
 
 def test_offline_replay_matches_the_live_graph_within_the_filter_tolerance(replayed):
     name, run, _ = replayed
-    _, live, _ = recorded_run(BAGS / f"{name}.mcap")
+    _, live, _, _ = recorded_run(BAGS / f"{name}.mcap")
     offline = run.estimates
     off_t = np.array([e.stamp for e in offline])
     off_s = np.array([e.position for e in offline])

@@ -37,6 +37,8 @@ BAGS = {
     "track_circuit": ("config/scenario_track_circuit.yaml", 90.0, 1.0),
     "utm": ("config/scenario_utm.yaml", 90.0, 1.0),
     "mlx": ("config/scenario_mlx.yaml", 40.0, 1.0),
+    "hsst": ("config/scenario_hsst.yaml", 90.0, 1.0),
+    "mbahn": ("config/scenario_mbahn.yaml", 20.0, 1.0),
 }
 
 

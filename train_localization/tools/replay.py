@@ -26,11 +26,14 @@ from ..core.bagio import read_bag
 from ..core.offline import FUSED_TOPIC, NAMESPACE, TRUTH_TOPIC, replay_bag
 from ..core.report import evaluate, jsonable, plot
 from ..core.scenario import Scenario
+from ..core.signals import InputRejected
 
 
 def recorded_run(bag: Path):
-    """(truth, fused TrainState msgs, measurements) as recorded in a bag."""
-    truth, fused, measurements = [], [], []
+    """(truth, fused TrainState msgs, measurements, rejected) as recorded in a bag; a recorded
+    measurement that fails validation is left out and counted in ``rejected`` {reason: n},
+    as the fusion node refused it live."""
+    truth, fused, measurements, rejected = [], [], [], {}
     parsers = {s: p for s, (_, p) in convert.MEASUREMENT_TOPICS.items()}
     for topic, _, _, msg in read_bag(bag):
         if topic == TRUTH_TOPIC:
@@ -38,8 +41,11 @@ def recorded_run(bag: Path):
         elif topic == FUSED_TOPIC:
             fused.append(msg)
         elif topic.startswith(f"{NAMESPACE}/sensors/") and topic.rsplit("/", 1)[1] in parsers:
-            measurements.append(parsers[topic.rsplit("/", 1)[1]](msg))
-    return truth, fused, measurements
+            try:
+                measurements.append(parsers[topic.rsplit("/", 1)[1]](msg))
+            except InputRejected as e:
+                rejected[e.reason] = rejected.get(e.reason, 0) + 1
+    return truth, fused, measurements, rejected
 
 
 def report_for(bag: Path, scenario: Scenario | None = None, out_bag: Path | None = None,
@@ -47,8 +53,8 @@ def report_for(bag: Path, scenario: Scenario | None = None, out_bag: Path | None
     """(report, plot arrays) for a bag, recomputed offline unless ``recorded``."""
     t0 = time.perf_counter()
     if recorded:
-        truth, estimates, measurements = recorded_run(bag)
-        extra = {"source": "recorded"}
+        truth, estimates, measurements, rejected = recorded_run(bag)
+        extra = {"source": "recorded", "rejected_messages": rejected}
     else:
         run = replay_bag(bag, scenario, out_bag, progress=progress, parallel=parallel)
         truth, estimates, measurements = run.truth, run.estimates, run.measurements

@@ -57,7 +57,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
-from ..measurements import DistanceIncrement
+from ..measurements import MAX_SPEED, DistanceIncrement
 from ..signals import InputRejected, RawBlock
 from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator, continuous_timeout
 
@@ -479,7 +479,10 @@ class IncrementEstimator:
             t1, p1, var1 = last[0], last[1] - 0.5 * last[2], self._var_edge
         else:
             t1, p1, var1 = res.t_end, float(counter.count), self._var_boundary
-        if t1 <= t0:
+        if t1 <= t0 or abs(p1 - p0) * self.step > MAX_SPEED * (t1 - t0):
+            # nothing to report; or a transition just after a block boundary (near a standstill
+            # an increment ends inside a state, at its centre): the half step between them is the
+            # boundary's quantisation, not a speed; the increment runs on to the next block
             return None
         self._end = (t1, p1, var1)
         t_last = counter.t_last_transition

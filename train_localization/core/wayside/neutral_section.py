@@ -157,8 +157,8 @@ class ChangeoverController:
             if s is None:
                 return f"no detection of section {sid}"
             if s.state == DISTURBED or s.degraded:
-                return (f"{sid} {STATE_NAMES[s.state]}: track circuit {STATE_NAMES[s.tc]}, axle counter "
-                        f"{STATE_NAMES[s.ac]}")
+                return (f"{sid} {'DISTURBED' if s.state == DISTURBED else 'degraded'}: track circuit "
+                        f"{STATE_NAMES[s.tc]}, axle counter {STATE_NAMES[s.ac]}")
             if s.contradiction:
                 return (f"{sid} contradictory: track circuit {STATE_NAMES[s.tc]}, axle counter "
                         f"{STATE_NAMES[s.ac]} beyond the tolerance")

@@ -133,6 +133,7 @@ class Run:
     controller: dict = field(default_factory=dict)      # neutral_section.PARAMS overrides
     command_latency: float = 0.01                       # decision -> ABB gate signal [s] (assumption)
     drop: tuple[str, ...] = ()                          # systems whose reports are lost ("axle_counter", ...)
+    label: str = ""                                     # the injected fault, if any
 
 
 # The changeover's track circuits pick up after 0.5 s (the line's 1.5 s default rides through a
@@ -205,6 +206,7 @@ def simulate(run: Run) -> RunResult:
     faults = [f for f in str(tc_over.get("faults", "")).split(";") if f.strip()]
     for t, (w0, w1) in zip(trains, windows):
         if t.poor_shunt:
+            w0 = max(w0, 0.0)    # fault times are >= 0: let the runs start at 0 s or later
             faults += [f"TC1@{w0:.3f}-{w1:.3f}:poor_shunt", f"TC2@{w0:.3f}-{w1:.3f}:poor_shunt"]
     tc_over["faults"] = ";".join(faults)
     tc_params = resolve_params(tcm.PARAMS, tc_over)

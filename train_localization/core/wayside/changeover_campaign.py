@@ -160,4 +160,13 @@ def summarise(runs: list[Run], results: list[RunResult]) -> dict:
                                                        "speed_kmh": worst.speed * 3.6, "dead_time": worst.dead_time,
                                                        "crossing_time": worst.crossing_time},
         "simulated_s": sum(r.duration for r in results),
+        "runs_with_events": [
+            {"run": i, "fault": run.label, "trains": [f"{t.name} {t.kind} {'A->B' if t.direction > 0 else 'B->A'} "
+                                                      f"{t.speed * 3.6:.0f} km/h at {t.entry_time:.1f} s"
+                                                      for t in run.trains],
+             "short_circuits": res.short_circuits, "air_section_switchings": len(res.air_switchings),
+             "safe_state": [f"{t:.2f} s: {why}" for t, why in res.safe_entries],
+             "contradictions": [d.text() for d in res.contradictions]}
+            for i, (run, res) in enumerate(zip(runs, results))
+            if res.short_circuits or res.air_switchings or res.safe_entries or res.contradictions],
     }

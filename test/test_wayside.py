@@ -417,3 +417,70 @@ def test_summary_counts_the_events_of_the_runs():
     assert s["nominal"]["short_circuits"] + s["faulty"]["short_circuits"] == sum(len(r.short_circuits)
                                                                                 for r in results)
     assert s["dead_time_s"]["max"] == max(p.dead_time for r in results for p in r.passages)
+
+
+# ---------------------------------------------------------------- nodes (in process)
+
+def test_nodes_vote_publish_and_go_safe_on_a_disturbed_axle_counter(ros_context):
+    import time as _time
+
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+    from std_msgs.msg import Bool
+
+    from train_localization.core import convert
+    from train_localization.nodes.common import LATCHED_QOS, rclpy_classes
+    from train_localization.nodes.wayside import ChangeoverControllerNode, WaysideOccupancyNode
+
+    from rclpy.parameter import Parameter
+    mc = rclpy_classes()
+    ctrl = ChangeoverControllerNode(parameter_overrides=[Parameter("recover_time", value=0.5)])
+    vote_node = WaysideOccupancyNode()
+    probe = ros_context.create_node("probe_wayside")
+    pub = probe.create_publisher(mc.SectionOccupancy, convert.SECTIONS_TOPIC, LATCHED_QOS)
+    abb1, combined, diags = [], [], []
+    probe.create_subscription(Bool, "changeover/abb1", lambda m: abb1.append(m.data), LATCHED_QOS)
+    probe.create_subscription(mc.SectionOccupancy, "wayside/combined", combined.append, LATCHED_QOS)
+    probe.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+    ex = SingleThreadedExecutor()
+    for n in (ctrl, vote_node, probe):
+        ex.add_node(n)
+
+    def spin(seconds, until=lambda: False):
+        end = _time.monotonic() + seconds
+        while _time.monotonic() < end and not until():
+            ex.spin_once(timeout_sec=0.05)
+
+    def send(tc, ac):
+        now = _time.time()
+        pub.publish(convert.measurement_to_msg(report(now, "track_circuit", {"TC1": tc[0], "TC2": tc[1]}), mc))
+        pub.publish(convert.measurement_to_msg(report(now, "axle_counter", {"S1": ac[0], "S2": ac[1]}), mc))
+
+    def status(name):
+        for arr in reversed(diags):
+            for st in arr.status:
+                if name in st.name:
+                    return st
+        return None
+    try:
+        spin(10.0, lambda: pub.get_subscription_count() >= 2)
+        # no report yet: both systems silent, the safe state (ABB-1 opened after its initial state)
+        spin(3.0, lambda: status("changeover") is not None and "SILENT" in status("changeover").message)
+        assert abb1[:2] == [True, False]
+        send((CLEAR, CLEAR), (CLEAR, CLEAR))
+        spin(1.0)
+        send((CLEAR, CLEAR), (CLEAR, CLEAR))
+        spin(2.0, lambda: abb1[-1] is True)
+        assert abb1 == [True, False, True]                     # recovered: idle, the neutral fed from A
+        send((CLEAR, CLEAR), (DISTURBED, CLEAR))
+        spin(4.0, lambda: abb1[-1] is False and status("changeover") is not None
+             and "SAFE" in status("changeover").message)
+        assert abb1[-1] is False
+        st = status("changeover")
+        assert st.level == bytes([2]) and "S1 DISTURBED: track circuit CLEAR, axle counter DISTURBED" in st.message
+        assert combined and [s.state for s in combined[-1].sections] == [DISTURBED, CLEAR]
+        assert status("combined wayside detection").level == bytes([2])
+    finally:
+        for n in (ctrl, vote_node, probe):
+            ex.remove_node(n)
+            n.destroy_node()

@@ -94,8 +94,8 @@ class _Voting:
 
 
 class WaysideOccupancyNode(_Voting, Node):
-    def __init__(self):
-        Node.__init__(self, "wayside_occupancy")
+    def __init__(self, **kw):
+        Node.__init__(self, "wayside_occupancy", **kw)
         self.diag = Diagnostics(self, "combined wayside detection")
         self._setup_voting()
         self.pub = self.create_publisher(self.mc.SectionOccupancy, COMBINED_TOPIC, LATCHED_QOS)
@@ -130,8 +130,8 @@ class WaysideOccupancyNode(_Voting, Node):
 
 
 class ChangeoverControllerNode(_Voting, Node):
-    def __init__(self):
-        Node.__init__(self, "neutral_section_controller")
+    def __init__(self, **kw):
+        Node.__init__(self, "neutral_section_controller", **kw)
         self.diag = Diagnostics(self, "neutral-section changeover")
         self._setup_voting()
         from std_msgs.msg import Bool
@@ -159,8 +159,8 @@ class ChangeoverControllerNode(_Voting, Node):
 
 
 class CrossCheckNode(Node):
-    def __init__(self):
-        Node.__init__(self, "crosscheck")
+    def __init__(self, **kw):
+        Node.__init__(self, "crosscheck", **kw)
         self.diag = Diagnostics(self, "on-board / wayside cross-check")
         self.mc = rclpy_classes()
         self.train = declare(self, "train_id", "train", "name of the train in the flags", read_only=True)

@@ -173,11 +173,6 @@ class CombinedOccupancy:
                                        s_ac.axle_count if s_ac is not None else 0))
         return out
 
-    def contradictions(self) -> list[Disagreement]:
-        """Recorded disagreements that lasted (or last) longer than the tolerance."""
-        tol = self.params["disagree_tolerance"]
-        return [r for r in self.records if not r.duration <= tol]
-
 
 def to_occupancy(stamp: float, sections: list[CombinedSection], source: str = "combined") -> SectionOccupancy:
     """The voted states as a SectionOccupancy (published like the systems' own)."""

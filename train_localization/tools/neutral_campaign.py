@@ -44,8 +44,10 @@ def report(summary: dict) -> str:
                      f"contradictions {c['contradictions']}")
         for why, n in c["safe_state_entries"].items():
             lines.append(f"    safe state / hold: {why}: {n}")
-    if summary["faulty"]["runs"]:
-        lines.append("  faults: " + "; ".join(summary["faulty"]["faults"]))
+    for kind, c in summary["faulty"].get("by_fault", {}).items():
+        lines.append(f"  {kind}: {c['runs']} runs, safe state in {c['safe_state']}, without a safe state "
+                     f"{c['hold_only_or_none']}, short circuits {c['short_circuits']}, air-section switchings "
+                     f"{c['air_section_switchings']}")
     lines.append("per passage [s]:")
     lines.append(_row("dead time", summary["dead_time_s"]))
     lines.append(_row("crossing time of the neutral section", summary["crossing_time_s"]))

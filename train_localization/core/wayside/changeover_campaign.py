@@ -90,11 +90,11 @@ def inject(run: Run, kind: str, rng: np.random.Generator) -> str:
         tc = str(rng.choice(("TC1", "TC2")))
         t = float(rng.uniform(max(w0, 0.0), w1))
         run.track_circuit["faults"] = f"{tc}@{t:.2f}:tx_failed"
-        text = f"track circuit {tc} stuck OCCUPIED from {t:.1f} s"
+        text = f"track circuit stuck OCCUPIED: {tc} from {t:.1f} s (transmitter failed)"
     elif kind == "ac_disturbed":
         head = str(rng.choice(("AC0", "AC1", "AC2")))
         train.ac_faults = f"{head}@{max(w0, 0.0):.2f}:missed"
-        text = f"axle counter: {head} misses an axle of train {train.name} (section DISTURBED)"
+        text = f"axle counter DISTURBED: {head} misses an axle of train {train.name}"
     else:
         raise ValueError(f"unknown fault kind {kind!r}; known: {', '.join(FAULT_KINDS)}")
     run.label = text
@@ -137,6 +137,16 @@ def summarise(runs: list[Run], results: list[RunResult]) -> dict:
                 "safe_state_entries": dict(sorted(reasons.items())),
                 "contradictions": sum(len(res.contradictions) for _, res in pairs)}
 
+    by_fault: dict = {}
+    for run, res in faulty:
+        kind = run.label.split(":")[0]
+        entry = by_fault.setdefault(kind, {"runs": 0, "safe_state": 0, "hold_only_or_none": 0, "short_circuits": 0,
+                                           "air_section_switchings": 0})
+        entry["runs"] += 1
+        latched = [why for _, why in res.safe_entries if "following train" not in why]
+        entry["safe_state" if latched else "hold_only_or_none"] += 1
+        entry["short_circuits"] += len(res.short_circuits)
+        entry["air_section_switchings"] += len(res.air_switchings)
     ratio = [p.dead_time / p.crossing_time for p in passages if p.crossing_time > 0]
     bands = {}
     for lo in range(30, 330, 60):
@@ -151,7 +161,7 @@ def summarise(runs: list[Run], results: list[RunResult]) -> dict:
         "directions": dict(Counter("A->B" if p.direction > 0 else "B->A" for p in passages)),
         "speed_kmh": _dist([p.speed * 3.6 for p in passages]),
         "nominal": counts(nominal),
-        "faulty": counts(faulty) | {"faults": [run.label for run, _ in faulty],
+        "faulty": counts(faulty) | {"faults": [run.label for run, _ in faulty], "by_fault": by_fault,
                                     "short_circuit_runs": [run.label for run, res in faulty if res.short_circuits]},
         "dead_time_s": _dist([p.dead_time for p in passages]),
         "crossing_time_s": _dist([p.crossing_time for p in passages]),

@@ -6,7 +6,6 @@ stuck OCCUPIED, an axle counter DISTURBED, a silent system) each leading to the 
 to a correct detection by the other system."""
 from __future__ import annotations
 
-import functools
 import math
 
 import numpy as np

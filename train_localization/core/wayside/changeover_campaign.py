@@ -20,7 +20,6 @@ DISTURBED by a missed axle of a train at a random head.
 """
 from __future__ import annotations
 
-import math
 from collections import Counter
 
 import numpy as np

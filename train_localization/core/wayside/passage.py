@@ -31,7 +31,7 @@ from ..sensors import track_circuit as tcm
 from ..sensors.base import resolve_params
 from ..signals import RawBlock
 from ..track import Track
-from .catenary import ABB1, Layout, Switching, events
+from .catenary import Layout, Switching, events
 from .neutral_section import ChangeoverController
 from .occupancy import PARAMS as OCC_PARAMS, CombinedOccupancy, SectionMap
 

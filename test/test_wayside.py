@@ -482,3 +482,55 @@ def test_nodes_vote_publish_and_go_safe_on_a_disturbed_axle_counter(ros_context)
         for n in (ctrl, vote_node, probe):
             ex.remove_node(n)
             n.destroy_node()
+
+
+def test_crosscheck_node_flags_a_train_claiming_a_clear_section(ros_context):
+    import time as _time
+
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    from train_localization.core import convert
+    from train_localization.nodes.common import LATCHED_QOS, STATE_QOS, rclpy_classes
+    from train_localization.nodes.wayside import CrossCheckNode
+
+    mc = rclpy_classes()
+    node = CrossCheckNode(parameter_overrides=[Parameter("persist", value=0.2), Parameter("train_length", value=200.0)])
+    probe = ros_context.create_node("probe_crosscheck")
+    state_pub = probe.create_publisher(mc.TrainState, "localization/state", STATE_QOS)
+    occ_pub = probe.create_publisher(mc.SectionOccupancy, "wayside/combined", LATCHED_QOS)
+    diags = []
+    probe.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+    ex = SingleThreadedExecutor()
+    for n in (node, probe):
+        ex.add_node(n)
+
+    def message():
+        for arr in reversed(diags):
+            for st in arr.status:
+                if "cross-check" in st.name:
+                    return st.level, st.message
+        return None
+    try:
+        end = _time.monotonic() + 10.0
+        while _time.monotonic() < end and not (state_pub.get_subscription_count() and occ_pub.get_subscription_count()):
+            ex.spin_once(timeout_sec=0.05)
+        x0, x1, x2 = LAYOUT.ac
+        now = _time.time()
+        state = convert.train_state_to_msg(mc, now, "changeover", x1 + 300.0, 20.0, 0.0, 1.0, 0.1, x1 + 297.0,
+                                           x1 + 303.0, 0.999, 1, [])
+        occ = SectionOccupancy(now, "combined", (SectionState("S1", x0, x1, OCCUPIED, 0, 0, 0),
+                                                 SectionState("S2", x1, x2, CLEAR, 0, 0, 0)))
+        state_pub.publish(state)
+        occ_pub.publish(convert.measurement_to_msg(occ, mc))
+        end = _time.monotonic() + 5.0
+        while _time.monotonic() < end and not (message() and "claims section S2" in message()[1]):
+            ex.spin_once(timeout_sec=0.05)
+        level, text = message()
+        assert level == bytes([1]) and "train claims section S2, which the wayside reports clear" in text
+        assert "section S1 is occupied and no train claims it" in text
+    finally:
+        for n in (node, probe):
+            ex.remove_node(n)
+            n.destroy_node()

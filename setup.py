@@ -12,6 +12,9 @@ NODES = {
     "fusion": "train_localization.nodes.fusion:main",
     "recorder": "train_localization.nodes.recorder:main",
     "replayer": "train_localization.nodes.replayer:main",
+    "wayside_occupancy": "train_localization.nodes.wayside:main_occupancy",
+    "neutral_section_controller": "train_localization.nodes.wayside:main_controller",
+    "crosscheck": "train_localization.nodes.wayside:main_crosscheck",
 }
 SENSOR_NODES = [
     "doppler_radar", "wheel_sensor", "eurobalise_reader", "lrl_scanner",
@@ -26,6 +29,7 @@ TOOLS = {
     "tl_campaign": "train_localization.tools.campaign:main",
     "tl_bag": "train_localization.tools.bag:main",
     "tl_fuzz": "train_localization.tools.fuzz:main",
+    "tl_neutral": "train_localization.tools.neutral_campaign:main",
 }
 
 console_scripts = [f"{name} = {target}" for name, target in NODES.items()]

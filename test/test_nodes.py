@@ -21,6 +21,7 @@ NODE_ARGS = {
     # a device of the track's own equipment: the default track has no track circuits
     "track_circuit_receiver": ["-p", "track:=config/track_highspeed.yaml"],
     "checkin_loop": ["-p", "track:=config/track_hsst.yaml"],
+    "wayside_occupancy": [], "neutral_section_controller": [], "crosscheck": [],
 }
 
 

@@ -1,0 +1,227 @@
+"""Several trains on one line: the scenario format, wayside sensors seeing every train, the
+association of wayside fixes with the trains, per-train integrity, and replay of a line bag."""
+from __future__ import annotations
+
+import copy
+import functools
+import math
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from train_localization.core.association import Associator
+from train_localization.core.fusion import MODE_INITIALISING, MODE_NOMINAL, Estimate
+from train_localization.core.measurements import PositionFix, SectionOccupancy
+from train_localization.core.offline import LineResult, replay_bag, simulate_scenario, wayside_pipelines
+from train_localization.core.report import association_check, line_report
+from train_localization.core.scenario import Scenario, ScenarioError
+
+SHORT = {"type": "conventional", "length": 60.0, "wheel_diameter": 0.92,
+         "axles": [2.5, 5.0, 22.5, 25.0, 37.5, 40.0, 55.0, 57.5]}
+LONGER = {"type": "conventional", "length": 80.0, "wheel_diameter": 0.92,
+          "axles": [2.5, 5.3, 20.0, 22.8, 40.0, 42.8, 74.0, 76.8]}
+# heads every 200 m: two trains 250 m apart pass the same heads a few seconds apart
+TRACK = {"track_id": "test_line", "length": 4000.0,
+         "equipment": {"eurobalise": [{"every": 200.0, "start": 700.0, "end": 3500.0, "id": "EB{n:02d}"}],
+                       "axle_counter_head": [{"every": 200.0, "start": 800.0, "end": 2600.0, "id": "AC{n:02d}"}]}}
+DURATION = 40.0
+
+
+def line_dict(**changes) -> dict:
+    """Two trains following each other at 25 m/s, 250 m apart (front of the follower to the
+    tail of the leader), 10 s; the follower has no balise reader: its position comes from
+    the wayside fixes associated with it (heads every 200 m, balises every 200 m)."""
+    data = {
+        "name": "two_trains", "seed": 5, "duration": DURATION, "track": copy.deepcopy(TRACK),
+        "trains": [
+            {"name": "lead", "vehicle": dict(SHORT), "initial": {"position": 560.0, "speed": 25.0},
+             "profile": [{"speed": 25.0, "hold": 100.0}],
+             "sensors": {"doppler_radar": {}, "eurobalise_reader": {}}},
+            {"name": "follow", "vehicle": dict(LONGER), "initial": {"position": 250.0, "speed": 25.0},
+             "profile": [{"speed": 25.0, "hold": 100.0}],
+             "sensors": {"wheel_sensor": {}, "doppler_radar": {}}},
+        ],
+        "wayside": {"sensors": {"axle_counter": {"front_first": True}}},
+    }
+    data.update(changes)
+    return data
+
+
+@functools.lru_cache(maxsize=None)
+def line_run() -> tuple[Scenario, LineResult, Path]:
+    """The two-train line simulated once, with its bag."""
+    sc = Scenario.from_dict(line_dict())
+    bag = Path(tempfile.mkdtemp(prefix="tl_multitrain_")) / "line.mcap"
+    return sc, simulate_scenario(sc, bag=bag), bag
+
+
+# ---- scenario format ---------------------------------------------------------------------
+
+def test_line_scenario_has_trains_with_their_own_vehicles_sensors_and_random_streams():
+    sc = Scenario.from_dict(line_dict())
+    assert sc.line and sc.train_names == ["lead", "follow"]
+    lead, follow = sc.train("lead"), sc.train("follow")
+    assert lead.vehicle.length == 60.0 and follow.vehicle.length == 80.0
+    assert list(lead.sensors) == ["doppler_radar", "eurobalise_reader"] and list(follow.sensors) == ["doppler_radar"]
+    assert set(sc.wayside) == {"axle_counter"} and lead.wayside == sc.wayside
+    # the same device on two trains draws two independent streams
+    assert lead.rng("doppler_radar").normal() != follow.rng("doppler_radar").normal()
+    assert lead.trajectory().position[0] == 560.0
+    with pytest.raises(ScenarioError, match="several trains"):
+        sc.trajectory()
+    with pytest.raises(ScenarioError, match="no train 'x'"):
+        sc.train("x")
+
+
+def test_one_train_scenario_is_the_train_named_train():
+    sc = Scenario.from_yaml("config/scenario_conventional_300.yaml")
+    assert not sc.line and sc.train_names == ["train"] and sc.train("train") is sc and sc.wayside == {}
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda d: d["trains"][1].update(name="lead"), "used twice"),
+    (lambda d: d["trains"][1].update(name="wayside"), "name 'wayside' must be"),
+    (lambda d: d["trains"][1].update(name="2nd"), "name '2nd' must be"),
+    (lambda d: d["trains"][1]["initial"].update(position=530.0), "overlap at the start"),
+    (lambda d: d["trains"][1]["initial"].update(position=4500.0), "off the track"),
+    (lambda d: d["wayside"]["sensors"].update(wheel_sensor={}), "wheel_sensor is on-board equipment"),
+    (lambda d: d["trains"][0]["sensors"].update(axle_counter={}), "axle_counter is wayside equipment"),
+    (lambda d: d["wayside"]["sensors"].update(flux_meter={}), "unknown sensor 'flux_meter'"),
+    (lambda d: d.update(trains=[]), "non-empty list"),
+    (lambda d: d["trains"][0].pop("profile"), "lacks the key 'profile'"),
+])
+def test_line_scenario_errors_are_one_line(change, message):
+    data = line_dict()
+    change(data)
+    with pytest.raises(ScenarioError, match=message) as err:
+        Scenario.from_dict(data)
+    assert "\n" not in str(err.value)
+
+
+def test_trains_facing_each_other_do_not_overlap_at_the_start():
+    data = line_dict()
+    # the second train runs the other way: its tail (80 m above its front at 490 m) reaches into
+    # the leader (500..560 m)
+    data["trains"][1].update(initial={"position": 490.0}, profile=[{"speed": -10.0}])
+    with pytest.raises(ScenarioError, match="overlap"):
+        Scenario.from_dict(data)
+    data["trains"][1]["initial"]["position"] = 3000.0
+    assert Scenario.from_dict(data).train("follow").orientation() == -1
+
+
+# ---- wayside sensors see every train -----------------------------------------------------
+
+def test_axle_counter_counts_every_axle_of_both_trains():
+    sc, result, _ = line_run()
+    # both trains have left the first section (AC00-AC01) and are somewhere beyond
+    ends = {name: run.truth[-1].position for name, run in result.trains.items()}
+    heads = [h["position"] for h in sc.track.items("axle_counter_head")]
+    passed = {name: sum(1 for h in heads if h < ends[name] - sc.train(name).vehicle.length) for name in ends}
+    assert all(n >= 3 for n in passed.values())
+    expected = sum(passed[name] * len(sc.train(name).vehicle.axles) for name in ends)
+    occ = [m for m in result.wayside if isinstance(m, SectionOccupancy)][-1]
+    counted = sum(s.axles_in for s in occ.sections)
+    # every axle of both trains counted into the sections they entered (the heads all trains left
+    # behind count both trains' axles; heads under a train count part of it)
+    assert counted >= expected
+    first = occ.sections[0]
+    assert first.axles_in == first.axles_out == len(SHORT["axles"]) + len(LONGER["axles"])
+    assert first.state == 0   # CLEAR after both trains
+
+
+# ---- association -------------------------------------------------------------------------
+
+def _est(t, lo, hi, v=25.0, sd_v=0.1, mode=MODE_NOMINAL):
+    mid = 0.5 * (lo + hi)
+    return Estimate(t, mid, v, 0.0, (hi - lo) / 6.6, sd_v, lo, hi, 0.999, mode, {})
+
+
+def _fix(position, t=10.0, sd=0.5, direction=1, track="test_line"):
+    return PositionFix(t, "axle_counter", "axle_counter", track, "AC01", position, sd, direction)
+
+
+def test_association_delivers_to_the_train_that_explains_and_counts_the_rest():
+    # two trains close together: "a" around 1000 m, "b" 30 m behind it, "c" running the other way
+    est = {"a": [_est(9.99, 995.0, 1005.0), _est(10.0, 995.25, 1005.25)],
+           "b": [_est(9.99, 960.0, 985.0), _est(10.0, 960.25, 985.25)],
+           "c": [_est(9.99, 1000.0, 1010.0, v=-25.0), _est(10.0, 999.75, 1009.75, v=-25.0)]}
+    assoc = Associator(est, {"a": "test_line", "b": "test_line", "c": "test_line"})
+    assert assoc.associate(_fix(1001.0)) == "a"          # only a (c runs the other way)
+    assert assoc.associate(_fix(970.0)) == "b"
+    assert assoc.associate(_fix(1005.0, direction=-1)) == "c"
+    # on purpose: a fix between a and b whose 1-sigma reaches both intervals
+    assert assoc.associate(_fix(990.0, sd=2.0)) is None
+    assert assoc.decisions[-1].candidates == ("a", "b")
+    assert assoc.associate(_fix(1100.0)) is None          # nobody there
+    assert assoc.associate(_fix(1001.0, track="other")) is None
+    assert dict(assoc.counts) == {"used": 3, "ambiguous": 1, "unexplained": 2}
+    assert dict(assoc.delivered) == {"a": 1, "b": 1, "c": 1}
+    # a fix stamped after the last state: the interval is carried on by the fused speed
+    assert assoc.associate(_fix(1018.0, t=10.5)) == "a"
+
+
+def test_a_train_without_a_position_is_ruled_out_only_by_its_direction():
+    est = {"a": [_est(10.0, 995.0, 1005.0)],
+           "b": [_est(10.0, math.nan, math.nan, mode=MODE_INITIALISING)],
+           "c": [_est(10.0, math.nan, math.nan, v=-20.0, mode=MODE_INITIALISING)]}
+    assoc = Associator(est, {"a": "test_line", "b": "test_line", "c": "test_line"})
+    assert assoc.associate(_fix(1000.0)) is None and assoc.decisions[-1].candidates == ("a", "b")
+    assert assoc.associate(_fix(3000.0)) == "b"
+    assert assoc.associate(_fix(3000.0, direction=-1)) == "c"
+    with pytest.raises(ValueError, match="unknown association setting"):
+        Associator.for_trains(est, {}, {"gates": 3})
+
+
+def test_two_close_trains_get_their_own_wayside_fixes():
+    sc, result, _ = line_run()
+    check = association_check(result)
+    # both trains get head passages; none goes to the wrong train, each lies within 3.3 sigma of
+    # its train's true front
+    assert check["delivered"].get("lead", 0) >= 2 and check["delivered"].get("follow", 0) >= 3
+    assert check["wrong_train"] == 0
+    assert check["error_over_sigma_max"] < 3.3
+    # until the follower has a position (it has no balise reader), the leader's passages are
+    # ambiguous: the follower cannot be ruled out
+    assert check["ambiguous"] >= 1
+    assert check["used"] + check["ambiguous"] + check["unexplained"] == check["offered"]
+    first_follow = min(d.fix.stamp for d in result.associator.decisions if d.train == "follow")
+    assert all(d.fix.stamp <= first_follow + 1.0 for d in result.associator.decisions if d.outcome == "ambiguous")
+
+
+def test_each_train_keeps_its_integrity():
+    sc, result, _ = line_run()
+    report = line_report(result)
+    for name, rep in report["trains"].items():
+        it = rep["integrity"]
+        assert rep["states_with_position"] > 0.4 * rep["states"], name
+        assert it["inside_fraction"] >= 0.999, (name, it)
+        assert it["mean_interval_width_m"] < 10.0, (name, it)
+    # the follower's position comes from the associated wayside fixes only
+    follow = result.trains["follow"]
+    assert {m.sensor for m in follow.measurements if isinstance(m, PositionFix)} == {"axle_counter"}
+
+
+def test_line_bag_replays_to_the_same_estimates():
+    sc, result, bag = line_run()
+    replayed = replay_bag(bag)
+    assert isinstance(replayed, LineResult) and set(replayed.trains) == {"lead", "follow"}
+    for name, run in result.trains.items():
+        again = replayed.trains[name]
+        assert len(again.estimates) == len(run.estimates)
+        a = np.array([(e.position, e.position_min, e.position_max) for e in run.estimates])
+        b = np.array([(e.position, e.position_min, e.position_max) for e in again.estimates])
+        assert np.array_equal(np.isnan(a), np.isnan(b)) and np.allclose(a[~np.isnan(a)], b[~np.isnan(b)])
+    assert replayed.associator.summary() == result.associator.summary()
+
+
+def test_wayside_pipelines_take_every_train_and_refuse_an_unknown_one():
+    sc = Scenario.from_dict(line_dict())
+    (topic, pipe), = wayside_pipelines(sc).items()
+    assert topic == "/wayside/sensors/axle_counter/raw"
+    state = sc.train("lead").trajectory().state_at(0.0)
+    assert pipe.on_truth(state, "lead") == []     # blocks wait for the other train
+    from train_localization.core.signals import InputRejected
+    with pytest.raises(InputRejected, match="train 'ghost'"):
+        pipe.on_truth(state, "ghost")

@@ -64,7 +64,7 @@ def test_line_scenario_has_trains_with_their_own_vehicles_sensors_and_random_str
     assert sc.line and sc.train_names == ["lead", "follow"]
     lead, follow = sc.train("lead"), sc.train("follow")
     assert lead.vehicle.length == 60.0 and follow.vehicle.length == 80.0
-    assert list(lead.sensors) == ["doppler_radar", "eurobalise_reader"] and list(follow.sensors) == ["doppler_radar"]
+    assert list(lead.sensors) == ["doppler_radar", "eurobalise_reader"] and list(follow.sensors) == ["wheel_sensor", "doppler_radar"]
     assert set(sc.wayside) == {"axle_counter"} and lead.wayside == sc.wayside
     # the same device on two trains draws two independent streams
     assert lead.rng("doppler_radar").normal() != follow.rng("doppler_radar").normal()
@@ -115,20 +115,19 @@ def test_trains_facing_each_other_do_not_overlap_at_the_start():
 
 def test_axle_counter_counts_every_axle_of_both_trains():
     sc, result, _ = line_run()
-    # both trains have left the first section (AC00-AC01) and are somewhere beyond
-    ends = {name: run.truth[-1].position for name, run in result.trains.items()}
-    heads = [h["position"] for h in sc.track.items("axle_counter_head")]
-    passed = {name: sum(1 for h in heads if h < ends[name] - sc.train(name).vehicle.length) for name in ends}
-    assert all(n >= 3 for n in passed.values())
-    expected = sum(passed[name] * len(sc.train(name).vehicle.axles) for name in ends)
+    heads = np.array([h["position"] for h in sc.track.items("axle_counter_head")])
     occ = [m for m in result.wayside if isinstance(m, SectionOccupancy)][-1]
-    counted = sum(s.axles_in for s in occ.sections)
-    # every axle of both trains counted into the sections they entered (the heads all trains left
-    # behind count both trains' axles; heads under a train count part of it)
-    assert counted >= expected
+    # every axle of both trains that has passed a head is counted into the section beyond it
+    # (the region beyond the last head is not a section)
+    expected = [0] * (heads.size - 1)
+    for name, run in result.trains.items():
+        axles = run.truth[-1].position - np.asarray(sc.train(name).vehicle.axles)
+        for k in range(heads.size - 1):
+            expected[k] += int(np.count_nonzero(axles > heads[k]))
+    assert [s.axles_in for s in occ.sections] == expected
+    assert expected[0] == len(SHORT["axles"]) + len(LONGER["axles"])
     first = occ.sections[0]
-    assert first.axles_in == first.axles_out == len(SHORT["axles"]) + len(LONGER["axles"])
-    assert first.state == 0   # CLEAR after both trains
+    assert first.axles_out == first.axles_in and first.state == 0   # CLEAR after both trains
 
 
 # ---- association -------------------------------------------------------------------------

@@ -234,3 +234,61 @@ def test_wayside_pipelines_take_every_train_and_refuse_an_unknown_one():
     from train_localization.core.signals import InputRejected
     with pytest.raises(InputRejected, match="train 'ghost'"):
         pipe.on_truth(state, "ghost")
+
+
+# ---- nodes -------------------------------------------------------------------------------
+
+def test_for_namespace_gives_each_node_its_part_and_line_graph_lists_them(tmp_path):
+    sc = Scenario.from_dict(line_dict())
+    assert sc.for_namespace("/follow") is sc.train("follow")
+    wayside = sc.for_namespace("/wayside")
+    assert set(wayside.sensors) == {"axle_counter"} and wayside.vehicle.axles == ()   # two layouts: none
+    with pytest.raises(ScenarioError, match="names no train"):
+        sc.for_namespace("/train")
+    one = Scenario.from_yaml("config/scenario_demo.yaml")
+    assert one.for_namespace("/anything") is one
+    path = tmp_path / "line.yaml"
+    import yaml
+    path.write_text(yaml.safe_dump(line_dict()))
+    from train_localization.graph import line_graph
+    graph = line_graph(str(path), str(tmp_path / "bag"))
+    where = {(ns, name) for ns, _, name, _ in graph}
+    assert {("/lead", "doppler_radar"), ("/lead", "eurobalise_reader"), ("/lead", "fusion"),
+            ("/follow", "wheel_sensor"), ("/follow", "doppler_radar"), ("/follow", "fusion"),
+            ("/wayside", "axle_counter"), ("/", "simulator"), ("/", "recorder")} == where
+    fusion = next(p for ns, _, name, p in graph if (ns, name) == ("/follow", "fusion"))
+    assert sorted(fusion["sensors"]) == ["axle_counter", "doppler", "wheel"]   # its own and the wayside
+
+
+def test_simulator_node_publishes_every_train_and_the_wayside(ros_context, start_node, tmp_path):
+    """The simulator of a line publishes each train's truth in its namespace and the wayside raw
+    blocks; a wayside axle-counter node in /wayside decodes them in ingest mode."""
+    import yaml
+    from conftest import spin_until
+    from train_localization.nodes.common import rclpy_classes
+    data = line_dict(duration=12.0)
+    path = tmp_path / "line.yaml"
+    path.write_text(yaml.safe_dump(data))
+    mc = rclpy_classes()
+    node = ros_context.create_node("line_probe")
+    got: dict[str, int] = {}
+    topics = {"/lead/ground_truth/state": mc.TrainState, "/follow/ground_truth/state": mc.TrainState,
+              "/follow/sensors/wheel/raw": mc.RawBlock, "/wayside/sensors/axle_counter/raw": mc.RawBlock,
+              "/wayside/wayside/sections": mc.SectionOccupancy}
+    from train_localization.nodes.common import STREAM_QOS
+    for topic, cls in topics.items():
+        node.create_subscription(cls, topic, lambda msg, topic=topic: got.__setitem__(topic, got.get(topic, 0) + 1),
+                                 STREAM_QOS)
+    try:
+        counter = start_node("axle_counter", "--ros-args", "-r", "__ns:=/wayside", "-p", "mode:=ingest",
+                             "-p", f"scenario:={path}")
+        # five subscribers: the probe's four topics and the axle counter's raw blocks
+        sim = start_node("simulator", "--ros-args", "-p", f"scenario:={path}", "-p", "rate:=0.0",
+                         "-p", "start_delay:=0.5", "-p", "wait_for_subscribers:=5")
+        done = spin_until(node, lambda: min(got.get("/lead/ground_truth/state", 0),
+                                            got.get("/follow/ground_truth/state", 0)) >= 1201
+                          and got.get("/wayside/wayside/sections", 0) >= 5, timeout=60.0)
+        assert done, (got, sim.output()[-2000:], counter.output()[-2000:])
+        assert got["/wayside/sensors/axle_counter/raw"] >= 200 and got["/follow/sensors/wheel/raw"] >= 200
+    finally:
+        node.destroy_node()

@@ -34,7 +34,7 @@ from .bagio import BagWriter, typestore_classes
 from .fusion import FusionConfig, FusionRunner, estimate_to_msg, order_key, sensor_models
 from .measurements import PositionFix, SectionOccupancy
 from .pipeline import SensorPipeline
-from .scenario import WAYSIDE, Scenario, Vehicle
+from .scenario import WAYSIDE, Scenario
 from .sensors import spec as sensor_spec
 from .signals import InputRejected
 
@@ -495,24 +495,16 @@ class LineResult:
     rejected: dict = field(default_factory=dict)      # wayside rejections by reason
 
 
-def wayside_vehicle(scenario: Scenario) -> Vehicle:
-    """The vehicle whose data the wayside decoders take by default (axle layout): the trains'
-    own if they all have the same, else a vehicle without axles (no layout: the decoders
-    cover what they cannot identify; a scenario can give the parameters)."""
-    vehicles = [tr.vehicle for tr in scenario.trains.values()]
-    return vehicles[0] if all(v == vehicles[0] for v in vehicles) else Vehicle(kind="mixed")
-
-
 def wayside_pipelines(scenario: Scenario, simulate: bool = True) -> dict[str, SensorPipeline]:
     """Raw topic -> SensorPipeline of each wayside sensor of a line, simulating ones seeing every train."""
     fleet = {name: tr.vehicle for name, tr in scenario.trains.items()} if simulate else None
+    wayside = scenario.for_namespace(WAYSIDE_NAMESPACE)
     pipes = {}
-    for node, params in scenario.wayside.items():
+    for node, params in wayside.sensors.items():
         spec = sensor_spec(node)
         unit = (params or {}).get("unit_id") or spec.sensor
         pipes[raw_topic(spec.sensor, WAYSIDE_NAMESPACE)] = SensorPipeline(
-            spec, params, scenario.track, wayside_vehicle(scenario), scenario.rng(WAYSIDE, node, unit),
-            simulate=simulate, fleet=fleet)
+            spec, params, wayside.track, wayside.vehicle, wayside.rng(node, unit), simulate=simulate, fleet=fleet)
     return pipes
 
 
@@ -564,6 +556,40 @@ class _Line:
             out.flush()
 
 
+class LineSimulation:
+    """The simulated devices of a line, stepped at the truth rate: every train's truth and
+    on-board sensors, and the wayside sensors seeing all trains (what simulate_line fuses
+    and what the simulator node of a line publishes).
+
+    ``step(k)`` returns (t, {train: TruthState}, [(namespace, pipeline, raw block), ...]) of
+    truth step k, blocks in the order they complete: each train's on-board ones after its
+    truth, the wayside ones once every train's truth of the step is in.
+    """
+
+    def __init__(self, scenario: Scenario):
+        self.scenario = scenario
+        self.trains = scenario.trains
+        self.trajectories = {name: tr.trajectory() for name, tr in self.trains.items()}
+        self.pipes = {name: sensor_pipelines(tr) for name, tr in self.trains.items()}
+        self.namespaces = {name: train_namespace(tr) for name, tr in self.trains.items()}
+        self.wayside = wayside_pipelines(scenario)
+
+    def steps(self, t_end: float | None = None) -> int:
+        t_end = self.scenario.duration if t_end is None else t_end
+        return int(round(t_end * self.scenario.truth_rate)) + 1
+
+    def step(self, k: int):
+        t = convert.canonical(k / self.scenario.truth_rate)
+        truths, blocks = {}, []
+        for name in self.trains:
+            state = truths[name] = self.trajectories[name].state_at(t)
+            ns = self.namespaces[name]
+            blocks.extend((ns, pipe, block) for pipe in self.pipes[name] for block in pipe.on_truth(state))
+            for pipe in self.wayside.values():
+                blocks.extend((WAYSIDE_NAMESPACE, pipe, block) for block in pipe.on_truth(state, name))
+        return t, truths, blocks
+
+
 def simulate_line(scenario: Scenario, bag: str | Path | None = None, fusion_rate: float = 200.0,
                   record_raw: bool = True, t_end: float | None = None) -> LineResult:
     """``simulate_scenario`` of a line: at each truth step every train's truth, its on-board
@@ -572,37 +598,28 @@ def simulate_line(scenario: Scenario, bag: str | Path | None = None, fusion_rate
     mc = typestore_classes() if bag else None
     writer = BagWriter(bag) if bag else None
     line = _Line(scenario, fusion_rate, writer, mc)
-    trains = scenario.trains
-    trajectories = {name: tr.trajectory() for name, tr in trains.items()}
-    pipes = {name: sensor_pipelines(tr) for name, tr in trains.items()}
-    wayside = wayside_pipelines(scenario)
-    t_end = scenario.duration if t_end is None else t_end
-    n = int(round(t_end * scenario.truth_rate)) + 1
+    sim = LineSimulation(scenario)
+    outs = {out.namespace: out for out in line.outs.values()}
     if writer:
         writer.write(LINE_SCENARIO_TOPIC, typestore_classes_string(scenario.to_yaml()), 0)
     try:
-        for k in range(n):
-            t = convert.canonical(k / scenario.truth_rate)
-            for name in trains:
-                state = trajectories[name].state_at(t)
+        for k in range(sim.steps(t_end)):
+            t, truths, blocks = sim.step(k)
+            for name, state in truths.items():
                 line.truth(name, state, _ns(t))
-                out = line.outs[name]
-                for pipe in pipes[name]:
-                    for block in pipe.on_truth(state):
-                        out.result.blocks += 1
-                        if writer and record_raw:
-                            writer.write(raw_topic(block.sensor, out.namespace),
-                                         convert.raw_block_to_msg(block, mc), _ns(t))
-                        out.decode(pipe, block, t)
-                for topic, pipe in wayside.items():
-                    for block in pipe.on_truth(state, name):
-                        line.result.blocks += 1
-                        if writer and record_raw:
-                            writer.write(topic, convert.raw_block_to_msg(block, mc), _ns(t))
-                        try:
-                            line.wayside(pipe.on_block(block), t)
-                        except InputRejected as exc:
-                            line.reject(exc)
+            for ns, pipe, block in blocks:
+                if writer and record_raw:
+                    writer.write(raw_topic(block.sensor, ns), convert.raw_block_to_msg(block, mc), _ns(t))
+                out = outs.get(ns)
+                if out is not None:
+                    out.result.blocks += 1
+                    out.decode(pipe, block, t)
+                    continue
+                line.result.blocks += 1
+                try:
+                    line.wayside(pipe.on_block(block), t)
+                except InputRejected as exc:
+                    line.reject(exc)
             line.states(t)
         line.flush()
     finally:

@@ -108,6 +108,30 @@ class Scenario:
             raise ScenarioError(f"no train {name!r} in scenario {self.name}; trains: {', '.join(self.trains)}")
         return self.trains[name]
 
+    def for_namespace(self, namespace: str) -> "Scenario":
+        """The scenario a node in ``namespace`` runs: on a line, the train of that name (its
+        vehicle, on-board sensors, fusion) or, in /wayside, the wayside equipment (as a
+        scenario whose sensors are the wayside ones); a one-train scenario in any namespace."""
+        if not self.line:
+            return self
+        name = namespace.strip("/").split("/")[-1]
+        if name == WAYSIDE:
+            return Scenario(name=f"{self.name}/{WAYSIDE}", track=self.track, vehicle=self.wayside_vehicle(), legs=[],
+                            duration=self.duration, seed=self.seed, truth_rate=self.truth_rate,
+                            sensors=dict(self.wayside), source=self.source, description=self.description,
+                            line=True, train_name=WAYSIDE, rng_prefix=(WAYSIDE,))
+        if name not in self.trains:
+            raise ScenarioError(f"namespace {namespace!r} names no train of scenario {self.name} (trains: "
+                                f"{', '.join(self.trains)}) and is not /{WAYSIDE}")
+        return self.trains[name]
+
+    def wayside_vehicle(self) -> Vehicle:
+        """The vehicle whose data the wayside decoders take by default (axle layout): the
+        trains' own if they all have the same, else a vehicle without axles (no layout: the
+        decoders cover what they cannot identify; a scenario can give the parameters)."""
+        vehicles = [tr.vehicle for tr in self.trains.values()]
+        return vehicles[0] if all(v == vehicles[0] for v in vehicles) else Vehicle(kind="mixed")
+
     def to_yaml(self) -> str:
         """Self-contained YAML of the scenario (track inlined): recorded into bags."""
         return yaml.safe_dump(self.description, sort_keys=False)

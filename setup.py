@@ -12,6 +12,7 @@ NODES = {
     "fusion": "train_localization.nodes.fusion:main",
     "recorder": "train_localization.nodes.recorder:main",
     "replayer": "train_localization.nodes.replayer:main",
+    "association": "train_localization.nodes.association:main",
 }
 SENSOR_NODES = [
     "doppler_radar", "wheel_sensor", "eurobalise_reader", "lrl_scanner",

@@ -255,7 +255,8 @@ def test_for_namespace_gives_each_node_its_part_and_line_graph_lists_them(tmp_pa
     where = {(ns, name) for ns, _, name, _ in graph}
     assert {("/lead", "doppler_radar"), ("/lead", "eurobalise_reader"), ("/lead", "fusion"),
             ("/follow", "wheel_sensor"), ("/follow", "doppler_radar"), ("/follow", "fusion"),
-            ("/wayside", "axle_counter"), ("/", "simulator"), ("/", "recorder")} == where
+            ("/wayside", "axle_counter"), ("/wayside", "association"), ("/", "simulator"),
+            ("/", "recorder")} == where
     fusion = next(p for ns, _, name, p in graph if (ns, name) == ("/follow", "fusion"))
     assert sorted(fusion["sensors"]) == ["axle_counter", "doppler", "wheel"]   # its own and the wayside
 
@@ -292,3 +293,52 @@ def test_simulator_node_publishes_every_train_and_the_wayside(ros_context, start
         assert got["/wayside/sensors/axle_counter/raw"] >= 150 and got["/follow/sensors/wheel/raw"] >= 150
     finally:
         node.destroy_node()
+
+
+def test_association_node_routes_wayside_fixes_into_the_trains_namespaces(ros_context, tmp_path):
+    """The association node in /wayside sends each wayside fix to the namespace of the one train whose
+    published fused state explains it, and none for an ambiguous one."""
+    import os
+    import subprocess
+    import sys
+    import yaml
+    from conftest import spin_until
+    from train_localization.core import convert
+    from train_localization.nodes.common import STREAM_QOS, rclpy_classes
+    path = tmp_path / "line.yaml"
+    path.write_text(yaml.safe_dump(line_dict()))
+    log = open(tmp_path / "association.log", "w")
+    proc = subprocess.Popen([sys.executable, "-c", "from train_localization.nodes.association import main; main()",
+                             "--ros-args", "-r", "__ns:=/wayside", "-p", f"scenario:={path}"],
+                            stdout=log, stderr=subprocess.STDOUT, start_new_session=True, env=dict(os.environ))
+    mc = rclpy_classes()
+    node = ros_context.create_node("association_probe")
+    got: dict[str, list] = {"lead": [], "follow": []}
+    try:
+        states = {name: node.create_publisher(mc.TrainState, f"/{name}/localization/state", STREAM_QOS)
+                  for name in got}
+        fixes = node.create_publisher(mc.PositionFix, "/wayside/sensors/axle_counter/position", STREAM_QOS)
+        for name in got:
+            node.create_subscription(mc.PositionFix, f"/{name}/sensors/axle_counter/position",
+                                     lambda msg, name=name: got[name].append(msg.position), STREAM_QOS)
+        pubs = [*states.values(), fixes]
+        assert spin_until(node, lambda: all(p.get_subscription_count() >= 1 for p in pubs), timeout=30.0), \
+            (tmp_path / "association.log").read_text()
+        # lead around 1000 m, follow around 960 m (intervals 10 m wide), both at 25 m/s
+        for k in range(11):
+            t = 9.0 + 0.1 * k
+            for name, front in (("lead", 1000.0), ("follow", 960.0)):
+                s = front + 25.0 * (t - 10.0)
+                states[name].publish(convert.train_state_to_msg(mc, t, "test_line", s, 25.0, 0.0, 1.5, 0.1,
+                                                                s - 5.0, s + 5.0, 0.999, MODE_NOMINAL, []))
+        spin_until(node, lambda: False, timeout=0.5)
+        for position, sd in ((1001.0, 0.5), (962.0, 0.5), (980.0, 5.0), (1003.0, 0.5)):
+            fixes.publish(convert.measurement_to_msg(_fix(position, t=10.0, sd=sd), mc))
+        assert spin_until(node, lambda: len(got["lead"]) >= 2 and len(got["follow"]) >= 1, timeout=20.0), got
+        spin_until(node, lambda: False, timeout=0.5)
+        assert got == {"lead": [1001.0, 1003.0], "follow": [962.0]}   # 980 m: ambiguous, not sent
+    finally:
+        node.destroy_node()
+        proc.terminate()
+        proc.wait(timeout=10)
+        log.close()

@@ -70,7 +70,8 @@ def line_graph(scenario: str, bag: str, rate: float = 1.0, record: bool = True,
                exclude: list[str] | None = None) -> list[tuple[str, str, str, dict]]:
     """The graph of a line scenario (several trains), as (namespace, executable, node name,
     parameters): recorder (if ``record``) in /, per train its sensor nodes (ingest) and its
-    fusion in /<train>, the wayside sensor nodes (ingest) in /wayside, and the simulator in
+    fusion in /<train>, the wayside sensor nodes (ingest) and the association of their fixes
+    with the trains in /wayside, and the simulator in
     /, which publishes every train's truth and the raw blocks of every device (the wayside
     ones see all trains; nodes/simulator.py). The sensor and fusion nodes take their train's
     part of the scenario from their namespace (Scenario.for_namespace)."""
@@ -89,6 +90,8 @@ def line_graph(scenario: str, bag: str, rate: float = 1.0, record: bool = True,
         classes = [spec(n).sensor for n in [*train.sensors, *line.wayside]]
         nodes.append((f"/{name}", "fusion", "fusion", {"scenario": scenario, "sensors": classes, "use_sim_time": True}))
     nodes += [(f"/{WAYSIDE}", node, node, dict(ingest)) for node in line.wayside]
+    # wayside fixes to the train that explains them, into its namespace (nodes/association.py)
+    nodes.append((f"/{WAYSIDE}", "association", "association", {"scenario": scenario, "use_sim_time": True}))
     # the simulator starts once every sensor node listens to its raw blocks and the recorder to
     # every truth and raw topic
     raw_topics = sum(len(tr.sensors) for tr in line.trains.values()) + len(line.wayside)

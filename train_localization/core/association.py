@@ -32,6 +32,20 @@ USED, AMBIGUOUS, UNEXPLAINED = "used", "ambiguous", "unexplained"
 
 
 @dataclass(frozen=True)
+class FusedState:
+    """What the association reads of a published fused state (a core.fusion Estimate has the
+    same fields): stamp [s], position, interval [m], speed and its 1-sigma [m/s], mode."""
+
+    stamp: float
+    position: float
+    position_min: float
+    position_max: float
+    speed: float
+    speed_stddev: float
+    mode: int
+
+
+@dataclass(frozen=True)
 class Decision:
     """One wayside fix and the trains that explained it (``train``: the one it went to, or None)."""
 
@@ -49,7 +63,7 @@ class Associator:
     """Associates wayside fixes with trains from their published fused states.
 
     ``estimates``: train name -> the list of that train's fused states (core.fusion
-    Estimate), in stamp order, appended as they are made (the associator reads them, it
+    Estimate or FusedState), in stamp order, appended as they are made (the associator reads them, it
     does not copy them); ``track_ids``: train name -> the track it runs on.
     """
 

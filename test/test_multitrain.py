@@ -2,7 +2,6 @@
 association of wayside fixes with the trains, per-train integrity, and replay of a line bag."""
 from __future__ import annotations
 
-import copy
 import functools
 import math
 import tempfile
@@ -18,41 +17,27 @@ from train_localization.core.offline import LineResult, replay_bag, simulate_sce
 from train_localization.core.report import association_check, line_report
 from train_localization.core.scenario import Scenario, ScenarioError
 
-SHORT = {"type": "conventional", "length": 60.0, "wheel_diameter": 0.92,
-         "axles": [2.5, 5.0, 22.5, 25.0, 37.5, 40.0, 55.0, 57.5]}
-LONGER = {"type": "conventional", "length": 80.0, "wheel_diameter": 0.92,
-          "axles": [2.5, 5.3, 20.0, 22.8, 40.0, 42.8, 74.0, 76.8]}
-# heads every 200 m: two trains 250 m apart pass the same heads a few seconds apart
-TRACK = {"track_id": "test_line", "length": 4000.0,
-         "equipment": {"eurobalise": [{"every": 200.0, "start": 700.0, "end": 3500.0, "id": "EB{n:02d}"}],
-                       "axle_counter_head": [{"every": 200.0, "start": 800.0, "end": 2600.0, "id": "AC{n:02d}"}]}}
-DURATION = 40.0
+LINE = "config/scenario_line_pair.yaml"
 
 
 def line_dict(**changes) -> dict:
-    """Two trains following each other at 25 m/s, 250 m apart (front of the follower to the
-    tail of the leader), 10 s; the follower has no balise reader: its position comes from
-    the wayside fixes associated with it (heads every 200 m, balises every 200 m)."""
-    data = {
-        "name": "two_trains", "seed": 5, "duration": DURATION, "track": copy.deepcopy(TRACK),
-        "trains": [
-            {"name": "lead", "vehicle": dict(SHORT), "initial": {"position": 560.0, "speed": 25.0},
-             "profile": [{"speed": 25.0, "hold": 100.0}],
-             "sensors": {"doppler_radar": {}, "eurobalise_reader": {}}},
-            {"name": "follow", "vehicle": dict(LONGER), "initial": {"position": 250.0, "speed": 25.0},
-             "profile": [{"speed": 25.0, "hold": 100.0}],
-             "sensors": {"wheel_sensor": {}, "doppler_radar": {}}},
-        ],
-        "wayside": {"sensors": {"axle_counter": {"front_first": True}}},
-    }
+    """config/scenario_line_pair.yaml: two trains following each other at 25 m/s, 250 m apart
+    (front of the follower to the tail of the leader), 10 s; the follower has no balise reader:
+    its position comes from the wayside fixes associated with it (heads and balises every 200 m)."""
+    import yaml
+    from train_localization.core import paths
+    data = yaml.safe_load(paths.resolve(LINE).read_text())
     data.update(changes)
     return data
+
+
+SHORT, LONGER = (train["vehicle"] for train in line_dict()["trains"])
 
 
 @functools.lru_cache(maxsize=None)
 def line_run() -> tuple[Scenario, LineResult, Path]:
     """The two-train line simulated once, with its bag."""
-    sc = Scenario.from_dict(line_dict())
+    sc = Scenario.from_yaml(LINE)
     bag = Path(tempfile.mkdtemp(prefix="tl_multitrain_")) / "line.mcap"
     return sc, simulate_scenario(sc, bag=bag), bag
 

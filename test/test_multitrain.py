@@ -327,3 +327,24 @@ def test_association_node_routes_wayside_fixes_into_the_trains_namespaces(ros_co
         proc.terminate()
         proc.wait(timeout=10)
         log.close()
+
+
+def test_a_track_circuit_is_shunted_by_any_train():
+    """Wayside track circuits on a line: the receivers of the circuits holding either train drop,
+    the others stay at their clear level (the axles of both trains shunt the same rails)."""
+    from train_localization.core.pipeline import SensorPipeline
+    from train_localization.core.scenario import TruthState
+    from train_localization.core.sensors import spec
+    from train_localization.core.sensors.track_circuit import PARAMS
+    sc = Scenario.from_yaml("config/scenario_line_highspeed.yaml")
+    a, d = sc.train("train_a").vehicle, sc.train("train_d").vehicle
+    pipe = SensorPipeline(spec("track_circuit_receiver"), {}, sc.track, a, sc.rng("tc"), fleet={"a": a, "d": d})
+    fronts = {"a": 2800.0, "d": 7000.0}          # in TC01 (2000-3500) and TC04 (6500-8000)
+    blocks = []
+    for k in range(21):
+        for name, front in fronts.items():
+            blocks += pipe.on_truth(TruthState(k * 0.01, front, 0.0, 0.0), name)
+    level = np.concatenate([b.data for b in blocks]).mean(axis=0)
+    low = [c.split(".")[0] for c, v in zip(blocks[0].channels, level) if v < PARAMS["threshold_drop"].default]
+    assert low == ["TC01", "TC04"]
+    assert level.max() > PARAMS["threshold_pick"].default

@@ -133,6 +133,6 @@ class Associator:
 
     def summary(self) -> dict:
         """Counts by outcome, by sensor and outcome, and fixes used per train."""
-        return {"offered": len(self.decisions), **{k: self.counts.get(k, 0) for k in (USED, AMBIGUOUS, UNEXPLAINED)},
+        return {"offered": sum(self.counts.values()), **{k: self.counts.get(k, 0) for k in (USED, AMBIGUOUS, UNEXPLAINED)},
                 "by_sensor": {f"{s}/{o}": n for (s, o), n in sorted(self.by_sensor.items())},
                 "delivered": dict(sorted(self.delivered.items()))}

@@ -238,7 +238,8 @@ class AxleCounterSimulator(Simulator):
         w = p["zone_width"]
         half = 0.5 * p["sensor_spacing"]
         out = np.zeros((n, 2 * nh))
-        wheels = np.concatenate(self.axle_chainages(position, speed), axis=1)  # (n, axles of all trains)
+        self.orientations(speed)
+        wheels = np.concatenate(self.axle_chainages(position), axis=1)  # (n, axles of all trains)
         reach = 6.0 * w + half
         for hi in range(nh):
             if not len(self.axles):

@@ -209,7 +209,7 @@ class Simulator(ABC):
 
     Wayside devices (``sees_all_trains``) also run on a line: ``fleet`` lists the vehicles
     of its trains, the truth is a scenario.LineTruth and ``samples`` gets (n, trains)
-    arrays; ``axle_chainages`` places every train's axles.
+    arrays; ``orientations`` and ``axle_chainages`` place every train's axles.
     """
 
     sensor: str = ""
@@ -262,23 +262,28 @@ class Simulator(ABC):
             self._next_t0 = (n0 + self.samples_per_block) / self.sample_rate
         return blocks
 
-    def axle_chainages(self, position: np.ndarray, speed: np.ndarray) -> list[np.ndarray]:
-        """Chainages [m] of every seen train's axles, one (n, axles) array per train: axle k at
-        front - o x offset_k, o the train's orientation (parameter ``orientation``, or if 0 the sign
-        of the train's first motion: a train starts front first). ``position``, ``speed``: (n,)
-        for one train or (n, trains)."""
+    def orientations(self, speed: np.ndarray) -> list[int | None]:
+        """Each seen train's orientation: the parameter ``orientation``, or if 0 the sign of the
+        train's first motion (a train starts front first; None until it moves). ``speed``: (n,)
+        for one train or (n, trains) [m/s]."""
         if self._orients is None:
             self._orients = [int(np.sign(self.params.get("orientation", 0))) or None] * len(self.fleet)
-        pos = position if position.ndim == 2 else position[:, None]
         spd = speed if speed.ndim == 2 else speed[:, None]
-        out = []
-        for j, vehicle in enumerate(self.fleet):
-            if self._orients[j] is None:
+        for j, o in enumerate(self._orients):
+            if o is None:
                 moving = np.flatnonzero(np.abs(spd[:, j]) > 0.01)
                 if len(moving):
                     self._orients[j] = int(np.sign(spd[moving[0], j]))
-            out.append(pos[:, j:j + 1] - (self._orients[j] or 1) * np.asarray(vehicle.axles, float)[None, :])
-        return out
+        return self._orients
+
+    def axle_chainages(self, position: np.ndarray) -> list[np.ndarray]:
+        """Chainages [m] of every seen train's axles, one (n, axles) array per train: axle k at
+        front - o x offset_k, o the train's orientation (``orientations``; +1 before it is
+        known). ``position``: (n,) for one train or (n, trains)."""
+        orients = self._orients or [int(np.sign(self.params.get("orientation", 0))) or None] * len(self.fleet)
+        pos = position if position.ndim == 2 else position[:, None]
+        return [pos[:, j:j + 1] - (orients[j] or 1) * np.asarray(vehicle.axles, float)[None, :]
+                for j, vehicle in enumerate(self.fleet)]
 
     def _quantise(self, data: np.ndarray) -> np.ndarray:
         lsb = np.array([self.adc_lsb.get(u, 0.0) for u in self.units])

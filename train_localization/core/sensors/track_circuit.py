@@ -476,11 +476,16 @@ class TrackCircuitSimulator(Simulator):
         # receivers adjusted to level 1 with no train at the adjustment ballast resistance
         self.v_ref = np.array([abs(CircuitLine(c, p, p["adjust_ballast"]).empty[0][0]) for c in self.circuits])
         self.gain = np.maximum(0.1, 1.0 + self.rng.normal(0.0, p["adjust_sigma"], len(self.circuits)))
+        self.offsets = np.sort(np.concatenate([np.asarray(v.axles, dtype=float) for v in self.fleet]))
 
-    def voltages(self, times: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(V_rx, V_tx) of every circuit (n, circuits), complex, noise-free [V per V of source], for
-        the axles at chainages ``x`` (n, axles of every train), ascending along each row."""
+    def axle_positions(self, position: np.ndarray) -> np.ndarray:
+        """Axle chainages (n, k) of every train seen, ascending along each row."""
+        return np.sort(np.concatenate(self.axle_chainages(position), axis=1), axis=1)
+
+    def voltages(self, times: np.ndarray, position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(V_rx, V_tx) of every circuit (n, circuits), complex, noise-free [V per V of source]."""
         n, nc = len(times), len(self.circuits)
+        x = self.axle_positions(position) if len(self.offsets) else np.zeros((n, 0))
         r = np.full(x.shape, self.params["shunt_resistance"])
         for ci, t0, t1, kind in self.faults:
             if kind == "poor_shunt":
@@ -508,11 +513,10 @@ class TrackCircuitSimulator(Simulator):
                     v_tx[off, ci] = 0.0
         return v_rx, v_tx
 
-    def levels(self, times: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """Noise-free receiver levels (n, circuits) [1], interference included, for the axles at
-        chainages ``x`` (n, axles), ascending along each row."""
+    def levels(self, times: np.ndarray, position: np.ndarray) -> np.ndarray:
+        """Noise-free receiver levels (n, circuits) [1], interference included."""
         p = self.params
-        v_rx, v_tx = self.voltages(times, x)
+        v_rx, v_tx = self.voltages(times, position)
         own = np.abs(v_rx) / self.v_ref * self.gain
         leak2 = np.zeros_like(own)
         for ci, c in enumerate(self.circuits):
@@ -527,7 +531,8 @@ class TrackCircuitSimulator(Simulator):
         return np.sqrt(own ** 2 + leak2)
 
     def samples(self, times, position, speed, acceleration):
-        lv = self.levels(times, np.sort(np.concatenate(self.axle_chainages(position, speed), axis=1), axis=1))
+        self.orientations(speed)
+        lv = self.levels(times, position)
         sigma = self.params["noise_sigma"]
         n1 = self.rng.normal(0.0, sigma, lv.shape)
         n2 = self.rng.normal(0.0, sigma, lv.shape)

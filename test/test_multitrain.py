@@ -268,13 +268,16 @@ def test_simulator_node_publishes_every_train_and_the_wayside(ros_context, start
     try:
         counter = start_node("axle_counter", "--ros-args", "-r", "__ns:=/wayside", "-p", "mode:=ingest",
                              "-p", f"scenario:={path}")
+        # the counter listens to the raw blocks and publishes the sections before the simulator starts
+        assert spin_until(node, lambda: node.count_subscribers("/wayside/sensors/axle_counter/raw") >= 2
+                          and node.count_publishers("/wayside/wayside/sections") >= 1, timeout=60.0), counter.output()
         # five subscribers: the probe's four topics and the axle counter's raw blocks
         sim = start_node("simulator", "--ros-args", "-p", f"scenario:={path}", "-p", "rate:=0.0",
                          "-p", "start_delay:=0.5", "-p", "wait_for_subscribers:=5")
         done = spin_until(node, lambda: min(got.get("/lead/ground_truth/state", 0),
                                             got.get("/follow/ground_truth/state", 0)) >= 801
                           and got.get("/wayside/wayside/sections", 0) >= 5, timeout=60.0)
-        assert done, (got, sim.output()[-2000:], counter.output()[-2000:])
+        assert done, (str(got), sim.output()[-2000:], counter.output()[-2000:])
         assert got["/wayside/sensors/axle_counter/raw"] >= 150 and got["/follow/sensors/wheel/raw"] >= 150
     finally:
         node.destroy_node()

@@ -246,46 +246,11 @@ def test_for_namespace_gives_each_node_its_part_and_line_graph_lists_them(tmp_pa
     assert sorted(fusion["sensors"]) == ["axle_counter", "doppler", "wheel"]   # its own and the wayside
 
 
-def test_simulator_node_publishes_every_train_and_the_wayside(ros_context, start_node, tmp_path):
+def test_line_nodes_simulator_wayside_counter_and_association(ros_context, start_node, tmp_path):
     """The simulator of a line publishes each train's truth in its namespace and the wayside raw
-    blocks; a wayside axle-counter node in /wayside decodes them in ingest mode."""
-    import yaml
-    from conftest import spin_until
-    from train_localization.nodes.common import rclpy_classes
-    data = line_dict(duration=8.0)
-    path = tmp_path / "line.yaml"
-    path.write_text(yaml.safe_dump(data))
-    mc = rclpy_classes()
-    node = ros_context.create_node("line_probe")
-    got: dict[str, int] = {}
-    topics = {"/lead/ground_truth/state": mc.TrainState, "/follow/ground_truth/state": mc.TrainState,
-              "/follow/sensors/wheel/raw": mc.RawBlock, "/wayside/sensors/axle_counter/raw": mc.RawBlock,
-              "/wayside/wayside/sections": mc.SectionOccupancy}
-    from train_localization.nodes.common import STREAM_QOS
-    for topic, cls in topics.items():
-        node.create_subscription(cls, topic, lambda msg, topic=topic: got.__setitem__(topic, got.get(topic, 0) + 1),
-                                 STREAM_QOS)
-    try:
-        counter = start_node("axle_counter", "--ros-args", "-r", "__ns:=/wayside", "-p", "mode:=ingest",
-                             "-p", f"scenario:={path}")
-        # the counter listens to the raw blocks and publishes the sections before the simulator starts
-        assert spin_until(node, lambda: node.count_subscribers("/wayside/sensors/axle_counter/raw") >= 2
-                          and node.count_publishers("/wayside/wayside/sections") >= 1, timeout=60.0), counter.output()
-        # five subscribers: the probe's four topics and the axle counter's raw blocks
-        sim = start_node("simulator", "--ros-args", "-p", f"scenario:={path}", "-p", "rate:=0.0",
-                         "-p", "start_delay:=0.5", "-p", "wait_for_subscribers:=5")
-        done = spin_until(node, lambda: min(got.get("/lead/ground_truth/state", 0),
-                                            got.get("/follow/ground_truth/state", 0)) >= 801
-                          and got.get("/wayside/wayside/sections", 0) >= 5, timeout=60.0)
-        assert done, (str(got), sim.output()[-2000:], counter.output()[-2000:])
-        assert got["/wayside/sensors/axle_counter/raw"] >= 150 and got["/follow/sensors/wheel/raw"] >= 150
-    finally:
-        node.destroy_node()
-
-
-def test_association_node_routes_wayside_fixes_into_the_trains_namespaces(ros_context, tmp_path):
-    """The association node in /wayside sends each wayside fix to the namespace of the one train whose
-    published fused state explains it, and none for an ambiguous one."""
+    blocks; a wayside axle-counter node in /wayside decodes them in ingest mode; the association
+    node in /wayside sends each wayside fix to the namespace of the one train whose published fused
+    state explains it, and none for an ambiguous one."""
     import os
     import subprocess
     import sys
@@ -294,24 +259,40 @@ def test_association_node_routes_wayside_fixes_into_the_trains_namespaces(ros_co
     from train_localization.core import convert
     from train_localization.nodes.common import STREAM_QOS, rclpy_classes
     path = tmp_path / "line.yaml"
-    path.write_text(yaml.safe_dump(line_dict()))
+    path.write_text(yaml.safe_dump(line_dict(duration=8.0)))   # no head passage before 9 s
     log = open(tmp_path / "association.log", "w")
-    proc = subprocess.Popen([sys.executable, "-c", "from train_localization.nodes.association import main; main()",
-                             "--ros-args", "-r", "__ns:=/wayside", "-p", f"scenario:={path}"],
-                            stdout=log, stderr=subprocess.STDOUT, start_new_session=True, env=dict(os.environ))
+    assoc = subprocess.Popen([sys.executable, "-c", "from train_localization.nodes.association import main; main()",
+                              "--ros-args", "-r", "__ns:=/wayside", "-p", f"scenario:={path}"],
+                             stdout=log, stderr=subprocess.STDOUT, start_new_session=True, env=dict(os.environ))
+    counter = start_node("axle_counter", "--ros-args", "-r", "__ns:=/wayside", "-p", "mode:=ingest",
+                         "-p", f"scenario:={path}")
     mc = rclpy_classes()
-    node = ros_context.create_node("association_probe")
-    got: dict[str, list] = {"lead": [], "follow": []}
+    node = ros_context.create_node("line_probe")
+    got: dict[str, int] = {}
+    routed: dict[str, list] = {"lead": [], "follow": []}
     try:
+        topics = {"/lead/ground_truth/state": mc.TrainState, "/follow/ground_truth/state": mc.TrainState,
+                  "/follow/sensors/wheel/raw": mc.RawBlock, "/wayside/sensors/axle_counter/raw": mc.RawBlock,
+                  "/wayside/wayside/sections": mc.SectionOccupancy}
+        for topic, cls in topics.items():
+            node.create_subscription(cls, topic, lambda msg, topic=topic: got.__setitem__(topic, got.get(topic, 0) + 1),
+                                     STREAM_QOS)
         states = {name: node.create_publisher(mc.TrainState, f"/{name}/localization/state", STREAM_QOS)
-                  for name in got}
+                  for name in routed}
         fixes = node.create_publisher(mc.PositionFix, "/wayside/sensors/axle_counter/position", STREAM_QOS)
-        for name in got:
+        for name in routed:
             node.create_subscription(mc.PositionFix, f"/{name}/sensors/axle_counter/position",
-                                     lambda msg, name=name: got[name].append(msg.position), STREAM_QOS)
-        pubs = [*states.values(), fixes]
-        assert spin_until(node, lambda: all(p.get_subscription_count() >= 1 for p in pubs), timeout=30.0), \
-            (tmp_path / "association.log").read_text()
+                                     lambda msg, name=name: routed[name].append(msg.position), STREAM_QOS)
+        # the counter listens to the raw blocks and publishes the sections, the association listens
+        # to the fixes and the fused states, before the simulator starts
+        ready = [lambda: node.count_subscribers("/wayside/sensors/axle_counter/raw") >= 2,
+                 lambda: node.count_publishers("/wayside/wayside/sections") >= 1,
+                 *(lambda p=p: p.get_subscription_count() >= 1 for p in [*states.values(), fixes])]
+        assert spin_until(node, lambda: all(f() for f in ready), timeout=60.0), \
+            (counter.output(), (tmp_path / "association.log").read_text())
+        # five subscribers: the probe's four topics and the axle counter's raw blocks
+        sim = start_node("simulator", "--ros-args", "-p", f"scenario:={path}", "-p", "rate:=0.0",
+                         "-p", "start_delay:=0.5", "-p", "wait_for_subscribers:=5")
         # lead around 1000 m, follow around 960 m (intervals 10 m wide), both at 25 m/s
         for k in range(11):
             t = 9.0 + 0.1 * k
@@ -319,16 +300,21 @@ def test_association_node_routes_wayside_fixes_into_the_trains_namespaces(ros_co
                 s = front + 25.0 * (t - 10.0)
                 states[name].publish(convert.train_state_to_msg(mc, t, "test_line", s, 25.0, 0.0, 1.5, 0.1,
                                                                 s - 5.0, s + 5.0, 0.999, MODE_NOMINAL, []))
-        spin_until(node, lambda: False, timeout=0.5)
+        spin_until(node, lambda: False, timeout=0.3)
         for position, sd in ((1001.0, 0.5), (962.0, 0.5), (980.0, 5.0), (1003.0, 0.5)):
             fixes.publish(convert.measurement_to_msg(_fix(position, t=10.0, sd=sd), mc))
-        assert spin_until(node, lambda: len(got["lead"]) >= 2 and len(got["follow"]) >= 1, timeout=20.0), got
-        spin_until(node, lambda: False, timeout=0.5)
-        assert got == {"lead": [1001.0, 1003.0], "follow": [962.0]}   # 980 m: ambiguous, not sent
+        done = spin_until(node, lambda: min(got.get("/lead/ground_truth/state", 0),
+                                            got.get("/follow/ground_truth/state", 0)) >= 801
+                          and got.get("/wayside/wayside/sections", 0) >= 5
+                          and len(routed["lead"]) >= 2 and len(routed["follow"]) >= 1, timeout=60.0)
+        assert done, (str(got), str(routed), sim.output()[-2000:], counter.output()[-2000:])
+        assert got["/wayside/sensors/axle_counter/raw"] >= 150 and got["/follow/sensors/wheel/raw"] >= 150
+        spin_until(node, lambda: False, timeout=0.3)
+        assert routed == {"lead": [1001.0, 1003.0], "follow": [962.0]}   # 980 m: ambiguous, not sent
     finally:
         node.destroy_node()
-        proc.terminate()
-        proc.wait(timeout=10)
+        assoc.terminate()
+        assoc.wait(timeout=10)
         log.close()
 
 

@@ -15,6 +15,7 @@ NODES = {
     "wayside_occupancy": "train_localization.nodes.wayside:main_occupancy",
     "neutral_section_controller": "train_localization.nodes.wayside:main_controller",
     "crosscheck": "train_localization.nodes.wayside:main_crosscheck",
+    "association": "train_localization.nodes.association:main",
 }
 SENSOR_NODES = [
     "doppler_radar", "wheel_sensor", "eurobalise_reader", "lrl_scanner",

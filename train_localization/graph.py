@@ -2,6 +2,8 @@
 
 Each entry is (executable, node name, parameters). Everything runs in the
 ``/train`` namespace with use_sim_time (the simulator or the replayer publishes /clock).
+A line of several trains (``line_graph``) puts each node in its own namespace: each
+train's sensor nodes and fusion in ``/<train>``, the wayside sensor nodes in ``/wayside``.
 """
 from __future__ import annotations
 
@@ -64,9 +66,44 @@ def replay_graph(bag: str, scenario: str, sensors: list[str], out_bag: str, rate
     return nodes
 
 
-def ros_args(name: str, params: dict) -> list[str]:
+def line_graph(scenario: str, bag: str, rate: float = 1.0, record: bool = True,
+               exclude: list[str] | None = None) -> list[tuple[str, str, str, dict]]:
+    """The graph of a line scenario (several trains), as (namespace, executable, node name,
+    parameters): recorder (if ``record``) in /, per train its sensor nodes (ingest) and its
+    fusion in /<train>, the wayside sensor nodes (ingest) and the association of their fixes
+    with the trains in /wayside, and the simulator in
+    /, which publishes every train's truth and the raw blocks of every device (the wayside
+    ones see all trains; nodes/simulator.py). The sensor and fusion nodes take their train's
+    part of the scenario from their namespace (Scenario.for_namespace)."""
+    from .core.scenario import WAYSIDE, Scenario
+    from .core.sensors import spec
+    line = Scenario.from_yaml(scenario)
+    nodes = []
+    if record:
+        recorder = {"output": bag, "use_sim_time": True}
+        if exclude:
+            recorder["exclude"] = list(exclude)
+        nodes.append(("/", "recorder", "recorder", recorder))
+    ingest = {"mode": "ingest", "scenario": scenario, "use_sim_time": True}
+    for name, train in line.trains.items():
+        nodes += [(f"/{name}", node, node, dict(ingest)) for node in train.sensors]
+        classes = [spec(n).sensor for n in [*train.sensors, *line.wayside]]
+        nodes.append((f"/{name}", "fusion", "fusion", {"scenario": scenario, "sensors": classes, "use_sim_time": True}))
+    nodes += [(f"/{WAYSIDE}", node, node, dict(ingest)) for node in line.wayside]
+    # wayside fixes to the train that explains them, into its namespace (nodes/association.py)
+    nodes.append((f"/{WAYSIDE}", "association", "association", {"scenario": scenario, "use_sim_time": True}))
+    # the simulator starts once every sensor node listens to its raw blocks and the recorder to
+    # every truth and raw topic
+    raw_topics = sum(len(tr.sensors) for tr in line.trains.values()) + len(line.wayside)
+    subscribers = raw_topics + (raw_topics + len(line.trains) if record else 0)
+    nodes.append(("/", "simulator", "simulator", {"scenario": scenario, "rate": rate, "start_delay": 1.0,
+                                                  "wait_for_subscribers": subscribers}))
+    return nodes
+
+
+def ros_args(name: str, params: dict, namespace: str = NAMESPACE) -> list[str]:
     """Command-line ROS arguments for one node."""
-    args = ["--ros-args", "-r", f"__ns:={NAMESPACE}", "-r", f"__node:={name}"]
+    args = ["--ros-args", "-r", f"__ns:={namespace}", "-r", f"__node:={name}"]
     for key, value in params.items():
         if isinstance(value, bool):
             value = "true" if value else "false"

@@ -9,6 +9,12 @@ fusion, and can write a bag with the same topics as the live graph.
 ``replay_bag`` feeds a bag's raw topics through the decoders (ingest mode) and the
 fusion as fast as the CPU allows and can write a new bag with the recomputed
 outputs (offline replay, DESIGN.md section 1).
+
+A line (several trains, ``Scenario.line``): ``simulate_line`` and ``replay_line`` run
+every train's on-board sensors and fusion, the wayside sensors, which see all trains,
+and the association of the wayside fixes with the trains (core/association.py); the
+bags carry train X's topics under ``/X/...``, the wayside's under ``/wayside/...`` and
+the scenario on ``/scenario``.
 """
 from __future__ import annotations
 
@@ -23,11 +29,12 @@ import numpy as np
 
 from ..graph import NAMESPACE   # the graph's namespace: the bags carry its topics
 from . import convert
+from .association import Associator
 from .bagio import BagWriter, typestore_classes
 from .fusion import FusionConfig, FusionRunner, estimate_to_msg, order_key, sensor_models
-from .measurements import SectionOccupancy
+from .measurements import PositionFix, SectionOccupancy
 from .pipeline import SensorPipeline
-from .scenario import Scenario
+from .scenario import WAYSIDE, Scenario
 from .sensors import spec as sensor_spec
 from .signals import InputRejected
 
@@ -36,9 +43,18 @@ TRUTH_TOPIC = f"{NAMESPACE}/ground_truth/state"
 FUSED_TOPIC = f"{NAMESPACE}/localization/state"
 
 
-def raw_topic(sensor: str) -> str:
+LINE_SCENARIO_TOPIC = "/scenario"        # the scenario of a line's bag (every train and the wayside)
+WAYSIDE_NAMESPACE = f"/{WAYSIDE}"
+
+
+def raw_topic(sensor: str, namespace: str = NAMESPACE) -> str:
     """Bag topic of a sensor class's raw blocks."""
-    return f"{NAMESPACE}/sensors/{sensor}/raw"
+    return f"{namespace}/sensors/{sensor}/raw"
+
+
+def train_namespace(scenario: Scenario) -> str:
+    """Namespace of a train's graph: /train for a one-train scenario, /<name> on a line."""
+    return f"/{scenario.train_name}" if scenario.line else NAMESPACE
 
 
 
@@ -52,14 +68,17 @@ LEGACY_FUSION_KEYS = frozenset({
 
 
 def fusion_config(scenario: Scenario | None, **overrides) -> FusionConfig:
-    """FusionConfig of a scenario: the error models of its sensors, and its ``fusion:``
+    """FusionConfig of a (one train's) scenario: the error models of its sensors (and of the
+    wayside sensors of its line), and its ``fusion:``
     section (global tuning and per-sensor ``overrides``), plus keyword overrides.
     Legacy per-sensor tables (``LEGACY_FUSION_KEYS``, in bags recorded before) are ignored."""
     values = {k: v for k, v in ((scenario.fusion if scenario else {}) or {}).items() if k not in LEGACY_FUSION_KEYS}
     values.update(overrides)
     if scenario is not None:
         values.setdefault("track_id", scenario.track.track_id)
-        values.setdefault("sensors", sensor_models(scenario.sensors, scenario.track, scenario.vehicle))
+        # a train of a line also takes the wayside fixes associated with it
+        values.setdefault("sensors", sensor_models({**scenario.sensors, **scenario.wayside}, scenario.track,
+                                                   scenario.vehicle))
     return FusionConfig(**values)
 
 
@@ -155,7 +174,10 @@ def simulate_scenario(scenario: Scenario, bag: str | Path | None = None, fusion_
     Order of events: at each truth step the truth is published, every sensor turns
     the blocks it completed into measurements (published at the block end), the
     fusion takes them, then the fused states up to the step time are produced.
+    A line scenario runs ``simulate_line`` (a LineResult).
     """
+    if scenario.line:
+        return simulate_line(scenario, bag, fusion_rate, record_raw, t_end)
     mc = typestore_classes() if bag else None
     writer = BagWriter(bag) if bag else None
     pipes = sensor_pipelines(scenario)
@@ -205,9 +227,10 @@ def scenario_from_bag(bag: str | Path) -> Scenario:
 
 def _recorded_scenario(reader) -> Scenario:
     import yaml
-    for _, typename, _, data in reader.cdr([SCENARIO_TOPIC]):
+    for _, typename, _, data in reader.cdr([SCENARIO_TOPIC, LINE_SCENARIO_TOPIC]):
         return Scenario.from_dict(yaml.safe_load(reader.deserialize(data, typename).data))
-    raise ValueError(f"{reader.path} has no {SCENARIO_TOPIC} topic: give the scenario explicitly")
+    raise ValueError(f"{reader.path} has no {SCENARIO_TOPIC} or {LINE_SCENARIO_TOPIC} topic: give the scenario "
+                     f"explicitly")
 
 
 class _Output:
@@ -221,8 +244,10 @@ class _Output:
     sensors ending at the same time) no longer roll the filter back one by one.
     """
 
-    def __init__(self, runner: FusionRunner, result: RunResult, writer: BagWriter | None, mc, track_id: str):
+    def __init__(self, runner: FusionRunner, result: RunResult, writer: BagWriter | None, mc, track_id: str,
+                 namespace: str = NAMESPACE):
         self.runner, self.result, self.writer, self.mc, self.track_id = runner, result, writer, mc, track_id
+        self.namespace = namespace
         self._pending: list = []
 
     def reject(self, exc: InputRejected) -> None:
@@ -241,7 +266,7 @@ class _Output:
         for m in measurements:
             self.result.measurements.append(m)
             if self.writer:
-                self.writer.write(f"{NAMESPACE}/{convert.measurement_topic(m)}",
+                self.writer.write(f"{self.namespace}/{convert.measurement_topic(m)}",
                                   convert.measurement_to_msg(m, self.mc), _ns(t))
             if not isinstance(m, SectionOccupancy):
                 self._pending.append(m)
@@ -261,7 +286,7 @@ class _Output:
         for est, used in self.runner.advance(t):
             self.result.estimates.append(est)
             if self.writer:
-                self.writer.write(FUSED_TOPIC,
+                self.writer.write(f"{self.namespace}/localization/state",
                                   estimate_to_msg(self.mc, est, self.track_id, used), _ns(est.stamp))
 
 
@@ -405,7 +430,7 @@ def replay_bag(bag: str | Path, scenario: Scenario | None = None, out_bag: str |
     """Decode a bag's raw topics and fuse them, in log-time order, without DDS.
 
     ``scenario`` gives the track, vehicle and sensor set-up (default: the one the
-    bag carries on /train/scenario). The ground truth of the bag (if any) is copied
+    bag carries on /train/scenario). A line's bag goes to ``replay_line``. The ground truth of the bag (if any) is copied
     to the result and the new bag. Raw topics of sensors the scenario does not list
     are ignored; a message that does not deserialise, a bad block or a decoder
     rejection is counted in ``rejected`` by reason (``blocks`` counts the raw
@@ -416,11 +441,14 @@ def replay_bag(bag: str | Path, scenario: Scenario | None = None, out_bag: str |
     serial replay, which streams the bag.
     """
     from .bagio import BagReader, topic_counts
+    if scenario is None:
+        scenario = scenario_from_bag(bag)
+    if scenario.line:
+        return replay_line(bag, scenario, out_bag, fusion_rate)
     mc = typestore_classes() if out_bag else None
     writer = items = bar = None
     try:
         with BagReader(bag) as reader:
-            scenario = scenario or _recorded_scenario(reader)
             pipes = {}
             for node, params in scenario.sensors.items():
                 spec = sensor_spec(node)
@@ -451,3 +479,208 @@ def replay_bag(bag: str | Path, scenario: Scenario | None = None, out_bag: str |
         if writer:
             writer.close()
     return result
+
+
+# ---- several trains on one line ------------------------------------------------------
+
+@dataclass
+class LineResult:
+    """A line run: one RunResult per train, the wayside measurements (all, as decoded) and the
+    association of the wayside fixes with the trains."""
+
+    trains: dict = field(default_factory=dict)        # train name -> RunResult
+    wayside: list = field(default_factory=list)       # wayside measurements
+    associator: Associator | None = None
+    blocks: int = 0                                    # wayside raw blocks
+    rejected: dict = field(default_factory=dict)      # wayside rejections by reason
+
+
+def wayside_pipelines(scenario: Scenario, simulate: bool = True) -> dict[str, SensorPipeline]:
+    """Raw topic -> SensorPipeline of each wayside sensor of a line, simulating ones seeing every train."""
+    fleet = {name: tr.vehicle for name, tr in scenario.trains.items()} if simulate else None
+    wayside = scenario.for_namespace(WAYSIDE_NAMESPACE)
+    pipes = {}
+    for node, params in wayside.sensors.items():
+        spec = sensor_spec(node)
+        unit = (params or {}).get("unit_id") or spec.sensor
+        pipes[raw_topic(spec.sensor, WAYSIDE_NAMESPACE)] = SensorPipeline(
+            spec, params, wayside.track, wayside.vehicle, wayside.rng(node, unit), simulate=simulate, fleet=fleet)
+    return pipes
+
+
+class _Line:
+    """The fusion side of a line run: every train's _Output, the wayside measurements and
+    their association. Wayside fixes are associated with the fused states published
+    before the truth step at which they are decoded, as an association node would."""
+
+    def __init__(self, scenario: Scenario, fusion_rate: float, writer: BagWriter | None, mc):
+        self.writer, self.mc = writer, mc
+        self.outs = {}
+        for name, train in scenario.trains.items():
+            runner = FusionRunner(fusion_config(train), fusion_rate)
+            self.outs[name] = _Output(runner, RunResult(runner=runner), writer, mc, train.track.track_id,
+                                      train_namespace(train))
+        associator = Associator.for_trains({n: o.result.estimates for n, o in self.outs.items()},
+                                           {n: o.track_id for n, o in self.outs.items()}, scenario.association)
+        self.result = LineResult(trains={n: o.result for n, o in self.outs.items()}, associator=associator)
+
+    def truth(self, name: str, state, t_ns: int) -> None:
+        out = self.outs[name]
+        out.result.truth.append(state)
+        if self.writer:
+            self.writer.write(f"{out.namespace}/ground_truth/state", convert.train_state_to_msg(
+                self.mc, state.stamp, out.track_id, state.position, state.speed, state.acceleration), t_ns)
+
+    def wayside(self, measurements: list, t: float) -> None:
+        """Wayside measurements decoded at t [s]: published under /wayside; each fix goes to the
+        train the association names (published there too), or to none."""
+        for m in measurements:
+            self.result.wayside.append(m)
+            if self.writer:
+                self.writer.write(f"{WAYSIDE_NAMESPACE}/{convert.measurement_topic(m)}",
+                                  convert.measurement_to_msg(m, self.mc), _ns(t))
+            if isinstance(m, PositionFix):
+                train = self.result.associator.associate(m)
+                if train is not None:
+                    self.outs[train].take([m], t)
+
+    def reject(self, exc: InputRejected) -> None:
+        self.result.rejected[exc.reason] = self.result.rejected.get(exc.reason, 0) + 1
+
+    def states(self, t: float) -> None:
+        for out in self.outs.values():
+            out.states(t)
+
+    def flush(self) -> None:
+        for out in self.outs.values():
+            out.flush()
+
+
+class LineSimulation:
+    """The simulated devices of a line, stepped at the truth rate: every train's truth and
+    on-board sensors, and the wayside sensors seeing all trains (what simulate_line fuses
+    and what the simulator node of a line publishes).
+
+    ``step(k)`` returns (t, {train: TruthState}, [(namespace, pipeline, raw block), ...]) of
+    truth step k, blocks in the order they complete: each train's on-board ones after its
+    truth, the wayside ones once every train's truth of the step is in.
+    """
+
+    def __init__(self, scenario: Scenario):
+        self.scenario = scenario
+        self.trains = scenario.trains
+        self.trajectories = {name: tr.trajectory() for name, tr in self.trains.items()}
+        self.pipes = {name: sensor_pipelines(tr) for name, tr in self.trains.items()}
+        self.namespaces = {name: train_namespace(tr) for name, tr in self.trains.items()}
+        self.wayside = wayside_pipelines(scenario)
+
+    def steps(self, t_end: float | None = None) -> int:
+        t_end = self.scenario.duration if t_end is None else t_end
+        return int(round(t_end * self.scenario.truth_rate)) + 1
+
+    def step(self, k: int):
+        t = convert.canonical(k / self.scenario.truth_rate)
+        truths, blocks = {}, []
+        for name in self.trains:
+            state = truths[name] = self.trajectories[name].state_at(t)
+            ns = self.namespaces[name]
+            blocks.extend((ns, pipe, block) for pipe in self.pipes[name] for block in pipe.on_truth(state))
+            for pipe in self.wayside.values():
+                blocks.extend((WAYSIDE_NAMESPACE, pipe, block) for block in pipe.on_truth(state, name))
+        return t, truths, blocks
+
+
+def simulate_line(scenario: Scenario, bag: str | Path | None = None, fusion_rate: float = 200.0,
+                  record_raw: bool = True, t_end: float | None = None) -> LineResult:
+    """``simulate_scenario`` of a line: at each truth step every train's truth, its on-board
+    sensors and their measurements, then the wayside sensors (complete once all trains'
+    truth is in) and the association of their fixes, then every train's fused states."""
+    mc = typestore_classes() if bag else None
+    writer = BagWriter(bag) if bag else None
+    line = _Line(scenario, fusion_rate, writer, mc)
+    sim = LineSimulation(scenario)
+    outs = {out.namespace: out for out in line.outs.values()}
+    if writer:
+        writer.write(LINE_SCENARIO_TOPIC, typestore_classes_string(scenario.to_yaml()), 0)
+    try:
+        for k in range(sim.steps(t_end)):
+            t, truths, blocks = sim.step(k)
+            for name, state in truths.items():
+                line.truth(name, state, _ns(t))
+            for ns, pipe, block in blocks:
+                if writer and record_raw:
+                    writer.write(raw_topic(block.sensor, ns), convert.raw_block_to_msg(block, mc), _ns(t))
+                out = outs.get(ns)
+                if out is not None:
+                    out.result.blocks += 1
+                    out.decode(pipe, block, t)
+                    continue
+                line.result.blocks += 1
+                try:
+                    line.wayside(pipe.on_block(block), t)
+                except InputRejected as exc:
+                    line.reject(exc)
+            line.states(t)
+        line.flush()
+    finally:
+        if writer:
+            writer.close()
+    return line.result
+
+
+def replay_line(bag: str | Path, scenario: Scenario | None = None, out_bag: str | Path | None = None,
+                fusion_rate: float = 200.0) -> LineResult:
+    """``replay_bag`` of a line's bag: every train's raw topics through its decoders and fusion,
+    the wayside raw topics through the wayside decoders and the association, in log-time
+    order (the same sequence as ``simulate_line``, so the same estimates)."""
+    from .bagio import BagReader
+    if scenario is None:
+        scenario = scenario_from_bag(bag)
+    mc = typestore_classes() if out_bag else None
+    writer = BagWriter(out_bag) if out_bag else None
+    line = _Line(scenario, fusion_rate, writer, mc)
+    routes = {}   # topic -> (train name or None, pipeline or None: the truth)
+    for name, train in scenario.trains.items():
+        ns = train_namespace(train)
+        routes[f"{ns}/ground_truth/state"] = (name, None)
+        for node, params in train.sensors.items():
+            spec = sensor_spec(node)
+            routes[raw_topic(spec.sensor, ns)] = (name, SensorPipeline(spec, params, train.track, train.vehicle,
+                                                                       simulate=False))
+    routes.update({topic: (None, pipe) for topic, pipe in wayside_pipelines(scenario, simulate=False).items()})
+    try:
+        with BagReader(bag) as reader:
+            t_prev = None
+            for topic, typename, t_ns, data in reader.cdr(list(routes)):
+                t = t_ns / 1e9
+                if t_prev is not None and t > t_prev:
+                    line.states(t_prev)
+                t_prev = t
+                name, pipe = routes[topic]
+                out = line.outs[name] if name is not None else None
+                try:
+                    msg = reader.deserialize(data, typename)
+                    if pipe is None:
+                        line.truth(name, convert.truth_from_msg(msg), t_ns)
+                        continue
+                    measurements = pipe.on_block(convert.raw_block_from_msg(msg))
+                except InputRejected as exc:
+                    (out.reject if out else line.reject)(exc)
+                    continue
+                finally:
+                    if pipe is not None:
+                        if out:
+                            out.result.blocks += 1
+                        else:
+                            line.result.blocks += 1
+                if out:
+                    out.take(measurements, t)
+                else:
+                    line.wayside(measurements, t)
+            if t_prev is not None:
+                line.states(t_prev)
+            line.flush()
+    finally:
+        if writer:
+            writer.close()
+    return line.result

@@ -11,7 +11,7 @@ from collections import Counter
 from dataclasses import dataclass
 
 from .measurements import Measurement
-from .scenario import Scenario, TruthBuffer, TruthState, Vehicle
+from .scenario import LineTruth, Scenario, TruthBuffer, TruthState, Vehicle
 from .sensors import spec as sensor_spec
 from .sensors.base import COMMON_PARAMS, SensorSpec, sensor_params
 from .signals import BlockSequenceGuard, InputRejected, RawBlock
@@ -25,10 +25,13 @@ class SensorPipeline:
     A block must come at the configured sample rate (``sample_rate``) and last at most
     ``max_block_duration``: the decoders' time and memory per block are bounded by the
     configuration, not by what a publisher sends.
+
+    ``fleet`` (train name -> vehicle): a wayside device on a line, fed with every train's
+    truth (``on_truth(state, train)``, scenario.LineTruth).
     """
 
     def __init__(self, spec: SensorSpec, params: dict | None, track: Track, vehicle: Vehicle,
-                 rng=None, simulate: bool = True):
+                 rng=None, simulate: bool = True, fleet: dict[str, Vehicle] | None = None):
         self.spec = spec
         self.params = sensor_params(spec, params, vehicle)
         self.track = track
@@ -39,8 +42,9 @@ class SensorPipeline:
             raise ValueError(f"{spec.node}: max_block_duration {longest} s must lie in block_duration "
                              f"({self.params['block_duration']} s) .. {most:g} s")
         self.max_block_samples = math.ceil(longest * self.sample_rate)
-        self.simulator = spec.simulator(self.params, track, vehicle, rng) if simulate else None
-        self.truth = TruthBuffer()
+        fleet_args = [list(fleet.values())] if fleet else []
+        self.simulator = spec.simulator(self.params, track, vehicle, rng, *fleet_args) if simulate else None
+        self.truth = LineTruth(fleet) if fleet else TruthBuffer()
         self.guard = BlockSequenceGuard(spec.decoder.channels or None)
         self.rejected: Counter[str] = Counter()
         self.accepted = 0
@@ -50,15 +54,24 @@ class SensorPipeline:
     def unit_id(self) -> str:
         return self.decoder.unit_id
 
-    def on_truth(self, state: TruthState) -> list[RawBlock]:
-        """Feed one ground-truth state; returns the raw blocks now complete.
+    def on_truth(self, state: TruthState, train: str | None = None) -> list[RawBlock]:
+        """Feed one ground-truth state (of ``train``, for a wayside device on a line); returns the
+        raw blocks now complete.
 
-        Raises InputRejected (counted) for a state that is not newer than the last one."""
-        if self.truth.latest is not None and state.stamp <= self.truth.latest:
-            reason = "duplicate" if state.stamp == self.truth.latest else "stamp_back"
+        Raises InputRejected (counted) for a state that is not newer than the last one, or of a
+        train the device does not know."""
+        buffer = self.truth
+        if isinstance(self.truth, LineTruth):
+            buffer = self.truth.buffers.get(train)
+            if buffer is None:
+                self.rejected["unknown_id"] += 1
+                raise InputRejected("unknown_id", f"truth state of train {train!r}; trains: "
+                                    f"{', '.join(self.truth.buffers)}")
+        if buffer.latest is not None and state.stamp <= buffer.latest:
+            reason = "duplicate" if state.stamp == buffer.latest else "stamp_back"
             self.rejected[reason] += 1
-            raise InputRejected(reason, f"truth state at {state.stamp:.6f} s after {self.truth.latest:.6f} s")
-        self.truth.add(state)
+            raise InputRejected(reason, f"truth state at {state.stamp:.6f} s after {buffer.latest:.6f} s")
+        buffer.add(state)
         return self.simulator.simulate(self.truth) if self.simulator else []
 
     def on_block(self, block: RawBlock) -> list[Measurement]:

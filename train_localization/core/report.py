@@ -16,6 +16,10 @@ filter knows nothing of the motion).
 Per-sensor residuals: measurement minus the fused estimate at its stamp (position
 fixes against position, speed and distance increments against speed), raw and
 normalised by the measurement's stddev.
+
+A line (several trains, core/offline.py LineResult): ``line_report`` gives the report
+of each train (its on-board measurements and the wayside fixes delivered to it) and the
+line-level figures of the association (``association_check``).
 """
 from __future__ import annotations
 
@@ -232,3 +236,45 @@ def jsonable(obj):
     if isinstance(obj, np.integer):
         return int(obj)
     return obj
+
+
+def association_check(result) -> dict:
+    """Line-level figures of a LineResult: the wayside fixes offered, used, ambiguous and
+    unexplained (core/association.py), and against the truth: a used fix counts as
+    ``wrong_train`` when another train's true front was nearer to it (direction alike)
+    than the front of the train it went to; ``error_over_sigma_max`` is the largest
+    |fix - true front of its train| / fix 1-sigma of the used fixes."""
+    assoc = result.associator
+    fronts = {}
+    for name, run in result.trains.items():
+        arr = np.array([(s.stamp, s.position, s.speed) for s in run.truth]).reshape(-1, 3)
+        fronts[name] = arr
+    wrong, ratios = 0, []
+    for d in assoc.decisions:
+        if d.train is None:
+            continue
+        m = d.fix
+        dist = {}
+        for name, arr in fronts.items():
+            if not arr.size:
+                continue
+            v = float(np.interp(m.stamp, arr[:, 0], arr[:, 2]))
+            if m.direction and abs(v) > 0.1 and (v > 0) != (m.direction > 0):
+                continue
+            dist[name] = abs(float(np.interp(m.stamp, arr[:, 0], arr[:, 1])) - m.position)
+        if dist and min(dist, key=dist.get) != d.train:
+            wrong += 1
+        if d.train in dist:
+            ratios.append(dist[d.train] / m.position_stddev)
+        else:
+            wrong += 1
+    return {**assoc.summary(), "wrong_train": wrong,
+            "error_over_sigma_max": float(max(ratios)) if ratios else None}
+
+
+def line_report(result) -> dict:
+    """{"trains": train name -> evaluate() report, "association": association_check()}."""
+    trains = {name: evaluate(run.truth, run.estimates, run.measurements)[0] for name, run in result.trains.items()}
+    return {"trains": trains, "association": association_check(result),
+            "wayside": {"blocks": result.blocks, "rejected": dict(result.rejected),
+                        "measurements": len(result.wayside)}}

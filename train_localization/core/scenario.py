@@ -10,11 +10,20 @@ Speed profile: a list of legs run in order. Each leg drives the speed towards
 [m/s^2] when speeding up and ``decel`` [m/s^2] when slowing down, the acceleration
 changing at most by ``jerk`` [m/s^3]; once there it holds the speed for ``hold``
 [s]. ``speed: 0`` with ``hold`` is a stop with a dwell time.
+
+Several trains on one line (``trains:``): each entry has its own ``name``, ``vehicle``,
+``initial``, ``profile``, on-board ``sensors`` and ``fusion``; the top-level
+``wayside: {sensors: ...}`` lists the wayside equipment, which sees every train. Each
+train's graph lives in the namespace ``/<name>``, the wayside in ``/wayside``. A
+scenario without ``trains:`` is one train named ``train`` (namespace ``/train``).
+``Scenario.train(name)`` is one train's scenario: what a one-train run needs (its
+vehicle, profile, on-board sensors, fusion, its own random streams).
 """
 from __future__ import annotations
 
 import hashlib
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -27,6 +36,11 @@ from .track import Track
 
 class ScenarioError(ValueError):
     """A scenario that cannot be run, with the reason."""
+
+
+TRAIN = "train"          # the name (and namespace) of the train of a one-train scenario
+WAYSIDE = "wayside"      # the namespace of the wayside equipment of a line
+_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")   # a train name is a ROS namespace token
 
 
 @dataclass(frozen=True)
@@ -73,6 +87,50 @@ class Scenario:
     fusion: dict = field(default_factory=dict)  # FusionConfig overrides (core/fusion.py)
     source: Path | None = None
     description: dict = field(default_factory=dict, repr=False)  # the YAML, track inlined
+    # name -> one train's scenario: {train_name: self} but for a line (set by from_dict)
+    trains: dict[str, "Scenario"] = field(default_factory=dict, init=False, repr=False, compare=False)
+    wayside: dict[str, dict] = field(default_factory=dict)  # wayside sensor node name -> parameters
+    association: dict = field(default_factory=dict)  # core/association.py Associator overrides
+    line: bool = False          # described with ``trains:`` (even a single one): namespaces /<name>
+    train_name: str = TRAIN     # the train this scenario drives (one-train scenarios and train views)
+    rng_prefix: tuple = ()      # random streams of a line's train: prefixed by its name
+
+    def __post_init__(self):
+        self.trains = {self.train_name: self}
+
+    @property
+    def train_names(self) -> list[str]:
+        return list(self.trains)
+
+    def train(self, name: str) -> "Scenario":
+        """One train's scenario (itself for a one-train scenario); ScenarioError if unknown."""
+        if name not in self.trains:
+            raise ScenarioError(f"no train {name!r} in scenario {self.name}; trains: {', '.join(self.trains)}")
+        return self.trains[name]
+
+    def for_namespace(self, namespace: str) -> "Scenario":
+        """The scenario a node in ``namespace`` runs: on a line, the train of that name (its
+        vehicle, on-board sensors, fusion) or, in /wayside, the wayside equipment (as a
+        scenario whose sensors are the wayside ones); a one-train scenario in any namespace."""
+        if not self.line:
+            return self
+        name = namespace.strip("/").split("/")[-1]
+        if name == WAYSIDE:
+            return Scenario(name=f"{self.name}/{WAYSIDE}", track=self.track, vehicle=self.wayside_vehicle(), legs=[],
+                            duration=self.duration, seed=self.seed, truth_rate=self.truth_rate,
+                            sensors=dict(self.wayside), source=self.source, description=self.description,
+                            line=True, train_name=WAYSIDE, rng_prefix=(WAYSIDE,))
+        if name not in self.trains:
+            raise ScenarioError(f"namespace {namespace!r} names no train of scenario {self.name} (trains: "
+                                f"{', '.join(self.trains)}) and is not /{WAYSIDE}")
+        return self.trains[name]
+
+    def wayside_vehicle(self) -> Vehicle:
+        """The vehicle whose data the wayside decoders take by default (axle layout): the
+        trains' own if they all have the same, else a vehicle without axles (no layout: the
+        decoders cover what they cannot identify; a scenario can give the parameters)."""
+        vehicles = [tr.vehicle for tr in self.trains.values()]
+        return vehicles[0] if all(v == vehicles[0] for v in vehicles) else Vehicle(kind="mixed")
 
     def to_yaml(self) -> str:
         """Self-contained YAML of the scenario (track inlined): recorded into bags."""
@@ -80,10 +138,13 @@ class Scenario:
 
     def rng(self, *names: str) -> np.random.Generator:
         """Independent random stream for one device, stable across runs and orderings."""
-        digest = hashlib.sha256("/".join(names).encode()).digest()
+        digest = hashlib.sha256("/".join(self.rng_prefix + names).encode()).digest()
         return np.random.default_rng([int(self.seed), int.from_bytes(digest[:8], "little")])
 
     def trajectory(self, dt: float = 1e-3) -> "Trajectory":
+        if len(self.trains) > 1 or self.trains.get(self.train_name) is not self:
+            raise ScenarioError(f"scenario {self.name} has several trains: take one train's trajectory "
+                                f"(scenario.train(name).trajectory())")
         return Trajectory.from_legs(self.legs, self.start_position, self.start_speed, self.duration, dt)
 
     @classmethod
@@ -98,41 +159,122 @@ class Scenario:
 
     @classmethod
     def from_dict(cls, data: dict, source: Path | None = None) -> "Scenario":
+        if not isinstance(data, dict):
+            raise ScenarioError("a scenario is a mapping of keys (name, track, duration, ...)")
         try:
-            track_ref = data["track"]
-            if isinstance(track_ref, dict):
-                track_data = track_ref
-            else:
-                track_path = Path(track_ref)
-                if not track_path.is_absolute() and source is not None and (source.parent / track_path.name).exists():
-                    track_path = source.parent / track_path.name
-                with open(paths.resolve(track_path), encoding="utf-8") as fh:
-                    track_data = yaml.safe_load(fh)
+            track_data = _track_data(data["track"], source)
             track = Track.from_dict(track_data)
-            veh = data.get("vehicle", {}) or {}
-            vehicle = Vehicle(kind=str(veh.get("type", "conventional")), length=float(veh.get("length", 200.0)),
-                              axles=tuple(float(a) for a in veh.get("axles", ()) or ()),
-                              wheel_diameter=float(veh.get("wheel_diameter", 0.92)))
-            legs = [Leg(**{k: float(v) for k, v in leg.items()}) for leg in data["profile"]]
-            init = data.get("initial", {}) or {}
-            scenario = cls(
-                name=str(data.get("name", source.stem if source else "scenario")),
-                track=track, vehicle=vehicle, legs=legs, duration=float(data["duration"]),
-                seed=int(data.get("seed", 0)), start_position=float(init.get("position", 0.0)),
-                start_speed=float(init.get("speed", 0.0)), truth_rate=float(data.get("truth_rate", 100.0)),
-                sensors={name: dict(params or {}) for name, params in (data.get("sensors", {}) or {}).items()},
-                fusion=dict(data.get("fusion", {}) or {}),
-                source=source, description={**data, "track": track_data},
-            )
+            common = dict(name=str(data.get("name", source.stem if source else "scenario")), track=track,
+                          duration=float(data["duration"]), seed=int(data.get("seed", 0)),
+                          truth_rate=float(data.get("truth_rate", 100.0)), source=source,
+                          description={**data, "track": track_data})
+            if "trains" not in data:
+                scenario = cls(**common, **_train_fields(data))
+            else:
+                scenario = _line(cls, data, common)
         except KeyError as exc:
             raise ScenarioError(f"scenario lacks the key {exc}") from None
-        except TypeError as exc:
+        except (TypeError, AttributeError) as exc:
             raise ScenarioError(f"scenario has a malformed entry: {exc}") from None
         if scenario.duration <= 0:
             raise ScenarioError("scenario duration must be > 0 s")
-        if not 0 <= scenario.start_position <= track.length:
-            raise ScenarioError(f"initial position {scenario.start_position} m is off the track")
+        for train in scenario.trains.values():
+            if not 0 <= train.start_position <= track.length:
+                what = f"train {train.train_name}: " if scenario.line else ""
+                raise ScenarioError(f"{what}initial position {train.start_position} m is off the track")
+        if scenario.line:
+            _check_line(scenario)
         return scenario
+
+    def orientation(self) -> int:
+        """+1 if the train runs towards increasing chainage, -1 if decreasing: the sign of its
+        first moving speed (a train starts front first), +1 if it never moves."""
+        for v in [self.start_speed] + [leg.speed for leg in self.legs]:
+            if abs(v) > 1e-9:
+                return 1 if v > 0 else -1
+        return 1
+
+    def extent(self) -> tuple[float, float]:
+        """(lowest, highest) chainage [m] the train covers at the start (front and length)."""
+        front, tail = self.start_position, self.start_position - self.orientation() * self.vehicle.length
+        return min(front, tail), max(front, tail)
+
+
+def _track_data(track_ref, source: Path | None) -> dict:
+    if isinstance(track_ref, dict):
+        return track_ref
+    track_path = Path(track_ref)
+    if not track_path.is_absolute() and source is not None and (source.parent / track_path.name).exists():
+        track_path = source.parent / track_path.name
+    with open(paths.resolve(track_path), encoding="utf-8") as fh:
+        return yaml.safe_load(fh)
+
+
+def _train_fields(data: dict) -> dict:
+    """The Scenario fields of one train: vehicle, profile, initial state, sensors, fusion."""
+    veh = data.get("vehicle", {}) or {}
+    vehicle = Vehicle(kind=str(veh.get("type", "conventional")), length=float(veh.get("length", 200.0)),
+                      axles=tuple(float(a) for a in veh.get("axles", ()) or ()),
+                      wheel_diameter=float(veh.get("wheel_diameter", 0.92)))
+    legs = [Leg(**{k: float(v) for k, v in leg.items()}) for leg in data["profile"]]
+    init = data.get("initial", {}) or {}
+    return dict(vehicle=vehicle, legs=legs, start_position=float(init.get("position", 0.0)),
+                start_speed=float(init.get("speed", 0.0)),
+                sensors={name: dict(params or {}) for name, params in (data.get("sensors", {}) or {}).items()},
+                fusion=dict(data.get("fusion", {}) or {}))
+
+
+def _line(cls, data: dict, common: dict) -> Scenario:
+    """A scenario of several trains (``trains:`` list, ``wayside:`` equipment)."""
+    entries = data["trains"]
+    if not isinstance(entries, list) or not entries:
+        raise ScenarioError("'trains' must be a non-empty list of trains")
+    wayside_data = data.get("wayside", {}) or {}
+    wayside = {name: dict(params or {}) for name, params in (wayside_data.get("sensors", {}) or {}).items()}
+    trains = {}
+    for k, entry in enumerate(entries):
+        if not isinstance(entry, dict):
+            raise ScenarioError(f"train {k}: an entry of 'trains' is a mapping, not {entry!r}")
+        name = str(entry.get("name", ""))
+        if not _NAME.match(name) or name == WAYSIDE:
+            raise ScenarioError(f"train {k}: name {name!r} must be a letter then letters, digits or '_' "
+                                f"(its ROS namespace), not {WAYSIDE!r}")
+        if name in trains:
+            raise ScenarioError(f"train name {name!r} is used twice")
+        trains[name] = cls(**{**common, "name": f"{common['name']}/{name}"}, **_train_fields(entry),
+                           wayside=wayside, line=True, train_name=name, rng_prefix=(name,))
+    first = next(iter(trains.values()))
+    scenario = cls(**common, vehicle=first.vehicle, legs=[], sensors={}, fusion={}, wayside=wayside,
+                   association=dict(data.get("association", {}) or {}), line=True, train_name="")
+    scenario.trains = trains
+    return scenario
+
+
+def _check_line(scenario: Scenario) -> None:
+    """Sensors where they belong, and no two trains on the same metres at the start."""
+    from .sensors import spec as sensor_spec
+    for node in scenario.wayside:
+        try:
+            sp = sensor_spec(node)
+        except KeyError as exc:
+            raise ScenarioError(f"wayside: {exc.args[0]}") from None
+        if not sp.simulator.sees_all_trains:
+            raise ScenarioError(f"wayside: {node} is on-board equipment (list it under a train's sensors)")
+    for train in scenario.trains.values():
+        for node in train.sensors:
+            try:
+                sp = sensor_spec(node)
+            except KeyError as exc:
+                raise ScenarioError(f"train {train.train_name}: {exc.args[0]}") from None
+            if sp.simulator.sees_all_trains:
+                raise ScenarioError(f"train {train.train_name}: {node} is wayside equipment: on a line it "
+                                    f"sees every train (list it under wayside: sensors:)")
+    ordered = sorted(scenario.trains.values(), key=lambda tr: tr.extent())
+    for a, b in zip(ordered, ordered[1:]):
+        if b.extent()[0] < a.extent()[1]:
+            raise ScenarioError(f"trains {a.train_name} and {b.train_name} overlap at the start "
+                                f"({a.extent()[0]:.1f}..{a.extent()[1]:.1f} m and "
+                                f"{b.extent()[0]:.1f}..{b.extent()[1]:.1f} m)")
 
 
 class Trajectory:
@@ -228,3 +370,34 @@ class TruthBuffer:
         dt = np.asarray(times) - t[idx]
         s0, v0, a0 = np.asarray(self._s)[idx], np.asarray(self._v)[idx], np.asarray(self._a)[idx]
         return s0 + v0 * dt + 0.5 * a0 * dt * dt, v0 + a0 * dt, a0
+
+
+class LineTruth:
+    """The ground truth of every train of a line, as a wayside device sees it.
+
+    One TruthBuffer per train (in the scenario's order); ``sample`` gives arrays of shape
+    (times, trains). The blocks of a wayside simulator are complete once every train's
+    truth covers them (``latest`` is the oldest train's newest stamp).
+    """
+
+    def __init__(self, vehicles: dict[str, Vehicle], horizon: float = 10.0):
+        self.vehicles = dict(vehicles)
+        self.buffers = {name: TruthBuffer(horizon) for name in self.vehicles}
+
+    def add(self, train: str, state: TruthState) -> None:
+        self.buffers[train].add(state)
+
+    @property
+    def latest(self) -> float | None:
+        stamps = [b.latest for b in self.buffers.values()]
+        return None if None in stamps else min(stamps)
+
+    @property
+    def earliest(self) -> float | None:
+        stamps = [b.earliest for b in self.buffers.values()]
+        return None if None in stamps else max(stamps)
+
+    def sample(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(position, speed, acceleration) arrays of shape (len(times), trains)."""
+        cols = [b.sample(times) for b in self.buffers.values()]
+        return tuple(np.stack([c[i] for c in cols], axis=1) for i in range(3))

@@ -207,7 +207,8 @@ class FusionNode(ManagedNode):
         scenario_path = declare(self, "scenario", "", "scenario YAML (gives the track and the fusion tuning)",
                                 read_only=True)
         track = declare(self, "track", "config/track_conventional.yaml", "track YAML", read_only=True)
-        scenario = Scenario.from_yaml(scenario_path) if scenario_path else None
+        # on a line: the train of this node's namespace (its sensors and the wayside ones)
+        scenario = Scenario.from_yaml(scenario_path).for_namespace(self.get_namespace()) if scenario_path else None
         self.track = scenario.track if scenario else Track.from_yaml(paths.resolve(track))
         sensors = sensor_classes(declare(
             self, "sensors", ALL_SENSORS, "sensor classes to subscribe (a sensor node's name is taken for its class)",

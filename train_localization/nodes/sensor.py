@@ -69,7 +69,12 @@ class SensorNode(ManagedNode):
         self.mode = mode
         overrides: dict = {}
         if scenario_path:
-            scenario = Scenario.from_yaml(scenario_path)
+            # on a line: the train of this node's namespace, or the wayside equipment in /wayside
+            line = Scenario.from_yaml(scenario_path)
+            scenario = line.for_namespace(self.get_namespace())
+            if line.line and mode == "sim":
+                raise ConfigurationError("on a line the simulator node simulates every device (the wayside ones "
+                                         "see all trains): run the sensor nodes with mode:=ingest")
             track, vehicle = scenario.track, scenario.vehicle
             overrides = dict(scenario.sensors.get(self.spec.node, {}))
         else:

@@ -11,6 +11,14 @@ Parameters:
 Topics: /clock (rosgraph_msgs/Clock), ground_truth/state (TrainState, stddevs 0,
 interval = position), scenario (std_msgs/String, transient-local: the scenario
 YAML with the track inlined, so that a recorded bag describes itself), /diagnostics.
+
+A line (several trains, core/scenario.py): every train's truth on
+``/<train>/ground_truth/state``, the scenario on ``/scenario``, and the simulated raw
+blocks of every train's on-board sensors on ``/<train>/sensors/<sensor>/raw`` and of
+the wayside sensors (which see every train) on ``/wayside/sensors/<sensor>/raw``
+(core/offline.py LineSimulation): the sensor nodes of a line run in ingest mode, each
+in its train's namespace or in /wayside. ``wait_for_subscribers`` then counts the
+subscribers of all its truth and raw topics together.
 """
 from __future__ import annotations
 
@@ -20,7 +28,7 @@ import time
 from rosgraph_msgs.msg import Clock
 from rclpy.node import Node
 
-from ..core.convert import sec_to_ns, train_state_to_msg
+from ..core.convert import raw_block_to_msg, sec_to_ns, train_state_to_msg
 from ..core.scenario import Scenario
 from .common import (CLOCK_QOS, LATCHED_QOS, STREAM_QOS, ConfigurationError, Diagnostics, declare, rclpy_classes,
                      spin)
@@ -41,12 +49,25 @@ class SimulatorNode(Node):
         if not self.rate >= 0.0:
             raise ConfigurationError(f"parameter 'rate' must be >= 0 (0: as fast as possible), not {self.rate}")
         self.scenario = Scenario.from_yaml(path)
-        self.trajectory = self.scenario.trajectory()
         self.mc = rclpy_classes()
         self.clock_pub = self.create_publisher(Clock, "/clock", CLOCK_QOS)
-        self.truth_pub = self.create_publisher(self.mc.TrainState, "ground_truth/state", STREAM_QOS)
         from std_msgs.msg import String
-        self.scenario_pub = self.create_publisher(String, "scenario", LATCHED_QOS)
+        self.line = None
+        if self.scenario.line:
+            from ..core.offline import LINE_SCENARIO_TOPIC, LineSimulation
+            self.line = LineSimulation(self.scenario)
+            self.truth_pubs = {name: self.create_publisher(self.mc.TrainState, f"{ns}/ground_truth/state",
+                                                           STREAM_QOS)
+                               for name, ns in self.line.namespaces.items()}
+            topics = [f"{self.line.namespaces[name]}/sensors/{pipe.spec.sensor}/raw"
+                      for name, pipes in self.line.pipes.items() for pipe in pipes] + list(self.line.wayside)
+            self.raw_pubs = {topic: self.create_publisher(self.mc.RawBlock, topic, STREAM_QOS) for topic in topics}
+            self.truth_pub = next(iter(self.truth_pubs.values()))
+            self.scenario_pub = self.create_publisher(String, LINE_SCENARIO_TOPIC, LATCHED_QOS)
+        else:
+            self.trajectory = self.scenario.trajectory()
+            self.truth_pub = self.create_publisher(self.mc.TrainState, "ground_truth/state", STREAM_QOS)
+            self.scenario_pub = self.create_publisher(String, "scenario", LATCHED_QOS)
         self.scenario_pub.publish(String(data=self.scenario.to_yaml()))
         self.diag = Diagnostics(self, "simulator")
         # the simulator makes the time (/clock) and runs on the wall clock: its reports are
@@ -64,7 +85,7 @@ class SimulatorNode(Node):
         sc = self.scenario
         n = int(round(sc.duration * sc.truth_rate)) + 1
         deadline = time.monotonic() + 60.0
-        while self.truth_pub.get_subscription_count() < self.wait_for and time.monotonic() < deadline:
+        while self._subscribers() < self.wait_for and time.monotonic() < deadline:
             self._stop.wait(0.05)
         subs = [i.node_name for i in self.get_subscriptions_info_by_topic(self.truth_pub.topic_name)]
         self.get_logger().info(f"starting scenario '{sc.name}' with {self.truth_pub.get_subscription_count()} "
@@ -82,9 +103,12 @@ class SimulatorNode(Node):
             clock = Clock()
             clock.clock.sec, clock.clock.nanosec = divmod(sec_to_ns(t), 1_000_000_000)
             self.clock_pub.publish(clock)
-            st = self.trajectory.state_at(t)
-            self.truth_pub.publish(train_state_to_msg(self.mc, st.stamp, sc.track.track_id, st.position,
-                                                      st.speed, st.acceleration))
+            if self.line is not None:
+                self._publish_line(k)
+            else:
+                st = self.trajectory.state_at(t)
+                self.truth_pub.publish(train_state_to_msg(self.mc, st.stamp, sc.track.track_id, st.position,
+                                                          st.speed, st.acceleration))
             self.published += 1
             self.sim_time = t
             self.diag.values["sim_time"] = f"{t:.2f}"
@@ -93,6 +117,22 @@ class SimulatorNode(Node):
         if self.exit_at_end:
             self._stop.wait(0.5)
             self.finished = True
+
+    def _subscribers(self) -> int:
+        """Subscribers of the truth (of a line: of every truth and raw topic, summed)."""
+        if self.line is None:
+            return self.truth_pub.get_subscription_count()
+        pubs = [*self.truth_pubs.values(), *self.raw_pubs.values()]
+        return sum(pub.get_subscription_count() for pub in pubs)
+
+    def _publish_line(self, k: int) -> None:
+        """Truth step k of a line: every train's truth, then the raw blocks completed."""
+        t, truths, blocks = self.line.step(k)
+        for name, st in truths.items():
+            self.truth_pubs[name].publish(train_state_to_msg(self.mc, st.stamp, self.scenario.track.track_id,
+                                                             st.position, st.speed, st.acceleration))
+        for ns, _, block in blocks:
+            self.raw_pubs[f"{ns}/sensors/{block.sensor}/raw"].publish(raw_block_to_msg(block, self.mc))
 
     def close(self):
         """Stop the publishing thread before the node goes away (no publish after destroy)."""

@@ -22,7 +22,8 @@ makes it exit non-zero when the shuffled run's estimates differ from the in-orde
 (compared at T once all data stamped up to T + slip_window are in) or the headroom of either run is below 5.
 
 Figures (``--figures``, ``figures(scenario, result)``): simulate_scenario of each
-scenario, then per published state against the truth: position error (states that
+scenario (of a line: a block per train, then the association of the wayside fixes:
+used, ambiguous, unexplained, used by the wrong train), then per published state against the truth: position error (states that
 claim a position), its ratio to the ETCS SUBSET-041 envelope 5 m + 5 % of the distance
 travelled since the last balise read (the last eurobalise fix; before it, since the
 start), speed error and its ratio to the speed envelope (2 km/h below 30 km/h rising
@@ -171,6 +172,16 @@ def print_figures(fig: dict) -> None:
               f"max {1000 * n['position_error_m']['max']:.2f} mm, mean width {1000 * n['mean_width_m']:.2f} mm")
 
 
+def print_association(result) -> None:
+    """The line-level figures of a line run (core/report.py association_check)."""
+    from ..core.report import association_check
+    a = association_check(result)
+    print(f"line: {a['offered']} wayside fixes offered: {a['used']} used, {a['ambiguous']} ambiguous, "
+          f"{a['unexplained']} unexplained; {a['wrong_train']} used by a train that did not cause them; "
+          f"largest |fix - true front| {a['error_over_sigma_max'] or 0.0:.2f} sigma")
+    print(f"  by sensor {a['by_sensor']}; used per train {a['delivered']}")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenario", default="config/scenario_maglev_500.yaml")
@@ -187,8 +198,12 @@ def main(argv=None) -> int:
             sc = Scenario.from_yaml(path)
             t0 = time.perf_counter()
             result = simulate_scenario(sc)
-            print_figures(figures(sc, result))
-            print(f"  filter counters: {result.runner.filter.counters()}")
+            runs = result.trains if sc.line else {sc.train_name: result}
+            for name, run in runs.items():   # a block per train
+                print_figures(figures(sc.train(name), run))
+                print(f"  filter counters: {run.runner.filter.counters()}")
+            if sc.line:
+                print_association(result)
             print(f"  (simulate_scenario {time.perf_counter() - t0:.1f} s)")
         return 0
     scenario = Scenario.from_yaml(args.scenario)

@@ -4,7 +4,10 @@ print a summary (messages per topic, fused-vs-truth errors, bag path).
   tl_demo [--scenario config/scenario_demo.yaml] [--rate 4] [--out out/demo]
 
 Processes: recorder, one sensor node per sensor of the scenario (sim mode), fusion,
-simulator; all in namespace /train with use_sim_time. DDS stays on loopback and
+simulator; all in namespace /train with use_sim_time. A line scenario (several trains)
+runs graph.line_graph instead (per train its sensor nodes in ingest mode and its fusion
+in /<train>, the wayside sensor nodes and the association in /wayside, the simulator
+publishing every device's raw blocks) and prints the summary of each train. DDS stays on loopback and
 the run gets its own ROS_DOMAIN_ID (unless ROS_DOMAIN_ID is set by the caller
 and TL_DOMAIN_FROM_ENV=1).
 """
@@ -25,7 +28,7 @@ from ..core.bagio import read_bag, topic_counts
 from ..core.scenario import Scenario
 from ..core.scoring import StateSeries, score
 from ..core.offline import FUSED_TOPIC, TRUTH_TOPIC
-from ..graph import demo_graph, ros_args
+from ..graph import NAMESPACE, demo_graph, line_graph, ros_args
 
 
 def spec_sensor(node: str) -> str:
@@ -54,11 +57,35 @@ def run_graph(scenario_path: str, bag: Path, rate: float, log_dir: Path, timeout
     return run_nodes(graph, "simulator", log_dir, timeout or (scenario.duration / max(rate, 1e-3) + 60.0))
 
 
+def run_line_graph(scenario_path: str, bag: Path, rate: float, log_dir: Path, timeout: float | None = None) -> dict:
+    """Start the graph of a line scenario (graph.line_graph), wait for the simulator, stop
+    everything; exit codes by node (namespace/name)."""
+    scenario = Scenario.from_yaml(scenario_path)
+    if bag.exists():
+        bag.unlink()
+    graph = line_graph(str(paths.resolve(scenario_path)), str(bag), rate)
+    return run_nodes(graph, "/simulator", log_dir, timeout or (scenario.duration / max(rate, 1e-3) + 60.0))
+
+
+def _command(exe: str) -> list[str]:
+    """The command of a node executable; a node of this package whose executable is not
+    installed (an environment built before it existed) runs from its module."""
+    try:
+        return [executable(exe)]
+    except FileNotFoundError:
+        module = f"train_localization.nodes.{exe}"
+        if exe.isidentifier() and (Path(__file__).parents[1] / "nodes" / f"{exe}.py").exists():
+            return [sys.executable, "-c", f"from {module} import main; main()"]
+        raise
+
+
 def run_nodes(graph: list, driver: str, log_dir: Path, timeout: float) -> dict:
     """Start a graph's nodes (graph.py entries) as processes, wait at most ``timeout`` s for
     the ``driver`` (simulator or replayer) to finish, stop the others with SIGINT (the
     recorder last); exit codes by node. DDS on loopback and a domain of its own unless
-    TL_DOMAIN_FROM_ENV=1."""
+    TL_DOMAIN_FROM_ENV=1. Entries (executable, name, parameters) run in /train and are keyed
+    by name; (namespace, executable, name, parameters) run in their namespace and are keyed
+    by namespace/name."""
     env = dict(os.environ)
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = env.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     if env.get("TL_DOMAIN_FROM_ENV") != "1":
@@ -67,19 +94,22 @@ def run_nodes(graph: list, driver: str, log_dir: Path, timeout: float) -> dict:
     env["PYTHONUNBUFFERED"] = "1"
     log_dir.mkdir(parents=True, exist_ok=True)
     procs = {}
-    for exe, name, params in graph:
+    for entry in graph:
+        namespace, exe, name, params = entry if len(entry) == 4 else (None, *entry)
+        key = name if namespace is None else f"{namespace.rstrip('/')}/{name}"
         if exe == "recorder":
             Path(params["output"]).parent.mkdir(parents=True, exist_ok=True)
-        log = open(log_dir / f"{name}.log", "w")
-        procs[name] = (subprocess.Popen([executable(exe)] + ros_args(name, params), env=env, stdout=log,
-                                        stderr=subprocess.STDOUT, start_new_session=True), log)
+        log = open(log_dir / f"{key.strip('/').replace('/', '_')}.log", "w")
+        procs[key] = (subprocess.Popen(_command(exe) + ros_args(name, params, namespace or NAMESPACE), env=env,
+                                       stdout=log, stderr=subprocess.STDOUT, start_new_session=True), log)
     try:
         procs[driver][0].wait(timeout=timeout)
     except subprocess.TimeoutExpired:
         print(f"[demo] {driver} did not finish within {timeout:.0f} s", file=sys.stderr)
     time.sleep(1.0)
     codes = {}
-    order = [n for n in procs if n not in (driver, "recorder")] + [n for n in ("recorder", driver) if n in procs]
+    recorder = next((n for n in procs if n.rsplit("/", 1)[-1] == "recorder"), None)
+    order = [n for n in procs if n not in (driver, recorder)] + [n for n in (recorder, driver) if n in procs]
     for name in order:
         proc, log = procs[name]
         if proc.poll() is None:
@@ -94,10 +124,13 @@ def run_nodes(graph: list, driver: str, log_dir: Path, timeout: float) -> dict:
     return codes
 
 
-def summarise(bag: Path) -> dict:
+def summarise(bag: Path, namespace: str = NAMESPACE) -> dict:
+    """Messages per topic, and the fused state of the train in ``namespace`` scored against its truth."""
+    truth_topic, fused_topic = (TRUTH_TOPIC, FUSED_TOPIC) if namespace == NAMESPACE else \
+        (f"{namespace}/ground_truth/state", f"{namespace}/localization/state")
     truth, fused = [], []
-    for topic, _, _, msg in read_bag(bag, [TRUTH_TOPIC, FUSED_TOPIC]):
-        (truth if topic == TRUTH_TOPIC else fused).append(msg)
+    for topic, _, _, msg in read_bag(bag, [truth_topic, fused_topic]):
+        (truth if topic == truth_topic else fused).append(msg)
     counts = topic_counts(bag)
     result = {"bag": str(bag), "messages": counts}
     if truth:
@@ -138,12 +171,22 @@ def main(argv=None) -> int:
     out = Path(args.out)
     bag = out / (Path(args.scenario).stem + ".mcap")
     print(f"[demo] scenario {args.scenario} at {args.rate}x real time; logs in {out / 'logs'}")
-    codes = run_graph(args.scenario, bag, args.rate, out / "logs")
+    scenario = Scenario.from_yaml(args.scenario)
+    if scenario.line:
+        codes = run_line_graph(args.scenario, bag, args.rate, out / "logs")
+        summary = {name: summarise(bag, f"/{name}") for name in scenario.trains}
+        for name, train_summary in summary.items():
+            print(f"\n[demo] train {name}")
+            print_summary({**train_summary, "messages": {t: n for t, n in train_summary["messages"].items()
+                                                         if t.startswith(f"/{name}/")}})
+        summary = {"trains": summary, "exit_codes": codes}
+    else:
+        codes = run_graph(args.scenario, bag, args.rate, out / "logs")
+        summary = summarise(bag)
+        summary["exit_codes"] = codes
+        print_summary(summary)
     bad = {n: c for n, c in codes.items() if c not in (0,)}
-    summary = summarise(bag)
-    summary["exit_codes"] = codes
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    print_summary(summary)
     if bad:
         print(f"[demo] nodes that did not exit cleanly: {bad} (see {out / 'logs'})", file=sys.stderr)
         return 1

@@ -23,8 +23,8 @@ from pathlib import Path
 
 from ..core import convert
 from ..core.bagio import read_bag
-from ..core.offline import FUSED_TOPIC, NAMESPACE, TRUTH_TOPIC, replay_bag
-from ..core.report import evaluate, jsonable, plot
+from ..core.offline import FUSED_TOPIC, NAMESPACE, TRUTH_TOPIC, replay_bag, replay_line, scenario_from_bag
+from ..core.report import evaluate, jsonable, line_report, plot
 from ..core.scenario import Scenario
 from ..core.signals import InputRejected
 
@@ -71,6 +71,34 @@ def report_for(bag: Path, scenario: Scenario | None = None, out_bag: Path | None
     return jsonable(report), arrays
 
 
+def line_main(bag: Path, scenario: Scenario, out: Path | None, report_dir: Path | None) -> int:
+    """A line's bag (several trains): a block per train, then the association of the wayside fixes;
+    report.json holds core/report.py line_report, the plots go to one directory per train."""
+    t0 = time.perf_counter()
+    result = replay_line(bag, scenario, out)
+    wall = time.perf_counter() - t0
+    report = jsonable(line_report(result))
+    print(f"{bag.name}: line of {len(result.trains)} trains, {scenario.duration:.1f} s replayed in {wall:.2f} s")
+    for name, rep in report["trains"].items():
+        pe, integ = rep["position_error_m"], rep["integrity"]
+        line = f"  {name}: {rep['states_with_position']} of {rep['states']} states with a position"
+        if pe["n"]:
+            line += (f"; position error RMS {pe['rms']:.4f} m, max {pe['max']:.4f} m; "
+                     f"{100 * integ['inside_fraction']:.3f} % inside, mean width {integ['mean_interval_width_m']:.3f} m")
+        print(line)
+    a = report["association"]
+    print(f"  wayside fixes: {a['offered']} offered, {a['used']} used, {a['ambiguous']} ambiguous, "
+          f"{a['unexplained']} unexplained, {a['wrong_train']} used by the wrong train")
+    if report_dir:
+        report_dir.mkdir(parents=True, exist_ok=True)
+        (report_dir / "report.json").write_text(json.dumps(report, indent=2))
+        for name, run in result.trains.items():
+            if run.truth:
+                plot(evaluate(run.truth, run.estimates, run.measurements)[1], report_dir / name, f"{bag.stem} {name}")
+        print(f"  report: {report_dir / 'report.json'}, plots per train in {report_dir}/<train>/")
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("bag", type=Path)
@@ -86,6 +114,8 @@ def main(argv=None) -> int:
         print(f"tl_replay: {args.bag} does not exist", file=sys.stderr)
         return 2
     scenario = Scenario.from_yaml(args.scenario) if args.scenario else None
+    if not args.recorded and (scenario or scenario_from_bag(args.bag)).line:
+        return line_main(args.bag, scenario or scenario_from_bag(args.bag), args.out, args.report)
     report, arrays = report_for(args.bag, scenario, args.out, args.recorded, progress=not args.quiet,
                                 parallel=not args.serial)
     pe, integ, env = report["position_error_m"], report["integrity"], report["etcs_envelope"]

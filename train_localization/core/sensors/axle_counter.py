@@ -135,6 +135,10 @@ PARAMS = {
     "heads": Param("", "comma-separated head ids of this evaluation unit; empty = all heads of the track"),
     "orientation": Param(0, "+1: train front faces increasing chainage, -1: decreasing, 0: auto (first motion "
                             "/ first counted axle) [1]", (-1, 1)),
+    "front_first": Param(False, "every train passes front first (a wayside unit on a line with trains of both "
+                                "directions): each passage's direction is its train's orientation, and "
+                                "``orientation`` is not used by the decoder; a backing train's fix would be off by "
+                                "its length (left to the association with the trains' fused intervals)"),
     "first_axle_offset": Param(2.5, "distance of the first axle behind the train front [m] (vehicle data); "
                                     "within a train of up to 1 km", (0.0, 1000.0)),
     "last_axle_offset": Param(0.0, "distance of the last axle behind the front [m]; 0 = unknown: no front "
@@ -202,6 +206,7 @@ def _parse_faults(text: str, head_ids: list[str]) -> list[tuple[int, float, str]
 
 class AxleCounterSimulator(Simulator):
     sensor = "axle_counter"
+    sees_all_trains = True
     channels = ()  # per instance: two per head (the layout depends on the track)
     units = ()
     adc_lsb = {"1": 1 / 1024}  # 10-bit conversion of the normalised damping
@@ -216,12 +221,11 @@ class AxleCounterSimulator(Simulator):
         # the real heads lie where the survey (track file) says, within head_position_sigma
         self.head_pos = np.array([h["position"] for h in self.heads], float) + \
             self.rng.normal(0.0, p["head_position_sigma"], nh)
-        self.axles = np.asarray(self.vehicle.axles, float)
+        self.axles = np.concatenate([np.asarray(v.axles, float) for v in self.fleet])  # every train's
         na = len(self.axles)
         self.amp = np.clip(1.0 + self.rng.normal(0.0, p["damping_spread"], na), 0.6, None)
         self.gain = np.clip(1.0 + self.rng.normal(0.0, p["gain_spread"], (nh, 2)), 0.7, None)
         self.drift = self.rng.normal(0.0, p["drift_sigma"], 2 * nh)
-        self.orient = int(np.sign(p["orientation"])) or None
         self.faults = [[hi, t, kind, "armed", -1, None]
                        for hi, t, kind in _parse_faults(p["faults"], [h["id"] for h in self.heads])]
         self._spike_left = np.zeros(2 * nh)
@@ -233,13 +237,9 @@ class AxleCounterSimulator(Simulator):
         dt = 1.0 / self.sample_rate
         w = p["zone_width"]
         half = 0.5 * p["sensor_spacing"]
-        if self.orient is None:
-            moving = np.flatnonzero(np.abs(speed) > 0.01)
-            if len(moving):
-                self.orient = int(np.sign(speed[moving[0]]))
-        o = self.orient or 1
         out = np.zeros((n, 2 * nh))
-        wheels = position[:, None] - o * self.axles[None, :]  # (n, axles)
+        self.orientations(speed)
+        wheels = np.concatenate(self.axle_chainages(position), axis=1)  # (n, axles of all trains)
         reach = 6.0 * w + half
         for hi in range(nh):
             if not len(self.axles):
@@ -338,10 +338,10 @@ class _Passage:
     (the interpolation at low speed, the head position within the 0.14 m pair).
     """
 
-    __slots__ = ("head", "d", "times", "speeds")
+    __slots__ = ("head", "d", "o", "times", "speeds")
 
-    def __init__(self, head: int, d: int):
-        self.head, self.d = head, d
+    def __init__(self, head: int, d: int, o: int):
+        self.head, self.d, self.o = head, d, o   # o: the train's orientation assumed
         self.times: list[float] = []
         self.speeds: list[float] = []
 
@@ -593,24 +593,28 @@ class AxleCounterDecoder(Decoder):
             self.stats["front_unidentified"] += 1
         if not into_empty:
             return out
-        if self.orient is None:
-            self.orient = d
-        if d != self.orient and p["last_axle_offset"] <= 0.0:
+        if p["front_first"]:
+            o = d
+        else:
+            if self.orient is None:
+                self.orient = d
+            o = self.orient
+        if d != o and p["last_axle_offset"] <= 0.0:
             return out
-        passage = self._pending[hi] = _Passage(hi, d)
+        passage = self._pending[hi] = _Passage(hi, d, o)
         passage.times.append(t_c)
         passage.speeds.append(speed)
         return out + self._identify(hi, t_c)
 
     # -- first-axle identification ----------------------------------------------------
-    def _gaps(self, d: int) -> list[float]:
-        """Layout spacings in the order the axles pass a head in direction d."""
+    def _gaps(self, d: int, o: int) -> list[float]:
+        """Layout spacings in the order the axles pass a head in direction d (train orientation o)."""
         gaps = np.diff(self.layout).tolist()
-        return gaps if d == self.orient else gaps[::-1]
+        return gaps if d == o else gaps[::-1]
 
-    def _offset(self, d: int, j: int) -> float:
-        """Distance behind the front of the j-th axle to pass a head in direction d."""
-        if d == self.orient:
+    def _offset(self, d: int, j: int, o: int) -> float:
+        """Distance behind the front of the j-th axle to pass a head in direction d (orientation o)."""
+        if d == o:
             return self.params["first_axle_offset"] + (self.layout[j] - self.layout[0] if j else 0.0)
         return self.params["last_axle_offset"] - (self.layout[-1] - self.layout[-1 - j] if j else 0.0)
 
@@ -636,7 +640,7 @@ class AxleCounterDecoder(Decoder):
     def _front_at_first(self, passage: _Passage, hyp: tuple[int, int]) -> float:
         """Front position under hyp at the first detection's time (comparable between hypotheses)."""
         skip, first = hyp
-        front = self.head_pos[passage.head] + self.orient * self._offset(passage.d, first)
+        front = self.head_pos[passage.head] + passage.o * self._offset(passage.d, first, passage.o)
         return float(front - passage.d * passage.advance()) if skip else float(front)
 
     def _identify(self, hi: int, t_now: float) -> list:
@@ -658,7 +662,7 @@ class AxleCounterDecoder(Decoder):
                 return []
             self.stats["front_inflated"] += 1
             return [self._fix(passage, (0, 0), max(passage.spacing(0), passage.advance()))]
-        gaps = self._gaps(passage.d)
+        gaps = self._gaps(passage.d, passage.o)
         fitting = [h for h in HYPOTHESES if self._fits(passage, h, gaps, t_now)]
         # Identified: exactly one fitting hypothesis has matched a spacing (and the speeds) of
         # the layout. A hypothesis that explains that spacing away as a spurious axle before
@@ -692,15 +696,16 @@ class AxleCounterDecoder(Decoder):
         skip, first = hyp
         hi, d = passage.head, passage.d
         t_c, speed = passage.times[skip], passage.speeds[skip]
-        offset = self._offset(d, first) if self.layout else (p["first_axle_offset"] if d == self.orient
-                                                             else p["last_axle_offset"])
+        o = passage.o
+        offset = self._offset(d, first, o) if self.layout else (p["first_axle_offset"] if d == o
+                                                                else p["last_axle_offset"])
         slow = 0.1 if speed < 1.0 else 0.0
         timing = min(speed, p["max_speed"]) * 0.25 / self._fs
         sigma = math.sqrt(p["head_position_sigma"] ** 2 + p["axle_offset_sigma"] ** 2 + timing ** 2 + slow ** 2
                           + ((spread * (1.0 + GAP_REL) + GAP_ABS) / COVER if spread > 0.0 else 0.0) ** 2)
         self.stats["fixes"] += 1
         return PositionFix(float(t_c), self.sensor, self.unit_id, self.track.track_id, self.head_ids[hi],
-                           float(self.head_pos[hi] + self.orient * offset), sigma, int(d))
+                           float(self.head_pos[hi] + o * offset), sigma, int(d))
 
 
 def error_model(params: dict, track, vehicle) -> ErrorModel:

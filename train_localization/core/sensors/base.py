@@ -206,6 +206,10 @@ class Simulator(ABC):
 
     Subclasses set ``sensor``, ``channels``, ``units``, ``default_sample_rate`` and
     implement ``samples``. ``rng`` is the device's own random stream.
+
+    Wayside devices (``sees_all_trains``) also run on a line: ``fleet`` lists the vehicles
+    of its trains, the truth is a scenario.LineTruth and ``samples`` gets (n, trains)
+    arrays; ``orientations`` and ``axle_chainages`` place every train's axles.
     """
 
     sensor: str = ""
@@ -215,12 +219,18 @@ class Simulator(ABC):
     # resolution of the device's A/D conversion by channel unit, e.g. {"V": 5 / 4096};
     # samples of those channels are rounded to it (a real ADC; it also keeps bags small)
     adc_lsb: dict[str, float] = {}
+    sees_all_trains: bool = False   # wayside equipment: on a line it sees every train
 
-    def __init__(self, params: dict, track: Track, vehicle: Vehicle, rng: np.random.Generator):
+    def __init__(self, params: dict, track: Track, vehicle: Vehicle, rng: np.random.Generator,
+                 fleet: list[Vehicle] | None = None):
         self.params = params
         self.track = track
         self.vehicle = vehicle
         self.rng = rng
+        if fleet and not self.sees_all_trains:
+            raise ValueError(f"{self.sensor} is on-board equipment: it sees only its own train")
+        self.fleet = list(fleet) if fleet else [vehicle]   # the vehicles seen, in the truth's column order
+        self._orients: list[int | None] | None = None
         self.unit_id = params.get("unit_id") or self.sensor
         self.sample_rate = float(params.get("sample_rate") or self.default_sample_rate)
         self.samples_per_block = max(1, int(round(params.get("block_duration", 0.05) * self.sample_rate)))
@@ -251,6 +261,29 @@ class Simulator(ABC):
             self.seq += 1
             self._next_t0 = (n0 + self.samples_per_block) / self.sample_rate
         return blocks
+
+    def orientations(self, speed: np.ndarray) -> list[int | None]:
+        """Each seen train's orientation: the parameter ``orientation``, or if 0 the sign of the
+        train's first motion (a train starts front first; None until it moves). ``speed``: (n,)
+        for one train or (n, trains) [m/s]."""
+        if self._orients is None:
+            self._orients = [int(np.sign(self.params.get("orientation", 0))) or None] * len(self.fleet)
+        spd = speed if speed.ndim == 2 else speed[:, None]
+        for j, o in enumerate(self._orients):
+            if o is None:
+                moving = np.flatnonzero(np.abs(spd[:, j]) > 0.01)
+                if len(moving):
+                    self._orients[j] = int(np.sign(spd[moving[0], j]))
+        return self._orients
+
+    def axle_chainages(self, position: np.ndarray) -> list[np.ndarray]:
+        """Chainages [m] of every seen train's axles, one (n, axles) array per train: axle k at
+        front - o x offset_k, o the train's orientation (``orientations``; +1 before it is
+        known). ``position``: (n,) for one train or (n, trains)."""
+        orients = self._orients or [int(np.sign(self.params.get("orientation", 0))) or None] * len(self.fleet)
+        pos = position if position.ndim == 2 else position[:, None]
+        return [pos[:, j:j + 1] - (orients[j] or 1) * np.asarray(vehicle.axles, float)[None, :]
+                for j, vehicle in enumerate(self.fleet)]
 
     def _quantise(self, data: np.ndarray) -> np.ndarray:
         lsb = np.array([self.adc_lsb.get(u, 0.0) for u in self.units])

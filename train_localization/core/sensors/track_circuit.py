@@ -195,6 +195,10 @@ PARAMS = {
                                "momentary loss of shunt; assumption)", (0.0, 600.0)),
     "adc_range": Param(4.0, "receiver level output range [1]; a level beyond it (or below -1) is implausible",
                        (0.5, 100.0)),
+    "front_first": Param(False, "every train passes front first (wayside receivers on a line with trains of both "
+                                "directions): each hand-over's direction is its train's orientation, and "
+                                "``orientation`` is not used by the decoder; a backing train's fix would be off by "
+                                "its length (left to the association with the trains' fused intervals)"),
     "first_axle_offset": Param(2.5, "distance of the first axle behind the train front [m] (vehicle data)",
                                (0.0, 1000.0)),
     "last_axle_offset": Param(0.0, "distance of the last axle behind the front [m]; 0 = unknown: no fix while "
@@ -450,9 +454,10 @@ class CircuitLine:
 # ----------------------------------------------------------------------------------
 
 class TrackCircuitSimulator(Simulator):
-    """The receivers of the track circuits of a track, seeing the one simulated train."""
+    """The receivers of the track circuits of a track, shunted by every train's axles."""
 
     sensor = SENSOR
+    sees_all_trains = True
     channels = ()  # per instance: one per circuit (the layout depends on the track)
     units = ()
     adc_lsb = {"1": 4.0 / 4096}  # 12-bit level over the 0..4 output range
@@ -471,15 +476,11 @@ class TrackCircuitSimulator(Simulator):
         # receivers adjusted to level 1 with no train at the adjustment ballast resistance
         self.v_ref = np.array([abs(CircuitLine(c, p, p["adjust_ballast"]).empty[0][0]) for c in self.circuits])
         self.gain = np.maximum(0.1, 1.0 + self.rng.normal(0.0, p["adjust_sigma"], len(self.circuits)))
-        offsets = np.sort(np.asarray(self.vehicle.axles, dtype=float))
-        self.offsets = offsets
-        self.orient = int(np.sign(p["orientation"])) or None
+        self.offsets = np.sort(np.concatenate([np.asarray(v.axles, dtype=float) for v in self.fleet]))
 
     def axle_positions(self, position: np.ndarray) -> np.ndarray:
-        """Axle chainages (n, k), ascending along each row."""
-        o = self.orient or 1
-        x = position[:, None] - o * self.offsets[None, :]
-        return x[:, ::-1] if o > 0 else x
+        """Axle chainages (n, k) of every train seen, ascending along each row."""
+        return np.sort(np.concatenate(self.axle_chainages(position), axis=1), axis=1)
 
     def voltages(self, times: np.ndarray, position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(V_rx, V_tx) of every circuit (n, circuits), complex, noise-free [V per V of source]."""
@@ -530,10 +531,7 @@ class TrackCircuitSimulator(Simulator):
         return np.sqrt(own ** 2 + leak2)
 
     def samples(self, times, position, speed, acceleration):
-        if self.orient is None:
-            moving = np.flatnonzero(np.abs(speed) > 0.01)
-            if len(moving):
-                self.orient = int(np.sign(speed[moving[0]]))
+        self.orientations(speed)
         lv = self.levels(times, position)
         sigma = self.params["noise_sigma"]
         n1 = self.rng.normal(0.0, sigma, lv.shape)
@@ -667,10 +665,14 @@ class TrackCircuitDecoder(Decoder):
                 return []
         self.entered[k] = t_on
         self.direction = d
-        if self.orient is None:
-            self.orient = d
-        offset = self.params["first_axle_offset"] if d == self.orient else self.params["last_axle_offset"]
-        if d != self.orient and offset <= 0.0:
+        if self.params["front_first"]:
+            o = d
+        else:
+            if self.orient is None:
+                self.orient = d
+            o = self.orient
+        offset = self.params["first_axle_offset"] if d == o else self.params["last_axle_offset"]
+        if d != o and offset <= 0.0:
             self.stats["fix_withheld"] += 1
             return []
         boundary = c["start"] if d > 0 else c["end"]
@@ -683,7 +685,7 @@ class TrackCircuitDecoder(Decoder):
         self.stats["fixes"] += 1
         ref = f"{self.circuits[nb]['id']}/{c['id']}" if d > 0 else f"{c['id']}/{self.circuits[nb]['id']}"
         return [PositionFix(t_on, self.sensor, self.unit_id, self.track.track_id, ref,
-                            float(drop_point + self.orient * offset), sigma, int(d))]
+                            float(drop_point + o * offset), sigma, int(d))]
 
     def _picked(self, k: int, t: float) -> None:
         """Circuit k decided CLEAR at t: if no neighbour holds the train, it was lost."""

@@ -1,0 +1,99 @@
+"""Association node: wayside position fixes to the train that explains them (core/association.py).
+
+Runs in ``/wayside`` on a line scenario (several trains). Subscribes the position fixes
+of the scenario's wayside sensors (``sensors/<sensor>/position``, relative: in /wayside)
+and every train's fused state (``/<train>/localization/state``); a fix that exactly one
+train's fused state explains is published on ``/<train>/sensors/<sensor>/position``, where
+that train's fusion takes it. Ambiguous and unexplained fixes are used by no train and
+counted (``/diagnostics``: associated/<outcome>, associated/<sensor>/<outcome>).
+
+Parameters:
+  scenario (string, required)   the line scenario YAML (trains, their tracks, wayside sensors)
+  gate (double)                 [sigma] of the fused interval and the fix (default: the
+                                scenario's ``association:``, else 3.29)
+  min_speed (double)            [m/s] fused speed below which it gives no direction
+  history (double, 10.0)        [s] of fused states kept per train
+"""
+from __future__ import annotations
+
+from rclpy.node import Node
+
+from ..core import convert
+from ..core.association import Associator, FusedState
+from ..core.scenario import Scenario, ScenarioError
+from ..core.sensors import spec as sensor_spec
+from ..core.signals import InputRejected
+from .common import STREAM_QOS, ConfigurationError, Diagnostics, declare, rclpy_classes, spin
+
+
+class AssociationNode(Node):
+    def __init__(self):
+        super().__init__("association")
+        path = declare(self, "scenario", "", "line scenario YAML", read_only=True)
+        if not path:
+            raise ConfigurationError("parameter 'scenario' is required (a line scenario YAML file)")
+        line = Scenario.from_yaml(path)
+        if not line.line:
+            raise ScenarioError(f"scenario {line.name} has one train: nothing to associate")
+        defaults = Associator.for_trains({}, {}, line.association)
+        gate = float(declare(self, "gate", defaults.gate, "gate of the fused interval and the fix [sigma]",
+                             read_only=True, limits=(1.0, 10.0)))
+        min_speed = float(declare(self, "min_speed", defaults.min_speed, "fused speed below which it gives no "
+                                  "direction [m/s]", read_only=True, limits=(0.0, 10.0)))
+        self.history = float(declare(self, "history", 10.0, "fused states kept per train [s]", read_only=True,
+                                     limits=(0.1, 3600.0)))
+        self.mc = rclpy_classes()
+        self.states = {name: [] for name in line.trains}
+        self.assoc = Associator(self.states, {n: tr.track.track_id for n, tr in line.trains.items()}, gate, min_speed)
+        self.diag = Diagnostics(self, "association of wayside fixes")
+        self.diag.set_status(0, "running")
+        self._subs = []
+        for name in line.trains:
+            self._subs.append(self.create_subscription(
+                self.mc.TrainState, f"/{name}/localization/state",
+                lambda msg, name=name: self.on_state(name, msg), STREAM_QOS))
+        self.pubs = {}
+        for node in line.wayside:
+            sp = sensor_spec(node)
+            if "position" not in sp.outputs:
+                continue
+            self._subs.append(self.create_subscription(
+                self.mc.PositionFix, f"sensors/{sp.sensor}/position", self.on_fix, STREAM_QOS))
+            for name in line.trains:
+                self.pubs[name, sp.sensor] = self.create_publisher(
+                    self.mc.PositionFix, f"/{name}/sensors/{sp.sensor}/position", STREAM_QOS)
+
+    def on_state(self, train: str, msg) -> None:
+        states = self.states[train]
+        state = FusedState(convert.stamp_to_sec(msg.header.stamp), float(msg.position), float(msg.position_min),
+                           float(msg.position_max), float(msg.speed), float(msg.speed_stddev), int(msg.mode))
+        if states and state.stamp <= states[-1].stamp:
+            self.diag.reject(f"/{train}/localization/state", "stamp_back", "fused state not newer than the last")
+            return
+        states.append(state)
+        self.diag.accept(f"/{train}/localization/state")
+        if state.stamp - states[0].stamp > 2 * self.history:
+            cut = next(i for i, s in enumerate(states) if s.stamp >= state.stamp - self.history)
+            del states[:cut]
+
+    def on_fix(self, msg) -> None:
+        try:
+            fix = convert.position_fix_from_msg(msg)
+            fix.validate()
+            if (fix.sensor not in {s for _, s in self.pubs}):
+                raise InputRejected("unknown_sensor", f"fix of sensor {fix.sensor!r}, not wayside equipment here")
+        except InputRejected as exc:
+            self.diag.reject("fixes", exc.reason, str(exc))
+            return
+        self.diag.accept("fixes")
+        train = self.assoc.associate(fix)
+        outcome = self.assoc.decisions[-1].outcome
+        self.diag.values[f"associated/{outcome}"] = str(self.assoc.counts[outcome])
+        self.diag.values[f"associated/{fix.sensor}/{outcome}"] = str(self.assoc.by_sensor[fix.sensor, outcome])
+        del self.assoc.decisions[:-100]   # a node runs for hours: keep the last ones only
+        if train is not None:
+            self.pubs[train, fix.sensor].publish(msg)
+
+
+def main(args=None):
+    return spin(AssociationNode, args)

@@ -36,13 +36,15 @@ def test_colcon_build_registers_package_and_executables(tmp_path):
     for exe in EXECUTABLES:
         assert os.access(lib / exe, os.X_OK), f"{exe} missing in {lib}"
     share = install / "train_localization" / "share" / "train_localization"
-    assert all((share / "launch" / f).exists() for f in ("demo.launch.py", "maglev.launch.py", "replay.launch.py"))
+    assert all((share / "launch" / f).exists() for f in ("demo.launch.py", "maglev.launch.py", "replay.launch.py",
+                                                              "line.launch.py"))
     assert (share / "config" / "params" / "fusion.yaml").exists()
     assert (share / "config" / "scenario_demo.yaml").exists()
     assert (install / "train_localization_msgs" / "share" / "train_localization_msgs" / "msg" / "TrainState.msg").exists()
 
 
-@pytest.mark.parametrize("launch_file, graph", [("demo.launch.py", "demo_graph"), ("replay.launch.py", "replay_graph")])
+@pytest.mark.parametrize("launch_file, graph", [("demo.launch.py", "demo_graph"), ("replay.launch.py", "replay_graph"),
+                                                  ("line.launch.py", "line_graph")])
 def test_launch_file_is_a_list_of_node_actions_with_its_graph(launch_file, graph):
     """Node actions built from graph.py (the graph the tests run), a Shutdown when the driver
     (simulator, replayer) exits, every argument described."""
@@ -53,7 +55,10 @@ def test_launch_file_is_a_list_of_node_actions_with_its_graph(launch_file, graph
     assert {"Node", "Shutdown", "OnProcessExit", "DRIVERS"} <= {n.id for n in ast.walk(common) if isinstance(n, ast.Name)}
     args = [c for t in (tree, common) for c in ast.walk(t)
             if isinstance(c, ast.Call) and getattr(c.func, "id", "") == "DeclareLaunchArgument"]
-    assert len(args) >= 8 and all(any(k.arg == "description" for k in c.keywords) for c in args)
+    declared = {c.args[0].value for c in args if c.args and isinstance(c.args[0], ast.Constant)}
+    assert {"scenario", "rate", "record", "bag" if graph != "replay_graph" else "out",
+            "log_level", "respawn", "respawn_delay"} <= declared, declared
+    assert all(any(k.arg == "description" for k in c.keywords) for c in args)
 
 
 def test_package_xml_dependencies_are_rosdep_keys():
@@ -67,7 +72,7 @@ def test_package_xml_dependencies_are_rosdep_keys():
     keys = {e.text.strip() for e in root if e.tag.endswith("depend")}
     assert keys - {"train_localization_msgs"} <= known, sorted(keys - known - {"train_localization_msgs"})
     for launch_file in ("launch/demo.launch.py", "launch/maglev.launch.py", "launch/replay.launch.py",
-                        "train_localization/launch_common.py"):
+                        "launch/line.launch.py", "train_localization/launch_common.py"):
         launch = ast.parse((ROOT / launch_file).read_text())
         imported = {(n.module or "").split(".")[0] for n in ast.walk(launch) if isinstance(n, ast.ImportFrom)}
         assert {"launch"} <= imported <= keys | {"train_localization"}, launch_file

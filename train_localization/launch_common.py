@@ -38,17 +38,24 @@ def flag(context, name: str) -> bool:
 
 
 def graph_actions(context, graph: list, namespace: str) -> list:
-    """Node actions of a graph.py graph in ``namespace``. Supervision: a crashed fusion or
-    sensor node is restarted after respawn_delay (the fusion comes back INITIALISING); not
-    the driver (its exit ends the run) nor the recorder (a new one would start the bag
-    afresh)."""
+    """Node actions of a graph.py graph. An entry is (executable, node name, parameters), in
+    ``namespace``, or (its own namespace, executable, node name, parameters) of a line graph
+    (graph.line_graph: /<train>, /wayside, /). Supervision: a crashed
+    fusion or sensor node is restarted after respawn_delay (the fusion comes back
+    INITIALISING); not the driver (its exit ends the run) nor the recorder (a new one would
+    start the bag afresh)."""
     log_level = LaunchConfiguration("log_level").perform(context)
     respawn = flag(context, "respawn")
     respawn_delay = float(LaunchConfiguration("respawn_delay").perform(context))
     actions = []
-    for exe, name, params in graph:
+    for entry in graph:
+        if len(entry) == 4:
+            node_ns, exe, name, params = entry
+        else:
+            exe, name, params = entry
+            node_ns = namespace
         supervised = respawn and exe not in DRIVERS + ("recorder",)
-        node = Node(package="train_localization", executable=exe, name=name, namespace=namespace,
+        node = Node(package="train_localization", executable=exe, name=name, namespace=node_ns,
                     parameters=[params], output="screen", arguments=["--ros-args", "--log-level", log_level],
                     respawn=supervised, respawn_delay=respawn_delay if supervised else None)
         actions.append(node)

@@ -12,11 +12,13 @@ NODES = {
     "fusion": "train_localization.nodes.fusion:main",
     "recorder": "train_localization.nodes.recorder:main",
     "replayer": "train_localization.nodes.replayer:main",
+    "speed_controller": "train_localization.nodes.speed_controller:main",
 }
 SENSOR_NODES = [
     "doppler_radar", "wheel_sensor", "eurobalise_reader", "lrl_scanner",
     "inpo_receiver", "pattern_belt", "mmwave_ranging", "axle_counter", "lzb_receiver",
     "track_circuit_receiver", "dgps_receiver", "tag_reader", "coil_counter", "emf_observer",
+    "rig_loop_receiver",
 ]
 TOOLS = {
     "tl_demo": "train_localization.tools.demo:main",
@@ -25,6 +27,7 @@ TOOLS = {
     "tl_campaign": "train_localization.tools.campaign:main",
     "tl_bag": "train_localization.tools.bag:main",
     "tl_fuzz": "train_localization.tools.fuzz:main",
+    "tl_rig": "train_localization.tools.rig:main",
 }
 
 console_scripts = [f"{name} = {target}" for name, target in NODES.items()]

@@ -10,6 +10,11 @@ Speed profile: a list of legs run in order. Each leg drives the speed towards
 [m/s^2] when speeding up and ``decel`` [m/s^2] when slowing down, the acceleration
 changing at most by ``jerk`` [m/s^3]; once there it holds the speed for ``hold``
 [s]. ``speed: 0`` with ``hold`` is a stop with a dwell time.
+
+Closed loop: instead of ``profile`` a scenario may give ``control`` (a speed controller and
+its set-points, core/control.py) and ``dynamics`` (the vehicle's drive and resistance,
+core/dynamics.py); its motion then comes from ``core.control.closed_loop`` (offline) or from
+the simulator node integrating the controller's traction command, not from ``trajectory``.
 """
 from __future__ import annotations
 
@@ -73,6 +78,8 @@ class Scenario:
     fusion: dict = field(default_factory=dict)  # FusionConfig overrides (core/fusion.py)
     source: Path | None = None
     description: dict = field(default_factory=dict, repr=False)  # the YAML, track inlined
+    control: dict = field(default_factory=dict)    # closed-loop speed control (core/control.py); {} = profile
+    dynamics: dict = field(default_factory=dict)   # drive and resistance parameters (core/dynamics.py)
 
     def to_yaml(self) -> str:
         """Self-contained YAML of the scenario (track inlined): recorded into bags."""
@@ -84,6 +91,9 @@ class Scenario:
         return np.random.default_rng([int(self.seed), int.from_bytes(digest[:8], "little")])
 
     def trajectory(self, dt: float = 1e-3) -> "Trajectory":
+        if self.control:
+            raise ScenarioError(f"scenario {self.name} runs under closed-loop control: its motion comes from "
+                                "core.control.closed_loop or the simulator node, not from a profile")
         return Trajectory.from_legs(self.legs, self.start_position, self.start_speed, self.duration, dt)
 
     @classmethod
@@ -113,7 +123,9 @@ class Scenario:
             vehicle = Vehicle(kind=str(veh.get("type", "conventional")), length=float(veh.get("length", 200.0)),
                               axles=tuple(float(a) for a in veh.get("axles", ()) or ()),
                               wheel_diameter=float(veh.get("wheel_diameter", 0.92)))
-            legs = [Leg(**{k: float(v) for k, v in leg.items()}) for leg in data["profile"]]
+            control = dict(data.get("control", {}) or {})
+            legs = [Leg(**{k: float(v) for k, v in leg.items()})
+                    for leg in (data.get("profile", []) if control else data["profile"]) or []]
             init = data.get("initial", {}) or {}
             scenario = cls(
                 name=str(data.get("name", source.stem if source else "scenario")),
@@ -123,6 +135,7 @@ class Scenario:
                 sensors={name: dict(params or {}) for name, params in (data.get("sensors", {}) or {}).items()},
                 fusion=dict(data.get("fusion", {}) or {}),
                 source=source, description={**data, "track": track_data},
+                control=control, dynamics=dict(data.get("dynamics", {}) or {}),
             )
         except KeyError as exc:
             raise ScenarioError(f"scenario lacks the key {exc}") from None
@@ -130,6 +143,15 @@ class Scenario:
             raise ScenarioError(f"scenario has a malformed entry: {exc}") from None
         if scenario.duration <= 0:
             raise ScenarioError("scenario duration must be > 0 s")
+        if scenario.control:
+            from .control import control_config
+            from .dynamics import DYNAMICS_PARAMS
+            from .sensors.base import resolve_params
+            try:
+                control_config(scenario.control)
+                resolve_params(DYNAMICS_PARAMS, scenario.dynamics)
+            except ValueError as exc:
+                raise ScenarioError(f"scenario {scenario.name}: {exc}") from None
         if not 0 <= scenario.start_position <= track.length:
             raise ScenarioError(f"initial position {scenario.start_position} m is off the track")
         return scenario

@@ -21,6 +21,7 @@ _MODULES = {
     "tag_reader": "transponder",
     "coil_counter": "coil_counter",
     "emf_observer": "emf_observer",
+    "rig_loop_receiver": "rig_loop",
 }
 
 NODE_NAMES = tuple(_MODULES)

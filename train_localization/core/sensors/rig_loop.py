@@ -27,7 +27,7 @@ adds eq. 4: the loop current I0 sin(omega t) and the rotation x(t) give
 V = -d/dt [psi(x) I0 sin(omega t)] = -I0 [omega psi cos(omega t) + dpsi/dx dx/dt sin(omega t)];
 the second term is the seed's eq. 4 (``motional_voltage``), the first the transformer EMF of the
 carrier. The envelope detector sees their quadrature sum (``envelope``); the motional term is
-below 1e-4 of the other at these speeds (v / (omega p) < 4e-5).
+below 3e-4 of the other up to 100 km/h (v / (omega x the ~0.1 m over which the flux rises)).
 
 Decoder: Schmitt triggers with hysteresis; the adder's sum of the three outputs is 1 or 2
 (0 and 3 cannot occur: a stuck channel or mis-set thresholds); each change of the sum is one

@@ -94,7 +94,10 @@ class Scenario:
         if self.control:
             raise ScenarioError(f"scenario {self.name} runs under closed-loop control: its motion comes from "
                                 "core.control.closed_loop or the simulator node, not from a profile")
-        return Trajectory.from_legs(self.legs, self.start_position, self.start_speed, self.duration, dt)
+        traj = Trajectory.from_legs(self.legs, self.start_position, self.start_speed, self.duration, dt)
+        if self.track.closed:
+            traj.period = self.track.length
+        return traj
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> "Scenario":
@@ -158,7 +161,12 @@ class Scenario:
 
 
 class Trajectory:
-    """Ground-truth motion sampled every ``dt`` [s]: arrays t, position, speed, acceleration."""
+    """Ground-truth motion sampled every ``dt`` [s]: arrays t, position, speed, acceleration.
+
+    ``position`` is the distance run from the track's origin; on a closed track (``period`` its
+    length [m]) ``state_at`` gives the chainage wrapped round it."""
+
+    period: float | None = None
 
     def __init__(self, t, position, speed, acceleration):
         self.t, self.position, self.speed, self.acceleration = t, position, speed, acceleration
@@ -202,7 +210,10 @@ class Trajectory:
         return cls(t, s, v, a)
 
     def state_at(self, stamp: float) -> TruthState:
-        return TruthState(float(stamp), float(np.interp(stamp, self.t, self.position)),
+        position = float(np.interp(stamp, self.t, self.position))
+        if self.period:
+            position %= self.period
+        return TruthState(float(stamp), position,
                           float(np.interp(stamp, self.t, self.speed)),
                           float(np.interp(stamp, self.t, self.acceleration)))
 

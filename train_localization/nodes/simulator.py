@@ -11,9 +11,14 @@ Parameters:
 Topics: /clock (rosgraph_msgs/Clock), ground_truth/state (TrainState, stddevs 0,
 interval = position), scenario (std_msgs/String, transient-local: the scenario
 YAML with the track inlined, so that a recorded bag describes itself), /diagnostics.
+A scenario with ``control`` (closed loop, core/control.py) has no profile: the simulator
+subscribes control/traction (std_msgs/Float64, thrust [N], from the speed_controller node)
+and integrates the vehicle's dynamics (core/dynamics.py) with the latest command at every
+truth step; a non-finite command is refused and counted (the last good one stays).
 """
 from __future__ import annotations
 
+import math
 import threading
 import time
 
@@ -41,7 +46,16 @@ class SimulatorNode(Node):
         if not self.rate >= 0.0:
             raise ConfigurationError(f"parameter 'rate' must be >= 0 (0: as fast as possible), not {self.rate}")
         self.scenario = Scenario.from_yaml(path)
-        self.trajectory = self.scenario.trajectory()
+        self.dynamics = None
+        if self.scenario.control:
+            from std_msgs.msg import Float64
+
+            from ..core.dynamics import Dynamics
+            self.dynamics = Dynamics(self.scenario.dynamics, self.scenario.track, self.scenario.start_position,
+                                     self.scenario.start_speed)
+            self.create_subscription(Float64, "control/traction", self.on_traction, STREAM_QOS)
+        else:
+            self.trajectory = self.scenario.trajectory()
         self.mc = rclpy_classes()
         self.clock_pub = self.create_publisher(Clock, "/clock", CLOCK_QOS)
         self.truth_pub = self.create_publisher(self.mc.TrainState, "ground_truth/state", STREAM_QOS)
@@ -82,7 +96,12 @@ class SimulatorNode(Node):
             clock = Clock()
             clock.clock.sec, clock.clock.nanosec = divmod(sec_to_ns(t), 1_000_000_000)
             self.clock_pub.publish(clock)
-            st = self.trajectory.state_at(t)
+            if self.dynamics is not None:
+                if k:
+                    self.dynamics.step(1.0 / sc.truth_rate)
+                st = self.dynamics.state(t)
+            else:
+                st = self.trajectory.state_at(t)
             self.truth_pub.publish(train_state_to_msg(self.mc, st.stamp, sc.track.track_id, st.position,
                                                       st.speed, st.acceleration))
             self.published += 1
@@ -93,6 +112,14 @@ class SimulatorNode(Node):
         if self.exit_at_end:
             self._stop.wait(0.5)
             self.finished = True
+
+    def on_traction(self, msg) -> None:
+        """Thrust command [N] of the speed controller (closed-loop scenarios)."""
+        if not math.isfinite(msg.data):
+            self.diag.reject("control/traction", "nan", f"traction command {msg.data}")
+            return
+        self.diag.accept("control/traction")
+        self.dynamics.set_command(msg.data)
 
     def close(self):
         """Stop the publishing thread before the node goes away (no publish after destroy)."""

@@ -79,9 +79,11 @@ PARAMS = {
                        "(assumption)"),
     "gap_tau": _belt("gap_tau", 0.02, "correlation time of the run-out [s] (assumption: of the order of a "
                      "revolution at speed)"),
-    "antenna_offset": _belt("antenna_offset", 0.0, "chainage of the disc under antenna 1 when the disc is at "
-                            "chainage 0 [m] (its place on the stator); antennas 2 and 3 follow at p/3 and 2p/3 "
-                            "(seed 003 section 2)"),
+    "antenna_offset": _belt("antenna_offset", ADDER_PERIOD / 4, "place of antenna 1 on the stator [m]: the loop "
+                            "chainage under it is the disc's chainage less this; antennas 2 and 3 follow at p/3 "
+                            "and 2p/3 (seed 003 section 2). Default p/12: the disc's chainage 0 (its reference "
+                            "mark) lies half-way between two switching points, so that a disc standing there "
+                            "does not make a Schmitt trigger chatter (assumption)"),
     "spacing_error": _belt("spacing_error", 0.001, "1-sigma mounting error of each antenna's place [m], per "
                            "device (assumption)"),
     "carrier_frequency": _belt("carrier_frequency", SEED_CARRIER, "loop carrier [Hz] (seed 003 section 3.1: "

@@ -32,7 +32,7 @@ SPEEDS = {
     "track_circuit_receiver": (83.0, {}),  # UM71C high-speed line, 300 km/h
     "dgps_receiver": (30.6, {}),         # UTM-02 urban maglev, ~110 km/h (dgps.py)
     "tag_reader": (30.6, {}),            # the reader's window reads up to ~140 km/h (transponder.py)
-    "rig_loop_receiver": (27.8, {}),     # the seed 003 rig's top speed, 100 km/h (rig_loop.py)
+    "rig_loop_receiver": (27.8, {"block_duration": 0.02}),  # seed 003 rig: 100 km/h, scenario_rig blocks
 }
 
 

@@ -20,6 +20,8 @@ NODE_ARGS = {
     **{name: [] for name in NODE_NAMES},
     # a device of the track's own equipment: the default track has no track circuits
     "track_circuit_receiver": ["-p", "track:=config/track_highspeed.yaml"],
+    "rig_loop_receiver": ["-p", "track:=config/track_rig.yaml"],
+    "speed_controller": ["-p", "scenario:=config/scenario_rig.yaml"],
 }
 
 

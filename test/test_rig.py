@@ -90,6 +90,14 @@ def test_induced_voltage_along_the_loop_eq3_eq4():
     np.testing.assert_allclose(env, omega * np.abs(psi), rtol=1e-6, atol=1e-3 * env.max())
 
 
+def test_schmitt_thresholds_straddle_the_half_duty_level():
+    """Even p/6 states (an adder of 50 % duty) need the switching level where an antenna is high
+    half of the period."""
+    level = rig_loop.half_duty_level(P)
+    assert P["threshold_off"] < level < P["threshold_on"]
+    assert 0.5 * (P["threshold_on"] + P["threshold_off"]) == pytest.approx(level, abs=0.01)
+
+
 def test_three_antennas_a_third_of_the_period_apart_and_the_21_cm_adder():
     run = _open_run()
     traj = run.trajectory

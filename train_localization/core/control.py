@@ -187,10 +187,10 @@ def closed_loop(scenario, t_end: float | None = None, fusion_rate: float = 200.0
     newest of them. The rig starts at its reference mark, so the fusion is told the start
     position at t = 0 (the operator reset of the SetPosition service); from there it counts.
     """
+    from .convert import canonical
     from .dynamics import Dynamics
-    from .offline import RunResult, _Output, fusion_config, sensor_pipelines
     from .fusion import FusionRunner
-    from .signals import InputRejected  # noqa: F401  (decoders' rejections are counted by _Output)
+    from .offline import RunResult, _Output, fusion_config, sensor_pipelines
 
     if not scenario.control:
         raise ValueError(f"scenario {scenario.name} has no 'control' section")
@@ -207,7 +207,6 @@ def closed_loop(scenario, t_end: float | None = None, fusion_rate: float = 200.0
     rig_pipes = [p for p in pipes if p.spec.sensor == "rig_loop"]
     t_end = scenario.duration if t_end is None else t_end
     dt = 1.0 / scenario.truth_rate
-    from .convert import canonical
     for k in range(int(round(t_end * scenario.truth_rate)) + 1):
         t = canonical(k * dt)
         if k:

@@ -133,8 +133,9 @@ def resonance_frequency(inductance: float, capacitance: float) -> float:
 
 
 def eq2_bz(x, y, z, l, b, current: float = 1.0):
-    """B_z [T] at (x, y, z) of the two long sides (y = +-b, -l <= x <= l, currents -x at y = -b... as
-    in the seed) of a 2l x 2b rectangle carrying ``current`` [A] (seed 003 eq. 2, verbatim)."""
+    """B_z [T] at (x, y, z) of the two long sides (y = -b and y = +b, -l <= x <= l) of a 2l x 2b
+    rectangle centred at the origin in the plane z = 0, carrying ``current`` [A] counter-clockwise
+    (+x along y = -b): seed 003 eq. 2 as printed, which leaves out the short sides."""
     mu0_4pi = 1.0e-7
     x, y, z = (np.asarray(v, dtype=float) for v in (x, y, z))
 

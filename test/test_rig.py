@@ -166,6 +166,8 @@ def test_closed_track_wraps_and_open_tracks_do_not():
     assert ring.difference(0.1, 3.1) == pytest.approx(0.15)
     assert ring.difference(3.1, 0.1) == pytest.approx(-0.15)
     assert ring.pose(0.5 + 3.15 * 3) == pytest.approx(ring.pose(0.5))
+    x, y = ring.xy(np.linspace(0.0, 3.15, 50))                  # the map pose runs round the loop
+    np.testing.assert_allclose(np.hypot(x, y), 3.15 / (2 * math.pi), rtol=1e-4)
     line = Track.from_yaml(ROOT / "config" / "track_test.yaml")
     assert not line.closed
     assert line.wrap(line.length + 5.0) == line.length + 5.0

@@ -238,6 +238,7 @@ class Track:
                 equipment={kind: _expand(kind, entries)
                            for kind, entries in (data.get("equipment", {}) or {}).items()},
                 closed=bool(data.get("closed", False)),
+                resolution=float(data.get("resolution", 10.0)),
             )
         except KeyError as exc:
             raise TrackError(f"track description lacks the key {exc}") from None

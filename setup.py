@@ -16,12 +16,14 @@ NODES = {
     "neutral_section_controller": "train_localization.nodes.wayside:main_controller",
     "crosscheck": "train_localization.nodes.wayside:main_crosscheck",
     "association": "train_localization.nodes.association:main",
+    "speed_controller": "train_localization.nodes.speed_controller:main",
 }
 SENSOR_NODES = [
     "doppler_radar", "wheel_sensor", "eurobalise_reader", "lrl_scanner",
     "inpo_receiver", "pattern_belt", "mmwave_ranging", "axle_counter", "lzb_receiver",
     "track_circuit_receiver", "dgps_receiver", "tag_reader", "coil_counter", "emf_observer",
     "checkin_loop", "pole_position",
+    "rig_loop_receiver",
 ]
 TOOLS = {
     "tl_demo": "train_localization.tools.demo:main",
@@ -31,6 +33,7 @@ TOOLS = {
     "tl_bag": "train_localization.tools.bag:main",
     "tl_fuzz": "train_localization.tools.fuzz:main",
     "tl_neutral": "train_localization.tools.neutral_campaign:main",
+    "tl_rig": "train_localization.tools.rig:main",
 }
 
 console_scripts = [f"{name} = {target}" for name, target in NODES.items()]

@@ -22,6 +22,8 @@ NODE_ARGS = {
     "track_circuit_receiver": ["-p", "track:=config/track_highspeed.yaml"],
     "checkin_loop": ["-p", "track:=config/track_hsst.yaml"],
     "wayside_occupancy": [], "neutral_section_controller": [], "crosscheck": [],
+    "rig_loop_receiver": ["-p", "track:=config/track_rig.yaml"],
+    "speed_controller": ["-p", "scenario:=config/scenario_rig.yaml"],
 }
 
 

@@ -11,7 +11,7 @@ import pytest
 from conftest import ROOT
 from train_localization.core.sensors import NODE_NAMES
 
-EXECUTABLES = ["simulator", "fusion", "recorder", "replayer", *NODE_NAMES]
+EXECUTABLES = ["simulator", "fusion", "recorder", "replayer", "speed_controller", *NODE_NAMES]
 
 
 def test_colcon_build_registers_package_and_executables(tmp_path):

@@ -82,7 +82,15 @@ MBAHN = {
     "profile": [{"speed": 15.0, "hold": 30.0}],
     "sensors": {"pole_position": {}, "tag_reader": {}},
 }
-SCENARIOS = [CONVENTIONAL, MAGLEV, LZB, TRACK_CIRCUIT, UTM, MLX, HSST, MBAHN]
+RIG = {
+    "name": "identity_rig", "seed": 6, "duration": 6.0,
+    "track": yaml.safe_load((ROOT / "config" / "track_rig.yaml").read_text()),
+    "vehicle": {"type": "rig", "length": 0.0, "axles": []},
+    "initial": {"position": 2.0, "speed": 15.0},   # the disc turns past its chainage 0 again and again
+    "profile": [{"speed": 20.0, "accel": 2.0, "hold": 30.0}],
+    "sensors": {"rig_loop_receiver": {}},
+}
+SCENARIOS = [CONVENTIONAL, MAGLEV, LZB, TRACK_CIRCUIT, UTM, MLX, HSST, MBAHN, RIG]
 
 
 def test_the_scenarios_cover_every_sensor():

@@ -18,6 +18,11 @@ train's graph lives in the namespace ``/<name>``, the wayside in ``/wayside``. A
 scenario without ``trains:`` is one train named ``train`` (namespace ``/train``).
 ``Scenario.train(name)`` is one train's scenario: what a one-train run needs (its
 vehicle, profile, on-board sensors, fusion, its own random streams).
+
+Closed loop: instead of ``profile`` a scenario may give ``control`` (a speed controller and
+its set-points, core/control.py) and ``dynamics`` (the vehicle's drive and resistance,
+core/dynamics.py); its motion then comes from ``core.control.closed_loop`` (offline) or from
+the simulator node integrating the controller's traction command, not from ``trajectory``.
 """
 from __future__ import annotations
 
@@ -87,6 +92,8 @@ class Scenario:
     fusion: dict = field(default_factory=dict)  # FusionConfig overrides (core/fusion.py)
     source: Path | None = None
     description: dict = field(default_factory=dict, repr=False)  # the YAML, track inlined
+    control: dict = field(default_factory=dict)    # closed-loop speed control (core/control.py); {} = profile
+    dynamics: dict = field(default_factory=dict)   # drive and resistance parameters (core/dynamics.py)
     # name -> one train's scenario: {train_name: self} but for a line (set by from_dict)
     trains: dict[str, "Scenario"] = field(default_factory=dict, init=False, repr=False, compare=False)
     wayside: dict[str, dict] = field(default_factory=dict)  # wayside sensor node name -> parameters
@@ -145,7 +152,13 @@ class Scenario:
         if len(self.trains) > 1 or self.trains.get(self.train_name) is not self:
             raise ScenarioError(f"scenario {self.name} has several trains: take one train's trajectory "
                                 f"(scenario.train(name).trajectory())")
-        return Trajectory.from_legs(self.legs, self.start_position, self.start_speed, self.duration, dt)
+        if self.control:
+            raise ScenarioError(f"scenario {self.name} runs under closed-loop control: its motion comes from "
+                                "core.control.closed_loop or the simulator node, not from a profile")
+        traj = Trajectory.from_legs(self.legs, self.start_position, self.start_speed, self.duration, dt)
+        if self.track.closed:
+            traj.period = self.track.length
+        return traj
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> "Scenario":
@@ -184,6 +197,16 @@ class Scenario:
                 raise ScenarioError(f"{what}initial position {train.start_position} m is off the track")
         if scenario.line:
             _check_line(scenario)
+        for train in scenario.trains.values():
+            if train.control:
+                from .control import control_config
+                from .dynamics import DYNAMICS_PARAMS
+                from .sensors.base import resolve_params
+                try:
+                    control_config(train.control)
+                    resolve_params(DYNAMICS_PARAMS, train.dynamics)
+                except ValueError as exc:
+                    raise ScenarioError(f"scenario {scenario.name}: {exc}") from None
         return scenario
 
     def orientation(self) -> int:
@@ -211,17 +234,22 @@ def _track_data(track_ref, source: Path | None) -> dict:
 
 
 def _train_fields(data: dict) -> dict:
-    """The Scenario fields of one train: vehicle, profile, initial state, sensors, fusion."""
+    """The Scenario fields of one train: vehicle, profile, initial state, sensors, fusion, and
+    the closed-loop control and dynamics (instead of a profile)."""
     veh = data.get("vehicle", {}) or {}
     vehicle = Vehicle(kind=str(veh.get("type", "conventional")), length=float(veh.get("length", 200.0)),
                       axles=tuple(float(a) for a in veh.get("axles", ()) or ()),
                       wheel_diameter=float(veh.get("wheel_diameter", 0.92)))
-    legs = [Leg(**{k: float(v) for k, v in leg.items()}) for leg in data["profile"]]
+    control = dict(data.get("control", {}) or {})
+    # a closed-loop train (``control``) needs no profile
+    legs = [Leg(**{k: float(v) for k, v in leg.items()})
+            for leg in (data.get("profile", []) if control else data["profile"]) or []]
     init = data.get("initial", {}) or {}
     return dict(vehicle=vehicle, legs=legs, start_position=float(init.get("position", 0.0)),
                 start_speed=float(init.get("speed", 0.0)),
                 sensors={name: dict(params or {}) for name, params in (data.get("sensors", {}) or {}).items()},
-                fusion=dict(data.get("fusion", {}) or {}))
+                fusion=dict(data.get("fusion", {}) or {}),
+                control=control, dynamics=dict(data.get("dynamics", {}) or {}))
 
 
 def _line(cls, data: dict, common: dict) -> Scenario:
@@ -278,7 +306,12 @@ def _check_line(scenario: Scenario) -> None:
 
 
 class Trajectory:
-    """Ground-truth motion sampled every ``dt`` [s]: arrays t, position, speed, acceleration."""
+    """Ground-truth motion sampled every ``dt`` [s]: arrays t, position, speed, acceleration.
+
+    ``position`` is the distance run from the track's origin; on a closed track (``period`` its
+    length [m]) ``state_at`` gives the chainage wrapped round it."""
+
+    period: float | None = None
 
     def __init__(self, t, position, speed, acceleration):
         self.t, self.position, self.speed, self.acceleration = t, position, speed, acceleration
@@ -322,7 +355,10 @@ class Trajectory:
         return cls(t, s, v, a)
 
     def state_at(self, stamp: float) -> TruthState:
-        return TruthState(float(stamp), float(np.interp(stamp, self.t, self.position)),
+        position = float(np.interp(stamp, self.t, self.position))
+        if self.period:
+            position %= self.period
+        return TruthState(float(stamp), position,
                           float(np.interp(stamp, self.t, self.speed)),
                           float(np.interp(stamp, self.t, self.acceleration)))
 

@@ -66,19 +66,28 @@ def _stats(err: np.ndarray) -> dict:
             "max": float(a.max()), "n": int(err.size)}
 
 
-def _aligned(truth: StateSeries, fused: StateSeries):
-    """(fused columns within the truth's time span, true position and speed there, claimed mask)."""
+def _aligned(truth: StateSeries, fused: StateSeries, circumference: float | None = None):
+    """(fused columns within the truth's time span, true position and speed there, claimed mask).
+
+    ``circumference`` [m] (a closed track): the truth is unwrapped before it is interpolated and
+    then moved by whole laps to the fused position (the fused one may be an unwrapped distance)."""
     inside = (fused.t >= truth.t[0]) & (fused.t <= truth.t[-1])
     f = {k: getattr(fused, k)[inside] for k in FIELDS}
-    s_true = np.interp(f["t"], truth.t, truth.position)
+    if circumference:
+        s_true = np.interp(f["t"], truth.t, np.unwrap(truth.position, period=circumference))
+        laps = np.round(np.nan_to_num(f["position"] - s_true) / circumference)
+        s_true = s_true + laps * circumference
+    else:
+        s_true = np.interp(f["t"], truth.t, truth.position)
     v_true = np.interp(f["t"], truth.t, truth.speed)
     claimed = (f["mode"] != 0) & np.isfinite(f["position"])
     return f, s_true, v_true, claimed
 
 
-def score(truth: StateSeries, fused: StateSeries) -> dict:
-    """Position/speed error statistics, integrity and interval width."""
-    f, s_true, v_true, claimed = _aligned(truth, fused)
+def score(truth: StateSeries, fused: StateSeries, circumference: float | None = None) -> dict:
+    """Position/speed error statistics, integrity and interval width; on a closed track of
+    ``circumference`` [m] the position is compared modulo it (Track.closed)."""
+    f, s_true, v_true, claimed = _aligned(truth, fused, circumference)
     pos_err = f["position"][claimed] - s_true[claimed]
     spd_err = f["speed"] - v_true
     in_interval = (s_true[claimed] >= f["position_min"][claimed]) & (s_true[claimed] <= f["position_max"][claimed])

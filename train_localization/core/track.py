@@ -1,7 +1,9 @@
 """Track description: chainage, 2-D alignment and wayside equipment (config/*.yaml).
 
 Chainage runs from 0 to ``length`` [m] in the track's reference direction
-(DESIGN.md section 4). The alignment is a chain of segments of constant curvature
+(DESIGN.md section 4). A ``closed: true`` track is a loop (the rotating disc of seed 003):
+chainage ``length`` is chainage 0 again; ``wrap`` and ``difference`` take positions that run
+on past the end (an unwrapped distance, as the fusion integrates it) back onto the loop. The alignment is a chain of segments of constant curvature
 (straight: 0, arc: 1/R [1/m], sign = to the left) starting at ``origin``; it is used
 only to place the train in ``map`` for visualisation and odometry messages.
 
@@ -105,6 +107,7 @@ class Track:
     origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
     segments: list[tuple[float, float]] = field(default_factory=list)  # (length [m], curvature [1/m])
     resolution: float = 10.0  # polyline step [m]
+    closed: bool = False      # a loop: chainage ``length`` is chainage 0 again (the rig's disc, seed 003)
 
     def __post_init__(self):
         if not (self.length > 0 and math.isfinite(self.length)):
@@ -140,15 +143,29 @@ class Track:
         self._y = np.array(y_pts)
         self._h = np.array(h_pts)
 
+    def wrap(self, chainage):
+        """Chainage [m] (number or array) on a closed track taken into [0, length); unchanged on an
+        open one. Positions that run on past the end of a loop (an unwrapped distance) are
+        compared and looked up through it."""
+        return np.mod(chainage, self.length) if self.closed else chainage
+
+    def difference(self, a, b):
+        """a - b [m]; on a closed track the shortest way round, in [-length/2, length/2)."""
+        d = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
+        if self.closed:
+            d = np.mod(d + 0.5 * self.length, self.length) - 0.5 * self.length
+        return d if d.ndim else float(d)
+
     def pose(self, chainage: float) -> tuple[float, float, float]:
         """(x [m], y [m], heading [rad]) of a chainage in ``map`` (clamped to the polyline)."""
+        chainage = self.wrap(chainage)
         return (float(np.interp(chainage, self._s, self._x)),
                 float(np.interp(chainage, self._s, self._y)),
                 float(np.interp(chainage, self._s, self._h)))
 
     def xy(self, chainage) -> tuple[np.ndarray, np.ndarray]:
         """Map coordinates (x [m], y [m]) of chainages (array), on the polyline ``pose`` uses."""
-        s = np.asarray(chainage, dtype=float)
+        s = self.wrap(np.asarray(chainage, dtype=float))
         return np.interp(s, self._s, self._x), np.interp(s, self._s, self._y)
 
     PROJECT_CHUNK = 256   # polyline segments compared at once: bounds project()'s memory per point
@@ -220,6 +237,8 @@ class Track:
                           for s in data.get("alignment", []) or []],
                 equipment={kind: _expand(kind, entries)
                            for kind, entries in (data.get("equipment", {}) or {}).items()},
+                closed=bool(data.get("closed", False)),
+                resolution=float(data.get("resolution", 10.0)),
             )
         except KeyError as exc:
             raise TrackError(f"track description lacks the key {exc}") from None

@@ -57,7 +57,7 @@ from .common import (STATE_QOS, STREAM_QOS, ConfigurationError, ManagedNode, dec
 
 ALL_SENSORS = ["doppler", "wheel", "eurobalise", "lrl", "inpo", "pattern_belt", "mmwave", "axle_counter", "lzb",
                "track_circuit", "dgps", "transponder", "coil_counter", "emf_observer", "checkin",
-               "pole_position"]
+               "pole_position", "rig_loop"]
 
 
 def _ros_value(value):

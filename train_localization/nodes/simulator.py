@@ -19,9 +19,15 @@ the wayside sensors (which see every train) on ``/wayside/sensors/<sensor>/raw``
 (core/offline.py LineSimulation): the sensor nodes of a line run in ingest mode, each
 in its train's namespace or in /wayside. ``wait_for_subscribers`` then counts the
 subscribers of all its truth and raw topics together.
+
+A scenario with ``control`` (closed loop, core/control.py) has no profile: the simulator
+subscribes control/traction (std_msgs/Float64, thrust [N], from the speed_controller node)
+and integrates the vehicle's dynamics (core/dynamics.py) with the latest command at every
+truth step; a non-finite command is refused and counted (the last good one stays).
 """
 from __future__ import annotations
 
+import math
 import threading
 import time
 
@@ -49,6 +55,16 @@ class SimulatorNode(Node):
         if not self.rate >= 0.0:
             raise ConfigurationError(f"parameter 'rate' must be >= 0 (0: as fast as possible), not {self.rate}")
         self.scenario = Scenario.from_yaml(path)
+        self.dynamics = None
+        if self.scenario.control and self.scenario.line:
+            raise ConfigurationError("a closed-loop scenario (control) runs one train, not a line")
+        if self.scenario.control:
+            from std_msgs.msg import Float64
+
+            from ..core.dynamics import Dynamics
+            self.dynamics = Dynamics(self.scenario.dynamics, self.scenario.track, self.scenario.start_position,
+                                     self.scenario.start_speed)
+            self.create_subscription(Float64, "control/traction", self.on_traction, STREAM_QOS)
         self.mc = rclpy_classes()
         self.clock_pub = self.create_publisher(Clock, "/clock", CLOCK_QOS)
         from std_msgs.msg import String
@@ -65,7 +81,8 @@ class SimulatorNode(Node):
             self.truth_pub = next(iter(self.truth_pubs.values()))
             self.scenario_pub = self.create_publisher(String, LINE_SCENARIO_TOPIC, LATCHED_QOS)
         else:
-            self.trajectory = self.scenario.trajectory()
+            if self.dynamics is None:
+                self.trajectory = self.scenario.trajectory()
             self.truth_pub = self.create_publisher(self.mc.TrainState, "ground_truth/state", STREAM_QOS)
             self.scenario_pub = self.create_publisher(String, "scenario", LATCHED_QOS)
         self.scenario_pub.publish(String(data=self.scenario.to_yaml()))
@@ -106,7 +123,12 @@ class SimulatorNode(Node):
             if self.line is not None:
                 self._publish_line(k)
             else:
-                st = self.trajectory.state_at(t)
+                if self.dynamics is not None:
+                    if k:
+                        self.dynamics.step(1.0 / sc.truth_rate)
+                    st = self.dynamics.state(t)
+                else:
+                    st = self.trajectory.state_at(t)
                 self.truth_pub.publish(train_state_to_msg(self.mc, st.stamp, sc.track.track_id, st.position,
                                                           st.speed, st.acceleration))
             self.published += 1
@@ -133,6 +155,14 @@ class SimulatorNode(Node):
                                                              st.position, st.speed, st.acceleration))
         for ns, _, block in blocks:
             self.raw_pubs[f"{ns}/sensors/{block.sensor}/raw"].publish(raw_block_to_msg(block, self.mc))
+
+    def on_traction(self, msg) -> None:
+        """Thrust command [N] of the speed controller (closed-loop scenarios)."""
+        if not math.isfinite(msg.data):
+            self.diag.reject("control/traction", "nan", f"traction command {msg.data}")
+            return
+        self.diag.accept("control/traction")
+        self.dynamics.set_command(msg.data)
 
     def close(self):
         """Stop the publishing thread before the node goes away (no publish after destroy)."""

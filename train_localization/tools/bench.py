@@ -34,6 +34,7 @@ SPEEDS = {
     "tag_reader": (30.6, {}),            # the reader's window reads up to ~140 km/h (transponder.py)
     "checkin_loop": (30.0, {}),          # HSST urban maglev, ~110 km/h (checkin.py max_speed)
     "pole_position": (22.2, {}),         # M-Bahn, 80 km/h (pole_position.py)
+    "rig_loop_receiver": (27.8, {"block_duration": 0.02}),  # seed 003 rig: 100 km/h, scenario_rig blocks
 }
 
 

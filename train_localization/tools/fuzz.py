@@ -56,7 +56,8 @@ FUSION = "fusion"
 # scenarios that provide the valid raw blocks: the first one that lists a sensor node is used
 SCENARIOS = ("config/scenario_demo.yaml", "config/scenario_maglev_500.yaml", "config/scenario_urban_stops.yaml",
              "config/scenario_lzb.yaml", "config/scenario_track_circuit.yaml", "config/scenario_utm.yaml",
-             "config/scenario_mlx.yaml", "config/scenario_hsst.yaml", "config/scenario_mbahn.yaml")
+             "config/scenario_mlx.yaml", "config/scenario_hsst.yaml", "config/scenario_mbahn.yaml",
+             "config/scenario_rig_open.yaml")
 FUSION_SCENARIO = "config/scenario_demo.yaml"
 # the fusion's valid input: the demo train 20 m before balise group EB000 (500 m) at 25 m/s,
 # so that the window holds position fixes besides speeds and distance increments

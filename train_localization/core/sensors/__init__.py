@@ -23,6 +23,7 @@ _MODULES = {
     "emf_observer": "emf_observer",
     "checkin_loop": "checkin",
     "pole_position": "pole_position",
+    "rig_loop_receiver": "rig_loop",
 }
 
 NODE_NAMES = tuple(_MODULES)

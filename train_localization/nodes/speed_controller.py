@@ -1,0 +1,65 @@
+"""Speed controller node: a PID on the fused speed commands the traction (seed 003 section 4.3).
+
+Parameters:
+  scenario (string, required)  scenario YAML with a ``control`` section (set-points, gains:
+                               core/control.py) and ``dynamics`` (the drive's thrust limit:
+                               core/dynamics.py)
+Topics:
+  subscribes localization/state   TrainState of the fusion (reliable, deep queue: every state)
+  publishes  control/traction     std_msgs/Float64, thrust command along the track [N]
+             control/setpoint     std_msgs/Float64, the set-point speed in force [m/s]
+             /diagnostics         states taken and refused, the last command
+A state whose speed is not finite or whose stamp goes back is refused and counted; the
+controller then commands nothing until the next good state (core.control.SpeedController).
+"""
+from __future__ import annotations
+
+import math
+
+from rclpy.node import Node
+from std_msgs.msg import Float64
+
+from ..core.control import SpeedController, control_config
+from ..core.convert import stamp_to_sec
+from ..core.dynamics import Dynamics
+from ..core.scenario import Scenario
+from .common import STREAM_QOS, ConfigurationError, Diagnostics, declare, rclpy_classes, spin
+
+
+class SpeedControllerNode(Node):
+    def __init__(self):
+        super().__init__("speed_controller")
+        path = declare(self, "scenario", "", "scenario YAML with a 'control' section", read_only=True)
+        if not path:
+            raise ConfigurationError("parameter 'scenario' is required (a scenario YAML with 'control')")
+        sc = Scenario.from_yaml(path)
+        if not sc.control:
+            raise ConfigurationError(f"scenario {sc.name} has no 'control' section")
+        params, setpoints = control_config(sc.control)
+        limit = Dynamics(sc.dynamics, sc.track).force_limit
+        self.controller = SpeedController(params, setpoints, limit)
+        self.mc = rclpy_classes()
+        self.traction_pub = self.create_publisher(Float64, "control/traction", STREAM_QOS)
+        self.setpoint_pub = self.create_publisher(Float64, "control/setpoint", STREAM_QOS)
+        self.diag = Diagnostics(self, "speed_controller")
+        self._t_last: float | None = None
+        self.create_subscription(self.mc.TrainState, "localization/state", self.on_state, STREAM_QOS)
+
+    def on_state(self, msg) -> None:
+        t = stamp_to_sec(msg.header.stamp)
+        if not math.isfinite(msg.speed) or not math.isfinite(t):
+            self.diag.reject("localization/state", "nan", f"state at {t} s with speed {msg.speed}")
+            return
+        if self._t_last is not None and t <= self._t_last:
+            self.diag.reject("localization/state", "stamp_back", f"state at {t:.6f} s after {self._t_last:.6f} s")
+            return
+        self._t_last = t
+        self.diag.accept("localization/state")
+        force = self.controller.update(t, msg.speed, msg.acceleration, msg.speed_stddev)
+        self.traction_pub.publish(Float64(data=float(force)))
+        self.setpoint_pub.publish(Float64(data=float(self.controller.setpoint(t))))
+        self.diag.values["command_N"] = f"{force:.2f}"
+
+
+def main(args=None):
+    return spin(SpeedControllerNode, args)

@@ -19,27 +19,16 @@ ROS_AUTOMATIC_DISCOVERY_RANGE as the caller has it, LOCALHOST if unset.
 """
 import os
 
-from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 
 from train_localization.graph import line_graph
-from train_localization.launch_common import common_arguments, flag, graph_actions
-
-SHARE = get_package_share_directory("train_localization")
-
-
-def _scenario_path(value: str) -> str:
-    """An absolute path as given; a relative one from the current directory if it exists
-    there (as the nodes resolve it), else from the package's share directory."""
-    if os.path.isabs(value) or os.path.exists(value):
-        return os.path.abspath(value)
-    return os.path.join(SHARE, value)
+from train_localization.launch_common import common_arguments, flag, graph_actions, scenario_path
 
 
 def _nodes(context):
-    scenario = _scenario_path(LaunchConfiguration("scenario").perform(context))
+    scenario = scenario_path(LaunchConfiguration("scenario").perform(context))
     bag = os.path.abspath(LaunchConfiguration("bag").perform(context))
     rate = float(LaunchConfiguration("rate").perform(context))
     graph = line_graph(scenario, bag, rate, record=flag(context, "record"))

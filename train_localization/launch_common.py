@@ -5,6 +5,9 @@ launch down when the graph's driver (simulator, replayer) exits.
 Needs a full ROS 2 install (launch and launch_ros are not on PyPI); only the launch files
 import it.
 """
+import os
+
+from ament_index_python.packages import get_package_share_directory
 from launch.actions import DeclareLaunchArgument, EmitEvent, RegisterEventHandler, SetEnvironmentVariable
 from launch.event_handlers import OnProcessExit
 from launch.events import Shutdown
@@ -30,6 +33,15 @@ def common_arguments() -> list:
         SetEnvironmentVariable("ROS_AUTOMATIC_DISCOVERY_RANGE",
                                EnvironmentVariable("ROS_AUTOMATIC_DISCOVERY_RANGE", default_value="LOCALHOST")),
     ]
+
+
+def scenario_path(value: str) -> str:
+    """A scenario file given as a launch argument: an absolute path as given; a relative one
+    from the current directory if it exists there (as the nodes resolve it), else from the
+    package's share directory."""
+    if os.path.isabs(value) or os.path.exists(value):
+        return os.path.abspath(value)
+    return os.path.join(get_package_share_directory("train_localization"), value)
 
 
 def flag(context, name: str) -> bool:

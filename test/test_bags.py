@@ -9,8 +9,9 @@ import pytest
 
 from conftest import ROOT
 from train_localization.core import convert
-from train_localization.core.offline import replay_bag, scenario_from_bag
-from train_localization.core.report import evaluate
+from train_localization.core.bagio import read_bag
+from train_localization.core.offline import replay_bag, replay_line, scenario_from_bag
+from train_localization.core.report import evaluate, line_report
 from train_localization.tools.make_bags import metric
 from train_localization.tools.replay import recorded_run
 
@@ -29,30 +30,57 @@ def test_every_bag_has_bounds_and_is_small():
 
 @pytest.fixture(scope="module", params=sorted(TABLE))
 def replayed(request):
-    """(bag name, offline replay of the bag, its report)."""
+    """(bag name, {train: offline replay}, {train: its report}, line report or None); a
+    one-train bag has the one train ``train``."""
     name = request.param
     bag = BAGS / f"{name}.mcap"
-    run = replay_bag(bag, scenario_from_bag(bag))
-    report, _ = evaluate(run.truth, run.estimates, run.measurements)
-    return name, run, report
+    scenario = scenario_from_bag(bag)
+    if scenario.line:
+        result = replay_line(bag, scenario)
+        report = line_report(result)
+        return name, result.trains, report["trains"], report
+    run = replay_bag(bag, scenario)
+    return name, {"train": run}, {"train": evaluate(run.truth, run.estimates, run.measurements)[0]}, None
+
+
+def _failures(label: str, bounds: dict, report: dict) -> list[str]:
+    failures = []
+    for key, bound in bounds.items():
+        value = metric(report, key)
+        if "max" in bound and not value <= bound["max"]:
+            failures.append(f"{label}: {key} = {value:.6g} is worse than the bound {bound['max']:.6g}")
+        if "min" in bound and not value >= bound["min"]:
+            failures.append(f"{label}: {key} = {value:.6g} is worse than the bound {bound['min']:.6g}")
+    return failures
 
 
 def test_offline_replay_scores_stay_within_stored_bounds(replayed):
-    name, _, report = replayed
-    failures = []
-    for key, bound in TABLE[name]["bounds"].items():
-        value = metric(report, key)
-        if "max" in bound and not value <= bound["max"]:
-            failures.append(f"{name}.mcap: {key} = {value:.6g} is worse than the bound {bound['max']:.6g}")
-        if "min" in bound and not value >= bound["min"]:
-            failures.append(f"{name}.mcap: {key} = {value:.6g} is worse than the bound {bound['min']:.6g}")
+    name, _, reports, line = replayed
+    if line is None:
+        failures = _failures(f"{name}.mcap", TABLE[name]["bounds"], reports["train"])
+    else:   # every train within its bounds, no wayside fix given to the wrong train
+        failures = [f for train, entry in TABLE[name]["trains"].items()
+                    for f in _failures(f"{name}.mcap {train}", entry["bounds"], reports[train])]
+        wrong = line["association"]["wrong_train"]
+        if wrong > TABLE[name]["association"]["wrong_train"]["max"]:
+            failures.append(f"{name}.mcap: {wrong} wayside fixes given to the wrong train")
     assert not failures, "\n".join(failures)
 
 
+def _live_states(bag, train: str) -> list:
+    """The fused states the live graph recorded for ``train`` (``train``: a one-train bag)."""
+    if train == "train":
+        return recorded_run(bag)[1]
+    return [msg for topic, _, _, msg in read_bag(bag) if topic == f"/{train}/localization/state"]
+
+
 def test_offline_replay_matches_the_live_graph_within_the_filter_tolerance(replayed):
-    name, run, _ = replayed
-    _, live, _, _ = recorded_run(BAGS / f"{name}.mcap")
-    offline = run.estimates
+    name, runs, _, _ = replayed
+    for train, run in runs.items():
+        _matches_live(f"{name} {train}", run.estimates, _live_states(BAGS / f"{name}.mcap", train))
+
+
+def _matches_live(name: str, offline: list, live: list) -> None:
     off_t = np.array([e.stamp for e in offline])
     off_s = np.array([e.position for e in offline])
     live_t = np.array([convert.stamp_to_sec(m.header.stamp) for m in live])

@@ -13,6 +13,11 @@ NAMESPACE = "/train"
 LEAN_EXCLUDE = ["/rosout", "/parameter_events", "/tf", f"{NAMESPACE}/localization/odometry"]
 
 
+def lean_exclude(trains) -> list[str]:
+    """LEAN_EXCLUDE of a line: what the fused states of the ``trains`` (names) determine."""
+    return LEAN_EXCLUDE[:3] + [f"/{name}/localization/odometry" for name in trains]
+
+
 def demo_graph(scenario: str, sensors: list[str], bag: str, rate: float = 1.0,
                exclude: list[str] | None = None, record: bool = True) -> list[tuple[str, str, dict]]:
     """Recorder (if ``record``), one sensor node per entry of ``sensors`` (node names),

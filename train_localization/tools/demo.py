@@ -57,13 +57,14 @@ def run_graph(scenario_path: str, bag: Path, rate: float, log_dir: Path, timeout
     return run_nodes(graph, "simulator", log_dir, timeout or (scenario.duration / max(rate, 1e-3) + 60.0))
 
 
-def run_line_graph(scenario_path: str, bag: Path, rate: float, log_dir: Path, timeout: float | None = None) -> dict:
+def run_line_graph(scenario_path: str, bag: Path, rate: float, log_dir: Path, timeout: float | None = None,
+                   exclude: list[str] | None = None) -> dict:
     """Start the graph of a line scenario (graph.line_graph), wait for the simulator, stop
-    everything; exit codes by node (namespace/name)."""
+    everything; exit codes by node (namespace/name). ``exclude``: topics the recorder leaves out."""
     scenario = Scenario.from_yaml(scenario_path)
     if bag.exists():
         bag.unlink()
-    graph = line_graph(str(paths.resolve(scenario_path)), str(bag), rate)
+    graph = line_graph(str(paths.resolve(scenario_path)), str(bag), rate, exclude=exclude)
     return run_nodes(graph, "/simulator", log_dir, timeout or (scenario.duration / max(rate, 1e-3) + 60.0))
 
 

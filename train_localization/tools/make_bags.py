@@ -21,7 +21,7 @@ from pathlib import Path
 import yaml
 
 from ..core.paths import SOURCE_ROOT
-from ..graph import LEAN_EXCLUDE
+from ..graph import LEAN_EXCLUDE, lean_exclude
 from ..core.offline import replay_line, scenario_from_bag
 from ..core.report import line_report
 from .demo import run_graph, run_line_graph
@@ -88,7 +88,8 @@ def main(argv=None) -> int:
             scen.write_text(yaml.safe_dump(data, sort_keys=False))
             out = Path(tmp) / f"{name}.mcap"
             if "trains" in data:   # a line: every train's graph, the wayside, the simulator
-                codes = run_line_graph(str(scen), out, rate, Path(tmp) / "logs")
+                trains = [t["name"] for t in data["trains"]]
+                codes = run_line_graph(str(scen), out, rate, Path(tmp) / "logs", exclude=lean_exclude(trains))
             else:
                 codes = run_graph(str(scen), out, rate, Path(tmp) / "logs", exclude=LEAN_EXCLUDE)
             if any(codes.values()):

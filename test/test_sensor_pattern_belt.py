@@ -32,7 +32,8 @@ def scenario(profile, duration, sensors=None, seed=7, v0=0.0, s0=200.0, equipmen
 
 
 def seed003_params(**extra):
-    """Seed 003's rotating-disc unit: 21 cm period, plain (uncrossed) widened/narrowed loop."""
+    """A plain (uncrossed) widened/narrowed loop like seed 003's rotating-disc unit, with a 21 cm
+    period (a short belt; the unit's own loop period is 63 cm, see rig_loop.py)."""
     p = {"period": 0.21, "loop_width": 0.06, "gap": 0.015, "gap_sigma": 0.001, "crossed": False,
          "max_speed": 100 / 3.6, **extra}
     level = half_duty_level(resolve_params(PARAMS, p))
@@ -199,7 +200,9 @@ def test_hsst_belt_high_speed(kmh):
     assert np.mean(np.abs((v - v_true) / vs) < 3) > 0.95
 
 
-def test_seed003_unit_21cm_period_at_100_kmh_and_over_speed():
+def test_a_short_21cm_period_belt_at_100_kmh_and_over_speed():
+    """A belt with the seed 003 unit's plain loop but a 21 cm period (the unit itself, whose 21 cm
+    is the adder period of a 63 cm loop, is test_rig.py's)."""
     v0 = 100 / 3.6                       # seed 003: up to 500 rpm = 100 km/h
     prm = seed003_params()
     assert resolvable_speed(SPEC.simulator.default_sample_rate, 0.21) > v0

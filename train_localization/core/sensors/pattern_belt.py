@@ -9,8 +9,9 @@ and almost none over the narrow parts. Three coils spaced p/3 give three signals
 120 deg apart; after envelope detection and Schmitt triggers their switching points
 divide one period p into 6 states, i.e. a resolution of p/6 (HSST: p = 0.6 m ->
 10 cm, seed 000 2.2.1 and seed 002 2.1.1); the order in which the coils switch gives
-the direction. Seed 003 adds the three Schmitt outputs into a p/3 pulse train and
-uses a p = 0.21 m loop on a rotating disc up to 100 km/h.
+the direction. Seed 003 adds the three Schmitt outputs into a p/3 pulse train (its 21 cm
+adder period: a p = 0.63 m loop on a rotating disc up to 100 km/h; modelled by
+``rig_loop.py``, which takes this module's field model).
 
 Physics of the raw signal: the flux of the loop through each receiving coil is
 computed from the Biot-Savart law for straight conductors (seed 003 eq. 1-3): every
@@ -62,7 +63,7 @@ for a continuous belt and are not supported.
 Speed limit: the decoder needs every state sampled at least once. With
 ``sample_rate`` 2 kHz and states at least 0.75 p/6 long this holds up to
 0.75 p/6 x 2000 Hz = 150 m/s (540 km/h) for p = 0.6 m (HSST), and 52 m/s (189 km/h)
-for p = 0.21 m (seed 003); urban maglev runs at ~100 km/h (seed 003: 100 km/h max).
+for a short p = 0.21 m belt; urban maglev runs at ~100 km/h.
 Above the limit states are skipped and the decoder rejects the blocks ("implausible").
 """
 from __future__ import annotations
@@ -84,7 +85,8 @@ MIN_STATE_FRACTION = 0.75   # shortest state / (p/6) allowed for by the speed li
 
 PARAMS = {
     "period": Param(0.6, "nominal pattern period p [m]: HSST 0.6 m (1/6 period = 10 cm, seed 000 "
-                         "2.2.1, seed 002 2.1.1); seed 003 uses 0.21 m", (0.05, 5.0)),
+                         "2.2.1, seed 002 2.1.1); the seed 003 rig's loop 0.63 m (its adder period 0.21 m = p/3)",
+                         (0.05, 5.0)),
     "wide_fraction": Param(0.5, "fraction of a period where the loop is wide [1] (widened and narrowed "
                                 "at equal intervals, seed 003 section 2 / Fig. 2)", (0.01, 0.99)),
     "loop_width": Param(0.12, "width 2b of the wide parts of the loop [m] (assumed; belt of the "

@@ -477,6 +477,9 @@ def test_nodes_vote_publish_and_go_safe_on_a_disturbed_axle_counter(ros_context)
         st = status("changeover")
         assert st.level == bytes([2]) and "S1 DISTURBED: track circuit CLEAR, axle counter DISTURBED" in st.message
         assert combined and [s.state for s in combined[-1].sections] == [DISTURBED, CLEAR]
+        # the voting node reports on its own diagnostics period: wait for its report of the change
+        spin(3.0, lambda: status("combined wayside detection") is not None
+             and status("combined wayside detection").level == bytes([2]))
         assert status("combined wayside detection").level == bytes([2])
     finally:
         for n in (ctrl, vote_node, probe):

@@ -64,7 +64,9 @@ def replay_graph(bag: str, scenario: str, sensors: list[str], out_bag: str, rate
                 # every node on /clock (the fusion listens to no played topic: without it, the first
                 # seconds were played before it was up on a loaded machine)
                 "wait_for_subscribers": len(classes) + (len(played) if record else 0),
-                "wait_for_clock_subscribers": len(classes) + 1 + int(record)}
+                "wait_for_clock_subscribers": len(classes) + 1 + int(record),
+                # the fusion has /clock from its creation, its inputs once set up (its state publisher)
+                "wait_for_publishers": [f"{namespace.rstrip('/')}/localization/state"]}
     if namespace.rstrip("/") != NAMESPACE:
         replayer["remap"] = [f"{t}:={namespace.rstrip('/')}{t[len(NAMESPACE):]}" for t in played]
     nodes.append(("replayer", "replayer", replayer))

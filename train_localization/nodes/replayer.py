@@ -16,8 +16,11 @@ Parameters:
   wait_for_subscribers (int, 0)  before playing, wait (at most 60 s) until the
                              played topics have this many matched subscribers in all
   wait_for_clock_subscribers (int, 0)  ... and /clock this many (every node with
-                             use_sim_time: a node that listens to no played topic, the
-                             fusion, is up once it has /clock)
+                             use_sim_time)
+  wait_for_publishers (string[], [])  ... and a publisher on each of these topics: a node
+                             that listens to no played topic (the fusion: its
+                             localization/state) has /clock from its creation, but
+                             listens to its inputs only once it is set up
 A truncated bag (its recorder killed) is played up to its last complete chunk, with a
 warning.
 """
@@ -58,6 +61,8 @@ class ReplayerNode(Node):
         self.wait_for = int(declare(self, "wait_for_subscribers", 0, "matched subscribers to wait for"))
         self.wait_for_clock = int(declare(self, "wait_for_clock_subscribers", 0,
                                           "matched /clock subscribers to wait for (nodes with use_sim_time)"))
+        self.wait_for_publishers = [str(t) for t in declare(
+            self, "wait_for_publishers", [""], "topics that must have a publisher before playing") if t]
         self.pubs = {}
         self.published = 0
         self.finished = False
@@ -101,7 +106,8 @@ class ReplayerNode(Node):
     def _run(self):
         deadline = time.monotonic() + 60.0
         while ((sum(p.get_subscription_count() for p in self.pubs.values()) < self.wait_for
-                or (self.clock_pub is not None and self.clock_pub.get_subscription_count() < self.wait_for_clock))
+                or (self.clock_pub is not None and self.clock_pub.get_subscription_count() < self.wait_for_clock)
+                or any(self.count_publishers(t) < 1 for t in self.wait_for_publishers))
                and time.monotonic() < deadline and not self._stop.is_set()):
             self._stop.wait(0.05)
         self._stop.wait(0.5)  # let subscribers match

@@ -20,19 +20,16 @@ from rclpy.node import Node
 
 from ..core import convert
 from ..core.association import Associator, FusedState
-from ..core.scenario import Scenario, ScenarioError
+from ..core.scenario import ScenarioError
 from ..core.sensors import spec as sensor_spec
 from ..core.signals import InputRejected
-from .common import STREAM_QOS, ConfigurationError, Diagnostics, declare, rclpy_classes, spin
+from .common import STREAM_QOS, Diagnostics, declare, rclpy_classes, required_scenario, spin
 
 
 class AssociationNode(Node):
     def __init__(self):
         super().__init__("association")
-        path = declare(self, "scenario", "", "line scenario YAML", read_only=True)
-        if not path:
-            raise ConfigurationError("parameter 'scenario' is required (a line scenario YAML file)")
-        line = Scenario.from_yaml(path)
+        line = required_scenario(self, "line scenario YAML", "a line scenario YAML file")
         if not line.line:
             raise ScenarioError(f"scenario {line.name} has one train: nothing to associate")
         defaults = Associator.for_trains({}, {}, line.association)

@@ -214,6 +214,16 @@ class ManagedNode(LifecycleNode):
         return super().on_deactivate(state)
 
 
+
+def required_scenario(node: Node, description: str, needed: str):
+    """The scenario of the read-only parameter ``scenario`` (its ``description``); a node
+    that cannot run without one stops in one line naming what it ``needed``."""
+    from ..core.scenario import Scenario
+    path = declare(node, "scenario", "", description, read_only=True)
+    if not path:
+        raise ConfigurationError(f"parameter 'scenario' is required ({needed})")
+    return Scenario.from_yaml(path)
+
 def now_sec(node: Node) -> float:
     return node.get_clock().now().nanoseconds * 1e-9
 

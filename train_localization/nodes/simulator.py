@@ -35,26 +35,22 @@ from rosgraph_msgs.msg import Clock
 from rclpy.node import Node
 
 from ..core.convert import raw_block_to_msg, sec_to_ns, train_state_to_msg
-from ..core.scenario import Scenario
 from .common import (CLOCK_QOS, LATCHED_QOS, STREAM_QOS, ConfigurationError, Diagnostics, declare, rclpy_classes,
-                     spin)
+                     required_scenario, spin)
 
 
 class SimulatorNode(Node):
     def __init__(self):
         super().__init__("simulator")
-        path = declare(self, "scenario", "", "scenario YAML file", read_only=True)
+        self.scenario = required_scenario(self, "scenario YAML file", "a scenario YAML file")
         self.rate = float(declare(self, "rate", 1.0, "speed-up over real time; 0 = as fast as possible",
                                   read_only=True))
         self.start_delay = float(declare(self, "start_delay", 1.0, "wall seconds before t = 0 [s]", read_only=True))
         self.exit_at_end = bool(declare(self, "exit_at_end", True, "shut down after the last state", read_only=True))
         self.wait_for = int(declare(self, "wait_for_subscribers", 0, "subscribers of ground_truth/state to wait for",
                                     read_only=True))
-        if not path:
-            raise ConfigurationError("parameter 'scenario' is required (a scenario YAML file)")
         if not self.rate >= 0.0:
             raise ConfigurationError(f"parameter 'rate' must be >= 0 (0: as fast as possible), not {self.rate}")
-        self.scenario = Scenario.from_yaml(path)
         self.dynamics = None
         if self.scenario.control and self.scenario.line:
             raise ConfigurationError("a closed-loop scenario (control) runs one train, not a line")

@@ -22,17 +22,13 @@ from std_msgs.msg import Float64
 from ..core.control import SpeedController, control_config
 from ..core.convert import stamp_to_sec
 from ..core.dynamics import Dynamics
-from ..core.scenario import Scenario
-from .common import STREAM_QOS, ConfigurationError, Diagnostics, declare, rclpy_classes, spin
+from .common import STREAM_QOS, ConfigurationError, Diagnostics, rclpy_classes, required_scenario, spin
 
 
 class SpeedControllerNode(Node):
     def __init__(self):
         super().__init__("speed_controller")
-        path = declare(self, "scenario", "", "scenario YAML with a 'control' section", read_only=True)
-        if not path:
-            raise ConfigurationError("parameter 'scenario' is required (a scenario YAML with 'control')")
-        sc = Scenario.from_yaml(path)
+        sc = required_scenario(self, "scenario YAML with a 'control' section", "a scenario YAML with 'control'")
         if not sc.control:
             raise ConfigurationError(f"scenario {sc.name} has no 'control' section")
         params, setpoints = control_config(sc.control)

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field, fields, replace
 from typing import Any, Callable
 
 import numpy as np
+from scipy.signal import lfilter
 
 from ..measurements import Measurement
 from ..scenario import TruthBuffer, Vehicle
@@ -194,6 +195,14 @@ class ErrorModel:
         cast = {k: (tuple(v) if k == "faults" else bool(v) if kinds[k] is bool else float(v))
                 for k, v in values.items()}
         return replace(self, **cast)
+
+
+def gauss_markov(rng: np.random.Generator, sigma: float, tau: float, dt: float, n: int, last: float) -> np.ndarray:
+    """n further samples, dt [s] apart, of a first-order Gauss-Markov process of 1-sigma ``sigma``
+    and correlation time ``tau`` [s] whose previous sample was ``last`` (exact discretisation)."""
+    phi = math.exp(-dt / tau)
+    w = rng.normal(0.0, sigma * math.sqrt(1.0 - phi * phi), n)
+    return lfilter([1.0], [1.0, -phi], w, zi=[phi * last])[0]
 
 
 def continuous_timeout(params: dict) -> float:

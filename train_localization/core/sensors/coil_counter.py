@@ -83,7 +83,7 @@ from scipy.signal import lfilter
 
 from ..signals import InputRejected, RawBlock
 from ..track import Track, TrackError, extent
-from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator, continuous_timeout
+from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator, continuous_timeout, gauss_markov
 from .wheel import _QUAD_INDEX, CycleCounter, IncrementEstimator, increment_or_reject, restart_after_gap
 
 KIND = "null_flux_coils"
@@ -234,9 +234,7 @@ class CoilCounterSimulator(Simulator):
         p = self.params
         n = len(times)
         dt = 1.0 / self.sample_rate
-        phi = math.exp(-dt / p["gap_tau"])
-        w = self.rng.normal(0.0, p["gap_sigma"] * math.sqrt(1.0 - phi * phi), n)
-        dev, _ = lfilter([1.0], [1.0, -phi], w, zi=[phi * self._gap_dev])
+        dev = gauss_markov(self.rng, p["gap_sigma"], p["gap_tau"], dt, n, self._gap_dev)
         self._gap_dev = float(dev[-1])
         gap = np.maximum(p["gap"] + dev, 0.2 * p["gap"])
         noise = self.rng.normal(0.0, p["noise"], (n, 2))

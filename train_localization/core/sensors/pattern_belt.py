@@ -77,7 +77,7 @@ from scipy.signal import lfilter
 
 from ..signals import InputRejected, RawBlock
 from ..track import Track, extent
-from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator, continuous_timeout
+from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator, continuous_timeout, gauss_markov
 from .wheel import CycleCounter, IncrementEstimator, increment_or_reject, restart_after_gap
 
 KIND = "pattern_belt"
@@ -212,6 +212,21 @@ def flux_table(period: float, wide_fraction: float, loop_width: float, coil_leng
     return out
 
 
+def table_lookup(table: np.ndarray, frac: np.ndarray, gap: np.ndarray, gaps: tuple) -> np.ndarray:
+    """Bilinear interpolation of a (gap, place in the period) table (its last column the first
+    again) at fractions ``frac`` [0, 1) of the period and gaps [m] (clipped to the evenly spaced
+    ``gaps`` of its rows)."""
+    nx = table.shape[1] - 1
+    fx = frac * nx
+    jx = np.minimum(fx.astype(np.int64), nx - 1)
+    wx = fx - jx
+    gz = (np.clip(gap, gaps[0], gaps[-1]) - gaps[0]) / (gaps[1] - gaps[0])
+    jz = np.minimum(gz.astype(np.int64), len(gaps) - 2)
+    wz = gz - jz
+    return ((1 - wz) * ((1 - wx) * table[jz, jx] + wx * table[jz, jx + 1])
+            + wz * ((1 - wx) * table[jz + 1, jx] + wx * table[jz + 1, jx + 1]))
+
+
 def geometry(params: dict) -> dict:
     """Resolved loop/coil geometry of a parameter set."""
     p = params["period"]
@@ -317,25 +332,13 @@ class PatternBeltSimulator(Simulator):
         ic = np.clip(i, 0, len(sec) - 1)
         inside = (i >= 0) & (x < sec[ic, 1])
         frac = np.mod((x - sec[ic, 0]) / sec[ic, 2], 1.0)
-        nx = self._table.shape[1] - 1
-        fx = frac * nx
-        jx = np.minimum(fx.astype(np.int64), nx - 1)
-        wx = fx - jx
-        gz = (np.clip(gap, self._gaps[0], self._gaps[-1]) - self._gaps[0]) / (self._gaps[1] - self._gaps[0])
-        jz = np.minimum(gz.astype(np.int64), len(self._gaps) - 2)
-        wz = gz - jz
-        t = self._table
-        amp = ((1 - wz) * ((1 - wx) * t[jz, jx] + wx * t[jz, jx + 1])
-               + wz * ((1 - wx) * t[jz + 1, jx] + wx * t[jz + 1, jx + 1]))
-        return np.where(inside, amp, 0.0)
+        return np.where(inside, table_lookup(self._table, frac, gap, self._gaps), 0.0)
 
     def samples(self, times, position, speed, acceleration):
         p = self.params
         n = len(times)
         dt = 1.0 / self.sample_rate
-        phi = math.exp(-dt / p["gap_tau"])
-        w = self.rng.normal(0.0, p["gap_sigma"] * math.sqrt(1.0 - phi * phi), n)
-        dev, zi = lfilter([1.0], [1.0, -phi], w, zi=[phi * self._gap_dev])
+        dev = gauss_markov(self.rng, p["gap_sigma"], p["gap_tau"], dt, n, self._gap_dev)
         self._gap_dev = float(dev[-1])
         gap = p["gap"] + dev
         noise = self.rng.normal(0.0, p["noise"], (2, n, 3))

@@ -47,8 +47,9 @@ import numpy as np
 from scipy.signal import lfilter
 
 from ..signals import RawBlock
-from .base import ErrorModel, Param, SensorSpec, Simulator, continuous_timeout
-from .pattern_belt import PARAMS as BELT_PARAMS, PatternBeltDecoder, flux_table, geometry, resolvable_speed
+from .base import ErrorModel, Param, SensorSpec, Simulator, continuous_timeout, gauss_markov
+from .pattern_belt import (PARAMS as BELT_PARAMS, PatternBeltDecoder, flux_table, geometry, resolvable_speed,
+                           table_lookup)
 
 ADDER_PERIOD = 0.21          # [m] seed 003 section 4.1: one period of the adder output
 SEED_INDUCTANCE = 11.14e-6   # [H] seed 003 section 3.1: equivalent inductance of the loop
@@ -223,25 +224,14 @@ class RigLoopSimulator(Simulator):
         self._lp_zi = np.zeros((3, 1))
 
     def _lookup(self, table: np.ndarray, x: np.ndarray, gap: np.ndarray) -> np.ndarray:
-        """Bilinear interpolation of a (gap, position in the period) table."""
-        period = self.params["period"]
-        nx = table.shape[1] - 1
-        fx = np.mod(x / period, 1.0) * nx
-        jx = np.minimum(fx.astype(np.int64), nx - 1)
-        wx = fx - jx
-        gz = (np.clip(gap, self._gaps[0], self._gaps[-1]) - self._gaps[0]) / (self._gaps[1] - self._gaps[0])
-        jz = np.minimum(gz.astype(np.int64), len(self._gaps) - 2)
-        wz = gz - jz
-        return ((1 - wz) * ((1 - wx) * table[jz, jx] + wx * table[jz, jx + 1])
-                + wz * ((1 - wx) * table[jz + 1, jx] + wx * table[jz + 1, jx + 1]))
+        """A (gap, position in the period) table at loop coordinates x [m] and gaps [m]."""
+        return table_lookup(table, np.mod(x / self.params["period"], 1.0), gap, self._gaps)
 
     def samples(self, times, position, speed, acceleration):
         p = self.params
         n = len(times)
         dt = 1.0 / self.sample_rate
-        phi = math.exp(-dt / p["gap_tau"])
-        w = self.rng.normal(0.0, p["gap_sigma"] * math.sqrt(1.0 - phi * phi), n)
-        dev, _ = lfilter([1.0], [1.0, -phi], w, zi=[phi * self._gap_dev])
+        dev = gauss_markov(self.rng, p["gap_sigma"], p["gap_tau"], dt, n, self._gap_dev)
         self._gap_dev = float(dev[-1])
         gap = p["gap"] + dev
         noise = self.rng.normal(0.0, p["noise"], (2, n, 3))

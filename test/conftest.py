@@ -119,3 +119,13 @@ def lifecycle_replies(node, change_client, timeout: float = 30.0) -> bool:
                     attempts=1, wait=2.0) is not None:
             return True
     return False
+
+
+def claimed_states(result, traj):
+    """(estimates that claim a position (stddev < 10 m), fraction of them whose interval holds
+    the truth, their position errors [m]) of a simulate_scenario result against its trajectory."""
+    import numpy as np
+    est = [e for e in result.estimates if e.position_stddev < 10.0]
+    truth = np.interp(np.array([e.stamp for e in est]), traj.t, traj.position)
+    inside = np.mean([(e.position_min <= x <= e.position_max) for e, x in zip(est, truth)])
+    return est, inside, np.array([e.position for e in est]) - truth

@@ -11,6 +11,7 @@ import math
 import numpy as np
 import pytest
 
+from conftest import claimed_states
 from train_localization.core.measurements import CLEAR, OCCUPIED, PositionFix, SectionOccupancy
 from train_localization.core.offline import simulate_scenario
 from train_localization.core.pipeline import simulate_and_decode
@@ -237,11 +238,7 @@ def test_hsst_scenario_through_the_fusion_keeps_the_truth_inside_its_interval():
     assert set(sc.sensors) == {"pattern_belt", NODE}
     sc.duration = 50.0
     result = simulate_scenario(sc)
-    traj = sc.trajectory()
-    est = [e for e in result.estimates if e.position_stddev < 10.0]
-    t = np.array([e.stamp for e in est])
-    truth = np.interp(t, traj.t, traj.position)
-    inside = np.mean([(e.position_min <= x <= e.position_max) for e, x in zip(est, truth)])
+    est, inside, _ = claimed_states(result, sc.trajectory())
     assert inside == 1.0 and len(est) > 0.5 * sc.duration * 200
     accepted = result.runner.filter.counters()["accepted"]
     assert accepted.get("checkin", 0) >= 2 and accepted.get("pattern_belt", 0) > 100, accepted

@@ -11,6 +11,7 @@ import math
 import numpy as np
 import pytest
 
+from conftest import claimed_states
 from train_localization.core.offline import simulate_scenario
 from train_localization.core.pipeline import SensorPipeline, simulate_and_decode
 from train_localization.core.scenario import Scenario, Vehicle
@@ -267,12 +268,7 @@ def test_mlx_scenario_through_the_fusion_keeps_the_truth_inside_its_interval():
     assert set(sc.sensors) == {"wheel_sensor", "coil_counter", "emf_observer", "mmwave_ranging"}
     sc.duration = 35.0
     result = simulate_scenario(sc)
-    traj = sc.trajectory()
-    est = [e for e in result.estimates if e.position_stddev < 10.0]
-    t = np.array([e.stamp for e in est])
-    truth = np.interp(t, traj.t, traj.position)
-    inside = np.mean([(e.position_min <= x <= e.position_max) for e, x in zip(est, truth)])
-    err = np.array([e.position for e in est]) - truth
+    est, inside, err = claimed_states(result, sc.trajectory())
     assert len(est) > 0.95 * sc.duration * 200 and inside >= 0.999
     assert np.sqrt(np.mean(err ** 2)) < 0.1
     accepted = result.runner.filter.counters()["accepted"]

@@ -20,10 +20,10 @@ from pathlib import Path
 
 import yaml
 
-from ..core.paths import SOURCE_ROOT
-from ..graph import LEAN_EXCLUDE, lean_exclude
 from ..core.offline import replay_line, scenario_from_bag
+from ..core.paths import SOURCE_ROOT
 from ..core.report import line_report
+from ..graph import LEAN_EXCLUDE, lean_exclude
 from .demo import run_graph, run_line_graph
 from .replay import report_for
 

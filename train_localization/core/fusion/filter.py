@@ -157,7 +157,8 @@ class _Aux:
     __slots__ = ("initialised", "t", "last_accepted", "slip_until", "accepted", "gated", "slips",
                  "speed_sources", "nis", "fix_ref", "last_fix_accepted", "fix_nis", "slip_window",
                  "alternative", "events", "unverified", "s_last_fix", "relative_alternatives", "suspended",
-                 "candidate", "used_refs", "peer_speeds", "peer_run", "motion_views", "view_speeds")
+                 "candidate", "used_refs", "peer_speeds", "peer_run", "motion_views", "view_speeds",
+                 "episode_views", "fault_windows")
 
     def __init__(self):
         self.initialised = False
@@ -185,6 +186,13 @@ class _Aux:
         # the speed each of those sensors last read -> (stamp [s], speed [m/s], its own variance
         # [m^2/s^2]): the published speed uncertainty covers it while its view is undecided
         self.view_speeds: dict[str, tuple] = {}
+        # a sensor excluded for a slip or slide (its own fault, not kept in the interval): its
+        # view all the same, in the format of relative_alternatives; and each excluded sensor
+        # with a bounded fault duration: (its first excluded reading [s], disagreement window,
+        # readings n, and the sums of e v / S, v^2 / S, e^2 / S of its disagreements e [m/s] at the
+        # filter's speeds v [m/s], S their variances: the fit of a scale error of the others)
+        self.episode_views: dict[str, tuple] = {}
+        self.fault_windows: dict[str, tuple] = {}
         self.candidate: tuple | None = None             # first fix awaiting confirmation
         self.used_refs: tuple = ()                     # (sensor, reference) of the last accepted fixes
         # speed sources found faulty -> (agreeing since [s], window, fault seen: (disagreement [m/s],
@@ -238,6 +246,17 @@ def _speed_excluded(aux: _Aux, cls: str, stamp: float) -> bool:
     return cls in aux.suspended or aux.slip_until.get(cls, -math.inf) > stamp
 
 
+def _shows(fault: tuple | None, speed: float, variance: float, gate: float) -> bool:
+    """Whether a fault seen as a disagreement e0 [m/s] at speed v0 [m/s] (a scale error: e0 v / v0
+    at speed v, at most e0) stands out of a test statistic of ``variance`` [m^2/s^2] at the
+    chi-square ``gate``; None (size unknown) counts as shown."""
+    if fault is None:
+        return True
+    e0, v0 = abs(fault[0]), abs(fault[1])
+    e = e0 * (min(1.0, abs(speed) / v0) if v0 > 0.0 else 1.0)
+    return e * e >= gate * variance
+
+
 def _inc(counter: dict, key: str) -> dict:
     new = dict(counter)
     new[key] = new.get(key, 0) + 1
@@ -267,6 +286,9 @@ class TrainFilter:
         self._consistency = float(chi2.ppf(cfg.consistency_probability, cfg.consistency_fixes)) / \
             cfg.consistency_fixes
         self._z = float(norm.ppf(0.5 + cfg.confidence / 2.0))
+        # speed sources whose fault modes all end by themselves within a bounded time (a wheel)
+        self._bounded = frozenset(s for s, m in self.models.items() if s in self.layout.episode_sensors
+                                  and math.isfinite(m.fault_duration_max) and "scale_fault" not in m.faults)
         self.timeouts = {s: m.timeout for s, m in self.models.items() if math.isfinite(m.timeout)}
         self._est_cache: tuple = (None, None)
         self._eye = np.eye(self.n)
@@ -367,9 +389,10 @@ class TrainFilter:
             # the filter, on its speed sources again, explains an absolute fix: it is confirmed,
             # and an old coasting's motion-model hypothesis (however vague) is no longer needed
             aux.motion_views = tuple(v for v in aux.motion_views if v[0] != "moved")
-        if cls in aux.suspended and self._suspended(m, z - hx, S, nis, self._common(cls, h)):
-            return
-        if cls in self.layout.episode_sensors and self._slipping(m, z - hx, S, nis):
+        if (cls in aux.suspended and self._suspended(m, z - hx, S, nis, self._common(cls, h))) or \
+                (cls in self.layout.episode_sensors and self._slipping(m, z - hx, S, nis)):
+            if cls in self._bounded:
+                self._outlasted(m, z, R, hx, S, h)
             return
         if is_fix and aux.relative_alternatives and self._decide_relative(m, z, R, hx, S, nis):
             return
@@ -388,6 +411,9 @@ class TrainFilter:
         aux.nis = {**aux.nis, cls: (count + 1, total + nis)}
         aux.accepted = _inc(aux.accepted, cls)
         aux.last_accepted = {**aux.last_accepted, cls: m.stamp}
+        if cls in aux.episode_views or cls in aux.fault_windows:
+            aux.episode_views = {k: v for k, v in aux.episode_views.items() if k != cls}
+            aux.fault_windows = {k: v for k, v in aux.fault_windows.items() if k != cls}
         if is_fix:
             self._fix_accepted(m, nis)
         elif cls not in aux.speed_sources:
@@ -506,9 +532,12 @@ class TrainFilter:
                    ("slide" in faults and drive <= -limit and excess < 0.0)
         # without another speed source the disagreement is with the motion model alone
         physical = physical and self._reference_ok(m)
+        view = (0.0, 0.0, m.stamp, m.stamp, 0.0, 0.0, float(self.ekf.P[0, 0]))
+        if physical and m.sensor not in aux.episode_views and m.sensor in self._bounded:
+            aux.episode_views = {**aux.episode_views, m.sensor: view}   # its own fault: not in the interval
         if not physical and m.sensor not in aux.relative_alternatives:
-            aux.relative_alternatives = {**aux.relative_alternatives, m.sensor: (
-                0.0, 0.0, m.stamp, m.stamp, 0.0, 0.0, float(self.ekf.P[0, 0]))}
+            aux.relative_alternatives = {**aux.relative_alternatives, m.sensor: view}
+            aux.episode_views = {k: v for k, v in aux.episode_views.items() if k != m.sensor}
             aux.events = _inc(aux.events, "ambiguous_slip")
         if not physical and m.sensor not in aux.suspended:
             # suspected faulty: back only after agreeing for slip_window s without being applied
@@ -516,20 +545,91 @@ class TrainFilter:
             self._suspend(m.sensor, (shown, v))
 
     def _separate(self, m, e: float, S: float) -> None:
-        """While a sensor is excluded as the alternative, add up how far it ran ahead [m], the
-        white part of its variance and the distance run (its scale error is common to all)."""
+        """While a sensor is excluded as the alternative (or for its own slip: ``episode_views``),
+        add up how far it ran ahead [m], the white part of its variance and the distance run
+        (its scale error is common to all)."""
         aux = self.aux
         alt = aux.relative_alternatives.get(m.sensor)
-        if alt is None:
-            return
+        own = alt is None
+        if own:
+            alt = aux.episode_views.get(m.sensor)
+            if alt is None:
+                return
         D, white, since, last, run, far, base = alt
         d = getattr(m, "duration", 0.0) or (m.stamp - last)   # a speed holds since the previous one
         R = max(S - float(self.ekf.P[1, 1]), 0.0)              # its own noise (speed units), roughly
         D += e * d
+        view = (D, white + R * d * d, since, m.stamp, run + abs(float(self.ekf.x[1, 0])) * d,
+                D if abs(D) > abs(far) else far, base)
+        if own:
+            aux.episode_views = {**aux.episode_views, m.sensor: view}
+            return
         aux.view_speeds = {**aux.view_speeds, m.sensor: (m.stamp, float(self.ekf.x[1, 0]) + e, R)}
-        aux.relative_alternatives = {**aux.relative_alternatives, m.sensor: (
-            D, white + R * d * d, since, m.stamp, run + abs(float(self.ekf.x[1, 0])) * d,
-            D if abs(D) > abs(far) else far, base)}
+        aux.relative_alternatives = {**aux.relative_alternatives, m.sensor: view}
+
+    def _outlasted(self, m, z: float, R: float, hx: float, S: float, h) -> None:
+        """Sensor ``m.sensor``, excluded, whose fault modes all end by themselves (a wheel's slip
+        or slide, at most ``fault_duration_max`` s): if it has been excluded for longer and it
+        still disagrees (its innovations summed over ``slip_window`` s, its own error states
+        common to them), its fault modes no longer explain the disagreement. If all along one
+        speed source with a persistent fault mode (a radar scale fault) was in use, alone, and
+        the disagreement since fits one scale error of it (weighted least squares of the disagreements against
+        the speed, the residual inside the chi-square quantile of ``slip_gate_probability``: back-
+        to-back slips of different ratios do not), that one is the faulty one, and the two swap
+        roles (``_swap``); with more sources in use the majority stands."""
+        aux, cls, stamp = self.aux, m.sensor, m.stamp
+        view = aux.relative_alternatives.get(cls) or aux.episode_views.get(cls)
+        recent = stamp - self.cfg.slip_reference_timeout
+        in_use = [s for s in aux.speed_sources if s != cls and not _speed_excluded(aux, s, stamp)
+                  and aux.last_accepted.get(s, -math.inf) > recent]
+        if view is None or len(in_use) != 1 or "scale_fault" not in self.models[in_use[0]].faults:
+            # the evidence counts only while one source with a persistent fault mode is in use
+            aux.fault_windows = {k: v for k, v in aux.fault_windows.items() if k != cls}
+            return
+        since, window, n, s_ev, s_vv, s_ee = aux.fault_windows.get(cls, (stamp, (), 0, 0.0, 0.0, 0.0))
+        e, v = z - hx, float(self.ekf.x[1, 0])
+        window, summed = self._windowed(window, m, e, S, self._common(cls, h))
+        n, s_ev, s_vv, s_ee = n + 1, s_ev + e * v / S, s_vv + v * v / S, s_ee + e * e / S
+        aux.fault_windows = {**aux.fault_windows, cls: (since, window, n, s_ev, s_vv, s_ee)}
+        # the whole window past the longest episode the sensor's model allows
+        if summed <= self._slip_gate or n < 3 or s_vv <= 0.0 or \
+                stamp - self.cfg.slip_window - since <= self.models[cls].fault_duration_max:
+            return
+        # a scale error of the source in use is one ratio throughout; a chain of slips is not
+        # (their ratios differ, and each ramps down to none): the residual of that fit
+        if s_ee - s_ev * s_ev / s_vv <= chi2.ppf(self.cfg.slip_gate_probability, n - 1):
+            self._swap(m, z, R, view, in_use[0])
+
+    def _swap(self, m, z: float, R: float, view: tuple, other: str) -> None:
+        """The excluded sensor ``m.sensor`` was right and ``other``, the speed source in use, is
+        faulty: the filter takes the excluded sensor's view (its separation D added to the
+        position, the view's spread to the position variance, the speed from this reading), and
+        ``other``'s view becomes the alternative (-D: where it puts the train) while it is
+        suspended for the fault seen. The interval keeps covering both until a fix decides; the
+        filter awaits one (DEGRADED)."""
+        aux, cls, stamp = self.aux, m.sensor, m.stamp
+        D, white, since, last, run, _, base = view
+        var_D = self._alternative_spread(cls, view)[1]
+        u, u_white, u_common = implied_speed(self.layout, self.ekf.x, self.ekf.P, m, z, R)
+        x, P = self.ekf.x.copy(), self.ekf.P.copy()
+        x[0, 0] += D
+        P[0, 0] = max(P[0, 0], base + var_D)
+        # its speed, a new error; the acceleration, which a scale error hardly changes, is kept
+        x[1, 0] = u
+        P[1, :] = 0.0
+        P[:, 1] = 0.0
+        P[1, 1] = u_white + u_common
+        self.ekf.x, self.ekf.P = x, P
+        aux.relative_alternatives = {**{k: v for k, v in aux.relative_alternatives.items() if k != cls},
+                                     other: (-D, white, since, last, run, -D, base)}
+        aux.episode_views = {k: v for k, v in aux.episode_views.items() if k != cls}
+        aux.fault_windows = {k: v for k, v in aux.fault_windows.items() if k != cls}
+        aux.view_speeds = {k: v for k, v in aux.view_speeds.items() if k != cls}
+        aux.slip_window = {k: v for k, v in aux.slip_window.items() if k != cls}
+        self._end_exclusion(cls, stamp)
+        self._suspend(other, self._view_fault(aux.relative_alternatives[other], stamp))
+        aux.events = _inc(aux.events, "speed_sources_swapped")
+        aux.unverified = "speed_sources_swapped"
 
     def _alternative_spread(self, cls: str, alt: tuple) -> tuple[float, float]:
         """(separation D [m], its variance [m^2]) of a relative alternative."""
@@ -761,7 +861,10 @@ class TrainFilter:
                   peers: dict) -> str | None:
         """Extend the run of agreement of ``cls`` with an excluded peer: each reading inside the
         slip gate of the pair's variance, and their mean difference inside the slip gate of its
-        own (white parts averaged, common parts not). The peer once it has lasted ``slip_window`` s."""
+        own (white parts averaged, common parts not). The peer once it has lasted ``slip_window`` s,
+        and only if the fault each of the two was suspended for would stand out of that mean
+        difference's spread (``_shows``): two sources whose common errors are wider than a radar's
+        scale fault "agree" with a slipping wheel as well."""
         aux, cfg, gate = self.aux, self.cfg, self._slip_gate
         run = aux.peer_run
         fits = [c for c, p in peers.items() if (u - p[1]) ** 2 <= gate * (white + common + p[2] + p[3])]
@@ -779,7 +882,11 @@ class TrainFilter:
             aux.peer_run = None
             return None
         aux.peer_run = (pair, run[1], stamp, n, sum_d, sum_white)
-        return pairs[pair] if stamp - run[1] >= cfg.slip_window else None
+        if stamp - run[1] < cfg.slip_window:
+            return None
+        spread = sum_white / (n * n) + common + p[3]
+        faults = [aux.suspended[c][2] for c in pair if c in aux.suspended]
+        return pairs[pair] if all(_shows(f, u, spread, gate) for f in faults) else None
 
     def _set_speed(self, readings: list, middle: bool = False) -> None:
         """Speed from readings [(speed, variance)]: their weighted mean (``middle``: the middle
@@ -863,8 +970,9 @@ class TrainFilter:
 
         If the states of one sensor alone left it, that sensor is outside its own error
         model (a radar scale fault with no other speed source to disagree with): it is also
-        suspended until it agrees again. States of several sensors: a fault was absorbed
-        between them (a slip learnt as scales), which one cannot be told."""
+        suspended until it agrees again, its view kept as the alternative if another speed source
+        may be the faulty one. States of several sensors: a fault was absorbed between them (a
+        slip learnt as scales), which one cannot be told."""
         idx = self.layout.relative_states
         if not len(idx):
             return
@@ -878,7 +986,14 @@ class TrainFilter:
         if len(owners) == 1:
             (cls,) = owners
             self._suspend(cls, self._state_fault(cls, x_before))
-            self.aux.events = _inc(self.aux.events, "implausible_sensor_suspended")
+            aux = self.aux
+            aux.events = _inc(aux.events, "implausible_sensor_suspended")
+            if aux.speed_sources - {cls} and cls not in aux.relative_alternatives:
+                # which state absorbs a disagreement follows the priors, not the fault: the other
+                # speed source may be the faulty one, so the suspended sensor's view is kept
+                aux.relative_alternatives = {**aux.relative_alternatives, cls: (
+                    0.0, 0.0, aux.t, aux.t, 0.0, 0.0, float(self.ekf.P[0, 0]))}
+                aux.episode_views = {k: v for k, v in aux.episode_views.items() if k != cls}
 
     def _state_fault(self, cls: str, x) -> tuple:
         """The fault that relative sensor ``cls``'s error states in x had absorbed: (its scale and
@@ -1212,7 +1327,10 @@ class TrainFilter:
         covers the speed each excluded sensor with an undecided view last read (within
         ``slip_reference_timeout`` s), with its own noise: while no fix has decided which
         source is faulty, the speed of either may be the true one (the position interval
-        covers their views the same way)."""
+        covers their views the same way). While the filter coasts between disagreeing
+        sources it also covers the motion model's speed from the start of the coasting: both
+        sources may be wrong the same way (a slip during a radar scale fault), and the middle
+        of two readings that happen to be close is no measurement."""
         half = self._z * sd_v
         for cls in aux.relative_alternatives:
             reading = aux.view_speeds.get(cls)
@@ -1220,6 +1338,10 @@ class TrainFilter:
                 continue
             _, u, R = reading
             half = max(half, abs(u - v) + self._z * math.sqrt(R + sd_v * sd_v))
+        if _coasting(aux):
+            _, t_c, s, v_c, a, p = aux.motion_views[-1]
+            _, v_m, _, var_m = _kinematics(s, v_c, a, p, max(t - t_c, 0.0), self.cfg.jerk_psd)
+            half = max(half, abs(v_m - v) + self._z * math.sqrt(var_m))
         return half / self._z
 
     def _motion_view(self, view: tuple, t: float, s_f: float, var_f: float) -> tuple[float, float]:

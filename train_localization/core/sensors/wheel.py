@@ -106,7 +106,12 @@ PARAMS = {
     "slip_ratio_min": Param(0.02, "smallest |slip ratio| of a random episode [fraction]", (0.0, 1.0)),
     "slip_ratio_max": Param(0.20, "largest |slip ratio| of a random episode [fraction] (wheel-slide "
                                   "protection keeps slides below ~20 %)", (0.0, 1.0)),
-    "slip_duration": Param(2.0, "mean length of a random episode [s] (exponential, 0.5..10 s)", (0.0, 60.0)),
+    "slip_duration": Param(2.0, "mean length of a random episode [s] (exponential, 0.5 s .. "
+                                "slip_duration_max)", (0.0, 60.0)),
+    "slip_duration_max": Param(10.0, "longest slip or slide episode [s]: anti-slip control and wheel-slide "
+                                     "protection restore adhesion within it (UIC 541-05 slide cycles last "
+                                     "seconds); the fusion takes a longer disagreement for another "
+                                     "sensor's fault", (0.5, 600.0)),
     "slip_episodes": Param(
         [], "forced episodes, flat list t_start [s], duration [s], slip_ratio, t_start, ... (nested "
         "triples are accepted too); slip_ratio > 0: wheel faster than the train (traction slip), "
@@ -604,7 +609,7 @@ class WheelSimulator(Simulator):
             if t < self._busy_until:
                 continue
             traction = drive[i] > 0
-            dur = float(np.clip(self.rng.exponential(p["slip_duration"]), 0.5, 10.0))
+            dur = float(np.clip(self.rng.exponential(p["slip_duration"]), 0.5, p["slip_duration_max"]))
             mag = float(self.rng.uniform(p["slip_ratio_min"], p["slip_ratio_max"]))
             if traction and not p["driven_axle"]:
                 continue
@@ -699,12 +704,15 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
     """Wheel errors for the fusion: the diameter error, constant between re-calibrations and
     uniform within +-``diameter_tolerance`` (1-sigma tolerance/sqrt(3), which the decoder
     reports inside its stddev); creep under braking, and under traction on a driven axle;
-    slip (driven axle) and slide episodes, which the decoder cannot see."""
+    slip (driven axle) and slide episodes, which the decoder cannot see, none longer than
+    ``slip_duration_max`` or the longest forced episode."""
     scale = params["diameter_tolerance"] / math.sqrt(3.0)
+    forced = np.asarray(params["slip_episodes"], dtype=float).reshape(-1, 3)
+    longest = max(params["slip_duration_max"], float(forced[:, 1].max()) if forced.size else 0.0)
     return ErrorModel("wheel", "distance", scale_sigma=scale, reported_scale=scale,
                       creep_coefficient=params["creep_coefficient"], creep_in_traction=params["driven_axle"],
                       faults=("slip", "slide") if params["driven_axle"] else ("slide",),
-                      timeout=continuous_timeout(params))
+                      fault_duration_max=longest, timeout=continuous_timeout(params))
 
 
 SPEC = SensorSpec(

@@ -246,14 +246,30 @@ def _speed_excluded(aux: _Aux, cls: str, stamp: float) -> bool:
     return cls in aux.suspended or aux.slip_until.get(cls, -math.inf) > stamp
 
 
+def _without(mapping: dict, key: str) -> dict:
+    """A copy of ``mapping`` without ``key`` (the _Aux containers are replaced, never changed)."""
+    return {k: v for k, v in mapping.items() if k != key}
+
+
+def _new_view(stamp: float, P00: float) -> tuple:
+    """A relative sensor's view as it begins at ``stamp`` [s], the filter's position variance
+    P00 [m^2] its base (the format of ``_Aux.relative_alternatives``)."""
+    return (0.0, 0.0, stamp, stamp, 0.0, 0.0, P00)
+
+
+def _fault_at(fault: tuple, speed: float) -> float:
+    """The size [m/s] at ``speed`` [m/s] of a fault seen as a disagreement e0 at speed v0
+    (fault = (e0, v0)): a scale error (e0 v / v0) or a bias (e0), the smaller of the two."""
+    e0, v0 = abs(fault[0]), abs(fault[1])
+    return e0 * (min(1.0, abs(speed) / v0) if v0 > 0.0 else 1.0)
+
+
 def _shows(fault: tuple | None, speed: float, variance: float, gate: float) -> bool:
-    """Whether a fault seen as a disagreement e0 [m/s] at speed v0 [m/s] (a scale error: e0 v / v0
-    at speed v, at most e0) stands out of a test statistic of ``variance`` [m^2/s^2] at the
-    chi-square ``gate``; None (size unknown) counts as shown."""
+    """Whether a fault (``_fault_at``) at ``speed`` [m/s] stands out of a test statistic of
+    ``variance`` [m^2/s^2] at the chi-square ``gate``; None (size unknown) counts as shown."""
     if fault is None:
         return True
-    e0, v0 = abs(fault[0]), abs(fault[1])
-    e = e0 * (min(1.0, abs(speed) / v0) if v0 > 0.0 else 1.0)
+    e = _fault_at(fault, speed)
     return e * e >= gate * variance
 
 
@@ -412,8 +428,8 @@ class TrainFilter:
         aux.accepted = _inc(aux.accepted, cls)
         aux.last_accepted = {**aux.last_accepted, cls: m.stamp}
         if cls in aux.episode_views or cls in aux.fault_windows:
-            aux.episode_views = {k: v for k, v in aux.episode_views.items() if k != cls}
-            aux.fault_windows = {k: v for k, v in aux.fault_windows.items() if k != cls}
+            aux.episode_views = _without(aux.episode_views, cls)
+            aux.fault_windows = _without(aux.fault_windows, cls)
         if is_fix:
             self._fix_accepted(m, nis)
         elif cls not in aux.speed_sources:
@@ -455,7 +471,7 @@ class TrainFilter:
             # the episode ended with a separation that the sensor's own errors explain: no longer
             # tracked as a view of its own, but merged into the position covariance (moment
             # matching of the two views, the filter's mean kept), so the interval still covers it
-            aux.relative_alternatives = {k: v for k, v in aux.relative_alternatives.items() if k != cls}
+            aux.relative_alternatives = _without(aux.relative_alternatives, cls)
             self._merge_view(alt[5] ** 2)
         window, summed = self._windowed(aux.slip_window.get(cls, ()), m, e, S)
         if nis > self._slip_gate or summed > self._slip_gate:
@@ -532,12 +548,12 @@ class TrainFilter:
                    ("slide" in faults and drive <= -limit and excess < 0.0)
         # without another speed source the disagreement is with the motion model alone
         physical = physical and self._reference_ok(m)
-        view = (0.0, 0.0, m.stamp, m.stamp, 0.0, 0.0, float(self.ekf.P[0, 0]))
+        view = _new_view(m.stamp, float(self.ekf.P[0, 0]))
         if physical and m.sensor not in aux.episode_views and m.sensor in self._bounded:
             aux.episode_views = {**aux.episode_views, m.sensor: view}   # its own fault: not in the interval
         if not physical and m.sensor not in aux.relative_alternatives:
             aux.relative_alternatives = {**aux.relative_alternatives, m.sensor: view}
-            aux.episode_views = {k: v for k, v in aux.episode_views.items() if k != m.sensor}
+            aux.episode_views = _without(aux.episode_views, m.sensor)
             aux.events = _inc(aux.events, "ambiguous_slip")
         if not physical and m.sensor not in aux.suspended:
             # suspected faulty: back only after agreeing for slip_window s without being applied
@@ -573,10 +589,11 @@ class TrainFilter:
         still disagrees (its innovations summed over ``slip_window`` s, its own error states
         common to them), its fault modes no longer explain the disagreement. If all along one
         speed source with a persistent fault mode (a radar scale fault) was in use, alone, and
-        the disagreement since fits one scale error of it (weighted least squares of the disagreements against
-        the speed, the residual inside the chi-square quantile of ``slip_gate_probability``: back-
-        to-back slips of different ratios do not), that one is the faulty one, and the two swap
-        roles (``_swap``); with more sources in use the majority stands."""
+        the disagreement since fits one scale error of it (weighted least squares of the
+        disagreements against the speed, the residual inside the chi-square quantile of
+        ``slip_gate_probability``: back-to-back slips of different ratios do not), that one is
+        the faulty one, and the two swap roles (``_swap``); with more sources in use the
+        majority stands."""
         aux, cls, stamp = self.aux, m.sensor, m.stamp
         view = aux.relative_alternatives.get(cls) or aux.episode_views.get(cls)
         recent = stamp - self.cfg.slip_reference_timeout
@@ -584,7 +601,8 @@ class TrainFilter:
                   and aux.last_accepted.get(s, -math.inf) > recent]
         if view is None or len(in_use) != 1 or "scale_fault" not in self.models[in_use[0]].faults:
             # the evidence counts only while one source with a persistent fault mode is in use
-            aux.fault_windows = {k: v for k, v in aux.fault_windows.items() if k != cls}
+            if cls in aux.fault_windows:
+                aux.fault_windows = _without(aux.fault_windows, cls)
             return
         since, window, n, s_ev, s_vv, s_ee = aux.fault_windows.get(cls, (stamp, (), 0, 0.0, 0.0, 0.0))
         e, v = z - hx, float(self.ekf.x[1, 0])
@@ -620,12 +638,12 @@ class TrainFilter:
         P[:, 1] = 0.0
         P[1, 1] = u_white + u_common
         self.ekf.x, self.ekf.P = x, P
-        aux.relative_alternatives = {**{k: v for k, v in aux.relative_alternatives.items() if k != cls},
+        aux.relative_alternatives = {**_without(aux.relative_alternatives, cls),
                                      other: (-D, white, since, last, run, -D, base)}
-        aux.episode_views = {k: v for k, v in aux.episode_views.items() if k != cls}
-        aux.fault_windows = {k: v for k, v in aux.fault_windows.items() if k != cls}
-        aux.view_speeds = {k: v for k, v in aux.view_speeds.items() if k != cls}
-        aux.slip_window = {k: v for k, v in aux.slip_window.items() if k != cls}
+        aux.episode_views = _without(aux.episode_views, cls)
+        aux.fault_windows = _without(aux.fault_windows, cls)
+        aux.view_speeds = _without(aux.view_speeds, cls)
+        aux.slip_window = _without(aux.slip_window, cls)
         self._end_exclusion(cls, stamp)
         self._suspend(other, self._view_fault(aux.relative_alternatives[other], stamp))
         aux.events = _inc(aux.events, "speed_sources_swapped")
@@ -692,7 +710,7 @@ class TrainFilter:
             reading = aux.peer_speeds.get(cls)
             if reading is not None and reading[0] > m.stamp - self.cfg.slip_reference_timeout:
                 self._set_speed([(reading[1], reading[2] + reading[3])])   # its speed, not the middle
-            aux.slip_window = {k: w for k, w in aux.slip_window.items() if k != cls}
+            aux.slip_window = _without(aux.slip_window, cls)
             if view is not None:
                 self._merge_view(view[0] ** 2 + view[1])
             aux.events = _inc(aux.events, "excluded_sensor_confirmed_right")
@@ -719,7 +737,7 @@ class TrainFilter:
         reference to agree with)."""
         aux = self.aux
         aux.slip_until = {**aux.slip_until, cls: stamp}
-        aux.suspended = {k: v for k, v in aux.suspended.items() if k != cls}
+        aux.suspended = _without(aux.suspended, cls)
         aux.last_accepted = {**aux.last_accepted, cls: stamp}
 
     def _merge_view(self, spread: float) -> None:
@@ -785,7 +803,7 @@ class TrainFilter:
         elif since == math.inf:
             since = m.stamp
         if since != math.inf and m.stamp - since >= self.cfg.slip_window and self._would_show(fault, window):
-            aux.suspended = {k: v for k, v in aux.suspended.items() if k != m.sensor}
+            aux.suspended = _without(aux.suspended, m.sensor)
             # its readings of the agreement so far are the slip test's window from here
             aux.slip_window = {**aux.slip_window, m.sensor: window}
             aux.events = _inc(aux.events, "speed_source_restored")
@@ -804,8 +822,7 @@ class TrainFilter:
         agrees at standstill."""
         if fault is None or len(window) < 3:
             return fault is None
-        e0, v0 = abs(fault[0]), abs(fault[1])
-        shown = sum(w[4] * e0 * (min(1.0, w[5] / v0) if v0 > 0.0 else 1.0) for w in window)
+        shown = sum(w[4] * _fault_at(fault, w[5]) for w in window)
         return shown * shown >= self._slip_gate * sum(w[2] for w in window)
 
     def _blind_speed(self, m, z: float, R: float) -> bool:
@@ -991,9 +1008,9 @@ class TrainFilter:
             if aux.speed_sources - {cls} and cls not in aux.relative_alternatives:
                 # which state absorbs a disagreement follows the priors, not the fault: the other
                 # speed source may be the faulty one, so the suspended sensor's view is kept
-                aux.relative_alternatives = {**aux.relative_alternatives, cls: (
-                    0.0, 0.0, aux.t, aux.t, 0.0, 0.0, float(self.ekf.P[0, 0]))}
-                aux.episode_views = {k: v for k, v in aux.episode_views.items() if k != cls}
+                aux.relative_alternatives = {**aux.relative_alternatives,
+                                             cls: _new_view(aux.t, float(self.ekf.P[0, 0]))}
+                aux.episode_views = _without(aux.episode_views, cls)
 
     def _state_fault(self, cls: str, x) -> tuple:
         """The fault that relative sensor ``cls``'s error states in x had absorbed: (its scale and

@@ -238,13 +238,14 @@ def test_an_alternative_view_that_stops_being_tracked_stays_inside_the_interval(
         t = j * 0.05
         f.add(DistanceIncrement(t, "wheel", "w", 0.05, 1.0, 0.005, 20.0, 0.1))
         f.add(SpeedMeasurement(t - 0.025, "doppler", "d", 20.0, 0.05))
-    before = f.estimate(1.0)
+    before = f.state(1.0)[1][0, 0]
     D = -4.0   # the radar ran 4 m behind over 5 km while it was excluded (its scale: 0.5 %, 27 m)
     f.aux.relative_alternatives = {"doppler": (D, 0.01, 0.0, 1.0, 5000.0, D, 0.01)}
     f.add(SpeedMeasurement(1.025, "doppler", "d", 20.0, 0.05))
     after = f.estimate(1.05)
     assert f.counters()["integrity"]["alternative_merged"] == 1
-    assert after.position_stddev ** 2 >= before.position_stddev ** 2 + D ** 2 - 0.01
+    assert f.state(1.05)[1][0, 0] >= before + D ** 2 - 0.01
+    assert after.position_stddev ** 2 >= before + D ** 2 - 0.01
     assert after.position_min <= after.position + D
 
 
@@ -371,7 +372,9 @@ def test_speed_sources_excluded_together_are_restored_by_agreeing_with_each_othe
     assert f.counters()["integrity"]["speed_reacquired"] == 1
     assert all(e.mode == MODE_DEGRADED for t, e, _, _ in checked if 10.0 <= t < 40.0)
     t, e, s, _ = checked[-1]
-    assert e.mode == MODE_NOMINAL and e.position_max - e.position_min < 3.0
+    # the width is the wheel's own solution's (the protection against an undetected radar scale
+    # fault, core/fusion/separation.py), its scale calibrated by the two balises alone
+    assert e.mode == MODE_NOMINAL and e.position_max - e.position_min < 5.0
 
 
 def test_speed_sources_that_never_agree_again_leave_the_filter_honest():

@@ -107,6 +107,7 @@ from .config import FusionConfig, gate_probability
 from .history import History, order_key
 from .layout import StateLayout
 from .models import ProcessModel, implied_speed, measurement
+from . import separation
 
 
 class Mode(IntEnum):
@@ -158,7 +159,7 @@ class _Aux:
                  "speed_sources", "nis", "fix_ref", "last_fix_accepted", "fix_nis", "slip_window",
                  "alternative", "events", "unverified", "s_last_fix", "relative_alternatives", "suspended",
                  "candidate", "used_refs", "peer_speeds", "peer_run", "motion_views", "view_speeds",
-                 "episode_views", "fault_windows")
+                 "episode_views", "fault_windows", "subs")
 
     def __init__(self):
         self.initialised = False
@@ -208,6 +209,8 @@ class _Aux:
         # of a coasting in progress, or ("moved", s [m], var [m^2], filter s [m], filter P00 [m^2])
         # at its end, since moved with the filter
         self.motion_views: tuple = ()
+        # each relative sensor's own solution from the fixes (separation.py): sensor -> Sub
+        self.subs: dict = {}
 
     def copy(self) -> "_Aux":
         new = object.__new__(_Aux)
@@ -306,6 +309,7 @@ class TrainFilter:
         self._bounded = frozenset(s for s, m in self.models.items() if s in self.layout.episode_sensors
                                   and math.isfinite(m.fault_duration_max) and "scale_fault" not in m.faults)
         self.timeouts = {s: m.timeout for s, m in self.models.items() if math.isfinite(m.timeout)}
+        self._subs = separation.sub_models(self.models)
         self._est_cache: tuple = (None, None)
         self._eye = np.eye(self.n)
         self.rejected: dict[str, int] = {}
@@ -341,6 +345,8 @@ class TrainFilter:
             aux.initialised = True
             aux.last_accepted = {"operator": stamp if stamp is not None else 0.0}
             aux.s_last_fix = position
+            aux.subs = {name: separation.seed(sm, stamp if stamp is not None else 0.0, position,
+                                              position_stddev ** 2) for name, sm in self._subs.items()}
         aux.t = stamp
         self._clear((x, P, aux))
         if stamp is not None:
@@ -369,6 +375,12 @@ class TrainFilter:
         self.ekf.P = A.dot(P).dot(A.T) + Kc * (K * R)
 
     def _apply(self, m) -> None:
+        self._apply_policy(m)
+        sm = self._subs.get(m.sensor)
+        if sm is not None and self.aux.initialised:
+            self._sub_reading(m, sm)
+
+    def _apply_policy(self, m) -> None:
         aux = self.aux = self.aux.copy()
         self._predict_to(m.stamp)
         self.applied += 1
@@ -1085,6 +1097,7 @@ class TrainFilter:
         aux.unverified = ""
         aux.last_fix_accepted = m.stamp
         aux.s_last_fix = float(self.ekf.x[0, 0])
+        self._subs_take_fix(m)
         if m.sensor in self.layout.fix:
             return   # a fix with a persistent error: consecutive ones are not independent tests
         window = (aux.fix_nis + (nis,))[-cfg.consistency_fixes:]
@@ -1180,6 +1193,7 @@ class TrainFilter:
         aux.last_accepted = {**aux.last_accepted, cls: m.stamp}
         aux.last_fix_accepted = m.stamp
         aux.s_last_fix = float(x[0, 0])
+        self._seed_subs(m.stamp)
 
     def _new_fix_bias(self, cls: str) -> None:
         """A new reference: its fix bias is independent of the previous one."""
@@ -1190,6 +1204,49 @@ class TrainFilter:
         P[:, i] = 0.0
         P[i, i] = self.layout.prior_sigma[i] ** 2
         self.ekf.x, self.ekf.P = x, P
+
+    # -- solution separation (separation.py) -----------------------------------
+    def _seed_subs(self, stamp: float) -> None:
+        """Every relative sensor's own solution starts again from the filter's position."""
+        s, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
+        self.aux.subs = {name: separation.seed(sm, stamp, s, P00) for name, sm in self._subs.items()}
+
+    def _sub_reading(self, m, sm) -> None:
+        """Sensor ``m.sensor``'s own solution after its reading m; while the filter has
+        excluded it for its own fault (not as an undecided alternative) it follows the filter."""
+        aux, cls = self.aux, m.sensor
+        sub = aux.subs.get(cls)
+        v, var_v = float(self.ekf.x[1, 0]), float(self.ekf.P[1, 1])
+        if sub is None:
+            sub = separation.seed(sm, m.stamp, float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0]))
+        elif _speed_excluded(aux, cls, m.stamp) and cls not in aux.relative_alternatives:
+            sub = separation.follow(sub, m.stamp, v, var_v)
+        else:
+            R = self._measurement(m)[1]
+            sub = separation.reading(sub, sm, m, R, float(self.ekf.x[2, 0]), v, var_v, self.cfg.slip_window)
+        aux.subs = {**aux.subs, cls: sub}
+
+    def _subs_take_fix(self, m) -> None:
+        """An absolute fix the filter accepted updates each sensor's own solution; one that a
+        solution cannot explain refutes it: it starts again from the filter's."""
+        if not self._subs:
+            return
+        aux, cls = self.aux, m.sensor
+        z, R, _, hx = self._measurement(m)
+        x0, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
+        f_idx = self.layout.fix.get(cls)
+        if f_idx is not None:   # the fix's persistent error as the filter knows it
+            z -= hx - x0
+            R += float(self.ekf.P[f_idx, f_idx])
+        v, var_v = float(self.ekf.x[1, 0]), float(self.ekf.P[1, 1])
+        subs = {}
+        for name, sub in aux.subs.items():
+            new = separation.fix(sub, m.stamp, z, R, v, var_v, self._gates[cls])
+            if new is None:
+                new = separation.seed(self._subs[name], m.stamp, x0, P00)
+                aux.events = _inc(aux.events, "sensor_solution_refuted")
+            subs[name] = new
+        aux.subs = subs
 
     # -- input -----------------------------------------------------------------
     def add(self, m) -> None:
@@ -1324,7 +1381,7 @@ class TrainFilter:
             if alt_lo < lo or alt_hi > hi:
                 lo, hi = min(lo, alt_lo), max(hi, alt_hi)
                 sd_s = max(sd_s, (hi - lo) / (2.0 * self._z))
-                mode = self._mode(aux, t, sd_s)
+                mode = self._widened(aux, t, sd_s, mode)
                 mode = Mode.DEGRADED if mode == Mode.NOMINAL else mode
         sd_v_views = self._speed_covering_views(aux, t, float(v), sd_v)
         if sd_v_views > sd_v:
@@ -1335,7 +1392,23 @@ class TrainFilter:
             if s_m - half < lo or s_m + half > hi:
                 lo, hi = min(lo, s_m - half), max(hi, s_m + half)
                 sd_s = max(sd_s, (hi - lo) / (2.0 * self._z))
-                mode = self._mode(aux, t, sd_s)
+                mode = self._widened(aux, t, sd_s, mode)
+        for name, sub in aux.subs.items():   # each relative sensor's own solution (protection level)
+            if not sub.own:
+                continue   # its sensor has not read since it started: the filter's own solution
+            s_j, var_j = separation.at(sub, t, float(v), var_v)
+            var_j = max(var_j, var_s)
+            half = self._z * math.sqrt(var_j)
+            if s_j - half < lo or s_j + half > hi:
+                lo, hi = min(lo, s_j - half), max(hi, s_j + half)
+                sd_s = max(sd_s, (hi - lo) / (2.0 * self._z))
+                mode = self._widened(aux, t, sd_s, mode)
+                if mode == Mode.NOMINAL and separation.separated(s_j, var_j, float(s), var_s, self._z):
+                    mode = Mode.DEGRADED
+            if t - sub.t_v <= self.cfg.slip_reference_timeout:
+                half_v = separation.speed_half_width(sub, self._subs[name], float(v), var_v, self._z)
+                if half_v > self._z * sd_v:
+                    sd_v = half_v / self._z
         return Estimate(t, float(s), float(v), float(a), sd_s, sd_v, lo, hi, self.cfg.confidence,
                         mode, scales, biases)
 
@@ -1348,7 +1421,7 @@ class TrainFilter:
         sources it also covers the motion model's speed from the start of the coasting: both
         sources may be wrong the same way (a slip during a radar scale fault), and the middle
         of two readings that happen to be close is no measurement."""
-        half = self._z * sd_v
+        half = base = self._z * sd_v
         for cls in aux.relative_alternatives:
             reading = aux.view_speeds.get(cls)
             if reading is None or t - reading[0] > self.cfg.slip_reference_timeout:
@@ -1359,7 +1432,7 @@ class TrainFilter:
             _, t_c, s, v_c, a, p = aux.motion_views[-1]
             _, v_m, _, var_m = _kinematics(s, v_c, a, p, max(t - t_c, 0.0), self.cfg.jerk_psd)
             half = max(half, abs(v_m - v) + self._z * math.sqrt(var_m))
-        return half / self._z
+        return half / self._z if half > base else sd_v   # (z sd_v) / z may differ from sd_v by an ulp
 
     def _motion_view(self, view: tuple, t: float, s_f: float, var_f: float) -> tuple[float, float]:
         """(position [m], variance [m^2]) at t of a motion-model hypothesis: during its coasting
@@ -1383,6 +1456,11 @@ class TrainFilter:
             if t - aux.last_accepted.get(sensor, -math.inf) > timeout:
                 return Mode.DEGRADED
         return Mode.NOMINAL
+
+    def _widened(self, aux: _Aux, t: float, position_stddev: float, mode: Mode) -> Mode:
+        """The mode after the interval was widened to position_stddev [m]: LOST beyond
+        ``lost_stddev``, else ``mode`` as it was (a DEGRADED view is not undone)."""
+        return Mode.LOST if self._mode(aux, t, position_stddev) == Mode.LOST else mode
 
     def mode(self, t: float, position_stddev: float) -> Mode:
         self._catch_up()

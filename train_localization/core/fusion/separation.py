@@ -1,0 +1,190 @@
+"""Solution separation over the relative sensors: a protection level for undetected faults.
+
+Where two relative sensors disagree (a radar reading 7 % low, a wheel correct), the filter
+explains the disagreement with their scale and bias states until one of them leaves its
+plausible range. Until then every test passes, and the filter's position follows neither
+sensor but a blend that its covariance calls precise: the truth leaves the interval while the
+filter is NOMINAL (the fault is below what the tests can detect). GNSS integrity monitoring
+meets the same problem with solution separation (ARAIM: Blanch et al., "Advanced RAIM user
+algorithm description", 2012): besides the all-in-view solution it keeps one solution per
+fault hypothesis, each without the measurements that fault would corrupt, and the protection
+level covers every one of them. A faulty sensor cannot pull the solutions that exclude it.
+
+Here each relative sensor j (speed or distance, when two or more are configured) keeps its
+own dead reckoning from the absolute fixes: the train's position s_j integrated from j's
+readings alone, corrected by its own scale error k_j and bias b_j, which it learns only from
+the fixes (a 3-state Kalman filter per sensor; the hypothesis "j is the healthy one"). The
+published interval covers each of them with its own uncertainty; where the filter's own
+interval would not have covered one (the separation beyond the test threshold) the filter
+reports DEGRADED. A fix the filter accepts but sensor j's solution cannot explain refutes
+that hypothesis: its solution starts again from the filter's. While the filter has excluded
+j for its own fault (a wheel slip under traction, a radar it found faulty), j's solution
+follows the filter's speed over that time.
+
+Units: s [m], k [1], b [m/s], times [s]. A solution is the tuple ``Sub`` below; the
+filter keeps them in its rolled-back bookkeeping (copy-on-write, never changed in place).
+Plain floats: a 3x3 covariance per reading of a 200 Hz sensor, within the rollback.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+from ..measurements import SpeedMeasurement
+
+# fault modes of a relative sensor that persist and that its own error states can absorb
+PERSISTENT = frozenset(("scale_fault",))
+
+# a speed sensor silent longer than this [s] is not interpolated across: the gap follows the filter
+_SPEED_GAP = 1.0
+
+
+@dataclass(frozen=True)
+class SubModel:
+    """What one relative sensor's own solution needs of its error model."""
+
+    sensor: str
+    scale_var: float       # prior variance of its constant scale error (scale or offset state) [1]
+    gm_var: float          # stationary variance of a Gauss-Markov scale error [1]
+    gm_tau: float          # its correlation time [s] (inf: none)
+    bias_var: float        # prior variance of its speed bias [m^2/s^2]
+    creep: float           # creep coefficient [s^2/m]
+    creep_in_traction: bool
+
+
+class Sub(NamedTuple):
+    """One sensor's own solution at time t."""
+
+    t: float               # time of s [s]
+    s: float               # position [m]
+    k: float               # constant scale error [1]
+    b: float               # bias [m/s]
+    pss: float             # covariance of (s, k, b)
+    psk: float
+    psb: float
+    pkk: float
+    pkb: float
+    pbb: float
+    own: bool              # whether it has integrated a reading of its own since it started
+    t_v: float             # stamp of its last own speed [s] (-inf: following the filter)
+    dv: float              # its speed less the filter's, averaged over ``window`` s [m/s]
+    var_dv: float          # the white variance of that average [m^2/s^2]
+
+
+def sub_models(models: dict) -> dict[str, SubModel]:
+    """The solution models of the relative sensors that another relative sensor's persistent
+    fault (``PERSISTENT``: a radar's scale fault, which no test of its own can tell from a
+    scale error) could blend away. A transient fault (a wheel's slip or slide) has its own
+    physical tests and ends by itself; a sensor's solution protects against the others' faults,
+    not against its own."""
+    relative = {s: m for s, m in models.items() if m.relative}
+    out = {}
+    for name, m in relative.items():
+        if not any(PERSISTENT & set(o.faults) for other, o in relative.items() if other != name):
+            continue
+        gm = math.isfinite(m.scale_tau) and m.scale_sigma > 0.0
+        constant = m.scale_offset_sigma if gm else m.scale_sigma
+        out[name] = SubModel(name, constant ** 2, m.scale_sigma ** 2 if gm else 0.0,
+                             m.scale_tau if gm else math.inf, m.bias_sigma ** 2,
+                             m.creep_coefficient, m.creep_in_traction)
+    return out
+
+
+def seed(sm: SubModel, t: float, s: float, var_s: float) -> Sub:
+    """A solution that starts at the filter's position s [m] (variance var_s [m^2]) at t [s],
+    its error states at their priors."""
+    return Sub(t, s, 0.0, 0.0, var_s, 0.0, 0.0, sm.scale_var, 0.0, sm.bias_var, False, -math.inf, 0.0, 0.0)
+
+
+def follow(sub: Sub, t: float, v: float, var_v: float) -> Sub:
+    """The solution moved to t [s] with the filter's speed v [m/s] (variance var_v): a time
+    without a reading of its own, or one the filter excluded as its sensor's own fault."""
+    dt = t - sub.t
+    if dt <= 0.0:
+        return sub
+    return sub._replace(t=t, s=sub.s + v * dt, pss=sub.pss + var_v * dt * dt, t_v=-math.inf)
+
+
+def _advance(sub: Sub, sm: SubModel, t: float, dt: float, u: float, R: float) -> Sub:
+    """Integrate the sensor's own speed u [m/s] (its corrected reading, white variance R) over
+    dt [s] ending at t: s += u dt; the Jacobians -ds (scale) and -sign dt (bias)."""
+    ds = u * dt
+    sg = -dt if u < 0.0 else dt
+    q = R * dt * dt + (2.0 * sm.gm_tau * sm.gm_var * u * u * dt if sm.gm_var > 0.0 else 0.0)
+    pss = (sub.pss - 2.0 * ds * sub.psk - 2.0 * sg * sub.psb + ds * ds * sub.pkk + 2.0 * ds * sg * sub.pkb
+           + sg * sg * sub.pbb + q)
+    psk = sub.psk - ds * sub.pkk - sg * sub.pkb
+    psb = sub.psb - ds * sub.pkb - sg * sub.pbb
+    return sub._replace(t=t, s=sub.s + ds, pss=pss, psk=psk, psb=psb)
+
+
+def reading(sub: Sub, sm: SubModel, m, R: float, a: float, v: float, var_v: float, window: float) -> Sub:
+    """The solution after a reading m of its sensor (speed or distance increment; R its white
+    variance in speed units [m^2/s^2]); a [m/s^2], v [m/s], var_v: the filter's acceleration
+    and speed at its stamp, for the creep and for the time not covered by the reading. Its
+    speed less the filter's is averaged over ``window`` s (one reading's noise is no speed
+    hypothesis)."""
+    if isinstance(m, SpeedMeasurement):
+        z, start = m.speed, m.stamp
+    else:
+        z, start = m.distance / m.duration, m.stamp - m.duration
+    u = z / (1.0 + sub.k) - (sub.b if z >= 0.0 else -sub.b)
+    sv = 1.0 if u >= 0.0 else -1.0
+    if sm.creep and (sm.creep_in_traction or a * sv < 0.0):
+        u /= 1.0 + sm.creep * a * sv          # creep: the wheel turns at u (1 + c a sign u)
+    if math.isfinite(sub.t_v) and m.stamp > sub.t_v:
+        w = min((m.stamp - sub.t_v) / window, 1.0)
+        dv, var_dv = sub.dv + w * (u - v - sub.dv), (1.0 - w) ** 2 * sub.var_dv + w * w * R
+    else:
+        dv, var_dv = u - v, R
+    if isinstance(m, SpeedMeasurement):
+        dt = m.stamp - sub.t
+        if dt > 0.0 and dt <= _SPEED_GAP and math.isfinite(sub.t_v):
+            sub = _advance(sub, sm, m.stamp, dt, 0.5 * (u + v + sub.dv), R)
+        else:
+            sub = follow(sub, m.stamp, v, var_v)
+        return sub._replace(own=True, t_v=m.stamp, dv=dv, var_dv=var_dv)
+    if start > sub.t:
+        sub = follow(sub, start, v, var_v)
+    dt = m.stamp - sub.t
+    if dt > 0.0:
+        sub = _advance(sub, sm, m.stamp, dt, u, R)
+    return sub._replace(own=True, t_v=m.stamp, dv=dv, var_dv=var_dv)
+
+
+def speed_half_width(sub: Sub, sm: SubModel, v: float, var_v: float, z: float) -> float:
+    """Half-width [m/s] around the filter's speed v (variance var_v) that covers the sensor's
+    own speed with its errors: scale (learnt and Gauss-Markov), bias, averaged noise."""
+    u = v + sub.dv
+    var = sub.var_dv + u * u * (sub.pkk + sm.gm_var) + sub.pbb + var_v
+    return abs(sub.dv) + z * math.sqrt(var)
+
+
+def fix(sub: Sub, t: float, z: float, R: float, v: float, var_v: float, gate: float) -> Sub | None:
+    """The solution after an absolute fix z [m] of variance R [m^2] at t [s] (H = [1, 0, 0]),
+    or None if it cannot explain the fix (normalised innovation squared beyond ``gate``)."""
+    sub = follow(sub, t, v, var_v)._replace(t_v=sub.t_v) if t > sub.t else sub
+    nu, S = z - sub.s, sub.pss + R
+    if nu * nu > gate * S:
+        return None
+    ks, kk, kb = sub.pss / S, sub.psk / S, sub.psb / S
+    return sub._replace(
+        s=sub.s + ks * nu, k=sub.k + kk * nu, b=sub.b + kb * nu,
+        pss=sub.pss - ks * sub.pss, psk=sub.psk - ks * sub.psk, psb=sub.psb - ks * sub.psb,
+        pkk=sub.pkk - kk * sub.psk, pkb=sub.pkb - kk * sub.psb, pbb=sub.pbb - kb * sub.psb)
+
+
+def at(sub: Sub, t: float, v: float, var_v: float) -> tuple[float, float]:
+    """(position [m], variance [m^2]) of the solution at t [s], moved from its last reading
+    with the filter's speed v [m/s] (variance var_v)."""
+    dt = t - sub.t
+    return sub.s + v * dt, sub.pss + var_v * dt * dt
+
+
+def separated(s_sub: float, var_sub: float, s: float, var_s: float, z: float) -> bool:
+    """Whether a solution's separation from the filter's exceeds its test threshold: z times
+    the standard deviation of the separation (var_sub - var_s for nested solutions; at least
+    the filter's own, so that its interval alone would not have covered the solution)."""
+    d = s_sub - s
+    return d * d > z * z * max(var_sub - var_s, var_s)

@@ -29,6 +29,10 @@ information; the filter may say it does not know, never be confidently wrong):
               scale nobody has): every relative sensor's error states are re-learnt from
               their priors and the position and speed covariance widened by what the
               corrupted states can have caused since the last accepted fix.
+  separation  each relative sensor that another's persistent fault could pull (separation.py)
+              keeps its own dead reckoning from the fixes; the interval and the speed cover it,
+              DEGRADED where the filter's own interval would not have (a radar scale fault
+              absorbed into both scale states before any test sees it).
   consistency the mean NIS of the last ``consistency_fixes`` accepted absolute fixes of
               sensors without a persistent fix error (balises, lugs, axle counters: one
               independent fix per reference) above its chi-square quantile means the

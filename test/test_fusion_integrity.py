@@ -463,6 +463,12 @@ def test_speed_sources_wrong_the_same_way_leave_the_motion_model_in_the_interval
     assert e.position - s > 50.0
     # the balises, inside the coasting filter's own (correlated) uncertainty, are taken
     assert f.counters()["accepted"]["eurobalise"] == 2
+    # and they locate the train under the motion model's hypothesis as well (it is conditioned on
+    # them): 2 s after each the interval is within +-100 m, where the hypothesis that ignored
+    # them kept it 4.4 km wide and LOST
+    for t_fix in (40.0, 50.0):
+        t, e, s, _ = next(c for c in checked if c[0] >= t_fix + 2.0)
+        assert e.position_max - e.position_min < 200.0 and e.mode == MODE_DEGRADED
 
 
 def _quiet_reference_run():

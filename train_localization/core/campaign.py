@@ -40,6 +40,9 @@ from .scoring import StateSeries, passing_times, run_scores
 from .sensors import wheel as _wheel
 
 FAMILIES = ("conventional", "urban_maglev", "highspeed_maglev")
+# families of the later sensor kinds (issue 11), run with --families
+MORE_FAMILIES = ("lzb", "utm", "mlx")
+ALL_FAMILIES = FAMILIES + MORE_FAMILIES
 FUSION_RATE = 200.0   # published states per second (the fusion node's default)
 KMH = 1.0 / 3.6
 
@@ -216,6 +219,43 @@ def _times_at(traj: Trajectory, x: float) -> np.ndarray:
     return traj.t[1:][np.diff(side) != 0]
 
 
+def _train(d: _Draw) -> dict:
+    """A conventional train: cars of two bogies with two axles each, its wheel diameter."""
+    cars = d.int(2, 8)
+    car_len = d.u(18.0, 27.0)
+    axles = []
+    for c in range(cars):
+        for bogie in (c * car_len + 2.5, (c + 1) * car_len - 5.0):
+            axles += [_g(bogie), _g(bogie + 2.5)]
+    return {"type": "conventional", "length": _g(cars * car_len), "wheel_diameter": d.u(0.84, 0.96), "axles": axles}
+
+
+def _balises(d: _Draw, length: float, spacing: float) -> list[dict]:
+    """Balise locations along the track, single balises or groups of two."""
+    group_share = d.u(0.0, 1.0)
+    balises = []
+    for n, x in enumerate(_spaced(d, d.u(50.0, spacing), length - 20.0, spacing, 0.25)):
+        if d.chance(group_share):
+            balises += [{"id": f"BG{n:03d}a", "position": x, "group": f"BG{n:03d}"},
+                        {"id": f"BG{n:03d}b", "position": _g(x + 3.0, 8), "group": f"BG{n:03d}"}]
+        else:
+            balises.append({"id": f"EB{n:03d}", "position": x})
+    return balises
+
+
+def _wheel_sensor(d: _Draw, v_max: float, wheel_d: float) -> dict:
+    """Wheel pulse generator across its ranges: diameter error within its tolerance, creep, a
+    driven axle or not, poor adhesion (slip/slide rate, ratio up to 25 %, length), glitches."""
+    tolerance = d.u(0.002, 0.012)
+    wheel = {"max_speed": _g(1.05 * v_max), "diameter_tolerance": tolerance,
+             "diameter_error": _g(tolerance * d.u(-1.0, 1.0)), "creep_coefficient": d.u(0.001, 0.004),
+             "driven_axle": d.chance(0.7), "slip_rate": d.logu(0.005, 0.2),
+             "slip_accel_threshold": d.u(0.3, 0.9), "slip_ratio_min": d.u(0.01, 0.04),
+             "slip_ratio_max": d.u(0.05, 0.25), "slip_duration": d.u(0.5, 5.0), "glitch_rate": d.logu(0.001, 0.1)}
+    wheel["sample_rate"] = wheel_sample_rate(wheel["max_speed"], wheel_d, tolerance)
+    return wheel
+
+
 def _conventional(d: _Draw) -> tuple[dict, dict]:
     duration = d.u(100.0, 200.0)
     v_top = d.u(40.0, 300.0) * KMH
@@ -224,27 +264,13 @@ def _conventional(d: _Draw) -> tuple[dict, dict]:
     legs, prof = _stop_and_go_profile(d, duration, _g(v_top), v0, accel=(0.3, 1.0), decel=(0.5, 1.2),
                                       jerk=(0.3, 1.0), dwell=(5.0, 30.0), hold=(5.0, 40.0), p_stop=0.4,
                                       reversal=reversal, reverse_speed=(1.5, 6.0))
-    # vehicle: cars of two bogies with two axles each
-    cars = d.int(2, 8)
-    car_len = d.u(18.0, 27.0)
-    axles = []
-    for c in range(cars):
-        for bogie in (c * car_len + 2.5, (c + 1) * car_len - 5.0):
-            axles += [_g(bogie), _g(bogie + 2.5)]
-    wheel_d = d.u(0.84, 0.96)
-    vehicle = {"type": "conventional", "length": _g(cars * car_len), "wheel_diameter": wheel_d, "axles": axles}
+    vehicle = _train(d)
+    axles, wheel_d = vehicle["axles"], vehicle["wheel_diameter"]
     traj = _coarse(legs, v0, duration)
     length, start = _place(d, traj, vehicle["length"], d.u(8000.0, 40000.0), 300.0)
     # wayside: balise locations (single balises or groups of two), axle-counter heads
     balise_spacing, head_spacing = d.u(500.0, 2000.0), d.u(1000.0, 4000.0)
-    group_share = d.u(0.0, 1.0)
-    balises = []
-    for n, x in enumerate(_spaced(d, d.u(50.0, balise_spacing), length - 20.0, balise_spacing, 0.25)):
-        if d.chance(group_share):
-            balises += [{"id": f"BG{n:03d}a", "position": x, "group": f"BG{n:03d}"},
-                        {"id": f"BG{n:03d}b", "position": _g(x + 3.0, 8), "group": f"BG{n:03d}"}]
-        else:
-            balises.append({"id": f"EB{n:03d}", "position": x})
+    balises = _balises(d, length, balise_spacing)
     # no head under the train at the start: counters that start CLEAR with a train over a head
     # (a reset with the section occupied) count its next axle as the first one
     heads = [{"id": f"AC{n:02d}", "position": x}
@@ -260,13 +286,7 @@ def _conventional(d: _Draw) -> tuple[dict, dict]:
     passed = [h for h in heads if lo <= h["position"] <= hi] or \
         [min(heads, key=lambda h: abs(h["position"] - start))]
     v_max = max([abs(v0)] + [abs(leg["speed"]) for leg in legs])
-    tolerance = d.u(0.002, 0.012)
-    wheel = {"max_speed": _g(1.05 * v_max), "diameter_tolerance": tolerance,
-             "diameter_error": _g(tolerance * d.u(-1.0, 1.0)), "creep_coefficient": d.u(0.001, 0.004),
-             "driven_axle": d.chance(0.7), "slip_rate": d.logu(0.005, 0.2),
-             "slip_accel_threshold": d.u(0.3, 0.9), "slip_ratio_min": d.u(0.01, 0.04),
-             "slip_ratio_max": d.u(0.05, 0.25), "slip_duration": d.u(0.5, 5.0), "glitch_rate": d.logu(0.001, 0.1)}
-    wheel["sample_rate"] = wheel_sample_rate(wheel["max_speed"], wheel_d, tolerance)
+    wheel = _wheel_sensor(d, v_max, wheel_d)
     faults = []
     if d.chance(0.25):   # a missed axle at a head shortly before the train passes it
         head = passed[d.int(0, len(passed) - 1)]
@@ -401,12 +421,148 @@ def _highspeed_maglev(d: _Draw) -> tuple[dict, dict]:
     return scenario, conditions
 
 
-_GENERATORS = {"conventional": _conventional, "urban_maglev": _urban, "highspeed_maglev": _highspeed_maglev}
+def _lzb(d: _Draw) -> tuple[dict, dict]:
+    """A conventional high-speed line under LZB (seed 000 section 3.1): wheel, Doppler, balise
+    groups and the cable loops (crossings every 100 m, loops up to 12.7 km, a short first loop
+    at the start of the LZB area), runs at 160-300 km/h with stops; missed crossings, telegram
+    errors, loop survey and crossing installation errors across their ranges."""
+    duration = d.u(100.0, 220.0)
+    v_top = d.u(160.0, 300.0) * KMH
+    v0 = _g(v_top * d.u(0.5, 1.0)) if d.chance(0.5) else 0.0
+    legs, prof = _stop_and_go_profile(d, duration, _g(v_top), v0, accel=(0.3, 0.9), decel=(0.5, 1.1),
+                                      jerk=(0.3, 1.0), dwell=(5.0, 20.0), hold=(10.0, 60.0), p_stop=0.3,
+                                      reversal=d.chance(0.15), reverse_speed=(1.5, 5.0), speeds=(0.5, 1.0))
+    vehicle = _train(d)
+    traj = _coarse(legs, v0, duration)
+    length, start = _place(d, traj, vehicle["length"], d.u(10000.0, 40000.0), 300.0)
+    loops, x = [], 0.0
+    first = d.u(300.0, 1500.0)
+    while x < length:
+        end = min(x + (first if not loops else d.u(4000.0, 12700.0)), length)
+        loops.append({"id": f"L{len(loops) + 1:02d}", "number": len(loops) + 1, "position": _g(x, 8), "end": _g(end, 8)})
+        x = end
+    balise_spacing = d.u(1000.0, 4000.0)
+    track = {"track_id": "campaign_lzb", "length": length, "alignment": _alignment(d, length, 4000.0, 20000.0),
+             "equipment": {"lzb_loop": loops, "eurobalise": _balises(d, length, balise_spacing)}}
+    v_max = max([abs(v0)] + [abs(leg["speed"]) for leg in legs])
+    lzb = {"miss_probability": d.logu(1e-3, 0.05), "crossing_sigma": d.u(0.05, 0.2), "survey_sigma": d.u(0.02, 0.1),
+           "noise": d.u(0.005, 0.03), "level_sigma": d.u(0.05, 0.2), "telegram_error_rate": d.logu(1e-3, 0.1)}
+    sensors = {"wheel_sensor": _wheel_sensor(d, v_max, vehicle["wheel_diameter"]), "doppler_radar": _doppler(d, duration),
+               "eurobalise_reader": _reader(d, v_max, (0.1, 0.5)), "lzb_receiver": lzb}
+    scenario = {"duration": duration, "vehicle": vehicle, "initial": {"position": start, "speed": v0},
+                "profile": legs, "track": track, "sensors": sensors}
+    conditions = {"duration": duration, "top_speed_kmh": _g(v_max * 3.6), "start_speed_kmh": _g(v0 * 3.6),
+                  **prof, "track_length": length, "loops": len(loops), "balise_spacing": balise_spacing,
+                  "miss_probability": lzb["miss_probability"],
+                  **{k: sensors["wheel_sensor"][k] for k in ("slip_rate", "slip_ratio_max", "slip_duration")}}
+    return scenario, conditions
+
+
+def _utm(d: _Draw) -> tuple[dict, dict]:
+    """A UTM-02 type urban maglev line (seed 002 section 2.1.2): Doppler, DGPS and transponder
+    tags; buildings, bridges and tunnels over the line (no fix under them, more multipath near
+    them), a lost correction link in one run of five, tag misreads and installation errors."""
+    duration = d.u(60.0, 150.0)
+    v_top = d.u(40.0, 100.0) * KMH
+    v0 = _g(v_top * d.u(0.3, 1.0)) if d.chance(0.3) else 0.0
+    legs, prof = _stop_and_go_profile(d, duration, _g(v_top), v0, accel=(0.8, 1.3), decel=(0.8, 1.3),
+                                      jerk=(0.5, 1.2), dwell=(5.0, 20.0), hold=(0.0, 20.0), p_stop=0.7,
+                                      reversal=d.chance(0.3), reverse_speed=(1.0, 4.0), speeds=(0.3, 1.0))
+    vehicle = {"type": "maglev_urban", "length": d.u(30.0, 60.0)}
+    traj = _coarse(legs, v0, duration)
+    length, start = _place(d, traj, vehicle["length"], d.u(3000.0, 8000.0), 200.0)
+    front = traj.position + start
+    structures = []
+    for n in range(d.int(0, 4)):
+        kind = ("building", "bridge", "tunnel")[d.int(0, 2)]
+        extent = d.u(*{"building": (40.0, 150.0), "bridge": (10.0, 30.0), "tunnel": (100.0, 800.0)}[kind])
+        x0 = d.u(float(front.min()) - 100.0, float(front.max()))
+        structures.append({"id": f"ST{n}", "type": kind, "start": _g(max(x0, 0.0), 8),
+                           "end": _g(min(x0 + extent, length), 8)})
+    structures.sort(key=lambda st: st["start"])
+    kept = []   # structures do not overlap
+    for st in structures:
+        if not kept or st["start"] > kept[-1]["end"] + 1.0:
+            kept.append(st)
+    tag_spacing = d.u(50.0, 300.0)
+    tags = [{"id": f"TG{n:03d}", "position": x}
+            for n, x in enumerate(_spaced(d, d.u(10.0, tag_spacing), length - 10.0, tag_spacing, 0.1))]
+    track = {"track_id": "campaign_utm", "length": length, "origin": {"x": 0.0, "y": 0.0, "heading": 1.5708},
+             "alignment": _alignment(d, length, 300.0, 1500.0),
+             "equipment": {"structure": kept, "transponder_tag": tags}}
+    v_max = max([abs(v0)] + [abs(leg["speed"]) for leg in legs])
+    dgps = {"white_sigma": d.u(0.2, 0.8), "multipath_sigma": d.u(0.1, 0.6), "multipath_length": d.u(20.0, 100.0),
+            "multipath_tau": d.u(20.0, 120.0)}
+    if d.chance(0.2):
+        t0 = d.u(0.0, 0.8 * duration)
+        dgps["faults"] = f"{_g(t0, 5)}-{_g(t0 + d.u(5.0, 40.0), 5)}:nocorr"
+    tag = {"telegram_error_rate": d.logu(1e-4, 0.1), "install_sigma": d.u(0.02, 0.1),
+           "coupling_sigma": d.u(0.02, 0.1), "max_speed": _g(max(42.0, 1.2 * v_max))}
+    sensors = {"doppler_radar": _doppler(d, duration), "dgps_receiver": dgps, "tag_reader": tag}
+    scenario = {"duration": duration, "vehicle": vehicle, "initial": {"position": start, "speed": v0},
+                "profile": legs, "track": track, "sensors": sensors}
+    conditions = {"duration": duration, "top_speed_kmh": _g(v_max * 3.6), "start_speed_kmh": _g(v0 * 3.6),
+                  **prof, "track_length": length, "structures": [st["type"] for st in kept],
+                  "tag_spacing": tag_spacing, "dgps_faults": dgps.get("faults", ""),
+                  "telegram_error_rate": tag["telegram_error_rate"]}
+    return scenario, conditions
+
+
+def _mlx(d: _Draw) -> tuple[dict, dict]:
+    """An MLX-type superconducting maglev (seed 002 section 2.2.2): wheels at low speed (slips),
+    the EMF observer of the LSM drive above its minimum speed, the wayside coil counter and
+    mm-wave ranging (NLOS, a biased or silent station); from a standstill or at speed, up to
+    500 km/h, with slowdowns and stops."""
+    duration = d.u(60.0, 150.0)
+    v_top = d.u(150.0, 500.0) * KMH
+    v0 = _g(v_top * d.u(0.5, 1.0)) if d.chance(0.4) else 0.0
+    legs, prof = _stop_and_go_profile(d, duration, _g(v_top), v0, accel=(0.5, 1.2), decel=(0.5, 1.2),
+                                      jerk=(0.3, 1.0), dwell=(5.0, 20.0), hold=(5.0, 40.0), p_stop=0.4,
+                                      reversal=False, reverse_speed=(1.0, 3.0), speeds=(0.4, 1.0))
+    wheel_d = d.u(0.8, 1.0)
+    vehicle = {"type": "maglev", "length": d.u(50.0, 130.0), "wheel_diameter": wheel_d, "axles": []}
+    traj = _coarse(legs, v0, duration)
+    length, start = _place(d, traj, vehicle["length"], d.u(8000.0, 30000.0), 300.0)
+    station_spacing = d.u(300.0, 800.0)
+    stations = [{"id": f"MW{n:03d}", "position": x, "offset": _g((1 if d.chance(0.5) else -1) * d.u(2.0, 10.0)),
+                 "height": d.u(4.0, 8.0)}
+                for n, x in enumerate(_spaced(d, d.u(0.0, station_spacing), length, station_spacing, 0.1))]
+    track = {"track_id": "campaign_mlx", "length": length, "alignment": _alignment(d, length, 4000.0, 20000.0),
+             "equipment": {"null_flux_coils": [{"id": "NF01", "position": 0.0, "end": length}],
+                           "mmwave_station": stations}}
+    v_max = max([abs(v0)] + [abs(leg["speed"]) for leg in legs])
+    faults = []
+    if d.chance(0.3):    # one station ranging with a bias
+        t0 = d.u(0.0, 0.8 * duration)
+        k = int(np.argmin(np.abs(np.array([st["position"] for st in stations])
+                                 - np.interp(t0, traj.t, traj.position + start))))
+        faults.append(f"{stations[k]['id']}@{t0}-{_g(t0 + d.u(2.0, 15.0))}:{d.u(1.0, 4.0)}")
+    wheel = _wheel_sensor(d, v_max, wheel_d)
+    sensors = {"wheel_sensor": wheel,
+               "coil_counter": {"gap_sigma": d.u(0.001, 0.005), "noise": d.u(0.005, 0.03),
+                                "gain_sigma": d.u(0.01, 0.05), "max_speed": _g(max(150.0, 1.1 * v_max))},
+               "emf_observer": {"resistance_tolerance": d.u(0.02, 0.1), "inductance_tolerance": d.u(0.01, 0.05),
+                                "voltage_noise": d.u(10.0, 40.0), "harmonic5": d.u(0.0, 0.05)},
+               "mmwave_ranging": {"nlos_rate": d.logu(0.01, 0.3), "nlos_bias_mean": d.u(0.3, 2.0),
+                                  "dropout_prob": d.logu(0.005, 0.1), "cal_sigma": d.u(0.01, 0.05),
+                                  "faults": ";".join(faults)}}
+    scenario = {"duration": duration, "vehicle": vehicle, "initial": {"position": start, "speed": v0},
+                "profile": legs, "track": track, "sensors": sensors}
+    conditions = {"duration": duration, "top_speed_kmh": _g(v_max * 3.6), "start_speed_kmh": _g(v0 * 3.6),
+                  **prof, "track_length": length, "station_spacing": station_spacing,
+                  "nlos_rate": sensors["mmwave_ranging"]["nlos_rate"], "station_faults": ";".join(faults),
+                  **{k: wheel[k] for k in ("slip_rate", "slip_ratio_max", "slip_duration")}}
+    return scenario, conditions
+
+
+_GENERATORS = {"conventional": _conventional, "urban_maglev": _urban, "highspeed_maglev": _highspeed_maglev,
+               "lzb": _lzb, "utm": _utm, "mlx": _mlx}
 
 # sensor node -> the sensor class its measurements carry (outages name classes)
 _CLASSES = {"wheel_sensor": "wheel", "doppler_radar": "doppler", "eurobalise_reader": "eurobalise",
             "axle_counter": "axle_counter", "pattern_belt": "pattern_belt", "inpo_receiver": "inpo",
-            "lrl_scanner": "lrl", "mmwave_ranging": "mmwave"}
+            "lrl_scanner": "lrl", "mmwave_ranging": "mmwave", "lzb_receiver": "lzb", "dgps_receiver": "dgps",
+            "tag_reader": "transponder", "coil_counter": "coil_counter", "emf_observer": "emf_observer"}
 
 
 def generate(family: str, seed: int, max_duration: float | None = None) -> dict:
@@ -415,7 +571,7 @@ def generate(family: str, seed: int, max_duration: float | None = None) -> dict:
     ``max_duration`` [s] cuts the run short (tests); every drawn condition stays the same.
     """
     if family not in _GENERATORS:
-        raise ValueError(f"unknown family {family!r}; known: {', '.join(FAMILIES)}")
+        raise ValueError(f"unknown family {family!r}; known: {', '.join(ALL_FAMILIES)}")
     d = _Draw(seed)
     body, conditions = _GENERATORS[family](d)
     delivery = _delivery(d, body["duration"], [_CLASSES[n] for n in body["sensors"]])
@@ -463,7 +619,7 @@ def run_scenario(data: dict) -> dict:
     config = fusion_config(sc)
     runner, estimates, _, _ = fuse_arrivals(config, delivered, sc.duration, FUSION_RATE)
     truth = StateSeries.of_truth(traj.t, traj.position, traj.speed)
-    refs = passing_times(traj.t, traj.position, reference_positions(sc)) if family == "conventional" else None
+    refs = passing_times(traj.t, traj.position, reference_positions(sc)) if family in ("conventional", "lzb") else None
     scores = run_scores(truth, StateSeries.from_estimates(estimates), 1.0 / FUSION_RATE, refs,
                         confidence=config.confidence)
     per_sensor: dict[str, dict] = {}
@@ -572,7 +728,7 @@ def _summary(results: list[dict]) -> dict:
 def summarise(results: list[dict]) -> dict:
     """Figures over all runs and per family (see ``_summary``) and the pass/fail of the targets:
     inside fraction over all states >= 99.9 %, every run >= 99.5 %, no excursion > 2 s, no error."""
-    families = sorted({r["family"] for r in results}, key=lambda f: FAMILIES.index(f) if f in FAMILIES else 99)
+    families = sorted({r["family"] for r in results}, key=lambda f: ALL_FAMILIES.index(f) if f in ALL_FAMILIES else 99)
     out = {"all": _summary(results), "families": {f: _summary([r for r in results if r["family"] == f])
                                                   for f in families}}
     a = out["all"]

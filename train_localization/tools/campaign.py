@@ -35,7 +35,7 @@ from pathlib import Path
 
 import yaml
 
-from ..core.campaign import EXCURSION_LIMIT, FAMILIES, INSIDE_TARGET, RUN_TARGET, generate, jobs, run_one, summarise
+from ..core.campaign import ALL_FAMILIES, EXCURSION_LIMIT, FAMILIES, INSIDE_TARGET, RUN_TARGET, generate, jobs, run_one, summarise
 
 
 def _family_seed(text: str) -> tuple[str, int]:
@@ -44,16 +44,16 @@ def _family_seed(text: str) -> tuple[str, int]:
         seed_value = int(seed)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected FAMILY:SEED, got {text!r}") from None
-    if family not in FAMILIES:
-        raise argparse.ArgumentTypeError(f"unknown family {family!r}; known: {', '.join(FAMILIES)}")
+    if family not in ALL_FAMILIES:
+        raise argparse.ArgumentTypeError(f"unknown family {family!r}; known: {', '.join(ALL_FAMILIES)}")
     return family, seed_value
 
 
 def _families(text: str) -> tuple[str, ...]:
     names = tuple(f.strip() for f in text.split(",") if f.strip())
-    unknown = [f for f in names if f not in FAMILIES]
+    unknown = [f for f in names if f not in ALL_FAMILIES]
     if unknown or not names:
-        raise argparse.ArgumentTypeError(f"unknown families {unknown}; known: {', '.join(FAMILIES)}")
+        raise argparse.ArgumentTypeError(f"unknown families {unknown}; known: {', '.join(ALL_FAMILIES)}")
     return names
 
 
@@ -140,7 +140,7 @@ def plot(results: list[dict], summary: dict, out: Path) -> list[Path]:
     import matplotlib.pyplot as plt
     import numpy as np
     ok = [r for r in results if "error" not in r and r["scores"]["integrity"]["inside_fraction"] is not None]
-    colours = {f: f"C{i}" for i, f in enumerate(FAMILIES)}
+    colours = {f: f"C{i}" for i, f in enumerate(ALL_FAMILIES)}
     files = []
 
     def save(fig, name):
@@ -152,7 +152,7 @@ def plot(results: list[dict], summary: dict, out: Path) -> list[Path]:
     fig, ax = plt.subplots(figsize=(9, 4.5))
     rows = sorted(ok, key=lambda r: r["scores"]["integrity"]["inside_fraction"])
     y = np.array([100 * r["scores"]["integrity"]["inside_fraction"] for r in rows])
-    for f in FAMILIES:
+    for f in ALL_FAMILIES:
         k = [i for i, r in enumerate(rows) if r["family"] == f]
         if k:
             ax.scatter(np.array(k), y[k], s=8, color=colours[f], label=f)
@@ -168,7 +168,7 @@ def plot(results: list[dict], summary: dict, out: Path) -> list[Path]:
     save(fig, "integrity.png")
 
     fig, ax = plt.subplots(figsize=(6.5, 5.5))
-    for f in FAMILIES:
+    for f in ALL_FAMILIES:
         err = [abs(e) for r in ok if r["family"] == f for e in r["scores"]["error_vs_half_width"]["error_m"]]
         half = [h for r in ok if r["family"] == f for h in r["scores"]["error_vs_half_width"]["half_width_m"]]
         if err:
@@ -280,7 +280,8 @@ def main(argv=None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
                                  epilog="\n\n".join(__doc__.split("\n\n")[1:]))
     ap.add_argument("--runs", type=int, default=60, help="number of runs, split evenly over the families (60)")
-    ap.add_argument("--families", type=_families, default=FAMILIES, help="comma-separated (all three)")
+    ap.add_argument("--families", type=_families, default=FAMILIES, help="comma-separated, of " + ", ".join(ALL_FAMILIES) +
+                    " (default: the first three; the others are the later sensor kinds)")
     ap.add_argument("--seed", type=int, default=0, help="base seed BASE of the run seeds (0)")
     ap.add_argument("--run", type=_family_seed, nargs="+", metavar="FAMILY:SEED",
                     help="run these (family, seed) pairs instead of --runs")

@@ -83,7 +83,9 @@ information; the filter may say it does not know, never be confidently wrong):
               (not on the last acceleration). The motion model's own hypothesis from the
               start of the coasting stays in the interval (both sources may be wrong the same
               way), moved with the filter after the coasting, until a fix rules it out or,
-              the filter back on its speed sources, a fix confirms the filter.
+              the filter back on its speed sources, a fix confirms the filter. A fix the
+              filter accepts locates the train under that hypothesis too: it is conditioned
+              on the fix (a Kalman update of its kinematic state).
   revisit     a fix of a reference the filter accepted before (a reversal over a balise)
               carries the same installation error: not applied while the filter knows its
               position better than the fix.
@@ -1101,7 +1103,7 @@ class TrainFilter:
         aux.unverified = ""
         aux.last_fix_accepted = m.stamp
         aux.s_last_fix = float(self.ekf.x[0, 0])
-        self._subs_take_fix(m)
+        self._hypotheses_take_fix(m)
         if m.sensor in self.layout.fix:
             return   # a fix with a persistent error: consecutive ones are not independent tests
         window = (aux.fix_nis + (nis,))[-cfg.consistency_fixes:]
@@ -1230,27 +1232,60 @@ class TrainFilter:
             sub = separation.reading(sub, sm, m, R, float(self.ekf.x[2, 0]), v, var_v, self.cfg.slip_window)
         aux.subs = {**aux.subs, cls: sub}
 
-    def _subs_take_fix(self, m) -> None:
-        """An absolute fix the filter accepted updates each sensor's own solution; one that a
-        solution cannot explain refutes it: it starts again from the filter's."""
-        if not self._subs:
-            return
-        aux, cls = self.aux, m.sensor
+    def _located(self, m) -> tuple[float, float]:
+        """(position [m], variance [m^2]) of the train front that an accepted fix m gives under
+        any hypothesis: the fix less its persistent error as the filter knows it."""
         z, R, _, hx = self._measurement(m)
-        x0, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
-        f_idx = self.layout.fix.get(cls)
-        if f_idx is not None:   # the fix's persistent error as the filter knows it
-            z -= hx - x0
+        f_idx = self.layout.fix.get(m.sensor)
+        if f_idx is not None:
+            z -= hx - float(self.ekf.x[0, 0])
             R += float(self.ekf.P[f_idx, f_idx])
-        v, var_v = float(self.ekf.x[1, 0]), float(self.ekf.P[1, 1])
-        subs = {}
-        for name, sub in aux.subs.items():
-            new = separation.fix(sub, m.stamp, z, R, v, var_v, self._gates[cls])
-            if new is None:
-                new = separation.seed(self._subs[name], m.stamp, x0, P00)
-                aux.events = _inc(aux.events, "sensor_solution_refuted")
-            subs[name] = new
-        aux.subs = subs
+        return z, R
+
+    def _hypotheses_take_fix(self, m) -> None:
+        """An absolute fix the filter accepted locates the train under every hypothesis it
+        keeps: each relative sensor's own solution (separation.py; one that cannot explain the
+        fix is refuted and starts again from the filter's) and each motion-model hypothesis of
+        a coasting (conditioned on it: a fix that both explain tells where the train is, not
+        only which one is right)."""
+        aux = self.aux
+        if not aux.subs and not aux.motion_views:
+            return
+        z, R = self._located(m)
+        x0, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
+        if aux.motion_views:
+            aux.motion_views = tuple(self._motion_view_fixed(view, m.stamp, z, R, x0, P00)
+                                     for view in aux.motion_views)
+        if aux.subs:
+            v, var_v = float(self.ekf.x[1, 0]), float(self.ekf.P[1, 1])
+            subs = {}
+            for name, sub in aux.subs.items():
+                new = separation.fix(sub, m.stamp, z, R, v, var_v, self._gates[m.sensor])
+                if new is None:
+                    new = separation.seed(self._subs[name], m.stamp, x0, P00)
+                    aux.events = _inc(aux.events, "sensor_solution_refuted")
+                subs[name] = new
+            aux.subs = subs
+
+    def _motion_view_fixed(self, view: tuple, t: float, z: float, R: float, s_f: float, P00_f: float) -> tuple:
+        """A motion-model hypothesis conditioned on a fix z [m] of variance R [m^2] at t [s] (the
+        filter at s_f, P00_f after it): a coasting's kinematic state moved to t and updated
+        (H = [1, 0, 0]); a moved one as a scalar update, moved with the filter from here."""
+        if view[0] == "moved":
+            s_m, var_m = self._motion_view(view, t, s_f, P00_f)
+            k = var_m / (var_m + R)
+            return ("moved", s_m + k * (z - s_m), (1.0 - k) * var_m, s_f, P00_f)
+        _, t_c, s, v, a, p = view
+        dt = max(t - t_c, 0.0)
+        F = np.array([[1.0, dt, 0.5 * dt * dt], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
+        Q = self.process.transition(dt)[2][:3, :3] if dt > 0.0 else np.zeros((3, 3))
+        p00, p01, p02, p11, p12, p22 = p
+        P = F @ np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]]) @ F.T + Q
+        x = F @ np.array([s, v, a])
+        K = P[:, 0] / (P[0, 0] + R)
+        x = x + K * (z - x[0])
+        P = P - np.outer(K, P[0, :])
+        return ("model", t, float(x[0]), float(x[1]), float(x[2]), _kinematic_covariance(P))
 
     # -- input -----------------------------------------------------------------
     def add(self, m) -> None:

@@ -16,7 +16,7 @@ import yaml
 
 from conftest import ROOT
 from train_localization.core import campaign
-from train_localization.core.campaign import FAMILIES, generate, run_one
+from train_localization.core.campaign import ALL_FAMILIES, FAMILIES, generate, run_one
 from train_localization.core.fusion import MODE_INITIALISING, MODE_NOMINAL
 from train_localization.core.offline import sensor_pipelines
 from train_localization.core.scenario import Scenario
@@ -29,11 +29,11 @@ DRAWS = 200
 @pytest.fixture(scope="module")
 def draws():
     """DRAWS generated scenario dicts per family (seeds 0..DRAWS-1)."""
-    return {f: [generate(f, seed) for seed in range(DRAWS)] for f in FAMILIES}
+    return {f: [generate(f, seed) for seed in range(DRAWS)] for f in ALL_FAMILIES}
 
 
 # --------------------------------------------------------------------------- generator
-@pytest.mark.parametrize("family", FAMILIES)
+@pytest.mark.parametrize("family", ALL_FAMILIES)
 def test_generator_is_deterministic_per_seed_and_seeds_differ(family, draws):
     assert generate(family, 7) == generate(family, 7) == draws[family][7]
     conditions = [json.dumps(d["campaign"]["conditions"], sort_keys=True) for d in draws[family][:20]]
@@ -44,7 +44,7 @@ def test_generator_is_deterministic_per_seed_and_seeds_differ(family, draws):
     assert short["campaign"] == draws[family][7]["campaign"] and short["sensors"] == draws[family][7]["sensors"]
 
 
-@pytest.mark.parametrize("family", FAMILIES)
+@pytest.mark.parametrize("family", ALL_FAMILIES)
 def test_generated_scenarios_load_their_sensors_construct_and_stay_on_the_track(family, draws):
     checked_in = []   # (profile, track) of every checked-in scenario, of each train of a line
     for p in sorted((ROOT / "config").glob("scenario_*.yaml")):
@@ -69,6 +69,27 @@ def test_generated_scenarios_load_their_sensors_construct_and_stay_on_the_track(
         passed = {h["id"] for h in sc.track.items("axle_counter_head")
                   if front.min() + 1.0 < h["position"] < front.max() - 1.0}
         assert passed <= listed
+
+
+def test_the_later_families_draw_their_equipment_and_faults(draws):
+    """LZB loops cover the line end to end, none longer than 12.7 km (seed 000 section 3.1);
+    UTM structures lie over the line without overlapping, and one run in five loses its
+    correction link; MLX coils run the whole guideway and a station is biased in ~30 %."""
+    for data in draws["lzb"]:
+        loops = data["track"]["equipment"]["lzb_loop"]
+        assert loops[0]["position"] == 0.0 and loops[-1]["end"] == data["track"]["length"]
+        assert all(a["end"] == b["position"] for a, b in zip(loops, loops[1:]))
+        assert all(lp["end"] - lp["position"] <= 12700.0 + 1e-6 for lp in loops)
+        assert [lp["number"] for lp in loops] == list(range(1, len(loops) + 1))
+    structures = [d["track"]["equipment"]["structure"] for d in draws["utm"]]
+    for sts, data in zip(structures, draws["utm"]):
+        assert all(0.0 <= st["start"] < st["end"] <= data["track"]["length"] for st in sts)
+        assert all(a["end"] < b["start"] for a, b in zip(sts, sts[1:]))
+    assert 100 < sum(bool(sts) for sts in structures)
+    assert 20 < sum("faults" in d["sensors"]["dgps_receiver"] for d in draws["utm"]) < 65
+    for data in draws["mlx"]:
+        assert data["track"]["equipment"]["null_flux_coils"][0]["end"] == data["track"]["length"]
+    assert 35 < sum(bool(d["sensors"]["mmwave_ranging"]["faults"]) for d in draws["mlx"]) < 85
 
 
 def _c(draws, family, key):

@@ -645,13 +645,14 @@ def test_a_sensor_solution_learns_its_scale_from_the_fixes_and_is_refuted_by_one
     for j in range(1, 2001):     # 100 s at 20 m/s, increments of 50 ms, fixes every 1 km
         t = j * 0.05
         s += v * 0.05
+        main = separation.Main(s, 0.01, v, 0.01)   # the filter, here right
         sub = separation.reading(sub, sm, DistanceIncrement(t, "wheel", "w", 0.05, 1.01 * v * 0.05, 0.002, v, 0.6),
-                                 (0.002 / 0.05) ** 2, 0.0, v, 0.01, 1.0)
+                                 (0.002 / 0.05) ** 2, 0.0, main, 1.0)
         if j % 1000 == 0:
             errors.append(sub.s - s)
-            sub = separation.fix(sub, t, s, 0.09, v, 0.01, 15.0)
+            sub = separation.fix(sub, t, s, 0.09, main, main, 15.0)
     assert errors[0] == pytest.approx(10.0, abs=0.5)          # 1 % of the first kilometre
     assert abs(errors[1]) < 0.5                               # the scale learnt at the first fix
     assert sub.k == pytest.approx(0.01, abs=0.001) and math.sqrt(sub.pkk) < 0.001
     assert abs(sub.s - s) < 0.3
-    assert separation.fix(sub, 100.05, s + 1.0 + 20.0, 0.09, v, 0.01, 15.0) is None
+    assert separation.fix(sub, 100.0, s + 20.0, 0.09, main, main, 15.0) is None

@@ -389,6 +389,8 @@ class TrainFilter:
     def _apply_policy(self, m) -> None:
         aux = self.aux = self.aux.copy()
         self._predict_to(m.stamp)
+        if self._subs:
+            self._before = self._main()   # the filter before this measurement (separation.py)
         self.applied += 1
         cls = m.sensor
         is_fix = isinstance(m, PositionFix)
@@ -1217,19 +1219,23 @@ class TrainFilter:
         s, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
         self.aux.subs = {name: separation.seed(sm, stamp, s, P00) for name, sm in self._subs.items()}
 
+    def _main(self) -> separation.Main:
+        """The filter's own solution now, for the sensor solutions."""
+        x, P = self.ekf.x, self.ekf.P
+        return separation.Main(float(x[0, 0]), float(P[0, 0]), float(x[1, 0]), float(P[1, 1]))
+
     def _sub_reading(self, m, sm) -> None:
         """Sensor ``m.sensor``'s own solution after its reading m; while the filter has
         excluded it for its own fault (not as an undecided alternative) it follows the filter."""
-        aux, cls = self.aux, m.sensor
+        aux, cls, before = self.aux, m.sensor, self._before
         sub = aux.subs.get(cls)
-        v, var_v = float(self.ekf.x[1, 0]), float(self.ekf.P[1, 1])
         if sub is None:
-            sub = separation.seed(sm, m.stamp, float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0]))
+            sub = separation.seed(sm, m.stamp, before.s, before.P00)
         elif _speed_excluded(aux, cls, m.stamp) and cls not in aux.relative_alternatives:
-            sub = separation.follow(sub, m.stamp, v, var_v)
+            sub = separation.follow(sub, m.stamp, before)._replace(t_v=-math.inf)
         else:
             R = self._measurement(m)[1]
-            sub = separation.reading(sub, sm, m, R, float(self.ekf.x[2, 0]), v, var_v, self.cfg.slip_window)
+            sub = separation.reading(sub, sm, m, R, float(self.ekf.x[2, 0]), before, self.cfg.slip_window)
         aux.subs = {**aux.subs, cls: sub}
 
     def _located(self, m) -> tuple[float, float]:
@@ -1257,10 +1263,9 @@ class TrainFilter:
             aux.motion_views = tuple(self._motion_view_fixed(view, m.stamp, z, R, x0, P00)
                                      for view in aux.motion_views)
         if aux.subs:
-            v, var_v = float(self.ekf.x[1, 0]), float(self.ekf.P[1, 1])
-            subs = {}
+            after, subs = self._main(), {}
             for name, sub in aux.subs.items():
-                new = separation.fix(sub, m.stamp, z, R, v, var_v, self._gates[m.sensor])
+                new = separation.fix(sub, m.stamp, z, R, self._before, after, self._gates[m.sensor])
                 if new is None:
                     new = separation.seed(self._subs[name], m.stamp, x0, P00)
                     aux.events = _inc(aux.events, "sensor_solution_refuted")
@@ -1435,7 +1440,7 @@ class TrainFilter:
         for name, sub in aux.subs.items():   # each relative sensor's own solution (protection level)
             if not sub.own:
                 continue   # its sensor has not read since it started: the filter's own solution
-            s_j, var_j = separation.at(sub, t, float(v), var_v)
+            s_j, var_j = separation.at(sub, t, float(s), var_s)
             var_j = max(var_j, var_s)
             half = self._z * math.sqrt(var_j)
             if s_j - half < lo or s_j + half > hi:

@@ -53,6 +53,15 @@ class SubModel:
     creep_in_traction: bool
 
 
+class Main(NamedTuple):
+    """The filter's own solution at a time, as the sensor solutions need it."""
+
+    s: float               # position [m]
+    P00: float             # its variance [m^2]
+    v: float               # speed [m/s]
+    var_v: float           # its variance [m^2/s^2]
+
+
 class Sub(NamedTuple):
     """One sensor's own solution at time t."""
 
@@ -66,6 +75,11 @@ class Sub(NamedTuple):
     pkk: float
     pkb: float
     pbb: float
+    anchor_t: float        # time [s] of its last own reading or fix; its position [m] and variance
+    anchor_s: float        # [m^2] then; a
+    anchor_pss: float      # time without readings since follows the filter's motion from there:
+    base_s: float          # the filter's position [m] and variance [m^2] then
+    base_P00: float
     own: bool              # whether it has integrated a reading of its own since it started
     t_v: float             # stamp of its last own speed [s] (-inf: following the filter)
     dv: float              # its speed less the filter's, averaged over ``window`` s [m/s]
@@ -94,16 +108,30 @@ def sub_models(models: dict) -> dict[str, SubModel]:
 def seed(sm: SubModel, t: float, s: float, var_s: float) -> Sub:
     """A solution that starts at the filter's position s [m] (variance var_s [m^2]) at t [s],
     its error states at their priors."""
-    return Sub(t, s, 0.0, 0.0, var_s, 0.0, 0.0, sm.scale_var, 0.0, sm.bias_var, False, -math.inf, 0.0, 0.0)
+    return Sub(t, s, 0.0, 0.0, var_s, 0.0, 0.0, sm.scale_var, 0.0, sm.bias_var, t, s, var_s, s, var_s, False,
+               -math.inf, 0.0, 0.0)
 
 
-def follow(sub: Sub, t: float, v: float, var_v: float) -> Sub:
-    """The solution moved to t [s] with the filter's speed v [m/s] (variance var_v): a time
-    without a reading of its own, or one the filter excluded as its sensor's own fault."""
-    dt = t - sub.t
-    if dt <= 0.0:
+def _anchored(sub: Sub, main: Main) -> Sub:
+    """The solution anchored here: a later time without readings follows the filter from ``main``."""
+    return sub._replace(anchor_t=sub.t, anchor_s=sub.s, anchor_pss=sub.pss, base_s=main.s, base_P00=main.P00)
+
+
+def follow(sub: Sub, t: float, main: Main, own: float = 0.0) -> Sub:
+    """The solution moved to t [s] with the filter (``main`` at t): a time without a reading of
+    its own, or one the filter excluded as its sensor's own fault. From its last own reading or
+    fix it moves as the filter did and its variance grows as the filter's did (the filter's dead
+    reckoning over that time; counted from there, so that the ups and downs of the filter's
+    variance in between do not add up); ``own`` [s]: the part of it up to t that a reading of
+    the sensor covers, taken off with the filter's speed."""
+    if t <= sub.t:
         return sub
-    return sub._replace(t=t, s=sub.s + v * dt, pss=sub.pss + var_v * dt * dt, t_v=-math.inf)
+    # the variance of the filter's displacement since the anchor: its position variance's growth,
+    # at most that of a persistent speed error over the time (the growth also holds what other
+    # sensors taught it about where it was then)
+    dt = t - sub.anchor_t
+    grown = min(max(main.P00 - sub.base_P00, 0.0), main.var_v * dt * dt)
+    return sub._replace(t=t, s=sub.anchor_s + (main.s - sub.base_s) - main.v * own, pss=sub.anchor_pss + grown)
 
 
 def _advance(sub: Sub, sm: SubModel, t: float, dt: float, u: float, R: float) -> Sub:
@@ -119,12 +147,11 @@ def _advance(sub: Sub, sm: SubModel, t: float, dt: float, u: float, R: float) ->
     return sub._replace(t=t, s=sub.s + ds, pss=pss, psk=psk, psb=psb)
 
 
-def reading(sub: Sub, sm: SubModel, m, R: float, a: float, v: float, var_v: float, window: float) -> Sub:
+def reading(sub: Sub, sm: SubModel, m, R: float, a: float, main: Main, window: float) -> Sub:
     """The solution after a reading m of its sensor (speed or distance increment; R its white
-    variance in speed units [m^2/s^2]); a [m/s^2], v [m/s], var_v: the filter's acceleration
-    and speed at its stamp, for the creep and for the time not covered by the reading. Its
-    speed less the filter's is averaged over ``window`` s (one reading's noise is no speed
-    hypothesis)."""
+    variance in speed units [m^2/s^2]); a [m/s^2]: the filter's acceleration (creep); ``main``:
+    the filter at the reading's stamp, for the time the reading does not cover. Its speed less
+    the filter's is averaged over ``window`` s (one reading's noise is no speed hypothesis)."""
     if isinstance(m, SpeedMeasurement):
         z, start = m.speed, m.stamp
     else:
@@ -133,6 +160,7 @@ def reading(sub: Sub, sm: SubModel, m, R: float, a: float, v: float, var_v: floa
     sv = 1.0 if u >= 0.0 else -1.0
     if sm.creep and (sm.creep_in_traction or a * sv < 0.0):
         u /= 1.0 + sm.creep * a * sv          # creep: the wheel turns at u (1 + c a sign u)
+    v = main.v
     if math.isfinite(sub.t_v) and m.stamp > sub.t_v:
         w = min((m.stamp - sub.t_v) / window, 1.0)
         dv, var_dv = sub.dv + w * (u - v - sub.dv), (1.0 - w) ** 2 * sub.var_dv + w * w * R
@@ -140,16 +168,16 @@ def reading(sub: Sub, sm: SubModel, m, R: float, a: float, v: float, var_v: floa
         dv, var_dv = u - v, R
     if isinstance(m, SpeedMeasurement):
         dt = m.stamp - sub.t
-        if dt > 0.0 and dt <= _SPEED_GAP and math.isfinite(sub.t_v):
-            sub = _advance(sub, sm, m.stamp, dt, 0.5 * (u + v + sub.dv), R)
+        if 0.0 < dt <= _SPEED_GAP and math.isfinite(sub.t_v):
+            sub = _anchored(_advance(sub, sm, m.stamp, dt, 0.5 * (u + v + sub.dv), R), main)
         else:
-            sub = follow(sub, m.stamp, v, var_v)
+            sub = follow(sub, m.stamp, main)
         return sub._replace(own=True, t_v=m.stamp, dv=dv, var_dv=var_dv)
+    dt = m.stamp - max(start, sub.t)
     if start > sub.t:
-        sub = follow(sub, start, v, var_v)
-    dt = m.stamp - sub.t
+        sub = follow(sub, m.stamp, main, own=dt)._replace(t=start)
     if dt > 0.0:
-        sub = _advance(sub, sm, m.stamp, dt, u, R)
+        sub = _anchored(_advance(sub, sm, m.stamp, dt, u, R), main)
     return sub._replace(own=True, t_v=m.stamp, dv=dv, var_dv=var_dv)
 
 
@@ -161,25 +189,30 @@ def speed_half_width(sub: Sub, sm: SubModel, v: float, var_v: float, z: float) -
     return abs(sub.dv) + z * math.sqrt(var)
 
 
-def fix(sub: Sub, t: float, z: float, R: float, v: float, var_v: float, gate: float) -> Sub | None:
+def fix(sub: Sub, t: float, z: float, R: float, before: Main, after: Main, gate: float) -> Sub | None:
     """The solution after an absolute fix z [m] of variance R [m^2] at t [s] (H = [1, 0, 0]),
-    or None if it cannot explain the fix (normalised innovation squared beyond ``gate``)."""
-    sub = follow(sub, t, v, var_v)._replace(t_v=sub.t_v) if t > sub.t else sub
+    or None if it cannot explain the fix (normalised innovation squared beyond ``gate``);
+    ``before``, ``after``: the filter at t without and with the fix (the solution follows its
+    motion to t, not its correction)."""
+    if t > sub.t:
+        sub = follow(sub, t, before)._replace(t_v=sub.t_v)
     nu, S = z - sub.s, sub.pss + R
     if nu * nu > gate * S:
         return None
     ks, kk, kb = sub.pss / S, sub.psk / S, sub.psb / S
-    return sub._replace(
+    return _anchored(sub._replace(
         s=sub.s + ks * nu, k=sub.k + kk * nu, b=sub.b + kb * nu,
         pss=sub.pss - ks * sub.pss, psk=sub.psk - ks * sub.psk, psb=sub.psb - ks * sub.psb,
-        pkk=sub.pkk - kk * sub.psk, pkb=sub.pkb - kk * sub.psb, pbb=sub.pbb - kb * sub.psb)
+        pkk=sub.pkk - kk * sub.psk, pkb=sub.pkb - kk * sub.psb, pbb=sub.pbb - kb * sub.psb), after)
 
 
-def at(sub: Sub, t: float, v: float, var_v: float) -> tuple[float, float]:
-    """(position [m], variance [m^2]) of the solution at t [s], moved from its last reading
-    with the filter's speed v [m/s] (variance var_v)."""
-    dt = t - sub.t
-    return sub.s + v * dt, sub.pss + var_v * dt * dt
+def at(sub: Sub, t: float, s: float, var_s: float) -> tuple[float, float]:
+    """(position [m], variance [m^2]) of the solution at t [s], moved with the filter since its
+    last reading (the filter at s [m], variance var_s [m^2] at t)."""
+    if t <= sub.t:
+        return sub.s, sub.pss
+    moved = follow(sub, t, Main(s, var_s, 0.0, 0.0))
+    return moved.s, moved.pss
 
 
 def separated(s_sub: float, var_sub: float, s: float, var_s: float, z: float) -> bool:

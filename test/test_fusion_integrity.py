@@ -621,18 +621,23 @@ def test_a_wheel_still_sliding_after_its_holdoff_is_not_taken_back_on_one_readin
 
 
 # --------------------------------------------------------------------------- sensor solutions
-def test_sensor_solutions_are_kept_where_a_persistent_fault_could_be_blended_away():
-    """Only a relative sensor that another's persistent fault (a radar scale fault) could pull
-    keeps its own solution; the fault modes come from the sensors' error models, and a user's
-    override of them reaches the filter."""
+def test_sensor_solutions_are_kept_where_another_sensors_fault_could_be_blended_away():
+    """A relative sensor keeps its own solution where another's persistent fault (a radar scale
+    fault) could pull the filter, and, if it has no fault modes of its own (a coil counter),
+    where another's transient one (a wheel slip) could; the fault modes come from the sensors'
+    error models, and a user's override of them reaches the filter."""
     def kept(nodes, overrides=None):
         cfg = FusionConfig(sensors=sensor_models(nodes, None, Vehicle()), overrides=overrides or {})
         return sorted(TrainFilter(cfg)._subs)
     assert kept(["wheel_sensor", "doppler_radar", "eurobalise_reader"]) == ["wheel"]
     assert kept(["pattern_belt", "doppler_radar"]) == ["pattern_belt"]
     assert kept(["doppler_radar", "eurobalise_reader"]) == []          # a lone speed source
-    assert kept(["wheel_sensor", "coil_counter", "emf_observer"]) == []  # no persistent fault
-    assert kept(["wheel_sensor", "doppler_radar"], {"doppler": {"faults": ["dropout"]}}) == []
+    assert kept(["wheel_sensor", "coil_counter", "emf_observer"]) == ["coil_counter", "emf_observer"]
+    assert kept(["coil_counter", "emf_observer"]) == []                # no fault to protect against
+    assert kept(["wheel_sensor", "coil_counter"], {"wheel": {"faults": []}}) == []
+    # a radar declared without scale faults no longer needs the wheel's solution, and now keeps one
+    # of its own against the wheel's slips
+    assert kept(["wheel_sensor", "doppler_radar"], {"doppler": {"faults": ["dropout"]}}) == ["doppler"]
 
 
 def test_a_sensor_solution_learns_its_scale_from_the_fixes_and_is_refuted_by_one_it_cannot_explain():
@@ -640,7 +645,7 @@ def test_a_sensor_solution_learns_its_scale_from_the_fixes_and_is_refuted_by_one
     scale (to within the fixes' 0.3 m over the distance), after which it tracks the truth; a fix
     20 m off refutes it."""
     sm = separation.sub_models(sensor_models(["wheel_sensor", "doppler_radar"], None, Vehicle()))["wheel"]
-    sub = separation.seed(sm, 0.0, 0.0, 0.01)
+    sub = separation.seed(sm, 0.0, 0.0, 0.01, 20.0)
     v, s, errors = 20.0, 0.0, []
     for j in range(1, 2001):     # 100 s at 20 m/s, increments of 50 ms, fixes every 1 km
         t = j * 0.05
@@ -650,9 +655,9 @@ def test_a_sensor_solution_learns_its_scale_from_the_fixes_and_is_refuted_by_one
                                  (0.002 / 0.05) ** 2, 0.0, main, 1.0)
         if j % 1000 == 0:
             errors.append(sub.s - s)
-            sub = separation.fix(sub, t, s, 0.09, main, main, 15.0)
+            sub = separation.fix(sub, t, s, 0.09, main, 15.0)
     assert errors[0] == pytest.approx(10.0, abs=0.5)          # 1 % of the first kilometre
     assert abs(errors[1]) < 0.5                               # the scale learnt at the first fix
     assert sub.k == pytest.approx(0.01, abs=0.001) and math.sqrt(sub.pkk) < 0.001
     assert abs(sub.s - s) < 0.3
-    assert separation.fix(sub, 100.0, s + 20.0, 0.09, main, main, 15.0) is None
+    assert separation.fix(sub, 100.0, s + 20.0, 0.09, main, 15.0) is None

@@ -352,7 +352,7 @@ class TrainFilter:
             aux.last_accepted = {"operator": stamp if stamp is not None else 0.0}
             aux.s_last_fix = position
             aux.subs = {name: separation.seed(sm, stamp if stamp is not None else 0.0, position,
-                                              position_stddev ** 2) for name, sm in self._subs.items()}
+                                              position_stddev ** 2, speed) for name, sm in self._subs.items()}
         aux.t = stamp
         self._clear((x, P, aux))
         if stamp is not None:
@@ -391,6 +391,7 @@ class TrainFilter:
         self._predict_to(m.stamp)
         if self._subs:
             self._before = self._main()   # the filter before this measurement (separation.py)
+        self._since = m.stamp - aux.last_accepted.get(m.sensor, -math.inf)
         self.applied += 1
         cls = m.sensor
         is_fix = isinstance(m, PositionFix)
@@ -1216,8 +1217,8 @@ class TrainFilter:
     # -- solution separation (separation.py) -----------------------------------
     def _seed_subs(self, stamp: float) -> None:
         """Every relative sensor's own solution starts again from the filter's position."""
-        s, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
-        self.aux.subs = {name: separation.seed(sm, stamp, s, P00) for name, sm in self._subs.items()}
+        s, P00, v = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0]), float(self.ekf.x[1, 0])
+        self.aux.subs = {name: separation.seed(sm, stamp, s, P00, v) for name, sm in self._subs.items()}
 
     def _main(self) -> separation.Main:
         """The filter's own solution now, for the sensor solutions."""
@@ -1230,7 +1231,7 @@ class TrainFilter:
         aux, cls, before = self.aux, m.sensor, self._before
         sub = aux.subs.get(cls)
         if sub is None:
-            sub = separation.seed(sm, m.stamp, before.s, before.P00)
+            sub = separation.seed(sm, m.stamp, before.s, before.P00, before.v)
         elif _speed_excluded(aux, cls, m.stamp) and cls not in aux.relative_alternatives:
             sub = separation.follow(sub, m.stamp, before)._replace(t_v=-math.inf)
         else:
@@ -1240,12 +1241,18 @@ class TrainFilter:
 
     def _located(self, m) -> tuple[float, float]:
         """(position [m], variance [m^2]) of the train front that an accepted fix m gives under
-        any hypothesis: the fix less its persistent error as the filter knows it."""
-        z, R, _, hx = self._measurement(m)
+        any hypothesis. The filter's estimate of the fix's persistent error (fix bias) is not
+        used: it is learnt together with the filter's own solution and may hold what the filter
+        got wrong. Its prior variance is added, as shared by the sensor's fixes within its
+        correlation time (each counts for the fraction of that time since the previous one, as
+        ``models.fix_noise`` counts a decoder's excess)."""
+        z, R, _, _ = self._measurement(m)
         f_idx = self.layout.fix.get(m.sensor)
         if f_idx is not None:
-            z -= hx - float(self.ekf.x[0, 0])
-            R += float(self.ekf.P[f_idx, f_idx])
+            model = self.models[m.sensor]
+            rate = 1.0 / model.fix_bias_tau + abs(float(self.ekf.x[1, 0])) / model.fix_bias_length
+            share = rate * self._since if rate > 0.0 else 1.0
+            R += float(self.layout.prior_sigma[f_idx]) ** 2 / min(max(share, 1e-6), 1.0)
         return z, R
 
     def _hypotheses_take_fix(self, m) -> None:
@@ -1263,11 +1270,11 @@ class TrainFilter:
             aux.motion_views = tuple(self._motion_view_fixed(view, m.stamp, z, R, x0, P00)
                                      for view in aux.motion_views)
         if aux.subs:
-            after, subs = self._main(), {}
+            subs = {}
             for name, sub in aux.subs.items():
-                new = separation.fix(sub, m.stamp, z, R, self._before, after, self._gates[m.sensor])
+                new = separation.fix(sub, m.stamp, z, R, self._before, self._gates[m.sensor])
                 if new is None:
-                    new = separation.seed(self._subs[name], m.stamp, x0, P00)
+                    new = separation.seed(self._subs[name], m.stamp, x0, P00, float(self.ekf.x[1, 0]))
                     aux.events = _inc(aux.events, "sensor_solution_refuted")
                 subs[name] = new
             aux.subs = subs
@@ -1440,7 +1447,7 @@ class TrainFilter:
         for name, sub in aux.subs.items():   # each relative sensor's own solution (protection level)
             if not sub.own:
                 continue   # its sensor has not read since it started: the filter's own solution
-            s_j, var_j = separation.at(sub, t, float(s), var_s)
+            s_j, var_j = separation.at(sub, t, float(s), var_s, float(v))
             var_j = max(var_j, var_s)
             half = self._z * math.sqrt(var_j)
             if s_j - half < lo or s_j + half > hi:

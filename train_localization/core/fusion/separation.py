@@ -33,7 +33,9 @@ from typing import NamedTuple
 
 from ..measurements import SpeedMeasurement
 
-# fault modes of a relative sensor that persist and that its own error states can absorb
+# fault modes of a relative sensor that its error states can absorb before a test fires, and of
+# those the ones that persist
+ABSORBED = frozenset(("scale_fault", "slip", "slide"))
 PERSISTENT = frozenset(("scale_fault",))
 
 # a speed sensor silent longer than this [s] is not interpolated across: the gap follows the filter
@@ -78,7 +80,7 @@ class Sub(NamedTuple):
     anchor_t: float        # time [s] of its last own reading or fix; its position [m] and variance
     anchor_s: float        # [m^2] then; a
     anchor_pss: float      # time without readings since follows the filter's motion from there:
-    base_s: float          # the filter's position [m] and variance [m^2] then
+    base_v: float          # the filter's speed [m/s] and position variance [m^2] then
     base_P00: float
     own: bool              # whether it has integrated a reading of its own since it started
     t_v: float             # stamp of its last own speed [s] (-inf: following the filter)
@@ -87,15 +89,22 @@ class Sub(NamedTuple):
 
 
 def sub_models(models: dict) -> dict[str, SubModel]:
-    """The solution models of the relative sensors that another relative sensor's persistent
-    fault (``PERSISTENT``: a radar's scale fault, which no test of its own can tell from a
-    scale error) could blend away. A transient fault (a wheel's slip or slide) has its own
-    physical tests and ends by itself; a sensor's solution protects against the others' faults,
-    not against its own."""
+    """The solution models of the relative sensors that another relative sensor's fault could
+    blend away (``ABSORBED``: faults its error states can take up before a test fires). Against
+    a persistent fault (``PERSISTENT``: a radar's scale fault, which no test of its own can tell
+    from a scale error) every other relative sensor keeps one. Against a transient one (a wheel's
+    slip or slide, which has physical tests and ends by itself, but is absorbed into a wheel
+    scale that is not yet calibrated when it starts slowly) only the sensors without fault modes
+    of their own do (contactless counters: coil counter, EMF observer, pattern belt): a
+    solution of a sensor that has its own faults (the radar against the wheel) would be as wide
+    as that sensor alone, for a fault the tests mostly catch. A sensor's solution protects
+    against the others' faults, not against its own."""
     relative = {s: m for s, m in models.items() if m.relative}
     out = {}
     for name, m in relative.items():
-        if not any(PERSISTENT & set(o.faults) for other, o in relative.items() if other != name):
+        clean = not ABSORBED & set(m.faults)
+        others = [set(o.faults) for other, o in relative.items() if other != name]
+        if not any(PERSISTENT & f or (clean and ABSORBED & f) for f in others):
             continue
         gm = math.isfinite(m.scale_tau) and m.scale_sigma > 0.0
         constant = m.scale_offset_sigma if gm else m.scale_sigma
@@ -105,25 +114,25 @@ def sub_models(models: dict) -> dict[str, SubModel]:
     return out
 
 
-def seed(sm: SubModel, t: float, s: float, var_s: float) -> Sub:
-    """A solution that starts at the filter's position s [m] (variance var_s [m^2]) at t [s],
-    its error states at their priors."""
-    return Sub(t, s, 0.0, 0.0, var_s, 0.0, 0.0, sm.scale_var, 0.0, sm.bias_var, t, s, var_s, s, var_s, False,
+def seed(sm: SubModel, t: float, s: float, var_s: float, v: float) -> Sub:
+    """A solution that starts at the filter's position s [m] (variance var_s [m^2]) and speed v
+    [m/s] at t [s], its error states at their priors."""
+    return Sub(t, s, 0.0, 0.0, var_s, 0.0, 0.0, sm.scale_var, 0.0, sm.bias_var, t, s, var_s, v, var_s, False,
                -math.inf, 0.0, 0.0)
 
 
 def _anchored(sub: Sub, main: Main) -> Sub:
     """The solution anchored here: a later time without readings follows the filter from ``main``."""
-    return sub._replace(anchor_t=sub.t, anchor_s=sub.s, anchor_pss=sub.pss, base_s=main.s, base_P00=main.P00)
+    return sub._replace(anchor_t=sub.t, anchor_s=sub.s, anchor_pss=sub.pss, base_v=main.v, base_P00=main.P00)
 
 
 def follow(sub: Sub, t: float, main: Main, own: float = 0.0) -> Sub:
     """The solution moved to t [s] with the filter (``main`` at t): a time without a reading of
     its own, or one the filter excluded as its sensor's own fault. From its last own reading or
-    fix it moves as the filter did and its variance grows as the filter's did (the filter's dead
-    reckoning over that time; counted from there, so that the ups and downs of the filter's
-    variance in between do not add up); ``own`` [s]: the part of it up to t that a reading of
-    the sensor covers, taken off with the filter's speed."""
+    fix it moves with the filter's speed (its motion, not the corrections other sensors make to
+    its position) and its variance grows as the filter's did (the filter's dead reckoning over
+    that time; counted from there, so that the ups and downs of the filter's variance in between
+    do not add up); ``own`` [s]: the part of it up to t that a reading of the sensor covers."""
     if t <= sub.t:
         return sub
     # the variance of the filter's displacement since the anchor: its position variance's growth,
@@ -131,7 +140,8 @@ def follow(sub: Sub, t: float, main: Main, own: float = 0.0) -> Sub:
     # sensors taught it about where it was then)
     dt = t - sub.anchor_t
     grown = min(max(main.P00 - sub.base_P00, 0.0), main.var_v * dt * dt)
-    return sub._replace(t=t, s=sub.anchor_s + (main.s - sub.base_s) - main.v * own, pss=sub.anchor_pss + grown)
+    moved = 0.5 * (sub.base_v + main.v) * (dt - own)
+    return sub._replace(t=t, s=sub.anchor_s + moved, pss=sub.anchor_pss + grown)
 
 
 def _advance(sub: Sub, sm: SubModel, t: float, dt: float, u: float, R: float) -> Sub:
@@ -189,29 +199,37 @@ def speed_half_width(sub: Sub, sm: SubModel, v: float, var_v: float, z: float) -
     return abs(sub.dv) + z * math.sqrt(var)
 
 
-def fix(sub: Sub, t: float, z: float, R: float, before: Main, after: Main, gate: float) -> Sub | None:
-    """The solution after an absolute fix z [m] of variance R [m^2] at t [s] (H = [1, 0, 0]),
-    or None if it cannot explain the fix (normalised innovation squared beyond ``gate``);
-    ``before``, ``after``: the filter at t without and with the fix (the solution follows its
-    motion to t, not its correction)."""
-    if t > sub.t:
-        sub = follow(sub, t, before)._replace(t_v=sub.t_v)
-    nu, S = z - sub.s, sub.pss + R
+def fix(sub: Sub, t: float, z: float, R: float, before: Main, gate: float) -> Sub | None:
+    """The solution after an absolute fix z [m] of variance R [m^2] at t [s], or None if it
+    cannot explain the fix (normalised innovation squared beyond ``gate``); ``before``: the
+    filter at t without the fix. While its sensor reads, the fix observes the solution's
+    position at its own last time plus the filter's motion since, whose variance joins R: the
+    solution stays at its own time, so that its sensor's next reading covers its whole interval
+    with its own speed. After a longer silence, or while it follows the filter (its sensor
+    excluded), the solution moves to the fix with the filter and is anchored there."""
+    moved = follow(sub, t, before)
+    if t - sub.t > _SPEED_GAP or sub.t != sub.anchor_t:   # silent, or following the filter
+        sub = moved._replace(anchor_t=t, anchor_s=moved.s, anchor_pss=moved.pss, base_v=before.v,
+                             base_P00=before.P00)
+    else:
+        R += moved.pss - sub.pss
+    nu, S = z - moved.s, sub.pss + R
     if nu * nu > gate * S:
         return None
     ks, kk, kb = sub.pss / S, sub.psk / S, sub.psb / S
-    return _anchored(sub._replace(
+    new = sub._replace(
         s=sub.s + ks * nu, k=sub.k + kk * nu, b=sub.b + kb * nu,
         pss=sub.pss - ks * sub.pss, psk=sub.psk - ks * sub.psk, psb=sub.psb - ks * sub.psb,
-        pkk=sub.pkk - kk * sub.psk, pkb=sub.pkb - kk * sub.psb, pbb=sub.pbb - kb * sub.psb), after)
+        pkk=sub.pkk - kk * sub.psk, pkb=sub.pkb - kk * sub.psb, pbb=sub.pbb - kb * sub.psb)
+    return new._replace(anchor_s=new.s, anchor_pss=new.pss)
 
 
-def at(sub: Sub, t: float, s: float, var_s: float) -> tuple[float, float]:
+def at(sub: Sub, t: float, s: float, var_s: float, v: float) -> tuple[float, float]:
     """(position [m], variance [m^2]) of the solution at t [s], moved with the filter since its
-    last reading (the filter at s [m], variance var_s [m^2] at t)."""
+    last reading (the filter at s [m], variance var_s [m^2], speed v [m/s] at t)."""
     if t <= sub.t:
         return sub.s, sub.pss
-    moved = follow(sub, t, Main(s, var_s, 0.0, 0.0))
+    moved = follow(sub, t, Main(s, var_s, v, 0.0))
     return moved.s, moved.pss
 
 

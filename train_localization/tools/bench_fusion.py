@@ -199,9 +199,9 @@ def main(argv=None) -> int:
             t0 = time.perf_counter()
             result = simulate_scenario(sc)
             runs = result.trains if sc.line else {sc.train_name: result}
-            for name, run in runs.items():   # a block per train
-                print_figures(figures(sc.train(name), run))
-                print(f"  filter counters: {run.runner.filter.counters()}")
+            for name, train_run in runs.items():   # a block per train
+                print_figures(figures(sc.train(name), train_run))
+                print(f"  filter counters: {train_run.runner.filter.counters()}")
             if sc.line:
                 print_association(result)
             print(f"  (simulate_scenario {time.perf_counter() - t0:.1f} s)")

@@ -29,7 +29,8 @@ information; the filter may say it does not know, never be confidently wrong):
               scale nobody has): every relative sensor's error states are re-learnt from
               their priors and the position and speed covariance widened by what the
               corrupted states can have caused since the last accepted fix.
-  separation  each relative sensor that another's persistent fault could pull (separation.py)
+  separation  each relative sensor that another's fault could pull (separation.py: against a
+              radar scale fault every other one, against a wheel slip the fault-free ones)
               keeps its own dead reckoning from the fixes; the interval and the speed cover it,
               DEGRADED where the filter's own interval would not have (a radar scale fault
               absorbed into both scale states before any test sees it).

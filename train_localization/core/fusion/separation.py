@@ -10,16 +10,16 @@ algorithm description", 2012): besides the all-in-view solution it keeps one sol
 fault hypothesis, each without the measurements that fault would corrupt, and the protection
 level covers every one of them. A faulty sensor cannot pull the solutions that exclude it.
 
-Here each relative sensor j (speed or distance, when two or more are configured) keeps its
-own dead reckoning from the absolute fixes: the train's position s_j integrated from j's
+Here each relative sensor j that another's fault could pull (``sub_models``) keeps its own
+dead reckoning from the absolute fixes: the train's position s_j integrated from j's
 readings alone, corrected by its own scale error k_j and bias b_j, which it learns only from
 the fixes (a 3-state Kalman filter per sensor; the hypothesis "j is the healthy one"). The
 published interval covers each of them with its own uncertainty; where the filter's own
 interval would not have covered one (the separation beyond the test threshold) the filter
 reports DEGRADED. A fix the filter accepts but sensor j's solution cannot explain refutes
-that hypothesis: its solution starts again from the filter's. While the filter has excluded
-j for its own fault (a wheel slip under traction, a radar it found faulty), j's solution
-follows the filter's speed over that time.
+that hypothesis: its solution starts again from the filter's. While j is silent, or the
+filter has excluded it for its own fault (a wheel slip under traction, a radar it found
+faulty), j's solution follows the filter's speed (``follow``).
 
 Units: s [m], k [1], b [m/s], times [s]. A solution is the tuple ``Sub`` below; the
 filter keeps them in its rolled-back bookkeeping (copy-on-write, never changed in place).

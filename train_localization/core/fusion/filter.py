@@ -113,7 +113,7 @@ from ..signals import InputRejected
 from .config import FusionConfig, gate_probability
 from .history import History, order_key
 from .layout import StateLayout
-from .models import ProcessModel, implied_speed, measurement
+from .models import ProcessModel, fixes_sharing, implied_speed, measurement
 from . import separation
 
 
@@ -392,10 +392,11 @@ class TrainFilter:
         self._predict_to(m.stamp)
         if self._subs:
             self._before = self._main()   # the filter before this measurement (separation.py)
-        self._since = m.stamp - aux.last_accepted.get(m.sensor, -math.inf)
         self.applied += 1
         cls = m.sensor
         is_fix = isinstance(m, PositionFix)
+        if is_fix:   # since the sensor's previous fix, before this one counts (_located)
+            self._since = m.stamp - aux.last_accepted.get(cls, -math.inf)
         if cls in self.layout.per_reference and is_fix and aux.fix_ref.get(cls) != m.reference_id:
             self._new_fix_bias(cls)
             aux.fix_ref = {**aux.fix_ref, cls: m.reference_id}
@@ -1250,10 +1251,8 @@ class TrainFilter:
         z, R, _, _ = self._measurement(m)
         f_idx = self.layout.fix.get(m.sensor)
         if f_idx is not None:
-            model = self.models[m.sensor]
-            rate = 1.0 / model.fix_bias_tau + abs(float(self.ekf.x[1, 0])) / model.fix_bias_length
-            share = rate * self._since if rate > 0.0 else 1.0
-            R += float(self.layout.prior_sigma[f_idx]) ** 2 / min(max(share, 1e-6), 1.0)
+            shared = fixes_sharing(self.models[m.sensor], abs(float(self.ekf.x[1, 0])), self._since)
+            R += float(self.layout.prior_sigma[f_idx]) ** 2 * shared
         return z, R
 
     def _hypotheses_take_fix(self, m) -> None:
@@ -1289,9 +1288,8 @@ class TrainFilter:
             k = var_m / (var_m + R)
             return ("moved", s_m + k * (z - s_m), (1.0 - k) * var_m, s_f, P00_f)
         _, t_c, s, v, a, p = view
-        dt = max(t - t_c, 0.0)
-        F = np.array([[1.0, dt, 0.5 * dt * dt], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
-        Q = self.process.transition(dt)[2][:3, :3] if dt > 0.0 else np.zeros((3, 3))
+        F, _, Q = self.process.transition(max(t - t_c, 0.0))
+        F, Q = F[:3, :3], Q[:3, :3]      # the kinematic block: the error states do not enter it
         p00, p01, p02, p11, p12, p22 = p
         P = F @ np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]]) @ F.T + Q
         x = F @ np.array([s, v, a])

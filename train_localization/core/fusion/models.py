@@ -153,9 +153,16 @@ def fix_noise(layout: StateLayout, m, speed: float, since: float) -> float:
     white = model.fix_white_sigma ** 2
     if R <= white:
         return R
+    return white + (R - white) * fixes_sharing(model, speed, since)
+
+
+def fixes_sharing(model, speed: float, since: float) -> float:
+    """How many fixes of a sensor share one persistent error (at least 1): its correlation time
+    at ``speed`` [m/s] (``fix_bias_tau``, ``fix_bias_length``) over ``since`` [s], the time since
+    the sensor's previous fix."""
     rate = 1.0 / model.fix_bias_tau + speed / model.fix_bias_length
     shared = 1.0 / (rate * since) if rate > 0.0 and since > 0.0 else 1.0
-    return white + (R - white) * max(shared, 1.0)
+    return max(shared, 1.0)
 
 
 def implied_speed(layout: StateLayout, x_col, P, m, z: float, R: float) -> tuple[float, float, float]:

@@ -382,6 +382,24 @@ def _blind_run(radar_fault_end: float = 8.0, braking_end: float = 30.0, accel: f
                       lambda t: accel if 2.0 <= t < braking_end else 0.0, 1200, 1, feed)
 
 
+def test_a_braking_train_that_no_sensor_sees_stop_stays_at_rest():
+    """Braking at 1 m/s^2 from 20 m/s to rest at 22 s: the radar, the only speed source, falls
+    silent below 0.3 m/s (no Doppler shift to measure). The motion model stops the train where
+    the braking brings it to rest and holds it there; before, it ran the train backwards through
+    the standstill with the last acceleration (10 m/s backwards 10 s later, far outside the
+    SUBSET-041 speed band)."""
+    def feed(f, j, t, s, v, v_old, rng):
+        if v >= 0.3:
+            f.add(SpeedMeasurement(t - 0.025, "doppler", "doppler", v + rng.normal(0, 0.03), 0.02 + 0.011 * v))
+    f, checked = _train_run(["doppler_radar", "eurobalise_reader"], 20.0,
+                            lambda t: -1.0 if t >= 2.0 else 0.0, 640, 3, feed)
+    at_rest = [(t, e, s) for t, e, s, v in checked if t >= 22.5]
+    assert all(abs(e.speed) <= speed_envelope(0.0) for _, e, _ in at_rest)
+    assert all(abs(e.position - s) < 1.0 and e.position_min <= s <= e.position_max for _, e, s in at_rest)
+    assert max(e.position for _, e, _ in at_rest) - min(e.position for _, e, _ in at_rest) < 0.05
+    assert checked[-1][1].acceleration == 0.0
+
+
 def test_speed_sources_excluded_together_are_restored_by_agreeing_with_each_other():
     """With every speed source excluded, each waited for a reference to agree with, and the
     filter dead-reckoned on its motion model: LOST, 24 m/s off after a minute. Two sources

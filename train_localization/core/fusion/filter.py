@@ -113,7 +113,7 @@ from ..signals import InputRejected
 from .config import FusionConfig, gate_probability
 from .history import History, order_key
 from .layout import StateLayout
-from .models import ProcessModel, fixes_sharing, implied_speed, measurement
+from .models import ProcessModel, braking_stop, fixes_sharing, implied_speed, measurement
 from . import separation
 
 
@@ -235,13 +235,17 @@ def _kinematic_covariance(P) -> tuple:
 def _kinematics(s: float, v: float, a: float, p: tuple, dt: float, q: float) -> tuple:
     """(position [m], speed [m/s], their variances) dt [s] after (s, v, a) with the kinematic
     covariance p (``_kinematic_covariance``), under the white-jerk motion model of spectral
-    density q [m^2/s^5]: the first three rows of F and Q. Plain floats: numpy's per-call
-    overhead dominates 3x3 arithmetic at 200 estimates/s."""
+    density q [m^2/s^5]: the first three rows of F and Q, the train held at rest where a
+    braking brings it there (``braking_stop``). Plain floats: numpy's per-call overhead
+    dominates 3x3 arithmetic at 200 estimates/s."""
     p00, p01, p02, p11, p12, p22 = p
     h, dt2 = 0.5 * dt * dt, dt * dt
     var_s = (p00 + 2 * dt * p01 + 2 * h * p02 + dt2 * p11 + 2 * dt * h * p12 + h * h * p22
              + q * dt2 * dt2 * dt / 20)
     var_v = p11 + 2 * dt * p12 + dt2 * p22 + q * dt2 * dt / 3
+    stop = braking_stop(v, a, dt)
+    if stop is not None:
+        return s + v * stop + 0.5 * a * stop * stop, 0.0, var_s, var_v
     return s + v * dt + a * h, v + a * dt, var_s, var_v
 
 
@@ -1397,6 +1401,8 @@ class TrainFilter:
             a = x_err[2]
             dt = t - aux.t
             s, v, var_s, var_v = _kinematics(x_err[0], x_err[1], a, c[3], dt, self.cfg.jerk_psd)
+            if braking_stop(x_err[1], a, dt) is not None:
+                a = 0.0   # at rest
             if self.layout.gauss_markov:
                 x_err = list(x_err)
                 for i, tau, _ in self.layout.gauss_markov:

@@ -1,7 +1,9 @@
 """Process and measurement models of the along-track filter (scalar measurements).
 
 Process model
-  [s, v, a]   constant acceleration driven by white jerk (spectral density ``jerk_psd``)
+  [s, v, a]   constant acceleration driven by white jerk (spectral density ``jerk_psd``);
+              an acceleration that brings the speed to zero holds the train at rest there
+              (``braking_stop``): a brake cannot drive a train backwards
   k (scale)   Gauss-Markov: the exact discretisation of an AR(1) error with correlation
               time tau and stationary 1-sigma (the Doppler radar, doppler.py); constant
               scales and biases: random walks from their priors
@@ -30,6 +32,19 @@ import numpy as np
 
 from ..measurements import PositionFix, SpeedMeasurement
 from .layout import StateLayout
+
+
+def braking_stop(v: float, a: float, dt: float) -> float | None:
+    """The time [s] within a forward step dt [s] at which speed v [m/s] under an acceleration
+    a [m/s^2] that opposes it reaches zero, or None. The motion model stops the train there:
+    a brake holds a train at rest but cannot drive it backwards, and a train reverses only
+    from rest; run on, the constant acceleration would reverse it through the standstill
+    (a filter without a speed reading at a stop, a radar silent below its minimum speed)."""
+    if v * a < 0.0 and dt > 0.0:
+        t_stop = -v / a
+        if t_stop < dt:
+            return t_stop
+    return None
 
 
 class ProcessModel:
@@ -70,8 +85,12 @@ class ProcessModel:
         F, FT, Q = self.transition(t - t0)
         if t < t0:
             Q = self.transition(t0 - t)[2]
+        s0, v0, a0 = float(x[0, 0]), float(x[1, 0]), float(x[2, 0])
         # new arrays: snapshots share the old ones
         x, P = F.dot(x), F.dot(P).dot(FT) + Q
+        stop = braking_stop(v0, a0, t - t0)
+        if stop is not None:
+            x[0, 0], x[1, 0], x[2, 0] = s0 + v0 * stop + 0.5 * a0 * stop * stop, 0.0, 0.0
         if self.layout.fix_decay:
             dt = abs(t - t0)
             dist = abs(float(x[1, 0])) * dt

@@ -6,6 +6,7 @@ not asserted here; neither are timings.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -17,7 +18,7 @@ import yaml
 from conftest import ROOT
 from train_localization.core import campaign
 from train_localization.core.campaign import ALL_FAMILIES, FAMILIES, generate, run_one
-from train_localization.core.fusion import MODE_INITIALISING, MODE_NOMINAL
+from train_localization.core.fusion import MODE_DEGRADED, MODE_INITIALISING, MODE_NOMINAL
 from train_localization.core.offline import sensor_pipelines
 from train_localization.core.scenario import Scenario
 from train_localization.core.scoring import StateSeries, passing_times, run_scores
@@ -213,7 +214,9 @@ def test_scorer_exact_on_a_synthetic_series():
     assert env["max_ratio"] == pytest.approx(6.0 / (5.0 + 0.05 * 1.0))
     assert env["within"] == claimed - 30 and env["states"] == claimed and env["references_passed"] == 2
     band = out["speed_band"]
-    assert band["states"] == claimed and band["violations"] == 20
+    assert band["states"] == claimed and band["violations"] == 20 and band["violations_nominal"] == 20
+    degraded = dataclasses.replace(fused, mode=np.where(np.arange(2001) >= 1510, float(MODE_DEGRADED), fused.mode))
+    assert run_scores(truth, degraded, 0.005)["speed_band"]["violations_nominal"] == 10   # 1500..1509
     assert band["max_ratio"] == pytest.approx(1.0 / ((2.0 + 6.0 / 47.0) / 3.6))
     speed = out["speed_interval"]   # 1.0 m/s off at 0.1 m/s claimed: 10 sigma, beyond z = 3.29
     assert speed["states"] == 2001 - 100 and speed["outside"] == 10

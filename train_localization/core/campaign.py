@@ -689,6 +689,7 @@ def _summary(results: list[dict]) -> dict:
     }
     band = [r["scores"]["speed_band"] for r in ok]
     out["speed_band"] = {"states": sum(b["states"] for b in band), "violations": sum(b["violations"] for b in band),
+                         "violations_nominal": sum(b.get("violations_nominal", 0) for b in band),
                          "runs_with_violations": [[r["family"], r["seed"], r["scores"]["speed_band"]["violations"]]
                                                   for r in ok if r["scores"]["speed_band"]["violations"]]}
     speed_iv = [r["scores"].get("speed_interval", {"states": 0, "outside": 0}) for r in ok]

@@ -18,6 +18,7 @@ import numpy as np
 from scipy.stats import norm
 
 from .convert import stamp_to_sec
+from .fusion import MODE_NOMINAL
 
 FIELDS = ("t", "position", "speed", "position_stddev", "speed_stddev", "position_min", "position_max", "mode")
 
@@ -202,7 +203,10 @@ def run_scores(truth: StateSeries, fused: StateSeries, period: float, reference_
                                 "references_passed": int(np.size(reference_times))}
     known = f["speed_stddev"] < SPEED_KNOWN
     vratio = np.abs(f["speed"][known] - v_true[known]) / speed_envelope(v_true[known])
+    # violations where the filter claimed NOMINAL (not DEGRADED, LOST or without a position yet)
+    nominal = f["mode"][known] == MODE_NOMINAL
     out["speed_band"] = {"states": int(vratio.size), "violations": int(np.count_nonzero(vratio > 1.0)),
+                         "violations_nominal": int(np.count_nonzero((vratio > 1.0) & nominal)),
                          "max_ratio": float(vratio.max()) if vratio.size else None}
     # a known speed claims v +- z sigma: the truth outside it is a confident wrong speed
     z = float(norm.ppf(0.5 + confidence / 2.0))

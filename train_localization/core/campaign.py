@@ -142,6 +142,21 @@ def _coarse(legs: list[dict], v0: float, duration: float) -> Trajectory:
     return Trajectory.from_legs([Leg(**leg) for leg in legs], 0.0, v0, duration, 0.05)
 
 
+def _service(d: _Draw, duration: tuple, top_kmh: tuple, p_moving: float, start_fraction: tuple,
+             p_reversal: float, **profile) -> tuple:
+    """A family's run: its duration [s] drawn from ``duration``, a top speed from ``top_kmh``
+    [km/h], a start at ``start_fraction`` of it with probability ``p_moving`` (else from rest),
+    a reversal with probability ``p_reversal`` (effective when the train stops within the run;
+    0: none, nothing drawn), and the legs of ``_stop_and_go_profile`` (``profile``: its other
+    arguments). Returns (duration, start speed [m/s], legs, profile summary, coarse trajectory)."""
+    duration = d.u(*duration)
+    v_top = d.u(*top_kmh) * KMH
+    v0 = _g(v_top * d.u(*start_fraction)) if d.chance(p_moving) else 0.0
+    reversal = d.chance(p_reversal) if p_reversal else False
+    legs, prof = _stop_and_go_profile(d, duration, _g(v_top), v0, reversal=reversal, **profile)
+    return duration, v0, legs, prof, _coarse(legs, v0, duration)
+
+
 def _alignment(d: _Draw, length: float, min_radius: float, max_radius: float) -> list[dict]:
     out, s = [], 0.0
     while s < length:
@@ -257,16 +272,11 @@ def _wheel_sensor(d: _Draw, v_max: float, wheel_d: float) -> dict:
 
 
 def _conventional(d: _Draw) -> tuple[dict, dict]:
-    duration = d.u(100.0, 200.0)
-    v_top = d.u(40.0, 300.0) * KMH
-    v0 = _g(v_top * d.u(0.3, 1.0)) if d.chance(0.4) else 0.0
-    reversal = d.chance(0.45)   # effective when the train stops within the run
-    legs, prof = _stop_and_go_profile(d, duration, _g(v_top), v0, accel=(0.3, 1.0), decel=(0.5, 1.2),
-                                      jerk=(0.3, 1.0), dwell=(5.0, 30.0), hold=(5.0, 40.0), p_stop=0.4,
-                                      reversal=reversal, reverse_speed=(1.5, 6.0))
+    duration, v0, legs, prof, traj = _service(
+        d, (100.0, 200.0), (40.0, 300.0), 0.4, (0.3, 1.0), 0.45, accel=(0.3, 1.0), decel=(0.5, 1.2),
+        jerk=(0.3, 1.0), dwell=(5.0, 30.0), hold=(5.0, 40.0), p_stop=0.4, reverse_speed=(1.5, 6.0))
     vehicle = _train(d)
     axles, wheel_d = vehicle["axles"], vehicle["wheel_diameter"]
-    traj = _coarse(legs, v0, duration)
     length, start = _place(d, traj, vehicle["length"], d.u(8000.0, 40000.0), 300.0)
     # wayside: balise locations (single balises or groups of two), axle-counter heads
     balise_spacing, head_spacing = d.u(500.0, 2000.0), d.u(1000.0, 4000.0)
@@ -314,15 +324,11 @@ def _conventional(d: _Draw) -> tuple[dict, dict]:
 
 
 def _urban(d: _Draw) -> tuple[dict, dict]:
-    duration = d.u(60.0, 120.0)
-    v_top = d.u(40.0, 100.0) * KMH
-    v0 = _g(v_top * d.u(0.3, 1.0)) if d.chance(0.3) else 0.0
-    reversal = d.chance(0.3)
-    legs, prof = _stop_and_go_profile(d, duration, _g(v_top), v0, accel=(0.8, 1.3), decel=(0.8, 1.3),
-                                      jerk=(0.5, 1.2), dwell=(5.0, 20.0), hold=(0.0, 10.0), p_stop=0.8,
-                                      reversal=reversal, reverse_speed=(1.0, 4.0), speeds=(0.3, 1.0))
+    duration, v0, legs, prof, traj = _service(
+        d, (60.0, 120.0), (40.0, 100.0), 0.3, (0.3, 1.0), 0.3, accel=(0.8, 1.3), decel=(0.8, 1.3),
+        jerk=(0.5, 1.2), dwell=(5.0, 20.0), hold=(0.0, 10.0), p_stop=0.8, reverse_speed=(1.0, 4.0),
+        speeds=(0.3, 1.0))
     vehicle = {"type": "maglev_urban", "length": d.u(30.0, 60.0)}
-    traj = _coarse(legs, v0, duration)
     length, start = _place(d, traj, vehicle["length"], d.u(3000.0, 8000.0), 200.0)
     tag_spacing = d.u(50.0, 300.0)
     tags = [{"id": f"TG{n:03d}", "position": x}
@@ -426,14 +432,11 @@ def _lzb(d: _Draw) -> tuple[dict, dict]:
     groups and the cable loops (crossings every 100 m, loops up to 12.7 km, a short first loop
     at the start of the LZB area), runs at 160-300 km/h with stops; missed crossings, telegram
     errors, loop survey and crossing installation errors across their ranges."""
-    duration = d.u(100.0, 220.0)
-    v_top = d.u(160.0, 300.0) * KMH
-    v0 = _g(v_top * d.u(0.5, 1.0)) if d.chance(0.5) else 0.0
-    legs, prof = _stop_and_go_profile(d, duration, _g(v_top), v0, accel=(0.3, 0.9), decel=(0.5, 1.1),
-                                      jerk=(0.3, 1.0), dwell=(5.0, 20.0), hold=(10.0, 60.0), p_stop=0.3,
-                                      reversal=d.chance(0.15), reverse_speed=(1.5, 5.0), speeds=(0.5, 1.0))
+    duration, v0, legs, prof, traj = _service(
+        d, (100.0, 220.0), (160.0, 300.0), 0.5, (0.5, 1.0), 0.15, accel=(0.3, 0.9), decel=(0.5, 1.1),
+        jerk=(0.3, 1.0), dwell=(5.0, 20.0), hold=(10.0, 60.0), p_stop=0.3, reverse_speed=(1.5, 5.0),
+        speeds=(0.5, 1.0))
     vehicle = _train(d)
-    traj = _coarse(legs, v0, duration)
     length, start = _place(d, traj, vehicle["length"], d.u(10000.0, 40000.0), 300.0)
     loops, x = [], 0.0
     first = d.u(300.0, 1500.0)
@@ -462,14 +465,11 @@ def _utm(d: _Draw) -> tuple[dict, dict]:
     """A UTM-02 type urban maglev line (seed 002 section 2.1.2): Doppler, DGPS and transponder
     tags; buildings, bridges and tunnels over the line (no fix under them, more multipath near
     them), a lost correction link in one run of five, tag misreads and installation errors."""
-    duration = d.u(60.0, 150.0)
-    v_top = d.u(40.0, 100.0) * KMH
-    v0 = _g(v_top * d.u(0.3, 1.0)) if d.chance(0.3) else 0.0
-    legs, prof = _stop_and_go_profile(d, duration, _g(v_top), v0, accel=(0.8, 1.3), decel=(0.8, 1.3),
-                                      jerk=(0.5, 1.2), dwell=(5.0, 20.0), hold=(0.0, 20.0), p_stop=0.7,
-                                      reversal=d.chance(0.3), reverse_speed=(1.0, 4.0), speeds=(0.3, 1.0))
+    duration, v0, legs, prof, traj = _service(
+        d, (60.0, 150.0), (40.0, 100.0), 0.3, (0.3, 1.0), 0.3, accel=(0.8, 1.3), decel=(0.8, 1.3),
+        jerk=(0.5, 1.2), dwell=(5.0, 20.0), hold=(0.0, 20.0), p_stop=0.7, reverse_speed=(1.0, 4.0),
+        speeds=(0.3, 1.0))
     vehicle = {"type": "maglev_urban", "length": d.u(30.0, 60.0)}
-    traj = _coarse(legs, v0, duration)
     length, start = _place(d, traj, vehicle["length"], d.u(3000.0, 8000.0), 200.0)
     front = traj.position + start
     structures = []
@@ -513,15 +513,12 @@ def _mlx(d: _Draw) -> tuple[dict, dict]:
     the EMF observer of the LSM drive above its minimum speed, the wayside coil counter and
     mm-wave ranging (NLOS, a biased or silent station); from a standstill or at speed, up to
     500 km/h, with slowdowns and stops."""
-    duration = d.u(60.0, 150.0)
-    v_top = d.u(150.0, 500.0) * KMH
-    v0 = _g(v_top * d.u(0.5, 1.0)) if d.chance(0.4) else 0.0
-    legs, prof = _stop_and_go_profile(d, duration, _g(v_top), v0, accel=(0.5, 1.2), decel=(0.5, 1.2),
-                                      jerk=(0.3, 1.0), dwell=(5.0, 20.0), hold=(5.0, 40.0), p_stop=0.4,
-                                      reversal=False, reverse_speed=(1.0, 3.0), speeds=(0.4, 1.0))
+    duration, v0, legs, prof, traj = _service(
+        d, (60.0, 150.0), (150.0, 500.0), 0.4, (0.5, 1.0), 0.0, accel=(0.5, 1.2), decel=(0.5, 1.2),
+        jerk=(0.3, 1.0), dwell=(5.0, 20.0), hold=(5.0, 40.0), p_stop=0.4, reverse_speed=(1.0, 3.0),
+        speeds=(0.4, 1.0))
     wheel_d = d.u(0.8, 1.0)
     vehicle = {"type": "maglev", "length": d.u(50.0, 130.0), "wheel_diameter": wheel_d, "axles": []}
-    traj = _coarse(legs, v0, duration)
     length, start = _place(d, traj, vehicle["length"], d.u(8000.0, 30000.0), 300.0)
     station_spacing = d.u(300.0, 800.0)
     stations = [{"id": f"MW{n:03d}", "position": x, "offset": _g((1 if d.chance(0.5) else -1) * d.u(2.0, 10.0)),

@@ -233,11 +233,11 @@ def _kinematic_covariance(P) -> tuple:
 
 
 def _kinematics(s: float, v: float, a: float, p: tuple, dt: float, q: float) -> tuple:
-    """(position [m], speed [m/s], their variances) dt [s] after (s, v, a) with the kinematic
-    covariance p (``_kinematic_covariance``), under the white-jerk motion model of spectral
-    density q [m^2/s^5]: the first three rows of F and Q, the train held at rest where a
-    braking brings it there (``braking_stop``). Plain floats: numpy's per-call overhead
-    dominates 3x3 arithmetic at 200 estimates/s."""
+    """(position [m], speed [m/s], acceleration [m/s^2], position and speed variances) dt [s]
+    after (s, v, a) with the kinematic covariance p (``_kinematic_covariance``), under the
+    white-jerk motion model of spectral density q [m^2/s^5]: the first three rows of F and Q,
+    the train held at rest where a braking brings it there (``braking_stop``). Plain floats:
+    numpy's per-call overhead dominates 3x3 arithmetic at 200 estimates/s."""
     p00, p01, p02, p11, p12, p22 = p
     h, dt2 = 0.5 * dt * dt, dt * dt
     var_s = (p00 + 2 * dt * p01 + 2 * h * p02 + dt2 * p11 + 2 * dt * h * p12 + h * h * p22
@@ -245,8 +245,8 @@ def _kinematics(s: float, v: float, a: float, p: tuple, dt: float, q: float) -> 
     var_v = p11 + 2 * dt * p12 + dt2 * p22 + q * dt2 * dt / 3
     stop = braking_stop(v, a, dt)
     if stop is not None:
-        return s + v * stop + 0.5 * a * stop * stop, 0.0, var_s, var_v
-    return s + v * dt + a * h, v + a * dt, var_s, var_v
+        return s + v * stop + 0.5 * a * stop * stop, 0.0, 0.0, var_s, var_v
+    return s + v * dt + a * h, v + a * dt, a, var_s, var_v
 
 
 def _coasting(aux: _Aux) -> bool:
@@ -1400,9 +1400,7 @@ class TrainFilter:
             x_err = c[2]
             a = x_err[2]
             dt = t - aux.t
-            s, v, var_s, var_v = _kinematics(x_err[0], x_err[1], a, c[3], dt, self.cfg.jerk_psd)
-            if braking_stop(x_err[1], a, dt) is not None:
-                a = 0.0   # at rest
+            s, v, a, var_s, var_v = _kinematics(x_err[0], x_err[1], a, c[3], dt, self.cfg.jerk_psd)
             if self.layout.gauss_markov:
                 x_err = list(x_err)
                 for i, tau, _ in self.layout.gauss_markov:
@@ -1486,7 +1484,7 @@ class TrainFilter:
             half = max(half, abs(u - v) + self._z * math.sqrt(R + sd_v * sd_v))
         if _coasting(aux):
             _, t_c, s, v_c, a, p = aux.motion_views[-1]
-            _, v_m, _, var_m = _kinematics(s, v_c, a, p, max(t - t_c, 0.0), self.cfg.jerk_psd)
+            _, v_m, _, _, var_m = _kinematics(s, v_c, a, p, max(t - t_c, 0.0), self.cfg.jerk_psd)
             half = max(half, abs(v_m - v) + self._z * math.sqrt(var_m))
         return half / self._z if half > base else sd_v   # (z sd_v) / z may differ from sd_v by an ulp
 
@@ -1498,7 +1496,7 @@ class TrainFilter:
             _, s_m, var_m, s_end, P00_end = view
             return s_m + (s_f - s_end), var_m + max(var_f - P00_end, 0.0)
         _, t_c, s, v, a, p = view
-        s_m, _, var, _ = _kinematics(s, v, a, p, max(t - t_c, 0.0), self.cfg.jerk_psd)
+        s_m, _, _, var, _ = _kinematics(s, v, a, p, max(t - t_c, 0.0), self.cfg.jerk_psd)
         return s_m, var
 
     def _mode(self, aux: _Aux, t: float, position_stddev: float) -> Mode:

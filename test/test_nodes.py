@@ -295,6 +295,30 @@ def test_a_late_joiner_gets_the_current_state_first(ros_context, start_node):
         node.destroy_node()
 
 
+def test_the_simulator_waits_for_the_publisher_it_is_told_to(ros_context, start_node):
+    """With ``wait_for_publisher`` the simulator publishes no truth until that topic has a
+    publisher (the demo graph: the fusion's localization/state), then starts."""
+    from std_msgs.msg import String
+    from train_localization_msgs.msg import TrainState
+    from train_localization.nodes.common import STREAM_QOS
+
+    proc = start_node("simulator", "--ros-args", *NS, "-p", "scenario:=config/scenario_demo.yaml",
+                      "-p", "start_delay:=0.0", "-p", "rate:=4.0", "-p", "wait_for_publisher:=ready")
+    node = ros_context.create_node("probe_ready", namespace="/train")
+    try:
+        truth = []
+        node.create_subscription(TrainState, "ground_truth/state", truth.append, STREAM_QOS)
+        assert spin_until(node, lambda: node.count_publishers("ground_truth/state") >= 1, 30.0), proc.output()
+        spin_until(node, lambda: False, 3.0)
+        assert truth == []
+        node.create_publisher(String, "ready", 1)
+        assert spin_until(node, lambda: len(truth) >= 10, 30.0), proc.output()
+        assert truth[0].header.stamp.sec == 0 and truth[0].header.stamp.nanosec == 0   # from the start
+        assert proc.interrupt() == 0
+    finally:
+        node.destroy_node()
+
+
 def test_with_an_odom_frame_the_fusion_publishes_map_to_odom_only(ros_context, start_node):
     """REP-105: with odom_frame set and another source publishing odom -> base_link, /tf
     from the fusion holds map -> odom (map -> base_link composed with the inverse of

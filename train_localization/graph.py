@@ -36,9 +36,11 @@ def demo_graph(scenario: str, sensors: list[str], bag: str, rate: float = 1.0,
         nodes.append(("recorder", "recorder", recorder))
     nodes += [(name, name, {"mode": "sim", "scenario": scenario, "use_sim_time": True}) for name in sensors]
     nodes.append(("fusion", "fusion", {"scenario": scenario, "sensors": classes, "use_sim_time": True}))
-    # the simulator starts once the recorder and every sensor node listen to the truth
+    # the simulator starts once the recorder and every sensor node listen to the truth and the
+    # fusion publishes (a fusion still starting would miss the first seconds of fused states)
     nodes.append(("simulator", "simulator", {"scenario": scenario, "rate": rate, "start_delay": 1.0,
-                                             "wait_for_subscribers": len(sensors) + int(record)}))
+                                             "wait_for_subscribers": len(sensors) + int(record),
+                                             "wait_for_publisher": "localization/state"}))
     return nodes
 
 

@@ -8,6 +8,9 @@ Parameters:
   exit_at_end (bool, true)     shut the node down after the last state
   wait_for_subscribers (int, 0)  before starting, wait (at most 60 s) until
                                ground_truth/state has this many subscribers
+  wait_for_publisher (string, "")  and until this topic has a publisher (the
+                               demo graph: the fusion's localization/state, so that
+                               the fused states start with the scenario); "" = none
 Topics: /clock (rosgraph_msgs/Clock), ground_truth/state (TrainState, stddevs 0,
 interval = position), scenario (std_msgs/String, transient-local: the scenario
 YAML with the track inlined, so that a recorded bag describes itself), /diagnostics.
@@ -49,6 +52,9 @@ class SimulatorNode(Node):
         self.exit_at_end = bool(declare(self, "exit_at_end", True, "shut down after the last state", read_only=True))
         self.wait_for = int(declare(self, "wait_for_subscribers", 0, "subscribers of ground_truth/state to wait for",
                                     read_only=True))
+        self.wait_for_publisher = str(declare(self, "wait_for_publisher", "", "a topic that must have a publisher "
+                                              "before the start (e.g. localization/state); empty: none",
+                                              read_only=True))
         if not self.rate >= 0.0:
             raise ConfigurationError(f"parameter 'rate' must be >= 0 (0: as fast as possible), not {self.rate}")
         self.dynamics = None
@@ -98,7 +104,8 @@ class SimulatorNode(Node):
         sc = self.scenario
         n = int(round(sc.duration * sc.truth_rate)) + 1
         deadline = time.monotonic() + 60.0
-        while self._subscribers() < self.wait_for and time.monotonic() < deadline:
+        while (self._subscribers() < self.wait_for or self.wait_for_publisher
+               and not self.count_publishers(self.wait_for_publisher)) and time.monotonic() < deadline:
             self._stop.wait(0.05)
         subs = [i.node_name for i in self.get_subscriptions_info_by_topic(self.truth_pub.topic_name)]
         self.get_logger().info(f"starting scenario '{sc.name}' with {self.truth_pub.get_subscription_count()} "

@@ -113,7 +113,7 @@ from ..signals import InputRejected
 from .config import FusionConfig, gate_probability
 from .history import History, order_key
 from .layout import StateLayout
-from .models import ProcessModel, braking_stop, fixes_sharing, implied_speed, measurement
+from .models import ProcessModel, fixes_sharing, implied_speed, kinematic_mean, measurement
 from . import separation
 
 
@@ -236,17 +236,14 @@ def _kinematics(s: float, v: float, a: float, p: tuple, dt: float, q: float) -> 
     """(position [m], speed [m/s], acceleration [m/s^2], position and speed variances) dt [s]
     after (s, v, a) with the kinematic covariance p (``_kinematic_covariance``), under the
     white-jerk motion model of spectral density q [m^2/s^5]: the first three rows of F and Q,
-    the train held at rest where a braking brings it there (``braking_stop``). Plain floats:
+    the train held at rest where a braking brings it there (``kinematic_mean``). Plain floats:
     numpy's per-call overhead dominates 3x3 arithmetic at 200 estimates/s."""
     p00, p01, p02, p11, p12, p22 = p
     h, dt2 = 0.5 * dt * dt, dt * dt
     var_s = (p00 + 2 * dt * p01 + 2 * h * p02 + dt2 * p11 + 2 * dt * h * p12 + h * h * p22
              + q * dt2 * dt2 * dt / 20)
     var_v = p11 + 2 * dt * p12 + dt2 * p22 + q * dt2 * dt / 3
-    stop = braking_stop(v, a, dt)
-    if stop is not None:
-        return s + v * stop + 0.5 * a * stop * stop, 0.0, 0.0, var_s, var_v
-    return s + v * dt + a * h, v + a * dt, a, var_s, var_v
+    return (*kinematic_mean(s, v, a, dt), var_s, var_v)
 
 
 def _coasting(aux: _Aux) -> bool:
@@ -1292,11 +1289,12 @@ class TrainFilter:
             k = var_m / (var_m + R)
             return ("moved", s_m + k * (z - s_m), (1.0 - k) * var_m, s_f, P00_f)
         _, t_c, s, v, a, p = view
-        F, _, Q = self.process.transition(max(t - t_c, 0.0))
+        dt = max(t - t_c, 0.0)
+        F, _, Q = self.process.transition(dt)
         F, Q = F[:3, :3], Q[:3, :3]      # the kinematic block: the error states do not enter it
         p00, p01, p02, p11, p12, p22 = p
         P = F @ np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]]) @ F.T + Q
-        x = F @ np.array([s, v, a])
+        x = np.array(kinematic_mean(s, v, a, dt))
         K = P[:, 0] / (P[0, 0] + R)
         x = x + K * (z - x[0])
         P = P - np.outer(K, P[0, :])

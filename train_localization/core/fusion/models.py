@@ -47,6 +47,15 @@ def braking_stop(v: float, a: float, dt: float) -> float | None:
     return None
 
 
+def kinematic_mean(s: float, v: float, a: float, dt: float) -> tuple[float, float, float]:
+    """(position [m], speed [m/s], acceleration [m/s^2]) dt [s] after (s, v, a) under constant
+    acceleration, the train held at rest where a braking brings it there (``braking_stop``)."""
+    stop = braking_stop(v, a, dt)
+    if stop is not None:
+        return s + v * stop + a * (0.5 * stop * stop), 0.0, 0.0
+    return s + v * dt + a * (0.5 * dt * dt), v + a * dt, a
+
+
 class ProcessModel:
     """F, Q over a time step (cached: the sensors' fixed rates repeat the same steps)."""
 
@@ -88,9 +97,8 @@ class ProcessModel:
         s0, v0, a0 = float(x[0, 0]), float(x[1, 0]), float(x[2, 0])
         # new arrays: snapshots share the old ones
         x, P = F.dot(x), F.dot(P).dot(FT) + Q
-        stop = braking_stop(v0, a0, t - t0)
-        if stop is not None:
-            x[0, 0], x[1, 0], x[2, 0] = s0 + v0 * stop + 0.5 * a0 * stop * stop, 0.0, 0.0
+        if braking_stop(v0, a0, t - t0) is not None:
+            x[0, 0], x[1, 0], x[2, 0] = kinematic_mean(s0, v0, a0, t - t0)
         if self.layout.fix_decay:
             dt = abs(t - t0)
             dist = abs(float(x[1, 0])) * dt

@@ -37,7 +37,14 @@ information; the filter may say it does not know, never be confidently wrong):
   consistency the mean NIS of the last ``consistency_fixes`` accepted absolute fixes of
               sensors without a persistent fix error (balises, lugs, axle counters: one
               independent fix per reference) above its chi-square quantile means the
-              covariance is too small: it is scaled by that mean.
+              covariance is too small: it is scaled by that mean. The same test over each
+              sensor's own fixes with a fix-bias state (DGPS, mm-wave, INPO: the bias is a
+              state, so the innovations are white if the model holds) means the fixes and the
+              dead reckoning part faster than that bias can: a fault of the relative sensors
+              (a lone radar's scale fault) was being absorbed into the fix bias, or the fix
+              sensor has one beyond its model. Which, one cannot tell: the fix bias goes back
+              to its prior, the relative error states are re-learnt, and the dead-reckoned
+              position is kept as the alternative until an independent fix decides.
   unexplained an absolute fix the gate rejects is kept as an alternative hypothesis: the
               published interval covers it (moved with the filter's motion) until a fix of
               another reference decides: one the filter explains drops it (the fix was the
@@ -166,7 +173,7 @@ class _Aux:
                  "speed_sources", "nis", "fix_ref", "last_fix_accepted", "fix_nis", "slip_window",
                  "alternative", "events", "unverified", "s_last_fix", "relative_alternatives", "suspended",
                  "candidate", "used_refs", "peer_speeds", "peer_run", "motion_views", "view_speeds",
-                 "episode_views", "fault_windows", "subs")
+                 "episode_views", "fault_windows", "subs", "fix_bias_nis")
 
     def __init__(self):
         self.initialised = False
@@ -181,6 +188,7 @@ class _Aux:
         self.fix_ref: dict[str, str] = {}              # sensor -> reference of its current fix bias
         self.last_fix_accepted = -math.inf
         self.fix_nis: tuple = ()                       # NIS of the last accepted absolute fixes
+        self.fix_bias_nis: dict[str, tuple] = {}       # the same per sensor with a fix-bias state
         self.slip_window: dict[str, tuple] = {}        # sensor -> ((stamp, e d, S d^2), ...)
         self.alternative: tuple | None = None          # unexplained fix: (stamp, z, R, s, P00, sensor, ref)
         self.events: dict[str, int] = {}
@@ -455,7 +463,7 @@ class TrainFilter:
             aux.episode_views = _without(aux.episode_views, cls)
             aux.fault_windows = _without(aux.fault_windows, cls)
         if is_fix:
-            self._fix_accepted(m, nis)
+            self._fix_accepted(m, nis, (z - hx) / math.sqrt(S))
         elif cls not in aux.speed_sources:
             aux.speed_sources = aux.speed_sources | {cls}
         self._check_plausible()
@@ -1018,7 +1026,10 @@ class TrainFilter:
         if not len(idx):
             return
         x = self.ekf.x[idx, 0]
-        bad = np.abs(x) > self.cfg.plausible_sigmas * self.layout.prior_sigma[idx]
+        # beyond the plausible range, and significantly so where a fix-bias inconsistency widened
+        # the state past its prior (a noisy estimate of a scale that may hold a fault is no proof)
+        bad = (np.abs(x) > self.cfg.plausible_sigmas * self.layout.prior_sigma[idx]) & \
+            (x * x > self._slip_gate * np.diag(self.ekf.P)[idx])
         if not bad.any():
             return
         owners = {self.layout.owner[i] for i in idx[bad]}
@@ -1097,7 +1108,7 @@ class TrainFilter:
             return True
         return False
 
-    def _fix_accepted(self, m, nis: float) -> None:
+    def _fix_accepted(self, m, nis: float, u: float) -> None:
         aux, cfg = self.aux, self.cfg
         if m.sensor not in self.layout.fix:
             key = (m.sensor, m.reference_id)
@@ -1111,7 +1122,8 @@ class TrainFilter:
         aux.s_last_fix = float(self.ekf.x[0, 0])
         self._hypotheses_take_fix(m)
         if m.sensor in self.layout.fix:
-            return   # a fix with a persistent error: consecutive ones are not independent tests
+            self._fix_bias_consistency(m, nis, u)
+            return   # a fix with a persistent error: not an independent test of the others
         window = (aux.fix_nis + (nis,))[-cfg.consistency_fixes:]
         mean = sum(window) / len(window)
         if len(window) == cfg.consistency_fixes and mean > self._consistency:
@@ -1121,6 +1133,61 @@ class TrainFilter:
             aux.events = _inc(aux.events, "inconsistent")
             aux.unverified = "inconsistent"
         aux.fix_nis = window
+
+    def _fix_bias_consistency(self, m, nis: float, u: float) -> None:
+        """Sensor m's accepted fixes (its fix bias a state: white innovations if the model holds)
+        test the model: the mean NIS of its last ``consistency_fixes`` beyond its chi-square
+        quantile, or their normalised innovations u (signed) summed over ``slip_window`` s beyond
+        the slip gate (a drift shows as innovations of one sign long before their squares stand
+        out). Either means the fixes and the dead reckoning part faster than the fix bias can
+        (a lone radar's scale fault absorbed into a DGPS bias, or a fix fault beyond the
+        sensor's model). The fix bias goes back to its prior, the relative error states keep
+        their estimates with their prior uncertainty (a scale with a scale-fault mode that of
+        the fault's size, ``scale_fault_sigma``), the position variance takes the bias the filter
+        had estimated, and the dead-reckoned position is kept as the alternative (the interval
+        covers it, DEGRADED) until a fix of an independent reference decides
+        (``_fix_accepted``)."""
+        aux, cls, cfg = self.aux, m.sensor, self.cfg
+        window = tuple(w for w in aux.fix_bias_nis.get(cls, ()) if w[0] > m.stamp - cfg.slip_window)
+        window = (window + ((m.stamp, nis, u),))[-max(cfg.consistency_fixes, 200):]
+        last = window[-cfg.consistency_fixes:]
+        mean_nis = sum(w[1] for w in last) / len(last)
+        summed = sum(w[2] for w in window)
+        if not ((len(last) == cfg.consistency_fixes and mean_nis > self._consistency) or
+                (len(window) >= 3 and summed * summed / len(window) > self._slip_gate)):
+            aux.fix_bias_nis = {**aux.fix_bias_nis, cls: window}
+            return
+        aux.fix_bias_nis = _without(aux.fix_bias_nis, cls)
+        i = self.layout.fix[cls]
+        bias = float(self.ekf.x[i, 0])
+        s_dr, P_dr = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
+        self._new_fix_bias(cls)
+        P = self.ekf.P.copy()
+        P[0, 0] += bias * bias
+        # the relative error states keep their estimates, their uncertainty back to at least
+        # their prior, the scale of a sensor with a scale-fault mode that of its fault size: the
+        # fixes that follow tell whether they hold a fault (learnt beyond plausibility,
+        # ``_check_plausible`` suspends the sensor) or the fix bias did
+        lay = self.layout
+        idx = lay.relative_states
+        if len(idx):
+            floor = lay.prior_sigma[idx] ** 2
+            for name in lay.scale:
+                if "scale_fault" in self.models[name].faults:   # on its constant scale state
+                    j = lay.offset.get(name, lay.scale[name])
+                    floor[list(idx).index(j)] += self.models[name].scale_fault_sigma ** 2
+            var = np.diag(P)[idx]
+            ratio = np.sqrt(np.divide(np.maximum(var, floor), var, out=np.ones_like(var), where=var > 0))
+            # the speed was learnt through those scales: it is as uncertain as they became
+            scales = np.isin(idx, [*lay.scale.values(), *lay.offset.values()])
+            P[1, 1] += float(np.sum(np.maximum(floor - var, 0.0)[scales])) * float(self.ekf.x[1, 0]) ** 2
+            P[idx, :] *= ratio[:, None]
+            P[:, idx] *= ratio[None, :]
+        self.ekf.P = P
+        aux.events = _inc(aux.events, "inconsistent_fix_bias")
+        # the fixes pull the filter by about the bias it had estimated (s = z - e, e now 0): the
+        # dead-reckoned view stays where it was, moving with the filter's motion from there
+        aux.alternative = (m.stamp, s_dr, P_dr, s_dr + bias, float(self.ekf.P[0, 0]), cls, m.reference_id)
 
     def _unexplained(self, m, z: float, R: float) -> None:
         """A gated absolute fix: keep it as the alternative, or let it confirm the one kept."""

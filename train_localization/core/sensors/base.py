@@ -162,6 +162,8 @@ class ErrorModel:
     creep_coefficient: float = 0.0       # wheel creep c [s^2/m]: wheel speed = v (1 + c a sign v)
     creep_in_traction: bool = True       # creep under traction too (a motored axle), else only braking
     faults: tuple[str, ...] = ()         # fault modes of FAULT_MODES the fusion must check for
+    scale_fault_sigma: float = 0.0       # 1-sigma size of a scale fault (fault mode ``scale_fault``) [1]:
+                                         # what its scale may be off by once the fusion suspects one
     fault_duration_max: float = math.inf  # longest episode of its transient fault modes (slip, slide)
                                          # [s]; a disagreement that lasts longer is not one of them
     timeout: float = math.inf            # longest silence while in use [s]; inf = sparse/event sensor

@@ -56,6 +56,10 @@ PARAMS = {
                                         "deg) in the error model", (0.0, 10.0)),
     "mount_angle_error": Param(0.0, "simulator: true deviation of the installed beam angle from mount_angle "
                                     "[deg]", (-10.0, 10.0)),
+    "fault_scale_sigma": Param(0.05, "1-sigma size of a scale fault (a shifted mounting, an echo off snow or "
+                                     "water) [fraction]; assumption: the beam angle shifted by 3 deg at 45 deg "
+                                     "is tan(45 deg) x 3 deg = 5 %; what the fusion lets the scale learn once "
+                                     "the fixes and the dead reckoning disagree", (0.0, 1.0)),
     "faults": Param("", "injected scale faults 'T0-T1:SCALE' (scale error added, fraction), separated by ';' "
                         "(tests, campaigns)"),
 }
@@ -160,12 +164,14 @@ class DopplerDecoder(Decoder):
 def error_model(params: dict, track, vehicle) -> ErrorModel:
     """Doppler errors for the fusion: the AR(1) scale (``scale_sigma``, ``scale_tau``), a
     constant mounting-angle scale error (tan(theta) x ``mount_angle_tolerance``), the
-    device ``bias``; the decoder reports the scale and the bias inside its stddev."""
+    device ``bias``; the decoder reports the scale and the bias inside its stddev. Fault
+    modes: dropouts, and a scale fault of about ``fault_scale_sigma``."""
     mount = math.tan(math.radians(params["mount_angle"])) * math.radians(params["mount_angle_tolerance"])
     return ErrorModel("doppler", "speed", scale_sigma=params["scale_sigma"], scale_tau=params["scale_tau"],
                       scale_offset_sigma=mount, bias_sigma=abs(params["bias"]),
                       reported_scale=params["scale_sigma"], reported_bias=abs(params["bias"]),
-                      faults=("dropout", "scale_fault"), timeout=continuous_timeout(params))
+                      faults=("dropout", "scale_fault"), scale_fault_sigma=params["fault_scale_sigma"],
+                      timeout=continuous_timeout(params))
 
 
 SPEC = SensorSpec(

@@ -75,10 +75,12 @@ class FusionConfig:
     slip_reference_timeout: float = _doc(1.0, "a disagreement is taken as a slip or slide (not as ambiguous) "
                                               "only if another speed source was accepted within this time [s]", limits=(0.0, 30.0))
     plausible_sigmas: float = _doc(4.0, "an error state (scale, bias) estimated beyond this many of its prior "
-                                        "1-sigma is implausible: the filter absorbed a fault; the relative "
+                                        "1-sigma (and significantly so: beyond the slip gate of its own "
+                                        "variance) is implausible: the filter absorbed a fault; the relative "
                                         "sensors' error states are re-learnt and the interval widened", limits=(1.0, 100.0))
     consistency_fixes: int = _doc(5, "number of recent accepted absolute fixes whose mean NIS is monitored "
-                                     "(fixes of sensors without a fix-bias state: independent references)", limits=(2, 100))
+                                     "(those of sensors without a fix-bias state together: independent "
+                                     "references; a sensor with one on its own)", limits=(2, 100))
     consistency_probability: float = _doc(0.99, "chi-square quantile of that mean NIS above which the filter "
                                                 "is inconsistent: its covariance is scaled by the mean NIS "
                                                 "and the mode is DEGRADED until a fix agrees again", limits=PROBABILITY)

@@ -24,8 +24,8 @@ information; the filter may say it does not know, never be confidently wrong):
               the same way (the onset of the slip) are excluded after the fact and the
               history re-applied without them, so the slip is not carried in the speed
               and scale states.
-  plausibility an error state estimated beyond ``plausible_sigmas`` of its prior means a
-              fault was absorbed (the filter explained a slip or a faulty sensor with a
+  plausibility an error state estimated beyond ``plausible_sigmas`` of its prior (and beyond
+              the slip gate of its own variance: significantly) means a fault was absorbed (the filter explained a slip or a faulty sensor with a
               scale nobody has): every relative sensor's error states are re-learnt from
               their priors and the position and speed covariance widened by what the
               corrupted states can have caused since the last accepted fix.

@@ -1137,8 +1137,9 @@ class TrainFilter:
     def _fix_bias_consistency(self, m, nis: float, u: float) -> None:
         """Sensor m's accepted fixes (its fix bias a state: white innovations if the model holds)
         test the model: the mean NIS of its last ``consistency_fixes`` beyond its chi-square
-        quantile, or their normalised innovations u (signed) summed over ``slip_window`` s beyond
-        the slip gate (a drift shows as innovations of one sign long before their squares stand
+        quantile, or their normalised innovations u (signed) summed with weights decaying over
+        ``slip_window`` s, normalised by the root of the sum of the squared weights (standard
+        normal if the model holds), beyond the slip gate (a drift shows as innovations of one sign long before their squares stand
         out). Either means the fixes and the dead reckoning part faster than the fix bias can
         (a lone radar's scale fault absorbed into a DGPS bias, or a fix fault beyond the
         sensor's model). The fix bias goes back to its prior, the relative error states keep
@@ -1148,14 +1149,15 @@ class TrainFilter:
         covers it, DEGRADED) until a fix of an independent reference decides
         (``_fix_accepted``)."""
         aux, cls, cfg = self.aux, m.sensor, self.cfg
-        window = tuple(w for w in aux.fix_bias_nis.get(cls, ()) if w[0] > m.stamp - cfg.slip_window)
-        window = (window + ((m.stamp, nis, u),))[-max(cfg.consistency_fixes, 200):]
-        last = window[-cfg.consistency_fixes:]
-        mean_nis = sum(w[1] for w in last) / len(last)
-        summed = sum(w[2] for w in window)
-        if not ((len(last) == cfg.consistency_fixes and mean_nis > self._consistency) or
-                (len(window) >= 3 and summed * summed / len(window) > self._slip_gate)):
-            aux.fix_bias_nis = {**aux.fix_bias_nis, cls: window}
+        # (last NIS values, stamp [s], the signed sum and the sum of its squared weights, both
+        # decaying with time constant slip_window: a 200 Hz stream keeps O(1) state)
+        last, t, summed, weights = aux.fix_bias_nis.get(cls, ((), m.stamp, 0.0, 0.0))
+        decay = math.exp(-max(m.stamp - t, 0.0) / cfg.slip_window)
+        last = (last + (nis,))[-cfg.consistency_fixes:]
+        summed, weights = summed * decay + u, weights * decay * decay + 1.0
+        if not ((len(last) == cfg.consistency_fixes and sum(last) / len(last) > self._consistency) or
+                (weights >= 3.0 and summed * summed / weights > self._slip_gate)):
+            aux.fix_bias_nis = {**aux.fix_bias_nis, cls: (last, m.stamp, summed, weights)}
             return
         aux.fix_bias_nis = _without(aux.fix_bias_nis, cls)
         i = self.layout.fix[cls]

@@ -1143,8 +1143,9 @@ class TrainFilter:
         out). Either means the fixes and the dead reckoning part faster than the fix bias can
         (a lone radar's scale fault absorbed into a DGPS bias, or a fix fault beyond the
         sensor's model). The fix bias goes back to its prior, the relative error states keep
-        their estimates with their prior uncertainty (a scale with a scale-fault mode that of
-        the fault's size, ``scale_fault_sigma``), the position variance takes the bias the filter
+        their estimates with their prior uncertainty (after a drift alone, a scale with a
+        scale-fault mode that of the fault's size, ``scale_fault_sigma``, and the speed with
+        it), the position variance takes the bias the filter
         had estimated, and the dead-reckoned position is kept as the alternative (the interval
         covers it, DEGRADED) until a fix of an independent reference decides
         (``_fix_accepted``)."""
@@ -1155,8 +1156,9 @@ class TrainFilter:
         decay = math.exp(-max(m.stamp - t, 0.0) / cfg.slip_window)
         last = (last + (nis,))[-cfg.consistency_fixes:]
         summed, weights = summed * decay + u, weights * decay * decay + 1.0
-        if not ((len(last) == cfg.consistency_fixes and sum(last) / len(last) > self._consistency) or
-                (weights >= 3.0 and summed * summed / weights > self._slip_gate)):
+        noisy = len(last) == cfg.consistency_fixes and sum(last) / len(last) > self._consistency
+        drift = weights >= 3.0 and summed * summed / weights > self._slip_gate
+        if not (noisy or drift):
             aux.fix_bias_nis = {**aux.fix_bias_nis, cls: (last, m.stamp, summed, weights)}
             return
         aux.fix_bias_nis = _without(aux.fix_bias_nis, cls)
@@ -1174,7 +1176,10 @@ class TrainFilter:
         idx = lay.relative_states
         if len(idx):
             floor = lay.prior_sigma[idx] ** 2
-            for name in lay.scale:
+            # a drift alone (small innovations of one sign: the dead reckoning parts at a rate, as
+            # a scale fault makes it) opens the scale to the fault's size; fixes that are also
+            # noisier than their model (an NLOS step) would pull a scale opened that wide
+            for name in lay.scale if not noisy else ():
                 if "scale_fault" in self.models[name].faults:   # on its constant scale state
                     j = lay.offset.get(name, lay.scale[name])
                     floor[list(idx).index(j)] += self.models[name].scale_fault_sigma ** 2

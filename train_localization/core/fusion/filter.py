@@ -1114,8 +1114,10 @@ class TrainFilter:
             key = (m.sensor, m.reference_id)
             aux.used_refs = tuple(k for k in aux.used_refs if k != key)[-(_REMEMBERED_REFS - 1):] + (key,)
         alt = aux.alternative
-        if alt is not None and (m.reference_id != alt[6] or m.sensor != alt[5]):
-            aux.alternative = None               # the filter explains an independent fix: that one was wrong
+        if alt is not None and (m.sensor != alt[5] or (m.reference_id != alt[6] and m.sensor not in self.layout.fix)):
+            # the filter explains an independent fix (not one of the same sensor with a fix-bias
+            # state, whatever its reference: mm-wave station sets overlap): that one was wrong
+            aux.alternative = None
             aux.events = _inc(aux.events, "outlier_fix")
         aux.unverified = ""
         aux.last_fix_accepted = m.stamp
@@ -1162,6 +1164,7 @@ class TrainFilter:
             aux.fix_bias_nis = {**aux.fix_bias_nis, cls: (last, m.stamp, summed, weights)}
             return
         aux.fix_bias_nis = _without(aux.fix_bias_nis, cls)
+        pending = aux.alternative is not None and aux.alternative[5] == cls
         i = self.layout.fix[cls]
         bias = float(self.ekf.x[i, 0])
         s_dr, P_dr = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
@@ -1179,7 +1182,9 @@ class TrainFilter:
             # a drift alone (small innovations of one sign: the dead reckoning parts at a rate, as
             # a scale fault makes it) opens the scale to the fault's size; fixes that are also
             # noisier than their model (an NLOS step) would pull a scale opened that wide
-            for name in lay.scale if not noisy else ():
+            # (once: while the view of an earlier inconsistency of this sensor is undecided, the
+            # question is open already, and its fixes would pull the opened states again and again)
+            for name in lay.scale if not (noisy or pending) else ():
                 if "scale_fault" in self.models[name].faults:   # on its constant scale state
                     j = lay.offset.get(name, lay.scale[name])
                     floor[list(idx).index(j)] += self.models[name].scale_fault_sigma ** 2
@@ -1194,7 +1199,8 @@ class TrainFilter:
         aux.events = _inc(aux.events, "inconsistent_fix_bias")
         # the fixes pull the filter by about the bias it had estimated (s = z - e, e now 0): the
         # dead-reckoned view stays where it was, moving with the filter's motion from there
-        aux.alternative = (m.stamp, s_dr, P_dr, s_dr + bias, float(self.ekf.P[0, 0]), cls, m.reference_id)
+        if not pending:
+            aux.alternative = (m.stamp, s_dr, P_dr, s_dr + bias, float(self.ekf.P[0, 0]), cls, m.reference_id)
 
     def _unexplained(self, m, z: float, R: float) -> None:
         """A gated absolute fix: keep it as the alternative, or let it confirm the one kept."""

@@ -44,7 +44,7 @@ def integrity(sc, result):
 def test_a_changed_sensor_parameter_reaches_the_filter():
     base = Scenario.from_yaml("config/scenario_demo.yaml")
     changed = Scenario.from_yaml("config/scenario_demo.yaml")
-    changed.sensors["doppler_radar"] = {"scale_sigma": 0.02, "scale_tau": 20.0, "bias": 0.1}
+    changed.sensors["doppler_radar"] = {"scale_sigma": 0.02, "scale_tau": 20.0, "bias": 0.1, "fault_scale_sigma": 0.1}
     changed.sensors["wheel_sensor"] = {**changed.sensors["wheel_sensor"], "diameter_tolerance": 0.03,
                                        "driven_axle": False}
     f0, f1 = TrainFilter(fusion_config(base)), TrainFilter(fusion_config(changed))
@@ -54,6 +54,8 @@ def test_a_changed_sensor_parameter_reaches_the_filter():
     assert F[k, k] == pytest.approx(math.exp(-0.1 / 20.0))
     assert Q[k, k] == pytest.approx(0.02 ** 2 * (1 - math.exp(-0.2 / 20.0)))
     assert f1.layout.prior_sigma[f1.layout.bias["doppler"]] == 0.1
+    # the size of a scale fault the scale may learn once the fixes and the dead reckoning part
+    assert f1.models["doppler"].scale_fault_sigma == 0.1 and f0.models["doppler"].scale_fault_sigma == 0.05
     assert f1.layout.prior_sigma[f1.layout.scale["wheel"]] == pytest.approx(0.03 / math.sqrt(3.0))
     assert f1.models["wheel"].faults == ("slide",) and f0.models["wheel"].faults == ("slip", "slide")
     # the longest slip the wheel's model allows: its own parameter, or a longer forced episode

@@ -25,7 +25,8 @@ information; the filter may say it does not know, never be confidently wrong):
               history re-applied without them, so the slip is not carried in the speed
               and scale states.
   plausibility an error state estimated beyond ``plausible_sigmas`` of its prior (and beyond
-              the slip gate of its own variance: significantly) means a fault was absorbed (the filter explained a slip or a faulty sensor with a
+              the slip gate of its own variance: significantly) means a fault was absorbed
+              (the filter explained a slip or a faulty sensor with a
               scale nobody has): every relative sensor's error states are re-learnt from
               their priors and the position and speed covariance widened by what the
               corrupted states can have caused since the last accepted fix.
@@ -43,8 +44,10 @@ information; the filter may say it does not know, never be confidently wrong):
               dead reckoning part faster than that bias can: a fault of the relative sensors
               (a lone radar's scale fault) was being absorbed into the fix bias, or the fix
               sensor has one beyond its model. Which, one cannot tell: the fix bias goes back
-              to its prior, the relative error states are re-learnt, and the dead-reckoned
-              position is kept as the alternative until an independent fix decides.
+              to its prior, the relative error states keep their estimates with at least
+              their prior uncertainty (after a drift, a scale with a scale-fault mode that
+              of the fault's size), and the dead-reckoned position is kept as the
+              alternative until an independent fix decides.
   unexplained an absolute fix the gate rejects is kept as an alternative hypothesis: the
               published interval covers it (moved with the filter's motion) until a fix of
               another reference decides: one the filter explains drops it (the fix was the
@@ -1114,7 +1117,8 @@ class TrainFilter:
             key = (m.sensor, m.reference_id)
             aux.used_refs = tuple(k for k in aux.used_refs if k != key)[-(_REMEMBERED_REFS - 1):] + (key,)
         alt = aux.alternative
-        if alt is not None and (m.sensor != alt[5] or (m.reference_id != alt[6] and m.sensor not in self.layout.fix)):
+        if alt is not None and (m.sensor != alt[5] or
+                                (m.reference_id != alt[6] and m.sensor not in self.layout.fix)):
             # the filter explains an independent fix (not one of the same sensor with a fix-bias
             # state, whatever its reference: mm-wave station sets overlap): that one was wrong
             aux.alternative = None
@@ -1141,15 +1145,15 @@ class TrainFilter:
         test the model: the mean NIS of its last ``consistency_fixes`` beyond its chi-square
         quantile, or their normalised innovations u (signed) summed with weights decaying over
         ``slip_window`` s, normalised by the root of the sum of the squared weights (standard
-        normal if the model holds), beyond the slip gate (a drift shows as innovations of one sign long before their squares stand
-        out). Either means the fixes and the dead reckoning part faster than the fix bias can
-        (a lone radar's scale fault absorbed into a DGPS bias, or a fix fault beyond the
-        sensor's model). The fix bias goes back to its prior, the relative error states keep
-        their estimates with their prior uncertainty (after a drift alone, a scale with a
-        scale-fault mode that of the fault's size, ``scale_fault_sigma``, and the speed with
-        it), the position variance takes the bias the filter
-        had estimated, and the dead-reckoned position is kept as the alternative (the interval
-        covers it, DEGRADED) until a fix of an independent reference decides
+        normal if the model holds), beyond the slip gate (a drift shows as innovations of one
+        sign long before their squares stand out). Either means the fixes and the dead
+        reckoning part faster than the fix bias can (a lone radar's scale fault absorbed into a
+        DGPS bias, or a fix fault beyond the sensor's model). The fix bias goes back to its
+        prior, the relative error states keep their estimates with their prior uncertainty
+        (after a drift alone, a scale with a scale-fault mode that of the fault's size,
+        ``scale_fault_sigma``, and the speed with it), the position variance takes the bias the
+        filter had estimated, and the dead-reckoned position is kept as the alternative (the
+        interval covers it, DEGRADED) until a fix of an independent reference decides
         (``_fix_accepted``)."""
         aux, cls, cfg = self.aux, m.sensor, self.cfg
         # (last NIS values, stamp [s], the signed sum and the sum of its squared weights, both
@@ -1164,6 +1168,8 @@ class TrainFilter:
             aux.fix_bias_nis = {**aux.fix_bias_nis, cls: (last, m.stamp, summed, weights)}
             return
         aux.fix_bias_nis = _without(aux.fix_bias_nis, cls)
+        # an alternative of this sensor is pending (an earlier inconsistency's view, or an
+        # unexplained fix of it): the question is open already
         pending = aux.alternative is not None and aux.alternative[5] == cls
         i = self.layout.fix[cls]
         bias = float(self.ekf.x[i, 0])
@@ -1171,28 +1177,29 @@ class TrainFilter:
         self._new_fix_bias(cls)
         P = self.ekf.P.copy()
         P[0, 0] += bias * bias
-        # the relative error states keep their estimates, their uncertainty back to at least
-        # their prior, the scale of a sensor with a scale-fault mode that of its fault size: the
-        # fixes that follow tell whether they hold a fault (learnt beyond plausibility,
-        # ``_check_plausible`` suspends the sensor) or the fix bias did
+        # the relative error states keep their estimates, their variance raised to at least their
+        # prior's: the fixes that follow tell whether they hold a fault (learnt beyond
+        # plausibility, ``_check_plausible`` suspends the sensor) or the fix bias did
         lay = self.layout
         idx = lay.relative_states
         if len(idx):
-            floor = lay.prior_sigma[idx] ** 2
-            # a drift alone (small innovations of one sign: the dead reckoning parts at a rate, as
-            # a scale fault makes it) opens the scale to the fault's size; fixes that are also
-            # noisier than their model (an NLOS step) would pull a scale opened that wide
-            # (once: while the view of an earlier inconsistency of this sensor is undecided, the
-            # question is open already, and its fixes would pull the opened states again and again)
-            for name in lay.scale if not (noisy or pending) else ():
-                if "scale_fault" in self.models[name].faults:   # on its constant scale state
-                    j = lay.offset.get(name, lay.scale[name])
-                    floor[list(idx).index(j)] += self.models[name].scale_fault_sigma ** 2
-            var = np.diag(P)[idx]
-            ratio = np.sqrt(np.divide(np.maximum(var, floor), var, out=np.ones_like(var), where=var > 0))
-            # the speed was learnt through those scales: it is as uncertain as they became
-            scales = np.isin(idx, [*lay.scale.values(), *lay.offset.values()])
-            P[1, 1] += float(np.sum(np.maximum(floor - var, 0.0)[scales])) * float(self.ekf.x[1, 0]) ** 2
+            floor = np.zeros(self.n)
+            floor[idx] = lay.prior_sigma[idx] ** 2
+            # a drift alone (small innovations of one sign: the dead reckoning parts at a rate,
+            # as a scale fault makes it) raises a constant scale with a scale-fault mode to the
+            # fault's size; not where the fixes are also noisier than their model (an NLOS step
+            # would pull a scale opened that wide), nor again while the question is open (the
+            # same fixes would pull the opened states again and again)
+            if not (noisy or pending):
+                for name in lay.scale:
+                    if "scale_fault" in self.models[name].faults:
+                        floor[lay.offset.get(name, lay.scale[name])] += self.models[name].scale_fault_sigma ** 2
+            var = np.diag(P).copy()
+            # the speed was learnt through the scales: it is as uncertain as they became
+            scales = [*lay.scale.values(), *lay.offset.values()]
+            P[1, 1] += float(np.sum(np.maximum(floor[scales] - var[scales], 0.0))) * float(self.ekf.x[1, 0]) ** 2
+            ratio = np.sqrt(np.divide(np.maximum(var[idx], floor[idx]), var[idx], out=np.ones(len(idx)),
+                                      where=var[idx] > 0))
             P[idx, :] *= ratio[:, None]
             P[:, idx] *= ratio[None, :]
         self.ekf.P = P

@@ -346,6 +346,40 @@ def test_three_stations_one_biased_by_3_m_give_no_confident_wrong_fix(block):
     assert len(z) > (1000 if block else 10000)   # most epochs still give a fix
 
 
+def _two_alike_runs(runs, block):
+    """Three stations, the train approaching two of them on the same side with the third behind
+    it: the two ahead lengthened alike by 1.5-3 m (two NLOS episodes at once), the one behind
+    good and never lost (with it gone, the two agreeing faults pass unseen: a priori p^2, below
+    the interval's risk); the NLOS episodes of the default model on top."""
+    from train_localization.core.pipeline import simulate_and_decode
+    out = []
+    for k in range(runs):
+        rng = np.random.default_rng([3, 2, k])
+        speed = float(rng.uniform(20.0, 140.0))
+        pos = [5000.0 - rng.uniform(400.0, 700.0), 5000.0 + rng.uniform(80.0, 200.0), 5000.0 + rng.uniform(600.0, 800.0)]
+        stations = [{"id": f"S{j}", "position": float(x), "offset": float(rng.uniform(2.0, 8.0) * rng.choice([-1, 1])),
+                     "height": float(rng.uniform(4.0, 8.0))} for j, x in enumerate(pos)]
+        b = float(rng.uniform(1.5, 3.0))
+        params = {"faults": f"S1@0-100:{b};S2@0-100:{b + rng.uniform(-0.1, 0.1)}", "max_range": 2000.0,
+                  "dropout_prob": 0.0, "fix_per_block": block}
+        sc = scenario(speed, 5000.0 - 2.0 * speed * rng.uniform(0.6, 1.0), duration=2.0, params=params, seed=k + 1,
+                      stations=stations)
+        out.append((simulate_and_decode(NODE, sc), "S1,S2", b))
+    return out
+
+
+@pytest.mark.parametrize("block", [False, True])
+def test_two_stations_biased_alike_isolating_the_good_one_give_no_confident_wrong_fix(block):
+    # the two lengthened ranges agree and pass the test together: the isolation keeps them and
+    # excludes the good station; given one fault a second is nlos_rate x nlos_duration as likely
+    # (1/40), so the published sigma also covers the good station's own solution
+    runs = _two_alike_runs(20, block)
+    kept_the_pair = sum(f.reference_id.startswith("S1,S2,!S0") for run, _, _ in runs for f in run.measurements)
+    assert kept_the_pair > (50 if block else 500)
+    z = _assert_no_confident_wrong_fix(runs)
+    assert len(z) > (300 if block else 3000)
+
+
 def _gap_scenario(seed, block):
     """The measured case: maglev at 450 km/h on track_maglev.yaml, a block of six consecutive
     stations silent for 25 s and one station biased by +-3 m (drawn per seed: which stations,

@@ -93,10 +93,14 @@ information; the filter may say it does not know, never be confidently wrong):
               than the middle of their readings does, the filter coasts on that middle
               (not on the last acceleration). The motion model's own hypothesis from the
               start of the coasting stays in the interval (both sources may be wrong the same
-              way), moved with the filter after the coasting, until a fix rules it out or,
-              the filter back on its speed sources, a fix confirms the filter. A fix the
-              filter accepts locates the train under that hypothesis too: it is conditioned
-              on the fix (a Kalman update of its kinematic state).
+              way) until a fix rules it out or, the filter back on its speed sources, a fix
+              confirms the filter. After the coasting (or a re-acquisition from the motion
+              model alone) it moves with the filter, its distance scaled by the scale error
+              the sources back in use may share (a radar scale fault as large as a wheel's
+              slide agrees with it): estimated from the motion model's speed against theirs
+              with the smallest scale-fault prior among them, until the shortest of their
+              transient faults must have ended. A fix the filter accepts locates the train
+              under that hypothesis too: it is conditioned on the fix.
   revisit     a fix of a reference the filter accepted before (a reversal over a balise)
               carries the same installation error: not applied while the filter knows its
               position better than the fix.
@@ -166,6 +170,8 @@ _MAX_MOTION_VIEWS = 4
 
 # fault modes by which an absolute sensor can report a confident wrong fix
 _OUTLIER_MODES = frozenset(("nlos", "misread", "miscount"))
+# fault modes that make a relative sensor read a wrong speed for a while
+_SPEED_FAULTS = frozenset(("slip", "slide", "scale_fault"))
 
 
 class _Aux:
@@ -224,8 +230,8 @@ class _Aux:
         self.peer_run: tuple | None = None
         # the motion model's own hypotheses of coastings between disagreeing speed sources, each
         # ("model", t [s], s [m], v [m/s], a [m/s^2], (P00, P01, P02, P11, P12, P22)) from the start
-        # of a coasting in progress, or ("moved", s [m], var [m^2], filter s [m], filter P00 [m^2])
-        # at its end, since moved with the filter
+        # of a coasting in progress, or ("moved", s [m], var [m^2], filter s [m], filter P00 [m^2],
+        # common scale error r [1] and its variance, until [s]) at its end, since moved with the filter
         self.motion_views: tuple = ()
         # each relative sensor's own solution from the fixes (separation.py): sensor -> Sub
         self.subs: dict = {}
@@ -418,9 +424,14 @@ class TrainFilter:
         if _coasting(aux) and not all(_speed_excluded(aux, c, m.stamp) for c in aux.speed_sources):
             # a speed source is in use again: the coasting ends, its motion-model hypothesis moves
             # with the filter from now on until a fix rules it out
-            s_m, var_m = self._motion_view(aux.motion_views[-1], m.stamp, 0.0, 0.0)
-            aux.motion_views = aux.motion_views[:-1] + (
-                ("moved", s_m, var_m, float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])),)
+            aux.motion_views = aux.motion_views[:-1] + (self._coasting_ended(aux.motion_views[-1], m.stamp),)
+        if any(v[0] == "moved" and v[7] <= m.stamp for v in aux.motion_views):
+            # past the longest episode of a transient fault the sources in use may share: their
+            # common error no longer grows; the hypothesis moves with the filter from here
+            s_f, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
+            aux.motion_views = tuple(
+                ("moved", *self._motion_view(v, m.stamp, s_f, P00), s_f, P00, 0.0, 0.0, math.inf)
+                if v[0] == "moved" and v[7] <= m.stamp else v for v in aux.motion_views)
         z, R, h, hx, PHt, S = self._innovation(m)
         if is_fix and aux.motion_views:
             # a fix rules out the motion-model hypotheses it does not fit
@@ -909,6 +920,32 @@ class TrainFilter:
         self._set_speed(readings, middle=True)
         return True
 
+    def _coasting_ended(self, view: tuple, stamp: float) -> tuple:
+        """The motion-model hypothesis of a coasting that ends at ``stamp`` [s], as it moves with
+        the filter from here. The speed sources back in use were excluded for faults; that they
+        now agree does not prove both right: a radar scale fault and a wheel slide of the same
+        size agree. Under that hypothesis their common error persists as a scale error r
+        (a slip ratio, a scale fault) until the shortest of their transient fault modes must
+        have ended: r from the motion model's speed against theirs, combined with the prior of
+        the smallest scale fault among them (a sensor without a speed fault mode rules the
+        hypothesis out: r = 0). ("moved", s [m], var [m^2], filter s [m], filter P00 [m^2],
+        r [1], var_r [1], until [s])."""
+        s_m, v_m, _, var_m, var_v = _kinematics(*view[2:5], view[5], max(stamp - view[1], 0.0), self.cfg.jerk_psd)
+        s_f, v_f = float(self.ekf.x[0, 0]), float(self.ekf.x[1, 0])
+        aux = self.aux
+        in_use = [c for c in aux.speed_sources if not _speed_excluded(aux, c, stamp)]
+        models = [self.models[c] for c in in_use]
+        r, var_r, until = 0.0, 0.0, math.inf
+        if models and all(set(md.faults) & _SPEED_FAULTS for md in models):
+            # measured: r = (v_m - v_f) / v_f of variance var_v / v_f^2; prior N(0, prior)
+            prior = min((md.scale_fault_sigma ** 2 for md in models if "scale_fault" in md.faults), default=math.inf)
+            var_v = max(var_v, 1e-12)
+            info = v_f * v_f / var_v + (1.0 / prior if prior > 0.0 else math.inf)
+            var_r = 1.0 / info if info > 0.0 else math.inf
+            r = var_r * (v_m - v_f) * v_f / var_v if math.isfinite(var_r) else 0.0
+            until = stamp + min(md.fault_duration_max for md in models)
+        return ("moved", s_m, var_m, s_f, float(self.ekf.P[0, 0]), r, var_r, until)
+
     def _peer_run(self, cls: str, stamp: float, u: float, white: float, common: float,
                   peers: dict) -> str | None:
         """Extend the run of agreement of ``cls`` with an excluded peer: each reading inside the
@@ -974,12 +1011,21 @@ class TrainFilter:
         """Speed from independent readings that agree (weighted); the exclusions of ``sensors``
         end."""
         aux = self.aux
+        coasting = _coasting(aux)
+        # the motion model's hypothesis: of the coasting, or the filter's own until now (its speed
+        # rested on the motion model alone)
+        view = aux.motion_views[-1] if coasting else \
+            ("model", stamp, *self.ekf.x[:3, 0].tolist(), _kinematic_covariance(self.ekf.P))
         self._set_speed(readings)
         aux.suspended = {c: v for c, v in aux.suspended.items() if c not in sensors}
         aux.slip_until = {c: (min(t, stamp) if c in sensors else t) for c, t in aux.slip_until.items()}
         aux.slip_window = {c: w for c, w in aux.slip_window.items() if c not in sensors}
         aux.last_accepted = {**aux.last_accepted, **{c: stamp for c in sensors}}
         aux.peer_speeds, aux.peer_run = {}, None
+        moved = self._coasting_ended(view, stamp)
+        if coasting or moved[6] > 0.0:
+            kept = aux.motion_views[:-1] if coasting else aux.motion_views[-(_MAX_MOTION_VIEWS - 1):]
+            aux.motion_views = kept + (moved,)
         aux.events = _inc(aux.events, "speed_reacquired")
         aux.unverified = "speed_reacquired"
 
@@ -999,11 +1045,11 @@ class TrainFilter:
         aux.gated = _inc(aux.gated, cls + "/slip")
 
     def _reference_ok(self, m) -> bool:
-        """Another speed source, not itself in an episode, was accepted recently."""
+        """Another speed source, not itself excluded (in an episode, or suspended since it was
+        last accepted), was accepted recently."""
         aux, stamp = self.aux, m.stamp
         return any(aux.last_accepted.get(s, -math.inf) > stamp - self.cfg.slip_reference_timeout
-                   for s in aux.speed_sources
-                   if s != m.sensor and not aux.slip_until.get(s, -math.inf) > stamp)
+                   for s in aux.speed_sources if s != m.sensor and not _speed_excluded(aux, s, stamp))
 
     def _agreement_reference(self, m, S: float) -> bool:
         """Whether the filter's speed rests on more than ``m.sensor`` and the motion model:
@@ -1374,7 +1420,7 @@ class TrainFilter:
         if view[0] == "moved":
             s_m, var_m = self._motion_view(view, t, s_f, P00_f)
             k = var_m / (var_m + R)
-            return ("moved", s_m + k * (z - s_m), (1.0 - k) * var_m, s_f, P00_f)
+            return ("moved", s_m + k * (z - s_m), (1.0 - k) * var_m, s_f, P00_f, *view[5:])
         _, t_c, s, v, a, p = view
         dt = max(t - t_c, 0.0)
         F, _, Q = self.process.transition(dt)
@@ -1576,10 +1622,12 @@ class TrainFilter:
     def _motion_view(self, view: tuple, t: float, s_f: float, var_f: float) -> tuple[float, float]:
         """(position [m], variance [m^2]) at t of a motion-model hypothesis: during its coasting
         the kinematic block from its start predicted with the white-jerk process noise; after it
-        moved with the filter (position s_f [m], variance var_f [m^2] at t)."""
+        moved with the filter (position s_f [m], variance var_f [m^2] at t), the distance scaled
+        by 1 + r, r the common scale error of the speed sources in use (``_coasting_ended``)."""
         if view[0] == "moved":
-            _, s_m, var_m, s_end, P00_end = view
-            return s_m + (s_f - s_end), var_m + max(var_f - P00_end, 0.0)
+            _, s_m, var_m, s_end, P00_end, r, var_r, _ = view
+            d = s_f - s_end
+            return s_m + d * (1.0 + r), var_m + max(var_f - P00_end, 0.0) + (var_r * d * d if d else 0.0)
         _, t_c, s, v, a, p = view
         s_m, _, _, var, _ = _kinematics(s, v, a, p, max(t - t_c, 0.0), self.cfg.jerk_psd)
         return s_m, var

@@ -105,6 +105,13 @@ plus the calibration term.
     probability of the interval (not discounted by a fault prior: a bias may persist over
     many epochs). Where a fault could move the solution without bound (the other ranges do
     not fix x) there is no fix (``stats["unbounded"]``).
+  * A second fault: once the test has found one, a second is about ``nlos_rate`` x
+    ``nlos_duration`` as likely (NLOS occupancy odds of a station), far above the
+    interval's risk at the default 1/40. Two ranges lengthened alike pass the test
+    together and isolate the good station instead; so an isolated solution's sigma also
+    covers, for each pair of its stations, the solution of the stations in view without
+    that pair (its separation / k + its sigma; none left: no fix). Without a detection a
+    double fault is not covered (a priori about p^2, below the interval's risk).
   * Output: one PositionFix per epoch (``fix_per_block`` false) or one per block. Per
     block the epochs' all-in-view solutions give the motion (a straight line in time);
     each station's mean residual about it over the block (noise averaged, calibration
@@ -406,6 +413,9 @@ class MmWaveDecoder(Decoder):
         self._block_loo: dict = {}   # per number of stations: all of them, then without each
         self._slot_bits = 1 << np.arange(N_SLOTS)
         self._single_index = self._slot_bits - 1   # subset index of each slot alone
+        self._slot_pairs = [int(a | b) for a, b in itertools.combinations(self._slot_bits.tolist(), 2)]
+        busy = params["nlos_rate"] * params["nlos_duration"]   # NLOS occupancy odds p / (1 - p) of a station
+        self._second_fault_odds = busy
         self._gate_size = np.array([self._gate_dof(k - 1) for k in range(N_SLOTS + 1)])   # by stations
         self._prev_t: float | None = None
         self._prev_x: float | None = None
@@ -779,6 +789,8 @@ class MmWaveDecoder(Decoder):
             pick = cover.argmin(axis=0)
             chosen[ci] = pick
             sigma[ci] = cover[pick, self._columns(len(ci))]
+            if self._second_fault_odds > 1.0 - self.params["protection_probability"]:
+                sigma[ci] = np.maximum(sigma[ci], self._second_fault(tab, xs, var, chi2, pick, ci, full[ci] + 1))
             ok[ci] = ~disagree
             unident = np.zeros(n, dtype=bool)
             unident[ci] = disagree
@@ -789,6 +801,31 @@ class MmWaveDecoder(Decoder):
         none = (full >= 0) & (level == 0)
         spare = n_full > min_keep
         return chosen, ok, sigma, unident | (none & ~spare), none & spare
+
+    def _second_fault(self, tab, xs, var, chi2, sub, col, full_bits):
+        """Published 1-sigma (K,) that also covers two faults inside each chosen subset ``sub``
+        (K,) at epochs ``col`` (K,): the isolation found one fault, and its leave-one-out
+        protection covers one more, but two faults that agree (two NLOS ranges lengthened
+        alike) pass the test together and isolate the one good station instead. Given one
+        fault, such a pair is about p / (1 - p) as likely as the single fault, p the
+        probability that a station is in NLOS at an epoch (``nlos_rate`` x ``nlos_duration``
+        as an on/off occupancy). For each pair of the subset's stations, the solution of
+        the stations in view without them (if consistent) is covered as the others are:
+        its separation / k + its sigma; where none is left, or it is unbounded, the sigma is
+        infinite (no fix)."""
+        x_s = xs[sub, col]
+        sigma = np.zeros(len(col))
+        bits = tab.bits[sub]
+        for pair in self._slot_pairs:
+            inside = (bits & pair) == pair
+            if not _any(inside):
+                continue
+            rest = (full_bits & ~pair) - 1            # subset index of the stations left (-1: none)
+            k = np.maximum(rest, 0)
+            fits = (rest >= 0) & (chi2[k, col] <= tab.gate[k])
+            cover = np.where(fits, np.abs(xs[k, col] - x_s) / self._k_cover + np.sqrt(var[k, col]), np.inf)
+            sigma = np.where(inside & ((rest < 0) | fits), np.maximum(sigma, cover), sigma)
+        return sigma
 
     def _subset_protection(self, tab, xs, var, sub, col, mirrors):
         """Published 1-sigma (K,) of the solutions of subsets ``sub`` (K,) at epochs ``col``

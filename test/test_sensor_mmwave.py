@@ -380,6 +380,24 @@ def test_two_stations_biased_alike_isolating_the_good_one_give_no_confident_wron
     assert len(z) > (300 if block else 3000)
 
 
+@pytest.mark.parametrize("nlos_rate", [0.05, 0.2])
+def test_two_stations_in_view_give_no_fix_where_two_faults_at_once_are_too_likely(nlos_rate):
+    # two stations ahead of the train: two NLOS ranges lengthened alike pass their one-dof test
+    # together, and nothing is left to protect against them. A priori (rate x 0.5 s)^2: 6e-4
+    # at the default 0.05/s, below the interval's 1e-3; 1e-2 at 0.2/s
+    from train_localization.core.pipeline import simulate_and_decode
+    stations = [{"id": f"S{j}", "position": x, "offset": 5.0, "height": 6.0} for j, x in enumerate((5130.0, 5780.0))]
+    for block in (False, True):
+        sc = scenario(80.0, 4900.0, duration=1.0, stations=stations,
+                      params={"nlos_rate": nlos_rate, "max_range": 2000.0, "fix_per_block": block})
+        stats = simulate_and_decode(NODE, sc).pipe.decoder.stats
+        blocks = stats["epochs"] / 10 if block else stats["epochs"]
+        if nlos_rate == 0.05:
+            assert stats["unprotected"] == 0 and stats["fixes"] > 0.8 * blocks, stats
+        else:   # none (the others: a fault detected, with no station to spare)
+            assert stats["fixes"] == 0 and stats["unprotected"] > 0.5 * blocks, stats
+
+
 def _gap_scenario(seed, block):
     """The measured case: maglev at 450 km/h on track_maglev.yaml, a block of six consecutive
     stations silent for 25 s and one station biased by +-3 m (drawn per seed: which stations,

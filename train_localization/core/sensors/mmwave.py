@@ -111,7 +111,10 @@ plus the calibration term.
     together and isolate the good station instead; so an isolated solution's sigma also
     covers, for each pair of its stations, the solution of the stations in view without
     that pair (its separation / k + its sigma; none left: no fix). Without a detection a
-    double fault is not covered (a priori about p^2, below the interval's risk).
+    double fault is a priori about (``nlos_rate`` x ``nlos_duration``)^2, below the
+    interval's risk at the default; where it is not (above 0.063 episodes/s of 0.5 s), an
+    epoch with two stations in view, which no test can protect against two faults, gives
+    no fix (``stats["unprotected"]``).
   * Output: one PositionFix per epoch (``fix_per_block`` false) or one per block. Per
     block the epochs' all-in-view solutions give the motion (a straight line in time);
     each station's mean residual about it over the block (noise averaged, calibration
@@ -415,7 +418,8 @@ class MmWaveDecoder(Decoder):
         self._single_index = self._slot_bits - 1   # subset index of each slot alone
         self._slot_pairs = [int(a | b) for a, b in itertools.combinations(self._slot_bits.tolist(), 2)]
         busy = params["nlos_rate"] * params["nlos_duration"]   # NLOS occupancy odds p / (1 - p) of a station
-        self._second_fault_odds = busy
+        self._second_fault_odds = busy            # a second fault given one: about p / (1 - p)
+        self._pair_odds = busy * busy             # both of two stations at once, a priori
         self._gate_size = np.array([self._gate_dof(k - 1) for k in range(N_SLOTS + 1)])   # by stations
         self._prev_t: float | None = None
         self._prev_x: float | None = None
@@ -425,7 +429,7 @@ class MmWaveDecoder(Decoder):
         self._hist_n = 0
         self._hist_sorted = True  # history times ascending (blocks in time order)
         self.stats.update(epochs=0, fixes=0, rejected_stations=0, no_fix=0, ambiguous=0, inconsistent_single=0,
-                          unidentifiable=0, inconsistent=0, unbounded=0)
+                          unidentifiable=0, inconsistent=0, unbounded=0, unprotected=0)
 
     # -- input checks -------------------------------------------------------------------
     def _check(self, data, codes_f, delay, snr) -> _Pattern:
@@ -633,6 +637,9 @@ class MmWaveDecoder(Decoder):
                 ok, c, used_rows = sigma < np.inf, 0, np.ones(m, dtype=bool)
                 if not ok:
                     self.stats["unbounded"] += 1
+                elif m == 2 and self._pair_odds > 1.0 - p["protection_probability"]:
+                    ok = False   # as per epoch: two faults alike pass unseen, too likely to ignore
+                    self.stats["unprotected"] += 1
             else:
                 tab = self._subsets(m)
                 delta, var, chi2, e_bar = self._block_solutions(tab.maskf, line, r, pat, w_bar, avg)
@@ -998,6 +1005,12 @@ class MmWaveDecoder(Decoder):
                 used = tab.mask[chosen].T & valid
                 nu = _sum(used)
                 e = np.where(excluded, es[chosen, :, cols].T, e)
+        if isolate and self._pair_odds > 1.0 - p["protection_probability"]:
+            # two stations in view lengthened alike pass their one-dof test together, and nothing
+            # is left to protect against them: too likely to ignore at this NLOS rate
+            unprotected = ok & (nv == 2)
+            self.stats["unprotected"] += int(np.count_nonzero(unprotected))
+            ok &= ~unprotected
         if unbounded is not None and _any(unbounded):
             # a fault of one range could move x without bound (the others cannot fix x alone)
             self.stats["unbounded"] += int(np.count_nonzero(unbounded))

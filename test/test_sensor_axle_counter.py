@@ -321,6 +321,19 @@ def test_lone_spurious_axle_gives_no_fix():
     assert pipe.decoder.stats["front_unidentified"] == 1
 
 
+@pytest.mark.parametrize("fault", ["AC03@1.0:extra-", "AC03@1.0:extra"])
+def test_a_spurious_axle_before_any_train_does_not_set_the_orientation(fault):
+    # orientation auto: a lone spurious axle (EMI, a trolley) counted the other way before the
+    # first train took the train for one backing, and its front fixes were off by the train's
+    # length (200 m); the orientation comes from the first passage identified as a train's
+    sc = scenario(V300, 500.0, duration=18.0, params={"faults": fault, "last_axle_offset": axles()[-1]})
+    _, ms, pipe = run_offline(NODE, sc)
+    fixes = fixes_of(ms)
+    assert [f.reference_id for f in fixes] == ["AC00", "AC01"] and all(f.direction == 1 for f in fixes)
+    check_fixes(sc, fixes)
+    assert pipe.decoder.stats["front_unidentified"] == 1     # the lone axle: no fix
+
+
 @pytest.mark.parametrize("fault", ["", "AC00@1.0:missed", f"AC00@{T_FIRST - 0.2:.4f}:extra"])
 def test_without_layout_the_stddev_covers_a_miscount(fault):
     sc = scenario(V300, 500.0, duration=9.0, params={"axle_offsets": [], "faults": fault})

@@ -25,7 +25,9 @@ Vehicle: ``Scenario.vehicle.axles`` are the axle offsets behind the front [m]. W
 orientation o (+1: the front faces increasing chainage), axle k is at
 chainage front - o * axles[k]. ``orientation`` 0 (default) = auto: the simulator
 takes the sign of the first motion (a train starts front first; reversals back
-up), the decoder the direction of the first counted axle into an empty region.
+up), the decoder the direction of the first passage identified as a train's (a
+spurious axle counted before it, EMI or a trolley, does not set it: it would put
+every front fix off by the train's length).
 
 Track equipment (kind ``axle_counter_head``)::
 
@@ -134,7 +136,7 @@ PARAMS = {
                        (1.0, 500.0)),
     "heads": Param("", "comma-separated head ids of this evaluation unit; empty = all heads of the track"),
     "orientation": Param(0, "+1: train front faces increasing chainage, -1: decreasing, 0: auto (first motion "
-                            "/ first counted axle) [1]", (-1, 1)),
+                            "/ the first passage identified as a train's) [1]", (-1, 1)),
     "front_first": Param(False, "every train passes front first (a wayside unit on a line with trains of both "
                                 "directions): each passage's direction is its train's orientation, and "
                                 "``orientation`` is not used by the decoder; a backing train's fix would be off by "
@@ -596,9 +598,9 @@ class AxleCounterDecoder(Decoder):
         if p["front_first"]:
             o = d
         else:
-            if self.orient is None:
-                self.orient = d
-            o = self.orient
+            # the train's orientation: that of its first passage, learnt once the passage is
+            # identified as a train's (a spurious axle counted first must not set it: _fix)
+            o = d if self.orient is None else self.orient
         if d != o and p["last_axle_offset"] <= 0.0:
             return out
         passage = self._pending[hi] = _Passage(hi, d, o)
@@ -697,6 +699,8 @@ class AxleCounterDecoder(Decoder):
         hi, d = passage.head, passage.d
         t_c, speed = passage.times[skip], passage.speeds[skip]
         o = passage.o
+        if self.orient is None and not p["front_first"]:
+            self.orient = o
         offset = self._offset(d, first, o) if self.layout else (p["first_axle_offset"] if d == o
                                                                 else p["last_axle_offset"])
         slow = 0.1 if speed < 1.0 else 0.0

@@ -418,8 +418,11 @@ class MmWaveDecoder(Decoder):
         self._single_index = self._slot_bits - 1   # subset index of each slot alone
         self._slot_pairs = [int(a | b) for a, b in itertools.combinations(self._slot_bits.tolist(), 2)]
         busy = params["nlos_rate"] * params["nlos_duration"]   # NLOS occupancy odds p / (1 - p) of a station
-        self._second_fault_odds = busy            # a second fault given one: about p / (1 - p)
-        self._pair_odds = busy * busy             # both of two stations at once, a priori
+        risk = 1.0 - params["protection_probability"]
+        # given one fault, a second is about p / (1 - p) as likely: cover it after an isolation
+        self._cover_second_fault = busy > risk
+        # both of two stations at once, a priori: two in view give no fix where that is likely
+        self._withhold_two = busy * busy > risk
         self._gate_size = np.array([self._gate_dof(k - 1) for k in range(N_SLOTS + 1)])   # by stations
         self._prev_t: float | None = None
         self._prev_x: float | None = None
@@ -637,7 +640,7 @@ class MmWaveDecoder(Decoder):
                 ok, c, used_rows = sigma < np.inf, 0, np.ones(m, dtype=bool)
                 if not ok:
                     self.stats["unbounded"] += 1
-                elif m == 2 and self._pair_odds > 1.0 - p["protection_probability"]:
+                elif m == 2 and self._withhold_two:
                     ok = False   # as per epoch: two faults alike pass unseen, too likely to ignore
                     self.stats["unprotected"] += 1
             else:
@@ -796,7 +799,7 @@ class MmWaveDecoder(Decoder):
             pick = cover.argmin(axis=0)
             chosen[ci] = pick
             sigma[ci] = cover[pick, self._columns(len(ci))]
-            if self._second_fault_odds > 1.0 - self.params["protection_probability"]:
+            if self._cover_second_fault:
                 sigma[ci] = np.maximum(sigma[ci], self._second_fault(tab, xs, var, chi2, pick, ci, full[ci] + 1))
             ok[ci] = ~disagree
             unident = np.zeros(n, dtype=bool)
@@ -1005,7 +1008,7 @@ class MmWaveDecoder(Decoder):
                 used = tab.mask[chosen].T & valid
                 nu = _sum(used)
                 e = np.where(excluded, es[chosen, :, cols].T, e)
-        if isolate and self._pair_odds > 1.0 - p["protection_probability"]:
+        if isolate and self._withhold_two:
             # two stations in view lengthened alike pass their one-dof test together, and nothing
             # is left to protect against them: too likely to ignore at this NLOS rate
             unprotected = ok & (nv == 2)

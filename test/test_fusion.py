@@ -151,6 +151,18 @@ def test_doppler_scale_state_is_the_exact_discretisation_of_the_radar_ar1():
     assert Q[w, w] == pytest.approx(f.cfg.scale_psd * dt)
 
 
+def test_an_injected_radar_fault_grows_over_its_ramp_and_a_malformed_one_is_refused():
+    """'T0-T1:SCALE:RAMP': the scale error grows linearly from T0 over RAMP s, holds until T1;
+    without RAMP it is there at once."""
+    faults = doppler._parse_faults("10-40:0.06:20; 50-60:-0.03")
+    assert faults == [(10.0, 40.0, 0.06, 20.0), (50.0, 60.0, -0.03, 0.0)]
+    got = doppler.fault_scale(faults, [5.0, 10.0, 15.0, 30.0, 39.9, 40.0, 50.0, 59.9, 60.0])
+    assert got == pytest.approx([0.0, 0.0, 0.015, 0.06, 0.06, 0.0, -0.03, -0.03, 0.0])
+    for bad in ("10-40", "10-40:0.06:-1", "10-40:0.06:5:5", "a-40:0.06"):
+        with pytest.raises(ValueError, match="malformed doppler fault"):
+            doppler._parse_faults(bad)
+
+
 def test_mmwave_fix_bias_decorrelates_with_distance_and_time():
     cfg = FusionConfig(overrides={"mmwave": {"fix_bias_length": 400.0}})
     f = TrainFilter(cfg)

@@ -213,9 +213,10 @@ class _Aux:
         self.view_speeds: dict[str, tuple] = {}
         # a sensor excluded for a slip or slide (its own fault, not kept in the interval): its
         # view all the same, in the format of relative_alternatives; and each excluded sensor
-        # with a bounded fault duration: (its first excluded reading [s], disagreement window,
-        # readings n, and the sums of e v / S, v^2 / S, e^2 / S of its disagreements e [m/s] at the
-        # filter's speeds v [m/s], S their variances: the fit of a scale error of the others)
+        # with a bounded fault duration: ((the other source, whether it is in use), its first
+        # excluded reading [s], disagreement window, readings n, and the sums of e v / S, v^2 / S,
+        # e^2 / S of its disagreements e [m/s] at the other's speeds v [m/s], S their variances:
+        # the fit of a scale error of the other source; ``_outlasted``)
         self.episode_views: dict[str, tuple] = {}
         self.fault_windows: dict[str, tuple] = {}
         self.candidate: tuple | None = None             # first fix awaiting confirmation
@@ -632,37 +633,74 @@ class TrainFilter:
     def _outlasted(self, m, z: float, R: float, hx: float, S: float, h) -> None:
         """Sensor ``m.sensor``, excluded, whose fault modes all end by themselves (a wheel's slip
         or slide, at most ``fault_duration_max`` s): if it has been excluded for longer and it
-        still disagrees (its innovations summed over ``slip_window`` s, its own error states
-        common to them), its fault modes no longer explain the disagreement. If all along one
-        speed source with a persistent fault mode (a radar scale fault) was in use, alone, and
-        the disagreement since fits one scale error of it (weighted least squares of the
-        disagreements against the speed, the residual inside the chi-square quantile of
+        still disagrees (its disagreements summed over ``slip_window`` s, its own error states
+        common to them), its fault modes no longer explain the disagreement. The other side is
+        one speed source with a persistent fault mode (a radar scale fault): the one in use,
+        alone (the disagreement is the innovation), or, while the filter coasts between the
+        two, the other excluded one (the disagreement is the difference of their readings).
+        If the disagreement since fits one scale error of that source (weighted least squares
+        of the disagreements against the speed, the residual inside the chi-square quantile of
         ``slip_gate_probability``: back-to-back slips of different ratios do not), that one is
-        the faulty one, and the two swap roles (``_swap``); with more sources in use the
-        majority stands."""
+        the faulty one: the two swap roles (``_swap``), or the coasting ends on this sensor
+        (``_coast_outlasted``). With more sources in use the majority stands."""
         aux, cls, stamp = self.aux, m.sensor, m.stamp
         view = aux.relative_alternatives.get(cls) or aux.episode_views.get(cls)
         recent = stamp - self.cfg.slip_reference_timeout
         in_use = [s for s in aux.speed_sources if s != cls and not _speed_excluded(aux, s, stamp)
                   and aux.last_accepted.get(s, -math.inf) > recent]
-        if view is None or len(in_use) != 1 or "scale_fault" not in self.models[in_use[0]].faults:
-            # the evidence counts only while one source with a persistent fault mode is in use
+        peers = [c for c, p in aux.peer_speeds.items() if c != cls and p[0] > recent]
+        other = None
+        if view is not None and len(in_use) == 1:
+            other, e, v, var, common = in_use[0], z - hx, float(self.ekf.x[1, 0]), S, self._common(cls, h)
+        elif view is not None and not in_use and _coasting(aux) and len(peers) == 1 and cls in aux.peer_speeds:
+            other = peers[0]
+            _, u, white, common = aux.peer_speeds[cls]
+            _, v, white_o, common_o = aux.peer_speeds[other]
+            e, common = u - v, common + common_o
+            var = white + white_o + common
+        if other is None or "scale_fault" not in self.models[other].faults:
+            # the evidence counts only while it is one source with a persistent fault mode
             if cls in aux.fault_windows:
                 aux.fault_windows = _without(aux.fault_windows, cls)
             return
-        since, window, n, s_ev, s_vv, s_ee = aux.fault_windows.get(cls, (stamp, (), 0, 0.0, 0.0, 0.0))
-        e, v = z - hx, float(self.ekf.x[1, 0])
-        window, summed = self._windowed(window, m, e, S, self._common(cls, h))
-        n, s_ev, s_vv, s_ee = n + 1, s_ev + e * v / S, s_vv + v * v / S, s_ee + e * e / S
-        aux.fault_windows = {**aux.fault_windows, cls: (since, window, n, s_ev, s_vv, s_ee)}
+        record = aux.fault_windows.get(cls)
+        if record is None or record[0] != (other, bool(in_use)):
+            record = ((other, bool(in_use)), stamp, (), 0, 0.0, 0.0, 0.0)
+        key, since, window, n, s_ev, s_vv, s_ee = record
+        window, summed = self._windowed(window, m, e, var, common)
+        n, s_ev, s_vv, s_ee = n + 1, s_ev + e * v / var, s_vv + v * v / var, s_ee + e * e / var
+        aux.fault_windows = {**aux.fault_windows, cls: (key, since, window, n, s_ev, s_vv, s_ee)}
         # the whole window past the longest episode the sensor's model allows
         if summed <= self._slip_gate or n < 3 or s_vv <= 0.0 or \
                 stamp - self.cfg.slip_window - since <= self.models[cls].fault_duration_max:
             return
-        # a scale error of the source in use is one ratio throughout; a chain of slips is not
+        # a scale error of the other source is one ratio throughout; a chain of slips is not
         # (their ratios differ, and each ramps down to none): the residual of that fit
         if s_ee - s_ev * s_ev / s_vv <= chi2.ppf(self.cfg.slip_gate_probability, n - 1):
-            self._swap(m, z, R, view, in_use[0])
+            if in_use:
+                self._swap(m, z, R, view, other)
+            else:
+                self._coast_outlasted(m, other, e, v)
+
+    def _coast_outlasted(self, m, other: str, e: float, v: float) -> None:
+        """The filter coasts between excluded ``m.sensor`` and ``other``, and the disagreement
+        e [m/s] (at speed v [m/s]) has outlasted ``m.sensor``'s transient fault modes: the
+        speed is taken from ``m.sensor``'s reading (its exclusion ends, as a re-acquisition)
+        and ``other`` stays suspended for the fault seen. Both sensors' views stay in the
+        interval until a fix decides, and so does the coasting's motion-model hypothesis (both
+        may have been wrong the same way while it lasted), moving with the filter from here:
+        ``m.sensor``'s fault cannot go on, so it shares no error with it from now on. The
+        filter awaits a fix (DEGRADED)."""
+        aux, cls, stamp = self.aux, m.sensor, m.stamp
+        _, u, white, common = aux.peer_speeds[cls]
+        if other not in aux.suspended:
+            self._suspend(other, (-e, v))
+        aux.fault_windows = _without(aux.fault_windows, cls)
+        self._take_speed(stamp, [(u, white + common)], {cls})
+        moved = aux.motion_views[-1] if aux.motion_views else None
+        if moved is not None and moved[0] == "moved":
+            aux.motion_views = aux.motion_views[:-1] + (moved[:5] + (0.0, 0.0, math.inf),)
+        aux.events = _inc(aux.events, "transient_fault_outlasted")
 
     def _swap(self, m, z: float, R: float, view: tuple, other: str) -> None:
         """The excluded sensor ``m.sensor`` was right and ``other``, the speed source in use, is

@@ -16,7 +16,8 @@ frequency [Hz] and its signal-to-noise ratio [dB]. Errors modelled:
     cos(theta + e) / cos(theta) - 1, about -tan(theta) e; the error model takes its
     1-sigma ``mount_angle_tolerance`` as a constant scale-error state;
   * injected scale faults (``faults``, tests and campaigns): a scale error added over
-    a time window (water film or snow changing the echo, a loosened mount);
+    a time window (water film or snow changing the echo, a loosened mount), at once or
+    growing linearly over a ramp (a film building up, a mount working loose);
   * dropouts (smooth, wet or snow-covered surface): episodes at ``dropout_rate`` per
     second of ``dropout_duration`` s, SNR below threshold and a random peak;
   * below ``min_speed`` the peak is lost in the low-frequency clutter filter.
@@ -60,21 +61,35 @@ PARAMS = {
                                      "water) [fraction]; assumption: the beam angle shifted by 3 deg at 45 deg "
                                      "is tan(45 deg) x 3 deg = 5 %; what the fusion lets the scale learn once "
                                      "the fixes and the dead reckoning disagree", (0.0, 1.0)),
-    "faults": Param("", "injected scale faults 'T0-T1:SCALE' (scale error added, fraction), separated by ';' "
+    "faults": Param("", "injected scale faults 'T0-T1:SCALE[:RAMP]' (scale error added from T0 to T1 [s], "
+                        "fraction; reached over RAMP s from T0, at once without), separated by ';' "
                         "(tests, campaigns)"),
 }
 
 
-def _parse_faults(text: str) -> list[tuple[float, float, float]]:
-    """'T0-T1:SCALE' items -> (t0, t1, scale)."""
+def _parse_faults(text: str) -> list[tuple[float, float, float, float]]:
+    """'T0-T1:SCALE[:RAMP]' items -> (t0, t1, scale, ramp)."""
     out = []
     for item in filter(None, (s.strip() for s in str(text).split(";"))):
         try:
-            window, scale = item.split(":")
+            window, scale, *ramp = item.split(":")
             t0, t1 = (float(v) for v in window.split("-"))
-            out.append((t0, t1, float(scale)))
+            if len(ramp) > 1 or (ramp and float(ramp[0]) < 0.0):
+                raise ValueError
+            out.append((t0, t1, float(scale), float(ramp[0]) if ramp else 0.0))
         except ValueError:
-            raise ValueError(f"malformed doppler fault {item!r}; expected 'T0-T1:SCALE'") from None
+            raise ValueError(f"malformed doppler fault {item!r}; expected 'T0-T1:SCALE' or "
+                             f"'T0-T1:SCALE:RAMP' (RAMP >= 0 s)") from None
+    return out
+
+
+def fault_scale(faults: list, times) -> np.ndarray:
+    """The injected scale error [1] at ``times`` [s] of parsed ``faults`` (``_parse_faults``)."""
+    times = np.asarray(times, dtype=float)
+    out = np.zeros(times.shape)
+    for t0, t1, extra, ramp in faults:
+        grown = np.clip((times - t0) / ramp, 0.0, 1.0) if ramp > 0.0 else 1.0
+        out += np.where((times >= t0) & (times < t1), extra * grown, 0.0)
     return out
 
 
@@ -109,8 +124,7 @@ class DopplerSimulator(Simulator):
             self._scale = phi * self._scale + math.sqrt(1 - phi * phi) * p["scale_sigma"] * self.rng.normal()
             scale[i] = self._scale
         scale = scale + self._mount_scale
-        for t0, t1, extra in self._faults:
-            scale = scale + np.where((times >= t0) & (times < t1), extra, 0.0)
+        scale = scale + fault_scale(self._faults, times)
         v_meas = (speed + np.sign(speed) * p["bias"]) * (1.0 + scale)
         fd = doppler_shift(v_meas, p["carrier_frequency"], p["mount_angle"])
         fd = fd + self.rng.normal(0.0, 1.0, n) * p["spread"] * np.abs(fd)

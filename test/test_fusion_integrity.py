@@ -728,6 +728,41 @@ def test_a_sensor_solution_learns_its_scale_from_the_fixes_and_is_refuted_by_one
     assert separation.fix(sub, 100.0, s + 20.0, 0.09, main, 15.0) is None
 
 
+def _lone_radar_ramp_run():
+    """A steady 20 m/s with the radar as the only speed source; its scale error grows from 0
+    at 10 s to -6 % at 25 s (a film building up: too gradual for any reading to disagree with
+    the motion model) and stays; a balise every 200 m (every 10 s)."""
+    def feed(f, j, t, s, v, v_old, rng):
+        k = -0.06 * min(max((t - 10.0) / 15.0, 0.0), 1.0)
+        f.add(SpeedMeasurement(t - 0.025, "doppler", "doppler", v * (1 + k) + rng.normal(0, 0.03), 0.02 + 0.011 * v))
+        n = int(s // 200.0)
+        if int((s - v * 0.05) // 200.0) != n:
+            f.add(PositionFix(t, "eurobalise", "eb", "T", f"EB{n}", n * 200.0, 0.3))
+    return _train_run(["doppler_radar", "eurobalise_reader"], 20.0, lambda t: 0.0, 1600, 3, feed)
+
+
+def test_a_fix_that_a_lone_radars_scale_fault_explains_opens_its_scale(monkeypatch):
+    """No reading shows the radar's growing scale fault: until a balise does, the filter is
+    NOMINAL and, from 18 s, wrong (nothing could tell). The balise at 20 s is 3.5 m off, which
+    the filter's interval does not explain and a radar scale fault over the 200 m since the
+    last one does: the radar's scale is opened to its fault's size (``fault_scale_sigma``),
+    so the intervals of the filter and of the kept fix grow with the distance as the fault
+    would make them. The balise at 30 s agrees with the kept one: the position is taken from
+    it with the scale still open, and the balise after that teaches the scale. Before, each
+    balise was gated in turn, every one kept as an alternative that moved with the radar's
+    wrong speed: the truth was outside the interval in 935 of the 1,600 states, DEGRADED."""
+    f, checked = _lone_radar_ramp_run()
+    events = f.counters()["integrity"]
+    assert events["scale_fault_suspected"] == 1 and events["reacquired"] == 1
+    outside = [t for t, e, s, _ in checked if not e.position_min <= s <= e.position_max]
+    assert outside and 15.0 < min(outside) and max(outside) < 20.0
+    assert all(e.mode == MODE_NOMINAL for t, e, _, _ in checked if t < 15.0)
+    assert all(e.mode != MODE_NOMINAL for t, e, _, _ in checked if 20.0 <= t < 40.0)
+    monkeypatch.setattr(TrainFilter, "_scale_faults_explaining", lambda self, m, z, R: [])
+    _, before = _lone_radar_ramp_run()
+    assert sum(1 for t, e, s, _ in before if not e.position_min <= s <= e.position_max) > 800
+
+
 def _lone_radar_run(fault: float, seed: int = 5):
     """14 m/s for 30 s on a lone radar (20 Hz), DGPS fixes (10 Hz, their white error 0.7 m and
     multipath bias 0.6 m 1-sigma, correlated over 37 m of track, as the campaign drew them) and a transponder tag (0.04 m) at 4.9 s; the radar

@@ -199,7 +199,9 @@ class _Aux:
         self.fix_nis: tuple = ()                       # NIS of the last accepted absolute fixes
         self.fix_bias_nis: dict[str, tuple] = {}       # the same per sensor with a fix-bias state
         self.slip_window: dict[str, tuple] = {}        # sensor -> ((stamp, e d, S d^2), ...)
-        self.alternative: tuple | None = None          # unexplained fix: (stamp, z, R, s, P00, sensor, ref)
+        # unexplained fix: (stamp, z, R, s, P00, sensor, ref, the speed sources whose scale was
+        # opened for it: a scale fault of theirs explains it)
+        self.alternative: tuple | None = None
         self.events: dict[str, int] = {}
         self.unverified = ""                           # why the filter awaits a confirming fix
         self.s_last_fix = math.nan                     # filter position after the last accepted fix
@@ -458,6 +460,12 @@ class TrainFilter:
                 self._outlasted(m, z, R, hx, S, h)
             return
         if is_fix and aux.relative_alternatives and self._decide_relative(m, z, R, hx, S, nis):
+            return
+        if is_fix and aux.alternative is not None and aux.alternative[7] and self._corroborated(m, z, R):
+            # the kept fix, for which a scale was opened, and this one agree: the position from
+            # them, also where the filter's opened interval would have taken this one (it would
+            # learn the scale from this fix against a position the kept fix showed wrong)
+            self._reacquire(m)
             return
         if nis > self._gates[cls]:
             aux.gated = _inc(aux.gated, cls)
@@ -1143,10 +1151,11 @@ class TrainFilter:
         b = float(x[lay.bias[cls], 0]) if cls in lay.bias else 0.0
         return k * v + (b if v >= 0.0 else -b), v
 
-    def _relearn(self, reason: str) -> None:
-        """Error states of the relative sensors back to their priors; the position and speed
-        covariance widened by what the discarded estimates can have caused since the last
-        accepted fix (scale x distance, scale x speed, bias x time)."""
+    def _relearn(self, reason: str, faulty=()) -> None:
+        """Error states of the relative sensors back to their priors (the scales of ``faulty``
+        sensors, suspected of a scale fault, by the fault's size more: ``_raised``); the
+        position and speed covariance widened by what the discarded estimates can have caused
+        since the last accepted fix (scale x distance, scale x speed, bias x time)."""
         aux, lay = self.aux, self.layout
         x, P = self.ekf.x.copy(), self.ekf.P.copy()
         scale = 0.0
@@ -1162,7 +1171,8 @@ class TrainFilter:
         P[idx, :] = 0.0
         P[:, idx] = 0.0
         P[idx, idx] = lay.prior_sigma[idx] ** 2
-        self.ekf.x, self.ekf.P = x, P
+        self.ekf.x = x
+        self.ekf.P = self._raised(P, faulty) if faulty else P
         aux.events = _inc(aux.events, reason)
         aux.unverified = reason
 
@@ -1264,50 +1274,91 @@ class TrainFilter:
         # the relative error states keep their estimates, their variance raised to at least their
         # prior's: the fixes that follow tell whether they hold a fault (learnt beyond
         # plausibility, ``_check_plausible`` suspends the sensor) or the fix bias did
-        lay = self.layout
-        idx = lay.relative_states
-        if len(idx):
-            floor = np.zeros(self.n)
-            floor[idx] = lay.prior_sigma[idx] ** 2
-            # a drift alone (small innovations of one sign: the dead reckoning parts at a rate,
-            # as a scale fault makes it) raises a constant scale with a scale-fault mode to the
-            # fault's size; not where the fixes are also noisier than their model (an NLOS step
-            # would pull a scale opened that wide), nor again while the question is open (the
-            # same fixes would pull the opened states again and again)
-            if not (noisy or pending):
-                for name in lay.scale:
-                    if "scale_fault" in self.models[name].faults:
-                        floor[lay.offset.get(name, lay.scale[name])] += self.models[name].scale_fault_sigma ** 2
-            var = np.diag(P).copy()
-            # the speed was learnt through the scales: it is as uncertain as they became
-            scales = [*lay.scale.values(), *lay.offset.values()]
-            P[1, 1] += float(np.sum(np.maximum(floor[scales] - var[scales], 0.0))) * float(self.ekf.x[1, 0]) ** 2
-            ratio = np.sqrt(np.divide(np.maximum(var[idx], floor[idx]), var[idx], out=np.ones(len(idx)),
-                                      where=var[idx] > 0))
-            P[idx, :] *= ratio[:, None]
-            P[:, idx] *= ratio[None, :]
-        self.ekf.P = P
+        # a drift alone (small innovations of one sign: the dead reckoning parts at a rate, as a
+        # scale fault makes it) raises a constant scale with a scale-fault mode to the fault's
+        # size; not where the fixes are also noisier than their model (an NLOS step would pull a
+        # scale opened that wide), nor again while the question is open (the same fixes would
+        # pull the opened states again and again)
+        faulty = () if noisy or pending else [c for c in self.layout.scale if "scale_fault" in self.models[c].faults]
+        self.ekf.P = self._raised(P, faulty)
         aux.events = _inc(aux.events, "inconsistent_fix_bias")
         # the fixes pull the filter by about the bias it had estimated (s = z - e, e now 0): the
         # dead-reckoned view stays where it was, moving with the filter's motion from there
         if not pending:
-            aux.alternative = (m.stamp, s_dr, P_dr, s_dr + bias, float(self.ekf.P[0, 0]), cls, m.reference_id)
+            aux.alternative = (m.stamp, s_dr, P_dr, s_dr + bias, float(self.ekf.P[0, 0]), cls, m.reference_id, ())
+
+    def _raised(self, P, faulty) -> np.ndarray:
+        """Covariance P with the relative error states at least as uncertain as their priors,
+        and the constant scale of each sensor in ``faulty`` (with a scale-fault mode) by the
+        fault's size (``scale_fault_sigma``) more; the speed, learnt through the scales, as
+        uncertain as they became. Rows and columns are rescaled, so the correlations stay."""
+        lay = self.layout
+        idx = lay.relative_states
+        if not len(idx):
+            return P
+        P = P.copy()
+        floor = np.zeros(self.n)
+        floor[idx] = lay.prior_sigma[idx] ** 2
+        for name in faulty:
+            floor[lay.offset.get(name, lay.scale[name])] += self.models[name].scale_fault_sigma ** 2
+        var = np.diag(P).copy()
+        scales = [*lay.scale.values(), *lay.offset.values()]
+        P[1, 1] += float(np.sum(np.maximum(floor[scales] - var[scales], 0.0))) * float(self.ekf.x[1, 0]) ** 2
+        ratio = np.sqrt(np.divide(np.maximum(var[idx], floor[idx]), var[idx], out=np.ones(len(idx)),
+                                  where=var[idx] > 0))
+        P[idx, :] *= ratio[:, None]
+        P[:, idx] *= ratio[None, :]
+        return P
+
+    def _scale_faults_explaining(self, m, z: float, R: float) -> list[str]:
+        """The speed sources in use with a scale-fault mode whose fault, over the distance run
+        since the last accepted fix, would explain independent fix ``m`` (z, R) that the
+        filter does not: the innovation inside the gate of its variance with that fault's
+        (``scale_fault_sigma`` x distance) added."""
+        aux, stamp = self.aux, m.stamp
+        if m.sensor in self.layout.fix or not math.isfinite(aux.s_last_fix):
+            return []
+        s, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
+        run = abs(s - aux.s_last_fix)
+        recent = stamp - self.cfg.slip_reference_timeout
+        return [c for c in sorted(aux.speed_sources) if c in self.layout.scale
+                and "scale_fault" in self.models[c].faults and not _speed_excluded(aux, c, stamp)
+                and aux.last_accepted.get(c, -math.inf) > recent
+                and (z - s) ** 2 <= self._gates[m.sensor] * (P00 + R + (self.models[c].scale_fault_sigma * run) ** 2)]
 
     def _unexplained(self, m, z: float, R: float) -> None:
-        """A gated absolute fix: keep it as the alternative, or let it confirm the one kept."""
+        """A gated absolute fix: keep it as the alternative, or let it confirm the one kept.
+        Where a persistent scale fault of a speed source in use would explain it (a lone
+        radar's, which nothing else measures), that source's scale is opened to the fault's
+        size (``_raised``): under that hypothesis the filter's speed is wrong, and the interval
+        of both the filter and the kept fix moves with the filter's motion. The next fix of
+        another reference decides: one that agrees with the kept fix re-acquires the position
+        from itself, the scale left open for the fixes after it to learn (``_relearn``)."""
         aux = self.aux
         if self._corroborated(m, z, R):
             # two independent fixes agree with each other, not with the filter: it was wrong
-            self._set_position(m)
-            self._relearn("reacquired")
-            aux.alternative = None
+            self._reacquire(m)
             return
         alt = aux.alternative
         if alt is not None and m.stamp - alt[0] <= self.cfg.branch_timeout and \
                 (m.sensor, m.reference_id) == (alt[5], alt[6]):
             return   # the kept reference read again confirms nothing and stays the alternative
-        aux.alternative = (m.stamp, z, R, float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0]), m.sensor, m.reference_id)
+        faulty = self._scale_faults_explaining(m, z, R)
+        if faulty:
+            self.ekf.P = self._raised(self.ekf.P, faulty)
+            aux.events = _inc(aux.events, "scale_fault_suspected")
+        aux.alternative = (m.stamp, z, R, float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0]), m.sensor,
+                           m.reference_id, tuple(faulty))
         aux.events = _inc(aux.events, "unexplained_fix")
+
+    def _reacquire(self, m) -> None:
+        """Two independent fixes agree with each other, not with the filter (the kept
+        alternative and ``m``): the position from ``m``, the relative error states re-learnt;
+        a scale opened for the alternative stays open."""
+        faulty = self.aux.alternative[7]
+        self._set_position(m)
+        self._relearn("reacquired", faulty)
+        self.aux.alternative = None
 
     def _corroborated(self, m, z: float, R: float) -> bool:
         """An unexplained fix of another, independent reference is kept and agrees with fix m
@@ -1317,7 +1368,7 @@ class TrainFilter:
         alt = self.aux.alternative
         if alt is None or m.stamp - alt[0] > self.cfg.branch_timeout:
             return False
-        t_a, z_a, R_a, s_a, P_a, cls_a, ref_a = alt
+        t_a, z_a, R_a, s_a, P_a, cls_a, ref_a, _ = alt
         if m.sensor == cls_a and (m.reference_id == ref_a or m.sensor in self.layout.fix):
             return False
         return self._agrees(m, z, R, float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0]), z_a, R_a, s_a, P_a)

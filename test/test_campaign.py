@@ -93,6 +93,18 @@ def test_the_later_families_draw_their_equipment_and_faults(draws):
     assert 35 < sum(bool(d["sensors"]["mmwave_ranging"]["faults"]) for d in draws["mlx"]) < 85
 
 
+def test_radar_scale_faults_come_at_once_or_grow_over_a_ramp(draws):
+    """One radar in six has a scale fault of 2-8 %, half of them growing over up to 20 s."""
+    from train_localization.core.sensors import doppler
+    faults = [d["sensors"]["doppler_radar"].get("faults", "") for f in ALL_FAMILIES for d in draws[f]
+              if "doppler_radar" in d["sensors"]]
+    parsed = [doppler._parse_faults(text)[0] for text in faults if text]
+    assert len(faults) / 10 < len(parsed) < len(faults) / 4
+    assert all(0.02 <= abs(scale) <= 0.08 and 5.0 <= t1 - t0 <= 40.0 for t0, t1, scale, _ in parsed)
+    ramps = [ramp for *_, ramp in parsed]
+    assert 0.3 < sum(r > 0.0 for r in ramps) / len(ramps) < 0.7 and max(ramps) <= 20.0
+
+
 def _c(draws, family, key):
     return np.array([d["campaign"]["conditions"][key] for d in draws[family]], dtype=float)
 

@@ -187,13 +187,16 @@ def _place(d: _Draw, traj: Trajectory, rear: float, length: float, margin: float
 def _doppler(d: _Draw, duration: float) -> dict:
     """Doppler radar across its datasheet ranges (1 % class ground-speed radars): a mounting
     angle off by up to 2 tolerances, and in one run of six a scale fault of 2-8 % lasting
-    5-40 s (water film, snow, a loosened mount)."""
+    5-40 s (water film, snow, a loosened mount), in half of them growing over up to 20 s
+    (a film building up) instead of at once."""
     p = {"spread": d.u(0.01, 0.04), "scale_sigma": d.u(0.002, 0.01), "scale_tau": d.u(2.0, 20.0),
          "bias": d.u(-0.06, 0.06), "dropout_rate": d.logu(0.003, 0.3), "dropout_duration": d.u(0.2, 3.0),
          "mount_angle_error": d.u(-0.4, 0.4)}
     if d.chance(1.0 / 6.0):
         t0 = d.u(0.1, 0.8) * duration
         p["faults"] = f"{_g(t0, 4)}-{_g(t0 + d.u(5.0, 40.0), 4)}:{d.u(0.02, 0.08) * (1 if d.chance(0.5) else -1)}"
+        if d.chance(0.5):
+            p["faults"] += f":{_g(d.u(1.0, 20.0), 3)}"
     return p
 
 

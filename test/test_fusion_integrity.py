@@ -750,7 +750,10 @@ def test_a_fix_that_a_lone_radars_scale_fault_explains_opens_its_scale(monkeypat
     would make them. The balise at 30 s agrees with the kept one: the position is taken from
     it with the scale still open, and the balise after that teaches the scale. Before, each
     balise was gated in turn, every one kept as an alternative that moved with the radar's
-    wrong speed: the truth was outside the interval in 935 of the 1,600 states, DEGRADED."""
+    wrong speed: the truth was outside the interval in 935 of the 1,600 states, DEGRADED.
+    (Without the lone radar's own protection, which covers the drift before the balise:
+    the next test.)"""
+    monkeypatch.setattr(TrainFilter, "_track_lone", lambda self, stamp: None)
     f, checked = _lone_radar_ramp_run()
     events = f.counters()["integrity"]
     assert events["scale_fault_suspected"] == 1 and events["reacquired"] == 1
@@ -761,6 +764,24 @@ def test_a_fix_that_a_lone_radars_scale_fault_explains_opens_its_scale(monkeypat
     monkeypatch.setattr(TrainFilter, "_scale_faults_explaining", lambda self, m, z, R: [])
     _, before = _lone_radar_ramp_run()
     assert sum(1 for t, e, s, _ in before if not e.position_min <= s <= e.position_max) > 800
+
+
+def test_the_solution_without_a_lone_radar_covers_its_fault_before_any_fix_shows_it(monkeypatch):
+    """The run above: while the radar alone carries the speed, the interval also covers the
+    solution without it (the motion model from the last balise, within what a radar scale
+    fault of ``fault_scale_sigma`` = 5 % can do over the distance since it, 3.29 x 5 % of the
+    200 m = 33 m): the truth stays inside in every state, also from 18 s to the balise at 20 s
+    that shows the fault. The price is width, as large as the fault could make the error: up to
+    that 33 m between balises, against at most 3 m of the filter's own interval."""
+    f, checked = _lone_radar_ramp_run()
+    assert all(e.position_min <= s <= e.position_max for _, e, s, _ in checked)
+    half = {round(t, 2): 0.5 * (e.position_max - e.position_min) for t, e, _, _ in checked}
+    assert 29.0 < half[9.5] < 3.29 * 0.05 * 200.0 and half[10.5] < 3.0
+    monkeypatch.setattr(TrainFilter, "_track_lone", lambda self, stamp: None)
+    _, before = _lone_radar_ramp_run()
+    outside = [t for t, e, s, _ in before if not e.position_min <= s <= e.position_max]
+    assert outside and 15.0 < min(outside) < 20.0
+    assert max(0.5 * (e.position_max - e.position_min) for t, e, _, _ in before if t < 10.0) < 3.1
 
 
 def _lone_radar_run(fault: float, seed: int = 5):

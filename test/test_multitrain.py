@@ -191,7 +191,10 @@ def test_each_train_keeps_its_integrity():
         it = rep["integrity"]
         assert rep["states_with_position"] > 0.4 * rep["states"], name
         assert it["inside_fraction"] >= 0.999, (name, it)
-        assert it["mean_interval_width_m"] < 10.0, (name, it)
+        # the leader's radar is its only speed source: its interval covers a radar scale fault
+        # over the distance since the last fix (3.29 x 5 % of up to 200 m each side)
+        bound = 3.29 * 0.05 * 200.0 if name == "lead" else 10.0
+        assert it["mean_interval_width_m"] < bound, (name, it)
     # the follower's position comes from the associated wayside fixes only
     follow = result.trains["follow"]
     assert {m.sensor for m in follow.measurements if isinstance(m, PositionFix)} == {"axle_counter"}

@@ -35,6 +35,16 @@ information; the filter may say it does not know, never be confidently wrong):
               keeps its own dead reckoning from the fixes; the interval and the speed cover it,
               DEGRADED where the filter's own interval would not have (a radar scale fault
               absorbed into both scale states before any test sees it).
+  lone source while one relative sensor with a persistent fault mode (a radar's scale fault,
+              growing too slowly for any reading to disagree with the motion model) carries the
+              speed alone (the others not fitted, silent or suspended; a wheel in a slip
+              episode still counts: the episode is short and ends with a cross-check), nothing
+              but the fixes checks it. The interval also covers the solution without it: the
+              motion model from the filter's state when it became the lone one, conditioned on
+              the accepted fixes (one it cannot explain refutes it and it starts again from the
+              filter's), within what the sensor's fault can do over the distance since the last
+              accepted fix (z ``scale_fault_sigma`` x distance). DEGRADED where it separates
+              from the filter as a sensor's solution does.
   consistency the mean NIS of the last ``consistency_fixes`` accepted absolute fixes of
               sensors without a persistent fix error (balises, lugs, axle counters: one
               independent fix per reference) above its chi-square quantile means the
@@ -182,7 +192,7 @@ class _Aux:
                  "speed_sources", "nis", "fix_ref", "last_fix_accepted", "fix_nis", "slip_window",
                  "alternative", "events", "unverified", "s_last_fix", "relative_alternatives", "suspended",
                  "candidate", "used_refs", "peer_speeds", "peer_run", "motion_views", "view_speeds",
-                 "episode_views", "fault_windows", "subs", "fix_bias_nis")
+                 "episode_views", "fault_windows", "subs", "fix_bias_nis", "lone_view")
 
     def __init__(self):
         self.initialised = False
@@ -238,6 +248,11 @@ class _Aux:
         self.motion_views: tuple = ()
         # each relative sensor's own solution from the fixes (separation.py): sensor -> Sub
         self.subs: dict = {}
+        # while one relative sensor with a persistent fault mode carries the speed alone: the
+        # solution without it (the fixes and the motion model, ``_track_lone``): (a "model"
+        # motion view since that sensor became the lone one, the sensor, the filter's position
+        # [m] at the last check of its distance: its seeding or an accepted fix)
+        self.lone_view: tuple | None = None
 
     def copy(self) -> "_Aux":
         new = object.__new__(_Aux)
@@ -338,6 +353,12 @@ class TrainFilter:
                                   and math.isfinite(m.fault_duration_max) and "scale_fault" not in m.faults)
         self.timeouts = {s: m.timeout for s, m in self.models.items() if math.isfinite(m.timeout)}
         self._subs = separation.sub_models(self.models)
+        self._relative = tuple(sorted(n for n, m in self.models.items() if m.relative))
+        # relative sensors with a fault no test of their own can tell from motion (a radar's scale
+        # fault growing slowly): while one carries the speed alone, the interval covers the solution
+        # without it (``_track_lone``)
+        self._persistent = frozenset(n for n, m in self.models.items()
+                                     if m.relative and separation.PERSISTENT & set(m.faults))
         self._est_cache: tuple = (None, None)
         self._eye = np.eye(self.n)
         self.rejected: dict[str, int] = {}
@@ -487,8 +508,11 @@ class TrainFilter:
             aux.fault_windows = _without(aux.fault_windows, cls)
         if is_fix:
             self._fix_accepted(m, nis, (z - hx) / math.sqrt(S))
-        elif cls not in aux.speed_sources:
-            aux.speed_sources = aux.speed_sources | {cls}
+        else:
+            if cls not in aux.speed_sources:
+                aux.speed_sources = aux.speed_sources | {cls}
+            if self._persistent:
+                self._track_lone(m.stamp)
         self._check_plausible()
 
     def _measurement(self, m):
@@ -1428,6 +1452,7 @@ class TrainFilter:
         aux.last_fix_accepted = m.stamp
         aux.s_last_fix = float(x[0, 0])
         self._seed_subs(m.stamp)
+        aux.lone_view = None      # the lone source's solution starts again from here (_track_lone)
 
     def _new_fix_bias(self, cls: str) -> None:
         """A new reference: its fix bias is independent of the previous one."""
@@ -1485,9 +1510,11 @@ class TrainFilter:
         a coasting (conditioned on it: a fix that both explain tells where the train is, not
         only which one is right)."""
         aux = self.aux
-        if not aux.subs and not aux.motion_views:
+        if not aux.subs and not aux.motion_views and aux.lone_view is None:
             return
         z, R = self._located(m)
+        if aux.lone_view is not None:
+            self._lone_take_fix(m, z, R)
         x0, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
         if aux.motion_views:
             aux.motion_views = tuple(self._motion_view_fixed(view, m.stamp, z, R, x0, P00)
@@ -1501,6 +1528,62 @@ class TrainFilter:
                     aux.events = _inc(aux.events, "sensor_solution_refuted")
                 subs[name] = new
             aux.subs = subs
+
+    def _track_lone(self, stamp: float) -> None:
+        """Solution separation for the fault of a lone speed source. A relative sensor whose scale
+        fault no test of its own can see (a Doppler radar's, growing slowly: the speed it reads
+        drifts like an acceleration) may carry the speed alone: the only relative sensor, or the
+        others excluded or silent. Nothing then checks it but the fixes, and between them a
+        fault of a few percent runs the filter out of its interval while every test passes. The
+        solution without that sensor is the motion model from the last time another source
+        checked it, conditioned on the fixes the filter accepts (``_lone_take_fix``); the
+        interval covers it (``_lone_interval``). It starts when one such sensor is left in use
+        (accepted within ``slip_reference_timeout`` s), and is dropped when another source is in
+        use. A wheel in a slip or slide episode still counts: the episode is short (its
+        ``fault_duration_max``) and ends with the wheel agreeing with the filter again, which a
+        drifting radar fails; a suspended sensor does not."""
+        aux, timeout = self.aux, self.cfg.slip_reference_timeout
+        in_use = [c for c in self._relative if c not in aux.suspended
+                  and max(aux.last_accepted.get(c, -math.inf), aux.slip_until.get(c, -math.inf)) >= stamp - timeout]
+        lone = in_use[0] if len(in_use) == 1 and in_use[0] in self._persistent else None
+        if lone is None:
+            if aux.lone_view is not None and in_use:
+                aux.lone_view = None
+        elif aux.lone_view is None or aux.lone_view[1] != lone:
+            aux.lone_view = (self._model_view(stamp), lone, float(self.ekf.x[0, 0]))
+
+    def _model_view(self, stamp: float) -> tuple:
+        """The motion model's hypothesis from the filter's kinematic state now (a "model" view)."""
+        return ("model", stamp, *self.ekf.x[:3, 0].tolist(), _kinematic_covariance(self.ekf.P))
+
+    def _lone_take_fix(self, m, z: float, R: float) -> None:
+        """The lone source's fault hypothesis after a fix the filter accepted (z, R from
+        ``_located``): conditioned on it; one it cannot explain refutes it (the train did move
+        as the sensor said), and it starts again from the filter's."""
+        aux = self.aux
+        view, lone, _ = aux.lone_view
+        s_f, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
+        s_m, var_m = self._motion_view(view, m.stamp, s_f, P00)
+        if (z - s_m) ** 2 > self._gates[m.sensor] * (R + var_m):
+            view = self._model_view(m.stamp)
+            aux.events = _inc(aux.events, "lone_source_solution_refuted")
+        else:
+            view = self._motion_view_fixed(view, m.stamp, z, R, s_f, P00)
+        aux.lone_view = (view, lone, s_f)
+
+    def _lone_interval(self, aux: _Aux, t: float, s: float, var_s: float, v: float, var_v: float) -> tuple:
+        """(lo, hi [m], speed half-width [m/s], its position and variance) of the lone source's
+        fault hypothesis at t (the filter at s [m], var_s [m^2], v [m/s], var_v [m^2/s^2]): the
+        motion model's interval, within what the sensor's scale fault can do over the distance
+        since the filter's position was last checked (``scale_fault_sigma`` x distance; both
+        hold under the hypothesis); empty (lo > hi) where they do not meet."""
+        view, lone, s_checked = aux.lone_view
+        _, t_c, s0, v0, a0, p = view
+        s_m, v_m, _, var_m, var_vm = _kinematics(s0, v0, a0, p, max(t - t_c, 0.0), self.cfg.jerk_psd)
+        sigma_f, z = self.models[lone].scale_fault_sigma, self._z
+        half, cap = z * math.sqrt(var_m), z * math.sqrt(var_s + (sigma_f * (s - s_checked)) ** 2)
+        half_v = min(abs(v_m - v) + z * math.sqrt(var_vm), z * math.sqrt(var_v + (sigma_f * v) ** 2))
+        return max(s_m - half, s - cap), min(s_m + half, s + cap), half_v, s_m, var_m
 
     def _motion_view_fixed(self, view: tuple, t: float, z: float, R: float, s_f: float, P00_f: float) -> tuple:
         """A motion-model hypothesis conditioned on a fix z [m] of variance R [m^2] at t [s] (the
@@ -1667,6 +1750,16 @@ class TrainFilter:
                 lo, hi = min(lo, s_m - half), max(hi, s_m + half)
                 sd_s = max(sd_s, (hi - lo) / (2.0 * self._z))
                 mode = self._widened(aux, t, sd_s, mode)
+        if aux.lone_view is not None:   # the solution without a lone speed source (its fault)
+            l_lo, l_hi, half_v, s_m, var_m = self._lone_interval(aux, t, float(s), var_s, float(v), var_v)
+            if l_lo <= l_hi and (l_lo < lo or l_hi > hi):
+                lo, hi = min(lo, l_lo), max(hi, l_hi)
+                sd_s = max(sd_s, (hi - lo) / (2.0 * self._z))
+                mode = self._widened(aux, t, sd_s, mode)
+                if mode == Mode.NOMINAL and separation.separated(s_m, var_m, float(s), var_s, self._z):
+                    mode = Mode.DEGRADED
+            if half_v > self._z * sd_v:
+                sd_v = half_v / self._z
         for name, sub in aux.subs.items():   # each relative sensor's own solution (protection level)
             if not sub.own:
                 continue   # its sensor has not read since it started: the filter's own solution

@@ -60,7 +60,9 @@ PARAMS = {
     "fault_scale_sigma": Param(0.05, "1-sigma size of a scale fault (a shifted mounting, an echo off snow or "
                                      "water) [fraction]; assumption: the beam angle shifted by 3 deg at 45 deg "
                                      "is tan(45 deg) x 3 deg = 5 %; what the fusion lets the scale learn once "
-                                     "the fixes and the dead reckoning disagree", (0.0, 1.0)),
+                                     "the fixes and the dead reckoning disagree, and, while the radar is the "
+                                     "only speed source, the interval's bound of its undetected fault "
+                                     "(3.29 x this x the distance since the last fix)", (0.0, 1.0)),
     "faults": Param("", "injected scale faults 'T0-T1:SCALE[:RAMP]' (scale error added from T0 to T1 [s], "
                         "fraction; reached over RAMP s from T0, at once without), separated by ';' "
                         "(tests, campaigns)"),

@@ -678,8 +678,7 @@ class TrainFilter:
         aux, cls, stamp = self.aux, m.sensor, m.stamp
         view = aux.relative_alternatives.get(cls) or aux.episode_views.get(cls)
         recent = stamp - self.cfg.slip_reference_timeout
-        in_use = [s for s in aux.speed_sources if s != cls and not _speed_excluded(aux, s, stamp)
-                  and aux.last_accepted.get(s, -math.inf) > recent]
+        in_use = self._in_use(stamp, but=cls)
         peers = [c for c, p in aux.peer_speeds.items() if c != cls and p[0] > recent]
         other = None
         if view is not None and len(in_use) == 1:
@@ -1114,12 +1113,16 @@ class TrainFilter:
         aux.slip_window = {**aux.slip_window, cls: ()}
         aux.gated = _inc(aux.gated, cls + "/slip")
 
+    def _in_use(self, stamp: float, but: str | None = None) -> list[str]:
+        """The speed sources in use at ``stamp`` [s]: accepted within ``slip_reference_timeout`` s
+        and not excluded (in an episode, or suspended since), ``but`` left out."""
+        aux, recent = self.aux, stamp - self.cfg.slip_reference_timeout
+        return [s for s in aux.speed_sources if s != but and not _speed_excluded(aux, s, stamp)
+                and aux.last_accepted.get(s, -math.inf) > recent]
+
     def _reference_ok(self, m) -> bool:
-        """Another speed source, not itself excluded (in an episode, or suspended since it was
-        last accepted), was accepted recently."""
-        aux, stamp = self.aux, m.stamp
-        return any(aux.last_accepted.get(s, -math.inf) > stamp - self.cfg.slip_reference_timeout
-                   for s in aux.speed_sources if s != m.sensor and not _speed_excluded(aux, s, stamp))
+        """Another speed source is in use (``_in_use``)."""
+        return bool(self._in_use(m.stamp, but=m.sensor))
 
     def _agreement_reference(self, m, S: float) -> bool:
         """Whether the filter's speed rests on more than ``m.sensor`` and the motion model:
@@ -1344,10 +1347,8 @@ class TrainFilter:
             return []
         s, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
         run = abs(s - aux.s_last_fix)
-        recent = stamp - self.cfg.slip_reference_timeout
-        return [c for c in sorted(aux.speed_sources) if c in self.layout.scale
-                and "scale_fault" in self.models[c].faults and not _speed_excluded(aux, c, stamp)
-                and aux.last_accepted.get(c, -math.inf) > recent
+        return [c for c in sorted(self._in_use(stamp)) if c in self.layout.scale
+                and "scale_fault" in self.models[c].faults
                 and (z - s) ** 2 <= self._gates[m.sensor] * (P00 + R + (self.models[c].scale_fault_sigma * run) ** 2)]
 
     def _unexplained(self, m, z: float, R: float) -> None:

@@ -353,7 +353,6 @@ class TrainFilter:
                                   and math.isfinite(m.fault_duration_max) and "scale_fault" not in m.faults)
         self.timeouts = {s: m.timeout for s, m in self.models.items() if math.isfinite(m.timeout)}
         self._subs = separation.sub_models(self.models)
-        self._relative = tuple(sorted(n for n, m in self.models.items() if m.relative))
         # relative sensors with a fault no test of their own can tell from motion (a radar's scale
         # fault growing slowly): while one carries the speed alone, the interval covers the solution
         # without it (``_track_lone``)
@@ -981,9 +980,7 @@ class TrainFilter:
         if not coasting and float(self.ekf.P[1, 1]) <= half_range * half_range:
             return False                    # a short slip: the motion model still knows better
         if not coasting:
-            x = self.ekf.x[:3, 0].tolist()
-            aux.motion_views = aux.motion_views[-(_MAX_MOTION_VIEWS - 1):] + (
-                ("model", stamp, x[0], x[1], x[2], _kinematic_covariance(self.ekf.P)),)
+            aux.motion_views = aux.motion_views[-(_MAX_MOTION_VIEWS - 1):] + (self._model_view(stamp),)
             aux.events = _inc(aux.events, "coasting_between_speed_sources")
             aux.unverified = aux.unverified or "speed_sources_disagree"
         self._set_speed(readings, middle=True)
@@ -1083,8 +1080,7 @@ class TrainFilter:
         coasting = _coasting(aux)
         # the motion model's hypothesis: of the coasting, or the filter's own until now (its speed
         # rested on the motion model alone)
-        view = aux.motion_views[-1] if coasting else \
-            ("model", stamp, *self.ekf.x[:3, 0].tolist(), _kinematic_covariance(self.ekf.P))
+        view = aux.motion_views[-1] if coasting else self._model_view(stamp)
         self._set_speed(readings)
         aux.suspended = {c: v for c, v in aux.suspended.items() if c not in sensors}
         aux.slip_until = {c: (min(t, stamp) if c in sensors else t) for c, t in aux.slip_until.items()}
@@ -1544,7 +1540,7 @@ class TrainFilter:
         ``fault_duration_max``) and ends with the wheel agreeing with the filter again, which a
         drifting radar fails; a suspended sensor does not."""
         aux, timeout = self.aux, self.cfg.slip_reference_timeout
-        in_use = [c for c in self._relative if c not in aux.suspended
+        in_use = [c for c in self.layout.relative if c not in aux.suspended
                   and max(aux.last_accepted.get(c, -math.inf), aux.slip_until.get(c, -math.inf)) >= stamp - timeout]
         lone = in_use[0] if len(in_use) == 1 and in_use[0] in self._persistent else None
         if lone is None:

@@ -1,7 +1,8 @@
 """ros2 launch train_localization demo.launch.py [scenario:=...] [rate:=...] [record:=...] ...
 
 Starts the same graph as tools/demo.py (train_localization/graph.py): recorder (unless
-record:=false), the scenario's sensor nodes in simulation mode, fusion and simulator,
+record:=false), the scenario's sensor nodes in simulation mode, fusion, the speed controller
+(a closed-loop scenario, with a ``control`` section: the seed 003 rig) and simulator,
 with use_sim_time (the simulator publishes /clock). ``ros2 launch ... --show-args``
 lists the arguments. Needs a full ROS 2 Jazzy install (launch is not on PyPI).
 
@@ -31,8 +32,9 @@ def _nodes(context):
     bag = os.path.abspath(LaunchConfiguration("bag").perform(context))
     rate = float(LaunchConfiguration("rate").perform(context))
     namespace = LaunchConfiguration("namespace").perform(context)
-    sensors = list(Scenario.from_yaml(scenario).sensors)
-    graph = demo_graph(scenario, sensors, bag, rate, record=flag(context, "record"))
+    sc = Scenario.from_yaml(scenario)
+    graph = demo_graph(scenario, list(sc.sensors), bag, rate, record=flag(context, "record"),
+                       controller=bool(sc.control))
     return graph_actions(context, graph, namespace)
 
 

@@ -40,7 +40,8 @@ def replayed(request):
         report = line_report(result)
         return name, result.trains, report["trains"], report
     run = replay_bag(bag, scenario)
-    return name, {"train": run}, {"train": evaluate(run.truth, run.estimates, run.measurements)[0]}, None
+    report = evaluate(run.truth, run.estimates, run.measurements, scenario.track.circumference)[0]
+    return name, {"train": run}, {"train": report}, None
 
 
 def _failures(label: str, bounds: dict, report: dict) -> list[str]:

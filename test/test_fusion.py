@@ -446,6 +446,31 @@ def test_reset_sets_or_forgets_the_position():
     assert f.estimate(21.5).position == pytest.approx(100.0)
 
 
+def test_a_known_start_position_starts_the_filter_there_at_rest():
+    """``initial_position``: NOMINAL at that chainage from the first measurement (or output) on,
+    counting from there; without it the same increments leave the filter INITIALISING."""
+    def travelled(t):                           # at rest for 0.5 s, then a start with 0.5 m/s^3 [m]
+        return 0.5 / 6.0 * max(t - 0.5, 0.0) ** 3
+    stamps = [0.05 * k for k in range(1, 81)]
+    increments = [inc(t, (travelled(t) - travelled(t - 0.05)) / 0.05) for t in stamps]
+    known = FusionRunner(config("wheel_sensor", initial_position=120.0, initial_position_stddev=0.02))
+    unknown = FusionRunner(config("wheel_sensor"))
+    for m in increments:
+        assert known.add(m) and unknown.add(m)
+    first = known.advance(0.05)[0][0]
+    assert first.mode == MODE_NOMINAL and first.position == pytest.approx(120.0, abs=0.01)
+    assert first.position_stddev == pytest.approx(0.02, rel=0.05)
+    e = known.filter.estimate(4.0)
+    truth = 120.0 + travelled(4.0)
+    assert e.mode == MODE_NOMINAL and e.position == pytest.approx(truth, abs=0.05)
+    assert e.position_min <= truth <= e.position_max and e.speed == pytest.approx(0.25 * 3.5 ** 2, abs=0.1)
+    assert unknown.filter.estimate(4.0).mode == MODE_INITIALISING
+    with pytest.raises(ValueError, match="initial_position must be a chainage"):
+        config("wheel_sensor", initial_position=math.inf)
+    with pytest.raises(ValueError, match="initial_position_stddev must be in"):
+        config("wheel_sensor", initial_position=0.0, initial_position_stddev=0.0)
+
+
 def test_position_is_reacquired_when_two_independent_fixes_disagree_with_the_filter():
     """A wrong operator position with a small stddev: the first fix is gated and kept as the
     alternative (the interval covers it, DEGRADED); the next balise agrees with it, not
@@ -505,7 +530,8 @@ def test_every_tuning_field_is_a_documented_node_parameter():
     for f in FusionConfig.tuning_fields():
         assert f.metadata.get("doc"), f"{f.name} has no description"
         value = getattr(cfg, f.name)
-        assert _from_ros(value, _ros_value(value)) == value, f.name
+        back = _from_ros(value, _ros_value(value))
+        assert back == value or (math.isnan(back) and math.isnan(value)), f.name
     # per-sensor error models as nested parameters: unchanged values are no override
     wheel = sensor_models(["wheel_sensor"], None, Vehicle())["wheel"]
     params = error_model_parameters(wheel)

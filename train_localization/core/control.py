@@ -184,8 +184,9 @@ def closed_loop(scenario, t_end: float | None = None, fusion_rate: float = 200.0
     At each truth step (1 / truth_rate) the controller's command of the step before acts on the
     dynamics, the sensors simulate and decode the blocks the new state completes, the fusion
     takes their measurements and makes its states up to the step, and the controller acts on the
-    newest of them. The rig starts at its reference mark, so the fusion is told the start
-    position at t = 0 (the operator reset of the SetPosition service); from there it counts.
+    newest of them. A scenario whose track gives no absolute position (the rig) states where
+    the vehicle starts in its fusion tuning (``initial_position``, as the live fusion node's
+    parameter); from there the fusion counts.
     """
     from .convert import canonical
     from .dynamics import Dynamics
@@ -199,8 +200,6 @@ def closed_loop(scenario, t_end: float | None = None, fusion_rate: float = 200.0
     ctrl = SpeedController(params, setpoints, dyn.force_limit)
     pipes = sensor_pipelines(scenario)
     runner = FusionRunner(fusion_config(scenario), fusion_rate)
-    runner.filter.reset(position=scenario.start_position, position_stddev=0.005, speed=scenario.start_speed,
-                        speed_stddev=0.01, stamp=0.0)
     run = RunResult(runner=runner)
     out = _Output(runner, run, None, None, scenario.track.track_id)
     res = ClosedLoopResult(setpoints=setpoints, dynamics=dyn, controller=ctrl, runner=runner)

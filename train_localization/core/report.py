@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from .measurements import DistanceIncrement, PositionFix, SpeedMeasurement
-from .scoring import ENVELOPE_FIXED, ENVELOPE_RATE, speed_envelope
+from .scoring import ENVELOPE_FIXED, ENVELOPE_RATE, speed_envelope, true_position
 
 KMH = 1 / 3.6
 REFERENCE_READERS = ("eurobalise", "lrl", "axle_counter")  # point references, in order of preference
@@ -58,15 +58,18 @@ def _columns(estimates):
                                                   "position_min", "position_max", "mode"))}
 
 
-def evaluate(truth, estimates, measurements) -> tuple[dict, dict]:
-    """(report dict, arrays for plotting)."""
+def evaluate(truth, estimates, measurements, circumference: float | None = None) -> tuple[dict, dict]:
+    """(report dict, arrays for plotting); on a closed track of ``circumference`` [m] the
+    position is compared modulo it (scoring.true_position)."""
     tt = np.array([s.stamp for s in truth])
     ts = np.array([s.position for s in truth])
+    if circumference:
+        ts = np.unwrap(ts, period=circumference)
     tv = np.array([s.speed for s in truth])
     f = _columns(estimates)
     keep = (f["t"] >= tt[0]) & (f["t"] <= tt[-1])
     f = {k: v[keep] for k, v in f.items()}
-    s_true = np.interp(f["t"], tt, ts)
+    s_true = true_position(f["t"], tt, ts, f["position"], circumference)
     v_true = np.interp(f["t"], tt, tv)
     claimed = (f["mode"] != 0) & np.isfinite(f["position"])
     pos_err = f["position"] - s_true

@@ -67,6 +67,19 @@ def _stats(err: np.ndarray) -> dict:
             "max": float(a.max()), "n": int(err.size)}
 
 
+def true_position(t, truth_t, truth_position, fused_position, circumference: float | None = None):
+    """The true position [m] at the fused states' times ``t``, to compare with ``fused_position``.
+
+    ``circumference`` [m] (a closed track, Track.closed): the truth (wrapped) is unwrapped
+    before it is interpolated and then moved by whole laps to the fused position (which may be
+    an unwrapped distance), so errors are compared modulo the circumference."""
+    if not circumference:
+        return np.interp(t, truth_t, truth_position)
+    s_true = np.interp(t, truth_t, np.unwrap(truth_position, period=circumference))
+    laps = np.round(np.nan_to_num(np.asarray(fused_position) - s_true) / circumference)
+    return s_true + laps * circumference
+
+
 def _aligned(truth: StateSeries, fused: StateSeries, circumference: float | None = None):
     """(fused columns within the truth's time span, true position and speed there, claimed mask).
 
@@ -74,12 +87,7 @@ def _aligned(truth: StateSeries, fused: StateSeries, circumference: float | None
     then moved by whole laps to the fused position (the fused one may be an unwrapped distance)."""
     inside = (fused.t >= truth.t[0]) & (fused.t <= truth.t[-1])
     f = {k: getattr(fused, k)[inside] for k in FIELDS}
-    if circumference:
-        s_true = np.interp(f["t"], truth.t, np.unwrap(truth.position, period=circumference))
-        laps = np.round(np.nan_to_num(f["position"] - s_true) / circumference)
-        s_true = s_true + laps * circumference
-    else:
-        s_true = np.interp(f["t"], truth.t, truth.position)
+    s_true = true_position(f["t"], truth.t, truth.position, f["position"], circumference)
     v_true = np.interp(f["t"], truth.t, truth.speed)
     claimed = (f["mode"] != 0) & np.isfinite(f["position"])
     return f, s_true, v_true, claimed

@@ -143,6 +143,11 @@ class Track:
         self._y = np.array(y_pts)
         self._h = np.array(h_pts)
 
+    @property
+    def circumference(self) -> float | None:
+        """[m] of a closed track (what scores compare positions modulo), None on an open one."""
+        return self.length if self.closed else None
+
     def wrap(self, chainage):
         """Chainage [m] (number or array) on a closed track taken into [0, length); unchanged on an
         open one. Positions that run on past the end of a loop (an unwrapped distance) are

@@ -27,7 +27,7 @@ from ..core import paths
 from ..core.bagio import read_bag, topic_counts
 from ..core.scenario import Scenario
 from ..core.scoring import StateSeries, score
-from ..core.offline import FUSED_TOPIC, TRUTH_TOPIC
+from ..core.offline import FUSED_TOPIC, TRUTH_TOPIC, scenario_from_bag
 from ..graph import NAMESPACE, demo_graph, line_graph, ros_args
 
 
@@ -53,7 +53,8 @@ def run_graph(scenario_path: str, bag: Path, rate: float, log_dir: Path, timeout
     scenario = Scenario.from_yaml(scenario_path)
     if bag.exists():
         bag.unlink()
-    graph = demo_graph(str(paths.resolve(scenario_path)), list(scenario.sensors), str(bag), rate, exclude)
+    graph = demo_graph(str(paths.resolve(scenario_path)), list(scenario.sensors), str(bag), rate, exclude,
+                       controller=bool(scenario.control))
     return run_nodes(graph, "simulator", log_dir, timeout or (scenario.duration / max(rate, 1e-3) + 60.0))
 
 
@@ -125,6 +126,15 @@ def run_nodes(graph: list, driver: str, log_dir: Path, timeout: float) -> dict:
     return codes
 
 
+def _circumference(bag: Path) -> float | None:
+    """The circumference [m] of the closed track a bag's scenario runs on (None: open track, or
+    no scenario recorded)."""
+    try:
+        return scenario_from_bag(bag).track.circumference
+    except ValueError:
+        return None
+
+
 def summarise(bag: Path, namespace: str = NAMESPACE) -> dict:
     """Messages per topic, and the fused state of the train in ``namespace`` scored against its truth."""
     truth_topic, fused_topic = (TRUTH_TOPIC, FUSED_TOPIC) if namespace == NAMESPACE else \
@@ -138,7 +148,7 @@ def summarise(bag: Path, namespace: str = NAMESPACE) -> dict:
         t = StateSeries.from_msgs(truth)
         result["duration_s"] = float(t.t[-1] - t.t[0])
         if fused:
-            result["score"] = score(t, StateSeries.from_msgs(fused))
+            result["score"] = score(t, StateSeries.from_msgs(fused), _circumference(bag))
             result["score"]["integrity"]["confidence"] = float(fused[-1].confidence)
     return result
 

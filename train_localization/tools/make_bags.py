@@ -42,6 +42,7 @@ BAGS = {
     "hsst": ("config/scenario_hsst.yaml", 90.0, 1.0),
     "mbahn": ("config/scenario_mbahn.yaml", 20.0, 1.0),
     "line_pair": ("config/scenario_line_pair.yaml", 40.0, 1.0),
+    "rig": ("config/scenario_rig.yaml", 46.0, 1.0),
 }
 
 

@@ -62,7 +62,8 @@ def report_for(bag: Path, scenario: Scenario | None = None, out_bag: Path | None
                  "fusion_counters": run.runner.filter.counters()}
     if not truth:
         raise SystemExit(f"{bag}: no ground truth in the bag, nothing to score against")
-    report, arrays = evaluate(truth, estimates, measurements)
+    circumference = (scenario or scenario_from_bag(bag)).track.circumference
+    report, arrays = evaluate(truth, estimates, measurements, circumference)
     wall = time.perf_counter() - t0
     report.update(extra)
     report["bag"] = str(bag)

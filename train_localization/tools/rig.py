@@ -43,7 +43,7 @@ def run(scenario: Scenario) -> dict:
     t = np.array([s.stamp for s in res.truth])
     v = np.array([s.speed for s in res.truth])
     truth = StateSeries.of_truth(t, [s.position for s in res.truth], v)
-    circ = scenario.track.length if scenario.track.closed else None
+    circ = scenario.track.circumference
     figures = step_response(t, v, res.setpoints, float(res.controller.params["settling_band"]))
     return {"steps": figures, "score": score(truth, StateSeries.from_estimates(res.estimates), circ),
             "rejected": dict(res.runner.rejected)}

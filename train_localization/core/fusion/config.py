@@ -89,12 +89,19 @@ class FusionConfig:
     history: float = _doc(2.0, "how late a measurement may be [s]", limits=(0.01, 60.0))
     confidence: float = _doc(0.999, "probability of [position_min, position_max]", limits=(0.5, 1.0 - 1.0e-9))
     lost_stddev: float = _doc(100.0, "position 1-sigma above which the mode is LOST [m]", limits=(0.01, 1.0e6))
+    initial_position: float = _doc(math.nan, "chainage [m] where the train stands when the fusion starts, if "
+                                             "known (a stabling mark; the seed 003 rig's reference mark): the "
+                                             "filter starts there at rest instead of waiting for absolute fixes; "
+                                             "NaN: unknown")
+    initial_position_stddev: float = _doc(0.01, "1-sigma of initial_position [m]", limits=(1.0e-4, 1.0e4))
 
     def __post_init__(self):
         for f in self.tuning_fields():
             value, limits = getattr(self, f.name), f.metadata.get("limits")
             if limits is not None and not limits[0] <= value <= limits[1]:
                 raise ValueError(f"{f.name} must be in {limits[0]:g} .. {limits[1]:g}, not {value}")
+        if math.isinf(self.initial_position):
+            raise ValueError(f"initial_position must be a chainage [m] or NaN (unknown), not {self.initial_position}")
         models = dict(self.sensors)
         for name, values in (self.overrides or {}).items():
             if name not in models:

@@ -12,6 +12,8 @@ from ..signals import InputRejected
 from .filter import Estimate, TrainFilter
 from .config import FusionConfig
 
+STANDSTILL_SPEED_STDDEV = 0.01   # [m/s] of a train known to stand at its start position
+
 
 class FusionRunner:
     """TrainFilter plus the fixed-rate output grid (k / rate seconds).
@@ -20,6 +22,8 @@ class FusionRunner:
     kept in ``last_error``),
     ``advance(t)`` returns the estimates of every grid time <= t not yet produced,
     each with the sensor classes used since the previous one.
+    A configured ``initial_position`` puts the train there, at rest, at the time of the first
+    measurement or output, whichever comes first.
     """
 
     def __init__(self, config: FusionConfig, rate: float = 200.0):
@@ -29,8 +33,18 @@ class FusionRunner:
         self._used: set[str] = set()
         self.rejected: dict[str, int] = {}
         self.last_error: InputRejected | None = None   # why the last rejected measurement was
+        self._start_pending = math.isfinite(config.initial_position)
+
+    def _start(self, t: float) -> None:
+        """The known start position (``initial_position``), at rest, at ``t`` [s]."""
+        self._start_pending = False
+        cfg = self.filter.cfg
+        self.filter.reset(position=cfg.initial_position, position_stddev=cfg.initial_position_stddev, speed=0.0,
+                          speed_stddev=STANDSTILL_SPEED_STDDEV, stamp=t)
 
     def add(self, m) -> bool:
+        if self._start_pending and math.isfinite(m.stamp):
+            self._start(m.stamp)
         try:
             self.filter.add(m)
         except InputRejected as exc:
@@ -52,6 +66,8 @@ class FusionRunner:
         return self._next_k is None or math.floor(t / self.period + 1e-9) >= self._next_k
 
     def advance(self, t: float, max_catch_up: int = 1000) -> list[tuple[Estimate, list[str]]]:
+        if self._start_pending:
+            self._start(t)
         k_now = math.floor(t / self.period + 1e-9)
         if self._next_k is None or k_now - self._next_k > max_catch_up:
             self._next_k = k_now

@@ -75,7 +75,8 @@ def test_generated_scenarios_load_their_sensors_construct_and_stay_on_the_track(
 def test_the_later_families_draw_their_equipment_and_faults(draws):
     """LZB loops cover the line end to end, none longer than 12.7 km (seed 000 section 3.1);
     UTM structures lie over the line without overlapping, and one run in five loses its
-    correction link; MLX coils run the whole guideway and a station is biased in ~30 %."""
+    correction link; MLX coils run the whole guideway and a station is biased in ~30 %; HSST
+    blocks cover the line; the M-Bahn stator pickup is set for the run's top speed."""
     for data in draws["lzb"]:
         loops = data["track"]["equipment"]["lzb_loop"]
         assert loops[0]["position"] == 0.0 and loops[-1]["end"] == data["track"]["length"]
@@ -91,6 +92,16 @@ def test_the_later_families_draw_their_equipment_and_faults(draws):
     for data in draws["mlx"]:
         assert data["track"]["equipment"]["null_flux_coils"][0]["end"] == data["track"]["length"]
     assert 35 < sum(bool(d["sensors"]["mmwave_ranging"]["faults"]) for d in draws["mlx"]) < 85
+    # HSST: touching check-in blocks from 0 to the end of the line (seed 000 section 2.2.1);
+    # a failed rear transmitter in ~10 % of the runs
+    for data in draws["hsst"]:
+        blocks = data["track"]["equipment"]["checkin_block"]
+        assert blocks[0]["start"] == 0.0 and blocks[-1]["end"] == data["track"]["length"]
+        assert all(a["end"] == b["start"] for a, b in zip(blocks, blocks[1:]))
+    assert 5 < sum("tx_failed" in d["sensors"]["checkin_loop"]["faults"] for d in draws["hsst"]) < 40
+    for data in draws["mbahn"]:
+        assert data["sensors"]["pole_position"]["top_speed"] >= 22.2
+        assert data["track"]["equipment"]["transponder_tag"]
 
 
 def test_radar_scale_faults_come_at_once_or_grow_over_a_ramp(draws):

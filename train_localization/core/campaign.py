@@ -41,7 +41,7 @@ from .sensors import wheel as _wheel
 
 FAMILIES = ("conventional", "urban_maglev", "highspeed_maglev")
 # families of the later sensor kinds (issue 11), run with --families
-MORE_FAMILIES = ("lzb", "utm", "mlx")
+MORE_FAMILIES = ("lzb", "utm", "mlx", "hsst", "mbahn")
 ALL_FAMILIES = FAMILIES + MORE_FAMILIES
 FUSION_RATE = 200.0   # published states per second (the fusion node's default)
 KMH = 1.0 / 3.6
@@ -326,6 +326,27 @@ def _conventional(d: _Draw) -> tuple[dict, dict]:
     return scenario, conditions
 
 
+def _tags(d: _Draw, length: float) -> tuple[float, list[dict]]:
+    """(spacing [m], transponder tags or balises about that far apart along the line)."""
+    spacing = d.u(50.0, 300.0)
+    return spacing, [{"id": f"TG{n:03d}", "position": x}
+                     for n, x in enumerate(_spaced(d, d.u(10.0, spacing), length - 10.0, spacing, 0.1))]
+
+
+def _belt(d: _Draw, front: np.ndarray, length: float, max_gaps: int) -> list[dict]:
+    """Pattern-belt sections over the line, interrupted at up to ``max_gaps`` switches within
+    the run's extent (``front``: the train front's chainages [m]); each section's period off
+    by up to 6e-4 (FRP belt, thermal expansion)."""
+    gaps = sorted(_g(d.u(float(front.min()), float(front.max()) + 1.0), 8) for _ in range(d.int(0, max_gaps)))
+    belt, s0 = [], 0.0
+    for g in gaps + [length]:
+        if g - s0 > 20.0:
+            belt.append({"id": f"PB{len(belt):02d}", "position": _g(s0, 8), "end": _g(g, 8),
+                         "period": _g(0.6 * (1.0 + d.u(-6e-4, 6e-4)), 8)})
+            s0 = g + d.u(10.0, 40.0) if g < length else g
+    return belt
+
+
 def _urban(d: _Draw) -> tuple[dict, dict]:
     duration, v0, legs, prof, traj = _service(
         d, (60.0, 120.0), (40.0, 100.0), 0.3, (0.3, 1.0), 0.3, accel=(0.8, 1.3), decel=(0.8, 1.3),
@@ -333,18 +354,8 @@ def _urban(d: _Draw) -> tuple[dict, dict]:
         speeds=(0.3, 1.0))
     vehicle = {"type": "maglev_urban", "length": d.u(30.0, 60.0)}
     length, start = _place(d, traj, vehicle["length"], d.u(3000.0, 8000.0), 200.0)
-    tag_spacing = d.u(50.0, 300.0)
-    tags = [{"id": f"TG{n:03d}", "position": x}
-            for n, x in enumerate(_spaced(d, d.u(10.0, tag_spacing), length - 10.0, tag_spacing, 0.1))]
-    # belt sections: the belt is interrupted at switches (gaps within the run's extent)
-    front = traj.position + start
-    gaps = sorted(_g(d.u(float(front.min()), float(front.max()) + 1.0), 8) for _ in range(d.int(0, 3)))
-    belt, s0 = [], 0.0
-    for g in gaps + [length]:
-        if g - s0 > 20.0:
-            belt.append({"id": f"PB{len(belt):02d}", "position": _g(s0, 8), "end": _g(g, 8),
-                         "period": _g(0.6 * (1.0 + d.u(-6e-4, 6e-4)), 8)})   # FRP belt, thermal expansion
-            s0 = g + d.u(10.0, 40.0) if g < length else g
+    tag_spacing, tags = _tags(d, length)
+    belt = _belt(d, traj.position + start, length, 3)
     track = {"track_id": "campaign_urban", "length": length, "origin": {"x": 0.0, "y": 0.0, "heading": 1.5708},
              "alignment": _alignment(d, length, 300.0, 1500.0),
              "equipment": {"pattern_belt": belt, "eurobalise": tags}}
@@ -464,16 +475,26 @@ def _lzb(d: _Draw) -> tuple[dict, dict]:
     return scenario, conditions
 
 
+def _urban_run(d: _Draw, top_kmh: tuple, vehicle_length: tuple, line_length: tuple, margin: float) -> tuple:
+    """An urban line's run (60-150 s with stops, sometimes a reversal) of a maglev_urban vehicle
+    whose length [m] is drawn from ``vehicle_length``, placed on a line drawn from
+    ``line_length`` [m] at least ``margin`` [m] from its ends: (duration, start speed, legs,
+    profile summary, coarse trajectory, vehicle, line length, start chainage)."""
+    duration, v0, legs, prof, traj = _service(
+        d, (60.0, 150.0), top_kmh, 0.3, (0.3, 1.0), 0.3, accel=(0.8, 1.3), decel=(0.8, 1.3),
+        jerk=(0.5, 1.2), dwell=(5.0, 20.0), hold=(0.0, 20.0), p_stop=0.7, reverse_speed=(1.0, 4.0),
+        speeds=(0.3, 1.0))
+    vehicle = {"type": "maglev_urban", "length": d.u(*vehicle_length)}
+    length, start = _place(d, traj, vehicle["length"], d.u(*line_length), margin)
+    return duration, v0, legs, prof, traj, vehicle, length, start
+
+
 def _utm(d: _Draw) -> tuple[dict, dict]:
     """A UTM-02 type urban maglev line (seed 002 section 2.1.2): Doppler, DGPS and transponder
     tags; buildings, bridges and tunnels over the line (no fix under them, more multipath near
     them), a lost correction link in one run of five, tag misreads and installation errors."""
-    duration, v0, legs, prof, traj = _service(
-        d, (60.0, 150.0), (40.0, 100.0), 0.3, (0.3, 1.0), 0.3, accel=(0.8, 1.3), decel=(0.8, 1.3),
-        jerk=(0.5, 1.2), dwell=(5.0, 20.0), hold=(0.0, 20.0), p_stop=0.7, reverse_speed=(1.0, 4.0),
-        speeds=(0.3, 1.0))
-    vehicle = {"type": "maglev_urban", "length": d.u(30.0, 60.0)}
-    length, start = _place(d, traj, vehicle["length"], d.u(3000.0, 8000.0), 200.0)
+    duration, v0, legs, prof, traj, vehicle, length, start = _urban_run(
+        d, (40.0, 100.0), (30.0, 60.0), (3000.0, 8000.0), 200.0)
     front = traj.position + start
     structures = []
     for n in range(d.int(0, 4)):
@@ -487,9 +508,7 @@ def _utm(d: _Draw) -> tuple[dict, dict]:
     for st in structures:
         if not kept or st["start"] > kept[-1]["end"] + 1.0:
             kept.append(st)
-    tag_spacing = d.u(50.0, 300.0)
-    tags = [{"id": f"TG{n:03d}", "position": x}
-            for n, x in enumerate(_spaced(d, d.u(10.0, tag_spacing), length - 10.0, tag_spacing, 0.1))]
+    tag_spacing, tags = _tags(d, length)
     track = {"track_id": "campaign_utm", "length": length, "origin": {"x": 0.0, "y": 0.0, "heading": 1.5708},
              "alignment": _alignment(d, length, 300.0, 1500.0),
              "equipment": {"structure": kept, "transponder_tag": tags}}
@@ -555,14 +574,78 @@ def _mlx(d: _Draw) -> tuple[dict, dict]:
     return scenario, conditions
 
 
+def _hsst(d: _Draw) -> tuple[dict, dict]:
+    """An HSST-type urban maglev line (seed 000 section 2.2.1, seed 002 section 2.1.1): the
+    pattern belt on board (interrupted at switches) and the wayside check-in / check-out block
+    loops as the only absolute references (a fix of the train front at each block boundary);
+    block lengths, loop gains, antenna heights and offsets, noise and interference bursts
+    across their ranges, a failed rear transmitter in one run of ten."""
+    duration, v0, legs, prof, traj, vehicle, length, start = _urban_run(
+        d, (40.0, 100.0), (30.0, 60.0), (3000.0, 8000.0), 200.0)
+    front = traj.position + start
+    block_length = d.u(150.0, 500.0)
+    edges = np.arange(0.0, length - 1.0, block_length)
+    blocks = [{"id": f"B{n:03d}", "start": _g(x, 8), "end": _g(min(x + block_length, length), 8)}
+              for n, x in enumerate(edges)]
+    belt = _belt(d, front, length, 2)
+    track = {"track_id": "campaign_hsst", "length": length, "origin": {"x": 0.0, "y": 0.0, "heading": 1.5708},
+             "alignment": _alignment(d, length, 300.0, 1500.0),
+             "equipment": {"pattern_belt": belt, "checkin_block": blocks}}
+    v_max = max([abs(v0)] + [abs(leg["speed"]) for leg in legs])
+    faults = []
+    if d.chance(0.1):
+        faults.append(f"rear@{_g(d.u(0.2, 0.8) * duration, 5)}:tx_failed")
+    for _ in range(d.int(0, 2)):
+        t0 = d.u(0.0, duration)
+        faults.append(f"{blocks[d.int(0, len(blocks) - 1)]['id']}@{_g(t0, 5)}-{_g(t0 + d.u(0.05, 2.0), 5)}:noise_burst")
+    checkin = {"height_sigma": d.u(0.005, 0.04), "offset_sigma": d.u(0.005, 0.05), "boundary_sigma": d.u(0.02, 0.1),
+               "adjust_sigma": d.u(0.01, 0.06), "noise_sigma": d.u(0.01, 0.05), "loop_attenuation": d.u(1.0, 3.0),
+               "max_train_length": _g(max(100.0, 2.0 * vehicle["length"])),
+               "max_speed": _g(max(30.0, 1.1 * v_max)), "faults": ";".join(faults)}
+    sensors = {"pattern_belt": {"noise": d.u(0.01, 0.03), "gap_sigma": d.u(0.001, 0.003),
+                                "gain_mismatch": d.u(0.01, 0.05)},
+               "checkin_loop": checkin}
+    scenario = {"duration": duration, "vehicle": vehicle, "initial": {"position": start, "speed": v0},
+                "profile": legs, "track": track, "sensors": sensors}
+    conditions = {"duration": duration, "top_speed_kmh": _g(v_max * 3.6), "start_speed_kmh": _g(v0 * 3.6),
+                  **prof, "track_length": length, "block_length": block_length, "belt_gaps": len(belt) - 1,
+                  "checkin_faults": checkin["faults"]}
+    return scenario, conditions
+
+
+def _mbahn(d: _Draw) -> tuple[dict, dict]:
+    """An M-Bahn-type long-stator line (seed 000 section 2.1.3): the pole-position transmitter's
+    signal in the stator gives distance and speed, transponder tags the absolute position;
+    pole pitch scale, oscillator offset, winding harmonics, drive residual and noise, tag
+    spacing, misreads and installation errors across their ranges."""
+    duration, v0, legs, prof, traj, vehicle, length, start = _urban_run(
+        d, (30.0, 80.0), (10.0, 30.0), (1500.0, 4000.0), 100.0)
+    tag_spacing, tags = _tags(d, length)
+    track = {"track_id": "campaign_mbahn", "length": length, "origin": {"x": 0.0, "y": 0.0, "heading": 0.0},
+             "alignment": _alignment(d, length, 300.0, 1500.0), "equipment": {"transponder_tag": tags}}
+    v_max = max([abs(v0)] + [abs(leg["speed"]) for leg in legs])
+    pole = {"oscillator_ppm": d.u(0.0, 100.0), "harmonic5": d.u(0.0, 0.05), "drive_residual": d.u(0.1, 0.8),
+            "noise": d.u(0.01, 0.05), "pitch_scale_sigma": d.u(5e-5, 3e-4), "top_speed": _g(max(22.2, v_max))}
+    tag = {"telegram_error_rate": d.logu(1e-4, 0.1), "install_sigma": d.u(0.02, 0.1),
+           "coupling_sigma": d.u(0.02, 0.1), "max_speed": _g(max(42.0, 1.2 * v_max))}
+    sensors = {"pole_position": pole, "tag_reader": tag}
+    scenario = {"duration": duration, "vehicle": vehicle, "initial": {"position": start, "speed": v0},
+                "profile": legs, "track": track, "sensors": sensors}
+    conditions = {"duration": duration, "top_speed_kmh": _g(v_max * 3.6), "start_speed_kmh": _g(v0 * 3.6),
+                  **prof, "track_length": length, "tag_spacing": tag_spacing,
+                  "telegram_error_rate": tag["telegram_error_rate"], "pole_noise": pole["noise"]}
+    return scenario, conditions
+
+
 _GENERATORS = {"conventional": _conventional, "urban_maglev": _urban, "highspeed_maglev": _highspeed_maglev,
-               "lzb": _lzb, "utm": _utm, "mlx": _mlx}
+               "lzb": _lzb, "utm": _utm, "mlx": _mlx, "hsst": _hsst, "mbahn": _mbahn}
 
 # sensor node -> the sensor class its measurements carry (outages name classes)
 _CLASSES = {"wheel_sensor": "wheel", "doppler_radar": "doppler", "eurobalise_reader": "eurobalise",
             "axle_counter": "axle_counter", "pattern_belt": "pattern_belt", "inpo_receiver": "inpo",
             "lrl_scanner": "lrl", "mmwave_ranging": "mmwave", "lzb_receiver": "lzb", "dgps_receiver": "dgps",
-            "tag_reader": "transponder", "coil_counter": "coil_counter", "emf_observer": "emf_observer"}
+            "tag_reader": "transponder", "coil_counter": "coil_counter", "emf_observer": "emf_observer",
+            "checkin_loop": "checkin", "pole_position": "pole_position"}
 
 
 def generate(family: str, seed: int, max_duration: float | None = None) -> dict:

@@ -44,22 +44,43 @@ BAGS = {
     "line_pair": ("config/scenario_line_pair.yaml", 40.0, 1.0),
     "rig": ("config/scenario_rig.yaml", 46.0, 1.0),
 }
+# A line's raw blocks (every train's wheel pulses, the wayside's axle counters) fill 5 MB in about
+# 30 s, before any train of the line scenarios has left its start. Their bags therefore take the
+# line in its running phase: each train starts at its line speed (train name -> initial state and
+# profile replacing the scenario's), placed so that it passes balises, axle-counter heads and
+# track-circuit boundaries within the bag.
+LINE_BAGS = {
+    "line_highspeed": ("config/scenario_line_highspeed.yaml", 28.0, 1.0, {
+        "train_a": ({"position": 2400.0, "speed": 83.33}, [{"speed": 83.33, "hold": 30.0}]),
+        "train_b": ({"position": 1850.0, "speed": 22.22}, [{"speed": 22.22, "hold": 30.0}]),
+        "train_c": ({"position": 1520.0, "speed": 22.22}, [{"speed": 22.22, "hold": 30.0}]),   # 330 m behind b
+        "train_d": ({"position": 14500.0, "speed": -33.33}, [{"speed": -33.33, "hold": 30.0}])}),
+    "line_conventional": ("config/scenario_line_conventional.yaml", 38.0, 1.0, {
+        "ic": ({"position": 700.0, "speed": 44.44}, [{"speed": 44.44, "hold": 40.0}]),
+        "reg": ({"position": 1900.0, "speed": 27.78}, [{"speed": 27.78, "hold": 40.0}]),
+        "down": ({"position": 6830.0, "speed": -22.22}, [{"speed": -22.22, "hold": 40.0}])}),
+}
 
 
 def thresholds(report: dict) -> dict:
     """Bounds a later replay must respect: {metric: {"max": v} or {"min": v}}.
 
     Errors may grow by a margin over the recorded value; integrity and envelope
-    fractions may not fall below the recorded value (integrity: below 99.9 %)."""
+    fractions may not fall below the recorded value (integrity: below 99.9 %). A train that
+    claimed no position in the bag (a line's train that passed a single reference) has speed
+    bounds only."""
     pe, se, integ = report["position_error_m"], report["speed_error_mps"], report["integrity"]
     bounds = {
-        "position_error_m.rms": {"max": pe["rms"] * 1.25 + 0.002},
-        "position_error_m.p95": {"max": pe["p95"] * 1.25 + 0.005},
-        "position_error_m.max": {"max": pe["max"] * 1.5 + 0.01},
         "speed_error_mps.rms": {"max": se["rms"] * 1.25 + 0.002},
         "speed_error_mps.max": {"max": se["max"] * 1.5 + 0.01},
-        "integrity.inside_fraction": {"min": min(integ["inside_fraction"], 0.999)},
     }
+    if pe["n"]:
+        bounds.update({
+            "position_error_m.rms": {"max": pe["rms"] * 1.25 + 0.002},
+            "position_error_m.p95": {"max": pe["p95"] * 1.25 + 0.005},
+            "position_error_m.max": {"max": pe["max"] * 1.5 + 0.01},
+            "integrity.inside_fraction": {"min": min(integ["inside_fraction"], 0.999)},
+        })
     if report["etcs_envelope"]["inside_fraction"] is not None:
         bounds["etcs_envelope.inside_fraction"] = {"min": report["etcs_envelope"]["inside_fraction"]}
     return bounds
@@ -72,12 +93,12 @@ def metric(report: dict, dotted: str) -> float:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--only", nargs="*", default=list(BAGS))
+    ap.add_argument("--only", nargs="*", default=list(BAGS) + list(LINE_BAGS))
     ap.add_argument("--thresholds-only", action="store_true", help="do not record, only recompute thresholds")
     args = ap.parse_args(argv)
     BAG_DIR.mkdir(exist_ok=True)
     for name in args.only:
-        scenario_file, duration, rate = BAGS[name]
+        scenario_file, duration, rate, running = LINE_BAGS[name] if name in LINE_BAGS else (*BAGS[name], {})
         bag = BAG_DIR / f"{name}.mcap"
         if args.thresholds_only:
             continue
@@ -85,6 +106,9 @@ def main(argv=None) -> int:
             data = yaml.safe_load((SOURCE_ROOT / scenario_file).read_text())
             data["duration"] = duration
             data["name"] = name
+            for train in data.get("trains", ()):
+                if train["name"] in running:
+                    train["initial"], train["profile"] = running[train["name"]]
             scen = Path(tmp) / f"{name}.yaml"
             scen.write_text(yaml.safe_dump(data, sort_keys=False))
             out = Path(tmp) / f"{name}.mcap"

@@ -257,16 +257,35 @@ def half_duty_level(params: dict) -> float:
 
 
 def transition_unevenness(params: dict) -> float:
-    """1-sigma offset [m] of a switching point from the even p/6 grid, fixed per coil and
-    switching direction: the coil's mounting error, and its receive chain's gain mismatch
-    and detector offset moving the threshold crossing along the envelope's slope."""
+    """1-sigma offset [m] of a switching point from the even p/6 grid: the coil's mounting
+    error, its receive chain's gain mismatch and detector offset moving the threshold crossing
+    along the envelope's slope (fixed per coil and switching direction), and the levitation
+    gap's variation ``gap_sigma`` changing the envelope's level, which lengthens the high states
+    and shortens the low ones (or the reverse) for as long as it lasts (``gap_tau``)."""
     x, env = envelope_profile(params)
     level = env * params["peak_voltage"]
     mid = 0.5 * (params["threshold_on"] + params["threshold_off"])
     crossing = np.nonzero(np.diff(np.sign(level - mid)))[0]
     slope = float(np.min(np.abs(np.gradient(level, x)[crossing])))
+    # the gap term: a rising and a falling switching point move apart by twice the shift of one,
+    # so an increment between the two errs by 2 x shift; with the edges taken as independent
+    # (IncrementEstimator) each carries sqrt(2) x shift so that such an increment gets that 1-sigma
+    gap_shift = max(_high_length_change(params, s * params["gap_sigma"]) for s in (-1.0, 1.0)) / 2.0
     return math.sqrt(params["spacing_error"] ** 2 + (params["gain_mismatch"] * mid / slope) ** 2
-                     + (params["detector_offset"] / slope) ** 2)
+                     + (params["detector_offset"] / slope) ** 2 + 2.0 * gap_shift ** 2)
+
+
+def _high_length_change(params: dict, gap_change: float) -> float:
+    """|change| [m] of the length of a coil's high state (envelope above the Schmitt triggers'
+    mid level) when the gap changes by ``gap_change`` [m] from nominal, at the amplifier gain
+    set for the nominal gap (as the simulator's table)."""
+    g = geometry(params)
+    nominal, changed = (np.abs(flux_table(g["period"], g["wide_fraction"], g["loop_width"], g["coil_length"],
+                                          g["coil_width"], g["crossed"], (float(z),))[0])
+                        for z in (params["gap"], max(params["gap"] + gap_change, 1.0e-4)))
+    mid = 0.5 * (params["threshold_on"] + params["threshold_off"]) / params["peak_voltage"]
+    peak = nominal.max()
+    return abs(float(np.mean(changed / peak > mid)) - float(np.mean(nominal / peak > mid))) * g["period"]
 
 
 def belt_sections(track: Track, default_period: float) -> np.ndarray:

@@ -1535,19 +1535,43 @@ class TrainFilter:
         solution without that sensor is the motion model from the last time another source
         checked it, conditioned on the fixes the filter accepts (``_lone_take_fix``); the
         interval covers it (``_lone_interval``). It starts when one such sensor is left in use
-        (accepted within ``slip_reference_timeout`` s), and is dropped when another source is in
-        use. A wheel in a slip or slide episode still counts: the episode is short (its
-        ``fault_duration_max``) and ends with the wheel agreeing with the filter again, which a
-        drifting radar fails; a suspended sensor does not."""
+        (accepted within ``slip_reference_timeout`` s), and ends when another source is in use
+        (``_lone_accompanied``). A wheel in a slip or slide episode still counts: the episode is
+        short (its ``fault_duration_max``) and ends with the wheel agreeing with the filter
+        again, which a drifting radar fails; a suspended sensor does not."""
         aux, timeout = self.aux, self.cfg.slip_reference_timeout
         in_use = [c for c in self.layout.relative if c not in aux.suspended
                   and max(aux.last_accepted.get(c, -math.inf), aux.slip_until.get(c, -math.inf)) >= stamp - timeout]
         lone = in_use[0] if len(in_use) == 1 and in_use[0] in self._persistent else None
         if lone is None:
             if aux.lone_view is not None and in_use:
-                aux.lone_view = None
+                self._lone_accompanied(stamp)
         elif aux.lone_view is None or aux.lone_view[1] != lone:
             aux.lone_view = (self._model_view(stamp), lone, float(self.ekf.x[0, 0]))
+
+    def _lone_accompanied(self, stamp: float) -> None:
+        """The lone source has company again: from ``stamp`` the sources in use check each other,
+        so its fault adds nothing more, but what it may have put into the filter's position while
+        it was alone stays there, unseen by the newcomer (a relative sensor tells the motion from
+        now on, not the distance already run), until a fix locates the train. The lone solution
+        (its interval at ``stamp``) therefore stays as a motion-model hypothesis that moves with
+        the filter ("moved", as a coasting's that ended): conditioned on the fixes, ruled out by
+        one it does not fit, no longer needed once the filter explains a fix."""
+        aux = self.aux
+        s, var_s = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
+        v, var_v = float(self.ekf.x[1, 0]), float(self.ekf.P[1, 1])
+        lo, hi, _, _, _ = self._lone_interval(aux, stamp, s, var_s, v, var_v)
+        aux.lone_view = None
+        half = self._z * math.sqrt(var_s)
+        if lo > hi or (lo >= s - half and hi <= s + half):
+            return     # ruled out, or within the filter's own interval
+        moved = ("moved", 0.5 * (lo + hi), (0.5 * (hi - lo) / self._z) ** 2, s, var_s, 0.0, 0.0, math.inf)
+        views = aux.motion_views
+        if _coasting(aux):   # the coasting's own hypothesis stays the last one
+            aux.motion_views = views[-(_MAX_MOTION_VIEWS - 1):-1] + (moved, views[-1])
+        else:
+            aux.motion_views = views[-(_MAX_MOTION_VIEWS - 1):] + (moved,)
+        aux.events = _inc(aux.events, "lone_source_accompanied")
 
     def _model_view(self, stamp: float) -> tuple:
         """The motion model's hypothesis from the filter's kinematic state now (a "model" view)."""

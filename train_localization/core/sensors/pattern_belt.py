@@ -237,17 +237,21 @@ def geometry(params: dict) -> dict:
     }
 
 
+def _flux_row(params: dict, gap: float) -> np.ndarray:
+    """|flux| of a coil over one period (the simulator's table row, unnormalised) at ``gap`` [m]."""
+    g = geometry(params)
+    return np.abs(flux_table(g["period"], g["wide_fraction"], g["loop_width"], g["coil_length"],
+                             g["coil_width"], g["crossed"], (float(gap),))[0])
+
+
 def envelope_profile(params: dict, gap: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(position in the period [m], normalised envelope |psi|/max) at a gap (default nominal).
 
     For commissioning: the Schmitt thresholds should straddle the level at which the
     envelope is high half of the period (even p/6 states).
     """
-    g = geometry(params)
-    z = params["gap"] if gap is None else gap
-    tab = np.abs(flux_table(g["period"], g["wide_fraction"], g["loop_width"], g["coil_length"],
-                            g["coil_width"], g["crossed"], (float(z),))[0])
-    return np.arange(tab.size) * g["period"] / tab.size, tab / tab.max()
+    tab = _flux_row(params, params["gap"] if gap is None else gap)
+    return np.arange(tab.size) * geometry(params)["period"] / tab.size, tab / tab.max()
 
 
 def half_duty_level(params: dict) -> float:
@@ -262,30 +266,25 @@ def transition_unevenness(params: dict) -> float:
     along the envelope's slope (fixed per coil and switching direction), and the levitation
     gap's variation ``gap_sigma`` changing the envelope's level, which lengthens the high states
     and shortens the low ones (or the reverse) for as long as it lasts (``gap_tau``)."""
-    x, env = envelope_profile(params)
-    level = env * params["peak_voltage"]
+    nominal = _flux_row(params, params["gap"])
+    period = geometry(params)["period"]
+    x = np.arange(nominal.size) * period / nominal.size
+    gain = params["peak_voltage"] / nominal.max()       # the amplifier's, set for the nominal gap
+    level = nominal * gain
     mid = 0.5 * (params["threshold_on"] + params["threshold_off"])
     crossing = np.nonzero(np.diff(np.sign(level - mid)))[0]
     slope = float(np.min(np.abs(np.gradient(level, x)[crossing])))
-    # the gap term: a rising and a falling switching point move apart by twice the shift of one,
-    # so an increment between the two errs by 2 x shift; with the edges taken as independent
-    # (IncrementEstimator) each carries sqrt(2) x shift so that such an increment gets that 1-sigma
-    gap_shift = max(_high_length_change(params, s * params["gap_sigma"]) for s in (-1.0, 1.0)) / 2.0
+
+    def high(row):   # fraction of the period a coil is high
+        return float(np.mean(row * gain > mid))
+    # the gap term: the high state's length changes with the gap (+- gap_sigma). A rising and a
+    # falling switching point move apart by twice the shift of one, so an increment between the
+    # two errs by 2 x shift; with the edges taken as independent (IncrementEstimator) each
+    # carries sqrt(2) x shift so that such an increment gets that 1-sigma
+    gap_shift = max(abs(high(_flux_row(params, max(params["gap"] + s * params["gap_sigma"], 1.0e-4)))
+                        - high(nominal)) for s in (-1.0, 1.0)) * period / 2.0
     return math.sqrt(params["spacing_error"] ** 2 + (params["gain_mismatch"] * mid / slope) ** 2
                      + (params["detector_offset"] / slope) ** 2 + 2.0 * gap_shift ** 2)
-
-
-def _high_length_change(params: dict, gap_change: float) -> float:
-    """|change| [m] of the length of a coil's high state (envelope above the Schmitt triggers'
-    mid level) when the gap changes by ``gap_change`` [m] from nominal, at the amplifier gain
-    set for the nominal gap (as the simulator's table)."""
-    g = geometry(params)
-    nominal, changed = (np.abs(flux_table(g["period"], g["wide_fraction"], g["loop_width"], g["coil_length"],
-                                          g["coil_width"], g["crossed"], (float(z),))[0])
-                        for z in (params["gap"], max(params["gap"] + gap_change, 1.0e-4)))
-    mid = 0.5 * (params["threshold_on"] + params["threshold_off"]) / params["peak_voltage"]
-    peak = nominal.max()
-    return abs(float(np.mean(changed / peak > mid)) - float(np.mean(nominal / peak > mid))) * g["period"]
 
 
 def belt_sections(track: Track, default_period: float) -> np.ndarray:
@@ -332,10 +331,8 @@ class PatternBeltSimulator(Simulator):
         self._gaps = tuple(float(z) for z in z0 * np.linspace(0.7, 1.3, 7))
         tab = np.abs(flux_table(g["period"], g["wide_fraction"], g["loop_width"], g["coil_length"],
                                 g["coil_width"], g["crossed"], self._gaps))
-        nominal = np.abs(flux_table(g["period"], g["wide_fraction"], g["loop_width"], g["coil_length"],
-                                    g["coil_width"], g["crossed"], (float(z0),)))
         # the amplifier gain makes the nominal peak = peak_voltage; omega N I folded in
-        self._table = tab * (p["peak_voltage"] / nominal.max())
+        self._table = tab * (p["peak_voltage"] / _flux_row(p, z0).max())
         self._table = np.concatenate([self._table, self._table[:, :1]], axis=1)  # wrap column
         self.gain = 1.0 + self.rng.normal(0.0, p["gain_mismatch"], 3)
         self.offset = self.rng.normal(0.0, p["detector_offset"], 3)

@@ -84,7 +84,8 @@ def line_graph(scenario: str, bag: str, rate: float = 1.0, record: bool = True,
     """The graph of a line scenario (several trains), as (namespace, executable, node name,
     parameters): recorder (if ``record``) in /, per train its sensor nodes (ingest) and its
     fusion in /<train>, the wayside sensor nodes (ingest) and the association of their fixes
-    with the trains in /wayside, and the simulator in
+    with the trains in /wayside (with a changeover section also its combined detection and
+    controller: ``wayside_occupancy``, ``neutral_section_controller``), and the simulator in
     /, which publishes every train's truth and the raw blocks of every device (the wayside
     ones see all trains; nodes/simulator.py). The sensor and fusion nodes take their train's
     part of the scenario from their namespace (Scenario.for_namespace)."""
@@ -103,6 +104,14 @@ def line_graph(scenario: str, bag: str, rate: float = 1.0, record: bool = True,
         classes = [spec(n).sensor for n in [*train.sensors, *line.wayside]]
         nodes.append((f"/{name}", "fusion", "fusion", {"scenario": scenario, "sensors": classes, "use_sim_time": True}))
     nodes += [(f"/{WAYSIDE}", node, node, dict(ingest)) for node in line.wayside]
+    site = line.changeover_site()
+    if site is not None:
+        # the changeover section's combined detection and its controller (nodes/wayside.py), on the
+        # wayside sensor nodes' section reports; the controller's ABB commands go on changeover/abb*
+        voting = {"sections": site.section_strings(), **line.changeover.get("occupancy", {}), "use_sim_time": True}
+        nodes.append((f"/{WAYSIDE}", "wayside_occupancy", "wayside_occupancy", dict(voting)))
+        nodes.append((f"/{WAYSIDE}", "neutral_section_controller", "neutral_section_controller",
+                      {**voting, **line.changeover.get("controller", {})}))
     # wayside fixes to the train that explains them, into its namespace (nodes/association.py)
     nodes.append((f"/{WAYSIDE}", "association", "association", {"scenario": scenario, "use_sim_time": True}))
     # the simulator starts once every sensor node listens to its raw blocks and the recorder to

@@ -14,7 +14,10 @@ A line (several trains, ``Scenario.line``): ``simulate_line`` and ``replay_line`
 every train's on-board sensors and fusion, the wayside sensors, which see all trains,
 and the association of the wayside fixes with the trains (core/association.py); the
 bags carry train X's topics under ``/X/...``, the wayside's under ``/wayside/...`` and
-the scenario on ``/scenario``.
+the scenario on ``/scenario``. A line with a changeover section (``wayside: changeover:``)
+also runs its combined detection and controller on the wayside reports
+(core/wayside/changeover.py ChangeoverLoop, as the two wayside nodes do live) and writes
+the ABB commands on ``/wayside/changeover/abb1`` and ``abb2`` (std_msgs/Bool).
 """
 from __future__ import annotations
 
@@ -37,6 +40,7 @@ from .pipeline import SensorPipeline
 from .scenario import WAYSIDE, Scenario
 from .sensors import spec as sensor_spec
 from .signals import InputRejected
+from .wayside.changeover import ABB_TOPICS, ChangeoverLoop
 
 SCENARIO_TOPIC = f"{NAMESPACE}/scenario"
 TRUTH_TOPIC = f"{NAMESPACE}/ground_truth/state"
@@ -493,6 +497,8 @@ class LineResult:
     associator: Associator | None = None
     blocks: int = 0                                    # wayside raw blocks
     rejected: dict = field(default_factory=dict)      # wayside rejections by reason
+    changeover: ChangeoverLoop | None = None          # the changeover section's detection and controller
+    scenario: Scenario | None = None
 
 
 def wayside_pipelines(scenario: Scenario, simulate: bool = True) -> dict[str, SensorPipeline]:
@@ -522,7 +528,26 @@ class _Line:
                                       train_namespace(train))
         associator = Associator.for_trains({n: o.result.estimates for n, o in self.outs.items()},
                                            {n: o.track_id for n, o in self.outs.items()}, scenario.association)
-        self.result = LineResult(trains={n: o.result for n, o in self.outs.items()}, associator=associator)
+        site = scenario.changeover_site()
+        self.result = LineResult(trains={n: o.result for n, o in self.outs.items()}, associator=associator,
+                                 changeover=ChangeoverLoop(site) if site else None, scenario=scenario)
+        if writer and site:
+            ctrl = self.result.changeover.controller
+            for switch, closed in ctrl.abb.items():   # the controller node's latched start states
+                self._abb(switch, closed, 0.0)
+
+    def _abb(self, switch: str, closed: bool, t: float) -> None:
+        from .bagio import typestore
+        self.writer.write(f"{WAYSIDE_NAMESPACE}/{ABB_TOPICS[switch]}",
+                          typestore().types["std_msgs/msg/Bool"](data=bool(closed)), _ns(t))
+
+    def _control(self, t: float) -> None:
+        loop = self.result.changeover
+        if loop is None:
+            return
+        for cmd in loop.evaluate(t):
+            if self.writer:
+                self._abb(cmd.switch, cmd.on, t)
 
     def truth(self, name: str, state, t_ns: int) -> None:
         out = self.outs[name]
@@ -543,11 +568,15 @@ class _Line:
                 train = self.result.associator.associate(m)
                 if train is not None:
                     self.outs[train].take([m], t)
+            elif isinstance(m, SectionOccupancy) and self.result.changeover is not None:
+                self.result.changeover.report(m)
+        self._control(t)
 
     def reject(self, exc: InputRejected) -> None:
         self.result.rejected[exc.reason] = self.result.rejected.get(exc.reason, 0) + 1
 
     def states(self, t: float) -> None:
+        self._control(t)
         for out in self.outs.values():
             out.states(t)
 

@@ -19,7 +19,9 @@ normalised by the measurement's stddev.
 
 A line (several trains, core/offline.py LineResult): ``line_report`` gives the report
 of each train (its on-board measurements and the wayside fixes delivered to it) and the
-line-level figures of the association (``association_check``).
+line-level figures of the association (``association_check``) and, with a changeover
+section, its catenary events (``changeover_check``: the replayed controller's commands;
+``recorded_changeover``: the commands a live controller published, from its bag).
 """
 from __future__ import annotations
 
@@ -275,9 +277,51 @@ def association_check(result) -> dict:
             "error_over_sigma_max": float(max(ratios)) if ratios else None}
 
 
+def _truth_arrays(runs: dict) -> dict:
+    return {name: np.array([(s.stamp, s.position) for s in run.truth], dtype=float).reshape(-1, 2)
+            for name, run in runs.items()}
+
+
+def changeover_check(result) -> dict:
+    """Catenary events of a LineResult's changeover section with the commands of its offline
+    controller (core/wayside/changeover.py line_events), and the controller's summary."""
+    from .wayside.changeover import line_events
+    loop = result.changeover
+    return {**line_events(loop.site, result.scenario, _truth_arrays(result.trains), loop.switchings()),
+            **loop.summary()}
+
+
+def recorded_changeover(bag, scenario) -> dict:
+    """Catenary events of a line bag with the ABB commands recorded in it (the live
+    controller's, at their log times) and the recorded truth."""
+    from .bagio import read_bag
+    from .wayside.changeover import ABB_TOPICS, line_events
+    site = scenario.changeover_site()
+    topics = {f"/wayside/{topic}": switch for switch, topic in ABB_TOPICS.items()}
+    truth_topics = {f"/{name}/ground_truth/state": name for name in scenario.trains}
+    state = {"ABB-1": True, "ABB-2": False}       # the controller's start (re-published latched: no change)
+    switchings, commands, truth = [], [], {name: [] for name in scenario.trains}
+    for topic, _, t_ns, msg in read_bag(bag, [*topics, *truth_topics]):
+        if topic in truth_topics:
+            truth[truth_topics[topic]].append((msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec,
+                                               float(msg.position)))
+            continue
+        switch, closed, t = topics[topic], bool(msg.data), t_ns / 1e9
+        if closed != state[switch]:
+            switchings.append(site.switching(t, switch, closed))
+            commands.append({"stamp": t, "switch": switch, "on": closed})
+        state[switch] = closed
+    arrays = {name: np.array(v, dtype=float).reshape(-1, 2) for name, v in truth.items()}
+    return {**line_events(site, scenario, arrays, switchings), "commands": commands}
+
+
 def line_report(result) -> dict:
-    """{"trains": train name -> evaluate() report, "association": association_check()}."""
+    """{"trains": train name -> evaluate() report, "association": association_check(),
+    "changeover": changeover_check() (a line with a changeover section)}."""
     trains = {name: evaluate(run.truth, run.estimates, run.measurements)[0] for name, run in result.trains.items()}
-    return {"trains": trains, "association": association_check(result),
-            "wayside": {"blocks": result.blocks, "rejected": dict(result.rejected),
-                        "measurements": len(result.wayside)}}
+    out = {"trains": trains, "association": association_check(result),
+           "wayside": {"blocks": result.blocks, "rejected": dict(result.rejected),
+                       "measurements": len(result.wayside)}}
+    if result.changeover is not None:
+        out["changeover"] = changeover_check(result)
+    return out

@@ -69,12 +69,16 @@ class Leg:
 
 @dataclass
 class Vehicle:
-    """Vehicle type, length [m] and axle offsets behind the front [m] (none for maglev)."""
+    """Vehicle type, length [m] and axle offsets behind the front [m] (none for maglev); the
+    raised pantographs' offsets behind the front [m] and whether a roof bus joins them (the
+    catenary of a changeover section, core/wayside/catenary.py)."""
 
     kind: str = "conventional"
     length: float = 200.0
     axles: tuple[float, ...] = ()
     wheel_diameter: float = 0.92  # nominal [m]
+    pantographs: tuple[float, ...] = ()
+    roof_bus: bool = False
 
 
 @dataclass
@@ -98,6 +102,7 @@ class Scenario:
     trains: dict[str, "Scenario"] = field(default_factory=dict, init=False, repr=False, compare=False)
     wayside: dict[str, dict] = field(default_factory=dict)  # wayside sensor node name -> parameters
     association: dict = field(default_factory=dict)  # core/association.py Associator overrides
+    changeover: dict = field(default_factory=dict)   # wayside changeover section (core/wayside/changeover.py)
     line: bool = False          # described with ``trains:`` (even a single one): namespaces /<name>
     train_name: str = TRAIN     # the train this scenario drives (one-train scenarios and train views)
     rng_prefix: tuple = ()      # random streams of a line's train: prefixed by its name
@@ -131,6 +136,13 @@ class Scenario:
             raise ScenarioError(f"namespace {namespace!r} names no train of scenario {self.name} (trains: "
                                 f"{', '.join(self.trains)}) and is not /{WAYSIDE}")
         return self.trains[name]
+
+    def changeover_site(self):
+        """The line's changeover section (core/wayside/changeover.py Site), or None."""
+        if not self.changeover:
+            return None
+        from .wayside.changeover import Site
+        return Site.from_config(self.changeover, self.track)
 
     def wayside_vehicle(self) -> Vehicle:
         """The vehicle whose data the wayside decoders take by default (axle layout): the
@@ -239,7 +251,13 @@ def _train_fields(data: dict) -> dict:
     veh = data.get("vehicle", {}) or {}
     vehicle = Vehicle(kind=str(veh.get("type", "conventional")), length=float(veh.get("length", 200.0)),
                       axles=tuple(float(a) for a in veh.get("axles", ()) or ()),
-                      wheel_diameter=float(veh.get("wheel_diameter", 0.92)))
+                      wheel_diameter=float(veh.get("wheel_diameter", 0.92)),
+                      pantographs=tuple(float(a) for a in veh.get("pantographs", ()) or ()),
+                      roof_bus=bool(veh.get("roof_bus", False)))
+    bad = [a for a in vehicle.pantographs if not 0.0 <= a <= vehicle.length]
+    if bad:
+        raise ScenarioError(f"vehicle: pantograph offsets {bad} are not on the vehicle (0..{vehicle.length:g} m "
+                            "behind the front)")
     control = dict(data.get("control", {}) or {})
     # a closed-loop train (``control``) needs no profile
     legs = [Leg(**{k: float(v) for k, v in leg.items()})
@@ -273,7 +291,8 @@ def _line(cls, data: dict, common: dict) -> Scenario:
                            wayside=wayside, line=True, train_name=name, rng_prefix=(name,))
     first = next(iter(trains.values()))
     scenario = cls(**common, vehicle=first.vehicle, legs=[], sensors={}, fusion={}, wayside=wayside,
-                   association=dict(data.get("association", {}) or {}), line=True, train_name="")
+                   association=dict(data.get("association", {}) or {}),
+                   changeover=dict(wayside_data.get("changeover", {}) or {}), line=True, train_name="")
     scenario.trains = trains
     return scenario
 
@@ -297,6 +316,14 @@ def _check_line(scenario: Scenario) -> None:
             if sp.simulator.sees_all_trains:
                 raise ScenarioError(f"train {train.train_name}: {node} is wayside equipment: on a line it "
                                     f"sees every train (list it under wayside: sensors:)")
+    if scenario.changeover:
+        from .wayside.changeover import ChangeoverError
+        try:
+            scenario.changeover_site()
+        except ChangeoverError as exc:
+            raise ScenarioError(f"wayside: {exc}") from None
+        if not any(tr.vehicle.pantographs for tr in scenario.trains.values()):
+            raise ScenarioError("wayside: a changeover section needs trains with pantographs (vehicle: pantographs:)")
     ordered = sorted(scenario.trains.values(), key=lambda tr: tr.extent())
     for a, b in zip(ordered, ordered[1:]):
         if b.extent()[0] < a.extent()[1]:

@@ -37,12 +37,11 @@ from ..core import convert
 from ..core.measurements import SectionOccupancy
 from ..core.signals import InputRejected
 from ..core.wayside import crosscheck as cc
+from ..core.wayside.changeover import ABB_TOPICS, COMBINED_TOPIC
 from ..core.wayside import neutral_section as ns
 from ..core.wayside import occupancy as oc
 from .common import LATCHED_QOS, STATE_QOS, ConfigurationError, Diagnostics, declare, now_sec, rclpy_classes, spin
 
-COMBINED_TOPIC = "wayside/combined"
-ABB_TOPICS = {"ABB-1": "changeover/abb1", "ABB-2": "changeover/abb2"}
 LEVEL = {"ok": 0, "warn": 1, "error": 2}
 
 

@@ -7,7 +7,9 @@ Processes: recorder, one sensor node per sensor of the scenario (sim mode), fusi
 simulator; all in namespace /train with use_sim_time. A line scenario (several trains)
 runs graph.line_graph instead (per train its sensor nodes in ingest mode and its fusion
 in /<train>, the wayside sensor nodes and the association in /wayside, the simulator
-publishing every device's raw blocks) and prints the summary of each train. DDS stays on loopback and
+publishing every device's raw blocks) and prints the summary of each train; with a changeover
+section also its catenary events, evaluated from the ABB commands the live controller published
+(recorded in the bag) against the recorded truth. DDS stays on loopback and
 the run gets its own ROS_DOMAIN_ID (unless ROS_DOMAIN_ID is set by the caller
 and TL_DOMAIN_FROM_ENV=1).
 """
@@ -25,6 +27,7 @@ from pathlib import Path
 
 from ..core import paths
 from ..core.bagio import read_bag, topic_counts
+from ..core.report import jsonable, recorded_changeover
 from ..core.scenario import Scenario
 from ..core.scoring import StateSeries, score
 from ..core.offline import FUSED_TOPIC, TRUTH_TOPIC, scenario_from_bag
@@ -173,6 +176,16 @@ def print_summary(s: dict) -> None:
     print(f"bag: {s['bag']}")
 
 
+def print_changeover(co: dict, source: str) -> None:
+    """The catenary events of a line's changeover section (core/report.py)."""
+    print(f"\n[changeover] with {source}: {len(co['commands'])} ABB commands, "
+          f"{co['short_circuits']} short circuits, {co['air_section_switchings']} switchings with a pantograph "
+          "in an air section")
+    for name, dead in co["dead_time_s"].items():
+        print(f"  {name}: dead {dead:.2f} s (an unfed neutral section: {co['unfed_time_s'][name]:.2f} s; "
+              f"leading pantograph over the neutral section: {co['crossing_time_s'][name]:.2f} s)")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenario", default="config/scenario_demo.yaml")
@@ -191,6 +204,9 @@ def main(argv=None) -> int:
             print_summary({**train_summary, "messages": {t: n for t, n in train_summary["messages"].items()
                                                          if t.startswith(f"/{name}/")}})
         summary = {"trains": summary, "exit_codes": codes}
+        if scenario.changeover:
+            summary["changeover"] = jsonable(recorded_changeover(bag, scenario))
+            print_changeover(summary["changeover"], "the live controller's recorded ABB commands")
     else:
         codes = run_graph(args.scenario, bag, args.rate, out / "logs")
         summary = summarise(bag)

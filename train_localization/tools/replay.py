@@ -90,6 +90,9 @@ def line_main(bag: Path, scenario: Scenario, out: Path | None, report_dir: Path 
     a = report["association"]
     print(f"  wayside fixes: {a['offered']} offered, {a['used']} used, {a['ambiguous']} ambiguous, "
           f"{a['unexplained']} unexplained, {a['wrong_train']} used by the wrong train")
+    if "changeover" in report:
+        from .demo import print_changeover
+        print_changeover(report["changeover"], "the replayed controller's ABB commands")
     if report_dir:
         report_dir.mkdir(parents=True, exist_ok=True)
         (report_dir / "report.json").write_text(json.dumps(report, indent=2))

@@ -70,6 +70,22 @@ class Layout:
         x2 = b2 + p["approach"]
         return cls((x0, 0.5 * (b1 + a2), x2), (a1, b1), (a2, b2), x2 + p["lead"], p)
 
+    @classmethod
+    def around(cls, ac: tuple[float, float, float], length: float, overrides: dict | None = None) -> "Layout":
+        """The layout around three counting points of a line's track [m]: the air sections
+        ``approach`` inside the outer ones, the neutral section between them (its length
+        follows from the points; ``neutral_length`` and ``lead`` are not used). ValueError if
+        the middle point is not inside the neutral section."""
+        p = resolve_params(PARAMS, overrides)
+        x0, x1, x2 = (float(x) for x in ac)
+        a1, b2 = x0 + p["approach"], x2 - p["approach"]
+        b1, a2 = a1 + p["air_length"], b2 - p["air_length"]
+        if not (0.0 <= x0 and b1 < x1 < a2 and x2 <= length):
+            raise ValueError(f"counting points {x0:g}, {x1:g}, {x2:g} m leave no neutral section around the middle "
+                             f"one with approach {p['approach']:g} m and air sections of {p['air_length']:g} m "
+                             f"on a track of {length:g} m")
+        return cls((x0, x1, x2), (a1, b1), (a2, b2), float(length), {**p, "neutral_length": a2 - b1})
+
     @property
     def neutral(self) -> tuple[float, float]:
         """Span of the neutral section's contact wire, air sections included [m]."""
@@ -107,6 +123,19 @@ class Switching:
     stamp: float
     switch: str          # ABB1 or ABB2
     on: bool
+
+
+def effective(stamp: float, switch: str, on: bool, latency: float, supply_frequency: float) -> Switching:
+    """The state change of an ABB command decided at ``stamp`` [s]: closing after the gate
+    signal's ``latency``, opening half a supply cycle later (the semiconductor blocks at the
+    next current zero)."""
+    return Switching(stamp + latency + (0.0 if on else 0.5 / supply_frequency), switch, on)
+
+
+def pantograph_chainages(front: np.ndarray, orientation: int, offsets) -> np.ndarray:
+    """(n, P) chainages [m] of the raised pantographs at ``offsets`` behind the front of a
+    train whose front is at ``front`` (n,) and faces ``orientation`` (+1: increasing chainage)."""
+    return np.asarray(front, dtype=float)[:, None] - orientation * np.asarray(offsets, dtype=float)[None, :]
 
 
 def switch_states(log: list[Switching], times: np.ndarray, initial=(True, False)) -> np.ndarray:

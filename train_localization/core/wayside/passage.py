@@ -31,7 +31,7 @@ from ..sensors import track_circuit as tcm
 from ..sensors.base import resolve_params
 from ..signals import RawBlock
 from ..track import Track
-from .catenary import Layout, Switching, events
+from .catenary import Layout, Switching, effective, events, pantograph_chainages
 from .neutral_section import ChangeoverController
 from .occupancy import PARAMS as OCC_PARAMS, CombinedOccupancy, SectionMap
 
@@ -235,7 +235,6 @@ def simulate(run: Run) -> RunResult:
     occ_log: list = []
     last_states = None
     switchings: list[Switching] = []
-    half_cycle = 0.5 / layout.params["supply_frequency"]
     per_chunk = int(round(CHUNK / BLOCK))
     nchunks = int(math.ceil((t_end - t_start) / CHUNK))
     nblocks = nchunks * per_chunk
@@ -274,15 +273,14 @@ def simulate(run: Run) -> RunResult:
                 occ_log.append((now, states))
                 last_states = states
             for cmd in ctrl.update(now, sections):
-                delay = run.command_latency + (0.0 if cmd.on else half_cycle)
-                switchings.append(Switching(cmd.stamp + delay, cmd.switch, cmd.on))
+                switchings.append(effective(cmd.stamp, cmd.switch, cmd.on, run.command_latency,
+                                            layout.params["supply_frequency"]))
 
     # catenary events on a fine grid
     grid = np.arange(t_start, t_start + nblocks * BLOCK + GRID, GRID)
     pans = {}
     for t in trains:
-        front = _front(t, layout, grid)
-        pans[t.name] = front[:, None] - t.direction * np.asarray(t.pantographs)[None, :]
+        pans[t.name] = pantograph_chainages(_front(t, layout, grid), t.direction, t.pantographs)
     report = events(layout, switchings, grid, pans, {t.name: t.roof_bus for t in trains})
     passages = []
     neutral = layout.params["neutral_length"]

@@ -12,7 +12,7 @@ from train_localization.core import convert
 from train_localization.core.bagio import read_bag
 from train_localization.core.fusion import Mode
 from train_localization.core.offline import replay_bag, replay_line, scenario_from_bag
-from train_localization.core.report import evaluate, line_report
+from train_localization.core.report import evaluate, line_report, recorded_changeover
 from train_localization.tools.make_bags import metric
 from train_localization.tools.replay import recorded_run
 
@@ -102,3 +102,21 @@ def _matches_live(name: str, offline: list, live: list) -> None:
     within = diff[ok] <= 3.0 * sd[ok]
     assert within.mean() >= 0.99, (f"{name}: offline and live fused position differ by more than 3 sigma in "
                                    f"{100 * (1 - within.mean()):.2f} % of the states")
+
+
+def test_a_changeover_bag_switches_live_and_replayed_without_a_short_circuit(replayed):
+    """A line bag with a changeover section: the replayed controller (offline, from the recorded
+    wayside raw blocks) makes the live controller's commands, and neither shorts the phases or
+    switches under a pantograph in an air section."""
+    name, _, _, line = replayed
+    if line is None or "changeover" not in line:
+        pytest.skip(f"{name}: no changeover section")
+    bounds = TABLE[name]["changeover"]
+    offline = line["changeover"]
+    live = recorded_changeover(BAGS / f"{name}.mcap", scenario_from_bag(BAGS / f"{name}.mcap"))
+    for label, co in (("replayed", offline), ("live", live)):
+        for key, bound in bounds.items():
+            assert co[key] <= bound["max"], f"{name} {label}: {key} = {co[key]}"
+    assert [(c["switch"], c["on"]) for c in live["commands"]] == [(c["switch"], c["on"]) for c in offline["commands"]]
+    # the same decisions within the live controller's timer period and message delays
+    assert np.allclose([c["stamp"] for c in live["commands"]], [c["stamp"] for c in offline["commands"]], atol=0.3)

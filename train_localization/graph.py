@@ -129,7 +129,7 @@ def ros_args(name: str, params: dict, namespace: str = NAMESPACE) -> list[str]:
     for key, value in params.items():
         if isinstance(value, bool):
             value = "true" if value else "false"
-        elif isinstance(value, (list, tuple)):
-            value = "[" + ",".join(str(v) for v in value) + "]"
+        elif isinstance(value, (list, tuple)):   # strings quoted: YAML flow items may hold ':'
+            value = "[" + ",".join(f"'{v}'" if isinstance(v, str) else str(v) for v in value) + "]"
         args += ["-p", f"{key}:={value}"]
     return args

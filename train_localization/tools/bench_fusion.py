@@ -204,6 +204,10 @@ def main(argv=None) -> int:
                 print(f"  filter counters: {train_run.runner.filter.counters()}")
             if sc.line:
                 print_association(result)
+            if sc.line and result.changeover is not None:
+                from ..core.report import changeover_check
+                from .demo import print_changeover
+                print_changeover(changeover_check(result), "the offline controller's ABB commands")
             print(f"  (simulate_scenario {time.perf_counter() - t0:.1f} s)")
         return 0
     scenario = Scenario.from_yaml(args.scenario)

@@ -65,7 +65,7 @@ def evaluate(truth, estimates, measurements, circumference: float | None = None)
     position is compared modulo it (scoring.true_position)."""
     tt = np.array([s.stamp for s in truth])
     ts = np.array([s.position for s in truth])
-    if circumference:
+    if circumference:   # the distance run (odometer below) across the loop's end, not a jump
         ts = np.unwrap(ts, period=circumference)
     tv = np.array([s.speed for s in truth])
     f = _columns(estimates)
@@ -295,16 +295,18 @@ def recorded_changeover(bag, scenario) -> dict:
     """Catenary events of a line bag with the ABB commands recorded in it (the live
     controller's, at their log times) and the recorded truth."""
     from .bagio import read_bag
+    from .convert import stamp_to_sec
+    from .scenario import WAYSIDE
     from .wayside.changeover import ABB_TOPICS, line_events
+    from .wayside.neutral_section import START
     site = scenario.changeover_site()
-    topics = {f"/wayside/{topic}": switch for switch, topic in ABB_TOPICS.items()}
+    topics = {f"/{WAYSIDE}/{topic}": switch for switch, topic in ABB_TOPICS.items()}
     truth_topics = {f"/{name}/ground_truth/state": name for name in scenario.trains}
-    state = {"ABB-1": True, "ABB-2": False}       # the controller's start (re-published latched: no change)
+    state = dict(START)       # the controller's start states (re-published latched: no change)
     switchings, commands, truth = [], [], {name: [] for name in scenario.trains}
     for topic, _, t_ns, msg in read_bag(bag, [*topics, *truth_topics]):
         if topic in truth_topics:
-            truth[truth_topics[topic]].append((msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec,
-                                               float(msg.position)))
+            truth[truth_topics[topic]].append((stamp_to_sec(msg.header.stamp), float(msg.position)))
             continue
         switch, closed, t = topics[topic], bool(msg.data), t_ns / 1e9
         if closed != state[switch]:

@@ -156,8 +156,7 @@ class ChangeoverLoop:
                 "safe_state": [{"stamp": t, "reason": why} for t, why in ctrl.safe_entries],
                 "final": ctrl.status(),
                 "disagreements": [d.text() for d in self.combined.records],
-                "contradictions": [d.text() for d in self.combined.records
-                                   if not d.duration <= self.combined.params["disagree_tolerance"]]}
+                "contradictions": [d.text() for d in self.combined.contradictions()]}
 
 
 def report_dict(report: catenary.CatenaryReport, crossing: dict[str, float] | None = None) -> dict:

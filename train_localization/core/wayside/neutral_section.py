@@ -56,6 +56,7 @@ PARAMS = {
 check_declared(PARAMS, "neutral_section_controller")
 
 FEEDS = {"A": (True, False), "B": (False, True), "OFF": (False, False)}
+START = dict(zip((ABB1, ABB2), FEEDS["A"]))     # ABB states at power-up: the neutral fed from A
 SAFE = "SAFE"
 
 
@@ -78,7 +79,7 @@ class ChangeoverController:
         self.west, self.east = west, east
         self.mode = "IDLE"
         self.target = "A"
-        self.abb = {ABB1: True, ABB2: False}
+        self.abb = dict(START)
         self.reason = ""
         self.last_open = -math.inf
         self.safe_since = math.nan

@@ -145,6 +145,10 @@ class CombinedOccupancy:
             return SILENT, s
         return s.state, s
 
+    def contradictions(self) -> list[Disagreement]:
+        """The recorded disagreements that lasted longer than ``disagree_tolerance`` (or last still)."""
+        return [r for r in self.records if not r.duration <= self.params["disagree_tolerance"]]
+
     def evaluate(self, now: float) -> list[CombinedSection]:
         out = []
         for sid, (tc_id, ac_id) in self.sections.pairs.items():

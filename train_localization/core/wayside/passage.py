@@ -295,5 +295,5 @@ def simulate(run: Run) -> RunResult:
                                       report.unfed[t.name], crossing))
     return RunResult(passages, report.short_circuits, report.air_switchings, list(ctrl.safe_entries),
                      list(ctrl.commands), switchings, list(ctrl.transitions), list(combined.records),
-                     [r for r in combined.records if not r.duration <= combined.params["disagree_tolerance"]],
+                     combined.contradictions(),
                      occ_log, ctrl.status(), float(nblocks * BLOCK))

@@ -1284,6 +1284,8 @@ class TrainFilter:
         if not (noisy or drift):
             aux.fix_bias_nis = {**aux.fix_bias_nis, cls: (last, m.stamp, summed, weights)}
             return
+        if drift and not noisy:
+            self._drift_from_slip(m, summed, weights)
         aux.fix_bias_nis = _without(aux.fix_bias_nis, cls)
         # an alternative of this sensor is pending (an earlier inconsistency's view, or an
         # unexplained fix of it): the question is open already
@@ -1309,6 +1311,36 @@ class TrainFilter:
         # dead-reckoned view stays where it was, moving with the filter's motion from there
         if not pending:
             aux.alternative = (m.stamp, s_dr, P_dr, s_dr + bias, float(self.ekf.P[0, 0]), cls, m.reference_id, ())
+
+    def _drift_from_slip(self, m, summed: float, weights: float) -> None:
+        """The fixes drift from the dead reckoning (``_fix_bias_consistency``: innovations of one
+        sign, their weighted sum ``summed`` over the root of ``weights``). A speed source in use
+        whose transient fault mode fits the drift's direction under the present drive (a wheel
+        turning fast under traction, slip; slow under braking, slide) may have been slipping
+        too slowly for its own test: the filter followed it, so its readings agreed with the
+        filter, and only the fixes could tell. Its readings of the last ``history`` s are taken
+        out and the history is applied again without them (``_Lookback``, as at a slip's onset
+        that the window test found late): the fixes and the other sources carry the speed, and
+        the sensor is back once it agrees. A reading the fault did not touch costs precision,
+        not integrity; a slip left in would cost the interval."""
+        stamp = m.stamp
+        v, a = float(self.ekf.x[1, 0]), float(self.ekf.x[2, 0])
+        sv = 1.0 if v >= 0.0 else -1.0
+        drive = a * sv
+        # fixes behind the dead reckoning along the motion: the filter ran ahead of the train, a
+        # speed source read too fast
+        ahead = summed * sv < 0.0
+        limit = self.cfg.slip_min_drive
+        for cls in self._in_use(stamp):
+            faults = self.models[cls].faults
+            if cls not in self._bounded:
+                continue
+            if ("slip" in faults and drive >= limit and ahead) or ("slide" in faults and drive <= -limit and not ahead):
+                # the disagreement [m/s] the drift shows: the weighted mean innovation [m] over the
+                # test's time constant, as a reading of that sensor would differ
+                _, _, _, _, _, S = self._innovation(m)
+                shown = -summed / weights * math.sqrt(S) / self.cfg.slip_window
+                raise _Lookback(cls, stamp - self.cfg.history, shown)
 
     def _raised(self, P, faulty) -> np.ndarray:
         """Covariance P with the relative error states at least as uncertain as their priors,

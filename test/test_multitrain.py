@@ -200,12 +200,14 @@ def test_each_train_keeps_its_integrity():
     assert {m.sensor for m in follow.measurements if isinstance(m, PositionFix)} == {"axle_counter"}
 
 
-def test_line_bag_replays_to_the_same_estimates():
+@pytest.mark.parametrize("parallel", [False, True], ids=["serial", "parallel"])
+def test_line_bag_replays_to_the_same_estimates(parallel):
     sc, result, bag = line_run()
-    replayed = replay_bag(bag)
+    replayed = replay_bag(bag, parallel=parallel)
     assert isinstance(replayed, LineResult) and set(replayed.trains) == {"lead", "follow"}
     for name, run in result.trains.items():
         again = replayed.trains[name]
+        assert again.measurements == run.measurements and again.blocks == run.blocks
         assert len(again.estimates) == len(run.estimates)
         a = np.array([(e.position, e.position_min, e.position_max) for e in run.estimates])
         b = np.array([(e.position, e.position_min, e.position_max) for e in again.estimates])

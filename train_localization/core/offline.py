@@ -302,13 +302,13 @@ class _MessageDecoder:
     refused the message (malformed CDR, invalid block, decoder rejection).
     """
 
-    def __init__(self, pipes: dict[str, SensorPipeline], deserialize):
-        self.pipes, self.deserialize = pipes, deserialize
+    def __init__(self, pipes: dict[str, SensorPipeline], deserialize, truth_topics=(TRUTH_TOPIC,)):
+        self.pipes, self.deserialize, self.truth_topics = pipes, deserialize, frozenset(truth_topics)
 
     def __call__(self, topic: str, typename: str, data: bytes):
         try:
             msg = self.deserialize(data, typename)
-            if topic == TRUTH_TOPIC:
+            if topic in self.truth_topics:
                 return convert.truth_from_msg(msg)
             return self.pipes[topic].on_block(convert.raw_block_from_msg(msg))
         except InputRejected as exc:
@@ -321,27 +321,41 @@ _PARALLEL_JOB: tuple | None = None
 PARALLEL_WINDOW = 1.0   # log time [s] that the workers decode before handing it over
 
 
-def _decode_topic_windows(topic: str, conn) -> None:
-    """Worker process: decode one topic window by window, sending each window's items."""
-    decoder, by_topic = _PARALLEL_JOB
+def _decode_topic_windows(topics: list[str], conn) -> None:
+    """Worker process: decode its topics window by window, sending each window's items
+    ({topic: [item, ...]})."""
+    decoder, by_topic, n_windows = _PARALLEL_JOB
     os.nice(5)   # the fusion in the parent is the critical path: it goes first
     try:
-        for window in by_topic[topic]:
-            conn.send([decoder(topic, typename, data) for typename, data in window])
+        for k in range(n_windows):
+            conn.send({topic: [decoder(topic, typename, data) for typename, data in by_topic[topic][k]]
+                       for topic in topics})
     except BaseException:   # hand the failure to the parent, which raises it
-        conn.send(RuntimeError(f"decoding {topic} failed in its worker process:\n{traceback.format_exc()}"))
+        conn.send(RuntimeError(f"decoding {', '.join(topics)} failed in its worker process:\n"
+                               f"{traceback.format_exc()}"))
     finally:
         conn.close()
 
 
-def _decode_in_parallel(decoder: _MessageDecoder, messages: list, bar):
-    """Decoded items of ``messages`` (in their order), each topic decoded in its own process.
+def worker_count() -> int:
+    """Decoding processes of a parallel replay: the CPUs this process may run on."""
+    try:
+        return max(len(os.sched_getaffinity(0)), 1)
+    except AttributeError:   # not on Linux
+        return max(os.cpu_count() or 1, 1)
+
+
+def _decode_in_parallel(decoder: _MessageDecoder, messages: list, bar, workers: int | None = None):
+    """Decoded items of ``messages`` (in their order), the topics decoded in forked processes.
 
     The sensors are independent until the fusion, as the live nodes are, so each
     topic goes through its own pipeline, in order, in a forked worker process;
-    the workers hand over their results one window of log time after the other,
-    so the caller fuses window k while window k + 1 is decoded. The items come in
-    the bag's order, as in the serial replay, so the result is the same.
+    the topics are shared out over ``workers`` processes (default: one per CPU;
+    forking costs about 10 ms a process, more than a small topic's decoding),
+    balanced by their bytes. The workers hand over their results one window of log
+    time after the other, so the caller fuses window k while window k + 1 is
+    decoded. The items come in the bag's order, as in the serial replay, so the
+    result is the same.
     """
     global _PARALLEL_JOB
     if not messages:
@@ -349,22 +363,31 @@ def _decode_in_parallel(decoder: _MessageDecoder, messages: list, bar):
     window_ns = round(PARALLEL_WINDOW * 1e9)
     n_windows = messages[-1][2] // window_ns + 1
     by_topic: dict[str, list] = {}
+    size: dict[str, int] = {}
     for topic, typename, t_ns, data in messages:
         windows = by_topic.get(topic)
         if windows is None:
             windows = by_topic[topic] = [[] for _ in range(n_windows)]
+            size[topic] = 0
         windows[t_ns // window_ns].append((typename, data))
+        size[topic] += len(data)
+    groups: list[list[str]] = [[] for _ in range(min(workers or worker_count(), len(by_topic)))]
+    load = [0] * len(groups)
+    for topic in sorted(by_topic, key=size.get, reverse=True):   # largest first, to the least loaded
+        i = load.index(min(load))
+        groups[i].append(topic)
+        load[i] += size[topic]
     ctx = multiprocessing.get_context("fork")
-    conns, procs = {}, []
-    _PARALLEL_JOB = (decoder, by_topic)
+    conns, procs = [], []
+    _PARALLEL_JOB = (decoder, by_topic, n_windows)
     try:
-        for topic in by_topic:
+        for topics in groups:
             receive, send = ctx.Pipe(duplex=False)
-            proc = ctx.Process(target=_decode_topic_windows, args=(topic, send), daemon=True,
-                               name=f"replay {topic}")
+            proc = ctx.Process(target=_decode_topic_windows, args=(topics, send), daemon=True,
+                               name=f"replay {topics[0]}")
             proc.start()
             send.close()    # the worker holds it: a worker that dies ends the parent's recv
-            conns[topic] = receive
+            conns.append(receive)
             procs.append(proc)
     finally:
         _PARALLEL_JOB = None
@@ -372,11 +395,11 @@ def _decode_in_parallel(decoder: _MessageDecoder, messages: list, bar):
         i = 0
         for k in range(n_windows):
             items = {}
-            for topic, conn in conns.items():
+            for conn in conns:
                 got = conn.recv()
                 if isinstance(got, BaseException):
                     raise got
-                items[topic] = iter(got)
+                items.update((topic, iter(decoded)) for topic, decoded in got.items())
             i0 = i
             while i < len(messages) and messages[i][2] // window_ns == k:
                 topic, _, t_ns, _ = messages[i]
@@ -391,7 +414,7 @@ def _decode_in_parallel(decoder: _MessageDecoder, messages: list, bar):
                 # inherited a SIGTERM handler that does not exit (rclpy.init installs one)
                 proc.kill()
             proc.join()
-        for conn in conns.values():
+        for conn in conns:
             conn.close()
 
 
@@ -448,7 +471,7 @@ def replay_bag(bag: str | Path, scenario: Scenario | None = None, out_bag: str |
     if scenario is None:
         scenario = scenario_from_bag(bag)
     if scenario.line:
-        return replay_line(bag, scenario, out_bag, fusion_rate)
+        return replay_line(bag, scenario, out_bag, fusion_rate, parallel=parallel)
     mc = typestore_classes() if out_bag else None
     writer = items = bar = None
     try:
@@ -658,58 +681,71 @@ def simulate_line(scenario: Scenario, bag: str | Path | None = None, fusion_rate
 
 
 def replay_line(bag: str | Path, scenario: Scenario | None = None, out_bag: str | Path | None = None,
-                fusion_rate: float = 200.0) -> LineResult:
+                fusion_rate: float = 200.0, parallel: bool = False) -> LineResult:
     """``replay_bag`` of a line's bag: every train's raw topics through its decoders and fusion,
     the wayside raw topics through the wayside decoders and the association, in log-time
-    order (the same sequence as ``simulate_line``, so the same estimates)."""
+    order (the same sequence as ``simulate_line``, so the same estimates).
+
+    ``parallel`` decodes each topic (every train's sensors and truth, the wayside sensors) in
+    its own forked process while this one fuses and associates, as ``replay_bag`` does; the
+    result is identical to the serial replay.
+    """
     from .bagio import BagReader
     if scenario is None:
         scenario = scenario_from_bag(bag)
     mc = typestore_classes() if out_bag else None
     writer = BagWriter(out_bag) if out_bag else None
     line = _Line(scenario, fusion_rate, writer, mc)
-    routes = {}   # topic -> (train name or None, pipeline or None: the truth)
+    items = None
+    owner, pipes, truth_topics = {}, {}, []   # topic -> train name (None: the wayside); topic -> pipeline
     for name, train in scenario.trains.items():
         ns = train_namespace(train)
-        routes[f"{ns}/ground_truth/state"] = (name, None)
+        owner[f"{ns}/ground_truth/state"] = name
+        truth_topics.append(f"{ns}/ground_truth/state")
         for node, params in train.sensors.items():
             spec = sensor_spec(node)
-            routes[raw_topic(spec.sensor, ns)] = (name, SensorPipeline(spec, params, train.track, train.vehicle,
-                                                                       simulate=False))
-    routes.update({topic: (None, pipe) for topic, pipe in wayside_pipelines(scenario, simulate=False).items()})
+            topic = raw_topic(spec.sensor, ns)
+            owner[topic] = name
+            pipes[topic] = SensorPipeline(spec, params, train.track, train.vehicle, simulate=False)
+    for topic, pipe in wayside_pipelines(scenario, simulate=False).items():
+        owner[topic], pipes[topic] = None, pipe
+    truth_topics = frozenset(truth_topics)
     try:
         with BagReader(bag) as reader:
+            decoder = _MessageDecoder(pipes, reader.deserialize, truth_topics)
+            if parallel and can_fork():
+                items = _decode_in_parallel(decoder, list(reader.cdr(list(owner))), None)
+            else:
+                items = ((topic, t_ns, decoder(topic, typename, data))
+                         for topic, typename, t_ns, data in reader.cdr(list(owner)))
             t_prev = None
-            for topic, typename, t_ns, data in reader.cdr(list(routes)):
+            for topic, t_ns, item in items:
                 t = t_ns / 1e9
                 if t_prev is not None and t > t_prev:
                     line.states(t_prev)
                 t_prev = t
-                name, pipe = routes[topic]
+                name = owner[topic]
                 out = line.outs[name] if name is not None else None
-                try:
-                    msg = reader.deserialize(data, typename)
-                    if pipe is None:
-                        line.truth(name, convert.truth_from_msg(msg), t_ns)
-                        continue
-                    measurements = pipe.on_block(convert.raw_block_from_msg(msg))
-                except InputRejected as exc:
-                    (out.reject if out else line.reject)(exc)
+                if topic in truth_topics:
+                    if not isinstance(item, InputRejected):
+                        line.truth(name, item, t_ns)
                     continue
-                finally:
-                    if pipe is not None:
-                        if out:
-                            out.result.blocks += 1
-                        else:
-                            line.result.blocks += 1
                 if out:
-                    out.take(measurements, t)
+                    out.result.blocks += 1
                 else:
-                    line.wayside(measurements, t)
+                    line.result.blocks += 1
+                if isinstance(item, InputRejected):
+                    (out.reject if out else line.reject)(item)
+                elif out:
+                    out.take(item, t)
+                else:
+                    line.wayside(item, t)
             if t_prev is not None:
                 line.states(t_prev)
             line.flush()
     finally:
+        if items is not None and parallel:
+            items.close()   # ends the worker processes
         if writer:
             writer.close()
     return line.result

@@ -95,14 +95,14 @@ def bench_replay(repeat: int = 3) -> list[dict]:
     for bag in sorted((SOURCE_ROOT / "bags").glob("*.mcap")):
         row = {"bag": bag.name}
         scenario = scenario_from_bag(bag)
-        if scenario.line:   # a line's bag: every train and the wayside, decoded in this process
-            walls = []
-            for _ in range(repeat):
-                t0 = time.perf_counter()
-                replay_line(bag, scenario)
-                walls.append(time.perf_counter() - t0)
-            wall = min(walls)
-            for key in ("serial", "parallel"):
+        if scenario.line:   # a line's bag: every train and the wayside
+            for key, parallel in (("serial", False), ("parallel", True)):
+                walls = []
+                for _ in range(repeat):
+                    t0 = time.perf_counter()
+                    replay_line(bag, scenario, parallel=parallel)
+                    walls.append(time.perf_counter() - t0)
+                wall = min(walls)
                 row.update({"duration_s": scenario.duration, f"wall_s_{key}": wall,
                             f"factor_{key}": scenario.duration / wall})
             rows.append(row)

@@ -9,9 +9,10 @@ measurements and fused states can be written to a new bag (--out). The scenario
 unless --scenario is given (field recordings).
 --report DIR writes report.json (error statistics, ETCS envelope, integrity,
 per-sensor residuals, modes) and PNG plots. --recorded scores the bag's own
-recorded localization/state instead of recomputing it. Each sensor is decoded
-in its own forked worker process while this one fuses; --serial does it all in
-this process, streaming the bag (the result is the same).
+recorded localization/state instead of recomputing it. The sensors (of every
+train, for a line's bag) are decoded in forked worker processes, one per CPU,
+while this one fuses; --serial does it all in this process, streaming the bag
+(the result is the same).
 """
 from __future__ import annotations
 
@@ -72,14 +73,16 @@ def report_for(bag: Path, scenario: Scenario | None = None, out_bag: Path | None
     return jsonable(report), arrays
 
 
-def line_main(bag: Path, scenario: Scenario, out: Path | None, report_dir: Path | None) -> int:
+def line_main(bag: Path, scenario: Scenario, out: Path | None, report_dir: Path | None,
+              parallel: bool = True) -> int:
     """A line's bag (several trains): a block per train, then the association of the wayside fixes;
     report.json holds core/report.py line_report, the plots go to one directory per train."""
     t0 = time.perf_counter()
-    result = replay_line(bag, scenario, out)
+    result = replay_line(bag, scenario, out, parallel=parallel)
     wall = time.perf_counter() - t0
     report = jsonable(line_report(result))
-    print(f"{bag.name}: line of {len(result.trains)} trains, {scenario.duration:.1f} s replayed in {wall:.2f} s")
+    print(f"{bag.name}: line of {len(result.trains)} trains, {scenario.duration:.1f} s replayed in {wall:.2f} s "
+          f"({scenario.duration / wall:.0f}x real time)")
     for name, rep in report["trains"].items():
         pe, integ = rep["position_error_m"], rep["integrity"]
         line = f"  {name}: {rep['states_with_position']} of {rep['states']} states with a position"
@@ -119,7 +122,8 @@ def main(argv=None) -> int:
         return 2
     scenario = Scenario.from_yaml(args.scenario) if args.scenario else None
     if not args.recorded and (scenario or scenario_from_bag(args.bag)).line:
-        return line_main(args.bag, scenario or scenario_from_bag(args.bag), args.out, args.report)
+        return line_main(args.bag, scenario or scenario_from_bag(args.bag), args.out, args.report,
+                         parallel=not args.serial)
     report, arrays = report_for(args.bag, scenario, args.out, args.recorded, progress=not args.quiet,
                                 parallel=not args.serial)
     pe, integ, env = report["position_error_m"], report["integrity"], report["etcs_envelope"]

@@ -127,7 +127,7 @@ def main(argv=None) -> int:
                   f"{r['realtime_need']:15.0f} {r['ratio']:7.0f}x")
     elif args.what == "replay":
         print(f"offline replay (tl_replay), best of 3, x real time; {os.cpu_count()} CPU cores")
-        print(f"{'':35s} {'--serial':>15s} {'one process per sensor':>23s}")
+        print(f"{'':35s} {'--serial':>15s} {'worker processes':>23s}")
         print(f"{'bag':24s} {'bag time s':>10s} {'wall s':>7s} {'factor':>7s} {'wall s':>15s} {'factor':>7s}")
         for r in bench_replay():
             print(f"{r['bag']:24s} {r['duration_s']:10.1f} {r['wall_s_serial']:7.2f} {r['factor_serial']:6.0f}x "

@@ -863,3 +863,19 @@ def test_a_lone_wheel_slipping_under_traction_is_found_by_the_mmwave_fixes_drift
     assert result["scores"]["integrity"]["outside_count"] == 0
     assert result["fusion"]["integrity"]["slip_lookback"] >= 1
     assert result["scores"]["integrity"]["mean_interval_width_m"] < 1.0   # still a useful interval
+
+
+def test_a_radar_silent_at_a_stop_does_not_put_the_stop_into_its_view():
+    """Campaign run utm:1453734283, cut to 100 s (``tl_campaign --export utm:1453734283
+    --max-duration 100``): the lone radar, suspended at 66 s on a disagreement with the motion
+    model (noise), keeps its view in the interval while DGPS fixes decide. The train stops at
+    82 s, the radar falls silent below its minimum speed, and at 93 s the train starts again.
+    The radar's first reading (0.33 m/s) was taken to hold over the 11 s of silence: its view
+    jumped 3.2 m ahead, the next fix refuted it, and the interval lost the radar's side just
+    as the motion model lagged the start (131 states outside, 99.4 % inside). A speed holds
+    only since the previous reading within ``separation.SPEED_GAP`` s."""
+    data = yaml.safe_load((Path(__file__).parent / "data" / "campaign_utm_radar_silent_at_a_stop.yaml").read_text())
+    result = campaign.run_scenario(data)
+    assert result["scores"]["integrity"]["outside_count"] == 0
+    assert result["fusion"]["integrity"].get("ambiguous_slip", 0) >= 1       # the view was opened
+    assert "excluded_sensor_confirmed_faulty" not in result["fusion"]["integrity"]

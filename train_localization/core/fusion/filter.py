@@ -650,7 +650,11 @@ class TrainFilter:
             if alt is None:
                 return
         D, white, since, last, run, far, base = alt
-        d = getattr(m, "duration", 0.0) or (m.stamp - last)   # a speed holds since the previous one
+        d = getattr(m, "duration", 0.0)
+        if not d:
+            # a speed holds since the previous one, not across a silence (a radar below its
+            # minimum speed at a stop): there the sensor told nothing, as in its own solution
+            d = m.stamp - last if m.stamp - last <= separation.SPEED_GAP else 0.0
         R = max(S - float(self.ekf.P[1, 1]), 0.0)              # its own noise (speed units), roughly
         D += e * d
         view = (D, white + R * d * d, since, m.stamp, run + abs(float(self.ekf.x[1, 0])) * d,

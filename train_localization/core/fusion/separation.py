@@ -39,7 +39,7 @@ ABSORBED = frozenset(("scale_fault", "slip", "slide"))
 PERSISTENT = frozenset(("scale_fault",))
 
 # a speed sensor silent longer than this [s] is not interpolated across: the gap follows the filter
-_SPEED_GAP = 1.0
+SPEED_GAP = 1.0
 
 
 @dataclass(frozen=True)
@@ -178,7 +178,7 @@ def reading(sub: Sub, sm: SubModel, m, R: float, a: float, main: Main, window: f
         dv, var_dv = u - v, R
     if isinstance(m, SpeedMeasurement):
         dt = m.stamp - sub.t
-        if 0.0 < dt <= _SPEED_GAP and math.isfinite(sub.t_v):
+        if 0.0 < dt <= SPEED_GAP and math.isfinite(sub.t_v):
             sub = _anchored(_advance(sub, sm, m.stamp, dt, 0.5 * (u + v + sub.dv), R), main)
         else:
             sub = follow(sub, m.stamp, main)
@@ -208,7 +208,7 @@ def fix(sub: Sub, t: float, z: float, R: float, before: Main, gate: float) -> Su
     with its own speed. After a longer silence, or while it follows the filter (its sensor
     excluded), the solution moves to the fix with the filter and is anchored there."""
     moved = follow(sub, t, before)
-    if t - sub.t > _SPEED_GAP or sub.t != sub.anchor_t:   # silent, or following the filter
+    if t - sub.t > SPEED_GAP or sub.t != sub.anchor_t:   # silent, or following the filter
         sub = moved._replace(anchor_t=t, anchor_s=moved.s, anchor_pss=moved.pss, base_v=before.v,
                              base_P00=before.P00)
     else:

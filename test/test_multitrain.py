@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from train_localization.core.association import Associator
+from train_localization.core.bagio import BagReader, BagWriter
 from train_localization.core.fusion import MODE_INITIALISING, MODE_NOMINAL, Estimate
 from train_localization.core.measurements import PositionFix, SectionOccupancy
 from train_localization.core.offline import LineResult, replay_bag, simulate_scenario, wayside_pipelines
@@ -213,6 +214,26 @@ def test_line_bag_replays_to_the_same_estimates(parallel):
         b = np.array([(e.position, e.position_min, e.position_max) for e in again.estimates])
         assert np.array_equal(np.isnan(a), np.isnan(b)) and np.allclose(a[~np.isnan(a)], b[~np.isnan(b)])
     assert replayed.associator.summary() == result.associator.summary()
+
+
+@pytest.mark.parametrize("parallel", [False, True], ids=["serial", "parallel"])
+def test_a_malformed_truth_message_of_a_line_is_counted_with_its_train(parallel, tmp_path):
+    """One of the follower's truth messages cut short: refused as malformed and counted in
+    that train's ``rejected``; the rest of the replay is as before."""
+    sc, result, bag = line_run()
+    broken = tmp_path / "broken.mcap"
+    cut = None
+    with BagReader(bag) as reader, BagWriter(broken) as writer:
+        for topic, typename, t_ns, data in reader.cdr():
+            if cut is None and topic == "/follow/ground_truth/state" and t_ns > 1_000_000_000:
+                cut, data = t_ns, bytes(data)[:10]
+            writer.write_cdr(topic, typename, bytes(data), t_ns)
+    replayed = replay_bag(broken, parallel=parallel)
+    assert cut is not None
+    assert replayed.trains["follow"].rejected == {"malformed": 1}
+    assert not replayed.trains["lead"].rejected
+    assert len(replayed.trains["follow"].truth) == len(result.trains["follow"].truth) - 1
+    assert len(replayed.trains["follow"].estimates) == len(result.trains["follow"].estimates)
 
 
 def test_wayside_pipelines_take_every_train_and_refuse_an_unknown_one():

@@ -337,14 +337,6 @@ def _decode_topic_windows(topics: list[str], conn) -> None:
         conn.close()
 
 
-def worker_count() -> int:
-    """Decoding processes of a parallel replay: the CPUs this process may run on."""
-    try:
-        return max(len(os.sched_getaffinity(0)), 1)
-    except AttributeError:   # not on Linux
-        return max(os.cpu_count() or 1, 1)
-
-
 def _decode_in_parallel(decoder: _MessageDecoder, messages: list, bar, workers: int | None = None):
     """Decoded items of ``messages`` (in their order), the topics decoded in forked processes.
 
@@ -371,7 +363,7 @@ def _decode_in_parallel(decoder: _MessageDecoder, messages: list, bar, workers: 
             size[topic] = 0
         windows[t_ns // window_ns].append((typename, data))
         size[topic] += len(data)
-    groups: list[list[str]] = [[] for _ in range(min(workers or worker_count(), len(by_topic)))]
+    groups: list[list[str]] = [[] for _ in range(min(workers or os.cpu_count() or 1, len(by_topic)))]
     load = [0] * len(groups)
     for topic in sorted(by_topic, key=size.get, reverse=True):   # largest first, to the least loaded
         i = load.index(min(load))
@@ -686,8 +678,8 @@ def replay_line(bag: str | Path, scenario: Scenario | None = None, out_bag: str 
     the wayside raw topics through the wayside decoders and the association, in log-time
     order (the same sequence as ``simulate_line``, so the same estimates).
 
-    ``parallel`` decodes each topic (every train's sensors and truth, the wayside sensors) in
-    its own forked process while this one fuses and associates, as ``replay_bag`` does; the
+    ``parallel`` decodes the topics (every train's sensors and truth, the wayside sensors) in
+    forked worker processes while this one fuses and associates, as ``replay_bag`` does; the
     result is identical to the serial replay.
     """
     from .bagio import BagReader
@@ -697,11 +689,11 @@ def replay_line(bag: str | Path, scenario: Scenario | None = None, out_bag: str 
     writer = BagWriter(out_bag) if out_bag else None
     line = _Line(scenario, fusion_rate, writer, mc)
     items = None
-    owner, pipes, truth_topics = {}, {}, []   # topic -> train name (None: the wayside); topic -> pipeline
+    owner, pipes, truth_topics = {}, {}, set()   # topic -> train name (None: the wayside); topic -> pipeline
     for name, train in scenario.trains.items():
         ns = train_namespace(train)
         owner[f"{ns}/ground_truth/state"] = name
-        truth_topics.append(f"{ns}/ground_truth/state")
+        truth_topics.add(f"{ns}/ground_truth/state")
         for node, params in train.sensors.items():
             spec = sensor_spec(node)
             topic = raw_topic(spec.sensor, ns)
@@ -709,7 +701,6 @@ def replay_line(bag: str | Path, scenario: Scenario | None = None, out_bag: str 
             pipes[topic] = SensorPipeline(spec, params, train.track, train.vehicle, simulate=False)
     for topic, pipe in wayside_pipelines(scenario, simulate=False).items():
         owner[topic], pipes[topic] = None, pipe
-    truth_topics = frozenset(truth_topics)
     try:
         with BagReader(bag) as reader:
             decoder = _MessageDecoder(pipes, reader.deserialize, truth_topics)
@@ -727,7 +718,9 @@ def replay_line(bag: str | Path, scenario: Scenario | None = None, out_bag: str 
                 name = owner[topic]
                 out = line.outs[name] if name is not None else None
                 if topic in truth_topics:
-                    if not isinstance(item, InputRejected):
+                    if isinstance(item, InputRejected):   # counted with its train, as a bad raw block is
+                        out.reject(item)
+                    else:
                         line.truth(name, item, t_ns)
                     continue
                 if out:
@@ -744,8 +737,8 @@ def replay_line(bag: str | Path, scenario: Scenario | None = None, out_bag: str 
                 line.states(t_prev)
             line.flush()
     finally:
-        if items is not None and parallel:
-            items.close()   # ends the worker processes
+        if items is not None:
+            items.close()   # parallel: ends the worker processes
         if writer:
             writer.close()
     return line.result

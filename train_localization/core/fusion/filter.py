@@ -506,7 +506,7 @@ class TrainFilter:
             aux.episode_views = _without(aux.episode_views, cls)
             aux.fault_windows = _without(aux.fault_windows, cls)
         if is_fix:
-            self._fix_accepted(m, nis, (z - hx) / math.sqrt(S))
+            self._fix_accepted(m, nis, (z - hx) / math.sqrt(S), S)
         else:
             if cls not in aux.speed_sources:
                 aux.speed_sources = aux.speed_sources | {cls}
@@ -1232,7 +1232,7 @@ class TrainFilter:
             return True
         return False
 
-    def _fix_accepted(self, m, nis: float, u: float) -> None:
+    def _fix_accepted(self, m, nis: float, u: float, S: float) -> None:
         aux, cfg = self.aux, self.cfg
         if m.sensor not in self.layout.fix:
             key = (m.sensor, m.reference_id)
@@ -1249,7 +1249,7 @@ class TrainFilter:
         aux.s_last_fix = float(self.ekf.x[0, 0])
         self._hypotheses_take_fix(m)
         if m.sensor in self.layout.fix:
-            self._fix_bias_consistency(m, nis, u)
+            self._fix_bias_consistency(m, nis, u, S)
             return   # a fix with a persistent error: not an independent test of the others
         window = (aux.fix_nis + (nis,))[-cfg.consistency_fixes:]
         mean = sum(window) / len(window)
@@ -1261,7 +1261,7 @@ class TrainFilter:
             aux.unverified = "inconsistent"
         aux.fix_nis = window
 
-    def _fix_bias_consistency(self, m, nis: float, u: float) -> None:
+    def _fix_bias_consistency(self, m, nis: float, u: float, S: float) -> None:
         """Sensor m's accepted fixes (its fix bias a state: white innovations if the model holds)
         test the model: the mean NIS of its last ``consistency_fixes`` beyond its chi-square
         quantile, or their normalised innovations u (signed) summed with weights decaying over
@@ -1289,7 +1289,7 @@ class TrainFilter:
             aux.fix_bias_nis = {**aux.fix_bias_nis, cls: (last, m.stamp, summed, weights)}
             return
         if drift and not noisy:
-            self._drift_from_slip(m, summed, weights)
+            self._drift_from_slip(m, summed, weights, S)
         aux.fix_bias_nis = _without(aux.fix_bias_nis, cls)
         # an alternative of this sensor is pending (an earlier inconsistency's view, or an
         # unexplained fix of it): the question is open already
@@ -1316,9 +1316,10 @@ class TrainFilter:
         if not pending:
             aux.alternative = (m.stamp, s_dr, P_dr, s_dr + bias, float(self.ekf.P[0, 0]), cls, m.reference_id, ())
 
-    def _drift_from_slip(self, m, summed: float, weights: float) -> None:
+    def _drift_from_slip(self, m, summed: float, weights: float, S: float) -> None:
         """The fixes drift from the dead reckoning (``_fix_bias_consistency``: innovations of one
-        sign, their weighted sum ``summed`` over the root of ``weights``). A speed source in use
+        sign, their weighted sum ``summed`` over the root of ``weights``; S [m^2]: this fix's
+        innovation variance, which scales them back to metres). A speed source in use
         whose transient fault mode fits the drift's direction under the present drive (a wheel
         turning fast under traction, slip; slow under braking, slide) may have been slipping
         too slowly for its own test: the filter followed it, so its readings agreed with the
@@ -1336,13 +1337,12 @@ class TrainFilter:
         ahead = summed * sv < 0.0
         limit = self.cfg.slip_min_drive
         for cls in self._in_use(stamp):
-            faults = self.models[cls].faults
             if cls not in self._bounded:
                 continue
+            faults = self.models[cls].faults
             if ("slip" in faults and drive >= limit and ahead) or ("slide" in faults and drive <= -limit and not ahead):
-                # the disagreement [m/s] the drift shows: the weighted mean innovation [m] over the
-                # test's time constant, as a reading of that sensor would differ
-                _, _, _, _, _, S = self._innovation(m)
+                # the disagreement [m/s] the drift shows, about: the innovations' weighted mean [m]
+                # over the test's time constant, as a reading of that sensor would differ
                 shown = -summed / weights * math.sqrt(S) / self.cfg.slip_window
                 raise _Lookback(cls, stamp - self.cfg.history, shown)
 

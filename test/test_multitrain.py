@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import math
+import os
 import tempfile
 from pathlib import Path
 
@@ -201,8 +202,13 @@ def test_each_train_keeps_its_integrity():
     assert {m.sensor for m in follow.measurements if isinstance(m, PositionFix)} == {"axle_counter"}
 
 
-@pytest.mark.parametrize("parallel", [False, True], ids=["serial", "parallel"])
-def test_line_bag_replays_to_the_same_estimates(parallel):
+@pytest.mark.parametrize("parallel, cpus", [(False, None), (True, None), (True, 4)],
+                         ids=["serial", "parallel", "parallel-3-workers"])
+def test_line_bag_replays_to_the_same_estimates(parallel, cpus, monkeypatch):
+    """The same estimates serial and in worker processes; with several workers their windows
+    merge back into the bag's order (one worker per CPU besides the fusion's)."""
+    if cpus:
+        monkeypatch.setattr(os, "cpu_count", lambda: cpus)
     sc, result, bag = line_run()
     replayed = replay_bag(bag, parallel=parallel)
     assert isinstance(replayed, LineResult) and set(replayed.trains) == {"lead", "follow"}

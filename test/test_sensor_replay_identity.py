@@ -3,6 +3,7 @@ bag give identical measurements, for every sensor kind."""
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 
 import pytest
@@ -105,8 +106,11 @@ def recorded(request, tmp_path_factory):
     return data, bag, simulate_scenario(Scenario.from_dict(data), bag)
 
 
-@pytest.mark.parametrize("parallel", [False, True], ids=["serial", "parallel"])
-def test_bag_replay_decodes_and_fuses_exactly_what_the_simulation_did(recorded, parallel):
+@pytest.mark.parametrize("parallel, cpus", [(False, None), (True, None), (True, 3)],
+                         ids=["serial", "parallel", "parallel-2-workers"])
+def test_bag_replay_decodes_and_fuses_exactly_what_the_simulation_did(recorded, parallel, cpus, monkeypatch):
+    if cpus:   # one worker per CPU besides the fusion's: their windows merge in the bag's order
+        monkeypatch.setattr(os, "cpu_count", lambda: cpus)
     data, bag, live = recorded
     replayed = replay_bag(bag, scenario_from_bag(bag), parallel=parallel)
     sensors_seen = {m.sensor if hasattr(m, "sensor") else m.source for m in live.measurements}

@@ -174,6 +174,12 @@ class BagReader:
         self._store = self._reader.typestore
         return self
 
+    @property
+    def source(self) -> Path:
+        """The file read: the bag, or the valid copy of a truncated one (another process can
+        open it with its own reader while this one is open)."""
+        return self._recovered or self.path
+
     def __exit__(self, *exc) -> None:
         self._reader.close()
         if self._recovered is not None:

@@ -3,7 +3,7 @@
   tl_bench sensors   decode throughput per sensor [samples/s] and its ratio to the
                      real-time need at 500 km/h (or the sensor's top speed)
   tl_bench replay    offline replay speed of every bag in bags/ [x real time], serial
-                     and with one decoding process per sensor (tl_replay's default)
+                     and with decoding worker processes (tl_replay's default)
   tl_bench fusion    the fusion benchmark (train_localization.tools.bench_fusion)
 
 Timings are wall-clock (sensors, fusion: one core); run on an idle machine and

@@ -10,8 +10,8 @@ unless --scenario is given (field recordings).
 --report DIR writes report.json (error statistics, ETCS envelope, integrity,
 per-sensor residuals, modes) and PNG plots. --recorded scores the bag's own
 recorded localization/state instead of recomputing it. The sensors (of every
-train, for a line's bag) are decoded in forked worker processes, one per CPU,
-while this one fuses; --serial does it all in this process, streaming the bag
+train, for a line's bag) are decoded in forked worker processes, one per CPU
+besides the one this process fuses on (at least one); --serial does it all in this process, streaming the bag
 (the result is the same).
 """
 from __future__ import annotations

@@ -153,7 +153,7 @@ class Mode(IntEnum):
 MODE_INITIALISING, MODE_NOMINAL, MODE_DEGRADED, MODE_LOST = Mode
 
 
-@dataclass
+@dataclass(slots=True)
 class Estimate:
     stamp: float
     position: float
@@ -165,7 +165,7 @@ class Estimate:
     position_max: float
     confidence: float
     mode: int
-    scales: dict[str, float]
+    scales: dict[str, float]   # shared by the estimates of one filter state: read only
     biases: dict[str, float] = field(default_factory=dict)
 
 
@@ -1751,28 +1751,29 @@ class TrainFilter:
         if aux.t is None or t < aux.t:
             x, P, aux = self.state(t)
             s, v, a, var_s, var_v = x[0], x[1], x[2], P[0, 0], P[1, 1]
-            x_err = x.tolist()
+            scales, biases = self._error_states(x.tolist())
         else:
-            # plain floats: numpy's per-call overhead dominates 3x3 arithmetic
+            # plain floats: numpy's per-call overhead dominates 3x3 arithmetic; the error states
+            # are read once per filter state (the estimates between two measurements share them)
             c = self._est_cache
             if c[0] is not xk or c[1] is not Pk:
-                c = self._est_cache = (xk, Pk, xk[:, 0].tolist(), _kinematic_covariance(Pk))
+                x_err = xk[:, 0].tolist()
+                c = self._est_cache = (xk, Pk, x_err, _kinematic_covariance(Pk), self._error_states(x_err))
             x_err = c[2]
-            a = x_err[2]
             dt = t - aux.t
-            s, v, a, var_s, var_v = _kinematics(x_err[0], x_err[1], a, c[3], dt, self.cfg.jerk_psd)
+            s, v, a, var_s, var_v = _kinematics(x_err[0], x_err[1], x_err[2], c[3], dt, self.cfg.jerk_psd)
+            scales, biases = c[4]
             if self.layout.gauss_markov:
                 x_err = list(x_err)
                 for i, tau, _ in self.layout.gauss_markov:
                     x_err[i] *= math.exp(-dt / tau)
+                scales, biases = self._error_states(x_err)
         sd_s, sd_v = math.sqrt(max(var_s, 0.0)), math.sqrt(max(var_v, 0.0))
         if not all(map(math.isfinite, (s, v, a, sd_s, sd_v))) or abs(v) > 2.0 * MAX_SPEED:
             # input validation keeps the state finite and physical; should it ever not be, the
             # filter cannot stand behind any position
             return Estimate(t, math.nan, math.nan, math.nan, math.inf, math.inf, -math.inf, math.inf,
                             self.cfg.confidence, Mode.LOST, {}, {})
-        scales = {name: x_err[i] + (x_err[o] if o is not None else 0.0) for name, i, o in self.layout.scale_terms}
-        biases = {name: x_err[i] for name, i in self.layout.bias.items()}
         if not aux.initialised:
             return Estimate(t, math.nan, float(v), float(a), math.inf, sd_v, -math.inf, math.inf,
                             self.cfg.confidence, Mode.INITIALISING, scales, biases)
@@ -1820,7 +1821,7 @@ class TrainFilter:
         for name, sub in aux.subs.items():   # each relative sensor's own solution (protection level)
             if not sub.own:
                 continue   # its sensor has not read since it started: the filter's own solution
-            s_j, var_j = separation.at(sub, t, float(s), var_s, float(v))
+            s_j, var_j = separation.at(sub, t, var_s, float(v), var_v)
             var_j = max(var_j, var_s)
             half = self._z * math.sqrt(var_j)
             if s_j - half < lo or s_j + half > hi:
@@ -1835,6 +1836,11 @@ class TrainFilter:
                     sd_v = half_v / self._z
         return Estimate(t, float(s), float(v), float(a), sd_s, sd_v, lo, hi, self.cfg.confidence,
                         mode, scales, biases)
+
+    def _error_states(self, x_err: list) -> tuple[dict[str, float], dict[str, float]]:
+        """({sensor: scale error [1]}, {sensor: bias [m/s]}) of the error states x_err."""
+        scales = {name: x_err[i] + (x_err[o] if o is not None else 0.0) for name, i, o in self.layout.scale_terms}
+        return scales, {name: x_err[i] for name, i in self.layout.bias.items()}
 
     def _speed_covering_views(self, aux: _Aux, t: float, v: float, sd_v: float) -> float:
         """The speed 1-sigma [m/s] to publish: the filter's, widened so that v +- z sd_v also

@@ -135,13 +135,19 @@ def follow(sub: Sub, t: float, main: Main, own: float = 0.0) -> Sub:
     do not add up); ``own`` [s]: the part of it up to t that a reading of the sensor covers."""
     if t <= sub.t:
         return sub
+    s, pss = _moved(sub, t, main.v, main.P00, main.var_v, own)
+    return sub._replace(t=t, s=s, pss=pss)
+
+
+def _moved(sub: Sub, t: float, v: float, P00: float, var_v: float, own: float = 0.0) -> tuple[float, float]:
+    """(position [m], variance [m^2]) of ``follow`` at t > sub.t, the filter's speed v [m/s],
+    its variance var_v and its position variance P00 [m^2] at t."""
     # the variance of the filter's displacement since the anchor: its position variance's growth,
     # at most that of a persistent speed error over the time (the growth also holds what other
     # sensors taught it about where it was then)
     dt = t - sub.anchor_t
-    grown = min(max(main.P00 - sub.base_P00, 0.0), main.var_v * dt * dt)
-    moved = 0.5 * (sub.base_v + main.v) * (dt - own)
-    return sub._replace(t=t, s=sub.anchor_s + moved, pss=sub.anchor_pss + grown)
+    grown = min(max(P00 - sub.base_P00, 0.0), var_v * dt * dt)
+    return sub.anchor_s + 0.5 * (sub.base_v + v) * (dt - own), sub.anchor_pss + grown
 
 
 def _advance(sub: Sub, sm: SubModel, t: float, dt: float, u: float, R: float) -> Sub:
@@ -224,13 +230,13 @@ def fix(sub: Sub, t: float, z: float, R: float, before: Main, gate: float) -> Su
     return new._replace(anchor_s=new.s, anchor_pss=new.pss)
 
 
-def at(sub: Sub, t: float, s: float, var_s: float, v: float) -> tuple[float, float]:
+def at(sub: Sub, t: float, var_s: float, v: float, var_v: float) -> tuple[float, float]:
     """(position [m], variance [m^2]) of the solution at t [s], moved with the filter since its
-    last reading (the filter at s [m], variance var_s [m^2], speed v [m/s] at t)."""
+    last reading (the filter's position variance var_s [m^2], speed v [m/s] and its variance
+    var_v at t); the estimate's ``follow`` without a new solution."""
     if t <= sub.t:
         return sub.s, sub.pss
-    moved = follow(sub, t, Main(s, var_s, v, 0.0))
-    return moved.s, moved.pss
+    return _moved(sub, t, v, var_s, var_v)
 
 
 def separated(s_sub: float, var_sub: float, s: float, var_s: float, z: float) -> bool:

@@ -170,6 +170,32 @@ def test_dgps_autonomous_and_off_track_fixes_are_withheld_and_counted():
     assert out == [] and dec.stats["off_track"] == 50
 
 
+def test_a_dgps_fix_where_the_track_crosses_itself_is_withheld_as_ambiguous():
+    """A flyover: 400 m east, a 270 degree left turn of R = 50 m, then south across the first
+    straight at chainage 350 (the later part there: 685.6 m). Near the crossing a 2-D fix is as
+    near both parts; the nearest, or the lower chainage, is 336 m off for the second passage.
+    Such fixes are withheld and counted; every fix published is right within its stddev."""
+    r = 50.0
+    track = {"track_id": "flyover", "length": 400.0 + 1.5 * math.pi * r + 300.0,
+             "origin": {"x": 0.0, "y": 0.0, "heading": 0.0},
+             "alignment": [{"length": 400.0, "curvature": 0.0}, {"length": 1.5 * math.pi * r, "curvature": 1.0 / r},
+                           {"length": 300.0, "curvature": 0.0}]}
+    # the antenna (5 m behind the front) passes the crossing twice: front at 355 m and at 690.6 m
+    run = simulate_and_decode(DGPS, scenario(v0=15.0, pos=300.0, duration=30.0, track=track))
+    stats = run.pipe.decoder.stats
+    err, sd, stamps = errors(run)
+    assert stats["ambiguous"] > 0
+    assert stats["fixes"] + stats["ambiguous"] + stats["off_track"] == stats["epochs"] == 300
+    assert np.all(np.abs(err) < 5.0 * sd), np.abs(err).max()
+    # withheld on both passages: no fix with the antenna within the gate of the crossing
+    traj = run.trajectory
+    antenna = np.interp(stamps, traj.t, traj.position) - DP["antenna_offset"]
+    gate = DP["lateral_gate"] * math.hypot(DP["white_sigma"], DP["multipath_sigma"])
+    assert not np.any(np.abs(antenna - 350.0) < 0.5 * gate) and not np.any(np.abs(antenna - 685.6) < 0.5 * gate)
+    passing = [t for t in (355.0, 690.6) if np.interp(t, traj.position, traj.t) < 30.0]
+    assert len(passing) == 2
+
+
 def test_dgps_implausible_blocks_are_rejected_without_a_trace():
     run = dgps_run()
     sc = scenario()

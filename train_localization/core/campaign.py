@@ -157,13 +157,33 @@ def _service(d: _Draw, duration: tuple, top_kmh: tuple, p_moving: float, start_f
     return duration, v0, legs, prof, _coarse(legs, v0, duration)
 
 
+# widest range of headings [rad] along a drawn alignment: below pi the line never comes back near
+# itself (its projection on the middle heading grows by at least cos(MAX_HEADING_RANGE / 2) per
+# metre run), as real lines do not; a flyover over itself is the DGPS test's case, not a campaign's
+MAX_HEADING_RANGE = 0.9 * math.pi
+
+
 def _alignment(d: _Draw, length: float, min_radius: float, max_radius: float) -> list[dict]:
-    out, s = [], 0.0
+    """Straights and curves of 300-4000 m, half of them curves of radius ``min_radius`` ..
+    ``max_radius`` [m] either way. A curve turns the line only as far as MAX_HEADING_RANGE
+    allows; the rest of its drawn length is straight (a 4 km curve of R = 400 m would turn it
+    through 1.6 circles, back over itself)."""
+    out, s, heading, lo, hi = [], 0.0, 0.0, 0.0, 0.0
     while s < length:
         seg = min(d.u(300.0, 4000.0), length - s)
         curvature = 0.0 if d.chance(0.5) else _g((1 if d.chance(0.5) else -1) / d.u(min_radius, max_radius))
-        out.append({"length": _g(seg), "curvature": curvature})
         s += seg
+        if curvature:
+            room = lo + MAX_HEADING_RANGE - heading if curvature > 0 else heading - (hi - MAX_HEADING_RANGE)
+            arc = _g(min(seg, max(room, 0.0) / abs(curvature)))
+            if arc >= 1.0:
+                out.append({"length": arc, "curvature": curvature})
+                heading += curvature * arc
+                lo, hi = min(lo, heading), max(hi, heading)
+                seg -= arc
+            if seg < 1.0:
+                continue
+        out.append({"length": _g(seg), "curvature": 0.0})
     return out
 
 

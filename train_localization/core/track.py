@@ -218,6 +218,23 @@ class Track:
             lateral[i] = math.copysign(dist, side) if side != 0.0 else 0.0
         return chain, lateral
 
+    def distance_elsewhere(self, x: float, y: float, chainage: float, margin: float) -> float:
+        """Distance [m] from the map point (x, y) to the alignment away from ``chainage``: its
+        nearest point more than ``margin`` [m] along the track from there (inf if there is none).
+        Small where the track crosses or comes back near itself (a flyover, a hairpin), where a
+        point near the alignment cannot tell which part it is near."""
+        x0, y0, dx, dy, seg2, s0, ds = self.segments_table()
+        best = math.inf
+        for a in range(0, dx.size, self.PROJECT_CHUNK):
+            b = a + self.PROJECT_CHUNK
+            rx, ry = x - x0[a:b], y - y0[a:b]
+            f = np.clip((rx * dx[a:b] + ry * dy[a:b]) / seg2[a:b], 0.0, 1.0)
+            away = np.abs(self.difference(s0[a:b] + f * ds[a:b], chainage)) > margin
+            if away.any():
+                d2 = np.square(rx - f * dx[a:b]) + np.square(ry - f * dy[a:b])
+                best = min(best, float(d2[away].min()))
+        return math.sqrt(best)
+
     def items(self, kind: str) -> list[dict]:
         """Equipment of one kind, sorted by position (empty if the track has none)."""
         return self.equipment.get(kind, [])

@@ -41,8 +41,11 @@ structure is wider than ``structure_reach`` by the largest along-track error of 
 so that a fix near one is never taken for one in the open). The cross-track component is a
 free consistency check: a fix further from the alignment than ``lateral_gate`` times its
 1-sigma, beyond an end of the track or inside a structure (where no satellite is in view)
-is withheld and counted. Counted: ``no_fix`` epochs and ``outages`` (runs of them),
-``autonomous``, ``weak_geometry``, ``off_track``, ``under_structure``. A fix gives no
+is withheld and counted; so is a fix that another part of the alignment passes within that
+gate as well (a track that crosses or comes back near itself, a flyover or a hairpin: the
+2-D fix cannot tell which part the train is on, and the nearest may be kilometres off).
+Counted: ``no_fix`` epochs and ``outages`` (runs of them), ``autonomous``,
+``weak_geometry``, ``off_track``, ``ambiguous``, ``under_structure``. A fix gives no
 direction (0). Implausible blocks (a quality code other than 0/1/2, a satellite count
 that is no count, an HDOP <= 0 or beyond 99.9) are rejected as "implausible".
 
@@ -226,7 +229,7 @@ class DgpsDecoder(Decoder):
                                               + 4.0 * p["white_sigma"] * p["structure_hdop_factor"])
         self._had_fix = True
         self.stats = {key: 0 for key in ("epochs", "fixes", "no_fix", "outages", "autonomous", "weak_geometry",
-                                         "off_track", "under_structure")}
+                                         "off_track", "ambiguous", "under_structure")}
 
     def _check(self, block: RawBlock) -> np.ndarray:
         if block.channels != self.channels:
@@ -267,8 +270,14 @@ class DgpsDecoder(Decoder):
             under, near = sky_zone(self._spans, np.array([s]), self._reach)
             mp = p["multipath_sigma"] * (p["structure_multipath_factor"] if near[0] else 1.0)
             sigma = math.hypot(p["white_sigma"] * hdop / p["hdop_nominal"], mp)
-            if s <= 0.0 or s >= self.track.length or not abs(float(lateral[0])) <= p["lateral_gate"] * sigma:
+            gate = p["lateral_gate"] * sigma
+            if s <= 0.0 or s >= self.track.length or not abs(float(lateral[0])) <= gate:
                 self.stats["off_track"] += 1
+                continue
+            if self.track.distance_elsewhere(x, y, s, 2.0 * gate) <= gate:
+                # another part of the alignment passes within the gate too (a flyover, a hairpin):
+                # a 2-D fix cannot tell which, and the nearest may be the wrong one by kilometres
+                self.stats["ambiguous"] += 1
                 continue
             if under[0]:
                 self.stats["under_structure"] += 1

@@ -250,8 +250,9 @@ class _Aux:
         self.subs: dict = {}
         # while one relative sensor with a persistent fault mode carries the speed alone: the
         # solution without it (the fixes and the motion model, ``_track_lone``): (a "model"
-        # motion view since that sensor became the lone one, the sensor, the filter's position
-        # [m] at the last check of its distance: its seeding or an accepted fix)
+        # motion view since that sensor became the lone one, the sensor, the bound [m] of the
+        # position error a scale fault of z x its scale_fault_sigma can have put into the
+        # filter: growing with the distance run, each accepted fix taking out its gain's share)
         self.lone_view: tuple | None = None
 
     def copy(self) -> "_Aux":
@@ -359,6 +360,7 @@ class TrainFilter:
         self._persistent = frozenset(n for n, m in self.models.items()
                                      if m.relative and separation.PERSISTENT & set(m.faults))
         self._est_cache: tuple = (None, None)
+        self._last_update = (np.zeros(self.n), 0.0)   # (Kalman gain, innovation) of the last update
         self._eye = np.eye(self.n)
         self.rejected: dict[str, int] = {}
         self.applied = 0          # measurement updates run, replays included
@@ -406,8 +408,13 @@ class TrainFilter:
             aux.t = t
             return
         if t > aux.t:
+            s0 = self.ekf.x[0, 0]
             self.ekf.x, self.ekf.P = self.process.predict(self.ekf.x, self.ekf.P, aux.t, t)
             aux.t = t
+            if aux.lone_view is not None:   # what a lone source's scale fault adds over the distance
+                view, lone, bound = aux.lone_view
+                step = self._z * self.models[lone].scale_fault_sigma * abs(float(self.ekf.x[0, 0] - s0))
+                aux.lone_view = (view, lone, bound + step)
 
     # -- measurement update ----------------------------------------------------
     def _update(self, z: float, R: float, h, hx: float, PHt, S: float) -> None:
@@ -417,6 +424,7 @@ class TrainFilter:
         """
         P = self.ekf.P
         K = PHt / S
+        self._last_update = (K, z - hx)
         Kc = K[:, None]
         self.ekf.x = self.ekf.x + Kc * (z - hx)
         A = self._eye - Kc * h
@@ -552,6 +560,17 @@ class TrainFilter:
             aux.relative_alternatives = _without(aux.relative_alternatives, cls)
             self._merge_view(alt[5] ** 2)
         window, summed = self._windowed(aux.slip_window.get(cls, ()), m, e, S)
+        if (nis > self._slip_gate or summed > self._slip_gate) and not self._judged(m, S):
+            # the only speed source, without slip physics (a radar), disagreeing with the motion
+            # model alone: nothing to tell its fault from the model's (a jerk it did not expect),
+            # and once suspended nothing could show it agreeing again.
+            # An outlying reading is gated; a fault that persists is the lone solution's to cover
+            # (``_track_lone``) and the fixes' drift test's to find (``_fix_bias_consistency``)
+            aux.slip_window = {**aux.slip_window, cls: ()}
+            if nis > self._slip_gate:
+                aux.gated = _inc(aux.gated, cls)
+                return True
+            return False
         if nis > self._slip_gate or summed > self._slip_gate:
             aux.slip_window = {**aux.slip_window, cls: ()}
             # the onset: the increments before this one that already disagreed the same way were
@@ -577,6 +596,17 @@ class TrainFilter:
             self._separate(m, e, S)
             return True
         return False
+
+    def _judged(self, m, S: float) -> bool:
+        """Whether a disagreement of relative sensor m can be judged: it has slip physics (a
+        wheel's slip under traction stands out against the motion model), another relative
+        sensor is configured (whose episodes and suspensions the window test arbitrates, with
+        the coastings that keep both views), or there is a reference to judge it by
+        (``_agreement_reference``). Not so the only relative sensor of a train without slip
+        physics (a UTM's radar): suspended, it could never be seen to agree again, and the
+        filter would run on the motion model for good."""
+        return (len(self.layout.relative) > 1 or bool({"slip", "slide"} & set(self.models[m.sensor].faults))
+                or self._agreement_reference(m, S))
 
     def _windowed(self, window: tuple, m, e: float, S: float, common: float = 0.0) -> tuple[tuple, float]:
         """The disagreement window of a relative sensor with this measurement added, and its
@@ -1583,7 +1613,7 @@ class TrainFilter:
             if aux.lone_view is not None and in_use:
                 self._lone_accompanied(stamp)
         elif aux.lone_view is None or aux.lone_view[1] != lone:
-            aux.lone_view = (self._model_view(stamp), lone, float(self.ekf.x[0, 0]))
+            aux.lone_view = (self._model_view(stamp), lone, 0.0)
 
     def _lone_accompanied(self, stamp: float) -> None:
         """The lone source has company again: from ``stamp`` the sources in use check each other,
@@ -1618,7 +1648,7 @@ class TrainFilter:
         ``_located``): conditioned on it; one it cannot explain refutes it (the train did move
         as the sensor said), and it starts again from the filter's."""
         aux = self.aux
-        view, lone, _ = aux.lone_view
+        view, lone, bound = aux.lone_view
         s_f, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
         s_m, var_m = self._motion_view(view, m.stamp, s_f, P00)
         if (z - s_m) ** 2 > self._gates[m.sensor] * (R + var_m):
@@ -1626,19 +1656,25 @@ class TrainFilter:
             aux.events = _inc(aux.events, "lone_source_solution_refuted")
         else:
             view = self._motion_view_fixed(view, m.stamp, z, R, s_f, P00)
-        aux.lone_view = (view, lone, s_f)
+        # the filter accepted the fix: its error before was at most the innovation and the fix's
+        # own error; the update took its gain's share of it (a DGPS fix little, a tag nearly all)
+        gain, nu = self._last_update
+        before = min(bound, abs(nu) + self._z * math.sqrt(R))
+        aux.lone_view = (view, lone, (1.0 - min(max(float(gain[0]), 0.0), 1.0)) * before)
 
     def _lone_interval(self, aux: _Aux, t: float, s: float, var_s: float, v: float, var_v: float) -> tuple:
         """(lo, hi [m], speed half-width [m/s], its position and variance) of the lone source's
         fault hypothesis at t (the filter at s [m], var_s [m^2], v [m/s], var_v [m^2/s^2]): the
-        motion model's interval, within what the sensor's scale fault can do over the distance
-        since the filter's position was last checked (``scale_fault_sigma`` x distance; both
+        motion model's interval, within what the sensor's scale fault can have put into the
+        filter's position (the lone view's bound: z x ``scale_fault_sigma`` x the distance run,
+        less what the accepted fixes corrected, for a fault that began at any time since; both
         hold under the hypothesis); empty (lo > hi) where they do not meet."""
-        view, lone, s_checked = aux.lone_view
+        view, lone, bound = aux.lone_view
+        sigma_f, z = self.models[lone].scale_fault_sigma, self._z
+        bound += z * sigma_f * abs(v) * max(t - aux.t, 0.0)
         _, t_c, s0, v0, a0, p = view
         s_m, v_m, _, var_m, var_vm = _kinematics(s0, v0, a0, p, max(t - t_c, 0.0), self.cfg.jerk_psd)
-        sigma_f, z = self.models[lone].scale_fault_sigma, self._z
-        half, cap = z * math.sqrt(var_m), z * math.sqrt(var_s + (sigma_f * (s - s_checked)) ** 2)
+        half, cap = z * math.sqrt(var_m), math.sqrt(z * z * var_s + bound * bound)
         half_v = min(abs(v_m - v) + z * math.sqrt(var_vm), z * math.sqrt(var_v + (sigma_f * v) ** 2))
         return max(s_m - half, s - cap), min(s_m + half, s + cap), half_v, s_m, var_m
 

@@ -560,12 +560,10 @@ class TrainFilter:
             aux.relative_alternatives = _without(aux.relative_alternatives, cls)
             self._merge_view(alt[5] ** 2)
         window, summed = self._windowed(aux.slip_window.get(cls, ()), m, e, S)
-        if (nis > self._slip_gate or summed > self._slip_gate) and not self._judged(m, S):
-            # the only speed source, without slip physics (a radar), disagreeing with the motion
-            # model alone: nothing to tell its fault from the model's (a jerk it did not expect),
-            # and once suspended nothing could show it agreeing again.
-            # An outlying reading is gated; a fault that persists is the lone solution's to cover
-            # (``_track_lone``) and the fixes' drift test's to find (``_fix_bias_consistency``)
+        if (nis > self._slip_gate or summed > self._slip_gate) and not self._judged(m):
+            # the only speed source, without slip physics (``_judged``): an outlying reading is
+            # gated; a fault that persists is the lone solution's to cover (``_track_lone``) and
+            # the fix drift test's to find (``_fix_bias_consistency``)
             aux.slip_window = {**aux.slip_window, cls: ()}
             if nis > self._slip_gate:
                 aux.gated = _inc(aux.gated, cls)
@@ -597,16 +595,16 @@ class TrainFilter:
             return True
         return False
 
-    def _judged(self, m, S: float) -> bool:
-        """Whether a disagreement of relative sensor m can be judged: it has slip physics (a
-        wheel's slip under traction stands out against the motion model), another relative
-        sensor is configured (whose episodes and suspensions the window test arbitrates, with
-        the coastings that keep both views), or there is a reference to judge it by
-        (``_agreement_reference``). Not so the only relative sensor of a train without slip
-        physics (a UTM's radar): suspended, it could never be seen to agree again, and the
-        filter would run on the motion model for good."""
-        return (len(self.layout.relative) > 1 or bool({"slip", "slide"} & set(self.models[m.sensor].faults))
-                or self._agreement_reference(m, S))
+    def _judged(self, m) -> bool:
+        """Whether the window test may exclude relative sensor m: it has slip physics (a wheel's
+        slip under traction stands out against the motion model), or another relative sensor
+        is configured (whose episodes and suspensions the test arbitrates, with the coastings
+        that keep both views). Not so the only relative sensor of a train without slip physics
+        (a UTM's radar): suspended, nothing could show it agreeing again (its readings are the
+        filter's speed; the fixes alone know the speed too poorly), and the filter would run on
+        the motion model for good; its persistent faults are the lone solution's to cover and
+        the fix drift test's to find."""
+        return len(self.layout.relative) > 1 or bool({"slip", "slide"} & set(self.models[m.sensor].faults))
 
     def _windowed(self, window: tuple, m, e: float, S: float, common: float = 0.0) -> tuple[tuple, float]:
         """The disagreement window of a relative sensor with this measurement added, and its

@@ -834,14 +834,18 @@ def test_a_lone_radars_scale_fault_absorbed_into_a_dgps_bias_is_caught_by_the_fi
     window, their mean NIS) show that they and the dead reckoning part faster than a fix bias
     can: the bias goes back to its prior, the radar's scale may learn a fault of its
     ``fault_scale_sigma`` (and the speed with it), the dead-reckoned position stays in the
-    interval (DEGRADED); the radar, its scale learnt beyond plausibility, is suspended. What
-    remains is the detection's latency: the drift must stand out of the DGPS noise first."""
+    interval (DEGRADED); the radar, its scale learnt beyond plausibility, has it opened to the
+    fault's size again and stays in use (the train's only relative sensor: suspended, nothing
+    could show it agreeing again). What remains is the detection's latency: the drift must
+    stand out of the DGPS noise first."""
     f, checked = _lone_radar_run(0.06)
     detected = next(t for t, e, _, _ in checked if t > 5.0 and e.mode != MODE_NOMINAL)
     assert detected - 5.0 < 3.5
     assert all(e.position_min <= s <= e.position_max for t, e, s, _ in checked if t >= detected + 0.5)
     assert f.counters()["integrity"]["inconsistent_fix_bias"] >= 1
-    assert f.counters()["integrity"]["implausible_sensor_suspended"] >= 1
+    assert f.counters()["integrity"]["implausible_error_state"] >= 1
+    assert "implausible_sensor_suspended" not in f.counters()["integrity"]
+    assert "doppler" not in f.state()[2].suspended
     assert max(abs(e.position - s) for t, e, s, _ in checked if t >= detected) < 2.5
     # fault-free the same run keeps every state inside
     g, clean = _lone_radar_run(0.0)
@@ -919,3 +923,18 @@ def test_a_lone_radars_fault_under_noisy_fixes_stays_in_its_solutions_cap():
     result = campaign.run_scenario(data)
     assert result["scores"]["integrity"]["outside_count"] == 0
     assert result["scores"]["integrity"]["mean_interval_width_m"] < 7.0   # still a useful interval
+
+
+def test_the_only_radar_of_a_train_learnt_implausible_keeps_reading_with_its_scale_opened():
+    """Campaign run utm:3967982118 (``tl_campaign --export utm:3967982118``): the lone radar
+    reads 3.8 % high from 18 to 35 s while the DGPS has no corrections. Its scale, learnt from
+    the fixes, left its plausible range: the radar was suspended, and as the train's only
+    relative sensor it never came back. The filter ran on the motion model and the DGPS for
+    the remaining 100 s, and lagged a start from a stop at 129 s by 1.1 m/s (97 states
+    outside). Its scale is now opened to the fault's size instead, for the fixes to teach."""
+    data = yaml.safe_load((Path(__file__).parent / "data" / "campaign_utm_lone_radar_implausible.yaml").read_text())
+    result = campaign.run_scenario(data)
+    assert result["fusion"]["integrity"]["implausible_error_state"] >= 1
+    assert "doppler/suspended" not in result["fusion"]["gated"]
+    assert result["scores"]["integrity"]["outside_count"] == 0
+    assert result["scores"]["integrity"]["mean_interval_width_m"] < 8.0

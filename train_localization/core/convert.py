@@ -11,6 +11,7 @@ through a message and back is bit-identical.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -151,7 +152,7 @@ def measurement_topic(m) -> str:
 def truth_from_msg(msg) -> TruthState:
     t = stamp_to_sec(msg.header.stamp)
     values = (float(msg.position), float(msg.speed), float(msg.acceleration))
-    if not all(np.isfinite(values)):
+    if not all(map(math.isfinite, values)):
         raise InputRejected("nan", "ground truth state has NaN/inf fields")
     return TruthState(t, *values)
 

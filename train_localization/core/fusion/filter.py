@@ -560,7 +560,7 @@ class TrainFilter:
             aux.relative_alternatives = _without(aux.relative_alternatives, cls)
             self._merge_view(alt[5] ** 2)
         window, summed = self._windowed(aux.slip_window.get(cls, ()), m, e, S)
-        if (nis > self._slip_gate or summed > self._slip_gate) and not self._judged(m):
+        if (nis > self._slip_gate or summed > self._slip_gate) and not self._judged(cls):
             # the only speed source, without slip physics (``_judged``): an outlying reading is
             # gated; a fault that persists is the lone solution's to cover (``_track_lone``) and
             # the fix drift test's to find (``_fix_bias_consistency``)
@@ -595,8 +595,8 @@ class TrainFilter:
             return True
         return False
 
-    def _judged(self, m) -> bool:
-        """Whether the window test may exclude relative sensor m: it has slip physics (a wheel's
+    def _judged(self, cls: str) -> bool:
+        """Whether a fault test may exclude relative sensor ``cls``: it has slip physics (a wheel's
         slip under traction stands out against the motion model), or another relative sensor
         is configured (whose episodes and suspensions the test arbitrates, with the coastings
         that keep both views). Not so the only relative sensor of a train without slip physics
@@ -604,7 +604,7 @@ class TrainFilter:
         filter's speed; the fixes alone know the speed too poorly), and the filter would run on
         the motion model for good; its persistent faults are the lone solution's to cover and
         the fix drift test's to find."""
-        return len(self.layout.relative) > 1 or bool({"slip", "slide"} & set(self.models[m.sensor].faults))
+        return len(self.layout.relative) > 1 or bool({"slip", "slide"} & set(self.models[cls].faults))
 
     def _windowed(self, window: tuple, m, e: float, S: float, common: float = 0.0) -> tuple[tuple, float]:
         """The disagreement window of a relative sensor with this measurement added, and its
@@ -1170,7 +1170,8 @@ class TrainFilter:
         If the states of one sensor alone left it, that sensor is outside its own error
         model (a radar scale fault with no other speed source to disagree with): it is also
         suspended until it agrees again, its view kept as the alternative if another speed source
-        may be the faulty one. States of several sensors: a fault was absorbed between them (a
+        may be the faulty one; the only relative sensor of a train without slip physics keeps
+        its readings in use, its scale opened to the fault's size. States of several sensors: a fault was absorbed between them (a
         slip learnt as scales), which one cannot be told."""
         idx = self.layout.relative_states
         if not len(idx):
@@ -1184,6 +1185,12 @@ class TrainFilter:
             return
         owners = {self.layout.owner[i] for i in idx[bad]}
         x_before = self.ekf.x
+        if len(owners) == 1 and not self._judged(next(iter(owners))):
+            # the only relative sensor, without slip physics: suspended, nothing could show it
+            # agreeing again (``_judged``); its scale may hold a fault, opened to the fault's size
+            # for the fixes to teach, the lone solution covering it meanwhile
+            self._relearn("implausible_error_state", faulty=owners)
+            return
         self._relearn("implausible_error_state")
         if len(owners) == 1:
             (cls,) = owners

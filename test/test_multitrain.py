@@ -202,13 +202,19 @@ def test_each_train_keeps_its_integrity():
     assert {m.sensor for m in follow.measurements if isinstance(m, PositionFix)} == {"axle_counter"}
 
 
-@pytest.mark.parametrize("parallel, cpus", [(False, None), (True, None), (True, 4)],
-                         ids=["serial", "parallel", "parallel-3-workers"])
-def test_line_bag_replays_to_the_same_estimates(parallel, cpus, monkeypatch):
+@pytest.mark.parametrize("parallel, cpus, statistics", [(False, None, True), (True, None, True), (True, 4, True),
+                                                        (True, 4, False)],
+                         ids=["serial", "parallel", "parallel-3-workers", "parallel-no-statistics"])
+def test_line_bag_replays_to_the_same_estimates(parallel, cpus, statistics, monkeypatch):
     """The same estimates serial and in worker processes; with several workers their windows
-    merge back into the bag's order (one worker per CPU besides the fusion's)."""
+    merge back into the bag's order (one worker per CPU besides the fusion's), also where
+    the bag's summary has no message counts to share the topics out by."""
     if cpus:
         monkeypatch.setattr(os, "cpu_count", lambda: cpus)
+    if not statistics:
+        def no_statistics(path):
+            raise AttributeError("'NoneType' object has no attribute 'channel_message_counts'")
+        monkeypatch.setattr("train_localization.core.bagio.topic_counts", no_statistics)
     sc, result, bag = line_run()
     replayed = replay_bag(bag, parallel=parallel)
     assert isinstance(replayed, LineResult) and set(replayed.trains) == {"lead", "follow"}

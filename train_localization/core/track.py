@@ -196,17 +196,12 @@ class Track:
         are compared PROJECT_CHUNK at a time (memory independent of the track's length)."""
         px = np.atleast_1d(np.asarray(x, dtype=float))
         py = np.atleast_1d(np.asarray(y, dtype=float))
-        x0, y0, dx, dy, seg2, s0, ds = self.segments_table()
+        x0, y0, dx, dy, _, s0, ds = self.segments_table()
         chain = np.empty(px.size)
         lateral = np.empty(px.size)
-        step = self.PROJECT_CHUNK
         for i in range(px.size):
             best = (math.inf, 0, 0.0)
-            for a in range(0, dx.size, step):
-                b = a + step
-                rx, ry = px[i] - x0[a:b], py[i] - y0[a:b]
-                f = np.clip((rx * dx[a:b] + ry * dy[a:b]) / seg2[a:b], 0.0, 1.0)
-                d2 = np.square(rx - f * dx[a:b]) + np.square(ry - f * dy[a:b])
+            for a, f, d2 in self._nearest_on_segments(px[i], py[i]):
                 k = int(np.argmin(d2))
                 if d2[k] < best[0]:
                     best = (float(d2[k]), a + k, float(f[k]))
@@ -223,17 +218,25 @@ class Track:
         nearest point more than ``margin`` [m] along the track from there (inf if there is none).
         Small where the track crosses or comes back near itself (a flyover, a hairpin), where a
         point near the alignment cannot tell which part it is near."""
-        x0, y0, dx, dy, seg2, s0, ds = self.segments_table()
+        _, _, _, _, _, s0, ds = self.segments_table()
         best = math.inf
+        for a, f, d2 in self._nearest_on_segments(x, y):
+            b = a + f.size
+            away = np.abs(self.difference(s0[a:b] + f * ds[a:b], chainage)) > margin
+            if away.any():
+                best = min(best, float(d2[away].min()))
+        return math.sqrt(best)
+
+    def _nearest_on_segments(self, x: float, y: float):
+        """For each PROJECT_CHUNK segments of the polyline from segment a: (a, f, d2), f [1] the
+        fraction along each segment of its point nearest to (x, y) [m], d2 [m^2] its squared
+        distance (memory independent of the track's length)."""
+        x0, y0, dx, dy, seg2, _, _ = self.segments_table()
         for a in range(0, dx.size, self.PROJECT_CHUNK):
             b = a + self.PROJECT_CHUNK
             rx, ry = x - x0[a:b], y - y0[a:b]
             f = np.clip((rx * dx[a:b] + ry * dy[a:b]) / seg2[a:b], 0.0, 1.0)
-            away = np.abs(self.difference(s0[a:b] + f * ds[a:b], chainage)) > margin
-            if away.any():
-                d2 = np.square(rx - f * dx[a:b]) + np.square(ry - f * dy[a:b])
-                best = min(best, float(d2[away].min()))
-        return math.sqrt(best)
+            yield a, f, np.square(rx - f * dx[a:b]) + np.square(ry - f * dy[a:b])
 
     def items(self, kind: str) -> list[dict]:
         """Equipment of one kind, sorted by position (empty if the track has none)."""

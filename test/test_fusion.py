@@ -344,7 +344,9 @@ def test_gate_threshold_is_a_per_sensor_parameter():
         f.add(fix(0.5, 990.0, 0.3, ref="B0"))
         f.add(fix(1.0, 1000.0, 0.3))
         e = f.estimate(2.0)
-        s = math.sqrt(e.position_stddev ** 2 + 0.3 ** 2)
+        # the innovation's sigma: the filter's own position variance (the published interval
+        # also covers the lone radar's fault hypothesis) and the fix's
+        s = math.sqrt(float(f.state(2.0)[1][0, 0]) + 0.3 ** 2)
         f.add(fix(2.0, e.position + k_sigma * s, 0.3, ref="B2"))
         return f, e
     f, before = outlier(FusionConfig(), 4.5)                   # gate 0.9999: 3.89 sigma

@@ -1618,7 +1618,7 @@ class TrainFilter:
             if aux.lone_view is not None and in_use:
                 self._lone_accompanied(stamp)
         elif aux.lone_view is None or aux.lone_view[1] != lone:
-            aux.lone_view = (self._model_view(stamp), lone, 0.0)
+            aux.lone_view = (self._lone_model_view(stamp, lone), lone, 0.0)
 
     def _lone_accompanied(self, stamp: float) -> None:
         """The lone source has company again: from ``stamp`` the sources in use check each other,
@@ -1648,6 +1648,16 @@ class TrainFilter:
         """The motion model's hypothesis from the filter's kinematic state now (a "model" view)."""
         return ("model", stamp, *self.ekf.x[:3, 0].tolist(), _kinematic_covariance(self.ekf.P))
 
+    def _lone_model_view(self, stamp: float, lone: str) -> tuple:
+        """The motion model's hypothesis without lone source ``lone``, from the filter's state
+        now. The filter's speed is that sensor's reading, which nothing else checks now, and its
+        fault may have begun before: the speed's variance holds its scale fault,
+        (``scale_fault_sigma`` x v)^2, for the fixes to narrow (``_motion_view_fixed``)."""
+        view = self._model_view(stamp)
+        p00, p01, p02, p11, p12, p22 = view[5]
+        p11 += (self.models[lone].scale_fault_sigma * view[3]) ** 2
+        return view[:5] + ((p00, p01, p02, p11, p12, p22),)
+
     def _lone_take_fix(self, m, z: float, R: float) -> None:
         """The lone source's fault hypothesis after a fix the filter accepted (z, R from
         ``_located``): conditioned on it; one it cannot explain refutes it (the train did move
@@ -1657,7 +1667,7 @@ class TrainFilter:
         s_f, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
         s_m, var_m = self._motion_view(view, m.stamp, s_f, P00)
         if (z - s_m) ** 2 > self._gates[m.sensor] * (R + var_m):
-            view = self._model_view(m.stamp)
+            view = self._lone_model_view(m.stamp, lone)
             aux.events = _inc(aux.events, "lone_source_solution_refuted")
         else:
             view = self._motion_view_fixed(view, m.stamp, z, R, s_f, P00)

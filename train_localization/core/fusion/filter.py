@@ -192,7 +192,7 @@ class _Aux:
                  "speed_sources", "nis", "fix_ref", "last_fix_accepted", "fix_nis", "slip_window",
                  "alternative", "events", "unverified", "s_last_fix", "relative_alternatives", "suspended",
                  "candidate", "used_refs", "peer_speeds", "peer_run", "motion_views", "view_speeds",
-                 "episode_views", "fault_windows", "subs", "fix_bias_nis", "lone_view")
+                 "episode_views", "fault_windows", "subs", "fix_bias_nis", "lone_view", "scale_faults")
 
     def __init__(self):
         self.initialised = False
@@ -254,6 +254,9 @@ class _Aux:
         # position error a scale fault of z x its scale_fault_sigma can have put into the
         # filter: growing with the distance run, each accepted fix taking out its gain's share)
         self.lone_view: tuple | None = None
+        # speed sources whose scale fault the others showed and whose constant scale now learns
+        # it (``_relearn_fault``): their scale is plausible up to the fault's size
+        self.scale_faults: frozenset = frozenset()
 
     def copy(self) -> "_Aux":
         new = object.__new__(_Aux)
@@ -482,8 +485,12 @@ class TrainFilter:
             # the filter, on its speed sources again, explains an absolute fix: it is confirmed,
             # and an old coasting's motion-model hypothesis (however vague) is no longer needed
             aux.motion_views = tuple(v for v in aux.motion_views if v[0] != "moved")
-        if (cls in aux.suspended and self._suspended(m, z - hx, S, nis, self._common(cls, h))) or \
-                (cls in self.layout.episode_sensors and self._slipping(m, z - hx, S, nis)):
+        P_checked = self.ekf.P
+        excluded = cls in aux.suspended and self._suspended(m, z - hx, S, nis, self._common(cls, h))
+        if not excluded and self.ekf.P is not P_checked:   # back with its scale opened (_relearn_fault)
+            z, R, h, hx, PHt, S = self._innovation(m)
+            nis = (z - hx) ** 2 / S
+        if excluded or (cls in self.layout.episode_sensors and self._slipping(m, z - hx, S, nis)):
             if cls in self._bounded:
                 self._outlasted(m, z, R, hx, S, h)
             return
@@ -571,13 +578,13 @@ class TrainFilter:
             return False
         if nis > self._slip_gate or summed > self._slip_gate:
             aux.slip_window = {**aux.slip_window, cls: ()}
+            # the disagreement that showed: this one, or the window's mean
+            shown = e if nis > self._slip_gate else sum(w[1] for w in window) / sum(w[4] for w in window)
             # the onset: the increments before this one that already disagreed the same way were
             # absorbed (a slip ramps up): take them out and re-apply the history without them
             k = len(window) - 1
             while k > 0 and (window[k - 1][1] > 0.0) == (e > 0.0):
                 k -= 1
-            # the disagreement that showed: this one, or the window's mean
-            shown = e if nis > self._slip_gate else sum(w[1] for w in window) / sum(w[4] for w in window)
             if k < len(window) - 1:
                 raise _Lookback(cls, window[k][0], shown)
             self._episode_starts(m, e, shown)
@@ -594,6 +601,53 @@ class TrainFilter:
             self._separate(m, e, S)
             return True
         return False
+
+    def _outlasted_by(self, m) -> bool:
+        """Whether suspended sensor ``m.sensor`` (a scale-fault mode), kept as an undecided
+        alternative, still disagreeing, has outlasted the faults of the speed sources in use:
+        each has only fault modes that end by themselves (a wheel's slip or slide, at most its
+        ``fault_duration_max`` s), has not been excluded since the view began, and the view is
+        older than the longest of those episodes and ``slip_window``. Then the fault is
+        ``m.sensor``'s: a wheel does not slip for longer."""
+        aux = self.aux
+        alt = aux.relative_alternatives.get(m.sensor)
+        if alt is None or "scale_fault" not in self.models[m.sensor].faults:
+            return False
+        in_use = self._in_use(m.stamp, but=m.sensor)
+        if not in_use or not all(c in self._bounded for c in in_use):
+            return False
+        since = alt[2]
+        if any(aux.slip_until.get(c, -math.inf) > since for c in in_use):
+            return False
+        longest = max(self.models[c].fault_duration_max for c in in_use)
+        return m.stamp - since > longest + self.cfg.slip_window
+
+    def _relearn_fault(self, cls: str) -> None:
+        """Speed source ``cls`` has a scale fault that the others in use were shown not to have
+        (``_outlasted_by``, or a fix that the filter explains and its view does not): it is back
+        in use, its constant scale opened by the fault's size (``scale_fault_sigma``) to learn
+        the fault from them, and plausible up to that size. Suspended, it would never agree
+        again, and would be no reference while the others' own faults come (a wheel's slide
+        under braking would be seen against the motion model alone). The speed rests on the
+        others: it keeps its variance."""
+        aux, lay = self.aux, self.layout
+        i = lay.offset.get(cls, lay.scale[cls])
+        floor = lay.prior_sigma[i] ** 2 + self.models[cls].scale_fault_sigma ** 2
+        P = self.ekf.P
+        if P[i, i] < floor:
+            P = P.copy()
+            r = math.sqrt(floor / P[i, i]) if P[i, i] > 0.0 else 0.0
+            if r > 0.0:
+                P[i, :] *= r
+                P[:, i] *= r
+            else:
+                P[i, i] = floor
+            self.ekf.P = P
+        aux.scale_faults = aux.scale_faults | {cls}
+        aux.slip_window = _without(aux.slip_window, cls)
+        aux.view_speeds = _without(aux.view_speeds, cls)
+        self._end_exclusion(cls, aux.t)
+        aux.events = _inc(aux.events, "scale_fault_relearnt")
 
     def _judged(self, cls: str) -> bool:
         """Whether a fault test may exclude relative sensor ``cls``: it has slip physics (a wheel's
@@ -841,7 +895,12 @@ class TrainFilter:
                 # worse): it was faulty
                 aux.events = _inc(aux.events, "excluded_sensor_confirmed_faulty")
                 ruled_out += 1
-                if cls not in self.layout.slip_sensors:   # a slip ends by itself; a faulty radar may not
+                if cls in self.layout.slip_sensors:
+                    pass        # a slip ends by itself
+                elif "scale_fault" in self.models[cls].faults and self._in_use(m.stamp, but=cls):
+                    # a radar's scale fault, which the sources in use (shown right) can teach it
+                    self._relearn_fault(cls)
+                else:                                      # a faulty radar may not recover
                     self._suspend(cls, self._view_fault(alt, m.stamp))
             else:
                 keep[cls] = alt
@@ -944,6 +1003,11 @@ class TrainFilter:
         aux = self.aux
         since, window, fault = aux.suspended[m.sensor]
         window, summed = self._windowed(window, m, e, S, common)
+        if (nis > self._slip_gate or summed > self._slip_gate) and self._outlasted_by(m):
+            aux.relative_alternatives = _without(aux.relative_alternatives, m.sensor)
+            self._relearn_fault(m.sensor)
+            aux.events = _inc(aux.events, "fault_outlasted_the_others")
+            return False
         if nis > self._slip_gate or summed > self._slip_gate or not self._agreement_reference(m, S):
             since = math.inf
         elif since == math.inf:
@@ -1177,9 +1241,15 @@ class TrainFilter:
         if not len(idx):
             return
         x = self.ekf.x[idx, 0]
+        sigma = self.layout.prior_sigma[idx]
+        if self.aux.scale_faults:   # a scale fault being learnt: plausible up to its size
+            lay = self.layout
+            faulted = {lay.offset.get(c, lay.scale.get(c)): self.models[c].scale_fault_sigma
+                       for c in self.aux.scale_faults}
+            sigma = np.array([math.hypot(sg, faulted.get(i, 0.0)) for i, sg in zip(idx.tolist(), sigma)])
         # beyond the plausible range, and significantly so where a fix-bias inconsistency widened
         # the state past its prior (a noisy estimate of a scale that may hold a fault is no proof)
-        bad = (np.abs(x) > self.cfg.plausible_sigmas * self.layout.prior_sigma[idx]) & \
+        bad = (np.abs(x) > self.cfg.plausible_sigmas * sigma) & \
             (x * x > self._slip_gate * np.diag(self.ekf.P)[idx])
         if not bad.any():
             return
@@ -1235,6 +1305,7 @@ class TrainFilter:
         P[idx, idx] = lay.prior_sigma[idx] ** 2
         self.ekf.x = x
         self.ekf.P = self._raised(P, faulty) if faulty else P
+        aux.scale_faults = aux.scale_faults & frozenset(faulty)
         aux.events = _inc(aux.events, reason)
         aux.unverified = reason
 
@@ -1650,10 +1721,16 @@ class TrainFilter:
 
     def _lone_model_view(self, stamp: float, lone: str) -> tuple:
         """The motion model's hypothesis without lone source ``lone``, from the filter's state
-        now. The filter's speed is that sensor's reading, which nothing else checks now, and its
-        fault may have begun before: the speed's variance holds its scale fault,
-        (``scale_fault_sigma`` x v)^2, for the fixes to narrow (``_motion_view_fixed``)."""
+        now. Unless another speed source checked the filter's speed just before (accepted within
+        twice ``slip_reference_timeout``: a lone view starts once the others have been silent
+        that long), the speed is that sensor's own reading and its fault may have begun long
+        before: the speed's variance then holds its scale fault, (``scale_fault_sigma`` x v)^2,
+        for the fixes to narrow (``_motion_view_fixed``)."""
         view = self._model_view(stamp)
+        checked = max((self.aux.last_accepted.get(c, -math.inf) for c in self.layout.relative if c != lone),
+                      default=-math.inf)
+        if checked >= stamp - 2.0 * self.cfg.slip_reference_timeout:
+            return view
         p00, p01, p02, p11, p12, p22 = view[5]
         p11 += (self.models[lone].scale_fault_sigma * view[3]) ** 2
         return view[:5] + ((p00, p01, p02, p11, p12, p22),)

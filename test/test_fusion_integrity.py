@@ -108,8 +108,8 @@ def test_a_radar_fault_that_outlasts_the_wheels_longest_slide_is_learnt_from_the
     its disagreement with the wheel is kept undecided (its view in the interval, DEGRADED)
     until it outlasts the wheel's longest slip or slide (``slip_duration_max``, 10 s). Then it
     is the radar's: the radar is back in use, its constant scale opened by the fault's size
-    learns the 6 % from the wheel, and learns it away the same way when the fault ends; the
-    truth stays inside. Before, the radar was suspended for the rest of its fault once a fix
+    learns the 6 % from the wheel; when the fault ends, its readings agree with its model
+    without the fault, and the scale is back to its prior; the truth stays inside. Before, the radar was suspended for the rest of its fault once a fix
     showed its view wrong: no reference for the wheel's own faults meanwhile (a slide under
     braking was seen against the motion model alone)."""
     sc = scenario("radar_fault", 2, 110.0, [{"speed": 40.0, "accel": 0.8, "decel": 1.0, "hold": 100.0}],
@@ -119,8 +119,10 @@ def test_a_radar_fault_that_outlasts_the_wheels_longest_slide_is_learnt_from_the
     result = simulate_scenario(sc)
     inside, err = integrity(sc, result)
     c = result.runner.filter.counters()
-    assert c["integrity"]["ambiguous_slip"] >= 2                      # at the fault and at its end
-    assert c["integrity"]["fault_outlasted_the_others"] >= 2 and c["integrity"]["scale_fault_relearnt"] >= 2
+    assert c["integrity"]["ambiguous_slip"] >= 1
+    assert c["integrity"]["fault_outlasted_the_others"] >= 1 and c["integrity"]["scale_fault_relearnt"] >= 1
+    # at its end the radar's readings agree with its model without the fault: learnt away
+    assert c["integrity"]["scale_fault_ended"] >= 1
     assert inside == 1.0 and err < 2.0, (inside, err)
     by_stamp = {round(e.stamp, 3): e for e in result.estimates}
     assert by_stamp[50.0].mode == MODE_DEGRADED                       # undecided: it says so
@@ -993,3 +995,50 @@ def test_a_radar_fault_learnt_from_the_wheel_is_the_reference_for_its_slides():
     assert scores["integrity"]["outside_count"] == 0 and scores["speed_interval"]["outside"] == 0
     assert scores["speed_band"]["violations"] == 0
     assert scores["integrity"]["mean_interval_width_m"] < 15.0
+
+
+def test_a_coasting_before_the_first_position_is_located_by_it():
+    """No fix yet, the position the dead reckoning from 0: braking from 30 m/s, the radar reads
+    8 % high from 3 s while the wheel slides 15 % from 4 to 9 s, and the filter coasts between
+    them. The first fix (an axle-counter head at 5 km) claims the position at 12 s. The
+    coasting's motion-model hypothesis stayed in the frame of the dead reckoning: the interval
+    reached 5 km behind the train, LOST (campaign run conventional:3053077280: 29 km). The
+    first fix locates the train under every hypothesis: a coasting in progress keeps its speed
+    and takes the filter's position."""
+    models = sensor_models(["doppler_radar", "wheel_sensor", "axle_counter"], None, Vehicle())
+    f = TrainFilter(FusionConfig(sensors=models))
+    rng = np.random.default_rng(1)
+    s, v, checked = 0.0, 30.0, []
+    for j in range(1, 401):
+        t = j * 0.05
+        v_old = v
+        v = max(v - (0.8 if t >= 2.0 else 0.0) * 0.05, 0.0)
+        s += 0.5 * (v + v_old) * 0.05
+        rv = v * (1.08 if t >= 3.0 else 1.0)
+        wv = v * (0.85 if 4.0 <= t < 9.0 else 1.0)
+        f.add(SpeedMeasurement(t - 0.025, "doppler", "doppler", rv + rng.normal(0, 0.03), 0.1543))
+        f.add(DistanceIncrement(t, "wheel", "wheel", 0.05, wv * 0.05 + rng.normal(0, 0.002), 0.03, wv, 0.6))
+        if j == 240:
+            f.add(PositionFix(t, "axle_counter", "ac", "T", "AC01", 5000.0 + s, 0.03))
+        checked.append((t, f.estimate(t), 5000.0 + s))
+    assert f.counters()["integrity"]["coasting_between_speed_sources"] >= 1
+    claimed = [(t, e, s) for t, e, s in checked if t >= 12.0]
+    assert all(e.position_min <= s <= e.position_max for _, e, s in claimed)
+    assert all(e.mode == MODE_DEGRADED and e.position_max - e.position_min < 1000.0 for _, e, _ in claimed)
+
+
+def test_a_radar_fault_that_ends_while_the_radar_is_suspended_is_learnt_away():
+    """Campaign run conventional:1925652966, cut to 100 s: the radar reads 7.6 % high from 51 to
+    73 s; a balise shows it wrong and it learns the fault (61 s); at 72 s it is suspended again
+    (undecided) and its fault ends while it is out. Compared through the learnt 7.6 %, it never
+    agreed again: both speed sources out, the filter coasted for the rest of the run (3,478
+    states outside the speed band, mean width 72 m). Its readings agree with its model without
+    the fault: the scale is back to its prior, and it agrees again."""
+    data = yaml.safe_load((Path(__file__).parent / "data" /
+                           "campaign_conventional_radar_fault_ends_while_suspended.yaml").read_text())
+    result = campaign.run_scenario(data)
+    assert result["fusion"]["integrity"]["scale_fault_ended"] >= 1
+    scores = result["scores"]
+    assert scores["integrity"]["outside_count"] == 0 and scores["speed_interval"]["outside"] == 0
+    assert scores["speed_band"]["violations"] < 100
+    assert scores["integrity"]["mean_interval_width_m"] < 25.0

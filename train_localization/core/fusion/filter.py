@@ -485,15 +485,20 @@ class TrainFilter:
             # the filter, on its speed sources again, explains an absolute fix: it is confirmed,
             # and an old coasting's motion-model hypothesis (however vague) is no longer needed
             aux.motion_views = tuple(v for v in aux.motion_views if v[0] != "moved")
-        P_checked = self.ekf.P
+        checked = self.ekf.P
         excluded = cls in aux.suspended and self._suspended(m, z - hx, S, nis, self._common(cls, h))
-        if not excluded and self.ekf.P is not P_checked:   # back with its scale opened (_relearn_fault)
+        if not excluded and self.ekf.P is not checked:   # back with its scale opened (_relearn_fault)
             z, R, h, hx, PHt, S = self._innovation(m)
             nis = (z - hx) ** 2 / S
-        if excluded or (cls in self.layout.episode_sensors and self._slipping(m, z - hx, S, nis)):
+            checked = self.ekf.P
+        excluded = excluded or (cls in self.layout.episode_sensors and self._slipping(m, z - hx, S, nis))
+        if excluded:
             if cls in self._bounded:
                 self._outlasted(m, z, R, hx, S, h)
             return
+        if self.ekf.P is not checked:   # its learnt fault ended (_fault_ended)
+            z, R, h, hx, PHt, S = self._innovation(m)
+            nis = (z - hx) ** 2 / S
         if is_fix and aux.relative_alternatives and self._decide_relative(m, z, R, hx, S, nis):
             return
         if is_fix and aux.alternative is not None and aux.alternative[7] and self._corroborated(m, z, R):
@@ -580,6 +585,8 @@ class TrainFilter:
             aux.slip_window = {**aux.slip_window, cls: ()}
             # the disagreement that showed: this one, or the window's mean
             shown = e if nis > self._slip_gate else sum(w[1] for w in window) / sum(w[4] for w in window)
+            if cls in aux.scale_faults and self._fault_ended(m, e, S):
+                return False
             # the onset: the increments before this one that already disagreed the same way were
             # absorbed (a slip ramps up): take them out and re-apply the history without them
             k = len(window) - 1
@@ -621,6 +628,31 @@ class TrainFilter:
             return False
         longest = max(self.models[c].fault_duration_max for c in in_use)
         return m.stamp - since > longest + self.cfg.slip_window
+
+    def _fault_ended(self, m, e: float, S: float) -> bool:
+        """Sensor ``m.sensor``, whose scale fault is being learnt (``_relearn_fault``), disagrees
+        by e [m/s] (innovation variance S): if the reading agrees with its model without the
+        fault (its constant scale at its prior: within the slip gate), the fault has ended
+        rather than another source's begun. Then its constant scale is back to its prior, and
+        True."""
+        aux, lay, cls = self.aux, self.layout, m.sensor
+        i = lay.offset.get(cls, lay.scale[cls])
+        h = self._measurement(m)[2]
+        x, P = self.ekf.x, self.ekf.P
+        e_raw = e + float(h[i] * x[i, 0])
+        S_raw = S + float(h[i] * h[i]) * (lay.prior_sigma[i] ** 2 - float(P[i, i]))
+        if S_raw <= 0.0 or e_raw * e_raw > self._slip_gate * S_raw:
+            return False
+        x, P = x.copy(), P.copy()
+        x[i, 0] = 0.0
+        P[i, :] = 0.0
+        P[:, i] = 0.0
+        P[i, i] = lay.prior_sigma[i] ** 2
+        self.ekf.x, self.ekf.P = x, P
+        aux.scale_faults = aux.scale_faults - {cls}
+        aux.slip_window = _without(aux.slip_window, cls)
+        aux.events = _inc(aux.events, "scale_fault_ended")
+        return True
 
     def _relearn_fault(self, cls: str) -> None:
         """Speed source ``cls`` has a scale fault that the others in use were shown not to have
@@ -1003,6 +1035,13 @@ class TrainFilter:
         aux = self.aux
         since, window, fault = aux.suspended[m.sensor]
         window, summed = self._windowed(window, m, e, S, common)
+        if (nis > self._slip_gate or summed > self._slip_gate) and m.sensor in aux.scale_faults \
+                and self._fault_ended(m, e, S):
+            # judged from its next reading on, at the scale without the fault
+            aux.suspended = {**aux.suspended, m.sensor: (math.inf, (), fault)}
+            aux.gated = _inc(aux.gated, m.sensor + "/suspended")
+            self._separate(m, e, S)
+            return True
         if (nis > self._slip_gate or summed > self._slip_gate) and self._outlasted_by(m):
             aux.relative_alternatives = _without(aux.relative_alternatives, m.sensor)
             self._relearn_fault(m.sensor)
@@ -1552,8 +1591,7 @@ class TrainFilter:
             # a reference that cannot be misidentified (wayside heads, loops, ranging): its decoder
             # withholds what it cannot tell (a miscounted axle, an unresolved NLOS)
             self._set_position(m)
-            aux.initialised = True
-            aux.candidate = None
+            self._first_position(m.stamp)
             return
         z, R, _, _ = self._measurement(m)
         x0, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
@@ -1563,11 +1601,33 @@ class TrainFilter:
                 return                               # the same reference confirms nothing
             if self._agrees(m, z, R, x0, P00, cand[1], cand[2], cand[3], cand[6]):
                 self._set_position(m)
-                aux.initialised = True
-                aux.candidate = None
+                self._first_position(m.stamp)
                 return
             aux.events = _inc(aux.events, "candidate_replaced")
         aux.candidate = (m.stamp, z, R, x0, m.sensor, m.reference_id, P00)
+
+    def _first_position(self, stamp: float) -> None:
+        """The position is claimed for the first time (``_set_position`` has just taken it from a
+        fix). The motion model's hypotheses of coastings before it were kept in the frame of the
+        dead reckoning from the start; the fix locates the train under each of them: a moved
+        one adds nothing more and is dropped, a coasting in progress keeps its speed and
+        acceleration hypothesis and takes the filter's position."""
+        aux = self.aux
+        aux.initialised = True
+        aux.candidate = None
+        views = []
+        for view in aux.motion_views:
+            if view[0] != "model":
+                continue
+            _, t_c, s, v, a, p = view
+            F, _, Q = self.process.transition(max(stamp - t_c, 0.0))
+            F, Q = F[:3, :3], Q[:3, :3]
+            p00, p01, p02, p11, p12, p22 = p
+            P = F @ np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]]) @ F.T + Q
+            _, v_m, a_m = kinematic_mean(s, v, a, max(stamp - t_c, 0.0))
+            views.append(("model", stamp, float(self.ekf.x[0, 0]), float(v_m), float(a_m),
+                          (float(self.ekf.P[0, 0]), 0.0, 0.0, float(P[1, 1]), float(P[1, 2]), float(P[2, 2]))))
+        aux.motion_views = tuple(views)
 
     def _set_position(self, m) -> None:
         """Take the position from a fix alone (first fix, re-acquisition): s = z - e."""

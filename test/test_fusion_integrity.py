@@ -1042,3 +1042,20 @@ def test_a_radar_fault_that_ends_while_the_radar_is_suspended_is_learnt_away():
     assert scores["integrity"]["outside_count"] == 0 and scores["speed_interval"]["outside"] == 0
     assert scores["speed_band"]["violations"] < 100
     assert scores["integrity"]["mean_interval_width_m"] < 25.0
+
+
+def test_a_lone_wheel_that_the_motion_model_cannot_follow_gives_the_speed():
+    """Campaign run conventional:2466335232, cut to 30 s: at the end of an acceleration (11 s)
+    the radar is in a dropout and the wheel, the only speed source, reads the speed levelling
+    off while the motion model goes on accelerating. A driven wheel under traction reads fast
+    when it slips, never slow: the motion model is wrong. Before, the wheel was left out as an
+    ambiguous slip and the filter extrapolated 0.5 m/s^2 for 7.5 s (797 states outside the
+    SUBSET-041 speed band, up to 3.7 m/s off). Now the speed is the wheel's, and the motion
+    model's hypothesis stays in the interval."""
+    data = yaml.safe_load((Path(__file__).parent / "data" /
+                           "campaign_conventional_lone_wheel_and_an_ended_acceleration.yaml").read_text())
+    result = campaign.run_scenario(data)
+    scores = result["scores"]
+    assert result["fusion"]["integrity"]["motion_model_refuted"] >= 1
+    assert scores["speed_band"]["violations"] == 0 and scores["speed_interval"]["outside"] == 0
+    assert scores["integrity"]["outside_count"] == 0

@@ -587,6 +587,8 @@ class TrainFilter:
             shown = e if nis > self._slip_gate else sum(w[1] for w in window) / sum(w[4] for w in window)
             if cls in aux.scale_faults and self._fault_ended(m, e, S):
                 return False
+            if self._refutes_model(m, shown):
+                return False
             # the onset: the increments before this one that already disagreed the same way were
             # absorbed (a slip ramps up): take them out and re-apply the history without them
             k = len(window) - 1
@@ -628,6 +630,36 @@ class TrainFilter:
             return False
         longest = max(self.models[c].fault_duration_max for c in in_use)
         return m.stamp - since > longest + self.cfg.slip_window
+
+    def _refutes_model(self, m, e: float) -> bool:
+        """Slip sensor ``m.sensor``, with no other speed source in use, disagrees with the filter's
+        speed (the motion model's, since nothing else measures it) by e [m/s] in a way its own
+        fault modes cannot produce under the filter's drive: slower under traction (a driven
+        wheel only slips, reading fast), faster under braking (a braked wheel only slides),
+        either way with less drive than ``slip_min_drive``. Then the motion model is what is
+        wrong (an acceleration that ended, a braking that eased): the speed is taken from the
+        sensor, the acceleration back to its prior, its exclusion ends, and the motion model's
+        hypothesis stays in the interval until the sensor's longest episode has passed and
+        after, until a fix rules it out (``_take_speed``: if the drive was misjudged, the truth
+        lies between the two). True if so."""
+        cls, aux = m.sensor, self.aux
+        faults = self.models[cls].faults
+        if not {"slip", "slide"} & set(faults) or self._reference_ok(m):
+            return False
+        v, a = float(self.ekf.x[1, 0]), float(self.ekf.x[2, 0])
+        sv = 1.0 if v >= 0.0 else -1.0
+        drive, excess, limit = a * sv, e * sv, self.cfg.slip_min_drive
+        if ("slip" in faults and drive >= limit and excess > 0.0) or \
+                ("slide" in faults and drive <= -limit and excess < 0.0):
+            return False
+        z, R, _, _ = self._measurement(m)
+        u, white, common = implied_speed(self.layout, self.ekf.x, self.ekf.P, m, z, R)
+        aux.episode_views = _without(aux.episode_views, cls)
+        aux.relative_alternatives = _without(aux.relative_alternatives, cls)
+        aux.view_speeds = _without(aux.view_speeds, cls)
+        self._take_speed(m.stamp, [(u, white + common)], {cls})
+        aux.events = _inc(aux.events, "motion_model_refuted")
+        return True
 
     def _fault_ended(self, m, e: float, S: float) -> bool:
         """Sensor ``m.sensor``, whose scale fault is being learnt (``_relearn_fault``), disagrees
@@ -2038,7 +2070,9 @@ class TrainFilter:
         covers their views the same way). While the filter coasts between disagreeing
         sources it also covers the motion model's speed from the start of the coasting: both
         sources may be wrong the same way (a slip during a radar scale fault), and the middle
-        of two readings that happen to be close is no measurement."""
+        of two readings that happen to be close is no measurement. After a coasting or a
+        re-acquisition, while the common error its motion-model hypothesis holds may still last
+        (``_coasting_ended``), it covers that error too."""
         half = base = self._z * sd_v
         for cls in aux.relative_alternatives:
             reading = aux.view_speeds.get(cls)
@@ -2050,6 +2084,11 @@ class TrainFilter:
             _, t_c, s, v_c, a, p = aux.motion_views[-1]
             _, v_m, _, _, var_m = _kinematics(s, v_c, a, p, max(t - t_c, 0.0), self.cfg.jerk_psd)
             half = max(half, abs(v_m - v) + self._z * math.sqrt(var_m))
+        for view in aux.motion_views:
+            if view[0] == "moved" and view[5] and view[7] > t:
+                # a common error r of the sources in use that may still last: their speed x (1 + r)
+                r, var_r = view[5], view[6]
+                half = max(half, abs(v * r) + self._z * math.sqrt(sd_v * sd_v + v * v * var_r))
         return half / self._z if half > base else sd_v   # (z sd_v) / z may differ from sd_v by an ulp
 
     def _motion_view(self, view: tuple, t: float, s_f: float, var_f: float) -> tuple[float, float]:

@@ -29,6 +29,11 @@ CONVENTIONAL = {
 }
 
 
+def _exported(name: str) -> dict:
+    """A campaign run exported as a scenario (``tl_campaign --export``) in test/data, run."""
+    return campaign.run_scenario(yaml.safe_load((Path(__file__).parent / "data" / name).read_text()))
+
+
 def scenario(name, seed, duration, profile, sensors):
     return Scenario.from_dict({**CONVENTIONAL, "name": name, "seed": seed, "duration": duration,
                                "profile": profile, "sensors": sensors})
@@ -886,8 +891,7 @@ def test_a_lone_wheel_slipping_under_traction_is_found_by_the_mmwave_fixes_drift
     drift test sees the dead reckoning part from them under traction, and the wheel, the one
     speed source with a slip mode fitting it, has its recent readings taken out and the
     history applied again without them."""
-    data = yaml.safe_load((Path(__file__).parent / "data" / "campaign_mlx_lone_wheel_slip.yaml").read_text())
-    result = campaign.run_scenario(data)
+    result = _exported("campaign_mlx_lone_wheel_slip.yaml")
     assert result["scores"]["integrity"]["outside_count"] == 0
     assert result["fusion"]["integrity"]["slip_lookback"] >= 1
     assert result["scores"]["integrity"]["mean_interval_width_m"] < 1.0   # still a useful interval
@@ -906,8 +910,7 @@ def test_a_radar_silent_at_a_stop_does_not_put_the_stop_into_its_view(monkeypatc
     forced here to keep the excluded view's silence under test, as a radar beside a wheel
     has it.)"""
     monkeypatch.setattr(TrainFilter, "_judged", lambda self, m: True)
-    data = yaml.safe_load((Path(__file__).parent / "data" / "campaign_utm_radar_silent_at_a_stop.yaml").read_text())
-    result = campaign.run_scenario(data)
+    result = _exported("campaign_utm_radar_silent_at_a_stop.yaml")
     assert result["scores"]["integrity"]["outside_count"] == 0
     assert result["fusion"]["integrity"].get("ambiguous_slip", 0) >= 1       # the view was opened
     assert "excluded_sensor_confirmed_faulty" not in result["fusion"]["integrity"]
@@ -921,16 +924,14 @@ def test_the_only_radar_of_a_train_is_not_suspended_on_the_motion_model_alone():
     filter ran on the motion model, 650 m off by 40 s (LOST, 1.3 km wide). Without slip
     physics and without another relative sensor the window test cannot tell the radar's
     fault from the model's; the radar stays in use, its persistent fault the lone solution's."""
-    data = yaml.safe_load((Path(__file__).parent / "data" / "campaign_utm_lone_radar_in_a_tunnel.yaml").read_text())
-    result = campaign.run_scenario(data)
+    result = _exported("campaign_utm_lone_radar_in_a_tunnel.yaml")
     assert "doppler/suspended" not in result["fusion"]["gated"]
     assert "ambiguous_slip" not in result["fusion"]["integrity"]
     assert result["scores"]["integrity"]["outside_count"] == 0
     assert result["scores"]["position_error_m"]["max"] < 1.0
     assert result["scores"]["modes"].get("3", 0) == 0           # never LOST
     # the scenario of the previous test: the radar stays in use there as well
-    data = yaml.safe_load((Path(__file__).parent / "data" / "campaign_utm_radar_silent_at_a_stop.yaml").read_text())
-    result = campaign.run_scenario(data)
+    result = _exported("campaign_utm_radar_silent_at_a_stop.yaml")
     assert "doppler/suspended" not in result["fusion"]["gated"]
     assert result["scores"]["integrity"]["outside_count"] == 0
 
@@ -943,8 +944,7 @@ def test_a_lone_radars_fault_under_noisy_fixes_stays_in_its_solutions_cap():
     (a few decimetres at 10 Hz), as if each fix had located the train: 125 states outside.
     It is now what the fault can have put into the filter, the accepted fixes taking out
     their gain's share of it."""
-    data = yaml.safe_load((Path(__file__).parent / "data" / "campaign_utm_lone_radar_fault_reversing.yaml").read_text())
-    result = campaign.run_scenario(data)
+    result = _exported("campaign_utm_lone_radar_fault_reversing.yaml")
     assert result["scores"]["integrity"]["outside_count"] == 0
     assert result["scores"]["integrity"]["mean_interval_width_m"] < 7.0   # still a useful interval
 
@@ -956,8 +956,7 @@ def test_the_only_radar_of_a_train_learnt_implausible_keeps_reading_with_its_sca
     relative sensor it never came back. The filter ran on the motion model and the DGPS for
     the remaining 100 s, and lagged a start from a stop at 129 s by 1.1 m/s (97 states
     outside). Its scale is now opened to the fault's size instead, for the fixes to teach."""
-    data = yaml.safe_load((Path(__file__).parent / "data" / "campaign_utm_lone_radar_implausible.yaml").read_text())
-    result = campaign.run_scenario(data)
+    result = _exported("campaign_utm_lone_radar_implausible.yaml")
     assert result["fusion"]["integrity"]["implausible_error_state"] >= 1
     assert "doppler/suspended" not in result["fusion"]["gated"]
     assert result["scores"]["integrity"]["outside_count"] == 0
@@ -970,9 +969,7 @@ def test_a_lone_radar_faulty_before_the_first_fix_is_in_its_solution():
     two tags locate it at 15 s. The lone solution started from the filter's state, whose speed
     is the faulty radar's with the filter's small variance: it did not cover the fault (139
     states outside, 0.7 s). Its speed now holds the radar's scale fault until fixes narrow it."""
-    data = yaml.safe_load((Path(__file__).parent / "data" /
-                           "campaign_utm_lone_radar_faulty_from_the_start.yaml").read_text())
-    result = campaign.run_scenario(data)
+    result = _exported("campaign_utm_lone_radar_faulty_from_the_start.yaml")
     assert result["scores"]["integrity"]["outside_count"] == 0
     assert result["scores"]["integrity"]["mean_interval_width_m"] < 40.0
 
@@ -987,9 +984,7 @@ def test_a_radar_fault_learnt_from_the_wheel_is_the_reference_for_its_slides():
     SUBSET-041 speed band, an interval 57 m wide on average). At a steady speed the wheel
     cannot read slow: the radar's scale learns its fault from the wheel, and the radar is the
     reference that shows the slides."""
-    data = yaml.safe_load((Path(__file__).parent / "data" /
-                           "campaign_conventional_radar_fault_then_slides.yaml").read_text())
-    result = campaign.run_scenario(data)
+    result = _exported("campaign_conventional_radar_fault_then_slides.yaml")
     scores = result["scores"]
     assert result["fusion"]["integrity"]["scale_fault_relearnt"] >= 1
     assert scores["integrity"]["outside_count"] == 0 and scores["speed_interval"]["outside"] == 0
@@ -1034,9 +1029,7 @@ def test_a_radar_fault_that_ends_while_the_radar_is_suspended_is_learnt_away():
     agreed again: both speed sources out, the filter coasted for the rest of the run (3,478
     states outside the speed band, mean width 72 m). Its readings agree with its model without
     the fault: the scale is back to its prior, and it agrees again."""
-    data = yaml.safe_load((Path(__file__).parent / "data" /
-                           "campaign_conventional_radar_fault_ends_while_suspended.yaml").read_text())
-    result = campaign.run_scenario(data)
+    result = _exported("campaign_conventional_radar_fault_ends_while_suspended.yaml")
     assert result["fusion"]["integrity"]["scale_fault_ended"] >= 1
     scores = result["scores"]
     assert scores["integrity"]["outside_count"] == 0 and scores["speed_interval"]["outside"] == 0
@@ -1052,9 +1045,7 @@ def test_a_lone_wheel_that_the_motion_model_cannot_follow_gives_the_speed():
     ambiguous slip and the filter extrapolated 0.5 m/s^2 for 7.5 s (797 states outside the
     SUBSET-041 speed band, up to 3.7 m/s off). Now the speed is the wheel's, and the motion
     model's hypothesis stays in the interval."""
-    data = yaml.safe_load((Path(__file__).parent / "data" /
-                           "campaign_conventional_lone_wheel_and_an_ended_acceleration.yaml").read_text())
-    result = campaign.run_scenario(data)
+    result = _exported("campaign_conventional_lone_wheel_and_an_ended_acceleration.yaml")
     scores = result["scores"]
     assert result["fusion"]["integrity"]["motion_model_refuted"] >= 1
     assert scores["speed_band"]["violations"] == 0 and scores["speed_interval"]["outside"] == 0

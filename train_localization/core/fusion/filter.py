@@ -1649,16 +1649,10 @@ class TrainFilter:
         aux.candidate = None
         views = []
         for view in aux.motion_views:
-            if view[0] != "model":
-                continue
-            _, t_c, s, v, a, p = view
-            F, _, Q = self.process.transition(max(stamp - t_c, 0.0))
-            F, Q = F[:3, :3], Q[:3, :3]
-            p00, p01, p02, p11, p12, p22 = p
-            P = F @ np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]]) @ F.T + Q
-            _, v_m, a_m = kinematic_mean(s, v, a, max(stamp - t_c, 0.0))
-            views.append(("model", stamp, float(self.ekf.x[0, 0]), float(v_m), float(a_m),
-                          (float(self.ekf.P[0, 0]), 0.0, 0.0, float(P[1, 1]), float(P[1, 2]), float(P[2, 2]))))
+            if view[0] == "model":
+                x, P = self._model_view_at(view, stamp)
+                views.append(("model", stamp, float(self.ekf.x[0, 0]), float(x[1]), float(x[2]),
+                              (float(self.ekf.P[0, 0]), 0.0, 0.0, float(P[1, 1]), float(P[1, 2]), float(P[2, 2]))))
         aux.motion_views = tuple(views)
 
     def _set_position(self, m) -> None:
@@ -1862,6 +1856,16 @@ class TrainFilter:
         half_v = min(abs(v_m - v) + z * math.sqrt(var_vm), z * math.sqrt(var_v + (sigma_f * v) ** 2))
         return max(s_m - half, s - cap), min(s_m + half, s + cap), half_v, s_m, var_m
 
+    def _model_view_at(self, view: tuple, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """(kinematic state [s, v, a], its 3x3 covariance) of a "model" view predicted to t [s]."""
+        _, t_c, s, v, a, p = view
+        dt = max(t - t_c, 0.0)
+        F, _, Q = self.process.transition(dt)
+        F, Q = F[:3, :3], Q[:3, :3]      # the kinematic block: the error states do not enter it
+        p00, p01, p02, p11, p12, p22 = p
+        P = F @ np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]]) @ F.T + Q
+        return np.array(kinematic_mean(s, v, a, dt)), P
+
     def _motion_view_fixed(self, view: tuple, t: float, z: float, R: float, s_f: float, P00_f: float) -> tuple:
         """A motion-model hypothesis conditioned on a fix z [m] of variance R [m^2] at t [s] (the
         filter at s_f, P00_f after it): a coasting's kinematic state moved to t and updated
@@ -1870,13 +1874,7 @@ class TrainFilter:
             s_m, var_m = self._motion_view(view, t, s_f, P00_f)
             k = var_m / (var_m + R)
             return ("moved", s_m + k * (z - s_m), (1.0 - k) * var_m, s_f, P00_f, *view[5:])
-        _, t_c, s, v, a, p = view
-        dt = max(t - t_c, 0.0)
-        F, _, Q = self.process.transition(dt)
-        F, Q = F[:3, :3], Q[:3, :3]      # the kinematic block: the error states do not enter it
-        p00, p01, p02, p11, p12, p22 = p
-        P = F @ np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]]) @ F.T + Q
-        x = np.array(kinematic_mean(s, v, a, dt))
+        x, P = self._model_view_at(view, t)
         K = P[:, 0] / (P[0, 0] + R)
         x = x + K * (z - x[0])
         P = P - np.outer(K, P[0, :])

@@ -377,16 +377,17 @@ def _decode_in_parallel(source: Path, decoder: _MessageDecoder, topics: list[str
         counts = topic_counts(source)
     except Exception:   # a summary without message statistics: the topics shared out by number
         counts = {}
-    topics = [t for t in topics if counts.get(t, 1)]
+    weight = {t: counts.get(t, 1) for t in topics}
+    topics = [t for t in topics if weight[t]]
     if not topics:
         return
     workers = workers or max((os.cpu_count() or 1) - 1, 1)
     groups: list[list[str]] = [[] for _ in range(min(workers, len(topics)))]
     load = [0] * len(groups)
-    for topic in sorted(topics, key=lambda t: counts.get(t, 1), reverse=True):   # largest first, to the least loaded
+    for topic in sorted(topics, key=weight.get, reverse=True):   # largest first, to the least loaded
         i = load.index(min(load))
         groups[i].append(topic)
-        load[i] += counts.get(topic, 1)
+        load[i] += weight[topic]
     ctx = multiprocessing.get_context("fork")
     conns, procs = [], []
     _PARALLEL_JOB = (source, decoder, topics)

@@ -631,6 +631,18 @@ class TrainFilter:
         longest = max(self.models[c].fault_duration_max for c in in_use)
         return m.stamp - since > longest + self.cfg.slip_window
 
+    def _slip_physics(self, cls: str, e: float) -> bool:
+        """Whether sensor ``cls``'s own fault modes can give a disagreement e [m/s] with the
+        filter's speed under the filter's drive (its acceleration along the motion): a wheel
+        slips only under traction (it turns faster) and slides only under braking (slower),
+        with at least ``slip_min_drive``."""
+        faults = self.models[cls].faults
+        v, a = float(self.ekf.x[1, 0]), float(self.ekf.x[2, 0])
+        sv = 1.0 if v >= 0.0 else -1.0
+        drive, excess, limit = a * sv, e * sv, self.cfg.slip_min_drive
+        return ("slip" in faults and drive >= limit and excess > 0.0) or \
+            ("slide" in faults and drive <= -limit and excess < 0.0)
+
     def _refutes_model(self, m, e: float) -> bool:
         """Slip sensor ``m.sensor``, with no other speed source in use, disagrees with the filter's
         speed (the motion model's, since nothing else measures it) by e [m/s] in a way its own
@@ -643,14 +655,8 @@ class TrainFilter:
         after, until a fix rules it out (``_take_speed``: if the drive was misjudged, the truth
         lies between the two). True if so."""
         cls, aux = m.sensor, self.aux
-        faults = self.models[cls].faults
-        if not {"slip", "slide"} & set(faults) or self._reference_ok(m):
-            return False
-        v, a = float(self.ekf.x[1, 0]), float(self.ekf.x[2, 0])
-        sv = 1.0 if v >= 0.0 else -1.0
-        drive, excess, limit = a * sv, e * sv, self.cfg.slip_min_drive
-        if ("slip" in faults and drive >= limit and excess > 0.0) or \
-                ("slide" in faults and drive <= -limit and excess < 0.0):
+        if not {"slip", "slide"} & set(self.models[cls].faults) or self._reference_ok(m) \
+                or self._slip_physics(cls, e):
             return False
         z, R, _, _ = self._measurement(m)
         u, white, common = implied_speed(self.layout, self.ekf.x, self.ekf.P, m, z, R)
@@ -668,7 +674,7 @@ class TrainFilter:
         rather than another source's begun. Then its constant scale is back to its prior, and
         True."""
         aux, lay, cls = self.aux, self.layout, m.sensor
-        i = lay.offset.get(cls, lay.scale[cls])
+        i = lay.fault_scale[cls]
         h = self._measurement(m)[2]
         x, P = self.ekf.x, self.ekf.P
         e_raw = e + float(h[i] * x[i, 0])
@@ -695,7 +701,7 @@ class TrainFilter:
         under braking would be seen against the motion model alone). The speed rests on the
         others: it keeps its variance."""
         aux, lay = self.aux, self.layout
-        i = lay.offset.get(cls, lay.scale[cls])
+        i = lay.fault_scale[cls]
         floor = lay.prior_sigma[i] ** 2 + self.models[cls].scale_fault_sigma ** 2
         P = self.ekf.P
         if P[i, i] < floor:
@@ -763,15 +769,8 @@ class TrainFilter:
         alternative until an absolute fix decides."""
         aux = self.aux
         aux.slips += 1
-        faults = self.models[m.sensor].faults
-        v, a = float(self.ekf.x[1, 0]), float(self.ekf.x[2, 0])
-        sv = 1.0 if v >= 0.0 else -1.0
-        drive, excess = a * sv, e * sv
-        limit = self.cfg.slip_min_drive
-        physical = ("slip" in faults and drive >= limit and excess > 0.0) or \
-                   ("slide" in faults and drive <= -limit and excess < 0.0)
         # without another speed source the disagreement is with the motion model alone
-        physical = physical and self._reference_ok(m)
+        physical = self._slip_physics(m.sensor, e) and self._reference_ok(m)
         view = _new_view(m.stamp, float(self.ekf.P[0, 0]))
         if physical and m.sensor not in aux.episode_views and m.sensor in self._bounded:
             aux.episode_views = {**aux.episode_views, m.sensor: view}   # its own fault: not in the interval
@@ -782,7 +781,7 @@ class TrainFilter:
         if not physical and m.sensor not in aux.suspended:
             # suspected faulty: back only after agreeing for slip_window s without being applied
             # (one reading that slips through the gate would be adopted at full weight)
-            self._suspend(m.sensor, (shown, v))
+            self._suspend(m.sensor, (shown, float(self.ekf.x[1, 0])))
 
     def _separate(self, m, e: float, S: float) -> None:
         """While a sensor is excluded as the alternative (or for its own slip: ``episode_views``),
@@ -1315,7 +1314,7 @@ class TrainFilter:
         sigma = self.layout.prior_sigma[idx]
         if self.aux.scale_faults:   # a scale fault being learnt: plausible up to its size
             lay = self.layout
-            faulted = {lay.offset.get(c, lay.scale.get(c)): self.models[c].scale_fault_sigma
+            faulted = {lay.fault_scale.get(c): self.models[c].scale_fault_sigma
                        for c in self.aux.scale_faults}
             sigma = np.array([math.hypot(sg, faulted.get(i, 0.0)) for i, sg in zip(idx.tolist(), sigma)])
         # beyond the plausible range, and significantly so where a fix-bias inconsistency widened
@@ -1536,7 +1535,7 @@ class TrainFilter:
         floor = np.zeros(self.n)
         floor[idx] = lay.prior_sigma[idx] ** 2
         for name in faulty:
-            floor[lay.offset.get(name, lay.scale[name])] += self.models[name].scale_fault_sigma ** 2
+            floor[lay.fault_scale[name]] += self.models[name].scale_fault_sigma ** 2
         var = np.diag(P).copy()
         scales = [*lay.scale.values(), *lay.offset.values()]
         P[1, 1] += float(np.sum(np.maximum(floor[scales] - var[scales], 0.0))) * float(self.ekf.x[1, 0]) ** 2

@@ -67,6 +67,8 @@ class StateLayout:
         self.relative_states = np.array(sorted([*self.scale.values(), *self.offset.values(), *self.bias.values()]),
                                         dtype=np.intp)
         self.scale_terms = [(name, i, self.offset.get(name)) for name, i in self.scale.items()]
+        # the state a sensor's scale fault (a constant) is learnt in: its constant scale, else its scale
+        self.fault_scale = {name: self.offset.get(name, i) for name, i in self.scale.items()}
         self.owner = {i: name for table in (self.scale, self.offset, self.bias, self.fix) for name, i in table.items()}
         # a relative sensor's own error states (scale, offset, bias): indices
         owned: dict[str, list] = {}

@@ -1,5 +1,7 @@
 """ament_python package train_localization (DESIGN.md section 2)."""
+import ast
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
@@ -18,13 +20,19 @@ NODES = {
     "association": "train_localization.nodes.association:main",
     "speed_controller": "train_localization.nodes.speed_controller:main",
 }
-SENSOR_NODES = [
-    "doppler_radar", "wheel_sensor", "eurobalise_reader", "lrl_scanner",
-    "inpo_receiver", "pattern_belt", "mmwave_ranging", "axle_counter", "lzb_receiver",
-    "track_circuit_receiver", "dgps_receiver", "tag_reader", "coil_counter", "emf_observer",
-    "checkin_loop", "pole_position",
-    "rig_loop_receiver",
-]
+
+
+def _sensor_nodes() -> list[str]:
+    """The sensor node names of the registry (``_MODULES`` of train_localization/core/sensors/
+    __init__.py), read without importing the package (its dependencies may not be installed)."""
+    source = Path(__file__).resolve().parent / PACKAGE / "core" / "sensors" / "__init__.py"
+    for stmt in ast.parse(source.read_text(encoding="utf-8")).body:
+        if isinstance(stmt, ast.Assign) and getattr(stmt.targets[0], "id", "") == "_MODULES":
+            return list(ast.literal_eval(stmt.value))
+    raise RuntimeError(f"{source}: no _MODULES registry")
+
+
+SENSOR_NODES = _sensor_nodes()
 TOOLS = {
     "tl_demo": "train_localization.tools.demo:main",
     "tl_replay": "train_localization.tools.replay:main",

@@ -15,7 +15,8 @@ from train_localization.core.fusion import separation
 from train_localization.core.fusion import (MODE_DEGRADED, MODE_INITIALISING, MODE_LOST, MODE_NOMINAL, FusionConfig,
                                           TrainFilter, sensor_models)
 from train_localization.core.measurements import DistanceIncrement, PositionFix, SpeedMeasurement
-from train_localization.core.offline import fusion_config, simulate_scenario
+from train_localization.core.fusion import fusion_config
+from train_localization.core.offline import simulate_scenario
 from train_localization.core.scenario import Scenario, Vehicle
 from train_localization.core.scoring import speed_envelope
 
@@ -47,6 +48,17 @@ def integrity(sc, result):
     lo, hi = np.array([e.position_min for e in est]), np.array([e.position_max for e in est])
     err = np.abs(np.array([e.position for e in est]) - truth)
     return float(np.mean((truth >= lo) & (truth <= hi))), float(err.max())
+
+
+def _without_fault_cover(monkeypatch):
+    """Filters built from here on lack the persistent-fault cover (core/fusion/impact.py): what
+    the special cases below gave on their own."""
+    init = TrainFilter.__init__
+
+    def uncovered(self, config=None):
+        init(self, config)
+        self._fault_bounds = {}
+    monkeypatch.setattr(TrainFilter, "__init__", uncovered)
 
 
 # --------------------------------------------------------------------------- error-model ownership
@@ -359,6 +371,9 @@ def test_an_undetected_radar_scale_fault_is_covered_by_the_wheels_own_solution(m
     assert all(abs(e.speed - v) <= Z999 * e.speed_stddev for t, e, _, v in early if t >= 3.0)
     assert any(e.mode == MODE_DEGRADED for t, e, _, _ in early if t < 14.0)
     monkeypatch.setattr(separation, "sub_models", lambda models: {})
+    _, alone = _radar_low_under_traction()   # the fault's cover alone also holds it
+    assert all(e.position_min <= s <= e.position_max for t, e, s, _ in alone if t < 18.0)
+    _without_fault_cover(monkeypatch)
     _, alone = _radar_low_under_traction()
     wrong = [t for t, e, s, _ in alone if t < 18.0 and not e.position_min <= s <= e.position_max]
     assert wrong and min(wrong) < 11.0
@@ -626,7 +641,9 @@ def test_a_ranging_fix_protection_is_not_averaged_over_consecutive_fixes():
     # fault-free, the position is as good as the fixes' protection says, no worse than one fix
     g, clean = _ranging_run(0.0)
     assert max(abs(e.position - s) for t, e, s in clean if t > 1.0) < 0.2
-    assert np.mean([e.position_max - e.position_min for t, e, s in clean if t > 1.0]) < 2 * 3.29 * 0.45
+    # within 10 %: the radar's scale-fault hypothesis, which the fixes' persistent error cannot
+    # exclude at once, widens it a little (core/fusion/impact.py)
+    assert np.mean([e.position_max - e.position_min for t, e, s in clean if t > 1.0]) < 1.1 * 2 * 3.29 * 0.45
 
 
 def test_fix_noise_counts_a_persistent_excess_once_per_correlation_time():
@@ -784,7 +801,8 @@ def test_a_fix_that_a_lone_radars_scale_fault_explains_opens_its_scale(monkeypat
     balise was gated in turn, every one kept as an alternative that moved with the radar's
     wrong speed: the truth was outside the interval in 935 of the 1,600 states, DEGRADED.
     (Without the lone radar's own protection, which covers the drift before the balise:
-    the next test.)"""
+    the next test, and the persistent-fault cover of core/fusion/impact.py, left out here.)"""
+    _without_fault_cover(monkeypatch)
     monkeypatch.setattr(TrainFilter, "_track_lone", lambda self, stamp: None)
     f, checked = _lone_radar_ramp_run()
     events = f.counters()["integrity"]
@@ -810,6 +828,9 @@ def test_the_solution_without_a_lone_radar_covers_its_fault_before_any_fix_shows
     half = {round(t, 2): 0.5 * (e.position_max - e.position_min) for t, e, _, _ in checked}
     assert 29.0 < half[9.5] < 3.29 * 0.05 * 200.0 and half[10.5] < 3.0
     monkeypatch.setattr(TrainFilter, "_track_lone", lambda self, stamp: None)
+    _, cover_only = _lone_radar_ramp_run()   # the persistent-fault cover (impact.py) alone holds it too
+    assert all(e.position_min <= s <= e.position_max for _, e, s, _ in cover_only)
+    _without_fault_cover(monkeypatch)
     _, before = _lone_radar_ramp_run()
     outside = [t for t, e, s, _ in before if not e.position_min <= s <= e.position_max]
     assert outside and 15.0 < min(outside) < 20.0
@@ -831,6 +852,9 @@ def test_a_lone_radars_solution_stays_when_a_second_source_comes_back_until_a_fi
     def dropped(self, stamp):
         self.aux.lone_view = None
     monkeypatch.setattr(TrainFilter, "_lone_accompanied", dropped)
+    cover_only = campaign.run_one("urban_maglev", 537686460, max_duration=25.0)
+    assert cover_only["scores"]["integrity"]["outside_count"] == 0   # the persistent-fault cover holds it
+    _without_fault_cover(monkeypatch)
     before = campaign.run_one("urban_maglev", 537686460, max_duration=25.0)
     assert before["scores"]["integrity"]["outside_count"] > 30
 
@@ -946,7 +970,8 @@ def test_a_lone_radars_fault_under_noisy_fixes_stays_in_its_solutions_cap():
     their gain's share of it."""
     result = _exported("campaign_utm_lone_radar_fault_reversing.yaml")
     assert result["scores"]["integrity"]["outside_count"] == 0
-    assert result["scores"]["integrity"]["mean_interval_width_m"] < 7.0   # still a useful interval
+    # still a useful interval (6.6 m before the persistent-fault cover, 7.1 m with it)
+    assert result["scores"]["integrity"]["mean_interval_width_m"] < 7.5
 
 
 def test_the_only_radar_of_a_train_learnt_implausible_keeps_reading_with_its_scale_opened():

@@ -20,7 +20,8 @@ import numpy as np
 import pytest
 
 from train_localization.core.fusion import MODE_INITIALISING, MODE_NOMINAL
-from train_localization.core.offline import FusionRunner, fusion_config, simulate_scenario
+from train_localization.core.fusion import FusionRunner, fusion_config
+from train_localization.core.offline import simulate_scenario
 from train_localization.core.scenario import Scenario
 from train_localization.tools.bench_fusion import figures, print_figures, speed_envelope
 
@@ -114,10 +115,10 @@ def test_truth_inside_the_confidence_interval(runs, name):
     it = fig["integrity"]
     assert fig["states_with_position"] > 0.6 * fig["states"]
     assert it["inside_fraction"] >= 0.999, it
-    # not vacuous: on average the interval is at most ~12x the rms error wide (99.9 %: +-3.3
-    # sigma, and where a radar's scale fault could go undetected, the wheel's own solution, up to
-    # twice as wide: core/fusion/separation.py) and well inside the SUBSET-041 minimum of +-5 m
-    assert it["mean_width_m"] < 12.0 * fig["position_error_m"]["rms"] + 0.02
+    # not vacuous: on average the interval is at most ~15x the rms error wide (99.9 %: +-3.3
+    # sigma, and where a radar's scale fault could go undetected, what it can have put into the
+    # state: core/fusion/impact.py, separation.py) and well inside the SUBSET-041 minimum of +-5 m
+    assert it["mean_width_m"] < 15.0 * fig["position_error_m"]["rms"] + 0.02
     assert it["mean_width_m"] < 5.0
     # position claimed once a fix of another reference confirms the first; mostly NOMINAL
     fixes = sorted((m for m in result.measurements if type(m).__name__ == "PositionFix"), key=lambda m: m.stamp)

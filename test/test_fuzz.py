@@ -25,7 +25,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from train_localization.core.fusion import MODE_LOST, MODE_NOMINAL, FusionConfig, TrainFilter, sensor_models
+from train_localization.core.fusion import MODE_LOST, MODE_NOMINAL, FusionConfig, FusionRunner, TrainFilter, sensor_models
 from train_localization.core.measurements import DistanceIncrement, PositionFix, SpeedMeasurement
 from train_localization.core.pipeline import SensorPipeline, simulate_and_decode
 from train_localization.core.scenario import Scenario, Vehicle
@@ -250,14 +250,13 @@ def _filter_state(f: TrainFilter):
 @settings(FUZZ, max_examples=200)
 @given(measurement_streams())
 def test_the_filter_stays_finite_and_honest_under_arbitrary_measurements(stream):
-    f = TrainFilter(FusionConfig(sensors=sensor_models(list(FUSED), None, Vehicle())))
+    runner = FusionRunner(FusionConfig(sensors=sensor_models(list(FUSED), None, Vehicle())))
+    f = runner.filter
     f.reset(position=_truth(0.0), position_stddev=1.0, speed=TRUE_SPEED, speed_stddev=0.1, stamp=0.0)
     t_query = 0.0
     for m in stream:
         x0, P0, n0 = _filter_state(f)
-        try:
-            f.add(m)
-        except InputRejected:
+        if not runner.add(m):   # admission and history (core/fusion/admission.py)
             x1, P1, n1 = _filter_state(f)
             assert n1 == n0 and np.array_equal(x1, x0) and np.array_equal(P1, P0), "a rejection changed the state"
             continue

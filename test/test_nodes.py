@@ -117,13 +117,13 @@ def test_fusion_node_rejects_nan_and_too_late_measurements(ros_context, start_no
     try:
         assert spin_until(node, lambda: pub.get_subscription_count() > 0, 30.0), proc.output()
 
-        def fix(t, pos, sd=1.0):
+        def fix(t, pos, sd=1.0):   # EB000 at 500 m, the antenna 2 m behind the front
             m = PositionFix(sensor="eurobalise", unit_id="btm", track_id="conventional_line",
-                            reference_id="1", position=pos, position_stddev=sd)
+                            reference_id="EB000", position=pos, position_stddev=sd)
             m.header.stamp.sec, m.header.stamp.nanosec = int(t), int(round((t % 1) * 1e9))
             return m
-        for m in [fix(10.0, 500.0), fix(10.5, math.nan), fix(11.0, 510.0, sd=0.0), fix(12.0, 520.0),
-                  fix(10.2, 502.0), fix(12.0, 520.0)]:
+        for m in [fix(10.0, 502.0), fix(10.5, math.nan), fix(11.0, 502.0, sd=0.0), fix(12.0, 502.5),
+                  fix(10.2, 502.0), fix(12.0, 502.5)]:
             pub.publish(m)
         assert spin_until(node, lambda: _diag_values(diags, "fusion").get(
             "rejected/sensors/eurobalise/position/duplicate") == "1", 20.0), proc.output()
@@ -204,7 +204,7 @@ def test_fusion_diagnostics_level_follows_the_mode(ros_context, start_node):
             proc.output()
         assert spin_until(node, lambda: status()[0] == 1 and "INITIALISING" in status()[1], 20.0), proc.output()
         m = PositionFix(sensor="axle_counter", unit_id="ac", track_id="conventional_line", reference_id="AC01",
-                        position=500.0, position_stddev=0.05)
+                        position=3002.5, position_stddev=0.05)   # AC01 at 3000 m, the first axle 2.5 m back
         m.header.stamp = node.get_clock().now().to_msg()
         pub.publish(m)
         assert spin_until(node, lambda: status()[0] == 2 and "LOST" in status()[1], 30.0), proc.output()
@@ -643,7 +643,7 @@ def test_fusion_rejects_fixes_off_its_track_and_stamps_from_the_future(ros_conte
     try:
         assert spin_until(node, lambda: pub.get_subscription_count() > 0, 30.0), proc.output()
         for m in (fix(0.0, 500.0, track="maglev_line"), fix(0.0, 1.0e6), fix(3600.0, 500.0),
-                  fix(0.0, 500.0, sensor="eurobalise"), fix(0.0, 500.0)):
+                  fix(0.0, 500.0, sensor="eurobalise"), fix(0.0, 3002.5)):   # AC01: 3000 m + 2.5 m
             pub.publish(m)
         topic = "sensors/axle_counter/position"
         assert spin_until(node, lambda: _diag_values(diags, "fusion").get(f"accepted/{topic}") == "1", 20.0), \
@@ -651,6 +651,47 @@ def test_fusion_rejects_fixes_off_its_track_and_stamps_from_the_future(ros_conte
         values = _diag_values(diags, "fusion")
         assert [values.get(f"rejected/{topic}/{r}") for r in ("wrong_track", "off_track", "future",
                                                               "wrong_sensor")] == ["1"] * 4
+        assert proc.interrupt() == 0
+    finally:
+        node.destroy_node()
+
+
+def test_fixes_claiming_more_than_their_model_never_move_a_nominal_state(ros_context, start_node):
+    """A balise fix claiming 1e-6 m 2 m off, and one naming a balise the track does not have
+    (issue: NOMINAL 2 m wrong with a 2 mm stddev) are refused (below_model,
+    unknown_reference); the NOMINAL state does not move."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from train_localization_msgs.msg import PositionFix, TrainState
+    from train_localization.nodes.common import STREAM_QOS
+
+    proc = start_node("fusion", "--ros-args", *NS, "-p", "sensors:=[eurobalise]", "-p", "publish_rate:=20",
+                      "-p", "initial_position:=1502.0")
+    node = ros_context.create_node("probe_lying_fixes", namespace="/train")
+    pub = node.create_publisher(PositionFix, "sensors/eurobalise/position", STREAM_QOS)
+    states, diags = [], []
+    node.create_subscription(TrainState, "localization/state", states.append, STREAM_QOS)
+    node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+
+    def fix(ref, pos, sd):
+        m = PositionFix(sensor="eurobalise", unit_id="btm", track_id="conventional_line", reference_id=ref,
+                        position=pos, position_stddev=sd)
+        t = node.get_clock().now().nanoseconds * 1e-9
+        m.header.stamp.sec, m.header.stamp.nanosec = int(t), int(round((t % 1) * 1e9))
+        return m
+    try:
+        assert spin_until(node, lambda: pub.get_subscription_count() > 0 and states, 30.0), proc.output()
+        assert states[-1].mode == TrainState.MODE_NOMINAL
+        n_before = len(states)
+        for m in (fix("EB001", 1504.0, 1e-6), fix("EB903", 1504.0, 0.5), fix("EB904", 1504.0, 0.5)):
+            pub.publish(m)
+        topic = "sensors/eurobalise/position"
+        assert spin_until(node, lambda: _diag_values(diags, "fusion").get(
+            f"rejected/{topic}/unknown_reference") == "2", 20.0), proc.output()
+        assert spin_until(node, lambda: len(states) > n_before + 20, 10.0)
+        values = _diag_values(diags, "fusion")
+        assert values[f"rejected/{topic}/below_model"] == "1" and f"accepted/{topic}" not in values
+        assert {s.mode for s in states} == {TrainState.MODE_NOMINAL}
+        assert max(abs(s.position - 1502.0) for s in states) < 0.01
         assert proc.interrupt() == 0
     finally:
         node.destroy_node()

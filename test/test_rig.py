@@ -1,5 +1,6 @@
 """The seed 003 round experimental unit: loop field (eq. 1-4), resonance, antennas at p/3, the
 21 cm adder, the closed track, the disc dynamics and the PID speed control through the fusion."""
+import dataclasses
 import functools
 import math
 
@@ -264,3 +265,70 @@ def test_closed_loop_tracks_the_speed_steps_through_the_localisation():
     truth = StateSeries.of_truth(t, [s.position for s in res.truth], v)
     sc_ = score(truth, StateSeries.from_estimates(res.estimates), circumference=sc.track.length)
     assert sc_["integrity"]["inside_fraction"] == 1.0
+
+
+# --------------------------------------------------------------------------- error-model floor
+FLOOR_CASES = {   # name: (initial speed [m/s], duration [s], profile)
+    "standstill": (0.0, 12.5, [{"speed": 0.0, "hold": 60.0}]),
+    "crawl": (0.02, 12.5, [{"speed": 0.02, "hold": 60.0}]),
+    "high_speed": (27.78, 3.0, [{"speed": 27.78, "hold": 60.0}]),   # 100 km/h, seed 003 section 5
+    "reversal": (6.0, 8.0, [{"speed": -6.0, "accel": 3.0, "decel": 3.0, "hold": 60.0}]),
+}
+
+
+def _rig_scenario(v0: float, duration: float, profile: list, params: dict, seed: int) -> Scenario:
+    """The open-loop rig scenario with another profile and receiver parameters."""
+    import yaml
+    data = yaml.safe_load(OPEN.read_text(encoding="utf-8"))
+    data.update(seed=seed, duration=duration, initial={"position": 0.0, "speed": v0}, profile=profile,
+                sensors={"rig_loop_receiver": params})
+    return Scenario.from_dict(data, source=OPEN)
+
+
+def _claimed(m) -> float:
+    """The 1-sigma [m/s] an increment claims for ErrorModel.refusal: the lower of its speed's and
+    its mean speed's (distance_stddev / duration)."""
+    return min(m.speed_stddev, m.distance_stddev / m.duration)
+
+
+def test_every_decoded_increment_is_at_or_above_the_error_model_floor():
+    """ErrorModel.min_stddev (the pattern belt's wheel.IncrementEstimator floor) holds by
+    construction: random seeds, blocks of 10 ms .. 5 s and, every other run, an ideal loop and
+    receiver (no switching-point scatter or scale error: an increment between two switching
+    points would claim 0 m), the disc standing, creeping, at 100 km/h and reversing; none is
+    refused below_model, and the floor is reached (it is the decoder's own)."""
+    ideal = {"noise": 0.0, "gap_sigma": 0.0, "gain_mismatch": 0.0, "detector_offset": 0.0, "spacing_error": 0.0,
+             "transition_jitter": 0.0, "scale_sigma": 0.0}
+    rng = np.random.default_rng(2024)
+    n, lowest = {name: 0 for name in FLOOR_CASES}, math.inf
+    for i, block in enumerate((0.01, 0.05, 0.5, 5.0)):
+        for k, (name, (v0, duration, profile)) in enumerate(FLOOR_CASES.items()):
+            params = {"block_duration": block, "max_block_duration": max(1.0, block)}
+            if (i + k) % 2 == 0:
+                params.update(ideal)
+            sc = _rig_scenario(v0, max(duration, 2.5 * block), profile, params, int(rng.integers(1 << 30)))
+            run = simulate_and_decode("rig_loop_receiver", sc, keep_going=True)
+            model = rig_loop.SPEC.errors(run.pipe.params, sc.track, sc.vehicle)
+            assert not run.rejected, (name, params, run.rejected[:3])
+            for m in run.measurements:
+                assert model.refusal(m) is None, (name, params, m)
+            n[name] += len(run.measurements)
+            lowest = min([lowest] + [_claimed(m) / model.min_stddev for m in run.measurements])
+    assert min(n.values()) > 10 and sum(n.values()) > 1000, n
+    assert lowest == pytest.approx(1.0, abs=1e-9)
+
+
+def test_an_increment_claiming_half_the_floor_is_refused_below_model():
+    run = _open_run()
+    sc = Scenario.from_yaml(OPEN)
+    model = rig_loop.SPEC.errors(run.pipe.params, sc.track, sc.vehicle)
+    floor = model.min_stddev
+    honest = run.measurements[400]
+    assert floor > 0.0 and model.refusal(honest) is None
+    m = dataclasses.replace(honest, speed_stddev=floor, distance_stddev=floor * honest.duration)
+    assert model.refusal(m) is None                      # at the floor: taken
+    for forged in (dataclasses.replace(m, speed_stddev=floor / 2),
+                   dataclasses.replace(m, distance_stddev=floor / 2 * m.duration),
+                   dataclasses.replace(m, speed_stddev=floor / 2, distance_stddev=floor / 2 * m.duration)):
+        why = model.refusal(forged)
+        assert why is not None and why.reason == "below_model", forged

@@ -1,5 +1,7 @@
 """Axle counter (seed 004 sections 2.2, 4.2): wheel sensor simulation, counting, occupancy."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -342,3 +344,81 @@ def test_without_layout_the_stddev_covers_a_miscount(fault):
     assert len(fixes) == 1
     _covered(sc, fixes)
     assert fixes[0].position_stddev > 2.4 / 3.3   # the measured first spacing (>= 2.5 m) is covered
+
+
+# ---------------------------------------------------------------- error model: floor and references
+
+MANY_HEADS = [{"every": 300.0, "start": 1000.0, "end": 3400.0, "id": "AC{n:02d}"}]   # AC00..AC08
+
+def _heads_passed(sc, params):
+    """Heads that at least two axles of the train crossed during the run (the second identifies the
+    first: a front fix is due at each)."""
+    traj = sc.trajectory()
+    o = params.get("orientation") or int(np.sign(traj.speed[np.flatnonzero(traj.speed)[0]]))   # auto: first motion
+    wheels = traj.position[:, None] - o * np.asarray(sc.vehicle.axles)[None, :]
+    lo, hi = wheels.min(axis=0), wheels.max(axis=0)
+    return [h["id"] for h in sc.track.items("axle_counter_head")
+            if np.count_nonzero((lo < h["position"] - 0.5) & (hi > h["position"] + 0.5)) >= 2]
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_every_decoded_fix_passes_the_error_model(seed):
+    """Randomised runs (2..8 m/s and 40..83 m/s both ways, a train backing with its last axle
+    leading, orientation auto or given, short and long trains, survey and offset errors down to
+    none): the model built from the run's parameters refuses no fix."""
+    rng = np.random.default_rng(seed)
+    total = expected = 0
+    for sign, backing in ((1, False), (-1, False), (-1, True)):
+        for slow in (True, False):
+            speed = sign * (rng.uniform(2.0, 8.0) if slow else rng.uniform(40.0, V300))
+            cars = int(rng.choice([2, 8]))
+            params = {"head_position_sigma": float(rng.choice([0.0, 0.02])),
+                      "axle_offset_sigma": float(rng.choice([0.0, 0.02])),
+                      "orientation": int(rng.choice([0, sign]))}
+            if backing:
+                params.update(orientation=1, last_axle_offset=axles(cars)[-1])
+            head = 1900.0 if sign > 0 else 2500.0
+            if slow:      # the leading axle 5..20 m before a head, a train length and a bit to run
+                lead = params["last_axle_offset"] if backing else 0.0
+                start = head - sign * rng.uniform(5.0, 20.0) + lead
+                duration = (CAR * cars + 30.0) / abs(speed)
+            else:
+                start, duration = (500.0, 3300.0 / abs(speed)) if sign > 0 else (4000.0, 3300.0 / abs(speed))
+                if backing:
+                    start += axles(cars)[-1]
+            sc = scenario(speed, start, duration=duration, params=params, seed=seed, cars=cars, heads=MANY_HEADS)
+            _, ms, pipe = run_offline(NODE, sc)
+            model = pipe.spec.errors(pipe.params, pipe.track, sc.vehicle)
+            assert model.min_stddev == pytest.approx(max(np.hypot(params["head_position_sigma"],
+                                                                  params["axle_offset_sigma"]), 1e-3))
+            fixes = fixes_of(ms)
+            assert [model.refusal(f) for f in fixes] == [None] * len(fixes)
+            heads = _heads_passed(sc, params)
+            assert [f.reference_id for f in fixes] == heads[::sign]
+            total += len(fixes)
+            expected += len(heads)
+    assert total == expected >= 30
+
+
+def test_forged_front_fixes_are_refused_with_their_reason():
+    p = resolve_params(spec(NODE).params, {"first_axle_offset": 3.0, "axle_offsets": axles(), "orientation": 1})
+    model = spec(NODE).errors(p, scenario().track, None)
+    assert model.min_stddev == pytest.approx(np.hypot(0.02, 0.02))
+    # orientation +1, front leading: head + the first axle's offset, or + the wheelbase (first axle missed)
+    assert model.references.windows["AC01"] == pytest.approx((1803.0, 1805.5))
+    assert set(model.references.windows) == {"AC00", "AC01", "AC02", "AC03"}
+    # orientation auto and a known last axle: either orientation, the front leading or the train backing
+    auto = spec(NODE).errors({**p, "orientation": 0, "last_axle_offset": axles()[-1]}, scenario().track, None)
+    assert auto.references.windows["AC01"] == pytest.approx((1800.0 - 198.0, 1800.0 + 198.0))
+    honest = PositionFix(10.0, "axle_counter", "axle_counter", "T1", "AC01", 1803.0, 0.03, 1)
+    assert model.refusal(honest) is None
+    cases = {"below_model": dataclasses.replace(honest, position_stddev=0.5 * model.min_stddev),
+             "unknown_reference": dataclasses.replace(honest, reference_id="AC09"),
+             "reference_mismatch": dataclasses.replace(honest, position=1805.5 + 300.0)}
+    for reason, forged in cases.items():
+        assert model.refusal(forged).reason == reason
+    # a head not of this evaluation unit is unknown to it
+    unit = spec(NODE).errors({**p, "heads": "AC00,AC01"}, scenario().track, None)
+    assert unit.refusal(dataclasses.replace(honest, reference_id="AC02", position=2603.0)).reason == "unknown_reference"
+    zero = spec(NODE).errors({**p, "head_position_sigma": 0.0, "axle_offset_sigma": 0.0}, None, None)
+    assert zero.min_stddev == pytest.approx(1e-3) and zero.references is None

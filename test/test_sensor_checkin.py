@@ -5,6 +5,7 @@ following each other through the blocks; the boundary fixes against the truth; t
 rear transmitter and the noise burst; the HSST scenario through the fusion."""
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 
@@ -242,3 +243,63 @@ def test_hsst_scenario_through_the_fusion_keeps_the_truth_inside_its_interval():
     assert inside == 1.0 and len(est) > 0.5 * sc.duration * 200
     accepted = result.runner.filter.counters()["accepted"]
     assert accepted.get("checkin", 0) >= 2 and accepted.get("pattern_belt", 0) > 100, accepted
+
+
+# --------------------------------------------------------------------------- error model
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_every_decoded_boundary_fix_passes_the_error_model(seed):
+    """Randomised runs (2..5 m/s and 15..30 m/s both ways, the orientation of the run, front
+    antenna offset, installation, gain, height and offset errors down to none): the model built
+    from the run's parameters refuses no fix."""
+    rng = np.random.default_rng(seed)
+    total = expected = 0
+    for o in (1, -1):
+        for slow in (True, False):
+            v = o * (rng.uniform(2.0, 5.0) if slow else rng.uniform(15.0, 30.0))
+            zero = bool(rng.integers(2))
+            params = {"orientation": o, "front_antenna_offset": float(rng.uniform(0.0, 20.0)),
+                      **({"boundary_sigma": 0.0, "adjust_sigma": 0.0, "height_sigma": 0.0, "offset_sigma": 0.0}
+                         if zero else {})}
+            antenna = rng.uniform(20.0, 80.0) if o > 0 else 700.0 - rng.uniform(20.0, 80.0)
+            run_to = antenna + o * (130.0 if slow else 560.0)
+            sc = scenario(v0=v, pos=antenna + o * params["front_antenna_offset"],
+                          duration=abs(run_to - antenna) / abs(v), params=params, seed=seed)
+            run = simulate_and_decode(NODE, sc)
+            model = run.pipe.spec.errors(run.pipe.params, run.pipe.track, sc.vehicle)
+            fixes = [m for m in run.measurements if isinstance(m, PositionFix)]
+            assert [model.refusal(f) for f in fixes] == [None] * len(fixes)
+            if zero:
+                assert model.min_stddev == pytest.approx(1e-3)
+            depth = checkin.onset_depth(DEFAULTS["threshold_on"], DEFAULTS["antenna_height"])
+            lo, hi = sorted((antenna, run_to))
+            crossed = [b for b in np.arange(BLOCK, 8 * BLOCK, BLOCK) if lo < b - depth - 1.0 and b + depth + 1.0 < hi]
+            names = [f"B{int(b // BLOCK) - 1}/B{int(b // BLOCK)}" for b in crossed][::o]
+            assert [f.reference_id for f in fixes] == names
+            total += len(fixes)
+            expected += len(names)
+    assert total == expected >= 12
+
+
+def test_forged_boundary_fixes_are_refused_with_their_reason():
+    track = Track.from_dict(TRACK)
+    reach = checkin.onset_depth(DEFAULTS["threshold_on"], DEFAULTS["antenna_height"]) + 5.0
+    model = spec(NODE).errors({**DEFAULTS, "front_antenna_offset": 5.0}, track, Vehicle(kind="maglev_urban"))
+    floor = math.sqrt(checkin.fix_bias_sigma(DEFAULTS) ** 2 + checkin.depth_sigma(DEFAULTS) ** 2
+                      + DEFAULTS["offset_sigma"] ** 2)
+    assert model.min_stddev == pytest.approx(floor)
+    # the block's extent moved by the reach of a fix beyond the boundary, in the running direction
+    assert model.references.windows["B2"] == pytest.approx((200.0 + reach, 300.0 + reach))
+    assert model.references.separator == "/" and len(model.references.windows) == 8      # B0..B7
+    backwards = spec(NODE).errors({**DEFAULTS, "front_antenna_offset": 5.0, "orientation": -1}, track, None)
+    assert backwards.references.windows["B2"] == pytest.approx((200.0 - reach, 300.0 - reach))
+    honest = PositionFix(10.0, "checkin", "checkin", "checkin_test", "B2/B3", 300.0 + reach, floor, 1)
+    assert model.refusal(honest) is None
+    assert backwards.refusal(dataclasses.replace(honest, position=300.0 - reach, direction=-1)) is None
+    cases = {"below_model": dataclasses.replace(honest, position_stddev=0.5 * model.min_stddev),
+             "unknown_reference": dataclasses.replace(honest, reference_id="B2/B9"),
+             "reference_mismatch": dataclasses.replace(honest, position=300.0 + reach + 300.0)}
+    for reason, forged in cases.items():
+        assert model.refusal(forged).reason == reason
+    assert model.refusal(dataclasses.replace(honest, reference_id="B9")).reason == "unknown_reference"
+    # a boundary of two real blocks that are no neighbours: the fix lies outside one of them
+    assert model.refusal(dataclasses.replace(honest, reference_id="B2/B5")).reason == "reference_mismatch"

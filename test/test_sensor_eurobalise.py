@@ -2,11 +2,13 @@
 distance (Table 2), mutual inductance (eq. 3-5, Table 3) and read field strength (eq. 6-7,
 Table 4) for 100..600 km/h; simulated passages in both directions up to 500 km/h, failed
 reads above the speed limit of the readable window, unknown ids, determinism."""
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
+from train_localization.core.measurements import PositionFix
 from train_localization.core.pipeline import run_offline, simulate_and_decode
 from train_localization.core.scenario import Scenario
 from train_localization.core.sensors import eurobalise as eb
@@ -14,6 +16,7 @@ from train_localization.core.signals import InputRejected, RawBlock
 from train_localization.core.track import Track
 
 NODE = "eurobalise_reader"
+KIND = "eurobalise"
 OFFSET = eb.PARAMS["antenna_offset"].default
 
 # Seed 001, copied here independently of the module: speed [km/h] -> value
@@ -389,3 +392,58 @@ def test_reach_of_the_speed_profiles():
     assert eb._reach(30.0, -30.0, 10.0, 1.0) is None                   # a reversal needs 60 s
     least, most = eb._reach(20.0, 10.0, 10.0, 1.0)
     assert least == pytest.approx(150.0) and most == pytest.approx(150.0)   # exactly -1 m/s^2
+
+
+# ---------------------------------------------------------------- error model: floor and references
+
+def _model(params=None, track=None):
+    p = {k: v.default for k, v in eb.PARAMS.items()} | (params or {})
+    return eb.SPEC.errors(p, Track.from_dict(track or balise_track()), None)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_every_decoded_fix_passes_the_error_model(seed):
+    """Randomised runs (speed 2..8 m/s and 60..138 m/s both ways, antenna offset, location and
+    noise figures down to none): the model built from the run's parameters refuses no fix."""
+    rng = np.random.default_rng(seed)
+    total = expected = 0
+    for sign in (1, -1):
+        for slow in (True, False):
+            speed = sign * (rng.uniform(2.0, 8.0) if slow else rng.uniform(60.0, 500 / 3.6))
+            params = {"antenna_offset": float(rng.uniform(0.0, 30.0)),
+                      "location_sigma": float(rng.choice([0.0, 0.01, 0.33, 1.0])),
+                      "field_noise": float(rng.choice([0.0, 2e-6, 20e-6]))}
+            offset = params["antenna_offset"]
+            duration = 12.0 if slow else 25.0
+            start = (1995.0 + offset) if sign > 0 else (5005.0 + offset)
+            if not slow:
+                start = 850.0 + offset if sign > 0 else 5060.0 + offset
+            _, fixes, rejected, pipe, traj = run(scenario(speed, duration, params, seed=seed, start=start))
+            model = pipe.spec.errors(pipe.params, pipe.track, None)
+            assert model.min_stddev == max(params["location_sigma"], 1e-3)
+            assert not rejected
+            assert [model.refusal(f) for f in fixes] == [None] * len(fixes)
+            ids = passed(pipe.track, traj, offset)
+            assert len(fixes) == len(ids) - pipe.decoder.stats["failed_reads"]
+            total += len(fixes)
+            expected += len(ids)
+    assert total >= expected - 2 and total > 100
+
+
+def test_forged_balise_fixes_are_refused_with_their_reason():
+    model = _model({"antenna_offset": 2.0})
+    assert model.min_stddev == pytest.approx(0.33)
+    assert model.references.windows["101"] == (902.0, 902.0)        # chainage + antenna offset
+    assert model.references.windows["A2"] == (1505.0, 1505.0)
+    assert set(model.references.windows) == {str(it["id"]) for it in Track.from_dict(balise_track()).items(KIND)}
+    honest = PositionFix(10.0, "eurobalise", "eurobalise", "EB", "101", 902.0, 0.33)
+    assert model.refusal(honest) is None
+    assert model.refusal(dataclasses.replace(honest, position=902.0 + 4.9 * 0.33)) is None
+    cases = {"below_model": dataclasses.replace(honest, position_stddev=0.5 * model.min_stddev),
+             "unknown_reference": dataclasses.replace(honest, reference_id="999"),
+             "reference_mismatch": dataclasses.replace(honest, position=902.0 + 300.0)}
+    for reason, forged in cases.items():
+        assert model.refusal(forged).reason == reason
+    # the floor follows the parameters; 1 mm without an installation error
+    assert _model({"location_sigma": 0.0}).min_stddev == pytest.approx(1e-3)
+    assert eb.SPEC.errors({k: v.default for k, v in eb.PARAMS.items()}, None, None).references is None

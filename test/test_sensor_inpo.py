@@ -1,12 +1,14 @@
 """INPO crossed inductive loop position system (seed 000 sections 2.1.1/2.1.2, seed 002
 section 2.2.1, seed 003 eq. 2): phase accuracy +-8 deg at Transrapid parameters up to
 500 km/h, harmonic cancellation with 6 pairs, absolute position by period counting."""
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
-from train_localization.core.pipeline import SensorPipeline, run_offline
+from train_localization.core.measurements import PositionFix
+from train_localization.core.pipeline import SensorPipeline, run_offline, simulate_and_decode
 from train_localization.core.scenario import Scenario
 from train_localization.core.sensors import inpo, spec
 from train_localization.core.signals import InputRejected, RawBlock
@@ -292,3 +294,62 @@ def test_track_schema():
         with pytest.raises(TrackError):
             inpo.section_table(Track.from_dict({"track_id": "T", "length": 1000.0,
                                                 "equipment": {"inpo_section": bad}}), 0.516)
+
+
+# ---------------------------------------------------------------- error model: floor and references
+MODEL_SECTIONS = [{"id": "A", "position": 20.0, "end": 220.0}, {"id": "B", "position": 220.0, "end": 420.0},
+                  {"id": "C", "position": 450.0, "length": 250.0, "period": 0.63}]   # seed 003's period
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3, 4, 5])
+def test_every_decoded_fix_passes_the_error_model(seed):
+    """Randomised runs (1..8 m/s over the A/B hand-over, 60..139 m/s through all three sections,
+    both ways; antenna offset and length, 3 or 6 pairs, survey and skew down to none, fix rate):
+    the model built from the run's parameters refuses no fix."""
+    rng = np.random.default_rng(seed)
+    total = 0
+    for sign in (1, -1):
+        for slow in (True, False):
+            speed = sign * (rng.uniform(1.0, 8.0) if slow else rng.uniform(60.0, 500 / 3.6))
+            params = {"antenna_offset": float(rng.uniform(0.0, 30.0)), "antenna_length": float(rng.uniform(0.05, 1.0)),
+                      "n_pairs": int(rng.choice([3, 6])), "survey_sigma": float(rng.choice([0.0, 0.002, 0.02])),
+                      "skew_sigma": float(rng.choice([0.0, 0.001])), "fix_samples": int(rng.choice([0, 7, 40]))}
+            off = params["antenna_offset"]
+            if slow:
+                start, duration = (218.5 if sign > 0 else 221.5) + off, 4.0
+            else:
+                start, duration = (10.0 if sign > 0 else 710.0) + off, 720.0 / abs(speed)
+            sc = scenario(MODEL_SECTIONS, [{"speed": speed, "hold": 1000.0}], duration, start, speed, seed, params)
+            run = simulate_and_decode(NODE, sc)
+            model = run.pipe.spec.errors(run.pipe.params, run.pipe.track, sc.vehicle)
+            assert model.min_stddev == pytest.approx(max(math.hypot(params["survey_sigma"], params["skew_sigma"]
+                                                                    / math.sqrt(params["n_pairs"])), 1e-4))
+            fixes = run.measurements
+            assert [model.refusal(f) for f in fixes] == [None] * len(fixes)
+            # slow: the count starts at the hand-over (the run starts inside a section)
+            assert {f.reference_id for f in fixes} == (({"B"} if sign > 0 else {"A"}) if slow else {"A", "B", "C"})
+            assert len(fixes) >= (20 if slow else 80)
+            total += len(fixes)
+    assert total > 300
+
+
+def test_forged_inpo_fixes_are_refused_with_their_reason():
+    sc = scenario(MODEL_SECTIONS, [{"speed": 0.0, "hold": 1.0}], 1.0)
+    params = {k: v.default for k, v in inpo.PARAMS.items()}
+    model = spec(NODE).errors(params, sc.track, sc.vehicle)
+    fixed = math.hypot(params["survey_sigma"], params["skew_sigma"] / math.sqrt(3))
+    assert model.min_stddev == pytest.approx(fixed)
+    # the loops +- (antenna length + half a period), + the antenna offset
+    assert model.references.windows["A"] == pytest.approx((20.0 - 0.3 - 0.258 + OFFSET, 220.0 + 0.3 + 0.258 + OFFSET))
+    assert model.references.windows["C"] == pytest.approx((450.0 - 0.3 - 0.315 + OFFSET, 700.0 + 0.3 + 0.315 + OFFSET))
+    assert set(model.references.windows) == {"A", "B", "C"}
+    honest = PositionFix(1.0, "inpo", "inpo", "TR", "B", 300.0, 0.003, 1)
+    assert model.refusal(honest) is None
+    cases = {"below_model": dataclasses.replace(honest, position_stddev=0.5 * model.min_stddev),
+             "unknown_reference": dataclasses.replace(honest, reference_id="Z"),
+             "reference_mismatch": dataclasses.replace(honest, position=model.references.windows["B"].hi + 300.0)}
+    for reason, forged in cases.items():
+        assert model.refusal(forged).reason == reason
+    # without a survey or laying error: the 0.1 mm floor; without a track: no references
+    assert spec(NODE).errors({**params, "survey_sigma": 0.0, "skew_sigma": 0.0}, None, None).min_stddev == 1e-4
+    assert model.references is not None and spec(NODE).errors(params, None, None).references is None

@@ -3,9 +3,12 @@ read in single scan (P1..P4 + D0) and continuous scan (N1..N4 + D1), groups of l
 from the channel order, 4 redundant sensors with majority vote; speeds up to 500 km/h in both
 directions; misreads detected; unknown codes rejected; fixes within their stddev of truth."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
+from train_localization.core.measurements import PositionFix
 from train_localization.core.pipeline import run_offline, simulate_and_decode
 from train_localization.core.scenario import Scenario
 from train_localization.core.sensors import lrl
@@ -340,3 +343,62 @@ def test_frequent_misreads_never_give_a_fix_at_another_group(n_sensors):
         if n_sensors == 2:
             assert st["unresolved_lugs"] == st["sensor_disagreements"]   # every disagreement withheld
         assert fixes or n_sensors == 2
+
+
+# ---------------------------------------------------------------- error model: floor and references
+
+def _passed(tr, traj, params):
+    """Ids of the groups whose lugs the sensor (``sensor_offset`` behind the front) passed completely."""
+    s = traj.position - params["sensor_offset"]
+    return [item["id"] for item, code, spacing in lrl.track_groups(tr, params)
+            if s.min() < item["position"] - 1.2 and s.max() > item["position"] + (len(code) - 1) * spacing + 1.2]
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_every_decoded_fix_passes_the_error_model(seed):
+    """Randomised runs (1..8 m/s and 40..139 m/s both ways, both scan modes, 1 or 4 sensors, sensor
+    offset, installation error down to none): the model built from the run's parameters refuses
+    no fix."""
+    rng = np.random.default_rng(seed)
+    total = expected = 0
+    for sign in (1, -1):
+        for slow in (True, False):
+            speed = sign * (rng.uniform(1.0, 8.0) if slow else rng.uniform(40.0, V500))
+            params = {"scan_mode": str(rng.choice(MODES)), "n_sensors": int(rng.choice([1, 4])),
+                      "sensor_offset": float(rng.uniform(0.0, 30.0)),
+                      "install_sigma": float(rng.choice([0.0, 0.005, 0.05])),
+                      "level_noise": float(rng.choice([0.0, 0.05]))}
+            off = params["sensor_offset"]
+            duration = 40.0 / abs(speed) if slow else 3900.0 / abs(speed)
+            start = (995.0 if sign > 0 else 1050.0) if slow else (995.0 if sign > 0 else 5030.0)
+            sc = scenario(speed, duration, params, seed=seed, start=start + off)
+            _, fixes, rejected, pipe, traj = run(sc)
+            model = pipe.spec.errors(pipe.params, pipe.track, sc.vehicle)
+            assert model.min_stddev == max(params["install_sigma"], 1e-3)
+            assert [model.refusal(f) for f in fixes] == [None] * len(fixes)
+            ids = _passed(sc.track, traj, pipe.params)
+            got = [f.reference_id for f in fixes]
+            st = pipe.decoder.stats       # a group is lost by an unresolved lug or a misread code (one sensor)
+            assert set(got) <= set(ids) and len(got) + st["unresolved_lugs"] + st["unknown_id"] >= len(ids), st
+            total += len(got)
+            expected += len(ids)
+    assert total >= expected - 2 and total > 60
+
+
+def test_forged_lrl_fixes_are_refused_with_their_reason():
+    params = {k: v.default for k, v in lrl.PARAMS.items()} | {"sensor_offset": 1.5}
+    model = lrl.SPEC.errors(params, Track.from_dict(track()), None)
+    assert model.min_stddev == pytest.approx(0.005)
+    # from the first lug to the last (+ sensor offset): read last going backwards / forwards
+    assert model.references.windows["G1"] == pytest.approx((1001.5, 1007.5))
+    assert model.references.windows["G2"] == pytest.approx((1041.5, 1049.5))
+    assert model.references.windows["LRL000"] == pytest.approx((1301.5, 1307.5))
+    honest = PositionFix(10.0, "lrl", "lrl", "MAG", "G2", 1049.5, 0.005, 1)
+    assert model.refusal(honest) is None
+    assert model.refusal(dataclasses.replace(honest, position=1041.5, direction=-1)) is None
+    cases = {"below_model": dataclasses.replace(honest, position_stddev=0.5 * model.min_stddev),
+             "unknown_reference": dataclasses.replace(honest, reference_id="G9"),
+             "reference_mismatch": dataclasses.replace(honest, position=1049.5 + 300.0)}
+    for reason, forged in cases.items():
+        assert model.refusal(forged).reason == reason
+    assert lrl.SPEC.errors({**params, "install_sigma": 0.0}, None, None).min_stddev == pytest.approx(1e-3)

@@ -4,6 +4,7 @@ dropping at each crossing, a loop number that makes the count absolute."""
 from __future__ import annotations
 
 import copy
+import dataclasses
 import functools
 import math
 import pickle
@@ -11,6 +12,7 @@ import pickle
 import numpy as np
 import pytest
 
+from train_localization.core.measurements import PositionFix
 from train_localization.core.pipeline import SensorPipeline, simulate_and_decode
 from train_localization.core.scenario import Scenario, Vehicle
 from train_localization.core.sensors import NODE_NAMES, lzb, spec
@@ -255,3 +257,53 @@ def test_the_sensor_is_registered_with_its_own_error_model():
     assert model.fix_bias_per_reference and model.fix_bias_sigma == model.reported_fix_bias == 0.05
     assert lzb.MAX_LOOP_LENGTH == 12700.0 and lzb.PARAMS["spacing"].default == 100.0
     assert lzb.PARAMS["feeder_reach"].default == 300.0
+
+
+# --------------------------------------------------------------------------- error model: floor and references
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_every_decoded_fix_passes_the_error_model(seed):
+    """Randomised runs over 2.25 km and two joints (18..30 m/s and 60..83 m/s, both ways; antenna
+    offset, crossing spacing, installation and survey errors down to none, receiver noise): the
+    model built from the run's parameters refuses no fix, the joints' fixes included."""
+    rng = np.random.default_rng(seed)
+    total = 0
+    for sign in (1, -1):
+        for slow in (True, False):
+            speed = sign * (rng.uniform(18.0, 30.0) if slow else rng.uniform(60.0, 300 / 3.6))
+            params = {"antenna_offset": float(rng.uniform(0.0, 30.0)), "spacing": float(rng.choice([50.0, 100.0])),
+                      "crossing_sigma": float(rng.choice([0.0, 0.1])), "survey_sigma": float(rng.choice([0.0, 0.05])),
+                      "noise": float(rng.choice([0.0, 0.01, 0.03]))}
+            start = (880.0 if sign > 0 else 3170.0) + params["antenna_offset"]
+            sc = dataclasses.replace(scenario(v0=speed, pos=start, duration=2250.0 / abs(speed),
+                                              sensors={NODE: params}), seed=seed)
+            run = simulate_and_decode(NODE, sc)
+            model = run.pipe.spec.errors(run.pipe.params, run.pipe.track, sc.vehicle)
+            assert model.min_stddev == pytest.approx(max(math.hypot(params["crossing_sigma"],
+                                                                    params["survey_sigma"]), 1e-4))
+            fixes = run.measurements
+            assert [model.refusal(f) for f in fixes] == [None] * len(fixes)
+            # forwards onto L02 at 1000 m and L03 at 3050 m; backwards onto L02 at 3050 m and L01 at 1000 m
+            assert {f.reference_id for f in fixes} == ({"L02", "L03"} if sign > 0 else {"L01", "L02"})
+            assert len(fixes) >= 1800.0 / params["spacing"]
+            total += len(fixes)
+    assert total > 80
+
+
+def test_forged_lzb_fixes_are_refused_with_their_reason():
+    params = {k: p.default for k, p in lzb.PARAMS.items()}
+    model = spec(NODE).errors(params, Track.from_dict(TRACK), Vehicle())
+    assert model.min_stddev == pytest.approx(math.hypot(params["crossing_sigma"], params["survey_sigma"]))
+    # from the loop's start to its end (its joints), + the antenna offset
+    assert model.references.windows["L01"] == pytest.approx((OFFSET, 1000.0 + OFFSET))
+    assert model.references.windows["L02"] == pytest.approx((1000.0 + OFFSET, 3050.0 + OFFSET))
+    assert set(model.references.windows) == {"L01", "L02", "L03"}
+    honest = PositionFix(10.0, "lzb", "lzb", "lzb_test", "L02", 3050.0 + OFFSET, model.min_stddev, 1)
+    assert model.refusal(honest) is None
+    cases = {"below_model": dataclasses.replace(honest, position_stddev=0.5 * model.min_stddev),
+             "unknown_reference": dataclasses.replace(honest, reference_id="L09"),
+             "reference_mismatch": dataclasses.replace(honest, position=3050.0 + OFFSET + 300.0)}
+    for reason, forged in cases.items():
+        assert model.refusal(forged).reason == reason
+    # without installation and survey errors: the 0.1 mm floor; without a track: no references
+    quiet = spec(NODE).errors({**params, "crossing_sigma": 0.0, "survey_sigma": 0.0}, None, Vehicle())
+    assert quiet.min_stddev == pytest.approx(1e-4) and quiet.references is None

@@ -5,6 +5,7 @@ f = v / (2 tau), and the position within a pole pair from its phase, to +-5 deg,
 high speed only; the scenario through the fusion with the truth inside its interval."""
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 
@@ -274,3 +275,92 @@ def test_mlx_scenario_through_the_fusion_keeps_the_truth_inside_its_interval():
     accepted = result.runner.filter.counters()["accepted"]
     for sensor in ("wheel", "coil_counter", "emf_observer", "mmwave"):
         assert accepted.get(sensor, 0) > 100, accepted
+
+
+# --------------------------------------------------------------------------- error-model floors
+def _claimed(m) -> float:
+    """The 1-sigma [m/s] an increment claims for ErrorModel.refusal: the lower of its speed's and
+    its mean speed's (distance_stddev / duration)."""
+    return min(m.speed_stddev, m.distance_stddev / m.duration)
+
+
+def _floor_runs(node, cases, ideal):
+    """Every case (name: (initial speed [m/s], position [m], duration [s], profile)) in blocks of
+    10 ms .. 5 s with random seeds, every other run with the ``ideal`` parameters; asserts that
+    the sensor's error model refuses no decoded increment. Returns (increments per case, lowest
+    claimed 1-sigma / min_stddev)."""
+    rng = np.random.default_rng(2024)
+    n, lowest = {name: 0 for name in cases}, math.inf
+    for i, block in enumerate((0.01, 0.05, 0.5, 5.0)):
+        for k, (name, (v0, pos, duration, profile)) in enumerate(cases.items()):
+            params = {"block_duration": block, "max_block_duration": max(1.0, block)}
+            if (i + k) % 2 == 0:
+                params.update(ideal)
+            sc = scenario(node, v0=v0, pos=pos, duration=max(duration, 2.5 * block), profile=profile, params=params,
+                          seed=int(rng.integers(1 << 30)))
+            run = simulate_and_decode(node, sc, keep_going=True)
+            model = spec(node).errors(run.pipe.params, sc.track, sc.vehicle)
+            assert not run.rejected, (name, params, run.rejected[:3])
+            for m in run.measurements:
+                assert model.refusal(m) is None, (name, params, m)
+            n[name] += len(run.measurements)
+            lowest = min([lowest] + [_claimed(m) / model.min_stddev for m in run.measurements])
+    return n, lowest
+
+
+def _refused_at_half_the_floor(node, run, sc):
+    model = spec(node).errors(run.pipe.params, sc.track, sc.vehicle)
+    floor = model.min_stddev
+    honest = run.measurements[5]
+    assert floor > 0.0 and model.refusal(honest) is None
+    m = dataclasses.replace(honest, speed_stddev=floor, distance_stddev=floor * honest.duration)
+    assert model.refusal(m) is None                      # at the floor: taken
+    for forged in (dataclasses.replace(m, speed_stddev=floor / 2),
+                   dataclasses.replace(m, distance_stddev=floor / 2 * m.duration),
+                   dataclasses.replace(m, speed_stddev=floor / 2, distance_stddev=floor / 2 * m.duration)):
+        why = model.refusal(forged)
+        assert why is not None and why.reason == "below_model", forged
+
+
+def test_every_coil_counter_increment_is_at_or_above_the_error_model_floor():
+    """ErrorModel.min_stddev holds by construction (wheel.IncrementEstimator's floor): random
+    seeds, blocks of 10 ms .. 5 s and, every other run, coils and pickups without scatter or
+    scale error (an increment between two switching points would claim 0 m), at a standstill,
+    a crawl, 150 m/s and through a reversal; the floor is reached (it is the decoder's own)."""
+    reversal = [{"speed": 10.0, "accel": 1.0, "hold": 1.0}, {"speed": -5.0, "decel": 1.0, "accel": 1.0, "hold": 1.0},
+                {"speed": 0.0, "decel": 1.0, "hold": 3.0}]
+    cases = {"standstill": (0.0, 300.0 + HEAD + PITCH / 8.0, 12.5, [{"speed": 0.0, "hold": 60.0}]),
+             "crawl": (0.02, 300.0, 12.5, [{"speed": 0.02, "hold": 60.0}]),
+             "high_speed": (150.0, 500.0, 3.0, None),
+             "reversal": (0.0, 500.0, 22.0, reversal)}
+    ideal = {"coil_sigma": 0.0, "gap_sigma": 0.0, "gain_sigma": 0.0, "noise": 0.0, "pitch_scale_sigma": 0.0}
+    n, lowest = _floor_runs(COIL, cases, ideal)
+    assert min(n.values()) > 10 and sum(n.values()) > 1000, n
+    assert lowest == pytest.approx(1.0, abs=1e-9)
+
+
+def test_a_coil_counter_increment_claiming_half_the_floor_is_refused_below_model():
+    sc = scenario(COIL, duration=1.0)
+    _refused_at_half_the_floor(COIL, simulate_and_decode(COIL, sc), sc)
+
+
+def test_every_emf_observer_increment_is_at_or_above_the_error_model_floor():
+    """ErrorModel.min_stddev (pitch_scale_sigma x min_speed, at least 1 mm/s) holds by
+    construction: random seeds, blocks of 10 ms .. 5 s and, every other run, an observer without
+    angle error, noise, harmonic or scale error (only the converters' quantisation left: an
+    increment would claim a mean speed to 0.5 mm/s), cutting in through min_speed, just above it,
+    at 138 m/s and through a reversal (silent around the standstill); the floor is reached."""
+    cases = {"cut_in": (0.0, 200.0, 16.0, [{"speed": 30.0, "accel": 2.0, "hold": 60.0}]),
+             "near_min_speed": (1.03 * MIN_SPEED, 200.0, 4.0, None),
+             "high_speed": (138.0, 200.0, 3.0, None),
+             "reversal": (-40.0, 3000.0, 22.0, [{"speed": 40.0, "accel": 4.0, "decel": 4.0, "hold": 60.0}])}
+    ideal = {"accuracy_deg": 0.0, "harmonic5": 0.0, "voltage_noise": 0.0, "current_noise": 0.0,
+             "pitch_scale_sigma": 0.0, "resistance_tolerance": 0.0, "inductance_tolerance": 0.0}
+    n, lowest = _floor_runs(EMF, cases, ideal)
+    assert min(n.values()) > 3 and sum(n.values()) > 500, n
+    assert lowest == pytest.approx(1.0, abs=1e-9)
+
+
+def test_an_emf_observer_increment_claiming_half_the_floor_is_refused_below_model():
+    sc = scenario(EMF, v0=60.0, duration=1.0)
+    _refused_at_half_the_floor(EMF, simulate_and_decode(EMF, sc), sc)

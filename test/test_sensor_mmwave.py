@@ -1,15 +1,17 @@
 """mm-wave radio ranging (seed 002 section 2.2.2): simulator + decoder against the truth."""
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
 from train_localization.core.measurements import PositionFix
-from train_localization.core.pipeline import SensorPipeline, run_offline
+from train_localization.core.pipeline import SensorPipeline, run_offline, simulate_and_decode
 from train_localization.core.scenario import Scenario
 from train_localization.core.sensors import spec
 from train_localization.core.sensors.base import resolve_params
 from train_localization.core.sensors.mmwave import C_AIR, CHANNELS, N_SLOTS
+from train_localization.core.track import Track
 from train_localization.core.signals import InputRejected, RawBlock
 
 NODE = "mmwave_ranging"
@@ -433,3 +435,65 @@ def test_silent_stations_and_a_biased_one_at_450_kmh_keep_the_999_interval(block
         epochs = stats["epochs"] if not block else stats["epochs"] / 10
         assert len(err) > 0.6 * epochs, (seed, stats)     # the gap itself has < 2 stations
         assert stats["rejected_stations"] > 0
+
+
+# -- error model: floor and references ------------------------------------------------------------
+@pytest.mark.parametrize("seed", [1, 2, 3, 4, 5, 6])
+def test_every_decoded_fix_passes_the_error_model(seed):
+    """Randomised runs (1..8 m/s and 60..139 m/s both ways, per epoch and per block of 0.05 or
+    0.25 s; antenna offset, orientation, radio range, single-station fixes, ranging noise and
+    calibration down to none, NLOS episodes): the model built from the run's parameters refuses
+    no fix, named by one station or several, used or excluded."""
+    rng = np.random.default_rng(seed)
+    total = 0
+    for sign in (1, -1):
+        for slow in (True, False):
+            for block in (False, True):
+                speed = sign * (rng.uniform(1.0, 8.0) if slow else rng.uniform(60.0, V_MAX))
+                params = {"antenna_offset": float(rng.uniform(0.0, 30.0)), "orientation": int(rng.choice([-1, 1])),
+                          "max_range": float(rng.uniform(500.0, 1200.0)), "min_stations": int(rng.choice([1, 2])),
+                          "cal_sigma": float(rng.choice([0.0, 0.03])),
+                          "range_sigma_floor": float(rng.choice([0.0, 0.08])),
+                          "range_sigma_snr": float(rng.choice([0.0, 0.1])),
+                          "nlos_rate": float(rng.choice([0.0, 0.05, 0.5])), "fix_per_block": block,
+                          "block_duration": float(rng.choice([0.05, 0.25]))}
+                sc = scenario(speed, float(rng.uniform(1000.0, 9000.0)), duration=5.0, params=params, seed=seed)
+                run = simulate_and_decode(NODE, sc)
+                model = run.pipe.spec.errors(run.pipe.params, run.pipe.track, sc.vehicle)
+                if not block:   # N_SLOTS ranges of the least variance, along the track
+                    least = max(params["range_sigma_floor"] ** 2 + params["cal_sigma"] ** 2, 1e-6)
+                    assert model.min_stddev == pytest.approx(math.sqrt(least / N_SLOTS))
+                fixes = run.measurements
+                assert [model.refusal(f) for f in fixes] == [None] * len(fixes)
+                # (NLOS episodes at 0.5/s leave no fix with two stations in view: two faults too likely)
+                assert len(fixes) >= 0.3 * (1000 if not block else 5.0 / params["block_duration"]) \
+                    or params["nlos_rate"] > 0.1
+                total += len(fixes)
+    assert total > 2000
+
+
+def test_forged_mmwave_fixes_are_refused_with_their_reason():
+    params = resolve_params(spec(NODE).params, {"antenna_offset": 2.0})
+    track = Track.from_dict({"track_id": "T1", "length": 10000.0, "equipment": {"mmwave_station": STATIONS}})
+    model = spec(NODE).errors(params, track, None)
+    assert model.min_stddev == pytest.approx(math.hypot(0.08, 0.03) / 2.0)   # 4 ranges of 8.5 cm
+    # a station (MW001 at 600 m) is ranged up to the decoder's bound, twice the radio range
+    # (and 1 us of delay), with the front 2 m off the antenna either way; excluded ("!") alike
+    reach = 2.0 * 1000.0 + C_AIR * 1e-6 + 2.0
+    assert model.references.windows["MW001"] == pytest.approx((600.0 - reach, 600.0 + reach))
+    assert model.references.windows["!MW001"] == model.references.windows["MW001"]
+    assert model.references.separator == ","
+    honest = PositionFix(10.0, "mmwave", "mmwave", "T1", "MW001,MW002,!MW003", 900.0, 0.05, 0, (0.1, -0.1, 2.0))
+    assert model.refusal(honest) is None
+    hi = model.references.windows["MW001"].hi
+    cases = {"below_model": dataclasses.replace(honest, position_stddev=0.5 * model.min_stddev),
+             "unknown_reference": dataclasses.replace(honest, reference_id="MW001,MW999"),
+             "reference_mismatch": dataclasses.replace(honest, reference_id="MW001", position=hi + 300.0)}
+    for reason, forged in cases.items():
+        assert model.refusal(forged).reason == reason
+    # every part of a composite id must hold the fix: the far station MW010 (4200 m) does not
+    assert model.refusal(dataclasses.replace(honest, reference_id="MW001,!MW010")).reason == "reference_mismatch"
+    # one fix per block averages the noise of up to max_block_duration x 200 Hz epochs, not the calibration
+    block = spec(NODE).errors({**params, "fix_per_block": True}, track, None)
+    assert block.min_stddev == pytest.approx(math.sqrt((0.08 ** 2 / 200 + 0.03 ** 2) / N_SLOTS))
+    assert spec(NODE).errors(params, None, None).references is None

@@ -1,6 +1,7 @@
 """AF jointless track circuits UM71C / TI21 (seed 004 sections 3.1, 3.2, Tables 1-2, 4.2):
 carrier allocation, the rails as a transmission line, occupancy with its delays, faults."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -9,7 +10,7 @@ import yaml
 
 from conftest import ROOT
 from train_localization.core.measurements import CLEAR, DISTURBED, OCCUPIED, PositionFix, SectionOccupancy
-from train_localization.core.pipeline import SensorPipeline, run_offline
+from train_localization.core.pipeline import SensorPipeline, run_offline, simulate_and_decode
 from train_localization.core.scenario import Scenario, Vehicle
 from train_localization.core.sensors import NODE_NAMES, spec
 from train_localization.core.sensors import track_circuit as tc
@@ -391,3 +392,68 @@ def test_registered_with_an_error_model_and_occupancy_output():
     assert occ and all(m.source == "track_circuit" for m in occ)
     assert [s.section_id for s in occ[0].sections] == ["TC00", "TC01", "TC02", "TC03"]
     assert blocks[0].channels == ("TC00.level", "TC01.level", "TC02.level", "TC03.level")
+
+
+# -- error model: floor and references ------------------------------------------------------
+
+MIXED = [{"every": 1500.0, "start": 0.0, "end": 1500.0, "id": "TC{n:02d}", "length": 1500.0, "system": "UM71C"},
+         {"id": "TI00", "start": 3000.0, "end": 3800.0, "system": "TI21", "zone": 30.0},
+         {"id": "TI01", "start": 3800.0, "end": 4600.0, "system": "TI21"}]    # zones 24 | 30 | 20 m
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_every_decoded_fix_passes_the_error_model(seed):
+    """Randomised runs over UM71C and TI21 circuits of different zones (3..10 m/s over one joint,
+    40..83 m/s over all three, both ways, the train leading or backing; trains of 1-8 cars, the
+    last axle known or not, UM71C zone length, front_first): the model built from the run's
+    parameters refuses no boundary fix."""
+    rng = np.random.default_rng(seed)
+    total = 0
+    for sign in (1, -1):
+        for slow in (True, False):
+            speed = sign * (rng.uniform(3.0, 10.0) if slow else rng.uniform(40.0, V300))
+            orient = int(rng.choice([-1, 1]))
+            ax = axles(int(rng.integers(1, 9)))
+            params = {"orientation": orient, "last_axle_offset": float(max(ax)) if rng.random() < 0.7 else 0.0,
+                      "zone_um71c": float(rng.uniform(18.0, 26.0)), "front_first": bool(rng.random() < 0.2)}
+            if slow:   # the leading axle 40 m before a joint
+                joint = float(rng.choice([1500.0, 3000.0, 3800.0]))
+                start = joint - sign * 40.0 + (orient * max(ax) if orient != sign else 0.0)
+                duration = 100.0 / abs(speed)
+            else:
+                start, duration = (300.0 if sign > 0 else 4400.0), 4000.0 / abs(speed)
+            sc = scenario(MIXED, speed=speed, start=start, duration=duration, params=params, vehicle_axles=ax)
+            run = simulate_and_decode(NODE, dataclasses.replace(sc, seed=seed))
+            model = run.pipe.spec.errors(run.pipe.params, run.pipe.track, sc.vehicle)
+            # the shortest zone (TI21's 20 m or UM71C's) and a 100 Hz sample of 100 m/s
+            shortest = min(20.0, params["zone_um71c"])
+            assert model.min_stddev == pytest.approx(math.sqrt(1.25 * (0.5 * shortest) ** 2 + 0.02 ** 2
+                                                               + (100.0 / 100.0) ** 2 / 12.0))
+            fixes = [m for m in run.measurements if isinstance(m, PositionFix)]
+            assert [model.refusal(f) for f in fixes] == [None] * len(fixes)
+            # a backing train gives fixes only with its last axle known (or taken to lead)
+            gives = orient == sign or params["front_first"] or params["last_axle_offset"] > 0.0
+            assert len(fixes) == (1 if slow else 3) * gives
+            total += len(fixes)
+    assert total >= 4
+
+
+def test_forged_track_circuit_fixes_are_refused_with_their_reason():
+    params = resolve_params(tc.PARAMS, {"first_axle_offset": FIRST_AXLE, "last_axle_offset": 198.0})
+    model = spec(NODE).errors(params, track(MIXED), Vehicle())
+    assert model.min_stddev == pytest.approx(math.sqrt(1.25 * 10.0 ** 2 + 0.02 ** 2 + 1.0 / 12.0))
+    assert set(model.references.windows) == {"TC00/TC01", "TC01/TI00", "TI00/TI01"}
+    # joint TC01/TI00 at 3000 m: entering TI00 upwards (zone 30 m) the drop is 15 m before it, entering
+    # TC01 downwards (24 m) 12 m after it; the front 3 m ahead of the first axle or 198 m behind the last
+    assert model.references.windows["TC01/TI00"] == pytest.approx((3000.0 - 15.0 - 198.0, 3000.0 + 12.0 + 198.0))
+    # without the last axle (no fix while backing): the first axle only
+    lead = spec(NODE).errors({**params, "last_axle_offset": 0.0}, track(MIXED), Vehicle())
+    assert lead.references.windows["TC01/TI00"] == pytest.approx((3000.0 - 15.0 + 3.0, 3000.0 + 12.0 - 3.0))
+    honest = PositionFix(10.0, "track_circuit", "track_circuit", "T", "TC01/TI00", 2988.0, 13.4, 1)
+    assert lead.refusal(honest) is None
+    cases = {"below_model": dataclasses.replace(honest, position_stddev=0.5 * lead.min_stddev),
+             "unknown_reference": dataclasses.replace(honest, reference_id="TC00/TI00"),   # not neighbours
+             "reference_mismatch": dataclasses.replace(honest, position=3009.0 + 300.0)}
+    for reason, forged in cases.items():
+        assert lead.refusal(forged).reason == reason
+    assert spec(NODE).errors(params, None, Vehicle()).references is None

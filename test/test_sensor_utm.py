@@ -5,6 +5,7 @@ fusion."""
 from __future__ import annotations
 
 import copy
+import dataclasses
 import functools
 import math
 import pickle
@@ -13,6 +14,7 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
+from train_localization.core.measurements import PositionFix
 from train_localization.core.offline import simulate_scenario
 from train_localization.core.pipeline import SensorPipeline, simulate_and_decode
 from train_localization.core.scenario import Scenario, Vehicle
@@ -216,6 +218,49 @@ def test_dgps_implausible_blocks_are_rejected_without_a_trace():
     assert [m for b in run.blocks for m in again.on_block(b)] == run.measurements
 
 
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_every_decoded_dgps_fix_passes_the_error_model(seed):
+    """Randomised runs (2..8 m/s and 20..30 m/s both ways, past the station roof and through the
+    tunnel at speed; antenna offset, receiver noise and multipath down to none, structure factors,
+    correction outages): the model built from the run's parameters refuses no fix."""
+    rng = np.random.default_rng(seed)
+    total = 0
+    for sign in (1, -1):
+        for slow in (True, False):
+            speed = sign * (rng.uniform(2.0, 8.0) if slow else rng.uniform(20.0, 30.0))
+            params = {"antenna_offset": float(rng.uniform(0.0, 30.0)),
+                      "white_sigma": float(rng.choice([0.0, 0.4, 1.0])),
+                      "multipath_sigma": float(rng.choice([0.0, 0.3, 1.0])),
+                      "structure_multipath_factor": float(rng.uniform(1.0, 5.0)),
+                      "structure_hdop_factor": float(rng.uniform(1.0, 2.0)), "faults": "5-8:nocorr"}
+            start = (1900.0 if sign > 0 else 2200.0) if slow else (400.0 if sign > 0 else 3900.0)
+            duration = 30.0 if slow else 3300.0 / abs(speed)
+            sc = scenario(v0=speed, pos=start + params["antenna_offset"], duration=duration, sensors={DGPS: params})
+            run = simulate_and_decode(DGPS, dataclasses.replace(sc, seed=seed))
+            model = run.pipe.spec.errors(run.pipe.params, run.pipe.track, sc.vehicle)
+            assert model.min_stddev == max(params["multipath_sigma"], 1e-3) and model.references is None
+            fixes = run.measurements
+            assert [model.refusal(f) for f in fixes] == [None] * len(fixes)
+            assert len(fixes) >= (60 if slow else 800)
+            total += len(fixes)
+    assert total > 2000
+
+
+def test_forged_dgps_fixes_are_refused_below_the_floor():
+    model = spec(DGPS).errors(DP, Track.from_dict(TRACK), Vehicle())
+    # the decoder's stddev at HDOP -> 0 in the open: the open-sky multipath; no references (the
+    # reference id is the receiver's unit id)
+    assert model.min_stddev == pytest.approx(DP["multipath_sigma"]) and model.references is None
+    honest = PositionFix(10.0, "dgps", "dgps", "utm_test", "dgps", 1000.0,
+                         math.hypot(DP["white_sigma"], DP["multipath_sigma"]))
+    assert model.refusal(honest) is None
+    assert model.refusal(dataclasses.replace(honest, position_stddev=0.5 * model.min_stddev)).reason == "below_model"
+    # the fix is not checked against equipment: any id and chainage pass the floor
+    assert model.refusal(dataclasses.replace(honest, reference_id="other", position=99999.0)) is None
+    # without multipath: the 1 mm resolution of the solution
+    assert spec(DGPS).errors({**DP, "multipath_sigma": 0.0}, None, Vehicle()).min_stddev == pytest.approx(1e-3)
+
+
 # --------------------------------------------------------------------------- transponder tags
 def test_tags_every_100_m_and_a_reading_window_that_reads_them_at_utm_speeds():
     track = Track.from_yaml(ROOT / "config" / "track_utm.yaml")
@@ -354,3 +399,109 @@ def test_the_utm_scenario_through_the_fusion_keeps_the_truth_inside_the_interval
     antenna = np.array([np.interp(m.stamp, truth[:, 0], truth[:, 1]) - DP["antenna_offset"]
                         for m in result.measurements if m.sensor == "dgps"])
     assert not np.any((antenna > 3900.0) & (antenna < 4400.0))
+
+
+# --------------------------------------------------------------------------- transponder: error model
+def _tags_passed(run, offset) -> list[str]:
+    """Ids of the tags the antenna (``offset`` behind the front) passed completely during the run."""
+    ant = run.trajectory.position - offset
+    lo, hi = ant.min() + 1.0, ant.max() - 1.0
+    return [it["id"] for it in run.pipe.track.items(transponder.KIND) if lo < it["position"] < hi]
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_every_decoded_tag_fix_passes_the_error_model(seed):
+    """Randomised runs (1..5 m/s and 20..33 m/s both ways, a stop on the way, antenna offset,
+    installation error and noise down to none): the model built from the run's parameters refuses
+    no fix."""
+    rng = np.random.default_rng(seed)
+    total = expected = 0
+    for sign in (1, -1):
+        for kind in ("slow", "fast", "stop"):
+            v = sign * (rng.uniform(1.0, 5.0) if kind == "slow" else rng.uniform(20.0, 33.0))
+            params = {"antenna_offset": float(rng.uniform(0.0, 30.0)),
+                      "install_sigma": float(rng.choice([0.0, 0.01, 0.05])),
+                      "noise": float(rng.choice([0.0, 0.005]))}
+            profile = None
+            duration = 60.0 / abs(v) if kind == "slow" else 2300.0 / abs(v)
+            if kind == "stop":
+                profile = [{"speed": v, "hold": 2.0}, {"speed": 0.0, "decel": 1.0, "hold": 4.0},
+                           {"speed": v, "accel": 1.0, "hold": 99.0}]
+                duration = 20.0
+            pos = (400.0 if sign > 0 else 3100.0) + params["antenna_offset"] + rng.uniform(0.0, 100.0)
+            sc = scenario(v0=v, pos=pos, duration=duration, profile=profile, sensors={TAGS: params})
+            sc.seed = seed
+            run = simulate_and_decode(TAGS, sc)
+            model = run.pipe.spec.errors(run.pipe.params, run.pipe.track, sc.vehicle)
+            assert model.min_stddev == max(params["install_sigma"], 1e-3)
+            assert [model.refusal(m) for m in run.measurements] == [None] * len(run.measurements)
+            passed = _tags_passed(run, params["antenna_offset"])
+            st = run.pipe.decoder.stats
+            assert {m.reference_id for m in run.measurements} <= set(passed)
+            assert len(run.measurements) == len(passed) - st["failed_reads"] - st["implausible"], st
+            total += len(run.measurements)
+            expected += len(passed)
+    assert total >= expected - 3 and total > 50
+
+
+def test_forged_tag_fixes_are_refused_with_their_reason():
+    model = spec(TAGS).errors({**TP, "antenna_offset": 3.0}, Track.from_dict(copy.deepcopy(TRACK)), Vehicle())
+    assert model.min_stddev == pytest.approx(TP["install_sigma"])
+    assert model.references.windows["TG010"] == (1053.0, 1053.0)          # chainage + antenna offset
+    assert len(model.references.windows) == 40                             # TG000 .. TG039, every 100 m
+    honest = PositionFix(10.0, "transponder", "transponder", "utm_test", "TG010", 1053.0, TP["install_sigma"])
+    assert model.refusal(honest) is None
+    cases = {"below_model": dataclasses.replace(honest, position_stddev=0.5 * model.min_stddev),
+             "unknown_reference": dataclasses.replace(honest, reference_id="TG999"),
+             "reference_mismatch": dataclasses.replace(honest, position=1053.0 + 300.0)}
+    for reason, forged in cases.items():
+        assert model.refusal(forged).reason == reason
+    assert spec(TAGS).errors({**TP, "install_sigma": 0.0}, None, Vehicle()).min_stddev == pytest.approx(1e-3)
+
+
+# --------------------------------------------------------------------------- Doppler radar: error model
+DOPPLER = "doppler_radar"
+DOPPLER_CASES = {   # name: (initial speed [m/s], duration [s], profile, radar parameters)
+    "standstill": (0.0, 12.5, [{"speed": 0.0, "hold": 60.0}], {"min_speed": 0.0}),
+    "crawl": (0.05, 12.5, [{"speed": 0.05, "hold": 60.0}], {"min_speed": 0.0}),
+    "high_speed": (100.0, 3.0, [{"speed": 100.0, "hold": 60.0}], {}),
+    "reversal": (10.0, 12.0, [{"speed": -10.0, "accel": 2.0, "decel": 2.0, "hold": 60.0}], {}),
+}
+
+
+def test_every_decoded_doppler_speed_passes_the_error_model_floor():
+    """ErrorModel.min_stddev (the decoder's sigma at v = 0, |bias|, at least 1 cm/s) holds by
+    construction: random seeds and biases, blocks of 10 ms .. 5 s and, every other run, a radar
+    without spread, scale error or bias (its sigma 0), at a standstill and a crawl seen by a
+    radar without clutter filter (min_speed 0), at 100 m/s and through a reversal; none is
+    refused below_model, and the floor is reached (it is the decoder's own)."""
+    rng = np.random.default_rng(2024)
+    n, lowest = {name: 0 for name in DOPPLER_CASES}, math.inf
+    for i, block in enumerate((0.01, 0.05, 0.5, 5.0)):
+        for k, (name, (v0, duration, profile, radar)) in enumerate(DOPPLER_CASES.items()):
+            params = {**radar, "block_duration": block, "max_block_duration": max(1.0, block),
+                      "bias": float(rng.choice([0.005, 0.02, -0.05]))}
+            if (i + k) % 2 == 0:
+                params.update(spread=0.0, scale_sigma=0.0, bias=0.0)
+            sc = dataclasses.replace(scenario(v0=v0, duration=max(duration, 2.5 * block), profile=profile,
+                                              sensors={DOPPLER: params}), seed=int(rng.integers(1 << 30)))
+            run = simulate_and_decode(DOPPLER, sc, keep_going=True)
+            model = spec(DOPPLER).errors(run.pipe.params, sc.track, sc.vehicle)
+            assert not run.rejected, (name, params, run.rejected[:3])
+            for m in run.measurements:
+                assert model.refusal(m) is None, (name, params, m)
+            n[name] += len(run.measurements)
+            lowest = min([lowest] + [m.speed_stddev / model.min_stddev for m in run.measurements])
+    assert min(n.values()) > 10 and sum(n.values()) > 1000, n
+    assert lowest == pytest.approx(1.0, abs=1e-9)
+
+
+def test_a_doppler_speed_claiming_half_the_floor_is_refused_below_model():
+    sc = scenario(v0=20.0, duration=1.0, sensors={DOPPLER: {}})
+    run = simulate_and_decode(DOPPLER, sc)
+    model = spec(DOPPLER).errors(run.pipe.params, sc.track, sc.vehicle)
+    floor = model.min_stddev
+    assert floor == max(0.01, abs(run.pipe.params["bias"])) and model.refusal(run.measurements[5]) is None
+    assert model.refusal(dataclasses.replace(run.measurements[5], speed_stddev=floor)) is None   # at the floor
+    why = model.refusal(dataclasses.replace(run.measurements[5], speed_stddev=floor / 2))
+    assert why is not None and why.reason == "below_model"

@@ -33,10 +33,12 @@ import traceback
 
 import numpy as np
 
-from .offline import delayed, fuse_arrivals, fusion_config, scenario_measurements, sensor_pipelines
+from .fusion import fusion_config
+from .offline import delayed, fuse_arrivals, scenario_measurements, sensor_pipelines
 from .report import jsonable
 from .scenario import Leg, Scenario, Trajectory
 from .scoring import StateSeries, passing_times, run_scores
+from .sensors import sensor_classes
 from .sensors import wheel as _wheel
 
 FAMILIES = ("conventional", "urban_maglev", "highspeed_maglev")
@@ -660,14 +662,6 @@ def _mbahn(d: _Draw) -> tuple[dict, dict]:
 _GENERATORS = {"conventional": _conventional, "urban_maglev": _urban, "highspeed_maglev": _highspeed_maglev,
                "lzb": _lzb, "utm": _utm, "mlx": _mlx, "hsst": _hsst, "mbahn": _mbahn}
 
-# sensor node -> the sensor class its measurements carry (outages name classes)
-_CLASSES = {"wheel_sensor": "wheel", "doppler_radar": "doppler", "eurobalise_reader": "eurobalise",
-            "axle_counter": "axle_counter", "pattern_belt": "pattern_belt", "inpo_receiver": "inpo",
-            "lrl_scanner": "lrl", "mmwave_ranging": "mmwave", "lzb_receiver": "lzb", "dgps_receiver": "dgps",
-            "tag_reader": "transponder", "coil_counter": "coil_counter", "emf_observer": "emf_observer",
-            "checkin_loop": "checkin", "pole_position": "pole_position"}
-
-
 def generate(family: str, seed: int, max_duration: float | None = None) -> dict:
     """The scenario dict of run (family, seed): ``Scenario.from_dict`` loads it.
 
@@ -677,7 +671,7 @@ def generate(family: str, seed: int, max_duration: float | None = None) -> dict:
         raise ValueError(f"unknown family {family!r}; known: {', '.join(ALL_FAMILIES)}")
     d = _Draw(seed)
     body, conditions = _GENERATORS[family](d)
-    delivery = _delivery(d, body["duration"], [_CLASSES[n] for n in body["sensors"]])
+    delivery = _delivery(d, body["duration"], [sensor_classes()[n] for n in body["sensors"]])
     conditions["max_delay"] = delivery["max_delay"]
     conditions["outages"] = len(delivery["outages"])
     if max_duration is not None and max_duration < body["duration"]:

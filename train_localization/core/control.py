@@ -190,8 +190,8 @@ def closed_loop(scenario, t_end: float | None = None, fusion_rate: float = 200.0
     """
     from .convert import canonical
     from .dynamics import Dynamics
-    from .fusion import FusionRunner
-    from .offline import RunResult, _Output, fusion_config, sensor_pipelines
+    from .fusion import FusionRunner, fusion_config
+    from .offline import RunResult, _Output, sensor_pipelines
 
     if not scenario.control:
         raise ValueError(f"scenario {scenario.name} has no 'control' section")

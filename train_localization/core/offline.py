@@ -38,7 +38,7 @@ from ..graph import NAMESPACE   # the graph's namespace: the bags carry its topi
 from . import convert
 from .association import Associator
 from .bagio import BagWriter, typestore_classes
-from .fusion import FusionConfig, FusionRunner, estimate_to_msg, order_key, sensor_models
+from .fusion import FusionConfig, FusionRunner, estimate_to_msg, fusion_config, order_key
 from .measurements import PositionFix, SectionOccupancy
 from .pipeline import SensorPipeline
 from .scenario import WAYSIDE, Scenario
@@ -64,30 +64,6 @@ def train_namespace(scenario: Scenario) -> str:
     """Namespace of a train's graph: /train for a one-train scenario, /<name> on a line."""
     return f"/{scenario.train_name}" if scenario.line else NAMESPACE
 
-
-
-# per-sensor tables that scenarios (and the bags recorded from them) carried before the
-# sensors owned their error models; the sensors' models replace them
-LEGACY_FUSION_KEYS = frozenset({
-    "scale_sensors", "bias_sensors", "slip_sensors", "fix_bias_sensors", "fix_bias_per_reference", "timeouts",
-    "scale_tau", "scale_sigma", "scale_offset_sigma", "initial_scale_stddev", "bias_sigma", "fix_bias_sigma",
-    "fix_bias_length", "fix_bias_tau", "reported_fix_bias", "creep_coefficient", "reported_scale",
-    "reported_bias", "stddev_factor", "gate_probabilities", "reacquire_count", "reacquire_time"})
-
-
-def fusion_config(scenario: Scenario | None, **overrides) -> FusionConfig:
-    """FusionConfig of a (one train's) scenario: the error models of its sensors (and of the
-    wayside sensors of its line), and its ``fusion:``
-    section (global tuning and per-sensor ``overrides``), plus keyword overrides.
-    Legacy per-sensor tables (``LEGACY_FUSION_KEYS``, in bags recorded before) are ignored."""
-    values = {k: v for k, v in ((scenario.fusion if scenario else {}) or {}).items() if k not in LEGACY_FUSION_KEYS}
-    values.update(overrides)
-    if scenario is not None:
-        values.setdefault("track_id", scenario.track.track_id)
-        # a train of a line also takes the wayside fixes associated with it
-        values.setdefault("sensors", sensor_models({**scenario.sensors, **scenario.wayside}, scenario.track,
-                                                   scenario.vehicle))
-    return FusionConfig(**values)
 
 
 @dataclass

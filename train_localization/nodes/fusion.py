@@ -45,19 +45,16 @@ from rclpy.lifecycle import TransitionCallbackReturn
 from rclpy.node import Node
 
 from ..core import convert, paths
-from ..core.fusion import FusionConfig, Mode, sensor_models
-from ..core.offline import FusionRunner, estimate_to_msg, fusion_config
+from ..core.fusion import FusionConfig, FusionRunner, Mode, estimate_to_msg, fusion_config, sensor_models
 from ..core.scenario import Scenario
-from ..core.measurements import PositionFix
 from ..core.signals import InputRejected
 from ..core.track import Track
-from ..core.sensors import NODE_NAMES, spec
+from ..core.sensors import NODE_NAMES, sensor_classes, spec
 from .common import (STATE_QOS, STREAM_QOS, ConfigurationError, ManagedNode, declare, now_sec, rclpy_classes,
                      spin)
 
-ALL_SENSORS = ["doppler", "wheel", "eurobalise", "lrl", "inpo", "pattern_belt", "mmwave", "axle_counter", "lzb",
-               "track_circuit", "dgps", "transponder", "coil_counter", "emf_observer", "checkin",
-               "pole_position", "rig_loop"]
+# every sensor class, in the registry's order (core/sensors/__init__.py)
+ALL_SENSORS = list(dict.fromkeys(sensor_classes().values()))
 
 
 def _ros_value(value):
@@ -79,7 +76,7 @@ def error_model_parameters(model) -> dict:
     from dataclasses import fields
     out = {}
     for f in fields(model):
-        if f.name in ("sensor", "measures"):
+        if f.name in ("sensor", "measures", "references"):
             continue
         value = getattr(model, f.name)
         out[f.name] = ",".join(value) if f.name == "faults" else value
@@ -100,7 +97,7 @@ def overrides_from_parameters(model, values: dict) -> dict:
     return out
 
 
-def declare_fusion_config(node: Node, base: FusionConfig, track_id: str) -> FusionConfig:
+def declare_fusion_config(node: Node, base: FusionConfig, track) -> FusionConfig:
     """Declare every global tuning field (default: ``base``) and, per configured sensor, its
     error-model fields as nested parameters ``<sensor>.<field>`` (default: the sensor's own
     model with ``base``'s overrides, e.g. a scenario's), and build the config. A value that
@@ -124,7 +121,8 @@ def declare_fusion_config(node: Node, base: FusionConfig, track_id: str) -> Fusi
                 overrides[sensor] = changed
                 node.get_logger().info(f"error model of {sensor} overridden: "
                                        + ", ".join(f"{k}={v}" for k, v in sorted(changed.items())))
-        return FusionConfig(track_id=track_id, sensors=base.sensors, overrides=overrides, **values)
+        return FusionConfig(track_id=track.track_id, track=track, sensors=base.sensors, overrides=overrides,
+                            **values)
     except ValueError as exc:
         raise ConfigurationError(f"fusion parameters: {exc}") from None
 
@@ -221,7 +219,7 @@ class FusionNode(ManagedNode):
         if params_file or not scenario:
             base = FusionConfig(**{**{f.name: getattr(base, f.name) for f in FusionConfig.tuning_fields()},
                                    "sensors": self._models(sensors, params_file), "overrides": base.overrides})
-        cfg = declare_fusion_config(self, base, self.track.track_id)
+        cfg = declare_fusion_config(self, base, self.track)
         self.map_frame = declare(self, "map_frame", "map", "fixed frame (REP-105 map)", read_only=True)
         self.base_frame = declare(self, "base_frame", "base_link", "vehicle frame", read_only=True)
         self.odom_frame = declare(self, "odom_frame", "", "REP-105 odom frame of a source that publishes "
@@ -315,38 +313,22 @@ class FusionNode(ManagedNode):
     def on_measurement(self, topic, parse, msg):
         try:
             m = parse(msg)
-            self._check_against_node(topic, m)
+            sensor = topic.split("/")[1]
+            if m.sensor != sensor:   # what only the node can tell: the rest is core/fusion/admission.py
+                raise InputRejected("wrong_sensor", f"measurement of sensor {m.sensor[:64]!r} on the topic "
+                                                    f"of {sensor!r}")
         except InputRejected as exc:
             self.diag.reject(topic, exc.reason, str(exc))
             return
-        if not self.runner.add(m):
+        now = now_sec(self)
+        if not self.runner.add(m, now):
             exc = self.runner.last_error
             self.diag.reject(topic, exc.reason, str(exc))
             return
         self.diag.accept(topic)
         seen = self._inputs.setdefault(m.sensor, [0, None, None])
         seen[0] += 1
-        seen[1], seen[2] = time.monotonic(), now_sec(self) - m.stamp
-
-    def _check_against_node(self, topic: str, m) -> None:
-        """What only the node can check: a measurement of another sensor than its topic's
-        (``wrong_sensor``), a fix on another track (``wrong_track``) or off this
-        one (``off_track``: beyond its ends by more than 100 m + 5 sigma), and a stamp ahead of
-        the node clock by more than the history (``future``: it would make every later
-        measurement too late)."""
-        sensor = topic.split("/")[1]
-        if m.sensor != sensor:
-            raise InputRejected("wrong_sensor", f"measurement of sensor {m.sensor!r} on the topic of {sensor!r}")
-        ahead = m.stamp - now_sec(self)
-        if ahead > self.filter.cfg.history:
-            raise InputRejected("future", f"stamp {ahead:.3f} s ahead of the node clock")
-        if isinstance(m, PositionFix):
-            if m.track_id and m.track_id != self.track.track_id:
-                raise InputRejected("wrong_track", f"fix on track {m.track_id!r}, not {self.track.track_id!r}")
-            margin = 100.0 + 5.0 * m.position_stddev
-            if not -margin <= m.position <= self.track.length + margin:
-                raise InputRejected("off_track", f"fix at {m.position:.3f} m, off the track "
-                                    f"(0 .. {self.track.length:.3f} m)")
+        seen[1], seen[2] = time.monotonic(), now - m.stamp
 
     def input_statuses(self) -> list:
         """One status per subscribed sensor (diagnostic_updater's frequency and timestamp
@@ -402,7 +384,7 @@ class FusionNode(ManagedNode):
             est = states[-1][0]
             self.diag.set_status(*mode_status(est))
             self.diag.values.update({"mode": str(est.mode), "position_stddev": f"{est.position_stddev:.3f}"})
-            for group, values in self.filter.counters().items():
+            for group, values in self.runner.counters().items():
                 for k, v in values.items():
                     self.diag.values[f"filter/{group}/{k}"] = f"{v:.3f}" if isinstance(v, float) else str(v)
 

@@ -44,7 +44,8 @@ import numpy as np
 
 from ..core.fusion import TrainFilter, order_key
 # scenario_measurements, delayed and run (fuse_arrivals) are used by test/test_fusion.py through this module
-from ..core.offline import FusionRunner, delayed, fusion_config, scenario_measurements
+from ..core.fusion import FusionRunner, fusion_config
+from ..core.offline import delayed, scenario_measurements
 from ..core.offline import fuse_arrivals as run
 from ..core.scenario import Scenario
 from ..core.scoring import ENVELOPE_FIXED, ENVELOPE_RATE, SPEED_KNOWN, distance_since, speed_envelope
@@ -201,7 +202,7 @@ def main(argv=None) -> int:
             runs = result.trains if sc.line else {sc.train_name: result}
             for name, train_run in runs.items():   # a block per train
                 print_figures(figures(sc.train(name), train_run))
-                print(f"  filter counters: {train_run.runner.filter.counters()}")
+                print(f"  filter counters: {train_run.runner.counters()}")
             if sc.line:
                 print_association(result)
             if sc.line and result.changeover is not None:

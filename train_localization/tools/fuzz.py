@@ -396,7 +396,7 @@ def fusion_plan(n: int, seed: int) -> Plan:
     stamped with the wall clock when sent, and malformed ones of FUSION_KINDS."""
     from ..core import convert
     from ..core.measurements import DistanceIncrement, PositionFix, SpeedMeasurement
-    from ..core.offline import fusion_config
+    from ..core.fusion import fusion_config
     from ..core.sensors import spec
     from ..nodes.common import rclpy_classes
 

@@ -60,7 +60,7 @@ def report_for(bag: Path, scenario: Scenario | None = None, out_bag: Path | None
         run = replay_bag(bag, scenario, out_bag, progress=progress, parallel=parallel)
         truth, estimates, measurements = run.truth, run.estimates, run.measurements
         extra = {"source": "offline replay", "rejected_messages": run.rejected,
-                 "fusion_counters": run.runner.filter.counters()}
+                 "fusion_counters": run.runner.counters()}
     if not truth:
         raise SystemExit(f"{bag}: no ground truth in the bag, nothing to score against")
     circumference = (scenario or scenario_from_bag(bag)).track.circumference

@@ -54,6 +54,8 @@ class FusionConfig:
                                          "(built from their parameters, not a node parameter)", True)
     overrides: dict = _doc(dict, "sensor class -> {error-model field: value}: replaces what the sensor's "
                                  "own model says (core/sensors/base.py ErrorModel)", True)
+    track: object = _doc(None, "the track (core/track.py Track) whose ends bound the fixes taken (admission.py); "
+                               "None: not checked (not a node parameter)")
     jerk_psd: float = _doc(0.1, "white-jerk spectral density of the motion model [m^2/s^5] (jerk-limited "
                                 "profiles, 0.5 m/s^3)", limits=(0.0, 100.0))
     scale_psd: float = _doc(1e-9, "random-walk spectral density of the constant scale states [1/s]", limits=(0.0, 1.0e-3))
@@ -84,6 +86,13 @@ class FusionConfig:
     consistency_probability: float = _doc(0.99, "chi-square quantile of that mean NIS above which the filter "
                                                 "is inconsistent: its covariance is scaled by the mean NIS "
                                                 "and the mode is DEGRADED until a fix agrees again", limits=PROBABILITY)
+    fault_onset_spacing: float = _doc(5.0, "a persistent fault of a relative sensor (a radar's scale fault) is "
+                                           "followed from onsets this far apart [s] (core/fusion/impact.py): the "
+                                           "interval covers what it put into the state since each",
+                                      limits=(0.05, 3600.0))
+    fault_onsets: int = _doc(8, "fault hypotheses followed per sensor with a persistent fault (the latest "
+                                "onsets, and older ones, going on or ended, whose effect is the largest)",
+                             limits=(2, 100))
     branch_timeout: float = _doc(120.0, "longest time an unexplained (gated) fix is kept as an alternative "
                                         "hypothesis [s]", limits=(0.0, 3600.0))
     history: float = _doc(2.0, "how late a measurement may be [s]", limits=(0.01, 60.0))
@@ -113,7 +122,32 @@ class FusionConfig:
     @classmethod
     def tuning_fields(cls):
         """The fields that are global tuning (node parameters)."""
-        return [f for f in fields(cls) if f.name not in ("sensors", "overrides")]
+        return [f for f in fields(cls) if f.name not in ("sensors", "overrides", "track")]
+
+
+# per-sensor tables that scenarios (and the bags recorded from them) carried before the
+# sensors owned their error models; the sensors' models replace them
+LEGACY_FUSION_KEYS = frozenset({
+    "scale_sensors", "bias_sensors", "slip_sensors", "fix_bias_sensors", "fix_bias_per_reference", "timeouts",
+    "scale_tau", "scale_sigma", "scale_offset_sigma", "initial_scale_stddev", "bias_sigma", "fix_bias_sigma",
+    "fix_bias_length", "fix_bias_tau", "reported_fix_bias", "creep_coefficient", "reported_scale",
+    "reported_bias", "stddev_factor", "gate_probabilities", "reacquire_count", "reacquire_time"})
+
+
+def fusion_config(scenario, **overrides) -> FusionConfig:
+    """FusionConfig of a (one train's) scenario (core/scenario.py Scenario, or None): the error
+    models of its sensors (and of the wayside sensors of its line) on its track, and its
+    ``fusion:`` section (global tuning and per-sensor ``overrides``), plus keyword overrides.
+    Legacy per-sensor tables (``LEGACY_FUSION_KEYS``, in bags recorded before) are ignored."""
+    values = {k: v for k, v in ((scenario.fusion if scenario else {}) or {}).items() if k not in LEGACY_FUSION_KEYS}
+    values.update(overrides)
+    if scenario is not None:
+        values.setdefault("track_id", scenario.track.track_id)
+        values.setdefault("track", scenario.track)
+        # a train of a line also takes the wayside fixes associated with it
+        values.setdefault("sensors", sensor_models({**scenario.sensors, **scenario.wayside}, scenario.track,
+                                                   scenario.vehicle))
+    return FusionConfig(**values)
 
 
 def gate_probability(cfg: FusionConfig, model: ErrorModel) -> float:

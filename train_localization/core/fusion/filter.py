@@ -132,11 +132,13 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from scipy.stats import chi2, norm
 
-from ..measurements import MAX_SPEED, DistanceIncrement, PositionFix, SpeedMeasurement
+from ..measurements import MAX_SPEED, PositionFix
+from ..sensors import faults as fault_modes
 from ..signals import InputRejected
 from .config import FusionConfig, gate_probability
 from .history import History, order_key
 from .layout import StateLayout
+from . import impact
 from .models import ProcessModel, fixes_sharing, implied_speed, kinematic_mean, measurement
 from . import separation
 
@@ -169,19 +171,12 @@ class Estimate:
     biases: dict[str, float] = field(default_factory=dict)
 
 
-# the measurement type of each kind of sensor (ErrorModel.measures)
-_KIND_OF = {"position": PositionFix, "speed": SpeedMeasurement, "distance": DistanceIncrement}
-
 # references whose fixes the filter remembers (a reversal passes the last few again)
 _REMEMBERED_REFS = 32
 
 # motion-model hypotheses kept at once (coastings between disagreeing speed sources)
 _MAX_MOTION_VIEWS = 4
 
-# fault modes by which an absolute sensor can report a confident wrong fix
-_OUTLIER_MODES = frozenset(("nlos", "misread", "miscount"))
-# fault modes that make a relative sensor read a wrong speed for a while
-_SPEED_FAULTS = frozenset(("slip", "slide", "scale_fault"))
 
 
 class _Aux:
@@ -192,7 +187,8 @@ class _Aux:
                  "speed_sources", "nis", "fix_ref", "last_fix_accepted", "fix_nis", "slip_window",
                  "alternative", "events", "unverified", "s_last_fix", "relative_alternatives", "suspended",
                  "candidate", "used_refs", "peer_speeds", "peer_run", "motion_views", "view_speeds",
-                 "episode_views", "fault_windows", "subs", "fix_bias_nis", "lone_view", "scale_faults")
+                 "episode_views", "fault_windows", "subs", "fix_bias_nis", "lone_view", "scale_faults",
+                 "impacts")
 
     def __init__(self):
         self.initialised = False
@@ -257,6 +253,8 @@ class _Aux:
         # speed sources whose scale fault the others showed and whose constant scale now learns
         # it (``_relearn_fault``): their scale is plausible up to the fault's size
         self.scale_faults: frozenset = frozenset()
+        # the persistent-fault hypotheses of the relative sensors (impact.py): Impact, ...
+        self.impacts: tuple = ()
 
     def copy(self) -> "_Aux":
         new = object.__new__(_Aux)
@@ -362,6 +360,12 @@ class TrainFilter:
         # without it (``_track_lone``)
         self._persistent = frozenset(n for n, m in self.models.items()
                                      if m.relative and separation.PERSISTENT & set(m.faults))
+        # relative sensors with a persistent fault of bounded size -> that bound (z x scale_fault_sigma):
+        # the interval covers what such a fault, up to the size the data has not excluded, put into
+        # the state (impact.py)
+        self._fault_bounds = {n: self._z * m.scale_fault_sigma for n, m in self.models.items()
+                              if m.relative and separation.PERSISTENT & set(m.faults) and m.scale_fault_sigma > 0.0}
+        self._fault_input: tuple | None = None   # (sensor, its fault per unit) of the reading being applied
         self._est_cache: tuple = (None, None)
         self._last_update = (np.zeros(self.n), 0.0)   # (Kalman gain, innovation) of the last update
         self._eye = np.eye(self.n)
@@ -412,8 +416,14 @@ class TrainFilter:
             return
         if t > aux.t:
             s0 = self.ekf.x[0, 0]
+            if aux.impacts:
+                aux.impacts = impact.predicted(aux.impacts, self.process.transition(t - aux.t)[0])
             self.ekf.x, self.ekf.P = self.process.predict(self.ekf.x, self.ekf.P, aux.t, t)
             aux.t = t
+            if self._fault_bounds and aux.initialised and (
+                    not aux.impacts or t - aux.impacts[-1].onset >= self.cfg.fault_onset_spacing):
+                aux.impacts = impact.started(aux.impacts, self._fault_bounds, t, self.n, self.cfg.fault_onsets,
+                                             self._z)
             if aux.lone_view is not None:   # what a lone source's scale fault adds over the distance
                 view, lone, bound = aux.lone_view
                 step = self._z * self.models[lone].scale_fault_sigma * abs(float(self.ekf.x[0, 0] - s0))
@@ -428,6 +438,8 @@ class TrainFilter:
         P = self.ekf.P
         K = PHt / S
         self._last_update = (K, z - hx)
+        if self.aux.impacts:
+            self.aux.impacts = impact.updated(self.aux.impacts, self._fault_input, h, K, z - hx, S)
         Kc = K[:, None]
         self.ekf.x = self.ekf.x + Kc * (z - hx)
         A = self._eye - Kc * h
@@ -447,6 +459,10 @@ class TrainFilter:
         self.applied += 1
         cls = m.sensor
         is_fix = isinstance(m, PositionFix)
+        # what this reading's own scale fault would add (impact.py), and whether another speed source
+        # in use checks it (then its own innovations test the fault too)
+        self._fault_input = None if is_fix or not self._fault_bounds else (
+            cls, m.distance if hasattr(m, "distance") else m.speed, bool(self._in_use(m.stamp, but=cls)))
         if is_fix:   # since the sensor's previous fix, before this one counts (_located)
             self._since = m.stamp - aux.last_accepted.get(cls, -math.inf)
         if cls in self.layout.per_reference and is_fix and aux.fix_ref.get(cls) != m.reference_id:
@@ -655,7 +671,7 @@ class TrainFilter:
         after, until a fix rules it out (``_take_speed``: if the drive was misjudged, the truth
         lies between the two). True if so."""
         cls, aux = m.sensor, self.aux
-        if not {"slip", "slide"} & set(self.models[cls].faults) or self._reference_ok(m) \
+        if not fault_modes.ADHESION & set(self.models[cls].faults) or self._reference_ok(m) \
                 or self._slip_physics(cls, e):
             return False
         z, R, _, _ = self._measurement(m)
@@ -687,6 +703,7 @@ class TrainFilter:
         P[:, i] = 0.0
         P[i, i] = lay.prior_sigma[i] ** 2
         self.ekf.x, self.ekf.P = x, P
+        aux.impacts = impact.states_set(aux.impacts, [i])
         aux.scale_faults = aux.scale_faults - {cls}
         aux.slip_window = _without(aux.slip_window, cls)
         aux.events = _inc(aux.events, "scale_fault_ended")
@@ -728,7 +745,7 @@ class TrainFilter:
         filter's speed; the fixes alone know the speed too poorly), and the filter would run on
         the motion model for good; its persistent faults are the lone solution's to cover and
         the fix drift test's to find."""
-        return len(self.layout.relative) > 1 or bool({"slip", "slide"} & set(self.models[cls].faults))
+        return len(self.layout.relative) > 1 or bool(fault_modes.ADHESION & set(self.models[cls].faults))
 
     def _windowed(self, window: tuple, m, e: float, S: float, common: float = 0.0) -> tuple[tuple, float]:
         """The disagreement window of a relative sensor with this measurement added, and its
@@ -901,6 +918,7 @@ class TrainFilter:
         P[:, 1] = 0.0
         P[1, 1] = u_white + u_common
         self.ekf.x, self.ekf.P = x, P
+        aux.impacts = impact.speed_set(aux.impacts, u)
         aux.relative_alternatives = {**_without(aux.relative_alternatives, cls),
                                      other: (-D, white, since, last, run, -D, base)}
         aux.episode_views = _without(aux.episode_views, cls)
@@ -985,7 +1003,7 @@ class TrainFilter:
             return False
         if explained or not fitting:
             return False                           # the filter explains it, or nothing does
-        if _OUTLIER_MODES.intersection(self.models[m.sensor].faults) and not self._corroborated(m, z, R):
+        if fault_modes.OUTLIER.intersection(self.models[m.sensor].faults) and not self._corroborated(m, z, R):
             return False
         # an excluded sensor was right: the other speed sources are faulty
         cls = min(fitting)[1]
@@ -1168,7 +1186,7 @@ class TrainFilter:
         in_use = [c for c in aux.speed_sources if not _speed_excluded(aux, c, stamp)]
         models = [self.models[c] for c in in_use]
         r, var_r, until = 0.0, 0.0, math.inf
-        if models and all(set(md.faults) & _SPEED_FAULTS for md in models):
+        if models and all(set(md.faults) & fault_modes.SPEED for md in models):
             # measured: r = (v_m - v_f) / v_f of variance var_v / v_f^2; prior N(0, prior)
             prior = min((md.scale_fault_sigma ** 2 for md in models if "scale_fault" in md.faults), default=math.inf)
             var_v = max(var_v, 1e-12)
@@ -1238,6 +1256,7 @@ class TrainFilter:
         x[1, 0], P[1, 1] = u_hat, var
         x[2, 0], P[2, 2] = 0.0, self.cfg.initial_accel_stddev ** 2
         self.ekf.x, self.ekf.P = x, P
+        self.aux.impacts = impact.speed_set(self.aux.impacts, u_hat)
 
     def _take_speed(self, stamp: float, readings: list, sensors: set) -> None:
         """Speed from independent readings that agree (weighted); the exclusions of ``sensors``
@@ -1370,6 +1389,7 @@ class TrainFilter:
         P[1, 1] += (scale * x[1, 0]) ** 2 + bias ** 2
         idx = lay.relative_states
         x[idx, 0] = 0.0
+        aux.impacts = impact.states_set(aux.impacts, idx)
         P[idx, :] = 0.0
         P[:, idx] = 0.0
         P[idx, idx] = lay.prior_sigma[idx] ** 2
@@ -1671,6 +1691,7 @@ class TrainFilter:
             P[:, 0] = -P[:, f_idx]
             P[0, 0] = R + P[f_idx, f_idx]
         self.ekf.x, self.ekf.P = x, P
+        aux.impacts = impact.position_set_from_fix(aux.impacts, f_idx)
         aux.accepted = _inc(aux.accepted, cls)
         aux.last_accepted = {**aux.last_accepted, cls: m.stamp}
         aux.last_fix_accepted = m.stamp
@@ -1687,6 +1708,7 @@ class TrainFilter:
         P[:, i] = 0.0
         P[i, i] = self.layout.prior_sigma[i] ** 2
         self.ekf.x, self.ekf.P = x, P
+        self.aux.impacts = impact.states_set(self.aux.impacts, [i])
 
     # -- solution separation (separation.py) -----------------------------------
     def _seed_subs(self, stamp: float) -> None:
@@ -1883,20 +1905,11 @@ class TrainFilter:
     def add(self, m) -> None:
         """Insert a measurement at its stamp (the filter catches up when next queried).
 
-        Raises InputRejected for NaN or non-positive stddevs (``nan``/``stddev``), a sensor
-        class that is not configured (``unknown_sensor``) or measures something else
-        (``wrong_kind``: a position fix of a speed sensor), a measurement already seen
-        (``duplicate``) or one older than the history or the last reset (``too_late``).
+        The measurement has passed admission (admission.py, run by FusionRunner.add); the
+        history raises InputRejected for one already seen (``duplicate``) or one older than
+        the history or the last reset (``too_late``).
         """
         try:
-            m.validate()
-            if m.sensor not in self.models:
-                raise InputRejected("unknown_sensor", f"measurement of sensor {m.sensor!r}, which the fusion "
-                                    f"is not configured for (configured: {', '.join(sorted(self.models))})")
-            measures = self.models[m.sensor].measures
-            if not isinstance(m, _KIND_OF[measures]):
-                raise InputRejected("wrong_kind", f"{type(m).__name__} of sensor {m.sensor!r}, which "
-                                    f"measures {measures} ({_KIND_OF[measures].__name__})")
             self.hist.insert(m)
         except InputRejected as exc:
             self.rejected[exc.reason] = self.rejected.get(exc.reason, 0) + 1
@@ -2033,6 +2046,15 @@ class TrainFilter:
                 mode = self._widened(aux, t, sd_s, mode)
                 if mode == Mode.NOMINAL and separation.separated(s_m, var_m, float(s), var_s, self._z):
                     mode = Mode.DEGRADED
+            if half_v > self._z * sd_v:
+                sd_v = half_v / self._z
+        if aux.impacts:   # the persistent faults of the relative sensors the data has not excluded
+            half_s, half_v = impact.cover(aux.impacts, self._fault_bounds, t - aux.t, self._z, max(var_s, 0.0),
+                                          max(var_v, 0.0))
+            if float(s) - half_s < lo or float(s) + half_s > hi:
+                lo, hi = min(lo, float(s) - half_s), max(hi, float(s) + half_s)
+                sd_s = max(sd_s, (hi - lo) / (2.0 * self._z))
+                mode = self._widened(aux, t, sd_s, mode)
             if half_v > self._z * sd_v:
                 sd_v = half_v / self._z
         for name, sub in aux.subs.items():   # each relative sensor's own solution (protection level)

@@ -17,6 +17,8 @@ import math
 
 import numpy as np
 
+from ..sensors import faults
+
 KINEMATIC = 3   # s, v, a
 
 
@@ -39,10 +41,10 @@ class StateLayout:
         self.fix = block([s for s, m in models.items() if m.measures == "position" and m.fix_bias_sigma > 0.0])
         self.n = n
         self.relative = frozenset(relative)
-        self.slip_sensors = frozenset(s for s in relative if {"slip", "slide"} & set(models[s].faults))
+        self.slip_sensors = frozenset(s for s in relative if faults.ADHESION & set(models[s].faults))
         # relative sensors whose disagreement with the others is checked as a fault episode
         self.episode_sensors = frozenset(s for s in relative
-                                         if {"slip", "slide", "scale_fault"} & set(models[s].faults))
+                                         if faults.SPEED & set(models[s].faults))
         self.per_reference = frozenset(s for s in self.fix if models[s].fix_bias_per_reference)
         # scale states: Gauss-Markov (index, tau, sigma); constants: random walks (index, psd)
         self.gauss_markov = [(i, models[s].scale_tau, models[s].scale_sigma) for s, i in self.scale.items()

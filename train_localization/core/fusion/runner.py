@@ -9,6 +9,7 @@ import math
 
 from .. import convert
 from ..signals import InputRejected
+from .admission import Admission
 from .filter import Estimate, TrainFilter
 from .config import FusionConfig
 
@@ -18,16 +19,20 @@ STANDSTILL_SPEED_STDDEV = 0.01   # [m/s] of a train known to stand at its start 
 class FusionRunner:
     """TrainFilter plus the fixed-rate output grid (k / rate seconds).
 
-    ``add`` feeds a measurement (rejections are counted in ``rejected``, the last one
-    kept in ``last_error``),
+    ``add`` feeds a measurement through the admission checks (admission.py; refusals are
+    counted by reason in ``rejected``, the last one kept in ``last_error``),
     ``advance(t)`` returns the estimates of every grid time <= t not yet produced,
-    each with the sensor classes used since the previous one.
+    each with the sensor classes used since the previous one. The runner's clock, against
+    which a measurement from the future is refused, is the latest ``t`` advanced to or the
+    ``now`` given to ``add`` (the live node's clock).
     A configured ``initial_position`` puts the train there, at rest, at the time of the first
     measurement or output, whichever comes first.
     """
 
     def __init__(self, config: FusionConfig, rate: float = 200.0):
         self.filter = TrainFilter(config)
+        self.admission = Admission(self.filter.cfg)
+        self.clock: float | None = None   # [s]
         self.period = 1.0 / rate
         self._next_k: int | None = None
         self._used: set[str] = set()
@@ -42,10 +47,15 @@ class FusionRunner:
         self.filter.reset(position=cfg.initial_position, position_stddev=cfg.initial_position_stddev, speed=0.0,
                           speed_stddev=STANDSTILL_SPEED_STDDEV, stamp=t)
 
-    def add(self, m) -> bool:
-        if self._start_pending and math.isfinite(m.stamp):
-            self._start(m.stamp)
+    def add(self, m, now: float | None = None) -> bool:
+        """Take measurement ``m`` (True) or refuse and count it (False). ``now`` [s]: the
+        caller's clock, if it has one (the live node)."""
+        if now is not None and math.isfinite(now):
+            self.clock = now if self.clock is None else max(self.clock, now)
         try:
+            self.admission.check(m, self.clock)
+            if self._start_pending:
+                self._start(m.stamp)
             self.filter.add(m)
         except InputRejected as exc:
             self.rejected[exc.reason] = self.rejected.get(exc.reason, 0) + 1
@@ -65,7 +75,14 @@ class FusionRunner:
         """Whether ``advance(t)`` would produce an estimate (a grid time <= t not produced yet)."""
         return self._next_k is None or math.floor(t / self.period + 1e-9) >= self._next_k
 
+    def counters(self) -> dict[str, dict]:
+        """The filter's counters, with every refused measurement by reason (admission's and the
+        history's)."""
+        return {**self.filter.counters(), "rejected": dict(self.rejected)}
+
     def advance(self, t: float, max_catch_up: int = 1000) -> list[tuple[Estimate, list[str]]]:
+        if math.isfinite(t):
+            self.clock = t if self.clock is None else max(self.clock, t)
         if self._start_pending:
             self._start(t)
         k_now = math.floor(t / self.period + 1e-9)

@@ -32,11 +32,12 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 from ..measurements import SpeedMeasurement
+from ..sensors import faults
 
 # fault modes of a relative sensor that its error states can absorb before a test fires, and of
-# those the ones that persist
-ABSORBED = frozenset(("scale_fault", "slip", "slide"))
-PERSISTENT = frozenset(("scale_fault",))
+# those the ones that persist (core/sensors/faults.py)
+ABSORBED = faults.SPEED
+PERSISTENT = faults.PERSISTENT
 
 # a speed sensor silent longer than this [s] is not interpolated across: the gap follows the filter
 SPEED_GAP = 1.0

@@ -29,6 +29,11 @@ _MODULES = {
 NODE_NAMES = tuple(_MODULES)
 
 
+def sensor_classes() -> dict[str, str]:
+    """Sensor node name -> its sensor class (the topic key sensors/<class>/...), every kind."""
+    return {node: spec(node).sensor for node in NODE_NAMES}
+
+
 def spec(node: str) -> SensorSpec:
     """The SensorSpec of a sensor node name; KeyError lists the known ones."""
     if node not in _MODULES:

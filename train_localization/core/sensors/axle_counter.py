@@ -111,7 +111,7 @@ import numpy as np
 from ..measurements import CLEAR, DISTURBED, OCCUPIED, PositionFix, SectionOccupancy, SectionState
 from ..signals import InputRejected, RawBlock
 from ..track import Track, TrackError
-from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator
+from .base import Decoder, ErrorModel, Param, ReferenceTable, ReferenceWindow, SensorSpec, Simulator
 
 HEAD_KIND = "axle_counter_head"
 
@@ -705,17 +705,59 @@ class AxleCounterDecoder(Decoder):
                                                                 else p["last_axle_offset"])
         slow = 0.1 if speed < 1.0 else 0.0
         timing = min(speed, p["max_speed"]) * 0.25 / self._fs
-        sigma = math.sqrt(p["head_position_sigma"] ** 2 + p["axle_offset_sigma"] ** 2 + timing ** 2 + slow ** 2
-                          + ((spread * (1.0 + GAP_REL) + GAP_ABS) / COVER if spread > 0.0 else 0.0) ** 2)
+        sigma = fix_sigma(p, timing, slow, (spread * (1.0 + GAP_REL) + GAP_ABS) / COVER if spread > 0.0 else 0.0)
         self.stats["fixes"] += 1
         return PositionFix(float(t_c), self.sensor, self.unit_id, self.track.track_id, self.head_ids[hi],
                            float(self.head_pos[hi] + o * offset), sigma, int(d))
 
 
+MIN_FIX_SIGMA = 1e-3   # [m] least 1-sigma of a fix: the millimetre of the track file's chainages
+
+
+def fix_sigma(params: dict, timing: float = 0.0, slow: float = 0.0, cover: float = 0.0) -> float:
+    """1-sigma [m] of a front fix: root sum of squares of ``head_position_sigma``,
+    ``axle_offset_sigma`` and the decoder's timing, stop-over-the-head and hypothesis-cover terms
+    [m], at least MIN_FIX_SIGMA; with those 0 the least a fix reports (the error model's floor)."""
+    return max(math.sqrt(params["head_position_sigma"] ** 2 + params["axle_offset_sigma"] ** 2 + timing ** 2
+                         + slow ** 2 + cover ** 2), MIN_FIX_SIGMA)
+
+
+def front_offsets(params: dict) -> tuple[tuple[int, float], ...]:
+    """(orientation o, distance behind the front d [m]) of every front fix the decoder can give:
+    front = head + o x d (AxleCounterDecoder._fix, _offset). o: ``orientation`` if set and not
+    ``front_first``, else +-1. d: the first axle's ``first_axle_offset``, or that plus the first
+    layout spacing (first axle missed, hypothesis (0, 1)), when the front leads; the last axle's
+    ``last_axle_offset``, or that less the last spacing, when the train backs (only with
+    last_axle_offset > 0 and not front_first)."""
+    layout = sorted(float(a) for a in params["axle_offsets"])
+    leads = [params["first_axle_offset"]]
+    backs = [params["last_axle_offset"]] if params["last_axle_offset"] > 0.0 and not params["front_first"] else []
+    if len(layout) >= 2:
+        leads.append(params["first_axle_offset"] + (layout[1] - layout[0]))
+        backs += [b - (layout[-1] - layout[-2]) for b in backs]
+    fixed = int(np.sign(params["orientation"]))
+    orients = (fixed,) if fixed and not params["front_first"] else (1, -1)
+    return tuple((o, d) for o in orients for d in leads + backs)
+
+
 def error_model(params: dict, track, vehicle) -> ErrorModel:
     """Axle-counter fixes for the fusion: white (head survey, axle offset and edge timing
-    in the decoder's stddev); fault mode: a miscount (missed or extra axle)."""
-    return ErrorModel("axle_counter", "position", faults=("miscount",))
+    in the decoder's stddev); fault mode: a miscount (missed or extra axle). Floor: ``fix_sigma``
+    without the decoder's terms, max(hypot(head_position_sigma, axle_offset_sigma), 1 mm).
+    References: the device's heads (``_heads``, as the decoder), window the head's chainage +
+    o x d over every (o, d) of ``front_offsets``; an empty table if the track has none."""
+    references = None
+    if track is not None:
+        try:
+            heads = _heads(track, params)
+        except TrackError:
+            heads = []     # the decoder refuses to run on it: no fix is honest
+        offs = [o * d for o, d in front_offsets(params)]
+        references = ReferenceTable({str(h["id"]): ReferenceWindow(float(h["position"]) + min(offs),
+                                                                   float(h["position"]) + max(offs))
+                                     for h in heads})
+    return ErrorModel("axle_counter", "position", faults=("miscount",), min_stddev=fix_sigma(params),
+                      references=references)
 
 
 SPEC = SensorSpec(

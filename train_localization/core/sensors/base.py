@@ -23,15 +23,17 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, fields, replace
-from typing import Any, Callable
+from types import MappingProxyType
+from typing import Any, Callable, Mapping, NamedTuple
 
 import numpy as np
 from scipy.signal import lfilter
 
 from ..measurements import Measurement
 from ..scenario import TruthBuffer, Vehicle
-from ..signals import RawBlock
+from ..signals import InputRejected, RawBlock
 from ..track import Track
+from .faults import FAULT_MODES
 
 
 @dataclass(frozen=True)
@@ -130,7 +132,55 @@ def sensor_params(spec: "SensorSpec", overrides: dict | None, vehicle: Vehicle) 
 
 
 MEASURES = ("speed", "distance", "position", "occupancy")
-FAULT_MODES = ("slip", "slide", "dropout", "scale_fault", "nlos", "misread", "miscount", "outage")
+
+
+class ReferenceWindow(NamedTuple):
+    """Chainages [m] between which an honest fix naming one reference can lie (the
+    reference's extent, widened by the antenna offsets and the reach of the sensor)."""
+
+    lo: float
+    hi: float
+
+
+@dataclass(frozen=True)
+class ReferenceTable:
+    """The references a position sensor's fixes can name on one track, built by the sensor
+    from the track's equipment (its ``error_model``): reference id -> ReferenceWindow.
+
+    A fix naming an id that is not in the table is ``unknown_reference``; one whose
+    position lies outside its reference's window by more than ``sigmas`` of its own
+    1-sigma is ``reference_mismatch``. A composite id (``separator`` not empty: the
+    stations an mm-wave fix used) names several references: each must be known and the
+    fix must lie in every one's window.
+    """
+
+    windows: Mapping[str, ReferenceWindow]
+    separator: str = ""
+    sigmas: float = 5.0
+
+    def __post_init__(self):
+        object.__setattr__(self, "windows", MappingProxyType(dict(self.windows)))
+
+    def refusal(self, reference_id: str, position: float, stddev: float) -> InputRejected | None:
+        """Why a fix naming ``reference_id`` at ``position`` [m] with 1-sigma ``stddev`` [m]
+        cannot be an honest fix of this sensor on this track, or None."""
+        parts = reference_id.split(self.separator) if self.separator else [reference_id]
+        margin = self.sigmas * stddev
+        for part in parts:
+            window = self.windows.get(part)
+            if window is None:
+                return InputRejected("unknown_reference", f"reference {_short(part)!r} is not in the track's "
+                                                          f"equipment ({len(self.windows)} known)")
+            if not window.lo - margin <= position <= window.hi + margin:
+                return InputRejected("reference_mismatch", f"fix at {position:.3f} m names {part!r}, whose fixes "
+                                                           f"lie in {window.lo:.3f} .. {window.hi:.3f} m")
+        return None
+
+
+def _short(text: str, limit: int = 64) -> str:
+    """``text`` cut to ``limit`` characters for a one-line message."""
+    return text if len(text) <= limit else text[:limit] + "..."
+
 
 
 @dataclass(frozen=True)
@@ -161,7 +211,7 @@ class ErrorModel:
     reported_fix_bias: float = 0.0       # fix-bias 1-sigma [m] included in the reported stddev
     creep_coefficient: float = 0.0       # wheel creep c [s^2/m]: wheel speed = v (1 + c a sign v)
     creep_in_traction: bool = True       # creep under traction too (a motored axle), else only braking
-    faults: tuple[str, ...] = ()         # fault modes of FAULT_MODES the fusion must check for
+    faults: tuple[str, ...] = ()         # fault modes (faults.py) the fusion must check for
     scale_fault_sigma: float = 0.0       # 1-sigma size of a scale fault (fault mode ``scale_fault``) [1]:
                                          # what its scale may be off by once the fusion suspects one
     fault_duration_max: float = math.inf  # longest episode of its transient fault modes (slip, slide)
@@ -169,6 +219,12 @@ class ErrorModel:
     timeout: float = math.inf            # longest silence while in use [s]; inf = sparse/event sensor
     gate_probability: float = math.nan   # chi-square gate of its measurements; NaN = the fusion's global one
     stddev_factor: float = 1.0           # factor on the white part of the reported stddev
+    min_stddev: float = 0.0              # smallest 1-sigma an honest measurement of the sensor reports,
+                                         # from its resolved parameters: [m] of a fix, [m/s] of a speed and
+                                         # of an increment's mean speed (its distance_stddev / duration too);
+                                         # a message that claims less is refused (below_model)
+    references: ReferenceTable | None = field(default=None, compare=False)
+                                         # the track's references its fixes can name; None = not checked
 
     def __post_init__(self):
         if self.measures not in MEASURES:
@@ -186,11 +242,31 @@ class ErrorModel:
         """Measures speed or distance (dead reckoning), not position."""
         return self.measures in ("speed", "distance")
 
+    def refusal(self, m) -> InputRejected | None:
+        """Why measurement ``m`` of this sensor claims more than the model allows, or None: a
+        1-sigma below ``min_stddev`` (``below_model``), a reference that is not in the track's
+        equipment or lies elsewhere (``unknown_reference``, ``reference_mismatch``)."""
+        floor = self.min_stddev * (1.0 - 1e-9)
+        if self.measures == "position":
+            if m.position_stddev < floor:
+                return InputRejected("below_model", f"{self.sensor} fix claims 1-sigma {m.position_stddev:.3g} m, "
+                                                    f"below its model's {self.min_stddev:.3g} m")
+            if self.references is not None:
+                return self.references.refusal(m.reference_id, m.position, m.position_stddev)
+            return None
+        claimed = m.speed_stddev
+        if self.measures == "distance":
+            claimed = min(claimed, m.distance_stddev / m.duration)
+        if claimed < floor:
+            return InputRejected("below_model", f"{self.sensor} {self.measures} claims 1-sigma {claimed:.3g} m/s, "
+                                                f"below its model's {self.min_stddev:.3g} m/s")
+        return None
+
     def overridden(self, values: dict | None) -> "ErrorModel":
         """This model with some fields replaced (a user who knows better); unknown names raise."""
         if not values:
             return self
-        names = {f.name for f in fields(self)} - {"sensor", "measures"}
+        names = {f.name for f in fields(self)} - {"sensor", "measures", "references"}
         bad = set(values) - names
         if bad:
             raise ValueError(f"unknown error-model field(s) {sorted(bad)} for {self.sensor}; known: "

@@ -107,7 +107,7 @@ import numpy as np
 from ..measurements import CLEAR, OCCUPIED, PositionFix, SectionOccupancy, SectionState
 from ..signals import InputRejected, RawBlock
 from ..track import Track, TrackError, extent
-from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator
+from .base import Decoder, ErrorModel, Param, ReferenceTable, ReferenceWindow, SensorSpec, Simulator
 
 KIND = "checkin_block"
 SENSOR = "checkin"
@@ -376,7 +376,6 @@ class CheckinDecoder(Decoder):
         self.missing_checkout: list[str] = []
         self._missing = [False] * nb
         self.orient = int(p["orientation"]) or 1
-        self.depth = onset_depth(p["threshold_on"], p["antenna_height"])
         self._started = False
         self._prev: np.ndarray | None = None            # last samples of the previous block
         self._reported: tuple | None = None
@@ -566,10 +565,11 @@ class CheckinDecoder(Decoder):
         p = self.params
         boundary = b["start"] if d > 0 else b["end"]
         timing = p["max_speed"] / self._fs / math.sqrt(12.0)
-        sigma = math.sqrt(fix_bias_sigma(p) ** 2 + depth_sigma(p) ** 2 + p["offset_sigma"] ** 2 + timing ** 2)
+        sigma = fix_sigma(p, timing)
         self.stats["fixes"] += 1
-        ref = f"{self.blocks[nb]['id']}/{b['id']}" if d > 0 else f"{b['id']}/{self.blocks[nb]['id']}"
-        front = boundary + d * (self.depth + p["front_antenna_offset"])
+        lower, upper = (self.blocks[nb]["id"], b["id"]) if d > 0 else (b["id"], self.blocks[nb]["id"])
+        ref = f"{lower}{SEPARATOR}{upper}"
+        front = boundary + d * front_reach(p)
         return [PositionFix(t_on, self.sensor, self.unit_id, self.track.track_id, ref,
                             float(front), float(sigma), int(d))]
 
@@ -602,14 +602,46 @@ def depth_sigma(params: dict) -> float:
     return abs(onset_depth(params["threshold_on"], 1.0)) * params["height_sigma"]
 
 
+MIN_FIX_SIGMA = 1e-3   # [m] least 1-sigma of a fix: the millimetre of the track file's chainages
+SEPARATOR = "/"        # between the two block ids of a boundary fix's reference (lower/upper chainage)
+
+
+def fix_sigma(params: dict, timing: float = 0.0) -> float:
+    """1-sigma [m] of a boundary fix: root sum of squares of ``fix_bias_sigma``, ``depth_sigma``,
+    ``offset_sigma`` and the onset timing ``timing`` [m] (the decoder's), at least MIN_FIX_SIGMA;
+    with timing 0 the least a fix reports (the error model's floor)."""
+    return max(math.sqrt(fix_bias_sigma(params) ** 2 + depth_sigma(params) ** 2 + params["offset_sigma"] ** 2
+                         + timing ** 2), MIN_FIX_SIGMA)
+
+
+def front_reach(params: dict) -> float:
+    """Distance [m] of a boundary fix beyond its boundary in the running direction: the onset
+    depth at ``threshold_on`` + ``front_antenna_offset``."""
+    return onset_depth(params["threshold_on"], params["antenna_height"]) + params["front_antenna_offset"]
+
+
 def error_model(params: dict, track, vehicle) -> ErrorModel:
     """Boundary fixes for the fusion: a boundary's installation error and a receiver's gain error
     move its detection point, the same for every passage of that boundary and independent between boundaries (a fix bias
     drawn anew per reference, included in the reported stddev); fault mode: a miscount (a
-    check-in that is no train's front, e.g. interference longer than the burst window)."""
+    check-in that is no train's front, e.g. interference longer than the burst window). Floor:
+    ``fix_sigma`` without timing. References: the device's blocks (``block_table``, as the
+    decoder), a fix naming the two blocks of its boundary ("lower/upper"): block window
+    [start, end] + o x ``front_reach``, o the decoder's orientation (it gives no fix against it);
+    an empty table if the track has no blocks of the device."""
     bias = fix_bias_sigma(params)
+    references = None
+    if track is not None:
+        try:
+            blocks = block_table(track, params)
+        except TrackError:
+            blocks = []    # the decoder refuses to run on it: no fix is honest
+        shift = (int(params["orientation"]) or 1) * front_reach(params)
+        references = ReferenceTable({str(b["id"]): ReferenceWindow(b["start"] + shift, b["end"] + shift)
+                                     for b in blocks}, separator=SEPARATOR)
     return ErrorModel(SENSOR, "position", fix_bias_sigma=bias, fix_bias_per_reference=True,
-                      reported_fix_bias=bias, faults=("miscount",))
+                      reported_fix_bias=bias, faults=("miscount",), min_stddev=fix_sigma(params),
+                      references=references)
 
 
 SPEC = SensorSpec(

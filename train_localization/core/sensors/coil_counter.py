@@ -84,7 +84,8 @@ from scipy.signal import lfilter
 from ..signals import InputRejected, RawBlock
 from ..track import Track, TrackError, extent
 from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator, continuous_timeout, gauss_markov
-from .wheel import _QUAD_INDEX, CycleCounter, IncrementEstimator, increment_or_reject, restart_after_gap
+from .wheel import (_QUAD_INDEX, SPEED_STDDEV_FLOOR, CycleCounter, IncrementEstimator, increment_or_reject,
+                    restart_after_gap)
 
 KIND = "null_flux_coils"
 SENSOR = "coil_counter"
@@ -355,7 +356,8 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
     nor creep (seed 002 section 2.2.2: it corrects the wheels' error)."""
     scale = params["pitch_scale_sigma"]
     return ErrorModel(SENSOR, "distance", scale_sigma=scale, reported_scale=scale,
-                      timeout=continuous_timeout(params))
+                      timeout=continuous_timeout(params),
+                      min_stddev=SPEED_STDDEV_FLOOR)   # wheel.IncrementEstimator.make's floor of both stddevs
 
 
 SPEC = SensorSpec(

@@ -74,6 +74,7 @@ SENSOR = "dgps"
 STRUCTURE_KIND = "structure"
 NO_FIX_HDOP = 99.9      # NMEA: the HDOP field of an epoch without a fix
 QUALITIES = (0, 1, 2)   # NMEA GGA fix quality: no fix, autonomous, differential
+RESOLUTION = 0.001      # output resolution of the solution [m]: the least 1-sigma of a fix
 
 PARAMS = {
     "antenna_offset": Param(5.0, "GNSS antenna distance behind the train front [m] (assumption: on the roof "
@@ -137,6 +138,15 @@ def sky_zone(spans: np.ndarray, chainage: np.ndarray, reach: float) -> tuple[np.
     return under, near
 
 
+def fix_sigma(params: dict, hdop: float, near: bool) -> float:
+    """1-sigma [m] of a differential fix at ``hdop`` [1], ``near`` a structure or in the open:
+    hypot(white_sigma x HDOP / hdop_nominal, the multipath 1-sigma there), at least the 1 mm
+    output resolution of the solution (the simulator's ``adc_lsb``). The decoder's stddev;
+    its lowest (HDOP -> 0, in the open) is the error model's floor."""
+    mp = params["multipath_sigma"] * (params["structure_multipath_factor"] if near else 1.0)
+    return max(math.hypot(params["white_sigma"] * hdop / params["hdop_nominal"], mp), RESOLUTION)
+
+
 def parse_faults(text: str) -> list[tuple[float, float]]:
     """'T0-T1:nocorr' items -> [(t0, t1)]."""
     out = []
@@ -159,7 +169,7 @@ class DgpsSimulator(Simulator):
     channels = ("x", "y", "quality", "satellites", "hdop")
     units = ("m", "m", "1", "1", "1")
     default_sample_rate = 10.0
-    adc_lsb = {"m": 0.001}   # the solution's output resolution
+    adc_lsb = {"m": RESOLUTION}   # the solution's output resolution
 
     def __init__(self, *args):
         super().__init__(*args)
@@ -268,8 +278,7 @@ class DgpsDecoder(Decoder):
             chain, lateral = self.track.project(x, y)
             s = float(chain[0])
             under, near = sky_zone(self._spans, np.array([s]), self._reach)
-            mp = p["multipath_sigma"] * (p["structure_multipath_factor"] if near[0] else 1.0)
-            sigma = math.hypot(p["white_sigma"] * hdop / p["hdop_nominal"], mp)
+            sigma = fix_sigma(p, hdop, bool(near[0]))
             gate = p["lateral_gate"] * sigma
             if s <= 0.0 or s >= self.track.length or not abs(float(lateral[0])) <= gate:
                 self.stats["off_track"] += 1
@@ -284,7 +293,7 @@ class DgpsDecoder(Decoder):
                 continue
             self.stats["fixes"] += 1
             out.append(PositionFix(float(t[i]), self.sensor, self.unit_id, self.track.track_id, self.unit_id,
-                                   s + p["antenna_offset"], max(sigma, 1e-3), 0))
+                                   s + p["antenna_offset"], sigma, 0))
         return out
 
 
@@ -297,12 +306,14 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
     HDOP next to a structure, and what it reports beyond it persists like the bias (the
     fusion does not average it over the 10 Hz epochs). Fault modes: a multipath (NLOS)
     fix that passed the decoder's checks, and the outages under structures (no timeout:
-    a tunnel is a normal silence)."""
+    a tunnel is a normal silence). Floor: the decoder's ``fix_sigma`` at HDOP -> 0 in the
+    open (it accepts any HDOP > 0): the open-sky multipath 1-sigma, at least the 1 mm
+    resolution. No references: a fix names the receiver (its unit id), no equipment."""
     mp = float(params["multipath_sigma"])
     return ErrorModel(SENSOR, "position", fix_bias_sigma=mp, fix_bias_length=float(params["multipath_length"]),
                       fix_bias_tau=float(params["multipath_tau"]), reported_fix_bias=mp,
                       fix_white_sigma=max(params["white_sigma"] * params["structure_hdop_factor"], 1e-3),
-                      faults=("nlos", "outage"))
+                      faults=("nlos", "outage"), min_stddev=fix_sigma(params, 0.0, False))
 
 
 SPEC = SensorSpec(

@@ -37,6 +37,8 @@ from ..signals import InputRejected, RawBlock
 from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator, continuous_timeout
 
 C = 299_792_458.0  # speed of light [m/s]
+SPEED_RESOLUTION = 0.01   # [m/s] the decoder's floor of a reported 1-sigma (assumption: 1 cm/s, 1.1 Hz of f_d at
+                          # the default 24 GHz and 45 deg)
 
 PARAMS = {
     "carrier_frequency": Param(24.125e9, "radar carrier f0 [Hz] (24 GHz ISM band ground-speed radar; microwave "
@@ -93,6 +95,12 @@ def fault_scale(faults: list, times) -> np.ndarray:
         grown = np.clip((times - t0) / ramp, 0.0, 1.0) if ramp > 0.0 else 1.0
         out += np.where((times >= t0) & (times < t1), extra * grown, 0.0)
     return out
+
+
+def min_speed_stddev(params: dict) -> float:
+    """Smallest 1-sigma [m/s] the decoder reports (ErrorModel.min_stddev): its sigma at v = 0,
+    the device ``bias``, and no less than SPEED_RESOLUTION."""
+    return max(SPEED_RESOLUTION, abs(params["bias"]))
 
 
 def doppler_shift(speed, f0: float, angle_deg: float):
@@ -154,6 +162,7 @@ class DopplerDecoder(Decoder):
         super().__init__(params, track)
         p = self.params
         self._k = 2.0 * p["carrier_frequency"] * math.cos(math.radians(p["mount_angle"])) / C  # f_d per m/s [Hz s/m]
+        self._min_sigma = min_speed_stddev(p)   # [m/s]
 
     def decode(self, block: RawBlock):
         p = self.params
@@ -174,7 +183,7 @@ class DopplerDecoder(Decoder):
             raise InputRejected("implausible", f"Doppler speed {v:.1f} m/s is beyond any vehicle")
         sigma = math.sqrt((p["spread"] * v) ** 2 / n + (p["scale_sigma"] * v) ** 2 + p["bias"] ** 2)
         t_mid = block.t0 + (i_mean + 0.5) / block.sample_rate
-        return [SpeedMeasurement(float(t_mid), self.sensor, self.unit_id, v, max(sigma, 0.01))]
+        return [SpeedMeasurement(float(t_mid), self.sensor, self.unit_id, v, max(sigma, self._min_sigma))]
 
 
 def error_model(params: dict, track, vehicle) -> ErrorModel:
@@ -187,7 +196,8 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
                       scale_offset_sigma=mount, bias_sigma=abs(params["bias"]),
                       reported_scale=params["scale_sigma"], reported_bias=abs(params["bias"]),
                       faults=("dropout", "scale_fault"), scale_fault_sigma=params["fault_scale_sigma"],
-                      timeout=continuous_timeout(params))
+                      timeout=continuous_timeout(params),
+                      min_stddev=min_speed_stddev(params))   # the decoder's max(sigma, min_speed_stddev)
 
 
 SPEC = SensorSpec(

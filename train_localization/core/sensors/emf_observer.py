@@ -92,6 +92,7 @@ SENSOR = "emf_observer"
 TWO_PI = 2.0 * math.pi
 V_REF = 500.0 / 3.6          # [m/s] the MLX's 500 km/h, reference of the running resistance
 PHASES = np.array([0.0, -TWO_PI / 3.0, TWO_PI / 3.0])   # U, V, W
+SPEED_RESOLUTION = 1.0e-3    # [m/s] the decoder's floor of a reported 1-sigma (assumption)
 
 PARAMS = {
     "pole_pitch": Param(1.35, "LSM pole pitch tau [m] (assumption: MLX / Yamanashi test line; seed 002 section "
@@ -145,6 +146,13 @@ PARAMS = {
 }
 
 CHANNELS = ("u", "v", "w", "i_u", "i_v", "i_w")
+
+
+def min_speed_stddev(params: dict) -> float:
+    """Smallest 1-sigma [m/s] of an increment's speed and of its mean speed (distance_stddev /
+    duration) the decoder reports (ErrorModel.min_stddev): the pole pitch's scale error at the
+    lowest speed it reports, ``pitch_scale_sigma`` x ``min_speed``, at least SPEED_RESOLUTION."""
+    return max(SPEED_RESOLUTION, params["pitch_scale_sigma"] * params["min_speed"])
 
 
 def electrical_angle(x: np.ndarray, params: dict) -> np.ndarray:
@@ -202,6 +210,7 @@ class EmfObserverDecoder(Decoder):
         super().__init__(params, track)
         p = self.params
         self.tau = float(p["pole_pitch"])
+        self._min_sigma = min_speed_stddev(p)   # [m/s]
         # state carried between blocks (plain numbers and a small array, replaced whole)
         self._t_next: float | None = None     # expected t0 of the next block [s]
         self._prev: np.ndarray | None = None  # last raw sample (u, v, w, i_u, i_v, i_w) of the previous block
@@ -313,8 +322,12 @@ class EmfObserverDecoder(Decoder):
         slope_var = (res_block ** 2 / sxx if sxx > 0 else math.inf) + (12.0 * sigma_acc / (span * span * omega_r)) ** 2
         speed_sigma = math.sqrt(slope_var * to_m ** 2 + (p["pitch_scale_sigma"] * speed) ** 2)
         self.stats["increments"] += 1
-        return [DistanceIncrement(float(t_end), self.sensor, self.unit_id, float(t_end - t0), float(distance),
-                                  float(max(dist_sigma, 1e-6)), float(speed), float(max(speed_sigma, 1e-3)))]
+        duration = float(t_end - t0)
+        # the floor of the speed and of the mean speed (min_speed_stddev, the error model's min_stddev): at the
+        # defaults it binds the distance only over an increment of 10 s or more at a mean speed below min_speed
+        return [DistanceIncrement(float(t_end), self.sensor, self.unit_id, duration, float(distance),
+                                  float(max(dist_sigma, 1e-6, self._min_sigma * duration)), float(speed),
+                                  float(max(speed_sigma, self._min_sigma)))]
 
     def _line_end(self, tt: np.ndarray, ang: np.ndarray) -> tuple[float, float, float]:
         """(time [s], angle [rad], its variance [rad^2]) of an increment end: a line fitted to the
@@ -337,7 +350,8 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
     the decoder's stddev); contactless, no slip. Silent below ``min_speed`` by design (seed 002
     section 2.2.2: the wheels serve low speed), so no timeout."""
     scale = params["pitch_scale_sigma"]
-    return ErrorModel(SENSOR, "distance", scale_sigma=scale, reported_scale=scale)
+    return ErrorModel(SENSOR, "distance", scale_sigma=scale, reported_scale=scale,
+                      min_stddev=min_speed_stddev(params))   # the decoder's floor of both stddevs
 
 
 SPEC = SensorSpec(

@@ -79,7 +79,7 @@ import numpy as np
 from ..measurements import PositionFix
 from ..signals import InputRejected, RawBlock
 from ..track import nearby_runs
-from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator
+from .base import Decoder, ErrorModel, Param, ReferenceTable, ReferenceWindow, SensorSpec, Simulator
 
 KIND = "eurobalise"
 MU0 = 4e-7 * math.pi           # permeability of free space [H/m]
@@ -645,7 +645,7 @@ class EurobaliseDecoder(Decoder):
         # halved (in variance) by the midpoint; the interpolation error of a symmetric peak
         # cancels in the midpoint
         slope = self._rel_slope * 2.0 * half
-        sigma = max(math.sqrt(p["location_sigma"] ** 2 + 0.5 * (p["field_noise"] / slope) ** 2), 1e-3)
+        sigma = fix_sigma(p, 0.5 * (p["field_noise"] / slope) ** 2)
         direction = 0
         if self._last_read is not None:
             t_last, last = self._last_read
@@ -655,13 +655,35 @@ class EurobaliseDecoder(Decoder):
                 direction = 1 if item["position"] > last["position"] else -1
         self._last_read = (t_c, item)
         return PositionFix(float(t_c), self.sensor, self.unit_id, self.track.track_id, str(item["id"]),
-                           float(item["position"] + p["antenna_offset"]), float(sigma), direction)
+                           fix_position(p, item), float(sigma), direction)
+
+
+MIN_FIX_SIGMA = 1e-3   # [m] least 1-sigma of a fix: the millimetre of the track file's chainages
+
+
+def fix_sigma(params: dict, timing_var: float = 0.0) -> float:
+    """1-sigma [m] of a balise fix: the balise's ``location_sigma`` and the peak-timing variance
+    ``timing_var`` [m^2] (the decoder's), at least MIN_FIX_SIGMA; with timing_var 0 the least
+    a fix reports (the error model's floor)."""
+    return max(math.sqrt(params["location_sigma"] ** 2 + timing_var), MIN_FIX_SIGMA)
+
+
+def fix_position(params: dict, item: dict) -> float:
+    """Train-front chainage [m] of a fix of balise ``item``: its chainage + ``antenna_offset``
+    (the decoder assumes the antenna behind the front towards decreasing chainage, as the simulator)."""
+    return float(item["position"] + params["antenna_offset"])
 
 
 def error_model(params: dict, track, vehicle) -> ErrorModel:
     """Balise fixes for the fusion: white (reading window and peak timing in the decoder's
-    stddev); fault mode: a misread telegram."""
-    return ErrorModel(KIND, "position", faults=("misread",))
+    stddev); fault mode: a misread telegram. Floor: ``fix_sigma`` without timing,
+    max(location_sigma, 1 mm). References: every balise of the track, window the point
+    chainage + antenna_offset (``fix_position``; the refusal's 5 sigma is the margin)."""
+    references = None
+    if track is not None:
+        references = ReferenceTable({str(it["id"]): ReferenceWindow(fix_position(params, it), fix_position(params, it))
+                                     for it in track.items(KIND)})
+    return ErrorModel(KIND, "position", faults=("misread",), min_stddev=fix_sigma(params), references=references)
 
 
 SPEC = SensorSpec(

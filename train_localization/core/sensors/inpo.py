@@ -89,7 +89,7 @@ import numpy as np
 from ..measurements import PositionFix
 from ..signals import InputRejected, RawBlock
 from ..track import Track, TrackError, extent
-from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator
+from .base import Decoder, ErrorModel, Param, ReferenceTable, ReferenceWindow, SensorSpec, Simulator
 
 SECTION_KIND = "inpo_section"
 TWO_PI = 2.0 * math.pi
@@ -517,7 +517,7 @@ class InpoDecoder(Decoder):
                     mode = "track"
             if mode == "track":
                 u_run = w + offset
-                slack = p["antenna_length"] / per + 0.5
+                slack = p["antenna_length"] / per + 0.5   # [periods]; section_window (error model)
                 n_end = (section["end"] - section["start"]) / per
                 lo = _min(u_run)
                 if lo < -slack or _max(u_run) > n_end + slack:
@@ -581,23 +581,49 @@ class InpoDecoder(Decoder):
                 span = abs(slope) * (tt[-1] - tt[0])
                 sigma_s = per * p["accuracy_deg"] / 360.0 / 2.5
                 periodic = min(1.0, per / (TWO_PI * span)) if span > 0 else 1.0
-                # + the fixed errors of a section: survey of its start, mean laying error of its pairs
-                bias2 = p["survey_sigma"] ** 2 + p["skew_sigma"] ** 2 / self.n_pairs
-                sigma = math.sqrt(sigma_s ** 2 * (periodic ** 2 + 1.0 / k) + bias2)
+                sigma = fix_sigma(p, sigma_s ** 2 * (periodic ** 2 + 1.0 / k))
                 out.append(PositionFix(tm, self.sensor, self.unit_id, self.track.track_id, sec["id"],
-                                       float(xm), max(sigma, 1e-4), direction))
+                                       float(xm), sigma, direction))
         self.stats["fixes"] += len(out)
         return out
+
+
+MIN_FIX_SIGMA = 1e-4   # [m] least 1-sigma of a fix: 0.1 mm, the phase resolution of one sample (12-bit ADC:
+                       # 1.2 mV of a 1 V envelope, 1.2 mrad of a 0.516 m period)
+
+
+def fix_sigma(params: dict, phase_var: float = 0.0) -> float:
+    """1-sigma [m] of a fix: the phase error variance ``phase_var`` [m^2] of the decoder (the
+    +-8 deg spec, its periodic part averaged with the distance run, its white part with the
+    samples) plus the section's fixed errors, survey of its start and the mean laying error
+    of its pairs; at least MIN_FIX_SIGMA. With phase_var 0 the least a fix reports."""
+    fixed = params["survey_sigma"] ** 2 + params["skew_sigma"] ** 2 / int(params["n_pairs"])
+    return max(math.sqrt(phase_var + fixed), MIN_FIX_SIGMA)
+
+
+def section_window(params: dict, section: dict) -> tuple[float, float]:
+    """Chainages [m] between which a fix of ``section`` lies: the decoder tracks the antenna
+    while its count stays within ``antenna_length`` + half a period of the loops (else the
+    count is lost) and adds ``antenna_offset`` (antenna behind the front, both directions)."""
+    slack = params["antenna_length"] + 0.5 * section["period"]
+    return (section["start"] - slack + params["antenna_offset"], section["end"] + slack + params["antenna_offset"])
 
 
 def error_model(params: dict, track, vehicle) -> ErrorModel:
     """INPO fixes for the fusion: the section's fixed error (survey of the section start,
     mean loop-pair skew; seed 002 section 2.2.1) is common to every fix of a section,
     so it is a fix-bias state redrawn per section (reference_id); the decoder includes
-    it in its stddev."""
+    it in its stddev. Floor: the decoder's ``fix_sigma`` without the phase error (which
+    averages out with the distance run and the samples of a fix). References: every
+    section of the track (``section_table``), window ``section_window``."""
     fixed = math.hypot(params["survey_sigma"], params["skew_sigma"] / math.sqrt(params["n_pairs"]))
+    references = None
+    if track is not None:
+        references = ReferenceTable({s["id"]: ReferenceWindow(*section_window(params, s))
+                                     for s in section_table(track, params["period"])})
     return ErrorModel("inpo", "position", fix_bias_sigma=fixed, fix_bias_per_reference=True,
-                      reported_fix_bias=fixed, faults=("outage",))
+                      reported_fix_bias=fixed, faults=("outage",), min_stddev=fix_sigma(params),
+                      references=references)
 
 
 SPEC = SensorSpec(

@@ -91,7 +91,7 @@ import numpy as np
 from ..measurements import PositionFix
 from ..signals import InputRejected, RawBlock
 from ..track import nearby_runs
-from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator
+from .base import Decoder, ErrorModel, Param, ReferenceTable, ReferenceWindow, SensorSpec, Simulator
 
 KIND = "lrl_group"
 Q_PITCH = 0.2                # single-scan P-channel pitch [m]
@@ -659,16 +659,44 @@ class LrlDecoder(Decoder):
         item, spacing = match[0]
         last = lugs[-1]
         k_last = len(code) - 1 if direction > 0 else 0
-        chainage = item["position"] + k_last * spacing
-        sigma = max(math.hypot(p["install_sigma"], last["sigma"]), 1e-3)
+        sigma = fix_sigma(p, last["sigma"])
         out.append(PositionFix(float(last["t"]), self.sensor, self.unit_id, self.track.track_id, str(item["id"]),
-                               float(chainage + p["sensor_offset"]), float(sigma), direction))
+                               fix_position(p, item, k_last, spacing), float(sigma), direction))
+
+
+MIN_FIX_SIGMA = 1e-3   # [m] least 1-sigma of a fix: the millimetre of the track file's chainages
+
+
+def fix_sigma(params: dict, timing: float = 0.0) -> float:
+    """1-sigma [m] of a group fix: the lug's ``install_sigma`` and the edge-timing 1-sigma ``timing``
+    [m] of the last lug (the decoder's), at least MIN_FIX_SIGMA; with timing 0 the least a fix
+    reports (the error model's floor)."""
+    return max(math.hypot(params["install_sigma"], timing), MIN_FIX_SIGMA)
+
+
+def fix_position(params: dict, item: dict, k: int, spacing: float) -> float:
+    """Train-front chainage [m] of a fix at lug ``k`` (0 = lowest chainage) of group ``item``:
+    the lug's sync mark + ``sensor_offset`` (the decoder assumes the sensor behind the front towards
+    decreasing chainage, as the simulator)."""
+    return float(item["position"] + k * spacing + params["sensor_offset"])
 
 
 def error_model(params: dict, track, vehicle) -> ErrorModel:
     """LRL fixes for the fusion: white (lug edge timing in the decoder's stddev); fault
-    mode: a misread code."""
-    return ErrorModel("lrl", "position", faults=("misread",))
+    mode: a misread code. Floor: ``fix_sigma`` without timing, max(install_sigma, 1 mm).
+    References: every group of the track (``track_groups``, as the decoder), window from its
+    first to its last lug + sensor_offset (``fix_position``: the last lug read, the first or the
+    last by the direction of travel)."""
+    references = None
+    if track is not None:
+        windows: dict[str, ReferenceWindow] = {}
+        for item, code, spacing in track_groups(track, params):
+            lo, hi = fix_position(params, item, 0, spacing), fix_position(params, item, len(code) - 1, spacing)
+            old = windows.get(str(item["id"]))      # an id given twice (other codes): either group's fixes
+            windows[str(item["id"])] = ReferenceWindow(min(lo, old.lo), max(hi, old.hi)) if old is not None else \
+                ReferenceWindow(lo, hi)
+        references = ReferenceTable(windows)
+    return ErrorModel("lrl", "position", faults=("misread",), min_stddev=fix_sigma(params), references=references)
 
 
 SPEC = SensorSpec(

@@ -115,7 +115,7 @@ import numpy as np
 from ..measurements import PositionFix
 from ..signals import InputRejected, RawBlock
 from ..track import Track, TrackError, extent
-from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator
+from .base import Decoder, ErrorModel, Param, ReferenceTable, ReferenceWindow, SensorSpec, Simulator
 
 KIND = "lzb_loop"
 SENSOR = "lzb"
@@ -727,11 +727,8 @@ class LzbDecoder(Decoder):
 
     def _fix(self, t: float, chainage: float, speed: float, sigma_t: float, row: dict, joint: bool) -> PositionFix:
         p = self.params
-        var = (speed * sigma_t) ** 2 + p["crossing_sigma"] ** 2 + p["survey_sigma"] ** 2
-        if joint:
-            var += 0.5 * p["survey_sigma"] ** 2   # a joint carries the mean of two loops' survey errors
         return PositionFix(float(t), self.sensor, self.unit_id, self.track.track_id, row["id"],
-                           chainage + p["antenna_offset"], max(math.sqrt(var), 1e-4), self._dir)
+                           chainage + p["antenna_offset"], fix_sigma(p, speed * sigma_t, joint), self._dir)
 
     def _telegram(self, number: int, t: float) -> list[PositionFix]:
         """A telegram of loop ``number`` received at t: confirms the count, or anchors it at a joint.
@@ -773,14 +770,42 @@ class LzbDecoder(Decoder):
         return [self._fix(t_ev, float(chainage), speed, sigma_t, row, True)]
 
 
+MIN_FIX_SIGMA = 1e-4   # [m] least 1-sigma of a fix: 0.1 mm, far below any laid crossing (a guard for
+                       # crossing_sigma = survey_sigma = 0)
+
+
+def fix_sigma(params: dict, timing: float = 0.0, joint: bool = False) -> float:
+    """1-sigma [m] of a crossing fix: the timing error ``timing`` [m] (speed x the null's
+    regression error), the crossing's installation tolerance and the loop's survey error (a
+    joint carries the mean of two loops' survey errors: half a survey variance more); at least
+    MIN_FIX_SIGMA. With timing 0 off a joint the least a fix reports."""
+    var = timing ** 2 + params["crossing_sigma"] ** 2 + params["survey_sigma"] ** 2
+    if joint:
+        var += 0.5 * params["survey_sigma"] ** 2
+    return max(math.sqrt(var), MIN_FIX_SIGMA)
+
+
+def loop_window(params: dict, row: dict) -> tuple[float, float]:
+    """Chainages [m] between which a fix naming loop ``row`` lies: a crossing of the loop, its
+    ends (joints) included, + ``antenna_offset`` (antenna behind the front, either direction)."""
+    return row["start"] + params["antenna_offset"], row["end"] + params["antenna_offset"]
+
+
 def error_model(params: dict, track, vehicle) -> ErrorModel:
     """LZB fixes for the fusion: a loop's survey error is common to its crossings, so it is a
     fix-bias state redrawn per loop (reference_id); the crossings' installation error and the
     timing are white. The decoder includes both in its stddev. Fault modes: a miscount (a
-    crossing missed or counted twice that the decoder could not see) and a loop/feeder outage."""
+    crossing missed or counted twice that the decoder could not see) and a loop/feeder outage.
+    Floor: the decoder's ``fix_sigma`` without timing, off a joint. References: every loop
+    of the track (``loop_table``), window ``loop_window``."""
     survey = float(params["survey_sigma"])
+    references = None
+    if track is not None:
+        references = ReferenceTable({row["id"]: ReferenceWindow(*loop_window(params, row))
+                                     for row in loop_table(track, params)})
     return ErrorModel(SENSOR, "position", fix_bias_sigma=survey, fix_bias_per_reference=True,
-                      reported_fix_bias=survey, faults=("miscount", "outage"))
+                      reported_fix_bias=survey, faults=("miscount", "outage"), min_stddev=fix_sigma(params),
+                      references=references)
 
 
 SPEC = SensorSpec(

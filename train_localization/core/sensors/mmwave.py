@@ -121,7 +121,8 @@ plus the calibration term.
     bias not) forms one virtual epoch at the block's mean time, which goes through the same
     detection, isolation and protection as an epoch -- so a small bias persisting over the
     block, which the single epochs cannot see, is found there. position = x + orientation
-    * ``antenna_offset``; stddev = the protected sigma above. ``reference_id`` =
+    * ``antenna_offset``; stddev = the protected sigma above, at least ``min_fix_sigma``
+    (the error model's floor). ``reference_id`` =
     comma-separated ids of the stations used (ascending chainage) followed by the excluded
     ones prefixed with "!"; ``residuals`` = measured minus fitted range [m], one per entry
     of ``reference_id`` in the same order (per block: mean over the epochs). direction = 0
@@ -139,7 +140,7 @@ from scipy.special import chdtri, ndtri
 from ..measurements import PositionFix
 from ..signals import InputRejected, RawBlock
 from ..track import Track, TrackError
-from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator
+from .base import COMMON_PARAMS, Decoder, ErrorModel, Param, ReferenceTable, ReferenceWindow, SensorSpec, Simulator
 
 C_AIR = 299_792_458.0 / 1.0003  # speed of light in air (refractive index ~1.0003) [m/s]
 STATION_KIND = "mmwave_station"
@@ -155,6 +156,7 @@ _BRANCH = np.array([-1.0, 1.0])[:, None, None]  # the two candidates s -+ along 
 _sum, _any, _all = np.add.reduce, np.logical_or.reduce, np.logical_and.reduce
 _max, _min = np.maximum.reduce, np.minimum.reduce
 SNR_NOISE_REF = 20.0  # SNR [dB] at which the SNR-dependent ranging term equals range_sigma_snr
+MIN_RANGE_VAR = 1e-6  # least variance of one range in the fit [m^2]: (1 mm)^2, float32 delays
 
 PARAMS = {
     "max_range": Param(1000.0, "radio range of a base station [m]; the nearest 4 stations within it are ranged "
@@ -254,6 +256,43 @@ def range_sigma(snr, p: dict):
     """1-sigma ranging noise [m] for a first-path SNR [dB] (without the calibration term)."""
     thermal = p["range_sigma_snr"] * 10.0 ** ((SNR_NOISE_REF - np.asarray(snr, float)) / 20.0)
     return np.sqrt(p["range_sigma_floor"] ** 2 + thermal ** 2)
+
+
+def max_delay(p: dict) -> float:
+    """Longest one-way delay [s] the decoder accepts: twice ``max_range`` (at least 1 m) and
+    1 us; beyond it a block is implausible. C_AIR times it is the decoder's reach of a station."""
+    return 2.0 * max(p["max_range"], 1.0) / C_AIR + 1e-6
+
+
+def range_variance_floor(p: dict) -> float:
+    """Least variance [m^2] of one range in the decoder's fit: range_sigma(snr)^2 + cal_sigma^2
+    at an infinite SNR, at least (1 mm)^2 (the resolution of float32 delays)."""
+    return max(p["range_sigma_floor"] ** 2 + p["cal_sigma"] ** 2, MIN_RANGE_VAR)
+
+
+def min_fix_sigma(p: dict) -> float:
+    """Least 1-sigma [m] of a published fix: the LS sigma of N_SLOTS ranges of the least
+    variance (range_variance_floor), each along the track (|partial| 1); every sigma the
+    decoder publishes (protected, isolated, single station) is at least its solution's LS
+    sigma. One fix per block: a station's mean range averages the noise of at most
+    max_block_duration x sample_rate epochs (the pipeline's longest block), not the
+    calibration bias; the decoder publishes no less (a block with a hand-over, more than
+    N_SLOTS stations, is raised to it)."""
+    var = range_variance_floor(p)
+    if p["fix_per_block"]:
+        cal2 = p["cal_sigma"] ** 2
+        longest = p.get("max_block_duration", COMMON_PARAMS["max_block_duration"].default)
+        epochs = math.ceil(longest * (p.get("sample_rate") or MmWaveSimulator.default_sample_rate))
+        var = max(var - cal2, 1e-12) / epochs + cal2
+    return math.sqrt(var / N_SLOTS)
+
+
+def station_window(p: dict, position: float) -> tuple[float, float]:
+    """Chainages [m] of the train front while the radio ranges a station at ``position``: the
+    antenna within the decoder's reach (C_AIR x max_delay) of it, the front ``antenna_offset``
+    ahead of the antenna in either orientation."""
+    reach = C_AIR * max_delay(p) + p["antenna_offset"]
+    return position - reach, position + reach
 
 
 class MmWaveSimulator(Simulator):
@@ -392,7 +431,8 @@ class MmWaveDecoder(Decoder):
         self._lut = np.full(int(self.codes.max()) + 1 if len(self.codes) else 1, -1, dtype=np.int64)
         for c, k in self._code_index.items():
             self._lut[c] = k
-        self._max_delay = 2.0 * max(params["max_range"], 1.0) / C_AIR + 1e-6
+        self._max_delay = max_delay(params)
+        self._min_sigma = min_fix_sigma(params)
         self._neg_slots = -np.arange(1, N_SLOTS + 1)[:, None]
         self._lut0 = self._lut.copy()
         self._lut0[0] = 0
@@ -410,7 +450,7 @@ class MmWaveDecoder(Decoder):
         self._sig2_snr = (params["range_sigma_snr"] * 10.0 ** (SNR_NOISE_REF / 20.0)) ** 2
         self._sig2_exp = -math.log(10.0) / 10.0
         # the 1 mm floor of sigma^2 can only act if the constant part is below it
-        self._sig2_floor = not self._sig2_const >= 1e-6
+        self._sig2_floor = not self._sig2_const >= MIN_RANGE_VAR
         self._k_cover = float(-ndtri(0.5 * (1.0 - params["protection_probability"])))
         self._subset_tabs: dict = {}
         self._block_loo: dict = {}   # per number of stations: all of them, then without each
@@ -540,7 +580,7 @@ class MmWaveDecoder(Decoder):
         # range_sigma(snr)^2 + cal_sigma^2, >= 1 mm (float32 delays)
         sig2 = self._sig2_const + self._sig2_snr * np.exp(snr * self._sig2_exp)
         if self._sig2_floor:
-            sig2 = np.maximum(sig2, 1e-6)
+            sig2 = np.maximum(sig2, MIN_RANGE_VAR)
         self.stats["epochs"] += n
         if p["fix_per_block"]:
             return self._decode_block(times, rng, pat, sig2, valid)
@@ -561,8 +601,9 @@ class MmWaveDecoder(Decoder):
         # per slot one small integer, 4 x station index + 2 x used + valid: per epoch the
         # cache key of its reference_id and residual order
         code = pat.key + (valid * 3 if used is valid else used * 2 + valid)
-        epochs = zip(times.tolist(), front.tolist(), np.sqrt(var).tolist(), resid.T.tolist(),
-                     map(tuple, code.T.tolist()))
+        # (the LS sigma is never below min_fix_sigma; the floor only guards the round-off)
+        sigma = np.maximum(np.sqrt(var), self._min_sigma)
+        epochs = zip(times.tolist(), front.tolist(), sigma.tolist(), resid.T.tolist(), map(tuple, code.T.tolist()))
         if n_ok < n:
             epochs = itertools.compress(epochs, ok.tolist())
         sensor, unit, track_id = self.sensor, self.unit_id, self.track.track_id
@@ -662,6 +703,7 @@ class MmWaveDecoder(Decoder):
             return []
         if int(used_rows.sum()) == 1:
             sigma = math.hypot(sigma, p["unchecked_sigma"])   # no redundancy in the block
+        sigma = max(sigma, self._min_sigma)
         x_fix = xm + float(delta[c])
         self._remember(t, x_fix + v * tt, np.full(n_ok, sigma ** 2))
         self.stats["no_fix"] += n - n_ok
@@ -1161,11 +1203,19 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
     its cause: the fusion does not average it over the fixes within that time."""
     positions = sorted(float(it["position"]) for it in track.items(STATION_KIND)) if track is not None else []
     spacing = (positions[-1] - positions[0]) / (len(positions) - 1) if len(positions) > 1 else math.inf
+    references = None
+    if track is not None:
+        # a fix names the stations it used, then "!" + the excluded ones, joined by ","
+        ids, pos, _, _ = _stations(track, params)
+        windows = {}
+        for sid, x in zip(ids, pos.tolist()):
+            windows[str(sid)] = windows["!" + str(sid)] = ReferenceWindow(*station_window(params, x))
+        references = ReferenceTable(windows, separator=",")
     return ErrorModel("mmwave", "position", fix_bias_sigma=math.hypot(params["cal_sigma"],
                                                                       params["range_sigma_floor"]),
                       fix_bias_length=spacing, fix_bias_tau=params["nlos_duration"],
                       fix_white_sigma=math.hypot(params["range_sigma_floor"], params["range_sigma_snr"]),
-                      faults=("nlos", "outage"))
+                      faults=("nlos", "outage"), min_stddev=min_fix_sigma(params), references=references)
 
 
 SPEC = SensorSpec(

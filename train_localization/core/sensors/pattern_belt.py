@@ -78,7 +78,7 @@ from scipy.signal import lfilter
 from ..signals import InputRejected, RawBlock
 from ..track import Track, extent
 from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator, continuous_timeout, gauss_markov
-from .wheel import CycleCounter, IncrementEstimator, increment_or_reject, restart_after_gap
+from .wheel import SPEED_STDDEV_FLOOR, CycleCounter, IncrementEstimator, increment_or_reject, restart_after_gap
 
 KIND = "pattern_belt"
 MIN_STATE_FRACTION = 0.75   # shortest state / (p/6) allowed for by the speed limit
@@ -520,7 +520,8 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
     (constant along a belt section, reported inside the decoder's stddev); contactless,
     so no slip."""
     return ErrorModel("pattern_belt", "distance", scale_sigma=params["scale_sigma"],
-                      reported_scale=params["scale_sigma"], timeout=continuous_timeout(params))
+                      reported_scale=params["scale_sigma"], timeout=continuous_timeout(params),
+                      min_stddev=SPEED_STDDEV_FLOOR)   # wheel.IncrementEstimator.make's floor of both stddevs
 
 
 SPEC = SensorSpec(

@@ -80,6 +80,7 @@ SENSOR = "pole_position"
 CHANNELS = ("u", "v", "w")
 PHASES = np.array([0.0, -2.0 * math.pi / 3.0, -4.0 * math.pi / 3.0])   # theta - 2 pi k / 3
 TWO_PI = 2.0 * math.pi
+SPEED_RESOLUTION = 1.0e-4    # [m/s] the decoder's floor of a reported 1-sigma (assumption)
 
 PARAMS = {
     "pole_pitch": Param(0.1, "pole pitch tau of the long stator and of the vehicle's magnets [m] (assumption: "
@@ -281,8 +282,20 @@ class PolePositionDecoder(Decoder):
         slope_var = (res * res / sxx if sxx > 0 else 0.0) + (12.0 * p["harmonic5"] / (span * span * omega_r)) ** 2
         speed_sigma = math.sqrt(slope_var * to_m ** 2 + (p["pitch_scale_sigma"] * speed) ** 2)
         self.stats["increments"] += 1
-        return [DistanceIncrement(t_end, self.sensor, self.unit_id, t_end - t0, float(distance),
-                                  float(max(dist_sigma, 1e-5)), float(speed), float(max(speed_sigma, 1e-4)))]
+        duration = t_end - t0
+        floor = min_speed_stddev(p)
+        # the floor of the speed and of the mean speed (the error model's min_stddev): at the defaults (0.66 mm
+        # of a distance from its end angles) it binds the distance only for increments over 6.6 s
+        return [DistanceIncrement(t_end, self.sensor, self.unit_id, duration, float(distance),
+                                  float(max(dist_sigma, 1e-5, floor * duration)), float(speed),
+                                  float(max(speed_sigma, floor)))]
+
+
+def min_speed_stddev(params: dict) -> float:
+    """Smallest 1-sigma [m/s] of an increment's speed and of its mean speed (distance_stddev /
+    duration) the decoder reports (ErrorModel.min_stddev): SPEED_RESOLUTION; the signal is there
+    at a standstill, so no speed-dependent term bounds it."""
+    return SPEED_RESOLUTION
 
 
 def angle_sigma(params: dict, frame_samples: int) -> float:
@@ -299,7 +312,8 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
     sensor with a timeout."""
     scale = params["pitch_scale_sigma"]
     return ErrorModel(SENSOR, "distance", scale_sigma=scale, reported_scale=scale,
-                      timeout=continuous_timeout(params))
+                      timeout=continuous_timeout(params),
+                      min_stddev=min_speed_stddev(params))   # the decoder's floor of both stddevs
 
 
 SPEC = SensorSpec(

@@ -50,6 +50,7 @@ from ..signals import RawBlock
 from .base import ErrorModel, Param, SensorSpec, Simulator, continuous_timeout, gauss_markov
 from .pattern_belt import (PARAMS as BELT_PARAMS, PatternBeltDecoder, flux_table, geometry, resolvable_speed,
                            table_lookup)
+from .wheel import SPEED_STDDEV_FLOOR
 
 ADDER_PERIOD = 0.21          # [m] seed 003 section 4.1: one period of the adder output
 SEED_INDUCTANCE = 11.14e-6   # [H] seed 003 section 3.1: equivalent inductance of the loop
@@ -305,7 +306,8 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
     """Counting errors for the fusion: the relative error of a counted distance ``scale_sigma``
     (reported inside the decoder's stddev); contactless, so no slip."""
     return ErrorModel("rig_loop", "distance", scale_sigma=params["scale_sigma"],
-                      reported_scale=params["scale_sigma"], timeout=continuous_timeout(params))
+                      reported_scale=params["scale_sigma"], timeout=continuous_timeout(params),
+                      min_stddev=SPEED_STDDEV_FLOOR)   # the belt's wheel.IncrementEstimator.make floor of both stddevs
 
 
 SPEC = SensorSpec(

@@ -128,7 +128,7 @@ import numpy as np
 from ..measurements import CLEAR, DISTURBED, OCCUPIED, PositionFix, SectionOccupancy, SectionState
 from ..signals import InputRejected, RawBlock
 from ..track import Track, TrackError, extent
-from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator
+from .base import Decoder, ErrorModel, Param, ReferenceTable, ReferenceWindow, SensorSpec, Simulator
 
 KIND = "track_circuit"
 SENSOR = "track_circuit"
@@ -675,17 +675,12 @@ class TrackCircuitDecoder(Decoder):
         if d != o and offset <= 0.0:
             self.stats["fix_withheld"] += 1
             return []
-        boundary = c["start"] if d > 0 else c["end"]
-        # the entering axle shunts the new circuit down where its line begins: the tuned
-        # unit at the near edge of the zone, half a zone before the boundary
-        drop_point = boundary - d * 0.5 * c["zone"]
         p = self.params
-        timing = p["max_speed"] / self._fs / math.sqrt(12.0)
-        sigma = math.sqrt(1.25 * (0.5 * c["zone"]) ** 2 + p["axle_offset_sigma"] ** 2 + timing ** 2)
+        sigma = fix_sigma(p, c["zone"], self._fs)
         self.stats["fixes"] += 1
         ref = f"{self.circuits[nb]['id']}/{c['id']}" if d > 0 else f"{c['id']}/{self.circuits[nb]['id']}"
         return [PositionFix(t_on, self.sensor, self.unit_id, self.track.track_id, ref,
-                            float(drop_point + o * offset), sigma, int(d))]
+                            fix_position(c, d, o * offset), sigma, int(d))]
 
     def _picked(self, k: int, t: float) -> None:
         """Circuit k decided CLEAR at t: if no neighbour holds the train, it was lost."""
@@ -705,16 +700,57 @@ class TrackCircuitDecoder(Decoder):
                 self.state[nb] = DISTURBED
 
 
+def fix_position(circuit: dict, direction: int, axle: float) -> float:
+    """Train-front chainage [m] of a boundary fix of ``circuit`` entered in ``direction`` (+1:
+    at its start, -1: at its end): the entering axle shunts the new circuit down where its line
+    begins, the tuned unit at the near edge of the zone, half a zone before the boundary; the
+    front is ``axle`` [m] (o x the axle's offset behind the front) beyond that."""
+    boundary = circuit["start"] if direction > 0 else circuit["end"]
+    drop_point = boundary - direction * 0.5 * circuit["zone"]
+    return float(drop_point + axle)
+
+
+def fix_sigma(params: dict, zone: float, sample_rate: float) -> float:
+    """1-sigma [m] of a boundary fix at a tuned zone of ``zone`` [m] with levels sampled at
+    ``sample_rate`` [Hz]: half the zone persistent and a quarter white, the axle offset and the
+    timing (``max_speed`` x a sample / sqrt 12)."""
+    timing = params["max_speed"] / sample_rate / math.sqrt(12.0)
+    return math.sqrt(1.25 * (0.5 * zone) ** 2 + params["axle_offset_sigma"] ** 2 + timing ** 2)
+
+
+def boundary_windows(params: dict, circuits: list[dict]) -> dict[str, ReferenceWindow]:
+    """Reference id 'BELOW/ABOVE' of every joint of ``circuits`` -> the chainages [m] of its
+    fixes (``fix_position``): the circuit above entered upwards, the one below downwards, the
+    front ``first_axle_offset`` ahead of the axle, or ``last_axle_offset`` behind it for a
+    backing train (only if set and not ``front_first``: else the decoder gives no such fix)."""
+    axles = [params["first_axle_offset"]]
+    if params["last_axle_offset"] > 0.0 and not params["front_first"]:
+        axles.append(-params["last_axle_offset"])
+    out = {}
+    for lower in circuits:
+        if lower["above"] < 0:
+            continue
+        upper = circuits[lower["above"]]
+        xs = [fix_position(upper, 1, a) for a in axles] + [fix_position(lower, -1, -a) for a in axles]
+        out[f"{lower['id']}/{upper['id']}"] = ReferenceWindow(min(xs), max(xs))
+    return out
+
+
 def error_model(params: dict, track, vehicle) -> ErrorModel:
     """Boundary fixes for the fusion: the detection point within the tuned zone is a
     persistent error of the equipment (the same side of the boundary for every hand-over
     in one direction), carried as a fix bias of half the longest zone and included in the
     reported stddev; fault mode: a miscount (a circuit dropping with no train ahead of
-    a train, a broken rail, gives a wrong boundary)."""
+    a train, a broken rail, gives a wrong boundary). Floor: the decoder's ``fix_sigma`` at
+    the shortest zone and the configured sample rate (the pipeline refuses another).
+    References: every joint of the device's circuits, windows ``boundary_windows``."""
     circuits = circuit_table(track, params) if track is not None and track.items(KIND) else []
     zone = max((c["zone"] for c in circuits), default=max(params["zone_um71c"], params["zone_ti21"]))
+    shortest = min((c["zone"] for c in circuits), default=min(params["zone_um71c"], params["zone_ti21"]))
+    rate = float(params.get("sample_rate") or TrackCircuitSimulator.default_sample_rate)
+    references = ReferenceTable(boundary_windows(params, circuits)) if track is not None else None
     return ErrorModel(SENSOR, "position", fix_bias_sigma=0.5 * zone, reported_fix_bias=0.5 * zone,
-                      faults=("miscount",))
+                      faults=("miscount",), min_stddev=fix_sigma(params, shortest, rate), references=references)
 
 
 SPEC = SensorSpec(

@@ -71,7 +71,7 @@ import numpy as np
 from ..measurements import PositionFix
 from ..signals import InputRejected, RawBlock
 from ..track import nearby_runs
-from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator
+from .base import Decoder, ErrorModel, Param, ReferenceTable, ReferenceWindow, SensorSpec, Simulator
 
 KIND = "transponder_tag"
 SENSOR = "transponder"
@@ -333,15 +333,36 @@ class TransponderDecoder(Decoder):
                 self.stats["implausible"] += 1
                 return None
         self._last = (stamp, chainage)
-        sigma = math.sqrt(p["install_sigma"] ** 2 + timing ** 2 + motion ** 2)
         return PositionFix(float(stamp), self.sensor, self.unit_id, self.track.track_id, str(item["id"]),
-                           chainage + p["antenna_offset"], max(sigma, 1e-3), 0)
+                           fix_position(p, item), fix_sigma(p, timing, motion), 0)
+
+
+MIN_FIX_SIGMA = 1e-3   # [m] least 1-sigma of a fix: the millimetre of the track file's chainages
+
+
+def fix_sigma(params: dict, timing: float = 0.0, motion: float = 0.0) -> float:
+    """1-sigma [m] of a tag fix: root sum of squares of ``install_sigma``, the edge timing
+    ``timing`` [m] and the acceleration term ``motion`` [m] (the decoder's), at least MIN_FIX_SIGMA;
+    with both 0 the least a fix reports (the error model's floor)."""
+    return max(math.sqrt(params["install_sigma"] ** 2 + timing ** 2 + motion ** 2), MIN_FIX_SIGMA)
+
+
+def fix_position(params: dict, item: dict) -> float:
+    """Train-front chainage [m] of a fix of tag ``item``: its chainage + ``antenna_offset`` (the
+    decoder assumes the antenna behind the front towards decreasing chainage, as the simulator)."""
+    return float(item["position"]) + params["antenna_offset"]
 
 
 def error_model(params: dict, track, vehicle) -> ErrorModel:
     """Tag fixes for the fusion: white (each tag's installation error is its own, read once a
-    passage; the edge timing), both in the decoder's stddev; fault mode: a misread id."""
-    return ErrorModel(SENSOR, "position", faults=("misread",))
+    passage; the edge timing), both in the decoder's stddev; fault mode: a misread id. Floor:
+    ``fix_sigma`` without timing, max(install_sigma, 1 mm). References: every tag of the track,
+    window the point chainage + antenna_offset (``fix_position``)."""
+    references = None
+    if track is not None:
+        references = ReferenceTable({str(it["id"]): ReferenceWindow(fix_position(params, it), fix_position(params, it))
+                                     for it in track.items(KIND)})
+    return ErrorModel(SENSOR, "position", faults=("misread",), min_stddev=fix_sigma(params), references=references)
 
 
 SPEC = SensorSpec(

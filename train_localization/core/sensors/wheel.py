@@ -139,6 +139,15 @@ _CODE_WEIGHTS = np.array([2.0, 1.0], dtype=np.float32)  # (A, B) levels -> code
 
 
 # --------------------------------------------------------------------------- decoding core
+SPEED_STDDEV_FLOOR = 1.0e-3
+"""Smallest 1-sigma [m/s] an IncrementEstimator reports for an increment's speed and for its
+mean speed (distance_stddev / duration): the counting sensors' ErrorModel.min_stddev (wheel,
+pattern belt, coil counter, rig loop). 1 mm/s, the decoders' speed resolution (assumption): a
+standing train's bound, the widest state / (sqrt(3) x the time since the last transition),
+reaches it after about 9 s on the wheel. The distance of a long increment (blocks of
+seconds) between two edges, known to millimetres, would otherwise claim a finer mean speed."""
+
+
 @dataclass
 class FeedResult:
     steps: int            # signed steps of the last gap-free segment of the block
@@ -528,8 +537,11 @@ class IncrementEstimator:
         if self._prev_v is not None and t1 > self._prev_t:
             self._acc = abs(speed - self._prev_v) / (t1 - self._prev_t)
         self._prev_v, self._prev_t = speed, t1
+        # the floor of both (SPEED_STDDEV_FLOOR, the error models' min_stddev); it binds the distance only
+        # for an increment of seconds (the wheel's ends scatter by 2.8 mm at the defaults) or without scatter
         return DistanceIncrement(float(t1), self.sensor, self.unit_id, float(duration), float(distance),
-                                 float(dist_sigma), float(speed), float(max(speed_sigma, 1e-3)))
+                                 float(max(dist_sigma, SPEED_STDDEV_FLOOR * duration)), float(speed),
+                                 float(max(speed_sigma, SPEED_STDDEV_FLOOR)))
 
 
 # --------------------------------------------------------------------------- device
@@ -712,7 +724,8 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
     return ErrorModel("wheel", "distance", scale_sigma=scale, reported_scale=scale,
                       creep_coefficient=params["creep_coefficient"], creep_in_traction=params["driven_axle"],
                       faults=("slip", "slide") if params["driven_axle"] else ("slide",),
-                      fault_duration_max=longest, timeout=continuous_timeout(params))
+                      fault_duration_max=longest, timeout=continuous_timeout(params),
+                      min_stddev=SPEED_STDDEV_FLOOR)   # IncrementEstimator.make's floor of both stddevs
 
 
 SPEC = SensorSpec(

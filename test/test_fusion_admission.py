@@ -1,0 +1,146 @@
+"""Admission (core/fusion/admission.py): every check that protects the filter, applied by
+FusionRunner.add on every path; and a runner that never raises on what gets through."""
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from functools import lru_cache
+
+import pytest
+from hypothesis import HealthCheck, given, settings, strategies as st
+
+from train_localization.core import paths
+from train_localization.core.fusion import MODE_LOST, MODE_NOMINAL, FusionRunner, fusion_config
+from train_localization.core.measurements import DistanceIncrement, PositionFix, SpeedMeasurement
+from train_localization.core.offline import scenario_measurements, simulate_scenario
+from train_localization.core.scenario import Scenario
+
+
+@lru_cache(maxsize=None)
+def demo() -> Scenario:
+    return Scenario.from_yaml(paths.resolve("config/scenario_demo.yaml"))
+
+
+@lru_cache(maxsize=None)
+def demo_arrivals(t_end: float) -> tuple:
+    return tuple(scenario_measurements(demo(), t_end=t_end))
+
+
+def runner_at(t: float) -> FusionRunner:
+    """The demo scenario's fusion, fed its own measurements up to ``t`` [s]."""
+    r = FusionRunner(fusion_config(demo()))
+    for arrival, m in demo_arrivals(90.0):
+        if arrival > t:
+            break
+        r.advance(arrival)
+        r.add(m)
+    r.advance(t)
+    return r
+
+
+def test_every_reason_is_refused_and_counted():
+    r = runner_at(70.0)
+    before = dict(r.rejected)
+    track = demo().track.track_id
+    bad = {
+        "nan": PositionFix(70.0, "eurobalise", "eb", track, "EB000", math.nan, 0.5),
+        "stddev": SpeedMeasurement(70.0, "doppler", "d", 5.0, 0.0),
+        "implausible": SpeedMeasurement(70.0, "doppler", "d", 900.0, 0.1),
+        "unknown_sensor": SpeedMeasurement(70.0, "gnss", "g", 5.0, 0.1),
+        "wrong_kind": PositionFix(70.0, "doppler", "d", track, "R", 521.0, 0.5),
+        "wrong_track": PositionFix(70.0, "eurobalise", "eb", "other_line", "EB000", 502.0, 0.5),
+        "off_track": PositionFix(70.0, "eurobalise", "eb", track, "EB000", 31000.0, 0.5),
+        "below_model": PositionFix(70.0, "eurobalise", "eb", track, "EB000", 502.0, 1e-6),
+        "unknown_reference": PositionFix(70.0, "eurobalise", "eb", track, "EB903", 502.0, 0.5),
+        "reference_mismatch": PositionFix(70.0, "eurobalise", "eb", track, "EB000", 1502.0, 0.5),
+        "future": DistanceIncrement(70.0 + 1e9, "wheel", "w", 0.05, 1.0, 0.01, 20.0, 0.2),
+    }
+    for reason, m in bad.items():
+        assert not r.add(m), reason
+        assert r.last_error.reason == reason, (reason, str(r.last_error))
+    added = {k: v - before.get(k, 0) for k, v in r.rejected.items() if v != before.get(k, 0)}
+    assert added == {reason: 1 for reason in bad}
+    assert r.counters()["rejected"] == r.rejected
+    e = r.advance(71.0)[-1][0]
+    assert math.isfinite(e.position) and e.mode != MODE_LOST
+
+
+def test_a_far_future_stamp_is_refused_in_the_offline_runner():
+    """Issue: a DistanceIncrement stamped + 1e9 s made the next advance raise OverflowError."""
+    sc = Scenario.from_yaml(paths.resolve("config/scenario_faults.yaml"))
+    res = simulate_scenario(sc, t_end=20.0)
+    first = next(m for m in res.measurements if isinstance(m, DistanceIncrement))
+    assert not res.runner.add(replace(first, stamp=first.stamp + 1e9))
+    assert res.runner.last_error.reason == "future"
+    states = res.runner.advance(20.5)
+    assert states and all(math.isfinite(e.position) for e, _ in states)
+
+
+def _lying_fixes(offset: float, reference: str, count: int, t0: float, period: float):
+    """``count`` balise fixes claiming 1 um, ``offset`` [m] off the truth, one per ``period`` s."""
+    truth = demo().trajectory()
+    return [PositionFix(t, "eurobalise", "eurobalise", demo().track.track_id, reference.format(k=k),
+                        truth.state_at(t).position + offset, 1e-6)
+            for k, t in ((k, t0 + k * period) for k in range(count))]
+
+
+@pytest.mark.parametrize("offset, reference, count", [(2.0, "EB90{k}", 2), (300.0, "EB{k:03d}", 10),
+                                                      (2.0, "EB001", 2)])
+def test_fixes_that_claim_more_than_their_model_never_move_the_state(offset, reference, count):
+    """Issue: two fixes claiming 1e-6 m with unknown ids, 2 m off, held the train NOMINAL 2 m wrong
+    with a 2 mm stddev; ten 300 m off made it NOMINAL 300 m off. They are refused, the states
+    are the same as without them."""
+    lies = _lying_fixes(offset, reference, count, 65.0, 1.0)
+    clean, attacked = FusionRunner(fusion_config(demo())), FusionRunner(fusion_config(demo()))
+    arrivals = list(demo_arrivals(90.0))
+    merged = sorted(arrivals + [(m.stamp, m) for m in lies], key=lambda item: item[0])
+    out = {id(clean): [], id(attacked): []}
+    for runner, stream in ((clean, arrivals), (attacked, merged)):
+        for arrival, m in stream:
+            out[id(runner)].extend(e for e, _ in runner.advance(arrival))
+            runner.add(m)
+        out[id(runner)].extend(e for e, _ in runner.advance(90.0))
+    assert sum(attacked.rejected.values()) - sum(clean.rejected.values()) == count
+    assert attacked.rejected.get("below_model", 0) == count
+    assert [(e.position, e.position_stddev, e.mode) for e in out[id(attacked)]] == \
+        [(e.position, e.position_stddev, e.mode) for e in out[id(clean)]]
+    assert any(e.mode == MODE_NOMINAL for e in out[id(clean)] if e.stamp >= 65.0)
+
+
+# ---- the runner never raises, whatever gets through ------------------------------------------
+_SENSORS = ("wheel", "doppler", "eurobalise", "axle_counter")
+_EXTREME = st.sampled_from([0.0, -1.0, 1e-300, 1e-6, 1e-3, 1.0, 1e3, 1e5, 1e12, 1e200, -1e200, math.nan, math.inf])
+_VALUE = st.one_of(st.floats(-50.0, 50.0), _EXTREME)
+_STAMP = st.one_of(st.floats(0.0, 30.0), st.sampled_from([-3600.0, 3600.0, 1e9, -1e9, math.nan]))
+
+
+@st.composite
+def measurement(draw):
+    stamp = draw(_STAMP)
+    kind = draw(st.sampled_from(("fix", "speed", "increment")))
+    sensor = draw(st.sampled_from(_SENSORS))
+    if kind == "fix":
+        ref = draw(st.sampled_from(("EB000", "EB001", "AC00", "AC01", "X")))
+        return PositionFix(stamp, sensor, "u", "conventional_line", ref, draw(st.one_of(st.floats(0, 2000), _EXTREME)),
+                           draw(st.one_of(st.floats(0.01, 5.0), _EXTREME)))
+    if kind == "speed":
+        return SpeedMeasurement(stamp, sensor, "u", draw(_VALUE), draw(st.one_of(st.floats(0.001, 1.0), _EXTREME)))
+    return DistanceIncrement(stamp, sensor, "u", draw(st.one_of(st.floats(0.001, 0.2), _EXTREME)), draw(_VALUE),
+                             draw(st.one_of(st.floats(0.001, 0.1), _EXTREME)), draw(_VALUE),
+                             draw(st.one_of(st.floats(0.001, 1.0), _EXTREME)))
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(st.tuples(measurement(), st.floats(0.0, 0.5), st.booleans()), min_size=1, max_size=40))
+def test_the_runner_never_raises_and_publishes_finite_or_lost(steps):
+    """Random interleavings of valid and extreme measurements of every kind, with and without
+    the caller's clock: ``add`` refuses or takes, ``advance`` never raises, every estimate is
+    finite or LOST (or INITIALISING, which claims no position)."""
+    r = FusionRunner(fusion_config(demo()))
+    t = 0.0
+    for m, dt, with_clock in steps:
+        r.add(m, t if with_clock else None)
+        t += dt
+        for e, _ in r.advance(t):
+            assert e.mode == MODE_LOST or not math.isfinite(e.position) or (
+                math.isfinite(e.position_min) and math.isfinite(e.position_max) and math.isfinite(e.speed))

@@ -1,0 +1,110 @@
+"""Fault impact (core/fusion/impact.py): the filter's exact sensitivity to a persistent fault
+of a relative sensor, the fault sizes the innovations have not excluded, and the cover."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from train_localization.core.fusion import FusionConfig, TrainFilter, impact, sensor_models
+from train_localization.core.measurements import PositionFix, SpeedMeasurement
+from train_localization.core.scenario import Vehicle
+
+
+def _radar_and_balises(fault: float, balise_every: float = 400.0, until: float = 60.0, onset_spacing=3600.0):
+    """A train at 25 m/s, a Doppler radar at 20 Hz reading (1 + fault) x the speed from t = 0,
+    balise fixes every ``balise_every`` m; the filter started at 0 m at rest-free speed."""
+    models = sensor_models(["doppler_radar", "eurobalise_reader"], None, Vehicle())
+    f = TrainFilter(FusionConfig(sensors=models, fault_onset_spacing=onset_spacing))
+    f.reset(position=0.0, position_stddev=0.5, speed=25.0, speed_stddev=0.1, stamp=0.0)
+    rng = np.random.default_rng(3)
+    next_balise = balise_every
+    for k in range(1, int(until * 20) + 1):
+        t = k / 20.0
+        s = 25.0 * t
+        f.add(SpeedMeasurement(t, "doppler", "d", 25.0 * (1.0 + fault) + float(rng.normal(0, 0.05)), 0.3))
+        if s >= next_balise:
+            f.add(PositionFix(t, "eurobalise", "b", "T", f"EB{int(s)}", next_balise + float(rng.normal(0, 0.3)), 0.4))
+            next_balise += balise_every
+    return f
+
+
+def test_the_impact_is_the_filters_own_sensitivity_to_the_fault():
+    """Run twice, with and without a 0.2 % radar scale fault (too small for any check to act):
+    the difference of the states is the fault times the impact vector (the filter is linear in
+    what it takes in; the scale x speed product makes it so to first order)."""
+    fault = 0.002
+    clean, faulty = _radar_and_balises(0.0), _radar_and_balises(fault)
+    x0, _, aux0 = clean.state()
+    x1, _, aux1 = faulty.state()
+    assert aux0.events == aux1.events and aux0.gated == aux1.gated   # the same decisions
+    (imp,) = aux1.impacts                                            # one onset: at the start
+    assert imp.sensor == "doppler" and imp.onset == pytest.approx(0.05)
+    np.testing.assert_allclose((x1 - x0)[:2] / fault, imp.e[:2], rtol=0.02, atol=1e-3)
+    # the fixes have told it: the fault estimate is about right, and its 1-sigma small
+    assert abs(imp.score / imp.info - fault) < 3.0 / math.sqrt(imp.info)
+
+
+def test_a_fault_no_reading_can_test_is_covered_up_to_its_size():
+    """A lone radar between balises 2 km apart: nothing tests its scale fault but the fixes, so
+    just before a fix the cover is near |e_0| x z x scale_fault_sigma; the data excludes large
+    faults only as the fixes come."""
+    f = _radar_and_balises(0.0, balise_every=2000.0, until=79.0, onset_spacing=5.0)
+    est = f.estimate(79.0)
+    bound = f._fault_bounds["doppler"]
+    assert bound == pytest.approx(f._z * f.models["doppler"].scale_fault_sigma)
+    _, _, aux = f.state()
+    newest = max(aux.impacts, key=lambda imp: imp.onset)
+    assert newest.excluded_beyond(bound, f._z) == pytest.approx(bound, rel=0.2)
+    x, P, _ = f.state()
+    half_s, _ = impact.cover(aux.impacts, f._fault_bounds, 79.0 - aux.t, f._z, P[0, 0], P[1, 1])
+    assert half_s > f._z * math.sqrt(P[0, 0]) and est.position_max - est.position >= half_s - 1e-9
+    assert len([imp for imp in aux.impacts if imp.sensor == "doppler"]) == f.cfg.fault_onsets
+
+
+def test_each_onset_also_ends_the_fault_that_matters_most_and_a_full_bank_drops_the_least():
+    n, bounds = 4, {"doppler": 0.1}
+    bank = impact.started((), bounds, 0.0, n, 4, 3.0)
+    assert [(imp.onset, imp.active) for imp in bank] == [(0.0, True)]     # nothing to end yet
+    bank = (bank[0]._replace(e=np.array([10.0, 1.0, 0, 0])),)
+    bank = impact.started(bank, bounds, 5.0, n, 4, 3.0)
+    assert [(imp.onset, imp.active) for imp in bank] == [(0.0, True), (0.0, False), (5.0, True)]
+    np.testing.assert_array_equal(bank[1].e, bank[0].e)                    # the same error, ended at 5 s
+    # an ended fault's sensor reads right: its readings add nothing, they test what it left
+    h, K = np.array([0.0, 0.05, 0.0, 0.0]), np.array([0.0, 0.5, 0.0, 0.0])
+    after = impact.updated(bank, ("doppler", 20.0, True), h, K, 0.0, 0.01)
+    assert after[0].e[1] == pytest.approx(1.0 + 0.5 * (20.0 - 0.05))      # going on: its fault comes in
+    assert after[1].e[1] == pytest.approx(1.0 - 0.5 * 0.05)                # ended: only corrected
+    assert after[1].info == pytest.approx(0.05 ** 2 / 0.01) and not after[1].active
+    unchecked = impact.updated(bank, ("doppler", 20.0, False), h, K, 0.0, 0.01)
+    assert unchecked[1].info == 0.0           # against the motion model alone its end tests nothing
+    # a full bank: the newest active one stays, the smallest cover of the rest goes
+    bank = tuple(imp._replace(e=np.array([e0, 0, 0, 0])) for imp, e0 in zip(bank, (10.0, 3.0, 0.0)))
+    bank = impact.started(bank, bounds, 10.0, n, 4, 3.0)                   # + (0, ended at 10), (10)
+    assert [(imp.onset, imp.active) for imp in bank] == [(0.0, True), (0.0, False), (0.0, False), (10.0, True)]
+    assert [float(imp.e[0]) for imp in bank] == [10.0, 3.0, 10.0, 0.0]    # (5.0, active, e 0) dropped
+
+
+def test_the_innovations_exclude_fault_sizes_as_a_least_squares_fit():
+    """Another sensor's readings whose innovations match g x f_true: the estimate is f_true, its
+    1-sigma 1 / sqrt(sum g^2 / S); the faulty sensor's own readings test it only while another
+    speed source in use checks them."""
+    e = np.array([0.0, 1.0, 0.0])                   # a unit fault has put 1 m/s into the speed
+    imp = impact.Impact("doppler", 0.0, e, 0.0, 0.0)
+    h, K = np.array([0.0, 1.0, 0.0]), np.zeros(3)   # K = 0: e stays
+    bank = (imp,)
+    for v in (10.0, 20.0, 30.0):                    # another sensor's speeds: g = -h e = -1 x (v / 10)
+        bank = tuple(i._replace(e=e * v / 10.0) for i in bank)
+        bank = impact.updated(bank, ("wheel", 0.0, True), h, K, -0.05 * v / 10.0, 0.04)
+    own = impact.updated(bank, ("doppler", 30.0, False), h, K, 1.5, 0.04)   # only the motion model checks it
+    assert own[0].info == bank[0].info and own[0].score == bank[0].score
+    checked = impact.updated(bank, ("doppler", 30.0, True), h, K, 1.5, 0.04)   # the wheel in use checks it
+    assert checked[0].info == pytest.approx(bank[0].info + (30.0 - 3.0) ** 2 / 0.04)
+    (imp,) = bank
+    assert imp.score / imp.info == pytest.approx(0.05)
+    assert imp.info == pytest.approx((1 + 4 + 9) / 0.04)
+    assert imp.fault(1.0, 3.0) == pytest.approx((0.05, 1.0 / math.sqrt(imp.info)))
+    assert imp.excluded_beyond(1.0, 3.0) == pytest.approx(0.05 + 3.0 / math.sqrt(imp.info))
+    assert imp.fault(0.03, 3.0) == pytest.approx((0.03, 0.01))    # within the sensor's bound
+    assert imp.excluded_beyond(0.03, 3.0) == 0.03

@@ -1,0 +1,74 @@
+"""Admission: every check that protects the filter from its inputs, in one place.
+
+``FusionRunner.add`` runs it for every path (the live node, ``tl_replay``, the campaign,
+the benchmarks and the tests); what is refused is counted by reason and never reaches
+the filter. The node keeps only what is about DDS (a message on another sensor's topic).
+
+========================  ====================================================================
+reason                    refused
+========================  ====================================================================
+``nan``                   a stamp, value or stddev that is NaN or infinite
+``stddev``                a stddev or duration <= 0
+``implausible``           beyond the physical limits (core/measurements.py)
+``unknown_sensor``        a sensor class the fusion is not configured for
+``wrong_kind``            a measurement of another kind than its sensor gives
+``wrong_track``           a fix that names another track than the fusion's
+``off_track``             a fix beyond the track's ends by more than 100 m + 5 sigma
+``below_model``           a stddev below its sensor's error model (ErrorModel.min_stddev):
+                          a message never claims more than its sensor's model allows
+``unknown_reference``     a fix whose reference id is not in the track's equipment
+``reference_mismatch``    a fix that lies elsewhere than the reference it names
+``future``                stamped further ahead of the runner's clock than ``history``
+``duplicate``             (the filter's history) a measurement already taken
+``too_late``              (the filter's history) older than ``history`` or the last reset
+========================  ====================================================================
+"""
+from __future__ import annotations
+
+import math
+
+from ..measurements import DistanceIncrement, PositionFix, SpeedMeasurement
+from ..signals import InputRejected
+from .config import FusionConfig
+
+# the measurement type of each kind of sensor (ErrorModel.measures)
+KIND_OF = {"position": PositionFix, "speed": SpeedMeasurement, "distance": DistanceIncrement}
+
+# a fix this far beyond the track's ends [m] (plus 5 of its sigma) cannot be of a train on it
+OFF_TRACK_MARGIN = 100.0
+
+
+class Admission:
+    """Checks a measurement against the physical limits, the configured sensors' error
+    models and the track; ``check`` raises InputRejected with the reason."""
+
+    def __init__(self, config: FusionConfig):
+        self.cfg = config
+        self.models = config.models
+        self.track_length = config.track.length if config.track is not None else math.inf
+
+    def check(self, m, clock: float | None) -> None:
+        """Raises InputRejected if ``m`` may not reach the filter. ``clock``: the runner's
+        time [s] (the node clock, or the last output time offline), None before it has one."""
+        m.validate()
+        model = self.models.get(m.sensor)
+        if model is None:
+            raise InputRejected("unknown_sensor", f"measurement of sensor {m.sensor[:64]!r}, which the fusion "
+                                f"is not configured for (configured: {', '.join(sorted(self.models))})")
+        kind = KIND_OF[model.measures]
+        if not isinstance(m, kind):
+            raise InputRejected("wrong_kind", f"{type(m).__name__} of sensor {m.sensor!r}, which "
+                                f"measures {model.measures} ({kind.__name__})")
+        if clock is not None and m.stamp - clock > self.cfg.history:
+            raise InputRejected("future", f"stamp {m.stamp - clock:.3f} s ahead of the fusion's clock "
+                                f"(history {self.cfg.history:g} s)")
+        if isinstance(m, PositionFix):
+            if m.track_id and self.cfg.track_id and m.track_id != self.cfg.track_id:
+                raise InputRejected("wrong_track", f"fix on track {m.track_id[:64]!r}, not {self.cfg.track_id!r}")
+            margin = OFF_TRACK_MARGIN + 5.0 * m.position_stddev
+            if not -margin <= m.position <= self.track_length + margin:
+                raise InputRejected("off_track", f"fix at {m.position:.3f} m, off the track "
+                                    f"(0 .. {self.track_length:.3f} m)")
+        refusal = model.refusal(m)
+        if refusal is not None:
+            raise refusal

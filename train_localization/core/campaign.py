@@ -38,6 +38,7 @@ from .offline import delayed, fuse_arrivals, scenario_measurements, sensor_pipel
 from .report import jsonable
 from .scenario import Leg, Scenario, Trajectory
 from .scoring import StateSeries, passing_times, run_scores
+from .oracle import availability, fault_free, ratios
 from .sensors import sensor_classes
 from .sensors import wheel as _wheel
 
@@ -704,8 +705,9 @@ def reference_positions(scenario: Scenario) -> np.ndarray:
     return np.sort(np.asarray(refs, dtype=float))
 
 
-def run_scenario(data: dict) -> dict:
-    """Simulate, deliver, fuse and score one generated scenario dict (see ``generate``)."""
+def run_scenario(data: dict, oracle: bool = False) -> dict:
+    """Simulate, deliver, fuse and score one generated scenario dict (see ``generate``);
+    ``oracle``: also fuse what the truth shows fault-free and compare (core/oracle.py)."""
     sc = Scenario.from_dict(data)
     camp = data.get("campaign", {})
     family = camp.get("family", "")
@@ -732,19 +734,25 @@ def run_scenario(data: dict) -> dict:
             dev["slip_episodes"] = len(slip_log)
             dev["slip_ratio_max"] = max((abs(r) for _, _, r in slip_log), default=0.0)
         devices[pipe.spec.node] = dev
-    return {"name": sc.name, "duration": sc.duration, "conditions": camp.get("conditions", {}),
-            "delivery": camp.get("delivery", {}), "sensor_params": data.get("sensors", {}), "scores": scores,
-            "fusion": runner.filter.counters(), "fusion_rejected": dict(runner.rejected), "sensors": per_sensor,
-            "devices": devices}
+    out = {"name": sc.name, "duration": sc.duration, "conditions": camp.get("conditions", {}),
+           "delivery": camp.get("delivery", {}), "sensor_params": data.get("sensors", {}), "scores": scores,
+           "fusion": runner.filter.counters(), "fusion_rejected": dict(runner.rejected), "sensors": per_sensor,
+           "devices": devices}
+    if oracle:
+        clean = fault_free(delivered, traj)
+        _, told, _, _ = fuse_arrivals(config, clean, sc.duration, FUSION_RATE)
+        out["availability"] = {**availability(estimates, told, traj, config.lost_stddev),
+                               "left_out": len(delivered) - len(clean)}
+    return out
 
 
-def run_one(family: str, seed: int, max_duration: float | None = None) -> dict:
+def run_one(family: str, seed: int, max_duration: float | None = None, oracle: bool = False) -> dict:
     """Run (family, seed) and score it: a JSON-serialisable dict; never raises (an error entry
-    carries the traceback)."""
+    carries the traceback). ``oracle``: with the availability oracle (core/oracle.py)."""
     c0 = time.process_time()
     out = {"family": family, "seed": int(seed), "max_duration": max_duration}
     try:
-        out.update(run_scenario(generate(family, seed, max_duration)))
+        out.update(run_scenario(generate(family, seed, max_duration), oracle))
     except Exception as exc:   # a failing run is a result of the campaign, not its end
         out["error"] = f"{type(exc).__name__}: {exc}"
         out["traceback"] = traceback.format_exc()
@@ -820,6 +828,14 @@ def _summary(results: list[dict]) -> dict:
     out["mode_fractions"] = {k: v / states for k, v in sorted(modes.items())} if states else {}
     out["slips"] = {"true_episodes": sum(dev.get("slip_episodes", 0) for r in ok for dev in r["devices"].values()),
                     "fusion_episodes": sum(r["fusion"]["slips"]["episodes"] for r in ok)}
+    refused: dict[str, int] = {}
+    for r in ok:
+        for reason, n in r.get("fusion_rejected", {}).items():
+            refused[reason] = refused.get(reason, 0) + n
+    out["fusion_refused"] = dict(sorted(refused.items()))
+    told = [r["availability"] for r in ok if "availability" in r]
+    if told:
+        out["availability"] = ratios(told)
     return out
 
 

@@ -72,7 +72,7 @@ def one_line(i: int, n: int, r: dict) -> str:
 
 
 def execute(todo: list[tuple[str, int]], workers: int | None = None, scheduler: str | None = None,
-            max_duration: float | None = None, on_result=None) -> list[dict]:
+            max_duration: float | None = None, on_result=None, oracle: bool = False) -> list[dict]:
     """Run (family, seed) pairs with ``core.campaign.run_one`` in parallel; returns the results in
     completion order and calls ``on_result(result)`` as each arrives.
 
@@ -95,7 +95,7 @@ def execute(todo: list[tuple[str, int]], workers: int | None = None, scheduler: 
     if scheduler is None:
         from concurrent.futures import ProcessPoolExecutor, as_completed
         with ProcessPoolExecutor(max_workers=workers) as pool:
-            futures = {pool.submit(run_one, f, s, max_duration): (f, s) for f, s in todo}
+            futures = {pool.submit(run_one, f, s, max_duration, oracle): (f, s) for f, s in todo}
             for fut in as_completed(futures):
                 try:
                     take(fut.result())
@@ -112,7 +112,7 @@ def execute(todo: list[tuple[str, int]], workers: int | None = None, scheduler: 
         client = Client(scheduler)
     try:
         futures = client.map(run_one, [f for f, _ in todo], [s for _, s in todo], [max_duration] * len(todo),
-                             pure=False)
+                             [oracle] * len(todo), pure=False)
         keys = {fut.key: job for fut, job in zip(futures, todo)}
         for fut in as_completed(futures):
             try:
@@ -234,6 +234,16 @@ def summary_table(summary: dict) -> str:
         lines.append("  ".join(c.ljust(w) for c, w in zip(r, widths)))
     lines.insert(1, "  ".join("-" * w for w in widths))
     checks = summary["checks"]
+    for name, s in rows:
+        if s.get("fusion_refused"):
+            lines.append(f"{name}: fusion refused " + ", ".join(f"{k} {v}" for k, v in s["fusion_refused"].items()))
+    for name, s in rows:
+        a = s.get("availability")
+        if a and a["states"]:
+            lines.append(f"{name}: availability against the oracle: mean width {a['mean_width_m']:.3f} m / "
+                         f"{a['oracle_mean_width_m']:.3f} m = {a['width_ratio']:.3f}, RMS error ratio "
+                         f"{a['error_ratio']:.3f}, LOST where the oracle was not {a['lost_needlessly']} states "
+                         f"({_pct(a['lost_needlessly_fraction'])})")
     lines.append(f"targets: all states >= {100 * INSIDE_TARGET:.1f} % inside: {checks['inside_fraction']}; "
                  f"every run >= {100 * RUN_TARGET:.1f} %: {checks['every_run_above_99_5']}; "
                  f"no excursion > {EXCURSION_LIMIT:.0f} s: {checks['excursions_within_2_s']}; "
@@ -298,6 +308,9 @@ def main(argv=None) -> int:
     ap.add_argument("--summarise", metavar="DIR", help="summarise the run files already in DIR/runs (an "
                                                       "interrupted campaign, or runs gathered from several) "
                                                       "instead of running")
+    ap.add_argument("--oracle", action="store_true", help="also run the availability oracle (the same fusion told "
+                                                          "by the truth which measurements are faulty: "
+                                                          "core/oracle.py) and report width and error against it")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     args = ap.parse_args(argv)
     if args.export:
@@ -322,7 +335,7 @@ def main(argv=None) -> int:
 
     t0 = time.perf_counter()
     try:
-        results = execute(todo, args.workers, args.scheduler, args.max_duration, on_result)
+        results = execute(todo, args.workers, args.scheduler, args.max_duration, on_result, args.oracle)
     finally:
         bar.close()
     return report(results, out, {"runs": len(todo), "base_seed": args.seed,

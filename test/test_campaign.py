@@ -19,6 +19,7 @@ from conftest import ROOT
 from train_localization.core import campaign
 from train_localization.core.campaign import ALL_FAMILIES, FAMILIES, generate, run_one
 from train_localization.core.fusion import MODE_DEGRADED, MODE_INITIALISING, MODE_NOMINAL
+from train_localization.core.measurements import PositionFix
 from train_localization.core.offline import sensor_pipelines
 from train_localization.core.scenario import Scenario
 from train_localization.core.scoring import StateSeries, passing_times, run_scores
@@ -108,7 +109,7 @@ def test_radar_scale_faults_come_at_once_or_grow_over_a_ramp(draws):
     """One radar in six has a scale fault of 2-8 %, half of them growing over up to 20 s."""
     from train_localization.core.sensors import doppler
     faults = [d["sensors"]["doppler_radar"].get("faults", "") for f in ALL_FAMILIES for d in draws[f]
-              if "doppler_radar" in d["sensors"]]
+              if "doppler_radar" in d["sensors"] and "tunnel_stop" not in d["campaign"]["conditions"]]
     parsed = [doppler._parse_faults(text)[0] for text in faults if text]
     assert len(faults) / 10 < len(parsed) < len(faults) / 4
     assert all(0.02 <= abs(scale) <= 0.08 and 5.0 <= t1 - t0 <= 40.0 for t0, t1, scale, _ in parsed)
@@ -146,7 +147,10 @@ def test_conventional_draws_cover_the_stated_ranges(draws):
     assert _s(draws, f, "wheel_sensor", "slip_ratio_max").max() <= 0.25
     assert _s(draws, f, "wheel_sensor", "slip_rate").min() < 0.01 and _s(draws, f, "wheel_sensor", "slip_rate").max() > 0.1
     tol = _s(draws, f, "wheel_sensor", "diameter_tolerance")
-    assert (np.abs(_s(draws, f, "wheel_sensor", "diameter_error")) <= tol).all()
+    worn = np.array(["worn_wheel" in d["campaign"]["conditions"] for d in draws[f]])
+    error = np.abs(_s(draws, f, "wheel_sensor", "diameter_error"))
+    assert (error[~worn] <= tol[~worn]).all() and (error[worn] >= 1.5 * tol[worn]).all()
+    assert (error[worn] <= 3.0 * tol[worn] * 1.001).all()
     rate = _s(draws, f, "wheel_sensor", "sample_rate")
     assert rate.min() < 4000.0 and rate.max() >= 10000.0     # the lowest rate that resolves the run
     assert _s(draws, f, "doppler_radar", "scale_sigma").max() > 0.009
@@ -345,3 +349,43 @@ def test_export_round_trip(tmp_path, capsys):
     from train_localization.tools import bench_fusion
     assert bench_fusion.main(["--figures", str(path)]) == 0
     assert "campaign_highspeed_maglev_42" in capsys.readouterr().out
+
+
+# --------------------------------------------------------------------------- hard conditions
+def test_hard_conditions_are_drawn_last_and_as_stated(draws, monkeypatch):
+    """core/hard_conditions.py: drawn after everything else, so a run is the same but for them;
+    a tunnel stop has no reference between its ends, its radar faulty from the restart."""
+    from train_localization.core import hard_conditions
+    counts = {k: sum(k in d["campaign"]["conditions"] for f in ALL_FAMILIES for d in draws[f])
+              for k in ("tunnel_stop", "worn_wheel", "crawl", "adversarial")}
+    assert all(n > 0 for n in counts.values()), counts
+    for f in ALL_FAMILIES:
+        for d in draws[f]:
+            tunnel = d["campaign"]["conditions"].get("tunnel_stop")
+            if tunnel:
+                refs = [b["position"] for kind in ("eurobalise", "axle_counter_head")
+                        for b in d["track"]["equipment"].get(kind, [])]
+                assert not any(tunnel["from_m"] <= x <= tunnel["to_m"] for x in refs)
+                t0 = float(d["sensors"]["doppler_radar"]["faults"].split("-")[0])
+                assert tunnel["restart_s"] <= t0 <= tunnel["restart_s"] + 3.0
+    monkeypatch.setattr(hard_conditions, "draw", lambda *args: None)
+    for f in ALL_FAMILIES:
+        for seed in range(DRAWS):
+            plain, hard = generate(f, seed), draws[f][seed]
+            if not any(k in hard["campaign"]["conditions"] for k in counts):
+                assert plain == hard
+            assert plain["seed"] == hard["seed"] and plain["campaign"]["delivery"]["seed"] == \
+                hard["campaign"]["delivery"]["seed"]
+
+
+def test_adversarial_fixes_are_injected_as_drawn():
+    from train_localization.core.hard_conditions import inject
+    fixes = [(t, PositionFix(t, "eurobalise", "eb", "T", f"EB{k}", 100.0 * k, 0.3)) for k, t in enumerate(range(10))]
+    attack = {"kind": "claims", "sensor": "eurobalise", "t0": 3.0, "count": 2, "offset": 50.0, "sign": -1}
+    out = inject(fixes, attack)
+    added = [m for _, m in out if m.position_stddev == 1e-6]
+    assert len(out) == 12 and [m.position for m in added] == [250.0, 350.0]
+    out = inject(fixes, {**attack, "kind": "unknown"})
+    assert [m.reference_id for _, m in out if m.reference_id.startswith("ZZ")] == ["ZZEB3", "ZZEB4"]
+    out = inject(fixes, {**attack, "kind": "offset", "offset": 2.0})
+    assert len(out) == 10 and [m.position for _, m in out][3:6] == [299.4, 399.4, 500.0]

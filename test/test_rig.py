@@ -1,6 +1,5 @@
 """The seed 003 round experimental unit: loop field (eq. 1-4), resonance, antennas at p/3, the
 21 cm adder, the closed track, the disc dynamics and the PID speed control through the fusion."""
-import dataclasses
 import functools
 import math
 
@@ -19,6 +18,7 @@ from train_localization.core.track import Track
 from train_localization.tools.rig import noisier
 
 from conftest import ROOT
+from error_model_checks import assert_refused_below_half_the_floor, decoded, floor_runs, lasting
 
 CLOSED = ROOT / "config" / "scenario_rig.yaml"
 OPEN = ROOT / "config" / "scenario_rig_open.yaml"
@@ -285,35 +285,19 @@ def _rig_scenario(v0: float, duration: float, profile: list, params: dict, seed:
     return Scenario.from_dict(data, source=OPEN)
 
 
-def _claimed(m) -> float:
-    """The 1-sigma [m/s] an increment claims for ErrorModel.refusal: the lower of its speed's and
-    its mean speed's (distance_stddev / duration)."""
-    return min(m.speed_stddev, m.distance_stddev / m.duration)
-
-
 def test_every_decoded_increment_is_at_or_above_the_error_model_floor():
     """ErrorModel.min_stddev (the pattern belt's wheel.IncrementEstimator floor) holds by
     construction: random seeds, blocks of 10 ms .. 5 s and, every other run, an ideal loop and
     receiver (no switching-point scatter or scale error: an increment between two switching
     points would claim 0 m), the disc standing, creeping, at 100 km/h and reversing; none is
     refused below_model, and the floor is reached (it is the decoder's own)."""
+    def decode(case, params, seed):
+        v0, duration, profile = case
+        return decoded("rig_loop_receiver", _rig_scenario(v0, lasting(duration, params), profile, params, seed))
+
     ideal = {"noise": 0.0, "gap_sigma": 0.0, "gain_mismatch": 0.0, "detector_offset": 0.0, "spacing_error": 0.0,
              "transition_jitter": 0.0, "scale_sigma": 0.0}
-    rng = np.random.default_rng(2024)
-    n, lowest = {name: 0 for name in FLOOR_CASES}, math.inf
-    for i, block in enumerate((0.01, 0.05, 0.5, 5.0)):
-        for k, (name, (v0, duration, profile)) in enumerate(FLOOR_CASES.items()):
-            params = {"block_duration": block, "max_block_duration": max(1.0, block)}
-            if (i + k) % 2 == 0:
-                params.update(ideal)
-            sc = _rig_scenario(v0, max(duration, 2.5 * block), profile, params, int(rng.integers(1 << 30)))
-            run = simulate_and_decode("rig_loop_receiver", sc, keep_going=True)
-            model = rig_loop.SPEC.errors(run.pipe.params, sc.track, sc.vehicle)
-            assert not run.rejected, (name, params, run.rejected[:3])
-            for m in run.measurements:
-                assert model.refusal(m) is None, (name, params, m)
-            n[name] += len(run.measurements)
-            lowest = min([lowest] + [_claimed(m) / model.min_stddev for m in run.measurements])
+    n, lowest = floor_runs(FLOOR_CASES, ideal, decode)
     assert min(n.values()) > 10 and sum(n.values()) > 1000, n
     assert lowest == pytest.approx(1.0, abs=1e-9)
 
@@ -321,14 +305,5 @@ def test_every_decoded_increment_is_at_or_above_the_error_model_floor():
 def test_an_increment_claiming_half_the_floor_is_refused_below_model():
     run = _open_run()
     sc = Scenario.from_yaml(OPEN)
-    model = rig_loop.SPEC.errors(run.pipe.params, sc.track, sc.vehicle)
-    floor = model.min_stddev
-    honest = run.measurements[400]
-    assert floor > 0.0 and model.refusal(honest) is None
-    m = dataclasses.replace(honest, speed_stddev=floor, distance_stddev=floor * honest.duration)
-    assert model.refusal(m) is None                      # at the floor: taken
-    for forged in (dataclasses.replace(m, speed_stddev=floor / 2),
-                   dataclasses.replace(m, distance_stddev=floor / 2 * m.duration),
-                   dataclasses.replace(m, speed_stddev=floor / 2, distance_stddev=floor / 2 * m.duration)):
-        why = model.refusal(forged)
-        assert why is not None and why.reason == "below_model", forged
+    assert_refused_below_half_the_floor(rig_loop.SPEC.errors(run.pipe.params, sc.track, sc.vehicle),
+                                        run.measurements[400])

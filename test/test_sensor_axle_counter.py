@@ -5,6 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from error_model_checks import assert_forged_fixes_refused
 from train_localization.core.measurements import CLEAR, DISTURBED, OCCUPIED, PositionFix, SectionOccupancy
 from train_localization.core.pipeline import SensorPipeline, run_offline
 from train_localization.core.scenario import Scenario
@@ -411,12 +412,7 @@ def test_forged_front_fixes_are_refused_with_their_reason():
     auto = spec(NODE).errors({**p, "orientation": 0, "last_axle_offset": axles()[-1]}, scenario().track, None)
     assert auto.references.windows["AC01"] == pytest.approx((1800.0 - 198.0, 1800.0 + 198.0))
     honest = PositionFix(10.0, "axle_counter", "axle_counter", "T1", "AC01", 1803.0, 0.03, 1)
-    assert model.refusal(honest) is None
-    cases = {"below_model": dataclasses.replace(honest, position_stddev=0.5 * model.min_stddev),
-             "unknown_reference": dataclasses.replace(honest, reference_id="AC09"),
-             "reference_mismatch": dataclasses.replace(honest, position=1805.5 + 300.0)}
-    for reason, forged in cases.items():
-        assert model.refusal(forged).reason == reason
+    assert_forged_fixes_refused(model, honest, "AC09", 1805.5 + 300.0)
     # a head not of this evaluation unit is unknown to it
     unit = spec(NODE).errors({**p, "heads": "AC00,AC01"}, scenario().track, None)
     assert unit.refusal(dataclasses.replace(honest, reference_id="AC02", position=2603.0)).reason == "unknown_reference"

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from conftest import claimed_states
+from error_model_checks import assert_forged_fixes_refused
 from train_localization.core.measurements import CLEAR, OCCUPIED, PositionFix, SectionOccupancy
 from train_localization.core.offline import simulate_scenario
 from train_localization.core.pipeline import simulate_and_decode
@@ -293,13 +294,8 @@ def test_forged_boundary_fixes_are_refused_with_their_reason():
     backwards = spec(NODE).errors({**DEFAULTS, "front_antenna_offset": 5.0, "orientation": -1}, track, None)
     assert backwards.references.windows["B2"] == pytest.approx((200.0 - reach, 300.0 - reach))
     honest = PositionFix(10.0, "checkin", "checkin", "checkin_test", "B2/B3", 300.0 + reach, floor, 1)
-    assert model.refusal(honest) is None
     assert backwards.refusal(dataclasses.replace(honest, position=300.0 - reach, direction=-1)) is None
-    cases = {"below_model": dataclasses.replace(honest, position_stddev=0.5 * model.min_stddev),
-             "unknown_reference": dataclasses.replace(honest, reference_id="B2/B9"),
-             "reference_mismatch": dataclasses.replace(honest, position=300.0 + reach + 300.0)}
-    for reason, forged in cases.items():
-        assert model.refusal(forged).reason == reason
+    assert_forged_fixes_refused(model, honest, "B2/B9", 300.0 + reach + 300.0)
     assert model.refusal(dataclasses.replace(honest, reference_id="B9")).reason == "unknown_reference"
     # a boundary of two real blocks that are no neighbours: the fix lies outside one of them
     assert model.refusal(dataclasses.replace(honest, reference_id="B2/B5")).reason == "reference_mismatch"

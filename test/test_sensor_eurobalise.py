@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from error_model_checks import assert_forged_fixes_refused
 from train_localization.core.measurements import PositionFix
 from train_localization.core.pipeline import run_offline, simulate_and_decode
 from train_localization.core.scenario import Scenario
@@ -437,13 +438,8 @@ def test_forged_balise_fixes_are_refused_with_their_reason():
     assert model.references.windows["A2"] == (1505.0, 1505.0)
     assert set(model.references.windows) == {str(it["id"]) for it in Track.from_dict(balise_track()).items(KIND)}
     honest = PositionFix(10.0, "eurobalise", "eurobalise", "EB", "101", 902.0, 0.33)
-    assert model.refusal(honest) is None
     assert model.refusal(dataclasses.replace(honest, position=902.0 + 4.9 * 0.33)) is None
-    cases = {"below_model": dataclasses.replace(honest, position_stddev=0.5 * model.min_stddev),
-             "unknown_reference": dataclasses.replace(honest, reference_id="999"),
-             "reference_mismatch": dataclasses.replace(honest, position=902.0 + 300.0)}
-    for reason, forged in cases.items():
-        assert model.refusal(forged).reason == reason
+    assert_forged_fixes_refused(model, honest, "999", 902.0 + 300.0)
     # the floor follows the parameters; 1 mm without an installation error
     assert _model({"location_sigma": 0.0}).min_stddev == pytest.approx(1e-3)
     assert eb.SPEC.errors({k: v.default for k, v in eb.PARAMS.items()}, None, None).references is None

@@ -1,12 +1,12 @@
 """INPO crossed inductive loop position system (seed 000 sections 2.1.1/2.1.2, seed 002
 section 2.2.1, seed 003 eq. 2): phase accuracy +-8 deg at Transrapid parameters up to
 500 km/h, harmonic cancellation with 6 pairs, absolute position by period counting."""
-import dataclasses
 import math
 
 import numpy as np
 import pytest
 
+from error_model_checks import assert_forged_fixes_refused
 from train_localization.core.measurements import PositionFix
 from train_localization.core.pipeline import SensorPipeline, run_offline, simulate_and_decode
 from train_localization.core.scenario import Scenario
@@ -344,12 +344,7 @@ def test_forged_inpo_fixes_are_refused_with_their_reason():
     assert model.references.windows["C"] == pytest.approx((450.0 - 0.3 - 0.315 + OFFSET, 700.0 + 0.3 + 0.315 + OFFSET))
     assert set(model.references.windows) == {"A", "B", "C"}
     honest = PositionFix(1.0, "inpo", "inpo", "TR", "B", 300.0, 0.003, 1)
-    assert model.refusal(honest) is None
-    cases = {"below_model": dataclasses.replace(honest, position_stddev=0.5 * model.min_stddev),
-             "unknown_reference": dataclasses.replace(honest, reference_id="Z"),
-             "reference_mismatch": dataclasses.replace(honest, position=model.references.windows["B"].hi + 300.0)}
-    for reason, forged in cases.items():
-        assert model.refusal(forged).reason == reason
+    assert_forged_fixes_refused(model, honest, "Z", model.references.windows["B"].hi + 300.0)
     # without a survey or laying error: the 0.1 mm floor; without a track: no references
     assert spec(NODE).errors({**params, "survey_sigma": 0.0, "skew_sigma": 0.0}, None, None).min_stddev == 1e-4
     assert model.references is not None and spec(NODE).errors(params, None, None).references is None

@@ -8,6 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from error_model_checks import assert_forged_fixes_refused
 from train_localization.core.measurements import PositionFix
 from train_localization.core.pipeline import run_offline, simulate_and_decode
 from train_localization.core.scenario import Scenario
@@ -394,11 +395,6 @@ def test_forged_lrl_fixes_are_refused_with_their_reason():
     assert model.references.windows["G2"] == pytest.approx((1041.5, 1049.5))
     assert model.references.windows["LRL000"] == pytest.approx((1301.5, 1307.5))
     honest = PositionFix(10.0, "lrl", "lrl", "MAG", "G2", 1049.5, 0.005, 1)
-    assert model.refusal(honest) is None
     assert model.refusal(dataclasses.replace(honest, position=1041.5, direction=-1)) is None
-    cases = {"below_model": dataclasses.replace(honest, position_stddev=0.5 * model.min_stddev),
-             "unknown_reference": dataclasses.replace(honest, reference_id="G9"),
-             "reference_mismatch": dataclasses.replace(honest, position=1049.5 + 300.0)}
-    for reason, forged in cases.items():
-        assert model.refusal(forged).reason == reason
+    assert_forged_fixes_refused(model, honest, "G9", 1049.5 + 300.0)
     assert lrl.SPEC.errors({**params, "install_sigma": 0.0}, None, None).min_stddev == pytest.approx(1e-3)

@@ -12,6 +12,7 @@ import pickle
 import numpy as np
 import pytest
 
+from error_model_checks import assert_forged_fixes_refused
 from train_localization.core.measurements import PositionFix
 from train_localization.core.pipeline import SensorPipeline, simulate_and_decode
 from train_localization.core.scenario import Scenario, Vehicle
@@ -298,12 +299,7 @@ def test_forged_lzb_fixes_are_refused_with_their_reason():
     assert model.references.windows["L02"] == pytest.approx((1000.0 + OFFSET, 3050.0 + OFFSET))
     assert set(model.references.windows) == {"L01", "L02", "L03"}
     honest = PositionFix(10.0, "lzb", "lzb", "lzb_test", "L02", 3050.0 + OFFSET, model.min_stddev, 1)
-    assert model.refusal(honest) is None
-    cases = {"below_model": dataclasses.replace(honest, position_stddev=0.5 * model.min_stddev),
-             "unknown_reference": dataclasses.replace(honest, reference_id="L09"),
-             "reference_mismatch": dataclasses.replace(honest, position=3050.0 + OFFSET + 300.0)}
-    for reason, forged in cases.items():
-        assert model.refusal(forged).reason == reason
+    assert_forged_fixes_refused(model, honest, "L09", 3050.0 + OFFSET + 300.0)
     # without installation and survey errors: the 0.1 mm floor; without a track: no references
     quiet = spec(NODE).errors({**params, "crossing_sigma": 0.0, "survey_sigma": 0.0}, None, Vehicle())
     assert quiet.min_stddev == pytest.approx(1e-4) and quiet.references is None

@@ -5,7 +5,6 @@ f = v / (2 tau), and the position within a pole pair from its phase, to +-5 deg,
 high speed only; the scenario through the fusion with the truth inside its interval."""
 from __future__ import annotations
 
-import dataclasses
 import functools
 import math
 
@@ -13,6 +12,7 @@ import numpy as np
 import pytest
 
 from conftest import claimed_states
+from error_model_checks import assert_refused_below_half_the_floor, decoded, floor_runs, lasting
 from train_localization.core.offline import simulate_scenario
 from train_localization.core.pipeline import SensorPipeline, simulate_and_decode
 from train_localization.core.scenario import Scenario, Vehicle
@@ -278,48 +278,14 @@ def test_mlx_scenario_through_the_fusion_keeps_the_truth_inside_its_interval():
 
 
 # --------------------------------------------------------------------------- error-model floors
-def _claimed(m) -> float:
-    """The 1-sigma [m/s] an increment claims for ErrorModel.refusal: the lower of its speed's and
-    its mean speed's (distance_stddev / duration)."""
-    return min(m.speed_stddev, m.distance_stddev / m.duration)
-
-
 def _floor_runs(node, cases, ideal):
-    """Every case (name: (initial speed [m/s], position [m], duration [s], profile)) in blocks of
-    10 ms .. 5 s with random seeds, every other run with the ``ideal`` parameters; asserts that
-    the sensor's error model refuses no decoded increment. Returns (increments per case, lowest
-    claimed 1-sigma / min_stddev)."""
-    rng = np.random.default_rng(2024)
-    n, lowest = {name: 0 for name in cases}, math.inf
-    for i, block in enumerate((0.01, 0.05, 0.5, 5.0)):
-        for k, (name, (v0, pos, duration, profile)) in enumerate(cases.items()):
-            params = {"block_duration": block, "max_block_duration": max(1.0, block)}
-            if (i + k) % 2 == 0:
-                params.update(ideal)
-            sc = scenario(node, v0=v0, pos=pos, duration=max(duration, 2.5 * block), profile=profile, params=params,
-                          seed=int(rng.integers(1 << 30)))
-            run = simulate_and_decode(node, sc, keep_going=True)
-            model = spec(node).errors(run.pipe.params, sc.track, sc.vehicle)
-            assert not run.rejected, (name, params, run.rejected[:3])
-            for m in run.measurements:
-                assert model.refusal(m) is None, (name, params, m)
-            n[name] += len(run.measurements)
-            lowest = min([lowest] + [_claimed(m) / model.min_stddev for m in run.measurements])
-    return n, lowest
-
-
-def _refused_at_half_the_floor(node, run, sc):
-    model = spec(node).errors(run.pipe.params, sc.track, sc.vehicle)
-    floor = model.min_stddev
-    honest = run.measurements[5]
-    assert floor > 0.0 and model.refusal(honest) is None
-    m = dataclasses.replace(honest, speed_stddev=floor, distance_stddev=floor * honest.duration)
-    assert model.refusal(m) is None                      # at the floor: taken
-    for forged in (dataclasses.replace(m, speed_stddev=floor / 2),
-                   dataclasses.replace(m, distance_stddev=floor / 2 * m.duration),
-                   dataclasses.replace(m, speed_stddev=floor / 2, distance_stddev=floor / 2 * m.duration)):
-        why = model.refusal(forged)
-        assert why is not None and why.reason == "below_model", forged
+    """error_model_checks.floor_runs of ``node`` for cases (name: (initial speed [m/s], position
+    [m], duration [s], profile)): (increments per case, lowest claimed 1-sigma / min_stddev)."""
+    def decode(case, params, seed):
+        v0, pos, duration, profile = case
+        return decoded(node, scenario(node, v0=v0, pos=pos, duration=lasting(duration, params), profile=profile,
+                                      params=params, seed=seed))
+    return floor_runs(cases, ideal, decode)
 
 
 def test_every_coil_counter_increment_is_at_or_above_the_error_model_floor():
@@ -340,8 +306,8 @@ def test_every_coil_counter_increment_is_at_or_above_the_error_model_floor():
 
 
 def test_a_coil_counter_increment_claiming_half_the_floor_is_refused_below_model():
-    sc = scenario(COIL, duration=1.0)
-    _refused_at_half_the_floor(COIL, simulate_and_decode(COIL, sc), sc)
+    ms, _, model = decoded(COIL, scenario(COIL, duration=1.0), keep_going=False)
+    assert_refused_below_half_the_floor(model, ms[5])
 
 
 def test_every_emf_observer_increment_is_at_or_above_the_error_model_floor():
@@ -362,5 +328,5 @@ def test_every_emf_observer_increment_is_at_or_above_the_error_model_floor():
 
 
 def test_an_emf_observer_increment_claiming_half_the_floor_is_refused_below_model():
-    sc = scenario(EMF, v0=60.0, duration=1.0)
-    _refused_at_half_the_floor(EMF, simulate_and_decode(EMF, sc), sc)
+    ms, _, model = decoded(EMF, scenario(EMF, v0=60.0, duration=1.0), keep_going=False)
+    assert_refused_below_half_the_floor(model, ms[5])

@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 
+from error_model_checks import assert_forged_fixes_refused
 from train_localization.core.measurements import PositionFix
 from train_localization.core.pipeline import SensorPipeline, run_offline, simulate_and_decode
 from train_localization.core.scenario import Scenario
@@ -484,13 +485,8 @@ def test_forged_mmwave_fixes_are_refused_with_their_reason():
     assert model.references.windows["!MW001"] == model.references.windows["MW001"]
     assert model.references.separator == ","
     honest = PositionFix(10.0, "mmwave", "mmwave", "T1", "MW001,MW002,!MW003", 900.0, 0.05, 0, (0.1, -0.1, 2.0))
-    assert model.refusal(honest) is None
     hi = model.references.windows["MW001"].hi
-    cases = {"below_model": dataclasses.replace(honest, position_stddev=0.5 * model.min_stddev),
-             "unknown_reference": dataclasses.replace(honest, reference_id="MW001,MW999"),
-             "reference_mismatch": dataclasses.replace(honest, reference_id="MW001", position=hi + 300.0)}
-    for reason, forged in cases.items():
-        assert model.refusal(forged).reason == reason
+    assert_forged_fixes_refused(model, honest, "MW001,MW999", hi + 300.0, far_id="MW001")
     # every part of a composite id must hold the fix: the far station MW010 (4200 m) does not
     assert model.refusal(dataclasses.replace(honest, reference_id="MW001,!MW010")).reason == "reference_mismatch"
     # one fix per block averages the noise of up to max_block_duration x 200 Hz epochs, not the calibration

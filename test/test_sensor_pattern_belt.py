@@ -1,12 +1,12 @@
 """HSST pattern belt (seeds 000 2.2.1, 002 2.1.1, 003): loop field, Schmitt/6-state decoder."""
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
 import pytest
 
+from error_model_checks import assert_refused_below_half_the_floor, decoded, floor_runs, lasting
 from train_localization.core.measurements import DistanceIncrement
 from train_localization.core.pipeline import run_offline, simulate_and_decode
 from train_localization.core.scenario import Scenario
@@ -359,12 +359,6 @@ FLOOR_CASES = {   # name: (profile, initial speed [m/s], duration [s])
 }
 
 
-def _claimed(m) -> float:
-    """The 1-sigma [m/s] an increment claims for ErrorModel.refusal: the lower of its speed's and
-    its mean speed's (distance_stddev / duration)."""
-    return min(m.speed_stddev, m.distance_stddev / m.duration)
-
-
 def test_every_decoded_increment_is_at_or_above_the_error_model_floor():
     """ErrorModel.min_stddev holds by construction: random seeds, blocks of 10 ms .. 5 s and, in
     every other run, an ideal belt and receiver with no switching-point scatter or scale error
@@ -372,35 +366,15 @@ def test_every_decoded_increment_is_at_or_above_the_error_model_floor():
     a crawl, 120 m/s and through a reversal; none is refused below_model, and the floor is
     reached (it is the decoder's own). The standstill is on a switching point: the receiver's noise
     makes it chatter, the ideal one gives no state and no increment."""
-    rng = np.random.default_rng(2024)
-    n, lowest = {name: 0 for name in FLOOR_CASES}, math.inf
-    for i, block in enumerate((0.01, 0.05, 0.5, 5.0)):
-        for k, (name, (profile, v0, duration)) in enumerate(FLOOR_CASES.items()):
-            params = {"block_duration": block, "max_block_duration": max(1.0, block)}
-            if (i + k) % 2 == 0:
-                params.update(IDEAL, transition_jitter=0.0, scale_sigma=0.0)
-            scen = scenario(profile, max(duration, 2.5 * block), params, seed=int(rng.integers(1 << 30)), v0=v0)
-            ms, rejected, pipe = drive(scen)
-            model = SPEC.errors(pipe.params, scen.track, scen.vehicle)
-            assert not rejected, (name, params, rejected[:3])
-            for m in ms:
-                assert model.refusal(m) is None, (name, params, m)
-            n[name] += len(ms)
-            lowest = min([lowest] + [_claimed(m) / model.min_stddev for m in ms])
+    def decode(case, params, seed):
+        profile, v0, duration = case
+        return decoded(NODE, scenario(profile, lasting(duration, params), params, seed=seed, v0=v0))
+
+    n, lowest = floor_runs(FLOOR_CASES, {**IDEAL, "transition_jitter": 0.0, "scale_sigma": 0.0}, decode)
     assert min(n.values()) > 10 and sum(n.values()) > 1000, n
     assert lowest == pytest.approx(1.0, abs=1e-9)
 
 
 def test_an_increment_claiming_half_the_floor_is_refused_below_model():
-    scen = scenario([{"speed": 10.0, "hold": 10.0}], 1.0, v0=10.0)
-    ms, _, pipe = drive(scen)
-    model = SPEC.errors(pipe.params, scen.track, scen.vehicle)
-    floor = model.min_stddev
-    assert floor > 0.0 and model.refusal(ms[5]) is None
-    m = dataclasses.replace(ms[5], speed_stddev=floor, distance_stddev=floor * ms[5].duration)
-    assert model.refusal(m) is None                      # at the floor: taken
-    for forged in (dataclasses.replace(m, speed_stddev=floor / 2),
-                   dataclasses.replace(m, distance_stddev=floor / 2 * m.duration),
-                   dataclasses.replace(m, speed_stddev=floor / 2, distance_stddev=floor / 2 * m.duration)):
-        why = model.refusal(forged)
-        assert why is not None and why.reason == "below_model", forged
+    ms, _, model = decoded(NODE, scenario([{"speed": 10.0, "hold": 10.0}], 1.0, v0=10.0))
+    assert_refused_below_half_the_floor(model, ms[5])

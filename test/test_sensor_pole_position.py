@@ -5,7 +5,6 @@ derives the speed and the distance from it, at any speed and at a standstill; th
 scenario through the fusion with the truth inside its interval."""
 from __future__ import annotations
 
-import dataclasses
 import functools
 import math
 
@@ -13,6 +12,7 @@ import numpy as np
 import pytest
 
 from conftest import claimed_states
+from error_model_checks import assert_refused_below_half_the_floor, decoded, floor_runs, lasting
 from train_localization.core.measurements import DistanceIncrement
 from train_localization.core.offline import simulate_scenario
 from train_localization.core.pipeline import SensorPipeline, simulate_and_decode
@@ -192,35 +192,18 @@ FLOOR_CASES = {   # name: (initial speed [m/s], duration [s], profile)
 }
 
 
-def _claimed(m) -> float:
-    """The 1-sigma [m/s] an increment claims for ErrorModel.refusal: the lower of its speed's and
-    its mean speed's (distance_stddev / duration)."""
-    return min(m.speed_stddev, m.distance_stddev / m.duration)
-
-
 def test_every_decoded_increment_is_at_or_above_the_error_model_floor():
     """ErrorModel.min_stddev holds by construction: random seeds, blocks of 10 ms .. 5 s and,
     every other run, a winding without harmonic, noise or scale error (only the 12-bit
     converter's quantisation left: a long increment would claim a mean speed to micrometres per
     second), at a standstill, a crawl, 29 m/s (near max_speed) and through a reversal; none is
     refused below_model, and the floor is reached (it is the decoder's own)."""
-    ideal = {"harmonic5": 0.0, "noise": 0.0, "pitch_scale_sigma": 0.0}
-    rng = np.random.default_rng(2024)
-    n, lowest = {name: 0 for name in FLOOR_CASES}, math.inf
-    for i, block in enumerate((0.01, 0.05, 0.5, 5.0)):
-        for k, (name, (v0, duration, profile)) in enumerate(FLOOR_CASES.items()):
-            params = {"block_duration": block, "max_block_duration": max(1.0, block)}
-            if (i + k) % 2 == 0:
-                params.update(ideal)
-            sc = scenario(v0=v0, duration=max(duration, 2.5 * block), profile=profile, params=params,
-                          seed=int(rng.integers(1 << 30)))
-            run = simulate_and_decode(NODE, sc, keep_going=True)
-            model = spec(NODE).errors(run.pipe.params, sc.track, sc.vehicle)
-            assert not run.rejected, (name, params, run.rejected[:3])
-            for m in run.measurements:
-                assert model.refusal(m) is None, (name, params, m)
-            n[name] += len(run.measurements)
-            lowest = min([lowest] + [_claimed(m) / model.min_stddev for m in run.measurements])
+    def decode(case, params, seed):
+        v0, duration, profile = case
+        return decoded(NODE, scenario(v0=v0, duration=lasting(duration, params), profile=profile, params=params,
+                                      seed=seed))
+
+    n, lowest = floor_runs(FLOOR_CASES, {"harmonic5": 0.0, "noise": 0.0, "pitch_scale_sigma": 0.0}, decode)
     assert min(n.values()) > 10 and sum(n.values()) > 1000, n
     assert lowest == pytest.approx(1.0, abs=1e-9)
 
@@ -228,13 +211,4 @@ def test_every_decoded_increment_is_at_or_above_the_error_model_floor():
 def test_an_increment_claiming_half_the_floor_is_refused_below_model():
     run = run_at(10.0)
     model = spec(NODE).errors(run.pipe.params, Track.from_dict(TRACK), Vehicle(kind="maglev_urban"))
-    floor = model.min_stddev
-    honest = increments(run)[5]
-    assert floor > 0.0 and model.refusal(honest) is None
-    m = dataclasses.replace(honest, speed_stddev=floor, distance_stddev=floor * honest.duration)
-    assert model.refusal(m) is None                      # at the floor: taken
-    for forged in (dataclasses.replace(m, speed_stddev=floor / 2),
-                   dataclasses.replace(m, distance_stddev=floor / 2 * m.duration),
-                   dataclasses.replace(m, speed_stddev=floor / 2, distance_stddev=floor / 2 * m.duration)):
-        why = model.refusal(forged)
-        assert why is not None and why.reason == "below_model", forged
+    assert_refused_below_half_the_floor(model, increments(run)[5])

@@ -9,6 +9,7 @@ import pytest
 import yaml
 
 from conftest import ROOT
+from error_model_checks import assert_forged_fixes_refused
 from train_localization.core.measurements import CLEAR, DISTURBED, OCCUPIED, PositionFix, SectionOccupancy
 from train_localization.core.pipeline import SensorPipeline, run_offline, simulate_and_decode
 from train_localization.core.scenario import Scenario, Vehicle
@@ -450,10 +451,5 @@ def test_forged_track_circuit_fixes_are_refused_with_their_reason():
     lead = spec(NODE).errors({**params, "last_axle_offset": 0.0}, track(MIXED), Vehicle())
     assert lead.references.windows["TC01/TI00"] == pytest.approx((3000.0 - 15.0 + 3.0, 3000.0 + 12.0 - 3.0))
     honest = PositionFix(10.0, "track_circuit", "track_circuit", "T", "TC01/TI00", 2988.0, 13.4, 1)
-    assert lead.refusal(honest) is None
-    cases = {"below_model": dataclasses.replace(honest, position_stddev=0.5 * lead.min_stddev),
-             "unknown_reference": dataclasses.replace(honest, reference_id="TC00/TI00"),   # not neighbours
-             "reference_mismatch": dataclasses.replace(honest, position=3009.0 + 300.0)}
-    for reason, forged in cases.items():
-        assert lead.refusal(forged).reason == reason
+    assert_forged_fixes_refused(lead, honest, "TC00/TI00", 3009.0 + 300.0)   # the unknown id: not neighbours
     assert spec(NODE).errors(params, None, Vehicle()).references is None

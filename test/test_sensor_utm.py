@@ -14,6 +14,8 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
+from error_model_checks import (assert_forged_fixes_refused, assert_refused_below_half_the_floor, decoded, floor_runs,
+                                lasting)
 from train_localization.core.measurements import PositionFix
 from train_localization.core.offline import simulate_scenario
 from train_localization.core.pipeline import SensorPipeline, simulate_and_decode
@@ -450,12 +452,7 @@ def test_forged_tag_fixes_are_refused_with_their_reason():
     assert model.references.windows["TG010"] == (1053.0, 1053.0)          # chainage + antenna offset
     assert len(model.references.windows) == 40                             # TG000 .. TG039, every 100 m
     honest = PositionFix(10.0, "transponder", "transponder", "utm_test", "TG010", 1053.0, TP["install_sigma"])
-    assert model.refusal(honest) is None
-    cases = {"below_model": dataclasses.replace(honest, position_stddev=0.5 * model.min_stddev),
-             "unknown_reference": dataclasses.replace(honest, reference_id="TG999"),
-             "reference_mismatch": dataclasses.replace(honest, position=1053.0 + 300.0)}
-    for reason, forged in cases.items():
-        assert model.refusal(forged).reason == reason
+    assert_forged_fixes_refused(model, honest, "TG999", 1053.0 + 300.0)
     assert spec(TAGS).errors({**TP, "install_sigma": 0.0}, None, Vehicle()).min_stddev == pytest.approx(1e-3)
 
 
@@ -475,23 +472,15 @@ def test_every_decoded_doppler_speed_passes_the_error_model_floor():
     without spread, scale error or bias (its sigma 0), at a standstill and a crawl seen by a
     radar without clutter filter (min_speed 0), at 100 m/s and through a reversal; none is
     refused below_model, and the floor is reached (it is the decoder's own)."""
-    rng = np.random.default_rng(2024)
-    n, lowest = {name: 0 for name in DOPPLER_CASES}, math.inf
-    for i, block in enumerate((0.01, 0.05, 0.5, 5.0)):
-        for k, (name, (v0, duration, profile, radar)) in enumerate(DOPPLER_CASES.items()):
-            params = {**radar, "block_duration": block, "max_block_duration": max(1.0, block),
-                      "bias": float(rng.choice([0.005, 0.02, -0.05]))}
-            if (i + k) % 2 == 0:
-                params.update(spread=0.0, scale_sigma=0.0, bias=0.0)
-            sc = dataclasses.replace(scenario(v0=v0, duration=max(duration, 2.5 * block), profile=profile,
-                                              sensors={DOPPLER: params}), seed=int(rng.integers(1 << 30)))
-            run = simulate_and_decode(DOPPLER, sc, keep_going=True)
-            model = spec(DOPPLER).errors(run.pipe.params, sc.track, sc.vehicle)
-            assert not run.rejected, (name, params, run.rejected[:3])
-            for m in run.measurements:
-                assert model.refusal(m) is None, (name, params, m)
-            n[name] += len(run.measurements)
-            lowest = min([lowest] + [m.speed_stddev / model.min_stddev for m in run.measurements])
+    def decode(case, params, seed):
+        v0, duration, profile, _ = case
+        sc = scenario(v0=v0, duration=lasting(duration, params), profile=profile, sensors={DOPPLER: params})
+        return decoded(DOPPLER, dataclasses.replace(sc, seed=seed))
+
+    def drawn(case, rng):   # the case's radar parameters and a random bias, drawn before the run's seed
+        return {**case[3], "bias": float(rng.choice([0.005, 0.02, -0.05]))}
+
+    n, lowest = floor_runs(DOPPLER_CASES, {"spread": 0.0, "scale_sigma": 0.0, "bias": 0.0}, decode, drawn)
     assert min(n.values()) > 10 and sum(n.values()) > 1000, n
     assert lowest == pytest.approx(1.0, abs=1e-9)
 
@@ -500,8 +489,5 @@ def test_a_doppler_speed_claiming_half_the_floor_is_refused_below_model():
     sc = scenario(v0=20.0, duration=1.0, sensors={DOPPLER: {}})
     run = simulate_and_decode(DOPPLER, sc)
     model = spec(DOPPLER).errors(run.pipe.params, sc.track, sc.vehicle)
-    floor = model.min_stddev
-    assert floor == max(0.01, abs(run.pipe.params["bias"])) and model.refusal(run.measurements[5]) is None
-    assert model.refusal(dataclasses.replace(run.measurements[5], speed_stddev=floor)) is None   # at the floor
-    why = model.refusal(dataclasses.replace(run.measurements[5], speed_stddev=floor / 2))
-    assert why is not None and why.reason == "below_model"
+    assert model.min_stddev == max(0.01, abs(run.pipe.params["bias"]))
+    assert_refused_below_half_the_floor(model, run.measurements[5])

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from error_model_checks import assert_refused_below_half_the_floor, decoded, floor_runs, lasting
 from train_localization.core.measurements import DistanceIncrement
 from train_localization.core.pipeline import run_offline, simulate_and_decode
 from train_localization.core.scenario import Scenario
@@ -392,47 +393,22 @@ FLOOR_CASES = {   # name: (profile, initial speed [m/s], duration [s])
 }
 
 
-def _claimed(m) -> float:
-    """The 1-sigma [m/s] an increment claims for ErrorModel.refusal: the lower of its speed's and
-    its mean speed's (distance_stddev / duration)."""
-    return min(m.speed_stddev, m.distance_stddev / m.duration)
-
-
 def test_every_decoded_increment_is_at_or_above_the_error_model_floor():
     """ErrorModel.min_stddev holds by construction: random seeds, blocks of 10 ms .. 5 s and, in
     every other run, an ideal disc (no edge scatter: an increment between two edges, or a
     standstill in 5 s blocks, would claim a mean speed below 1 mm/s), at a standstill, a crawl,
     80 m/s and through a reversal; none is refused below_model, and the floor is reached (it is
     the decoder's own)."""
-    rng = np.random.default_rng(2024)
-    n, lowest = 0, math.inf
-    for i, block in enumerate((0.01, 0.05, 0.5, 5.0)):
-        for k, (name, (profile, v0, duration)) in enumerate(FLOOR_CASES.items()):
-            params = {"block_duration": block, "max_block_duration": max(1.0, block)}
-            if (i + k) % 2 == 0:
-                params.update(vibration=0.0, phase_tolerance=0.0, duty_tolerance=0.0)
-            scen = scenario(profile, max(duration, 2.5 * block), params, seed=int(rng.integers(1 << 30)), v0=v0)
-            ms, rejected, pipe = drive(scen)
-            model = SPEC.errors(pipe.params, scen.track, scen.vehicle)
-            assert ms and not rejected, (name, params)
-            for m in ms:
-                assert model.refusal(m) is None, (name, params, m)
-            n += len(ms)
-            lowest = min(lowest, min(_claimed(m) for m in ms) / model.min_stddev)
-    assert n > 1000
+    def decode(case, params, seed):
+        profile, v0, duration = case
+        return decoded(NODE, scenario(profile, lasting(duration, params), params, seed=seed, v0=v0))
+
+    ideal = {"vibration": 0.0, "phase_tolerance": 0.0, "duty_tolerance": 0.0}
+    n, lowest = floor_runs(FLOOR_CASES, ideal, decode, every_run_decodes=True)
+    assert sum(n.values()) > 1000
     assert lowest == pytest.approx(1.0, abs=1e-9)
 
 
 def test_an_increment_claiming_half_the_floor_is_refused_below_model():
-    scen = scenario([{"speed": 10.0, "hold": 10.0}], 1.0, CLEAN, v0=10.0)
-    ms, _, pipe = drive(scen)
-    model = SPEC.errors(pipe.params, scen.track, scen.vehicle)
-    floor = model.min_stddev
-    assert floor > 0.0 and model.refusal(ms[5]) is None
-    m = dataclasses.replace(ms[5], speed_stddev=floor, distance_stddev=floor * ms[5].duration)
-    assert model.refusal(m) is None                      # at the floor: taken
-    for forged in (dataclasses.replace(m, speed_stddev=floor / 2),
-                   dataclasses.replace(m, distance_stddev=floor / 2 * m.duration),
-                   dataclasses.replace(m, speed_stddev=floor / 2, distance_stddev=floor / 2 * m.duration)):
-        why = model.refusal(forged)
-        assert why is not None and why.reason == "below_model", forged
+    ms, _, model = decoded(NODE, scenario([{"speed": 10.0, "hold": 10.0}], 1.0, CLEAN, v0=10.0))
+    assert_refused_below_half_the_floor(model, ms[5])

@@ -38,6 +38,7 @@ from .offline import delayed, fuse_arrivals, scenario_measurements, sensor_pipel
 from .report import jsonable
 from .scenario import Leg, Scenario, Trajectory
 from .scoring import StateSeries, passing_times, run_scores
+from . import hard_conditions
 from .oracle import availability, fault_free, ratios
 from .sensors import sensor_classes
 from .sensors import wheel as _wheel
@@ -675,10 +676,16 @@ def generate(family: str, seed: int, max_duration: float | None = None) -> dict:
     delivery = _delivery(d, body["duration"], [sensor_classes()[n] for n in body["sensors"]])
     conditions["max_delay"] = delivery["max_delay"]
     conditions["outages"] = len(delivery["outages"])
+    scenario_seed = d.seed()
+    # last, so that the rest of the run is drawn the same with or without them
+    attack = hard_conditions.draw(d, family, body, conditions,
+                                  _coarse(body["profile"], body["initial"]["speed"], body["duration"]))
+    if attack:
+        delivery["adversarial"] = attack
     if max_duration is not None and max_duration < body["duration"]:
         body["duration"] = float(max_duration)
     body["track"]["track_id"] = f"{body['track']['track_id']}_{seed}"
-    return {"name": f"campaign_{family}_{seed}", "seed": d.seed(), "truth_rate": 100.0, **body,
+    return {"name": f"campaign_{family}_{seed}", "seed": scenario_seed, "truth_rate": 100.0, **body,
             "fusion": fusion_overrides(family, conditions),
             "campaign": {"family": family, "seed": int(seed), "conditions": conditions, "delivery": delivery}}
 
@@ -686,9 +693,11 @@ def generate(family: str, seed: int, max_duration: float | None = None) -> dict:
 # ----------------------------------------------------------------------------- running
 def deliver(arrivals: list, delivery: dict) -> list:
     """(arrival time, measurement) pairs as the fusion gets them: link outages remove the
-    measurements of a sensor class published in [t0, t1), then each arrives U(0, max_delay) s late."""
+    measurements of a sensor class published in [t0, t1), adversarial fixes are injected
+    (core/hard_conditions.py), then each arrives U(0, max_delay) s late."""
     kept = [(t, m) for t, m in arrivals
             if not any(o["sensor"] == m.sensor and o["t0"] <= t < o["t1"] for o in delivery.get("outages", ()))]
+    kept = hard_conditions.inject(kept, delivery.get("adversarial"))
     if delivery.get("max_delay", 0.0) > 0.0:
         kept = delayed(kept, delivery["max_delay"], delivery.get("seed", 1))
     return kept

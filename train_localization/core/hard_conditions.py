@@ -1,0 +1,142 @@
+"""Conditions the campaign's generators seldom draw, drawn on purpose (issue: integrity by
+construction, not by the cases a campaign happened to draw).
+
+Drawn after everything else of a run (``draw``), so that the rest of the run is the same
+with or without them:
+
+* ``tunnel_stop`` (families with a wheel and a radar): the run's last stop lies in a stretch
+  without absolute references (no balise, no axle-counter head, 3-6 km before the stop but
+  not before the train is halfway to it, 1.5-5 km after it) and the radar has a scale fault of 3-8 %, of either sign, from the
+  restart for 30-60 s (the sign that reads like a traction slip of a driven axle as often
+  as the other);
+* ``worn_wheel``: the wheel's diameter off by 1.5-3 times its tolerance (a wheel worn beyond
+  what its error model says);
+* ``crawl``: the run's final stop replaced by a crawl at 0.1-0.28 m/s, below the radar's
+  minimum speed (0.3 m/s by default: shunting, creeping to a stop marker);
+* ``adversarial`` (every family with a position sensor): fixes injected into the delivered
+  stream (``inject``): copies of real fixes that claim 1 um, copies naming references the
+  track does not have, each 2-300 m off; or a run of 3-10 real fixes of one sensor moved by
+  1-4 of their own 1-sigma, the same way (a consistent offset that passes every check of a
+  single fix).
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from .measurements import PositionFix
+
+P_TUNNEL, P_WORN, P_CRAWL, P_ADVERSARIAL = 0.25, 0.1, 0.1, 0.1
+# sensor nodes whose fixes name equipment of the track, and their classes
+FIX_SENSORS = {"eurobalise_reader": "eurobalise", "axle_counter": "axle_counter", "tag_reader": "transponder",
+               "lrl_scanner": "lrl", "inpo_receiver": "inpo", "lzb_receiver": "lzb", "mmwave_ranging": "mmwave",
+               "dgps_receiver": "dgps", "track_circuit_receiver": "track_circuit", "checkin_loop": "checkin"}
+
+
+def _last_stop(body: dict, trajectory) -> tuple[float, float, float] | None:
+    """(restart time [s], front chainage [m], where the train was halfway to the stop [m]) of
+    the run's last stop that the train leaves at least 5 s before the end, or None."""
+    t, v = trajectory.t, trajectory.speed
+    still = np.abs(v) < 0.01
+    restarts = np.flatnonzero(still[:-1] & ~still[1:])
+    restarts = [k for k in restarts if 1.0 < t[k] < body["duration"] - 5.0]
+    if not restarts:
+        return None
+    k = restarts[-1]
+    arrival = k
+    while arrival > 0 and still[arrival - 1]:
+        arrival -= 1
+    x0 = body["initial"]["position"]
+    return float(t[k]), float(x0 + trajectory.position[k]), float(x0 + trajectory.position[arrival // 2])
+
+
+def _tunnel_stop(d, body: dict, trajectory, conditions: dict) -> None:
+    stop = _last_stop(body, trajectory)
+    before, after = d.u(3000.0, 6000.0), d.u(1500.0, 5000.0)
+    size, sign, hold, ramp = d.u(0.03, 0.08), 1 if d.chance(0.5) else -1, d.u(30.0, 60.0), d.u(1.0, 10.0)
+    ramped, delay = d.chance(0.5), d.u(0.0, 3.0)
+    if stop is None:
+        return
+    t_restart, x_stop, x_half = stop
+    # the tunnel begins after the train has had references (at the earliest halfway to the stop)
+    lo, hi = max(x_stop - before, min(x_half, x_stop)), x_stop + after
+    eq = body["track"]["equipment"]
+    for kind in ("eurobalise", "axle_counter_head"):
+        if kind in eq:
+            eq[kind] = [item for item in eq[kind] if not lo <= item["position"] <= hi]
+    axle = body["sensors"].get("axle_counter")
+    if axle is not None:
+        known = {h["id"] for h in eq.get("axle_counter_head", [])}
+        listed = [h for h in str(axle.get("heads", "")).split(",") if h in known]
+        if not listed and known:   # the unit must watch at least one head of the track
+            listed = [min(eq["axle_counter_head"], key=lambda h: abs(h["position"] - x_stop))["id"]]
+        axle["heads"] = ",".join(listed)
+        axle["faults"] = ";".join(f for f in str(axle.get("faults", "")).split(";") if f.split("@")[0] in listed)
+    t0 = t_restart + delay
+    fault = f"{t0:.5g}-{t0 + hold:.5g}:{sign * size:.5g}" + (f":{ramp:.3g}" if ramped else "")
+    body["sensors"]["doppler_radar"]["faults"] = fault
+    conditions["tunnel_stop"] = {"from_m": lo, "to_m": hi, "restart_s": t_restart, "radar_fault": fault}
+
+
+def _worn_wheel(d, body: dict, conditions: dict) -> None:
+    wheel = body["sensors"]["wheel_sensor"]
+    error = wheel["diameter_tolerance"] * d.u(1.5, 3.0) * (1 if d.chance(0.5) else -1)
+    wheel["diameter_error"] = float(error)
+    conditions["worn_wheel"] = {"diameter_error": wheel["diameter_error"]}
+
+
+def _crawl(d, body: dict, conditions: dict) -> None:
+    speed = d.u(0.1, 0.28)
+    last = body["profile"][-1]
+    if last["speed"] == 0.0:
+        last["speed"] = speed
+        conditions["crawl"] = {"speed": speed}
+
+
+def draw(d, family: str, body: dict, conditions: dict, trajectory) -> dict | None:
+    """Draw the run's hard conditions (module docstring) into ``body`` and ``conditions``;
+    returns the adversarial injection for the delivery, or None. ``trajectory``: the run's
+    motion from chainage 0 (core/scenario.py Trajectory)."""
+    sensors = body["sensors"]
+    relative_pair = "wheel_sensor" in sensors and "doppler_radar" in sensors
+    if d.chance(P_TUNNEL) and relative_pair:
+        _tunnel_stop(d, body, trajectory, conditions)
+    if d.chance(P_WORN) and "wheel_sensor" in sensors:
+        _worn_wheel(d, body, conditions)
+    if d.chance(P_CRAWL) and "doppler_radar" in sensors:
+        _crawl(d, body, conditions)
+    fixes = [cls for node, cls in FIX_SENSORS.items() if node in sensors]
+    if not (d.chance(P_ADVERSARIAL) and fixes):
+        return None
+    kind = ("claims", "unknown", "offset")[d.int(0, 2)]
+    attack = {"kind": kind, "sensor": fixes[d.int(0, len(fixes) - 1)], "t0": d.u(0.2, 0.8) * body["duration"],
+              "count": d.int(3, 10), "offset": d.u(2.0, 300.0) if kind != "offset" else d.u(1.0, 4.0),
+              "sign": 1 if d.chance(0.5) else -1}
+    conditions["adversarial"] = dict(attack)
+    return attack
+
+
+def inject(arrivals: list, attack: dict | None) -> list:
+    """(arrival, measurement) pairs with the adversarial fixes of ``attack`` (see ``draw``):
+    added copies (``claims``, ``unknown``) or moved real fixes (``offset``, by ``offset`` of each
+    fix's own 1-sigma), the first ``count`` fixes of ``sensor`` from ``t0`` [s]."""
+    if not attack:
+        return arrivals
+    out, left = [], attack["count"]
+    for t, m in arrivals:
+        hit = left > 0 and isinstance(m, PositionFix) and m.sensor == attack["sensor"] and m.stamp >= attack["t0"]
+        if not hit:
+            out.append((t, m))
+            continue
+        left -= 1
+        shift = attack["sign"] * attack["offset"]
+        if attack["kind"] == "offset":
+            out.append((t, replace(m, position=m.position + shift * m.position_stddev)))
+            continue
+        out.append((t, m))
+        if attack["kind"] == "claims":
+            out.append((t, replace(m, position=m.position + shift, position_stddev=1e-6)))
+        else:
+            out.append((t, replace(m, position=m.position + shift, reference_id=f"ZZ{m.reference_id}"[:64])))
+    return out

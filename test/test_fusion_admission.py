@@ -183,3 +183,18 @@ def test_a_bag_with_corrupted_stamps_replays_with_them_refused(tmp_path):
     assert inside / len(claimed) >= 0.999
     report, _ = report_for(bad, sc)
     assert report["rejected_messages"] or report["fusion_counters"]["rejected"]
+
+
+@pytest.mark.parametrize("request_, reason", [
+    ((500.0, 1e200, 0.0, 0.1), "implausible"), ((500.0, 0.1, 0.0, 1e300), "implausible"),
+    ((500.0, 0.1, 1e300, 0.1), "implausible"), ((500.0, 0.1, math.nan, 0.1), "nan"),
+    ((500.0, math.inf, 0.0, 0.1), "nan"), ((1e12, 0.1, 0.0, 0.1), "off_track"), ((-5e6, 0.1, 0.0, 0.1), "off_track"),
+    ((500.0, 0.0, 0.0, 0.1), "implausible")])
+def test_an_operators_position_the_filter_cannot_take_is_refused(request_, reason):
+    """Issue: SetPosition with a stddev of 1e200 killed the fusion (OverflowError), a NaN speed
+    or an infinite stddev were taken, a chainage of 1e12 m published DEGRADED off the track."""
+    r = FusionRunner(fusion_config(demo()))
+    with pytest.raises(Exception) as exc:
+        r.admission.check_set_position(*request_)
+    assert getattr(exc.value, "reason", None) == reason
+    r.admission.check_set_position(500.0, 0.1, 0.0, 0.001)   # an ordinary one is taken

@@ -697,6 +697,35 @@ def test_fixes_claiming_more_than_their_model_never_move_a_nominal_state(ros_con
         node.destroy_node()
 
 
+def test_a_set_position_the_filter_cannot_take_is_refused_and_the_fusion_lives(ros_context, start_node):
+    """SetPosition with a stddev of 1e200 killed the fusion; a NaN speed was taken. Refused with
+    the reason; a valid request afterwards is answered and the state is NOMINAL there."""
+    from train_localization_msgs.msg import TrainState
+    from train_localization_msgs.srv import SetPosition
+    from train_localization.nodes.common import STREAM_QOS
+
+    proc = start_node("fusion", "--ros-args", *NS, "-p", "sensors:=[eurobalise]", "-p", "publish_rate:=20")
+    node = ros_context.create_node("probe_set_position", namespace="/train")
+    client = node.create_client(SetPosition, "localization/set_position")
+    states = []
+    node.create_subscription(TrainState, "localization/state", states.append, STREAM_QOS)
+    try:
+        assert spin_until(node, client.service_is_ready, 30.0), proc.output()
+        for position, sd, speed, sd_v in ((500.0, 1e200, 0.0, 0.1), (500.0, 0.1, math.nan, 0.1),
+                                          (1e12, 0.1, 0.0, 0.1), (500.0, 0.1, 1e300, 0.1)):
+            reply = ask(node, client, SetPosition.Request(position=position, position_stddev=sd, speed=speed,
+                                                          speed_stddev=sd_v))
+            assert reply is not None and not reply.success and reply.message.startswith("refused"), proc.output()
+        reply = ask(node, client, SetPosition.Request(position=500.0, position_stddev=0.1, speed=0.0,
+                                                      speed_stddev=0.001))
+        assert reply is not None and reply.success, proc.output()
+        assert spin_until(node, lambda: states and states[-1].mode == TrainState.MODE_NOMINAL
+                          and abs(states[-1].position - 500.0) < 0.01, 20.0), proc.output()
+        assert proc.proc.poll() is None and proc.interrupt() == 0
+    finally:
+        node.destroy_node()
+
+
 def test_a_stopped_clock_makes_the_fusion_report_stale(ros_context, start_node):
     """Under use_sim_time, states follow /clock; when /clock stops (the simulator or the
     replayer died), the fusion's diagnostics go STALE within seconds of wall time instead of

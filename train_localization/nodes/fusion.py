@@ -368,9 +368,14 @@ class FusionNode(ManagedNode):
         if request.reset:
             self.filter.reset(stamp=t)
             response.success, response.message = True, "filter reset: INITIALISING"
-        elif not (math.isfinite(request.position) and request.position_stddev > 0 and request.speed_stddev > 0):
-            response.success, response.message = False, "position must be finite and stddevs > 0"
         else:
+            try:
+                self.runner.admission.check_set_position(request.position, request.position_stddev, request.speed,
+                                                         request.speed_stddev)
+            except InputRejected as exc:
+                response.success, response.message = False, f"refused: {exc}"
+                self.get_logger().warn(response.message)
+                return response
             self.filter.reset(request.position, request.position_stddev, request.speed, request.speed_stddev, t)
             response.success, response.message = True, f"position set to {request.position:.3f} m"
         self.get_logger().info(response.message)

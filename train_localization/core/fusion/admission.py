@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 
-from ..measurements import DistanceIncrement, PositionFix, SpeedMeasurement
+from ..measurements import MAX_CHAINAGE, MAX_SPEED, STDDEV_RANGE, DistanceIncrement, PositionFix, SpeedMeasurement
 from ..signals import InputRejected
 from .config import FusionConfig
 
@@ -72,3 +72,23 @@ class Admission:
         refusal = model.refusal(m)
         if refusal is not None:
             raise refusal
+
+    def check_set_position(self, position: float, position_stddev: float, speed: float, speed_stddev: float) -> None:
+        """Raises InputRejected (one line) for an operator's position [m] and speed [m/s] with
+        their 1-sigmas that the filter cannot take: not finite, a stddev outside the physical
+        range, a speed beyond any train, a position off the track."""
+        values = {"position": position, "position_stddev": position_stddev, "speed": speed,
+                  "speed_stddev": speed_stddev}
+        for name, value in values.items():
+            if not math.isfinite(value):
+                raise InputRejected("nan", f"{name} is {value!r}")
+        for name in ("position_stddev", "speed_stddev"):
+            if not STDDEV_RANGE[0] <= values[name] <= STDDEV_RANGE[1]:
+                raise InputRejected("implausible", f"{name} {values[name]:g} outside {STDDEV_RANGE[0]:g} .. "
+                                                   f"{STDDEV_RANGE[1]:g}")
+        if abs(speed) > MAX_SPEED:
+            raise InputRejected("implausible", f"speed {speed:g} m/s beyond {MAX_SPEED:g} m/s")
+        margin = OFF_TRACK_MARGIN + 5.0 * position_stddev
+        if not -margin <= position <= min(self.track_length, MAX_CHAINAGE) + margin:
+            raise InputRejected("off_track", f"position {position:.3f} m off the track "
+                                             f"(0 .. {self.track_length:.3f} m)")

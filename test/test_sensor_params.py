@@ -158,5 +158,6 @@ def test_campaign_draws_at_the_ends_of_their_ranges_resolve(family, end, monkeyp
     if family == "conventional" and end == "hi":
         wheel, axle = data["sensors"]["wheel_sensor"], data["sensors"]["axle_counter"]
         assert wheel["max_speed"] == pytest.approx(1.05 * 300 / 3.6, rel=1e-4)
-        assert wheel["diameter_error"] == wheel["diameter_tolerance"] == 0.012
+        # every chance taken: the wheel worn beyond its tolerance too (core/hard_conditions.py)
+        assert wheel["diameter_tolerance"] == 0.012 and wheel["diameter_error"] == pytest.approx(3 * 0.012)
         assert axle["last_axle_offset"] == max(data["vehicle"]["axles"])

@@ -39,7 +39,7 @@ def test_the_impact_is_the_filters_own_sensitivity_to_the_fault():
     x0, _, aux0 = clean.state()
     x1, _, aux1 = faulty.state()
     assert aux0.events == aux1.events and aux0.gated == aux1.gated   # the same decisions
-    (imp,) = aux1.impacts                                            # one onset: at the start
+    (imp,) = tuple(aux1.impacts)                                     # one onset: at the start
     assert imp.sensor == "doppler" and imp.onset == pytest.approx(0.05)
     np.testing.assert_allclose((x1 - x0)[:2] / fault, imp.e[:2], rtol=0.02, atol=1e-3)
     # the fixes have told it: the fault estimate is about right, and its 1-sigma small
@@ -58,16 +58,16 @@ def test_a_fault_no_reading_can_test_is_covered_up_to_its_size():
     newest = max(aux.impacts, key=lambda imp: imp.onset)
     assert newest.excluded_beyond(bound, f._z) == pytest.approx(bound, rel=0.2)
     x, P, _ = f.state()
-    half_s, _ = impact.cover(aux.impacts, f._fault_bounds, 79.0 - aux.t, f._z, P[0, 0], P[1, 1])
+    half_s, _ = impact.cover(aux.impacts, 79.0 - aux.t, f._z, P[0, 0], P[1, 1])
     assert half_s > f._z * math.sqrt(P[0, 0]) and est.position_max - est.position >= half_s - 1e-9
     assert len([imp for imp in aux.impacts if imp.sensor == "doppler"]) == f.cfg.fault_onsets
 
 
 def test_each_onset_also_ends_the_fault_that_matters_most_and_a_full_bank_drops_the_least():
     n, bounds = 4, {"doppler": 0.1}
-    bank = impact.started((), bounds, 0.0, n, 4, 3.0)
+    bank = impact.started(None, bounds, 0.0, n, 4, 3.0)
     assert [(imp.onset, imp.active) for imp in bank] == [(0.0, True)]     # nothing to end yet
-    bank = (bank[0]._replace(e=np.array([10.0, 1.0, 0, 0])),)
+    bank = bank._replace(E=np.array([[10.0, 1.0, 0, 0]]))
     bank = impact.started(bank, bounds, 5.0, n, 4, 3.0)
     assert [(imp.onset, imp.active) for imp in bank] == [(0.0, True), (0.0, False), (5.0, True)]
     np.testing.assert_array_equal(bank[1].e, bank[0].e)                    # the same error, ended at 5 s
@@ -80,7 +80,7 @@ def test_each_onset_also_ends_the_fault_that_matters_most_and_a_full_bank_drops_
     unchecked = impact.updated(bank, ("doppler", 20.0, False), h, K, 0.0, 0.01)
     assert unchecked[1].info == 0.0           # against the motion model alone its end tests nothing
     # a full bank: the newest active one stays, the smallest cover of the rest goes
-    bank = tuple(imp._replace(e=np.array([e0, 0, 0, 0])) for imp, e0 in zip(bank, (10.0, 3.0, 0.0)))
+    bank = bank._replace(E=np.array([[10.0, 0, 0, 0], [3.0, 0, 0, 0], [0.0, 0, 0, 0]]))
     bank = impact.started(bank, bounds, 10.0, n, 4, 3.0)                   # + (0, ended at 10), (10)
     assert [(imp.onset, imp.active) for imp in bank] == [(0.0, True), (0.0, False), (0.0, False), (10.0, True)]
     assert [float(imp.e[0]) for imp in bank] == [10.0, 3.0, 10.0, 0.0]    # (5.0, active, e 0) dropped
@@ -90,18 +90,16 @@ def test_the_innovations_exclude_fault_sizes_as_a_least_squares_fit():
     """Another sensor's readings whose innovations match g x f_true: the estimate is f_true, its
     1-sigma 1 / sqrt(sum g^2 / S); the faulty sensor's own readings test it only while another
     speed source in use checks them."""
-    e = np.array([0.0, 1.0, 0.0])                   # a unit fault has put 1 m/s into the speed
-    imp = impact.Impact("doppler", 0.0, e, 0.0, 0.0)
+    bank = impact.started(None, {"doppler": 1.0}, 0.0, 3, 4, 3.0)
     h, K = np.array([0.0, 1.0, 0.0]), np.zeros(3)   # K = 0: e stays
-    bank = (imp,)
-    for v in (10.0, 20.0, 30.0):                    # another sensor's speeds: g = -h e = -1 x (v / 10)
-        bank = tuple(i._replace(e=e * v / 10.0) for i in bank)
+    for v in (10.0, 20.0, 30.0):                    # a unit fault has put v / 10 into the speed:
+        bank = bank._replace(E=np.array([[0.0, v / 10.0, 0.0]]))   # another sensor's g = -v / 10
         bank = impact.updated(bank, ("wheel", 0.0, True), h, K, -0.05 * v / 10.0, 0.04)
     own = impact.updated(bank, ("doppler", 30.0, False), h, K, 1.5, 0.04)   # only the motion model checks it
     assert own[0].info == bank[0].info and own[0].score == bank[0].score
     checked = impact.updated(bank, ("doppler", 30.0, True), h, K, 1.5, 0.04)   # the wheel in use checks it
     assert checked[0].info == pytest.approx(bank[0].info + (30.0 - 3.0) ** 2 / 0.04)
-    (imp,) = bank
+    imp = bank[0]
     assert imp.score / imp.info == pytest.approx(0.05)
     assert imp.info == pytest.approx((1 + 4 + 9) / 0.04)
     assert imp.fault(1.0, 3.0) == pytest.approx((0.05, 1.0 / math.sqrt(imp.info)))

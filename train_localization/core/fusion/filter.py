@@ -253,8 +253,8 @@ class _Aux:
         # speed sources whose scale fault the others showed and whose constant scale now learns
         # it (``_relearn_fault``): their scale is plausible up to the fault's size
         self.scale_faults: frozenset = frozenset()
-        # the persistent-fault hypotheses of the relative sensors (impact.py): Impact, ...
-        self.impacts: tuple = ()
+        # the persistent-fault hypotheses of the relative sensors (impact.py Bank), None before any
+        self.impacts = None
 
     def copy(self) -> "_Aux":
         new = object.__new__(_Aux)
@@ -366,7 +366,7 @@ class TrainFilter:
         self._fault_bounds = {n: self._z * m.scale_fault_sigma for n, m in self.models.items()
                               if m.relative and separation.PERSISTENT & set(m.faults) and m.scale_fault_sigma > 0.0}
         self._fault_input: tuple | None = None   # (sensor, its fault per unit) of the reading being applied
-        self._est_cache: tuple = (None, None)
+        self._est_cache: tuple = (None, None, None, None, None, None)
         self._last_update = (np.zeros(self.n), 0.0)   # (Kalman gain, innovation) of the last update
         self._eye = np.eye(self.n)
         self.rejected: dict[str, int] = {}
@@ -416,12 +416,12 @@ class TrainFilter:
             return
         if t > aux.t:
             s0 = self.ekf.x[0, 0]
-            if aux.impacts:
+            if aux.impacts is not None:
                 aux.impacts = impact.predicted(aux.impacts, self.process.transition(t - aux.t)[0])
             self.ekf.x, self.ekf.P = self.process.predict(self.ekf.x, self.ekf.P, aux.t, t)
             aux.t = t
             if self._fault_bounds and aux.initialised and (
-                    not aux.impacts or t - aux.impacts[-1].onset >= self.cfg.fault_onset_spacing):
+                    aux.impacts is None or t - aux.impacts.last_onset >= self.cfg.fault_onset_spacing):
                 aux.impacts = impact.started(aux.impacts, self._fault_bounds, t, self.n, self.cfg.fault_onsets,
                                              self._z)
             if aux.lone_view is not None:   # what a lone source's scale fault adds over the distance
@@ -438,7 +438,7 @@ class TrainFilter:
         P = self.ekf.P
         K = PHt / S
         self._last_update = (K, z - hx)
-        if self.aux.impacts:
+        if self.aux.impacts is not None:
             self.aux.impacts = impact.updated(self.aux.impacts, self._fault_input, h, K, z - hx, S)
         Kc = K[:, None]
         self.ekf.x = self.ekf.x + Kc * (z - hx)
@@ -703,7 +703,8 @@ class TrainFilter:
         P[:, i] = 0.0
         P[i, i] = lay.prior_sigma[i] ** 2
         self.ekf.x, self.ekf.P = x, P
-        aux.impacts = impact.states_set(aux.impacts, [i])
+        if aux.impacts is not None:
+            aux.impacts = impact.states_set(aux.impacts, [i])
         aux.scale_faults = aux.scale_faults - {cls}
         aux.slip_window = _without(aux.slip_window, cls)
         aux.events = _inc(aux.events, "scale_fault_ended")
@@ -918,7 +919,8 @@ class TrainFilter:
         P[:, 1] = 0.0
         P[1, 1] = u_white + u_common
         self.ekf.x, self.ekf.P = x, P
-        aux.impacts = impact.speed_set(aux.impacts, u)
+        if aux.impacts is not None:
+            aux.impacts = impact.speed_set(aux.impacts, u)
         aux.relative_alternatives = {**_without(aux.relative_alternatives, cls),
                                      other: (-D, white, since, last, run, -D, base)}
         aux.episode_views = _without(aux.episode_views, cls)
@@ -1256,7 +1258,8 @@ class TrainFilter:
         x[1, 0], P[1, 1] = u_hat, var
         x[2, 0], P[2, 2] = 0.0, self.cfg.initial_accel_stddev ** 2
         self.ekf.x, self.ekf.P = x, P
-        self.aux.impacts = impact.speed_set(self.aux.impacts, u_hat)
+        if self.aux.impacts is not None:
+            self.aux.impacts = impact.speed_set(self.aux.impacts, u_hat)
 
     def _take_speed(self, stamp: float, readings: list, sensors: set) -> None:
         """Speed from independent readings that agree (weighted); the exclusions of ``sensors``
@@ -1389,7 +1392,8 @@ class TrainFilter:
         P[1, 1] += (scale * x[1, 0]) ** 2 + bias ** 2
         idx = lay.relative_states
         x[idx, 0] = 0.0
-        aux.impacts = impact.states_set(aux.impacts, idx)
+        if aux.impacts is not None:
+            aux.impacts = impact.states_set(aux.impacts, idx)
         P[idx, :] = 0.0
         P[:, idx] = 0.0
         P[idx, idx] = lay.prior_sigma[idx] ** 2
@@ -1691,7 +1695,8 @@ class TrainFilter:
             P[:, 0] = -P[:, f_idx]
             P[0, 0] = R + P[f_idx, f_idx]
         self.ekf.x, self.ekf.P = x, P
-        aux.impacts = impact.position_set_from_fix(aux.impacts, f_idx)
+        if aux.impacts is not None:
+            aux.impacts = impact.position_set_from_fix(aux.impacts, f_idx)
         aux.accepted = _inc(aux.accepted, cls)
         aux.last_accepted = {**aux.last_accepted, cls: m.stamp}
         aux.last_fix_accepted = m.stamp
@@ -1708,7 +1713,8 @@ class TrainFilter:
         P[:, i] = 0.0
         P[i, i] = self.layout.prior_sigma[i] ** 2
         self.ekf.x, self.ekf.P = x, P
-        self.aux.impacts = impact.states_set(self.aux.impacts, [i])
+        if self.aux.impacts is not None:
+            self.aux.impacts = impact.states_set(self.aux.impacts, [i])
 
     # -- solution separation (separation.py) -----------------------------------
     def _seed_subs(self, stamp: float) -> None:
@@ -1988,7 +1994,8 @@ class TrainFilter:
             c = self._est_cache
             if c[0] is not xk or c[1] is not Pk:
                 x_err = xk[:, 0].tolist()
-                c = self._est_cache = (xk, Pk, x_err, _kinematic_covariance(Pk), self._error_states(x_err))
+                c = self._est_cache = (xk, Pk, x_err, _kinematic_covariance(Pk), self._error_states(x_err),
+                                       impact.prepared(aux.impacts, self._z) if aux.impacts is not None else None)
             x_err = c[2]
             dt = t - aux.t
             s, v, a, var_s, var_v = _kinematics(x_err[0], x_err[1], x_err[2], c[3], dt, self.cfg.jerk_psd)
@@ -2048,9 +2055,9 @@ class TrainFilter:
                     mode = Mode.DEGRADED
             if half_v > self._z * sd_v:
                 sd_v = half_v / self._z
-        if aux.impacts:   # the persistent faults of the relative sensors the data has not excluded
-            half_s, half_v = impact.cover(aux.impacts, self._fault_bounds, t - aux.t, self._z, max(var_s, 0.0),
-                                          max(var_v, 0.0))
+        if aux.impacts is not None:   # the persistent faults of the relative sensors the data has not excluded
+            bank = self._est_cache[5] if self._est_cache[0] is xk and self._est_cache[1] is Pk else aux.impacts
+            half_s, half_v = impact.cover(bank, t - aux.t, self._z, max(var_s, 0.0), max(var_v, 0.0))
             if float(s) - half_s < lo or float(s) + half_s > hi:
                 lo, hi = min(lo, float(s) - half_s), max(hi, float(s) + half_s)
                 sd_s = max(sd_s, (hi - lo) / (2.0 * self._z))

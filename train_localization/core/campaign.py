@@ -673,7 +673,8 @@ def generate(family: str, seed: int, max_duration: float | None = None) -> dict:
         raise ValueError(f"unknown family {family!r}; known: {', '.join(ALL_FAMILIES)}")
     d = _Draw(seed)
     body, conditions = _GENERATORS[family](d)
-    delivery = _delivery(d, body["duration"], [sensor_classes()[n] for n in body["sensors"]])
+    classes = sensor_classes()
+    delivery = _delivery(d, body["duration"], [classes[n] for n in body["sensors"]])
     conditions["max_delay"] = delivery["max_delay"]
     conditions["outages"] = len(delivery["outages"])
     scenario_seed = d.seed()

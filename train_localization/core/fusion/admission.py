@@ -65,10 +65,7 @@ class Admission:
         if isinstance(m, PositionFix):
             if m.track_id and self.cfg.track_id and m.track_id != self.cfg.track_id:
                 raise InputRejected("wrong_track", f"fix on track {m.track_id[:64]!r}, not {self.cfg.track_id!r}")
-            margin = OFF_TRACK_MARGIN + 5.0 * m.position_stddev
-            if not -margin <= m.position <= self.track_length + margin:
-                raise InputRejected("off_track", f"fix at {m.position:.3f} m, off the track "
-                                    f"(0 .. {self.track_length:.3f} m)")
+            self._on_track(m.position, m.position_stddev, "fix")
         refusal = model.refusal(m)
         if refusal is not None:
             raise refusal
@@ -88,7 +85,12 @@ class Admission:
                                                    f"{STDDEV_RANGE[1]:g}")
         if abs(speed) > MAX_SPEED:
             raise InputRejected("implausible", f"speed {speed:g} m/s beyond {MAX_SPEED:g} m/s")
-        margin = OFF_TRACK_MARGIN + 5.0 * position_stddev
+        self._on_track(position, position_stddev, "position")
+
+    def _on_track(self, position: float, stddev: float, what: str) -> None:
+        """Raises ``off_track`` for a ``position`` [m] beyond the track's ends (no line is longer
+        than MAX_CHAINAGE) by more than OFF_TRACK_MARGIN + 5 ``stddev`` [m]."""
+        margin = OFF_TRACK_MARGIN + 5.0 * stddev
         if not -margin <= position <= min(self.track_length, MAX_CHAINAGE) + margin:
-            raise InputRejected("off_track", f"position {position:.3f} m off the track "
+            raise InputRejected("off_track", f"{what} at {position:.3f} m, off the track "
                                              f"(0 .. {self.track_length:.3f} m)")

@@ -364,7 +364,7 @@ class TrainFilter:
         # the interval covers what such a fault, up to the size the data has not excluded, put into
         # the state (impact.py)
         self._fault_bounds = {n: self._z * m.scale_fault_sigma for n, m in self.models.items()
-                              if m.relative and separation.PERSISTENT & set(m.faults) and m.scale_fault_sigma > 0.0}
+                              if n in self._persistent and m.scale_fault_sigma > 0.0}
         self._fault_input: tuple | None = None   # (sensor, its fault per unit) of the reading being applied
         self._est_cache: tuple = (None, None, None, None, None, None)
         self._last_update = (np.zeros(self.n), 0.0)   # (Kalman gain, innovation) of the last update
@@ -416,8 +416,7 @@ class TrainFilter:
             return
         if t > aux.t:
             s0 = self.ekf.x[0, 0]
-            if aux.impacts is not None:
-                aux.impacts = impact.predicted(aux.impacts, self.process.transition(t - aux.t)[0])
+            aux.impacts = impact.predicted(aux.impacts, self.process.transition(t - aux.t)[0])
             self.ekf.x, self.ekf.P = self.process.predict(self.ekf.x, self.ekf.P, aux.t, t)
             aux.t = t
             if self._fault_bounds and aux.initialised and (
@@ -438,8 +437,7 @@ class TrainFilter:
         P = self.ekf.P
         K = PHt / S
         self._last_update = (K, z - hx)
-        if self.aux.impacts is not None:
-            self.aux.impacts = impact.updated(self.aux.impacts, self._fault_input, h, K, z - hx, S)
+        self.aux.impacts = impact.updated(self.aux.impacts, self._fault_input, h, K, z - hx, S)
         Kc = K[:, None]
         self.ekf.x = self.ekf.x + Kc * (z - hx)
         A = self._eye - Kc * h
@@ -703,8 +701,7 @@ class TrainFilter:
         P[:, i] = 0.0
         P[i, i] = lay.prior_sigma[i] ** 2
         self.ekf.x, self.ekf.P = x, P
-        if aux.impacts is not None:
-            aux.impacts = impact.states_set(aux.impacts, [i])
+        aux.impacts = impact.states_set(aux.impacts, [i])
         aux.scale_faults = aux.scale_faults - {cls}
         aux.slip_window = _without(aux.slip_window, cls)
         aux.events = _inc(aux.events, "scale_fault_ended")
@@ -919,8 +916,7 @@ class TrainFilter:
         P[:, 1] = 0.0
         P[1, 1] = u_white + u_common
         self.ekf.x, self.ekf.P = x, P
-        if aux.impacts is not None:
-            aux.impacts = impact.speed_set(aux.impacts, u)
+        aux.impacts = impact.speed_set(aux.impacts, u)
         aux.relative_alternatives = {**_without(aux.relative_alternatives, cls),
                                      other: (-D, white, since, last, run, -D, base)}
         aux.episode_views = _without(aux.episode_views, cls)
@@ -1258,8 +1254,7 @@ class TrainFilter:
         x[1, 0], P[1, 1] = u_hat, var
         x[2, 0], P[2, 2] = 0.0, self.cfg.initial_accel_stddev ** 2
         self.ekf.x, self.ekf.P = x, P
-        if self.aux.impacts is not None:
-            self.aux.impacts = impact.speed_set(self.aux.impacts, u_hat)
+        self.aux.impacts = impact.speed_set(self.aux.impacts, u_hat)
 
     def _take_speed(self, stamp: float, readings: list, sensors: set) -> None:
         """Speed from independent readings that agree (weighted); the exclusions of ``sensors``
@@ -1392,8 +1387,7 @@ class TrainFilter:
         P[1, 1] += (scale * x[1, 0]) ** 2 + bias ** 2
         idx = lay.relative_states
         x[idx, 0] = 0.0
-        if aux.impacts is not None:
-            aux.impacts = impact.states_set(aux.impacts, idx)
+        aux.impacts = impact.states_set(aux.impacts, idx)
         P[idx, :] = 0.0
         P[:, idx] = 0.0
         P[idx, idx] = lay.prior_sigma[idx] ** 2
@@ -1695,8 +1689,7 @@ class TrainFilter:
             P[:, 0] = -P[:, f_idx]
             P[0, 0] = R + P[f_idx, f_idx]
         self.ekf.x, self.ekf.P = x, P
-        if aux.impacts is not None:
-            aux.impacts = impact.position_set_from_fix(aux.impacts, f_idx)
+        aux.impacts = impact.position_set_from_fix(aux.impacts, f_idx)
         aux.accepted = _inc(aux.accepted, cls)
         aux.last_accepted = {**aux.last_accepted, cls: m.stamp}
         aux.last_fix_accepted = m.stamp
@@ -1713,8 +1706,7 @@ class TrainFilter:
         P[:, i] = 0.0
         P[i, i] = self.layout.prior_sigma[i] ** 2
         self.ekf.x, self.ekf.P = x, P
-        if self.aux.impacts is not None:
-            self.aux.impacts = impact.states_set(self.aux.impacts, [i])
+        self.aux.impacts = impact.states_set(self.aux.impacts, [i])
 
     # -- solution separation (separation.py) -----------------------------------
     def _seed_subs(self, stamp: float) -> None:
@@ -1995,7 +1987,7 @@ class TrainFilter:
             if c[0] is not xk or c[1] is not Pk:
                 x_err = xk[:, 0].tolist()
                 c = self._est_cache = (xk, Pk, x_err, _kinematic_covariance(Pk), self._error_states(x_err),
-                                       impact.prepared(aux.impacts, self._z) if aux.impacts is not None else None)
+                                       impact.prepared(aux.impacts, self._z))
             x_err = c[2]
             dt = t - aux.t
             s, v, a, var_s, var_v = _kinematics(x_err[0], x_err[1], x_err[2], c[3], dt, self.cfg.jerk_psd)

@@ -30,6 +30,7 @@ per sensor: the newest active ones always, and the others whose cover is the lar
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import NamedTuple
 
@@ -58,7 +59,7 @@ class Impact(NamedTuple):
     def excluded_beyond(self, bound: float, z: float) -> float:
         """The largest |fault| [1] the data has not excluded at z sigma, at most ``bound``."""
         mean, sigma = self.fault(bound, z)
-        return min(bound, abs(mean) + z * sigma)
+        return float(_excluded_beyond(mean, sigma, bound, z))
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
@@ -79,9 +80,7 @@ class Bank:
     def __len__(self) -> int:
         return len(self.sensors)
 
-    def __getitem__(self, k):   # an Impact view of hypothesis k
-        if isinstance(k, str):
-            raise TypeError("Bank is indexed by hypothesis number")
+    def __getitem__(self, k: int) -> Impact:   # a view of hypothesis k
         return Impact(self.sensors[k], float(self.onsets[k]), self.E[k], float(self.info[k]), float(self.score[k]),
                       bool(self.active[k]))
 
@@ -106,10 +105,35 @@ def _fault(info: np.ndarray, score: np.ndarray, bound: np.ndarray, z: float) -> 
     return mean, sigma
 
 
+def _excluded_beyond(mean, sigma, bound, z: float):
+    """The largest |fault| the data has not excluded at z sigma, at most ``bound`` (arrays or floats)."""
+    return np.minimum(bound, np.abs(mean) + z * sigma)
+
+
+def _covers(bank: Bank, z: float) -> np.ndarray:
+    """Per hypothesis, the position error [m] of the largest fault not excluded: |e_0| x that size."""
+    mean, sigma = _fault(bank.info, bank.score, bank.bounds, z)
+    return np.abs(bank.E[:, 0]) * _excluded_beyond(mean, sigma, bank.bounds, z)
+
+
 def _rows(bank: Bank, keep) -> Bank:
     keep = list(keep)
     return Bank(tuple(bank.sensors[k] for k in keep), bank.onsets[keep], bank.active[keep], bank.bounds[keep],
                 bank.E[keep], bank.info[keep], bank.score[keep])
+
+
+def _joined(a: Bank, b: Bank) -> Bank:
+    """The hypotheses of ``a`` followed by those of ``b``."""
+    return Bank(a.sensors + b.sensors, *(np.concatenate([getattr(a, f), getattr(b, f)])
+                                         for f in ("onsets", "active", "bounds", "E", "info", "score")))
+
+
+def _keeps_none(transform):
+    """A bank transform that leaves "no hypothesis yet" (None) as it is."""
+    @functools.wraps(transform)
+    def wrapped(bank, *args):
+        return None if bank is None else transform(bank, *args)
+    return wrapped
 
 
 def started(bank: Bank | None, bounds: dict[str, float], onset: float, n: int, max_onsets: int, z: float) -> Bank:
@@ -123,42 +147,34 @@ def started(bank: Bank | None, bounds: dict[str, float], onset: float, n: int, m
     if bank is None:
         bank = Bank((), np.zeros(0), np.zeros(0, bool), np.zeros(0), np.zeros((0, n)), np.zeros(0), np.zeros(0))
     for sensor, bound in bounds.items():
-        mean, sigma = _fault(bank.info, bank.score, bank.bounds, z)
-        cover = np.abs(bank.E[:, 0]) * np.minimum(bank.bounds, np.abs(mean) + z * sigma)
-        own = [k for k in range(len(bank)) if bank.sensors[k] == sensor]
-        add_rows = []
-        going_on = [k for k in own if bank.active[k]]
+        covers = _covers(bank, z)
+        going_on = [k for k in range(len(bank)) if bank.sensors[k] == sensor and bank.active[k]]
         if going_on:
-            largest = max(going_on, key=lambda k: cover[k])
-            if cover[largest] > 0.0:
-                add_rows.append((sensor, bank.onsets[largest], False, bank.E[largest], bank.info[largest],
-                                 bank.score[largest], cover[largest]))
-        add_rows.append((sensor, onset, True, np.zeros(n), 0.0, 0.0, 0.0))
-        covers = list(cover)
-        bank = Bank(bank.sensors + tuple(r[0] for r in add_rows),
-                    np.concatenate([bank.onsets, [r[1] for r in add_rows]]),
-                    np.concatenate([bank.active, [r[2] for r in add_rows]]),
-                    np.concatenate([bank.bounds, [bound] * len(add_rows)]),
-                    np.vstack([bank.E] + [r[3][None, :] for r in add_rows]),
-                    np.concatenate([bank.info, [r[4] for r in add_rows]]),
-                    np.concatenate([bank.score, [r[5] for r in add_rows]]))
-        covers += [r[6] for r in add_rows]
+            largest = max(going_on, key=covers.__getitem__)
+            if covers[largest] > 0.0:   # the same error and test, ended here
+                ended = _rows(bank, [largest])
+                bank = _joined(bank, dataclasses.replace(ended, active=np.zeros(1, bool)))
+        bank = _joined(bank, Bank((sensor,), np.array([onset]), np.ones(1, bool), np.array([bound]), np.zeros((1, n)),
+                                  np.zeros(1), np.zeros(1)))
+        covers = _covers(bank, z)
         own = [k for k in range(len(bank)) if bank.sensors[k] == sensor]
         drop = set()
         while len(own) - len(drop) > max_onsets:
             left = [k for k in own if k not in drop]
             newest = [k for k in left if bank.active[k]][-max(1, max_onsets // 4):]
-            drop.add(min((k for k in left if k not in newest), key=lambda k: covers[k]))
+            drop.add(min((k for k in left if k not in newest), key=covers.__getitem__))
         if drop:
             bank = _rows(bank, (k for k in range(len(bank)) if k not in drop))
     return bank
 
 
+@_keeps_none
 def predicted(bank: Bank, F: np.ndarray) -> Bank:
     """Each e moved by the transition F."""
     return bank._replace(E=bank.E.dot(F.T))
 
 
+@_keeps_none
 def updated(bank: Bank, fault_input: tuple | None, h: np.ndarray, K: np.ndarray, nu: float, S: float) -> Bank:
     """After a scalar update with row h, gain K (n,), innovation nu and its variance S, of a
     reading whose own fault per unit is ``fault_input`` = (sensor, v or d, whether another speed
@@ -174,6 +190,7 @@ def updated(bank: Bank, fault_input: tuple | None, h: np.ndarray, K: np.ndarray,
                          score=bank.score + np.where(tests, g * nu / S, 0.0))
 
 
+@_keeps_none
 def states_set(bank: Bank, idx, value: float = 0.0) -> Bank:
     """The states ``idx`` were set by a policy, not by the readings: their error per unit fault
     is ``value`` (0: set to what the fault-free filter would have set them to)."""
@@ -182,6 +199,7 @@ def states_set(bank: Bank, idx, value: float = 0.0) -> Bank:
     return bank._replace(E=E)
 
 
+@_keeps_none
 def position_set_from_fix(bank: Bank, fix_bias_index: int | None) -> Bank:
     """The position was taken from a fix alone (s = z - fix bias): its error per unit fault is
     minus that of the fix bias (0 without one)."""
@@ -190,6 +208,7 @@ def position_set_from_fix(bank: Bank, fix_bias_index: int | None) -> Bank:
     return bank._replace(E=E)
 
 
+@_keeps_none
 def speed_set(bank: Bank, speed: float) -> Bank:
     """The speed was set from readings that may include the faulty sensor's: its error per unit
     fault is taken as the whole speed while the fault goes on (the fault's full share), 0 once it
@@ -208,7 +227,9 @@ class Prepared(NamedTuple):
     rows: tuple   # ((e0, e1, e2, fault mean, fault 1-sigma), ...)
 
 
+@_keeps_none
 def prepared(bank: Bank, z: float) -> Prepared:
+    """The bank's rows for ``cover`` (None: no hypothesis yet)."""
     mean, sigma = _fault(bank.info, bank.score, bank.bounds, z)
     return Prepared(tuple(zip(bank.E[:, 0].tolist(), bank.E[:, 1].tolist(), bank.E[:, 2].tolist(),
                               mean.tolist(), sigma.tolist())))

@@ -50,8 +50,8 @@ class FusionRunner:
     def add(self, m, now: float | None = None) -> bool:
         """Take measurement ``m`` (True) or refuse and count it (False). ``now`` [s]: the
         caller's clock, if it has one (the live node)."""
-        if now is not None and math.isfinite(now):
-            self.clock = now if self.clock is None else max(self.clock, now)
+        if now is not None:
+            self._clock_at(now)
         try:
             self.admission.check(m, self.clock)
             if self._start_pending:
@@ -75,14 +75,18 @@ class FusionRunner:
         """Whether ``advance(t)`` would produce an estimate (a grid time <= t not produced yet)."""
         return self._next_k is None or math.floor(t / self.period + 1e-9) >= self._next_k
 
+    def _clock_at(self, t: float) -> None:
+        """The runner's clock moves on to ``t`` [s] (never back; a non-finite t is no time)."""
+        if math.isfinite(t):
+            self.clock = t if self.clock is None else max(self.clock, t)
+
     def counters(self) -> dict[str, dict]:
         """The filter's counters, with every refused measurement by reason (admission's and the
         history's)."""
         return {**self.filter.counters(), "rejected": dict(self.rejected)}
 
     def advance(self, t: float, max_catch_up: int = 1000) -> list[tuple[Estimate, list[str]]]:
-        if math.isfinite(t):
-            self.clock = t if self.clock is None else max(self.clock, t)
+        self._clock_at(t)
         if self._start_pending:
             self._start(t)
         k_now = math.floor(t / self.period + 1e-9)

@@ -111,7 +111,7 @@ import numpy as np
 from ..measurements import CLEAR, DISTURBED, OCCUPIED, PositionFix, SectionOccupancy, SectionState
 from ..signals import InputRejected, RawBlock
 from ..track import Track, TrackError
-from .base import Decoder, ErrorModel, Param, ReferenceTable, ReferenceWindow, SensorSpec, Simulator
+from .base import MIN_FIX_SIGMA, Decoder, ErrorModel, Param, ReferenceTable, ReferenceWindow, SensorSpec, Simulator
 
 HEAD_KIND = "axle_counter_head"
 
@@ -709,9 +709,6 @@ class AxleCounterDecoder(Decoder):
         self.stats["fixes"] += 1
         return PositionFix(float(t_c), self.sensor, self.unit_id, self.track.track_id, self.head_ids[hi],
                            float(self.head_pos[hi] + o * offset), sigma, int(d))
-
-
-MIN_FIX_SIGMA = 1e-3   # [m] least 1-sigma of a fix: the millimetre of the track file's chainages
 
 
 def fix_sigma(params: dict, timing: float = 0.0, slow: float = 0.0, cover: float = 0.0) -> float:

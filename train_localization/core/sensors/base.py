@@ -133,6 +133,10 @@ def sensor_params(spec: "SensorSpec", overrides: dict | None, vehicle: Vehicle) 
 
 MEASURES = ("speed", "distance", "position", "occupancy")
 
+# [m] least 1-sigma of a fix of a sensor that reads equipment from the track file: the millimetre
+# of the file's chainages (a guard for sensors whose error parameters may all be 0)
+MIN_FIX_SIGMA = 1e-3
+
 
 class ReferenceWindow(NamedTuple):
     """Chainages [m] between which an honest fix naming one reference can lie (the

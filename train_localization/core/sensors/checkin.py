@@ -107,7 +107,7 @@ import numpy as np
 from ..measurements import CLEAR, OCCUPIED, PositionFix, SectionOccupancy, SectionState
 from ..signals import InputRejected, RawBlock
 from ..track import Track, TrackError, extent
-from .base import Decoder, ErrorModel, Param, ReferenceTable, ReferenceWindow, SensorSpec, Simulator
+from .base import MIN_FIX_SIGMA, Decoder, ErrorModel, Param, ReferenceTable, ReferenceWindow, SensorSpec, Simulator
 
 KIND = "checkin_block"
 SENSOR = "checkin"
@@ -602,7 +602,6 @@ def depth_sigma(params: dict) -> float:
     return abs(onset_depth(params["threshold_on"], 1.0)) * params["height_sigma"]
 
 
-MIN_FIX_SIGMA = 1e-3   # [m] least 1-sigma of a fix: the millimetre of the track file's chainages
 SEPARATOR = "/"        # between the two block ids of a boundary fix's reference (lower/upper chainage)
 
 

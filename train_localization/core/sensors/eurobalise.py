@@ -79,7 +79,7 @@ import numpy as np
 from ..measurements import PositionFix
 from ..signals import InputRejected, RawBlock
 from ..track import nearby_runs
-from .base import Decoder, ErrorModel, Param, ReferenceTable, ReferenceWindow, SensorSpec, Simulator
+from .base import MIN_FIX_SIGMA, Decoder, ErrorModel, Param, ReferenceTable, ReferenceWindow, SensorSpec, Simulator
 
 KIND = "eurobalise"
 MU0 = 4e-7 * math.pi           # permeability of free space [H/m]
@@ -656,9 +656,6 @@ class EurobaliseDecoder(Decoder):
         self._last_read = (t_c, item)
         return PositionFix(float(t_c), self.sensor, self.unit_id, self.track.track_id, str(item["id"]),
                            fix_position(p, item), float(sigma), direction)
-
-
-MIN_FIX_SIGMA = 1e-3   # [m] least 1-sigma of a fix: the millimetre of the track file's chainages
 
 
 def fix_sigma(params: dict, timing_var: float = 0.0) -> float:

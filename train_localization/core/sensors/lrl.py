@@ -91,7 +91,7 @@ import numpy as np
 from ..measurements import PositionFix
 from ..signals import InputRejected, RawBlock
 from ..track import nearby_runs
-from .base import Decoder, ErrorModel, Param, ReferenceTable, ReferenceWindow, SensorSpec, Simulator
+from .base import MIN_FIX_SIGMA, Decoder, ErrorModel, Param, ReferenceTable, ReferenceWindow, SensorSpec, Simulator
 
 KIND = "lrl_group"
 Q_PITCH = 0.2                # single-scan P-channel pitch [m]
@@ -662,9 +662,6 @@ class LrlDecoder(Decoder):
         sigma = fix_sigma(p, last["sigma"])
         out.append(PositionFix(float(last["t"]), self.sensor, self.unit_id, self.track.track_id, str(item["id"]),
                                fix_position(p, item, k_last, spacing), float(sigma), direction))
-
-
-MIN_FIX_SIGMA = 1e-3   # [m] least 1-sigma of a fix: the millimetre of the track file's chainages
 
 
 def fix_sigma(params: dict, timing: float = 0.0) -> float:

@@ -71,7 +71,7 @@ import numpy as np
 from ..measurements import PositionFix
 from ..signals import InputRejected, RawBlock
 from ..track import nearby_runs
-from .base import Decoder, ErrorModel, Param, ReferenceTable, ReferenceWindow, SensorSpec, Simulator
+from .base import MIN_FIX_SIGMA, Decoder, ErrorModel, Param, ReferenceTable, ReferenceWindow, SensorSpec, Simulator
 
 KIND = "transponder_tag"
 SENSOR = "transponder"
@@ -335,9 +335,6 @@ class TransponderDecoder(Decoder):
         self._last = (stamp, chainage)
         return PositionFix(float(stamp), self.sensor, self.unit_id, self.track.track_id, str(item["id"]),
                            fix_position(p, item), fix_sigma(p, timing, motion), 0)
-
-
-MIN_FIX_SIGMA = 1e-3   # [m] least 1-sigma of a fix: the millimetre of the track file's chainages
 
 
 def fix_sigma(params: dict, timing: float = 0.0, motion: float = 0.0) -> float:

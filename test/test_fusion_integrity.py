@@ -78,7 +78,8 @@ def test_a_changed_sensor_parameter_reaches_the_filter():
     # the size of a scale fault the scale may learn once the fixes and the dead reckoning part
     assert f1.models["doppler"].scale_fault_sigma == 0.1 and f0.models["doppler"].scale_fault_sigma == 0.05
     assert f1.layout.prior_sigma[f1.layout.scale["wheel"]] == pytest.approx(0.03 / math.sqrt(3.0))
-    assert f1.models["wheel"].faults == ("slide",) and f0.models["wheel"].faults == ("slip", "slide")
+    assert f1.models["wheel"].faults == ("slide", "wear") and f0.models["wheel"].faults == ("slip", "slide", "wear")
+    assert f1.models["wheel"].scale_fault_sigma == 0.03   # wear_fault_sigma
     # the longest slip the wheel's model allows: its own parameter, or a longer forced episode
     assert f0.models["wheel"].fault_duration_max == 10.0
     forced = sensor_models({"wheel_sensor": {"slip_episodes": [5.0, 14.0, 0.1]}}, None, Vehicle())

@@ -788,6 +788,9 @@ def _summary(results: list[dict]) -> dict:
         "runs": len(results), "errors": len(results) - len(ok),
         "error_runs": [[r["family"], r["seed"]] for r in results if "error" in r],
         "states": states, "states_with_position": claimed, "outside": outside,
+        "outside_nominal": sum(r["scores"]["integrity"].get("outside_nominal", 0) for r in ok),
+        "runs_outside_nominal": [[r["family"], r["seed"], r["scores"]["integrity"]["outside_nominal"]]
+                                 for r in ok if r["scores"]["integrity"].get("outside_nominal", 0)],
         "inside_fraction": (claimed - outside) / claimed if claimed else None,
         "worst_run": ({"family": fraction[0]["family"], "seed": fraction[0]["seed"],
                        "inside_fraction": fraction[0]["scores"]["integrity"]["inside_fraction"]}
@@ -851,7 +854,8 @@ def _summary(results: list[dict]) -> dict:
 
 def summarise(results: list[dict]) -> dict:
     """Figures over all runs and per family (see ``_summary``) and the pass/fail of the targets:
-    inside fraction over all states >= 99.9 %, every run >= 99.5 %, no excursion > 2 s, no error."""
+    inside fraction over all states >= 99.9 %, every run >= 99.5 %, no excursion > 2 s, no error,
+    no state with the truth outside a NOMINAL interval."""
     families = sorted({r["family"] for r in results}, key=lambda f: ALL_FAMILIES.index(f) if f in ALL_FAMILIES else 99)
     out = {"all": _summary(results), "families": {f: _summary([r for r in results if r["family"] == f])
                                                   for f in families}}
@@ -861,6 +865,7 @@ def summarise(results: list[dict]) -> dict:
         "every_run_above_99_5": not a["runs_below_99_5"],
         "excursions_within_2_s": a["longest_excursion"] is None or a["longest_excursion"]["s"] <= EXCURSION_LIMIT,
         "no_errors": a["errors"] == 0,
+        "none_outside_nominal": a["outside_nominal"] == 0,
     }
     out["passed"] = all(out["checks"].values())
     return jsonable(out)

@@ -110,6 +110,8 @@ def score(truth: StateSeries, fused: StateSeries, circumference: float | None = 
         "integrity": {
             "inside_fraction": float(in_interval.mean()) if in_interval.size else None,
             "outside_count": int((~in_interval).sum()),
+            # the hazard a train protection acts on: the truth outside a NOMINAL interval
+            "outside_nominal": int((~in_interval & (f["mode"][claimed] == MODE_NOMINAL)).sum()),
             "mean_interval_width_m": float(width.mean()) if width.size else None,
         },
         "modes": modes,

@@ -209,7 +209,7 @@ def _pct(x) -> str:
 
 def summary_table(summary: dict) -> str:
     """The summary as a text table: one row per family and one over all runs."""
-    cols = ("runs", "err", "states", "inside", "worst run", "<99.5 %", "longest exc.", "ETCS env.",
+    cols = ("runs", "err", "states", "inside", "outside NOMINAL", "worst run", "<99.5 %", "longest exc.", "ETCS env.",
             "speed band viol. (NOMINAL)", "speed outside", "cpu s/run")
     lines = []
     rows = [(f, s) for f, s in summary["families"].items()] + [("all", summary["all"])]
@@ -219,7 +219,9 @@ def summary_table(summary: dict) -> str:
         exc = s["longest_excursion"]
         env = s.get("etcs_envelope")
         table.append((name, str(s["runs"]), str(s["errors"]), str(s["states_with_position"]),
-                      _pct(s["inside_fraction"]), f"{_pct(worst['inside_fraction'])} ({worst['seed']})" if worst else "-",
+                      _pct(s["inside_fraction"]),
+                      f"{s.get('outside_nominal', 0)} in {len(s.get('runs_outside_nominal', []))} runs",
+                      f"{_pct(worst['inside_fraction'])} ({worst['seed']})" if worst else "-",
                       str(len(s["runs_below_99_5"])),
                       (f"{exc['s']:.3f} s ({exc['seed']})" if exc["s"] > 0 else "0 s") if exc else "-",
                       _pct(env["fraction"]) if env else "-",
@@ -247,7 +249,8 @@ def summary_table(summary: dict) -> str:
     lines.append(f"targets: all states >= {100 * INSIDE_TARGET:.1f} % inside: {checks['inside_fraction']}; "
                  f"every run >= {100 * RUN_TARGET:.1f} %: {checks['every_run_above_99_5']}; "
                  f"no excursion > {EXCURSION_LIMIT:.0f} s: {checks['excursions_within_2_s']}; "
-                 f"no failed run: {checks['no_errors']} -> "
+                 f"no failed run: {checks['no_errors']}; "
+                 f"none outside while NOMINAL: {checks.get('none_outside_nominal')} -> "
                  f"{'PASSED' if summary['passed'] else 'FAILED'}")
     return "\n".join(lines)
 

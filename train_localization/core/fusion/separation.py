@@ -92,8 +92,8 @@ class Sub(NamedTuple):
 def sub_models(models: dict) -> dict[str, SubModel]:
     """The solution models of the relative sensors that another relative sensor's fault could
     blend away (``ABSORBED``: faults its error states can take up before a test fires). Against
-    a persistent fault (``PERSISTENT``: a radar's scale fault, which no test of its own can tell
-    from a scale error) every other relative sensor keeps one. Against a transient one (a wheel's
+    a persistent fault (``PERSISTENT``: a radar's scale fault, a wheel worn beyond its tolerance,
+    which no test of its own can tell from a scale error) every other relative sensor keeps one. Against a transient one (a wheel's
     slip or slide, which has physical tests and ends by itself, but is absorbed into a wheel
     scale that is not yet calibrated when it starts slowly) only the sensors without fault modes
     of their own do (contactless counters: coil counter, EMF observer, pattern belt): a

@@ -24,6 +24,9 @@ CATALOGUE = (
     FaultMode("slide", "speed", False, "a braked wheel turns slower than the train under braking"),
     FaultMode("scale_fault", "speed", True, "a speed sensor's scale off by up to its scale_fault_sigma "
                                             "(a Doppler radar's beam over water, snow or a misaligned mount)"),
+    FaultMode("wear", "speed", True, "a wheel's diameter beyond its tolerance by up to its scale_fault_sigma "
+                                     "(a missed re-calibration, a re-profiled or changed wheel whose "
+                                     "diameter was not re-entered)"),
     FaultMode("dropout", "silence", False, "the sensor is silent for a while"),
     FaultMode("outage", "silence", False, "a wayside device or base station is out"),
     FaultMode("nlos", "outlier", False, "a range or fix from a reflected path (mm-wave, DGPS multipath)"),

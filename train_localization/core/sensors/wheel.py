@@ -91,6 +91,11 @@ PARAMS = {
     "diameter_error": Param(
         float("nan"), "true/nominal - 1 of this wheel [fraction]; NaN (default) = drawn per device "
         "uniformly within +-diameter_tolerance", (-0.1, 0.1)),
+    "wear_fault_sigma": Param(
+        0.03, "1-sigma size of a diameter error beyond diameter_tolerance (fault mode 'wear': a missed "
+        "re-calibration, a re-profiled or changed wheel whose diameter was not re-entered) [fraction]; "
+        "3.29 x 0.03 = 10 %, a wheel from new to scrap; the fusion's bound of that fault while the wheel "
+        "carries the speed alone, and the size its scale may learn", (0.0, 0.2)),
     "creep_coefficient": Param(
         0.002, "steady creep per unit acceleration [s^2/m]: wheel speed = v (1 + c a sign v); "
         "0.2 % at 1 m/s^2 (creep of a few 0.1 % at adhesion use 0.1, Kalker/Polach creep curves)",
@@ -723,8 +728,8 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
     longest = max(params["slip_duration_max"], float(forced[:, 1].max()) if forced.size else 0.0)
     return ErrorModel("wheel", "distance", scale_sigma=scale, reported_scale=scale,
                       creep_coefficient=params["creep_coefficient"], creep_in_traction=params["driven_axle"],
-                      faults=("slip", "slide") if params["driven_axle"] else ("slide",),
-                      fault_duration_max=longest, timeout=continuous_timeout(params),
+                      faults=("slip", "slide", "wear") if params["driven_axle"] else ("slide", "wear"),
+                      scale_fault_sigma=params["wear_fault_sigma"], fault_duration_max=longest, timeout=continuous_timeout(params),
                       min_stddev=SPEED_STDDEV_FLOOR)   # IncrementEstimator.make's floor of both stddevs
 
 

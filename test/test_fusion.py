@@ -525,7 +525,7 @@ def test_every_tuning_field_is_a_documented_node_parameter():
     # per-sensor error models as nested parameters: unchanged values are no override
     wheel = sensor_models(["wheel_sensor"], None, Vehicle())["wheel"]
     params = error_model_parameters(wheel)
-    assert params["faults"] == "slip,slide" and math.isnan(params["gate_probability"])
+    assert params["faults"] == "slip,slide,wear" and math.isnan(params["gate_probability"])
     assert overrides_from_parameters(wheel, params) == {}
     changed = {**params, "timeout": 2.0, "faults": "slide"}
     assert overrides_from_parameters(wheel, changed) == {"timeout": 2.0, "faults": ("slide",)}

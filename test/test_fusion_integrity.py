@@ -144,7 +144,10 @@ def test_a_radar_fault_that_outlasts_the_wheels_longest_slide_is_learnt_from_the
     assert inside == 1.0 and err < 2.0, (inside, err)
     by_stamp = {round(e.stamp, 3): e for e in result.estimates}
     assert by_stamp[50.0].mode == MODE_DEGRADED                       # undecided: it says so
-    assert by_stamp[60.0].mode == MODE_NOMINAL
+    # outlasting a slide does not exclude a wheel worn beyond its tolerance (the radar right):
+    # the radar's own solution stays in the interval until a fix has calibrated the wheel's
+    assert by_stamp[60.0].mode == MODE_DEGRADED and by_stamp[60.0].position_max > by_stamp[60.0].position + 20.0
+    assert by_stamp[65.0].mode == MODE_NOMINAL
     assert abs(by_stamp[60.0].scales["doppler"] - 0.06) < 0.01 and abs(by_stamp[90.0].scales["doppler"]) < 0.01
     truth = sc.trajectory()
     learnt = [e for e in result.estimates if 55.0 <= e.stamp < 70.0 or e.stamp >= 85.0]
@@ -738,21 +741,30 @@ def test_a_wheel_still_sliding_after_its_holdoff_is_not_taken_back_on_one_readin
 # --------------------------------------------------------------------------- sensor solutions
 def test_sensor_solutions_are_kept_where_another_sensors_fault_could_be_blended_away():
     """A relative sensor keeps its own solution where another's persistent fault (a radar scale
-    fault) could pull the filter, and, if it has no fault modes of its own (a coil counter),
-    where another's transient one (a wheel slip) could; the fault modes come from the sensors'
-    error models, and a user's override of them reaches the filter."""
+    fault, a worn wheel) could pull the filter, and, if it has no fault modes of its own (a coil
+    counter), where another's transient one (a wheel slip) could; a sensor with a calibration
+    fault (the wheel's wear) keeps one with its scale opened to it. Each fault hypothesis lists
+    the solutions valid under it. The fault modes come from the sensors' error models, and a
+    user's override of them reaches the filter."""
     def kept(nodes, overrides=None):
         cfg = FusionConfig(sensors=sensor_models(nodes, None, Vehicle()), overrides=overrides or {})
-        return sorted(TrainFilter(cfg)._subs)
-    assert kept(["wheel_sensor", "doppler_radar", "eurobalise_reader"]) == ["wheel"]
-    assert kept(["pattern_belt", "doppler_radar"]) == ["pattern_belt"]
-    assert kept(["doppler_radar", "eurobalise_reader"]) == []          # a lone speed source
-    assert kept(["wheel_sensor", "coil_counter", "emf_observer"]) == ["coil_counter", "emf_observer"]
-    assert kept(["coil_counter", "emf_observer"]) == []                # no fault to protect against
-    assert kept(["wheel_sensor", "coil_counter"], {"wheel": {"faults": []}}) == []
+        f = TrainFilter(cfg)
+        return sorted(f._subs), {h: sorted(v) for h, v in f._hypotheses.items()}
+    assert kept(["wheel_sensor", "doppler_radar", "eurobalise_reader"]) == (
+        ["doppler", "wheel", "wheel/wear"],
+        {"doppler/scale_fault": ["wheel", "wheel/wear"], "wheel/wear": ["doppler", "wheel/wear"]})
+    assert kept(["pattern_belt", "doppler_radar"]) == (["pattern_belt"], {"doppler/scale_fault": ["pattern_belt"]})
+    assert kept(["doppler_radar", "eurobalise_reader"]) == ([], {})          # a lone speed source
+    subs, hyp = kept(["wheel_sensor", "coil_counter", "emf_observer"])
+    assert subs == ["coil_counter", "emf_observer", "wheel/wear"]
+    assert hyp["wheel/slip"] == ["coil_counter", "emf_observer"]            # not the wheel's own
+    assert hyp["wheel/wear"] == ["coil_counter", "emf_observer", "wheel/wear"]
+    assert kept(["coil_counter", "emf_observer"]) == ([], {})                # no fault to protect against
+    assert kept(["wheel_sensor", "coil_counter"], {"wheel": {"faults": []}}) == ([], {})
     # a radar declared without scale faults no longer needs the wheel's solution, and now keeps one
     # of its own against the wheel's slips
-    assert kept(["wheel_sensor", "doppler_radar"], {"doppler": {"faults": ["dropout"]}}) == ["doppler"]
+    subs, hyp = kept(["wheel_sensor", "doppler_radar"], {"doppler": {"faults": ["dropout"]}})
+    assert subs == ["doppler", "wheel/wear"] and hyp["wheel/slip"] == ["doppler"]
 
 
 def test_a_sensor_solution_learns_its_scale_from_the_fixes_and_is_refuted_by_one_it_cannot_explain():
@@ -1015,7 +1027,9 @@ def test_a_radar_fault_learnt_from_the_wheel_is_the_reference_for_its_slides():
     assert result["fusion"]["integrity"]["scale_fault_relearnt"] >= 1
     assert scores["integrity"]["outside_count"] == 0 and scores["speed_interval"]["outside"] == 0
     assert scores["speed_band"]["violations"] == 0
-    assert scores["integrity"]["mean_interval_width_m"] < 15.0
+    # the wheel's wear is not excluded before the fixes calibrate the wheel: the radar's own
+    # solution (then 5.6 % off) or the wheel's with its scale opened bounds the interval meanwhile
+    assert scores["integrity"]["mean_interval_width_m"] < 40.0
 
 
 def test_a_coasting_before_the_first_position_is_located_by_it():

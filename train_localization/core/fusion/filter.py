@@ -355,11 +355,16 @@ class TrainFilter:
                                   and math.isfinite(m.fault_duration_max) and "scale_fault" not in m.faults)
         self.timeouts = {s: m.timeout for s, m in self.models.items() if math.isfinite(m.timeout)}
         self._subs = separation.sub_models(self.models)
-        # relative sensors with a fault no test of their own can tell from motion (a radar's scale
-        # fault growing slowly): while one carries the speed alone, the interval covers the solution
-        # without it (``_track_lone``)
-        self._persistent = frozenset(n for n, m in self.models.items()
-                                     if m.relative and separation.PERSISTENT & set(m.faults))
+        self._sensor_subs: dict[str, tuple] = {}   # sensor -> ((key, SubModel), ...) of its own solutions
+        for key, sm in self._subs.items():
+            self._sensor_subs[sm.sensor] = self._sensor_subs.get(sm.sensor, ()) + ((key, sm),)
+        self._hypotheses = separation.hypotheses(self.models, self._subs)
+        # relative sensors with a fault no test of their own can tell from motion, which may begin
+        # at any time (a radar's scale fault growing slowly): while one carries the speed alone, the
+        # interval covers the solution without it (``_track_lone``). A calibration fault (a worn
+        # wheel) is a constant: the sensor's own solution with its scale opened covers it
+        self._persistent = frozenset(n for n, m in self.models.items() if m.relative and
+                                     (fault_modes.PERSISTENT - fault_modes.CALIBRATION) & set(m.faults))
         # relative sensors with a persistent fault of bounded size -> that bound (z x scale_fault_sigma):
         # the interval covers what such a fault, up to the size the data has not excluded, put into
         # the state (impact.py)
@@ -445,9 +450,9 @@ class TrainFilter:
 
     def _apply(self, m) -> None:
         self._apply_policy(m)
-        sm = self._subs.get(m.sensor)
-        if sm is not None and self.aux.initialised:
-            self._sub_reading(m, sm)
+        if self.aux.initialised:
+            for key, sm in self._sensor_subs.get(m.sensor, ()):
+                self._sub_reading(m, key, sm)
 
     def _apply_policy(self, m) -> None:
         aux = self.aux = self.aux.copy()
@@ -1719,11 +1724,11 @@ class TrainFilter:
         x, P = self.ekf.x, self.ekf.P
         return separation.Main(float(x[0, 0]), float(P[0, 0]), float(x[1, 0]), float(P[1, 1]))
 
-    def _sub_reading(self, m, sm) -> None:
-        """Sensor ``m.sensor``'s own solution after its reading m; while the filter has
+    def _sub_reading(self, m, key: str, sm) -> None:
+        """Sensor ``m.sensor``'s own solution ``key`` after its reading m; while the filter has
         excluded it for its own fault (not as an undecided alternative) it follows the filter."""
         aux, cls, before = self.aux, m.sensor, self._before
-        sub = aux.subs.get(cls)
+        sub = aux.subs.get(key)
         if sub is None:
             sub = separation.seed(sm, m.stamp, before.s, before.P00, before.v)
         elif _speed_excluded(aux, cls, m.stamp) and cls not in aux.relative_alternatives:
@@ -1731,7 +1736,7 @@ class TrainFilter:
         else:
             R = self._measurement(m)[1]
             sub = separation.reading(sub, sm, m, R, float(self.ekf.x[2, 0]), before, self.cfg.slip_window)
-        aux.subs = {**aux.subs, cls: sub}
+        aux.subs = {**aux.subs, key: sub}
 
     def _located(self, m) -> tuple[float, float]:
         """(position [m], variance [m^2]) of the train front that an accepted fix m gives under
@@ -2056,24 +2061,48 @@ class TrainFilter:
                 mode = self._widened(aux, t, sd_s, mode)
             if half_v > self._z * sd_v:
                 sd_v = half_v / self._z
-        for name, sub in aux.subs.items():   # each relative sensor's own solution (protection level)
-            if not sub.own:
-                continue   # its sensor has not read since it started: the filter's own solution
-            s_j, var_j = separation.at(sub, t, var_s, float(v), var_v)
-            var_j = max(var_j, var_s)
-            half = self._z * math.sqrt(var_j)
-            if s_j - half < lo or s_j + half > hi:
-                lo, hi = min(lo, s_j - half), max(hi, s_j + half)
-                sd_s = max(sd_s, (hi - lo) / (2.0 * self._z))
-                mode = self._widened(aux, t, sd_s, mode)
-                if mode == Mode.NOMINAL and separation.separated(s_j, var_j, float(s), var_s, self._z):
-                    mode = Mode.DEGRADED
-            if t - sub.t_v <= self.cfg.slip_reference_timeout:
-                half_v = separation.speed_half_width(sub, self._subs[name], float(v), var_v, self._z)
-                if half_v > self._z * sd_v:
-                    sd_v = half_v / self._z
+        if aux.subs:   # the relative sensors' own solutions: per fault hypothesis (protection level)
+            lo, hi, sd_s, sd_v, mode = self._hypotheses_cover(aux, t, float(s), var_s, float(v), var_v,
+                                                               lo, hi, sd_s, sd_v, mode)
         return Estimate(t, float(s), float(v), float(a), sd_s, sd_v, lo, hi, self.cfg.confidence,
                         mode, scales, biases)
+
+    def _hypotheses_cover(self, aux: _Aux, t: float, s: float, var_s: float, v: float, var_v: float,
+                          lo: float, hi: float, sd_s: float, sd_v: float, mode: Mode) -> tuple:
+        """(lo, hi, position and speed 1-sigma, mode) widened to cover, per fault hypothesis of
+        the relative sensors (separation.hypotheses), the valid solution that widens the interval
+        least: each is a bound under that hypothesis. A solution whose sensor has not read since it
+        started is the filter's own. DEGRADED where the filter's interval alone would not have
+        covered the chosen solution (the separation beyond its test threshold)."""
+        z, placed = self._z, {}
+        for key, sub in aux.subs.items():
+            if not sub.own:
+                continue
+            s_j, var_j = separation.at(sub, t, var_s, v, var_v)
+            var_j = max(var_j, var_s)
+            half_v = (separation.speed_half_width(sub, self._subs[key], v, var_v, z)
+                      if t - sub.t_v <= self.cfg.slip_reference_timeout else 0.0)
+            placed[key] = (s_j, var_j, z * math.sqrt(var_j), half_v)
+        for valid in self._hypotheses.values():
+            # only a solution whose sensor reads is a bound of its own; one that follows the
+            # filter (its sensor silent or excluded) may carry the fault: then each is covered
+            # (one whose sensor has not read since it started is the filter's own: none)
+            own = [k for k in valid if k in placed]
+            reading = [k for k in own if placed[k][3] > 0.0]
+            chosen = [min(reading, key=lambda k: max(hi, placed[k][0] + placed[k][2])
+                          - min(lo, placed[k][0] - placed[k][2]))] if reading else own
+            for k in chosen:
+                s_j, var_j, half, _ = placed[k]
+                if s_j - half < lo or s_j + half > hi:
+                    lo, hi = min(lo, s_j - half), max(hi, s_j + half)
+                    sd_s = max(sd_s, (hi - lo) / (2.0 * z))
+                    mode = self._widened(aux, t, sd_s, mode)
+                    if mode == Mode.NOMINAL and separation.separated(s_j, var_j, s, var_s, z):
+                        mode = Mode.DEGRADED
+            half_v = min((placed[k][3] for k in reading), default=0.0)
+            if half_v > z * sd_v:
+                sd_v = half_v / z
+        return lo, hi, sd_s, sd_v, mode
 
     def _error_states(self, x_err: list) -> tuple[dict[str, float], dict[str, float]]:
         """({sensor: scale error [1]}, {sensor: bias [m/s]}) of the error states x_err."""

@@ -28,7 +28,7 @@ Plain floats: a 3x3 covariance per reading of a 200 Hz sensor, within the rollba
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 from ..measurements import SpeedMeasurement
@@ -47,6 +47,8 @@ SPEED_GAP = 1.0
 class SubModel:
     """What one relative sensor's own solution needs of its error model."""
 
+    key: str               # the solution's name: its sensor, or "sensor/mode" for the one whose
+                           # constant scale is opened by the size of a calibration fault ``mode``
     sensor: str
     scale_var: float       # prior variance of its constant scale error (scale or offset state) [1]
     gm_var: float          # stationary variance of a Gauss-Markov scale error [1]
@@ -93,25 +95,55 @@ def sub_models(models: dict) -> dict[str, SubModel]:
     """The solution models of the relative sensors that another relative sensor's fault could
     blend away (``ABSORBED``: faults its error states can take up before a test fires). Against
     a persistent fault (``PERSISTENT``: a radar's scale fault, a wheel worn beyond its tolerance,
-    which no test of its own can tell from a scale error) every other relative sensor keeps one. Against a transient one (a wheel's
+    which no test of its own can tell from a scale error) every other relative sensor keeps one.
+    Against a transient one (a wheel's
     slip or slide, which has physical tests and ends by itself, but is absorbed into a wheel
     scale that is not yet calibrated when it starts slowly) only the sensors without fault modes
     of their own do (contactless counters: coil counter, EMF observer, pattern belt): a
     solution of a sensor that has its own faults (the radar against the wheel) would be as wide
     as that sensor alone, for a fault the tests mostly catch. A sensor's solution protects
-    against the others' faults, not against its own."""
+    against the others' faults, not against its own; except a calibration fault (``CALIBRATION``:
+    a constant scale beyond the tolerance), against which the sensor keeps a second solution,
+    keyed "sensor/mode", whose constant scale is opened by the fault's size (``scale_fault_sigma``)
+    and learnt from the fixes: once two fixes have calibrated it, it is as narrow as the filter."""
     relative = {s: m for s, m in models.items() if m.relative}
     out = {}
     for name, m in relative.items():
-        clean = not ABSORBED & set(m.faults)
-        others = [set(o.faults) for other, o in relative.items() if other != name]
-        if not any(PERSISTENT & f or (clean and ABSORBED & f) for f in others):
-            continue
         gm = math.isfinite(m.scale_tau) and m.scale_sigma > 0.0
         constant = m.scale_offset_sigma if gm else m.scale_sigma
-        out[name] = SubModel(name, constant ** 2, m.scale_sigma ** 2 if gm else 0.0,
-                             m.scale_tau if gm else math.inf, m.bias_sigma ** 2,
-                             m.creep_coefficient, m.creep_in_traction)
+        model = SubModel(name, name, constant ** 2, m.scale_sigma ** 2 if gm else 0.0,
+                         m.scale_tau if gm else math.inf, m.bias_sigma ** 2,
+                         m.creep_coefficient, m.creep_in_traction)
+        clean = not ABSORBED & set(m.faults)
+        others = [set(o.faults) for other, o in relative.items() if other != name]
+        if any(PERSISTENT & f or (clean and ABSORBED & f) for f in others):
+            out[name] = model
+        if m.scale_fault_sigma > 0.0:
+            for mode in sorted(faults.CALIBRATION & set(m.faults)):
+                key = f"{name}/{mode}"
+                out[key] = replace(model, key=key, scale_var=constant ** 2 + m.scale_fault_sigma ** 2)
+    return out
+
+
+def hypotheses(models: dict, subs: dict[str, SubModel]) -> dict[str, tuple[str, ...]]:
+    """Fault hypothesis "sensor/mode" -> the keys of the solutions valid under it, for the relative
+    sensors' fault modes that a solution covers (``sub_models``): under a persistent fault of
+    sensor j every solution of another sensor, and j's own one opened to it if it is a calibration
+    fault; under a transient one the solutions of the sensors without fault modes of their own.
+    The interval covers, per hypothesis, the one of its solutions that widens it least (each is
+    a bound under the hypothesis); a hypothesis without a solution is the other checks' to find."""
+    out = {}
+    for j, m in models.items():
+        if not m.relative:
+            continue
+        for mode in sorted(ABSORBED & set(m.faults)):
+            if mode in PERSISTENT:
+                valid = [k for k, sm in subs.items() if sm.sensor != j or k == f"{j}/{mode}"]
+            else:
+                valid = [k for k, sm in subs.items() if sm.sensor != j and k == sm.sensor
+                         and not ABSORBED & set(models[sm.sensor].faults)]
+            if valid:
+                out[f"{j}/{mode}"] = tuple(valid)
     return out
 
 

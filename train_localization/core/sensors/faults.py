@@ -44,3 +44,7 @@ SPEED = frozenset(mode.name for mode in CATALOGUE if mode.effect == "speed")
 ADHESION = frozenset(("slip", "slide"))
 # speed faults that persist: nothing but a fix or another speed source can show them
 PERSISTENT = frozenset(mode.name for mode in CATALOGUE if mode.effect == "speed" and mode.persistent)
+# persistent faults that are a constant scale error beyond the sensor's tolerance (a missed
+# calibration): the sensor's own dead reckoning, its scale opened by the fault's size and learnt
+# from the fixes, is a solution valid under them
+CALIBRATION = frozenset(("wear",))

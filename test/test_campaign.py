@@ -198,7 +198,7 @@ def test_highspeed_maglev_draws_cover_the_stated_ranges(draws):
 # --------------------------------------------------------------------------- scorer
 def _synthetic():
     """10 s at 200 Hz, truth at 10 m/s; INITIALISING for the first 100 states, then errors 0 except
-    +5 m in states 400..549 (0.75 s) and -6 m in 1200..1229 (0.15 s), 1-sigma 1 m; speed error
+    +5 m in states 400..549 (0.75 s, NOMINAL) and -6 m in 1200..1229 (0.15 s, DEGRADED), 1-sigma 1 m; speed error
     1.0 m/s in states 1500..1519."""
     t = np.arange(2001) * 0.005
     s_true, v_true = 10.0 * t, np.full(t.size, 10.0)
@@ -208,6 +208,7 @@ def _synthetic():
     pos = s_true + err
     mode = np.full(t.size, float(MODE_NOMINAL))
     mode[:100] = MODE_INITIALISING
+    mode[1200:1230] = MODE_DEGRADED   # the second excursion is flagged
     pos[:100] = np.nan
     sd = np.ones(t.size)
     half = 3.2905
@@ -226,6 +227,7 @@ def test_scorer_exact_on_a_synthetic_series():
     claimed = 2001 - 100
     assert out["states_with_position"] == claimed
     assert out["integrity"]["outside_count"] == 180
+    assert out["integrity"]["outside_nominal"] == 150     # the DEGRADED excursion is not counted
     assert out["integrity"]["inside_fraction"] == pytest.approx(1 - 180 / claimed, abs=1e-12)
     ex = out["excursions"]
     assert ex["count"] == 2 and ex["longest_states"] == 150
@@ -248,7 +250,7 @@ def test_scorer_exact_on_a_synthetic_series():
     speed = out["speed_interval"]   # 1.0 m/s off at 0.1 m/s claimed: 10 sigma, beyond z = 3.29
     assert speed["states"] == 2001 - 100 and speed["outside"] == 10
     assert speed["max_normalised"] == pytest.approx(10.0)
-    assert out["mode_fractions"] == {"0": 100 / 2001, "1": claimed / 2001}
+    assert out["mode_fractions"] == {"0": 100 / 2001, "1": (claimed - 30) / 2001, "2": 30 / 2001}
     assert out["first_position_s"] == pytest.approx(0.5)
     pairs = out["error_vs_half_width"]
     assert 180 <= len(pairs["error_m"]) <= 600 and np.allclose(pairs["half_width_m"], 3.2905)
@@ -335,6 +337,21 @@ def test_summarise_rebuilds_the_summary_from_the_run_files(pool_campaign, tmp_pa
     assert a["longest_excursion"]["s"] == b["longest_excursion"]["s"]
     assert b["cpu_s"]["total"] == pytest.approx(a["cpu_s"]["total"]) and second["passed"] == first["passed"]
     assert tool.main(["--summarise", str(tmp_path / "empty")]) == 2
+
+
+def test_a_state_outside_while_nominal_fails_the_campaign(pool_campaign):
+    """The truth outside a NOMINAL interval, in any run, is a failed target (what a train
+    protection would act on unwarned), however few such states there are."""
+    out, _ = pool_campaign
+    results = [json.loads(p.read_text()) for p in sorted((out / "runs").glob("*.json"))]
+    clean = campaign.summarise(results)
+    assert clean["checks"]["none_outside_nominal"] == (clean["all"]["outside_nominal"] == 0)
+    hit = results[0]
+    hit["scores"]["integrity"]["outside_nominal"] = 3
+    s = campaign.summarise(results)
+    assert s["all"]["outside_nominal"] == clean["all"]["outside_nominal"] + 3
+    assert [hit["family"], hit["seed"], 3] in s["all"]["runs_outside_nominal"]
+    assert s["checks"]["none_outside_nominal"] is False and s["passed"] is False
 
 
 def test_export_round_trip(tmp_path, capsys):

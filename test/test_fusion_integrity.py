@@ -12,6 +12,7 @@ import yaml
 
 from train_localization.core import campaign
 from train_localization.core.fusion import separation
+from train_localization.core.fusion.bookkeeping import View
 from train_localization.core.fusion import (MODE_DEGRADED, MODE_INITIALISING, MODE_LOST, MODE_NOMINAL, FusionConfig,
                                           TrainFilter, sensor_models)
 from train_localization.core.measurements import DistanceIncrement, PositionFix, SpeedMeasurement
@@ -281,7 +282,8 @@ def test_an_alternative_view_that_stops_being_tracked_stays_inside_the_interval(
         f.add(SpeedMeasurement(t - 0.025, "doppler", "d", 20.0, 0.05))
     before = f.state(1.0)[1][0, 0]
     D = -4.0   # the radar ran 4 m behind over 5 km while it was excluded (its scale: 0.5 %, 27 m)
-    f.aux.relative_alternatives = {"doppler": (D, 0.01, 0.0, 1.0, 5000.0, D, 0.01)}
+    f.aux.relative_alternatives = {"doppler": View(separation=D, white_var=0.01, since=0.0, last=1.0, run=5000.0,
+                                                  farthest=D, base=0.01)}
     f.add(SpeedMeasurement(1.025, "doppler", "d", 20.0, 0.05))
     after = f.estimate(1.05)
     assert f.counters()["integrity"]["alternative_merged"] == 1
@@ -300,7 +302,8 @@ def test_an_excluded_sensors_view_keeps_its_farthest_separation():
     f = TrainFilter(FusionConfig(sensors=models))
     f.reset(position=0.0, position_stddev=0.1, speed=20.0, speed_stddev=0.05, stamp=0.0)
     f.add(SpeedMeasurement(0.025, "doppler", "d", 20.0, 0.05))
-    f.aux.relative_alternatives = {"wheel": (-1.0, 0.0, 0.0, 0.025, 0.0, -3.0, 0.01)}
+    f.aux.relative_alternatives = {"wheel": View(separation=-1.0, white_var=0.0, since=0.0, last=0.025, run=0.0,
+                                                farthest=-3.0, base=0.01)}
     e = f.estimate(0.05)
     assert e.position_min <= e.position - 3.0 - 2.5 * 0.1 and e.position_max < e.position + 1.0
     assert e.mode == MODE_DEGRADED

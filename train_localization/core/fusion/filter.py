@@ -2,7 +2,8 @@
 handling and a fault policy that never leaves it confidently wrong.
 
 State, process and measurement models: layout.py and models.py, built from the error
-models of the configured sensors (config.py). Late data: history.py. The update is our
+models of the configured sensors (config.py). Late data: history.py; the bookkeeping that
+rolls back with the state: bookkeeping.py. The update is our
 own scalar form of filterpy's ``ExtendedKalmanFilter.update`` (Joseph form; a test
 checks that they agree), because the rollback re-applies every measurement of the
 last ~200 ms many times. Why an EKF and not a UKF: the only nonlinearity is the
@@ -135,6 +136,8 @@ from scipy.stats import chi2, norm
 from ..measurements import MAX_SPEED, PositionFix
 from ..sensors import faults as fault_modes
 from ..signals import InputRejected
+from .bookkeeping import (Bookkeeping, Candidate, Fault, FaultWindow, LoneView, ModelView, MovedView, NisSum,
+                          PeerRun, PeerSpeed, Suspension, UnexplainedFix, View, ViewSpeed, WindowEntry)
 from .config import FusionConfig, gate_probability
 from .history import History, order_key
 from .layout import StateLayout
@@ -179,90 +182,6 @@ _MAX_MOTION_VIEWS = 4
 
 
 
-class _Aux:
-    """Bookkeeping that rolls back with x and P. Copy-on-write: ``copy`` is shallow and the
-    containers are never changed in place, only replaced."""
-
-    __slots__ = ("initialised", "t", "last_accepted", "slip_until", "accepted", "gated", "slips",
-                 "speed_sources", "nis", "fix_ref", "last_fix_accepted", "fix_nis", "slip_window",
-                 "alternative", "events", "unverified", "s_last_fix", "relative_alternatives", "suspended",
-                 "candidate", "used_refs", "peer_speeds", "peer_run", "motion_views", "view_speeds",
-                 "episode_views", "fault_windows", "subs", "fix_bias_nis", "lone_view", "scale_faults",
-                 "impacts")
-
-    def __init__(self):
-        self.initialised = False
-        self.t: float | None = None           # time of x, P [s]
-        self.last_accepted: dict[str, float] = {}
-        self.slip_until: dict[str, float] = {}
-        self.accepted: dict[str, int] = {}
-        self.gated: dict[str, int] = {}
-        self.slips = 0
-        self.speed_sources: frozenset = frozenset()   # classes that gave speed/distance
-        self.nis: dict[str, tuple[int, float]] = {}   # sensor -> (count, sum of NIS) of accepted ones
-        self.fix_ref: dict[str, str] = {}              # sensor -> reference of its current fix bias
-        self.last_fix_accepted = -math.inf
-        self.fix_nis: tuple = ()                       # NIS of the last accepted absolute fixes
-        self.fix_bias_nis: dict[str, tuple] = {}       # the same per sensor with a fix-bias state
-        self.slip_window: dict[str, tuple] = {}        # sensor -> ((stamp, e d, S d^2), ...)
-        # unexplained fix: (stamp, z, R, s, P00, sensor, ref, the speed sources whose scale was
-        # opened for it: a scale fault of theirs explains it)
-        self.alternative: tuple | None = None
-        self.events: dict[str, int] = {}
-        self.unverified = ""                           # why the filter awaits a confirming fix
-        self.s_last_fix = math.nan                     # filter position after the last accepted fix
-        # sensors excluded although their disagreement does not look like a slip: the other speed
-        # sources may be the wrong ones: sensor -> (distance it ran ahead D [m], white variance
-        # of D [m^2], since [s], last stamp [s], distance run [m], the D farthest from 0 so far [m],
-        # the filter's position variance when the view began or a fix last located it [m^2])
-        self.relative_alternatives: dict[str, tuple] = {}
-        # the speed each of those sensors last read -> (stamp [s], speed [m/s], its own variance
-        # [m^2/s^2]): the published speed uncertainty covers it while its view is undecided
-        self.view_speeds: dict[str, tuple] = {}
-        # a sensor excluded for a slip or slide (its own fault, not kept in the interval): its
-        # view all the same, in the format of relative_alternatives; and each excluded sensor
-        # with a bounded fault duration: ((the other source, whether it is in use), its first
-        # excluded reading [s], disagreement window, readings n, and the sums of e v / S, v^2 / S,
-        # e^2 / S of its disagreements e [m/s] at the other's speeds v [m/s], S their variances:
-        # the fit of a scale error of the other source; ``_outlasted``)
-        self.episode_views: dict[str, tuple] = {}
-        self.fault_windows: dict[str, tuple] = {}
-        self.candidate: tuple | None = None             # first fix awaiting confirmation
-        self.used_refs: tuple = ()                     # (sensor, reference) of the last accepted fixes
-        # speed sources found faulty -> (agreeing since [s], window, fault seen: (disagreement [m/s],
-        # at speed [m/s]) or None)
-        self.suspended: dict[str, tuple] = {}
-        # while no speed source is accepted: each excluded one's last reading -> (stamp [s], speed
-        # [m/s], white and common variance [m^2/s^2]), and the run of agreement
-        # of a pair: ((sensor, sensor), first and last stamp [s], readings, sum of differences, of white variances)
-        self.peer_speeds: dict[str, tuple] = {}
-        self.peer_run: tuple | None = None
-        # the motion model's own hypotheses of coastings between disagreeing speed sources, each
-        # ("model", t [s], s [m], v [m/s], a [m/s^2], (P00, P01, P02, P11, P12, P22)) from the start
-        # of a coasting in progress, or ("moved", s [m], var [m^2], filter s [m], filter P00 [m^2],
-        # common scale error r [1] and its variance, until [s]) at its end, since moved with the filter
-        self.motion_views: tuple = ()
-        # each relative sensor's own solution from the fixes (separation.py): sensor -> Sub
-        self.subs: dict = {}
-        # while one relative sensor with a persistent fault mode carries the speed alone: the
-        # solution without it (the fixes and the motion model, ``_track_lone``): (a "model"
-        # motion view since that sensor became the lone one, the sensor, the bound [m] of the
-        # position error a scale fault of z x its scale_fault_sigma can have put into the
-        # filter: growing with the distance run, each accepted fix taking out its gain's share)
-        self.lone_view: tuple | None = None
-        # speed sources whose scale fault the others showed and whose constant scale now learns
-        # it (``_relearn_fault``): their scale is plausible up to the fault's size
-        self.scale_faults: frozenset = frozenset()
-        # the persistent-fault hypotheses of the relative sensors (impact.py Bank), None before any
-        self.impacts = None
-
-    def copy(self) -> "_Aux":
-        new = object.__new__(_Aux)
-        for name in _Aux.__slots__:
-            setattr(new, name, getattr(self, name))
-        return new
-
-
 def _kinematic_covariance(P) -> tuple:
     """(P00, P01, P02, P11, P12, P22) of the position, speed and acceleration states, as floats."""
     (p00, p01, p02), (_, p11, p12), (_, _, p22) = P[:3, :3].tolist()
@@ -283,36 +202,36 @@ def _kinematics(s: float, v: float, a: float, p: tuple, dt: float, q: float) -> 
     return (*kinematic_mean(s, v, a, dt), var_s, var_v)
 
 
-def _coasting(aux: _Aux) -> bool:
+def _coasting(aux: Bookkeeping) -> bool:
     """Whether the filter coasts between disagreeing speed sources (a motion-model hypothesis
     of a coasting in progress)."""
-    return bool(aux.motion_views) and aux.motion_views[-1][0] == "model"
+    return bool(aux.motion_views) and isinstance(aux.motion_views[-1], ModelView)
 
 
-def _speed_excluded(aux: _Aux, cls: str, stamp: float) -> bool:
+def _speed_excluded(aux: Bookkeeping, cls: str, stamp: float) -> bool:
     """Whether speed source ``cls`` is excluded at ``stamp`` (suspended, or in a slip episode)."""
     return cls in aux.suspended or aux.slip_until.get(cls, -math.inf) > stamp
 
 
 def _without(mapping: dict, key: str) -> dict:
-    """A copy of ``mapping`` without ``key`` (the _Aux containers are replaced, never changed)."""
+    """A copy of ``mapping`` without ``key`` (the Bookkeeping containers are replaced, never changed)."""
     return {k: v for k, v in mapping.items() if k != key}
 
 
-def _new_view(stamp: float, P00: float) -> tuple:
+def _new_view(stamp: float, P00: float) -> View:
     """A relative sensor's view as it begins at ``stamp`` [s], the filter's position variance
-    P00 [m^2] its base (the format of ``_Aux.relative_alternatives``)."""
-    return (0.0, 0.0, stamp, stamp, 0.0, 0.0, P00)
+    P00 [m^2] its base."""
+    return View(0.0, 0.0, stamp, stamp, 0.0, 0.0, P00)
 
 
-def _fault_at(fault: tuple, speed: float) -> float:
-    """The size [m/s] at ``speed`` [m/s] of a fault seen as a disagreement e0 at speed v0
-    (fault = (e0, v0)): a scale error (e0 v / v0) or a bias (e0), the smaller of the two."""
-    e0, v0 = abs(fault[0]), abs(fault[1])
+def _fault_at(fault: Fault, speed: float) -> float:
+    """The size [m/s] at ``speed`` [m/s] of a fault seen as a disagreement e0 at speed v0:
+    a scale error (e0 v / v0) or a bias (e0), the smaller of the two."""
+    e0, v0 = abs(fault.disagreement), abs(fault.speed)
     return e0 * (min(1.0, abs(speed) / v0) if v0 > 0.0 else 1.0)
 
 
-def _shows(fault: tuple | None, speed: float, variance: float, gate: float) -> bool:
+def _shows(fault: Fault | None, speed: float, variance: float, gate: float) -> bool:
     """Whether a fault (``_fault_at``) at ``speed`` [m/s] stands out of a test statistic of
     ``variance`` [m^2/s^2] at the chi-square ``gate``; None (size unknown) counts as shown."""
     if fault is None:
@@ -381,7 +300,7 @@ class TrainFilter:
     # -- state handling --------------------------------------------------------
     def _initial_state(self):
         P = self.layout.prior_covariance(self.cfg.initial_speed_stddev, self.cfg.initial_accel_stddev)
-        return np.zeros((self.n, 1)), P, _Aux()
+        return np.zeros((self.n, 1)), P, Bookkeeping()
 
     def _clear(self, base) -> None:
         self.hist = History(self.cfg.history, base)
@@ -429,9 +348,9 @@ class TrainFilter:
                 aux.impacts = impact.started(aux.impacts, self._fault_bounds, t, self.n, self.cfg.fault_onsets,
                                              self._z)
             if aux.lone_view is not None:   # what a lone source's scale fault adds over the distance
-                view, lone, bound = aux.lone_view
-                step = self._z * self.models[lone].scale_fault_sigma * abs(float(self.ekf.x[0, 0] - s0))
-                aux.lone_view = (view, lone, bound + step)
+                lone = aux.lone_view
+                step = self._z * self.models[lone.sensor].scale_fault_sigma * abs(float(self.ekf.x[0, 0] - s0))
+                aux.lone_view = lone._replace(bound=lone.bound + step)
 
     # -- measurement update ----------------------------------------------------
     def _update(self, z: float, R: float, h, hx: float, PHt, S: float) -> None:
@@ -478,13 +397,13 @@ class TrainFilter:
             # a speed source is in use again: the coasting ends, its motion-model hypothesis moves
             # with the filter from now on until a fix rules it out
             aux.motion_views = aux.motion_views[:-1] + (self._coasting_ended(aux.motion_views[-1], m.stamp),)
-        if any(v[0] == "moved" and v[7] <= m.stamp for v in aux.motion_views):
+        if any(isinstance(v, MovedView) and v.until <= m.stamp for v in aux.motion_views):
             # past the longest episode of a transient fault the sources in use may share: their
             # common error no longer grows; the hypothesis moves with the filter from here
             s_f, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
             aux.motion_views = tuple(
-                ("moved", *self._motion_view(v, m.stamp, s_f, P00), s_f, P00, 0.0, 0.0, math.inf)
-                if v[0] == "moved" and v[7] <= m.stamp else v for v in aux.motion_views)
+                MovedView(*self._motion_view(v, m.stamp, s_f, P00), s_f, P00, 0.0, 0.0, math.inf)
+                if isinstance(v, MovedView) and v.until <= m.stamp else v for v in aux.motion_views)
         z, R, h, hx, PHt, S = self._innovation(m)
         if is_fix and aux.motion_views:
             # a fix rules out the motion-model hypotheses it does not fit
@@ -500,10 +419,10 @@ class TrainFilter:
                 and not self._agreement_reference(m, S) and self._blind_speed(m, z, R):
             z, R, h, hx, PHt, S = self._innovation(m)   # at the re-acquired speed
         nis = (z - hx) ** 2 / S
-        if is_fix and nis <= self._gates[cls] and any(v[0] == "moved" for v in aux.motion_views):
+        if is_fix and nis <= self._gates[cls] and any(isinstance(v, MovedView) for v in aux.motion_views):
             # the filter, on its speed sources again, explains an absolute fix: it is confirmed,
             # and an old coasting's motion-model hypothesis (however vague) is no longer needed
-            aux.motion_views = tuple(v for v in aux.motion_views if v[0] != "moved")
+            aux.motion_views = tuple(v for v in aux.motion_views if not isinstance(v, MovedView))
         checked = self.ekf.P
         excluded = cls in aux.suspended and self._suspended(m, z - hx, S, nis, self._common(cls, h))
         if not excluded and self.ekf.P is not checked:   # back with its scale opened (_relearn_fault)
@@ -520,7 +439,7 @@ class TrainFilter:
             nis = (z - hx) ** 2 / S
         if is_fix and aux.relative_alternatives and self._decide_relative(m, z, R, hx, S, nis):
             return
-        if is_fix and aux.alternative is not None and aux.alternative[7] and self._corroborated(m, z, R):
+        if is_fix and aux.alternative is not None and aux.alternative.opened and self._corroborated(m, z, R):
             # the kept fix, for which a scale was opened, and this one agree: the position from
             # them, also where the filter's opened interval would have taken this one (it would
             # learn the scale from this fix against a position the kept fix showed wrong)
@@ -537,8 +456,8 @@ class TrainFilter:
         self._update(z, R, h, hx, PHt, S)
         if is_fix and nis > 1.0 and cls not in self.layout.fix:
             self._correction_unconfirmed(x_before, nis)
-        count, total = aux.nis.get(cls, (0, 0.0))
-        aux.nis = {**aux.nis, cls: (count + 1, total + nis)}
+        seen = aux.nis.get(cls, NisSum(0, 0.0))
+        aux.nis = {**aux.nis, cls: NisSum(seen.count + 1, seen.total + nis)}
         aux.accepted = _inc(aux.accepted, cls)
         aux.last_accepted = {**aux.last_accepted, cls: m.stamp}
         if cls in aux.episode_views or cls in aux.fault_windows:
@@ -574,7 +493,7 @@ class TrainFilter:
         # that it agrees again: the filter's speed rests on the motion model or on a coasting
         # between excluded sources (its holdoff may have passed without a measurement: a dropout)
         accepted = aux.last_accepted.get(cls, -math.inf)
-        out = (alt is not None and accepted < alt[2]) or \
+        out = (alt is not None and accepted < alt.since) or \
             accepted < aux.slip_until.get(cls, -math.inf) - cfg.slip_holdoff
         undecided = out and not self._agreement_reference(m, S)
         if aux.slip_until.get(cls, -math.inf) > m.stamp or undecided:
@@ -584,12 +503,12 @@ class TrainFilter:
             aux.gated = _inc(aux.gated, cls + "/slip")
             self._separate(m, e, S)
             return True
-        if alt is not None and alt[5] ** 2 <= self._slip_gate * self._alternative_spread(cls, alt)[1]:
+        if alt is not None and alt.farthest ** 2 <= self._slip_gate * self._alternative_spread(cls, alt)[1]:
             # the episode ended with a separation that the sensor's own errors explain: no longer
             # tracked as a view of its own, but merged into the position covariance (moment
             # matching of the two views, the filter's mean kept), so the interval still covers it
             aux.relative_alternatives = _without(aux.relative_alternatives, cls)
-            self._merge_view(alt[5] ** 2)
+            self._merge_view(alt.farthest ** 2)
         window, summed = self._windowed(aux.slip_window.get(cls, ()), m, e, S)
         if (nis > self._slip_gate or summed > self._slip_gate) and not self._judged(cls):
             # the only speed source, without slip physics (``_judged``): an outlying reading is
@@ -603,7 +522,7 @@ class TrainFilter:
         if nis > self._slip_gate or summed > self._slip_gate:
             aux.slip_window = {**aux.slip_window, cls: ()}
             # the disagreement that showed: this one, or the window's mean
-            shown = e if nis > self._slip_gate else sum(w[1] for w in window) / sum(w[4] for w in window)
+            shown = e if nis > self._slip_gate else sum(w.distance for w in window) / sum(w.weight for w in window)
             if cls in aux.scale_faults and self._fault_ended(m, e, S):
                 return False
             if self._refutes_model(m, shown):
@@ -611,10 +530,10 @@ class TrainFilter:
             # the onset: the increments before this one that already disagreed the same way were
             # absorbed (a slip ramps up): take them out and re-apply the history without them
             k = len(window) - 1
-            while k > 0 and (window[k - 1][1] > 0.0) == (e > 0.0):
+            while k > 0 and (window[k - 1].distance > 0.0) == (e > 0.0):
                 k -= 1
             if k < len(window) - 1:
-                raise _Lookback(cls, window[k][0], shown)
+                raise _Lookback(cls, window[k].stamp, shown)
             self._episode_starts(m, e, shown)
             aux.slip_until = {**aux.slip_until, cls: m.stamp + cfg.slip_holdoff}
             aux.gated = _inc(aux.gated, cls + "/slip")
@@ -644,7 +563,7 @@ class TrainFilter:
         in_use = self._in_use(m.stamp, but=m.sensor)
         if not in_use or not all(c in self._bounded for c in in_use):
             return False
-        since = alt[2]
+        since = alt.since
         if any(aux.slip_until.get(c, -math.inf) > since for c in in_use):
             return False
         longest = max(self.models[c].fault_duration_max for c in in_use)
@@ -758,18 +677,17 @@ class TrainFilter:
         them (scale, bias): the same error in every reading of the window, so its standard
         deviations add up where the rest's variances do (its scale error is no disagreement
         beyond its model). A sensor in use has those states learnt: its innovations are white.
-        Entries: (stamp [s], e d [m], white variance [m^2], common stddev [m], d [s], speed [m/s]),
-        d the increment's duration (1 for a speed)."""
+        Entries: WindowEntry."""
         d = getattr(m, "duration", 0.0) or 0.0
         weight = d if d > 0.0 else 1.0
-        window = tuple(w for w in window if w[0] > m.stamp - self.cfg.slip_window)
+        window = tuple(w for w in window if w.stamp > m.stamp - self.cfg.slip_window)
         speed = abs(float(self.ekf.x[1, 0]))
-        window += ((m.stamp, e * weight, (S - common) * weight * weight, math.sqrt(common) * weight,
-                    weight, speed),)
+        window += (WindowEntry(m.stamp, e * weight, (S - common) * weight * weight, math.sqrt(common) * weight,
+                               weight, speed),)
         if len(window) < 3:
             return window, 0.0
-        var = sum(w[2] for w in window) + sum(w[3] for w in window) ** 2
-        return window, sum(w[1] for w in window) ** 2 / var
+        var = sum(w.white_var for w in window) + sum(w.common_sd for w in window) ** 2
+        return window, sum(w.distance for w in window) ** 2 / var
 
     def _common(self, cls: str, h) -> float:
         """The part [m^2/s^2] of a relative measurement's innovation variance that its sensor's
@@ -801,7 +719,7 @@ class TrainFilter:
         if not physical and m.sensor not in aux.suspended:
             # suspected faulty: back only after agreeing for slip_window s without being applied
             # (one reading that slips through the gate would be adopted at full weight)
-            self._suspend(m.sensor, (shown, float(self.ekf.x[1, 0])))
+            self._suspend(m.sensor, Fault(shown, float(self.ekf.x[1, 0])))
 
     def _separate(self, m, e: float, S: float) -> None:
         """While a sensor is excluded as the alternative (or for its own slip: ``episode_views``),
@@ -814,20 +732,20 @@ class TrainFilter:
             alt = aux.episode_views.get(m.sensor)
             if alt is None:
                 return
-        D, white, since, last, run, far, base = alt
         d = getattr(m, "duration", 0.0)
         if not d:
             # a speed holds since the previous one, not across a silence (a radar below its
             # minimum speed at a stop): there the sensor told nothing, as in its own solution
-            d = m.stamp - last if m.stamp - last <= separation.SPEED_GAP else 0.0
+            d = m.stamp - alt.last if m.stamp - alt.last <= separation.SPEED_GAP else 0.0
         R = max(S - float(self.ekf.P[1, 1]), 0.0)              # its own noise (speed units), roughly
-        D += e * d
-        view = (D, white + R * d * d, since, m.stamp, run + abs(float(self.ekf.x[1, 0])) * d,
-                D if abs(D) > abs(far) else far, base)
+        D = alt.separation + e * d
+        view = alt._replace(separation=D, white_var=alt.white_var + R * d * d, last=m.stamp,
+                            run=alt.run + abs(float(self.ekf.x[1, 0])) * d,
+                            farthest=D if abs(D) > abs(alt.farthest) else alt.farthest)
         if own:
             aux.episode_views = {**aux.episode_views, m.sensor: view}
             return
-        aux.view_speeds = {**aux.view_speeds, m.sensor: (m.stamp, float(self.ekf.x[1, 0]) + e, R)}
+        aux.view_speeds = {**aux.view_speeds, m.sensor: ViewSpeed(m.stamp, float(self.ekf.x[1, 0]) + e, R)}
         aux.relative_alternatives = {**aux.relative_alternatives, m.sensor: view}
 
     def _outlasted(self, m, z: float, R: float, hx: float, S: float, h) -> None:
@@ -847,35 +765,36 @@ class TrainFilter:
         view = aux.relative_alternatives.get(cls) or aux.episode_views.get(cls)
         recent = stamp - self.cfg.slip_reference_timeout
         in_use = self._in_use(stamp, but=cls)
-        peers = [c for c, p in aux.peer_speeds.items() if c != cls and p[0] > recent]
+        peers = [c for c, p in aux.peer_speeds.items() if c != cls and p.stamp > recent]
         other = None
         if view is not None and len(in_use) == 1:
             other, e, v, var, common = in_use[0], z - hx, float(self.ekf.x[1, 0]), S, self._common(cls, h)
         elif view is not None and not in_use and _coasting(aux) and len(peers) == 1 and cls in aux.peer_speeds:
             other = peers[0]
-            _, u, white, common = aux.peer_speeds[cls]
-            _, v, white_o, common_o = aux.peer_speeds[other]
-            e, common = u - v, common + common_o
-            var = white + white_o + common
+            own, peer = aux.peer_speeds[cls], aux.peer_speeds[other]
+            v = peer.speed
+            e, common = own.speed - v, own.common_var + peer.common_var
+            var = own.white_var + peer.white_var + common
         if other is None or "scale_fault" not in self.models[other].faults:
             # the evidence counts only while it is one source with a persistent fault mode
             if cls in aux.fault_windows:
                 aux.fault_windows = _without(aux.fault_windows, cls)
             return
         record = aux.fault_windows.get(cls)
-        if record is None or record[0] != (other, bool(in_use)):
-            record = ((other, bool(in_use)), stamp, (), 0, 0.0, 0.0, 0.0)
-        key, since, window, n, s_ev, s_vv, s_ee = record
-        window, summed = self._windowed(window, m, e, var, common)
-        n, s_ev, s_vv, s_ee = n + 1, s_ev + e * v / var, s_vv + v * v / var, s_ee + e * e / var
-        aux.fault_windows = {**aux.fault_windows, cls: (key, since, window, n, s_ev, s_vv, s_ee)}
+        if record is None or record.against != (other, bool(in_use)):
+            record = FaultWindow((other, bool(in_use)), stamp, (), 0, 0.0, 0.0, 0.0)
+        window, summed = self._windowed(record.window, m, e, var, common)
+        record = record._replace(window=window, n=record.n + 1, sum_ev=record.sum_ev + e * v / var,
+                                 sum_vv=record.sum_vv + v * v / var, sum_ee=record.sum_ee + e * e / var)
+        aux.fault_windows = {**aux.fault_windows, cls: record}
+        n, s_ev, s_vv = record.n, record.sum_ev, record.sum_vv
         # the whole window past the longest episode the sensor's model allows
         if summed <= self._slip_gate or n < 3 or s_vv <= 0.0 or \
-                stamp - self.cfg.slip_window - since <= self.models[cls].fault_duration_max:
+                stamp - self.cfg.slip_window - record.since <= self.models[cls].fault_duration_max:
             return
         # a scale error of the other source is one ratio throughout; a chain of slips is not
         # (their ratios differ, and each ramps down to none): the residual of that fit
-        if s_ee - s_ev * s_ev / s_vv <= chi2.ppf(self.cfg.slip_gate_probability, n - 1):
+        if record.sum_ee - s_ev * s_ev / s_vv <= chi2.ppf(self.cfg.slip_gate_probability, n - 1):
             if in_use:
                 self._swap(m, z, R, view, other)
             else:
@@ -891,17 +810,17 @@ class TrainFilter:
         ``m.sensor``'s fault cannot go on, so it shares no error with it from now on. The
         filter awaits a fix (DEGRADED)."""
         aux, cls, stamp = self.aux, m.sensor, m.stamp
-        _, u, white, common = aux.peer_speeds[cls]
+        own = aux.peer_speeds[cls]
         if other not in aux.suspended:
-            self._suspend(other, (-e, v))
+            self._suspend(other, Fault(-e, v))
         aux.fault_windows = _without(aux.fault_windows, cls)
-        self._take_speed(stamp, [(u, white + common)], {cls})
+        self._take_speed(stamp, [(own.speed, own.white_var + own.common_var)], {cls})
         moved = aux.motion_views[-1] if aux.motion_views else None
-        if moved is not None and moved[0] == "moved":
-            aux.motion_views = aux.motion_views[:-1] + (moved[:5] + (0.0, 0.0, math.inf),)
+        if isinstance(moved, MovedView):
+            aux.motion_views = aux.motion_views[:-1] + (moved._replace(r=0.0, var_r=0.0, until=math.inf),)
         aux.events = _inc(aux.events, "transient_fault_outlasted")
 
-    def _swap(self, m, z: float, R: float, view: tuple, other: str) -> None:
+    def _swap(self, m, z: float, R: float, view: View, other: str) -> None:
         """The excluded sensor ``m.sensor`` was right and ``other``, the speed source in use, is
         faulty: the filter takes the excluded sensor's view (its separation D added to the
         position, the view's spread to the position variance, the speed from this reading), and
@@ -909,12 +828,12 @@ class TrainFilter:
         suspended for the fault seen. The interval keeps covering both until a fix decides; the
         filter awaits one (DEGRADED)."""
         aux, cls, stamp = self.aux, m.sensor, m.stamp
-        D, white, since, last, run, _, base = view
+        D = view.separation
         var_D = self._alternative_spread(cls, view)[1]
         u, u_white, u_common = implied_speed(self.layout, self.ekf.x, self.ekf.P, m, z, R)
         x, P = self.ekf.x.copy(), self.ekf.P.copy()
         x[0, 0] += D
-        P[0, 0] = max(P[0, 0], base + var_D)
+        P[0, 0] = max(P[0, 0], view.base + var_D)
         # its speed, a new error; the acceleration, which a scale error hardly changes, is kept
         x[1, 0] = u
         P[1, :] = 0.0
@@ -923,7 +842,7 @@ class TrainFilter:
         self.ekf.x, self.ekf.P = x, P
         aux.impacts = impact.speed_set(aux.impacts, u)
         aux.relative_alternatives = {**_without(aux.relative_alternatives, cls),
-                                     other: (-D, white, since, last, run, -D, base)}
+                                     other: view._replace(separation=-D, farthest=-D)}
         aux.episode_views = _without(aux.episode_views, cls)
         aux.fault_windows = _without(aux.fault_windows, cls)
         aux.view_speeds = _without(aux.view_speeds, cls)
@@ -933,12 +852,11 @@ class TrainFilter:
         aux.events = _inc(aux.events, "speed_sources_swapped")
         aux.unverified = "speed_sources_swapped"
 
-    def _alternative_spread(self, cls: str, alt: tuple) -> tuple[float, float]:
+    def _alternative_spread(self, cls: str, alt: View) -> tuple[float, float]:
         """(separation D [m], its variance [m^2]) of a relative alternative."""
-        D, white, _, _, run, _, _ = alt
         model = self.models[cls]
         scale = model.scale_sigma + model.scale_offset_sigma
-        return D, white + (scale * run) ** 2
+        return alt.separation, alt.white_var + (scale * alt.run) ** 2
 
     def _decide_relative(self, m, z: float, R: float, hx: float, S: float, nis: float) -> bool:
         """An absolute fix decides between the filter and the excluded sensors' views. True if
@@ -955,7 +873,7 @@ class TrainFilter:
             # the view's position: the filter's when it began (or was last located by a fix),
             # moved by its own sensor since; the filter's uncertainty from a coasting since is
             # not the view's
-            S_v = min(S, R + alt[6]) + var_D
+            S_v = min(S, R + alt.base) + var_D
             fits = (z - hx - D) ** 2 / S_v
             # -2 ln of the fix's likelihood under the view against under the filter: a view wide
             # with its own scale error still "fits" a precise fix that the filter explains far better
@@ -973,8 +891,8 @@ class TrainFilter:
                     keep[cls] = view
                 else:
                     # its sensor in use again and both located by the fix: merged (moment matching)
-                    self._merge_view(view[0] ** 2 + view[1])
-            elif explained or m.stamp - alt[2] > self.cfg.branch_timeout:
+                    self._merge_view(view.separation ** 2 + view.white_var)
+            elif explained or m.stamp - alt.since > self.cfg.branch_timeout:
                 # the filter explains the fix and this excluded sensor's view does not (or far
                 # worse): it was faulty
                 aux.events = _inc(aux.events, "excluded_sensor_confirmed_faulty")
@@ -997,11 +915,11 @@ class TrainFilter:
             aux.relative_alternatives = dict(aux.relative_alternatives)
             self._end_exclusion(cls, m.stamp)
             reading = aux.peer_speeds.get(cls)
-            if reading is not None and reading[0] > m.stamp - self.cfg.slip_reference_timeout:
-                self._set_speed([(reading[1], reading[2] + reading[3])])   # its speed, not the middle
+            if reading is not None and reading.stamp > m.stamp - self.cfg.slip_reference_timeout:
+                self._set_speed([(reading.speed, reading.white_var + reading.common_var)])   # its speed, not the middle
             aux.slip_window = _without(aux.slip_window, cls)
             if view is not None:
-                self._merge_view(view[0] ** 2 + view[1])
+                self._merge_view(view.separation ** 2 + view.white_var)
             aux.events = _inc(aux.events, "excluded_sensor_confirmed_right")
             return False
         if explained or not fitting:
@@ -1011,7 +929,7 @@ class TrainFilter:
         # an excluded sensor was right: the other speed sources are faulty
         cls = min(fitting)[1]
         fault = self._view_fault(aux.relative_alternatives[cls], m.stamp)
-        fault = None if fault is None else (-fault[0], fault[1])   # the others ran behind it
+        fault = None if fault is None else Fault(-fault.disagreement, fault.speed)   # the others ran behind it
         self._set_position(m)
         self._relearn("speed_source_faulty")
         aux.relative_alternatives = {}
@@ -1039,7 +957,7 @@ class TrainFilter:
         self.aux.events = _inc(self.aux.events, "alternative_merged")
 
     @staticmethod
-    def _view_conditioned(alt: tuple, D: float, var_D: float, nu: float, S: float, R: float) -> tuple:
+    def _view_conditioned(alt: View, D: float, var_D: float, nu: float, S: float, R: float) -> View:
         """An excluded sensor's view (separation D [m], variance var_D [m^2]) after a fix of
         innovation nu [m] and innovation variance S = A + R [m^2] that the filter applies: the
         view's position, predicted with variance A + var_D, and the filter's are both updated
@@ -1049,20 +967,20 @@ class TrainFilter:
         S_v = S + var_D
         D_new = D + (A + var_D) / S_v * (nu - D) - A / S * nu
         var_new = max(R * ((A + var_D) / S_v - A / S), 0.0)
-        return (D_new, var_new, alt[2], alt[3], 0.0, D_new, A * R / S if S > 0.0 else 0.0)
+        return View(D_new, var_new, alt.since, alt.last, 0.0, D_new, A * R / S if S > 0.0 else 0.0)
 
-    def _suspend(self, cls: str, fault: tuple | None) -> None:
-        """Suspend speed source ``cls`` for the fault seen: (disagreement [m/s], at speed [m/s]),
-        or None if its size is not known, if its own error model explains it (within the slip
-        gate of the spread its scale and bias priors give at that speed), or if the sensor has
-        no persistent fault mode (a wheel: a slip or slide ends with the adhesion, and the
-        others may have been the wrong ones): such a disagreement needs no proof of its absence
-        before the sensor is back (a wheel that agrees at a standstill is back)."""
+    def _suspend(self, cls: str, fault: Fault | None) -> None:
+        """Suspend speed source ``cls`` for the fault seen, or None if its size is not known, if
+        its own error model explains it (within the slip gate of the spread its scale and bias
+        priors give at that speed), or if the sensor has no persistent fault mode (a wheel: a
+        slip or slide ends with the adhesion, and the others may have been the wrong ones): such
+        a disagreement needs no proof of its absence before the sensor is back (a wheel that
+        agrees at a standstill is back)."""
         persistent = "scale_fault" in self.models[cls].faults
         if fault is not None and (not persistent or
-                                  fault[0] ** 2 <= self._slip_gate * self._model_variance(cls, fault[1])):
+                                  fault.disagreement ** 2 <= self._slip_gate * self._model_variance(cls, fault.speed)):
             fault = None
-        self.aux.suspended = {**self.aux.suspended, cls: (math.inf, (), fault)}
+        self.aux.suspended = {**self.aux.suspended, cls: Suspension(math.inf, (), fault)}
 
     def _model_variance(self, cls: str, speed: float) -> float:
         """The variance [m^2/s^2] of relative sensor ``cls``'s reading at ``speed`` [m/s] that its
@@ -1073,24 +991,24 @@ class TrainFilter:
         return scale * speed * speed + bias
 
     @staticmethod
-    def _view_fault(alt: tuple, stamp: float) -> tuple | None:
+    def _view_fault(alt: View, stamp: float) -> Fault | None:
         """The fault an excluded sensor's view shows: its mean disagreement [m/s] at the mean
         speed [m/s] since the view began."""
-        D, _, since, _, run, _, _ = alt
-        dt = stamp - since
-        return (D / dt, run / dt) if dt > 0.0 else None
+        dt = stamp - alt.since
+        return Fault(alt.separation / dt, alt.run / dt) if dt > 0.0 else None
 
     def _suspended(self, m, e: float, S: float, nis: float, common: float) -> bool:
         """A speed source found or suspected faulty: excluded until it agrees again (neither its
         single nor its windowed disagreement test fires, with a reference to judge it by) for
         ``slip_window`` s, in a window where the fault seen would have shown (``_would_show``)."""
         aux = self.aux
-        since, window, fault = aux.suspended[m.sensor]
-        window, summed = self._windowed(window, m, e, S, common)
+        held = aux.suspended[m.sensor]
+        since, fault = held.since, held.fault
+        window, summed = self._windowed(held.window, m, e, S, common)
         if (nis > self._slip_gate or summed > self._slip_gate) and m.sensor in aux.scale_faults \
                 and self._fault_ended(m, e, S):
             # judged from its next reading on, at the scale without the fault
-            aux.suspended = {**aux.suspended, m.sensor: (math.inf, (), fault)}
+            aux.suspended = {**aux.suspended, m.sensor: Suspension(math.inf, (), fault)}
             aux.gated = _inc(aux.gated, m.sensor + "/suspended")
             self._separate(m, e, S)
             return True
@@ -1109,12 +1027,12 @@ class TrainFilter:
             aux.slip_window = {**aux.slip_window, m.sensor: window}
             aux.events = _inc(aux.events, "speed_source_restored")
             return False
-        aux.suspended = {**aux.suspended, m.sensor: (since, window, fault)}
+        aux.suspended = {**aux.suspended, m.sensor: Suspension(since, window, fault)}
         aux.gated = _inc(aux.gated, m.sensor + "/suspended")
         self._separate(m, e, S)
         return True
 
-    def _would_show(self, fault: tuple | None, window: tuple) -> bool:
+    def _would_show(self, fault: Fault | None, window: tuple) -> bool:
         """Whether the fault a sensor was suspended for, had it persisted, would stand out of the
         readings' white noise over ``window`` (noncentrality of the summed disagreement at least
         the slip gate, as when it was seen in use): agreement proves nothing where the fault
@@ -1123,8 +1041,8 @@ class TrainFilter:
         agrees at standstill."""
         if fault is None or len(window) < 3:
             return fault is None
-        shown = sum(w[4] * _fault_at(fault, w[5]) for w in window)
-        return shown * shown >= self._slip_gate * sum(w[2] for w in window)
+        shown = sum(w.weight * _fault_at(fault, w.speed) for w in window)
+        return shown * shown >= self._slip_gate * sum(w.white_var for w in window)
 
     def _blind_speed(self, m, z: float, R: float) -> bool:
         """Every speed source excluded (slip episodes, suspensions) and the filter's speed resting
@@ -1142,15 +1060,16 @@ class TrainFilter:
         aux, cfg, cls, stamp = self.aux, self.cfg, m.sensor, m.stamp
         u, white, common = implied_speed(self.layout, self.ekf.x, self.ekf.P, m, z, R)
         recent = stamp - cfg.slip_reference_timeout
-        peers = {c: p for c, p in aux.peer_speeds.items() if c != cls and p[0] > recent}
-        aux.peer_speeds = {**peers, cls: (stamp, u, white, common)}
+        peers = {c: p for c, p in aux.peer_speeds.items() if c != cls and p.stamp > recent}
+        aux.peer_speeds = {**peers, cls: PeerSpeed(stamp, u, white, common)}
         peer = self._peer_run(cls, stamp, u, white, common, peers)
         if peer is None:
             if not peers:
                 return False
-            return self._coast(stamp, [(u, white + common)] + [(p[1], p[2] + p[3]) for p in peers.values()])
+            return self._coast(stamp, [(u, white + common)] +
+                               [(p.speed, p.white_var + p.common_var) for p in peers.values()])
         p = peers[peer]
-        self._take_speed(stamp, [(u, white + common), (p[1], p[2] + p[3])], {cls, peer})
+        self._take_speed(stamp, [(u, white + common), (p.speed, p.white_var + p.common_var)], {cls, peer})
         return True
 
     def _coast(self, stamp: float, readings: list) -> bool:
@@ -1173,7 +1092,7 @@ class TrainFilter:
         self._set_speed(readings, middle=True)
         return True
 
-    def _coasting_ended(self, view: tuple, stamp: float) -> tuple:
+    def _coasting_ended(self, view: ModelView, stamp: float) -> MovedView:
         """The motion-model hypothesis of a coasting that ends at ``stamp`` [s], as it moves with
         the filter from here. The speed sources back in use were excluded for faults; that they
         now agree does not prove both right: a radar scale fault and a wheel slide of the same
@@ -1181,9 +1100,9 @@ class TrainFilter:
         (a slip ratio, a scale fault) until the shortest of their transient fault modes must
         have ended: r from the motion model's speed against theirs, combined with the prior of
         the smallest scale fault among them (a sensor without a speed fault mode rules the
-        hypothesis out: r = 0). ("moved", s [m], var [m^2], filter s [m], filter P00 [m^2],
-        r [1], var_r [1], until [s])."""
-        s_m, v_m, _, var_m, var_v = _kinematics(*view[2:5], view[5], max(stamp - view[1], 0.0), self.cfg.jerk_psd)
+        hypothesis out: r = 0)."""
+        s_m, v_m, _, var_m, var_v = _kinematics(view.s, view.v, view.a, view.cov, max(stamp - view.stamp, 0.0),
+                                                self.cfg.jerk_psd)
         s_f, v_f = float(self.ekf.x[0, 0]), float(self.ekf.x[1, 0])
         aux = self.aux
         in_use = [c for c in aux.speed_sources if not _speed_excluded(aux, c, stamp)]
@@ -1197,7 +1116,7 @@ class TrainFilter:
             var_r = 1.0 / info if info > 0.0 else math.inf
             r = var_r * (v_m - v_f) * v_f / var_v if math.isfinite(var_r) else 0.0
             until = stamp + min(md.fault_duration_max for md in models)
-        return ("moved", s_m, var_m, s_f, float(self.ekf.P[0, 0]), r, var_r, until)
+        return MovedView(s_m, var_m, s_f, float(self.ekf.P[0, 0]), r, var_r, until)
 
     def _peer_run(self, cls: str, stamp: float, u: float, white: float, common: float,
                   peers: dict) -> str | None:
@@ -1209,25 +1128,26 @@ class TrainFilter:
         scale fault "agree" with a slipping wheel as well."""
         aux, cfg, gate = self.aux, self.cfg, self._slip_gate
         run = aux.peer_run
-        fits = [c for c, p in peers.items() if (u - p[1]) ** 2 <= gate * (white + common + p[2] + p[3])]
+        fits = [c for c, p in peers.items()
+                if (u - p.speed) ** 2 <= gate * (white + common + p.white_var + p.common_var)]
         if not fits:
             aux.peer_run = None
             return None
         pairs = {tuple(sorted((cls, c))): c for c in fits}
-        pair = run[0] if run is not None and run[0] in pairs else next(iter(pairs))
-        if run is None or run[0] != pair or run[2] < stamp - cfg.slip_reference_timeout:
-            run = (pair, stamp, stamp, 0, 0.0, 0.0)
+        pair = run.pair if run is not None and run.pair in pairs else next(iter(pairs))
+        if run is None or run.pair != pair or run.last < stamp - cfg.slip_reference_timeout:
+            run = PeerRun(pair, stamp, stamp, 0, 0.0, 0.0)
         p = peers[pairs[pair]]
-        d = (u - p[1]) if pair[0] == cls else (p[1] - u)
-        n, sum_d, sum_white = run[3] + 1, run[4] + d, run[5] + white + p[2]
-        if (sum_d / n) ** 2 > gate * (sum_white / (n * n) + common + p[3]):
+        d = (u - p.speed) if pair[0] == cls else (p.speed - u)
+        n, sum_d, sum_white = run.n + 1, run.sum_diff + d, run.sum_white + white + p.white_var
+        if (sum_d / n) ** 2 > gate * (sum_white / (n * n) + common + p.common_var):
             aux.peer_run = None
             return None
-        aux.peer_run = (pair, run[1], stamp, n, sum_d, sum_white)
-        if stamp - run[1] < cfg.slip_window:
+        aux.peer_run = PeerRun(pair, run.first, stamp, n, sum_d, sum_white)
+        if stamp - run.first < cfg.slip_window:
             return None
-        spread = sum_white / (n * n) + common + p[3]
-        faults = [aux.suspended[c][2] for c in pair if c in aux.suspended]
+        spread = sum_white / (n * n) + common + p.common_var
+        faults = [aux.suspended[c].fault for c in pair if c in aux.suspended]
         return pairs[pair] if all(_shows(f, u, spread, gate) for f in faults) else None
 
     def _set_speed(self, readings: list, middle: bool = False) -> None:
@@ -1276,7 +1196,7 @@ class TrainFilter:
         aux.last_accepted = {**aux.last_accepted, **{c: stamp for c in sensors}}
         aux.peer_speeds, aux.peer_run = {}, None
         moved = self._coasting_ended(view, stamp)
-        if coasting or moved[6] > 0.0:
+        if coasting or moved.var_r > 0.0:
             kept = aux.motion_views[:-1] if coasting else aux.motion_views[-(_MAX_MOTION_VIEWS - 1):]
             aux.motion_views = kept + (moved,)
         aux.events = _inc(aux.events, "speed_reacquired")
@@ -1366,14 +1286,14 @@ class TrainFilter:
                                              cls: _new_view(aux.t, float(self.ekf.P[0, 0]))}
                 aux.episode_views = _without(aux.episode_views, cls)
 
-    def _state_fault(self, cls: str, x) -> tuple:
-        """The fault that relative sensor ``cls``'s error states in x had absorbed: (its scale and
-        bias error at the speed, [m/s]; the speed [m/s])."""
+    def _state_fault(self, cls: str, x) -> Fault:
+        """The fault that relative sensor ``cls``'s error states in x had absorbed: its scale and
+        bias error at the speed [m/s], the speed [m/s]."""
         lay, v = self.layout, float(x[1, 0])
         k = sum(float(x[i, 0]) + (float(x[o, 0]) if o is not None else 0.0)
                 for name, i, o in lay.scale_terms if name == cls)
         b = float(x[lay.bias[cls], 0]) if cls in lay.bias else 0.0
-        return k * v + (b if v >= 0.0 else -b), v
+        return Fault(k * v + (b if v >= 0.0 else -b), v)
 
     def _relearn(self, reason: str, faulty=()) -> None:
         """Error states of the relative sensors back to their priors (the scales of ``faulty``
@@ -1437,8 +1357,8 @@ class TrainFilter:
             key = (m.sensor, m.reference_id)
             aux.used_refs = tuple(k for k in aux.used_refs if k != key)[-(_REMEMBERED_REFS - 1):] + (key,)
         alt = aux.alternative
-        if alt is not None and (m.sensor != alt[5] or
-                                (m.reference_id != alt[6] and m.sensor not in self.layout.fix)):
+        if alt is not None and (m.sensor != alt.sensor or
+                                (m.reference_id != alt.reference and m.sensor not in self.layout.fix)):
             # the filter explains an independent fix (not one of the same sensor with a fix-bias
             # state, whatever its reference: mm-wave station sets overlap): that one was wrong
             aux.alternative = None
@@ -1492,7 +1412,7 @@ class TrainFilter:
         aux.fix_bias_nis = _without(aux.fix_bias_nis, cls)
         # an alternative of this sensor is pending (an earlier inconsistency's view, or an
         # unexplained fix of it): the question is open already
-        pending = aux.alternative is not None and aux.alternative[5] == cls
+        pending = aux.alternative is not None and aux.alternative.sensor == cls
         i = self.layout.fix[cls]
         bias = float(self.ekf.x[i, 0])
         s_dr, P_dr = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
@@ -1513,7 +1433,8 @@ class TrainFilter:
         # the fixes pull the filter by about the bias it had estimated (s = z - e, e now 0): the
         # dead-reckoned view stays where it was, moving with the filter's motion from there
         if not pending:
-            aux.alternative = (m.stamp, s_dr, P_dr, s_dr + bias, float(self.ekf.P[0, 0]), cls, m.reference_id, ())
+            aux.alternative = UnexplainedFix(m.stamp, s_dr, P_dr, s_dr + bias, float(self.ekf.P[0, 0]), cls,
+                                             m.reference_id, ())
 
     def _drift_from_slip(self, m, summed: float, weights: float, S: float) -> None:
         """The fixes drift from the dead reckoning (``_fix_bias_consistency``: innovations of one
@@ -1596,22 +1517,22 @@ class TrainFilter:
             self._reacquire(m)
             return
         alt = aux.alternative
-        if alt is not None and m.stamp - alt[0] <= self.cfg.branch_timeout and \
-                (m.sensor, m.reference_id) == (alt[5], alt[6]):
+        if alt is not None and m.stamp - alt.stamp <= self.cfg.branch_timeout and \
+                (m.sensor, m.reference_id) == (alt.sensor, alt.reference):
             return   # the kept reference read again confirms nothing and stays the alternative
         faulty = self._scale_faults_explaining(m, z, R)
         if faulty:
             self.ekf.P = self._raised(self.ekf.P, faulty)
             aux.events = _inc(aux.events, "scale_fault_suspected")
-        aux.alternative = (m.stamp, z, R, float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0]), m.sensor,
-                           m.reference_id, tuple(faulty))
+        aux.alternative = UnexplainedFix(m.stamp, z, R, float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0]), m.sensor,
+                                         m.reference_id, tuple(faulty))
         aux.events = _inc(aux.events, "unexplained_fix")
 
     def _reacquire(self, m) -> None:
         """Two independent fixes agree with each other, not with the filter (the kept
         alternative and ``m``): the position from ``m``, the relative error states re-learnt;
         a scale opened for the alternative stays open."""
-        faulty = self.aux.alternative[7]
+        faulty = self.aux.alternative.opened
         self._set_position(m)
         self._relearn("reacquired", faulty)
         self.aux.alternative = None
@@ -1622,12 +1543,11 @@ class TrainFilter:
         reference ids (mm-wave ranging: overlapping sets of stations, one NLOS or calibration
         fault in all of them)."""
         alt = self.aux.alternative
-        if alt is None or m.stamp - alt[0] > self.cfg.branch_timeout:
+        if alt is None or m.stamp - alt.stamp > self.cfg.branch_timeout:
             return False
-        t_a, z_a, R_a, s_a, P_a, cls_a, ref_a, _ = alt
-        if m.sensor == cls_a and (m.reference_id == ref_a or m.sensor in self.layout.fix):
+        if m.sensor == alt.sensor and (m.reference_id == alt.reference or m.sensor in self.layout.fix):
             return False
-        return self._agrees(m, z, R, float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0]), z_a, R_a, s_a, P_a)
+        return self._agrees(m, z, R, float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0]), alt.z, alt.R, alt.s, alt.P00)
 
     def _agrees(self, m, z: float, R: float, s: float, P00: float,
                 z_kept: float, R_kept: float, s_kept: float, P00_kept: float) -> bool:
@@ -1650,15 +1570,15 @@ class TrainFilter:
         z, R, _, _ = self._measurement(m)
         x0, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
         cand = aux.candidate
-        if cand is not None and m.stamp - cand[0] <= cfg.branch_timeout:
-            if m.reference_id == cand[5] and m.sensor == cand[4]:
+        if cand is not None and m.stamp - cand.stamp <= cfg.branch_timeout:
+            if m.reference_id == cand.reference and m.sensor == cand.sensor:
                 return                               # the same reference confirms nothing
-            if self._agrees(m, z, R, x0, P00, cand[1], cand[2], cand[3], cand[6]):
+            if self._agrees(m, z, R, x0, P00, cand.z, cand.R, cand.s, cand.P00):
                 self._set_position(m)
                 self._first_position(m.stamp)
                 return
             aux.events = _inc(aux.events, "candidate_replaced")
-        aux.candidate = (m.stamp, z, R, x0, m.sensor, m.reference_id, P00)
+        aux.candidate = Candidate(m.stamp, z, R, x0, m.sensor, m.reference_id, P00)
 
     def _first_position(self, stamp: float) -> None:
         """The position is claimed for the first time (``_set_position`` has just taken it from a
@@ -1671,10 +1591,11 @@ class TrainFilter:
         aux.candidate = None
         views = []
         for view in aux.motion_views:
-            if view[0] == "model":
+            if isinstance(view, ModelView):
                 x, P = self._model_view_at(view, stamp)
-                views.append(("model", stamp, float(self.ekf.x[0, 0]), float(x[1]), float(x[2]),
-                              (float(self.ekf.P[0, 0]), 0.0, 0.0, float(P[1, 1]), float(P[1, 2]), float(P[2, 2]))))
+                views.append(ModelView(stamp, float(self.ekf.x[0, 0]), float(x[1]), float(x[2]),
+                                       (float(self.ekf.P[0, 0]), 0.0, 0.0, float(P[1, 1]), float(P[1, 2]),
+                                        float(P[2, 2]))))
         aux.motion_views = tuple(views)
 
     def _set_position(self, m) -> None:
@@ -1798,8 +1719,8 @@ class TrainFilter:
         if lone is None:
             if aux.lone_view is not None and in_use:
                 self._lone_accompanied(stamp)
-        elif aux.lone_view is None or aux.lone_view[1] != lone:
-            aux.lone_view = (self._lone_model_view(stamp, lone), lone, 0.0)
+        elif aux.lone_view is None or aux.lone_view.sensor != lone:
+            aux.lone_view = LoneView(self._lone_model_view(stamp, lone), lone, 0.0)
 
     def _lone_accompanied(self, stamp: float) -> None:
         """The lone source has company again: from ``stamp`` the sources in use check each other,
@@ -1807,7 +1728,7 @@ class TrainFilter:
         it was alone stays there, unseen by the newcomer (a relative sensor tells the motion from
         now on, not the distance already run), until a fix locates the train. The lone solution
         (its interval at ``stamp``) therefore stays as a motion-model hypothesis that moves with
-        the filter ("moved", as a coasting's that ended): conditioned on the fixes, ruled out by
+        the filter (a MovedView, as a coasting's that ended): conditioned on the fixes, ruled out by
         one it does not fit, no longer needed once the filter explains a fix."""
         aux = self.aux
         s, var_s = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
@@ -1817,7 +1738,7 @@ class TrainFilter:
         half = self._z * math.sqrt(var_s)
         if lo > hi or (lo >= s - half and hi <= s + half):
             return     # ruled out, or within the filter's own interval
-        moved = ("moved", 0.5 * (lo + hi), (0.5 * (hi - lo) / self._z) ** 2, s, var_s, 0.0, 0.0, math.inf)
+        moved = MovedView(0.5 * (lo + hi), (0.5 * (hi - lo) / self._z) ** 2, s, var_s, 0.0, 0.0, math.inf)
         views = aux.motion_views
         if _coasting(aux):   # the coasting's own hypothesis stays the last one
             aux.motion_views = views[-(_MAX_MOTION_VIEWS - 1):-1] + (moved, views[-1])
@@ -1825,11 +1746,11 @@ class TrainFilter:
             aux.motion_views = views[-(_MAX_MOTION_VIEWS - 1):] + (moved,)
         aux.events = _inc(aux.events, "lone_source_accompanied")
 
-    def _model_view(self, stamp: float) -> tuple:
-        """The motion model's hypothesis from the filter's kinematic state now (a "model" view)."""
-        return ("model", stamp, *self.ekf.x[:3, 0].tolist(), _kinematic_covariance(self.ekf.P))
+    def _model_view(self, stamp: float) -> ModelView:
+        """The motion model's hypothesis from the filter's kinematic state now."""
+        return ModelView(stamp, *self.ekf.x[:3, 0].tolist(), _kinematic_covariance(self.ekf.P))
 
-    def _lone_model_view(self, stamp: float, lone: str) -> tuple:
+    def _lone_model_view(self, stamp: float, lone: str) -> ModelView:
         """The motion model's hypothesis without lone source ``lone``, from the filter's state
         now. Unless another speed source checked the filter's speed just before (accepted within
         twice ``slip_reference_timeout``: a lone view starts once the others have been silent
@@ -1841,68 +1762,70 @@ class TrainFilter:
                       default=-math.inf)
         if checked >= stamp - 2.0 * self.cfg.slip_reference_timeout:
             return view
-        p00, p01, p02, p11, p12, p22 = view[5]
-        p11 += (self.models[lone].scale_fault_sigma * view[3]) ** 2
-        return view[:5] + ((p00, p01, p02, p11, p12, p22),)
+        p00, p01, p02, p11, p12, p22 = view.cov
+        p11 += (self.models[lone].scale_fault_sigma * view.v) ** 2
+        return view._replace(cov=(p00, p01, p02, p11, p12, p22))
 
     def _lone_take_fix(self, m, z: float, R: float) -> None:
         """The lone source's fault hypothesis after a fix the filter accepted (z, R from
         ``_located``): conditioned on it; one it cannot explain refutes it (the train did move
         as the sensor said), and it starts again from the filter's."""
         aux = self.aux
-        view, lone, bound = aux.lone_view
+        held = aux.lone_view
+        view = held.view
         s_f, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
         s_m, var_m = self._motion_view(view, m.stamp, s_f, P00)
         if (z - s_m) ** 2 > self._gates[m.sensor] * (R + var_m):
-            view = self._lone_model_view(m.stamp, lone)
+            view = self._lone_model_view(m.stamp, held.sensor)
             aux.events = _inc(aux.events, "lone_source_solution_refuted")
         else:
             view = self._motion_view_fixed(view, m.stamp, z, R, s_f, P00)
         # the filter accepted the fix: its error before was at most the innovation and the fix's
         # own error; the update took its gain's share of it (a DGPS fix little, a tag nearly all)
         gain, nu = self._last_update
-        before = min(bound, abs(nu) + self._z * math.sqrt(R))
-        aux.lone_view = (view, lone, (1.0 - min(max(float(gain[0]), 0.0), 1.0)) * before)
+        before = min(held.bound, abs(nu) + self._z * math.sqrt(R))
+        aux.lone_view = LoneView(view, held.sensor, (1.0 - min(max(float(gain[0]), 0.0), 1.0)) * before)
 
-    def _lone_interval(self, aux: _Aux, t: float, s: float, var_s: float, v: float, var_v: float) -> tuple:
+    def _lone_interval(self, aux: Bookkeeping, t: float, s: float, var_s: float, v: float, var_v: float) -> tuple:
         """(lo, hi [m], speed half-width [m/s], its position and variance) of the lone source's
         fault hypothesis at t (the filter at s [m], var_s [m^2], v [m/s], var_v [m^2/s^2]): the
         motion model's interval, within what the sensor's scale fault can have put into the
         filter's position (the lone view's bound: z x ``scale_fault_sigma`` x the distance run,
         less what the accepted fixes corrected, for a fault that began at any time since; both
         hold under the hypothesis); empty (lo > hi) where they do not meet."""
-        view, lone, bound = aux.lone_view
-        sigma_f, z = self.models[lone].scale_fault_sigma, self._z
-        bound += z * sigma_f * abs(v) * max(t - aux.t, 0.0)
-        _, t_c, s0, v0, a0, p = view
-        s_m, v_m, _, var_m, var_vm = _kinematics(s0, v0, a0, p, max(t - t_c, 0.0), self.cfg.jerk_psd)
+        lone = aux.lone_view
+        sigma_f, z = self.models[lone.sensor].scale_fault_sigma, self._z
+        bound = lone.bound + z * sigma_f * abs(v) * max(t - aux.t, 0.0)
+        view = lone.view
+        s_m, v_m, _, var_m, var_vm = _kinematics(view.s, view.v, view.a, view.cov, max(t - view.stamp, 0.0),
+                                                 self.cfg.jerk_psd)
         half, cap = z * math.sqrt(var_m), math.sqrt(z * z * var_s + bound * bound)
         half_v = min(abs(v_m - v) + z * math.sqrt(var_vm), z * math.sqrt(var_v + (sigma_f * v) ** 2))
         return max(s_m - half, s - cap), min(s_m + half, s + cap), half_v, s_m, var_m
 
-    def _model_view_at(self, view: tuple, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """(kinematic state [s, v, a], its 3x3 covariance) of a "model" view predicted to t [s]."""
-        _, t_c, s, v, a, p = view
-        dt = max(t - t_c, 0.0)
+    def _model_view_at(self, view: ModelView, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """(kinematic state [s, v, a], its 3x3 covariance) of a coasting's view predicted to t [s]."""
+        dt = max(t - view.stamp, 0.0)
         F, _, Q = self.process.transition(dt)
         F, Q = F[:3, :3], Q[:3, :3]      # the kinematic block: the error states do not enter it
-        p00, p01, p02, p11, p12, p22 = p
+        p00, p01, p02, p11, p12, p22 = view.cov
         P = F @ np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]]) @ F.T + Q
-        return np.array(kinematic_mean(s, v, a, dt)), P
+        return np.array(kinematic_mean(view.s, view.v, view.a, dt)), P
 
-    def _motion_view_fixed(self, view: tuple, t: float, z: float, R: float, s_f: float, P00_f: float) -> tuple:
+    def _motion_view_fixed(self, view: ModelView | MovedView, t: float, z: float, R: float, s_f: float,
+                           P00_f: float) -> ModelView | MovedView:
         """A motion-model hypothesis conditioned on a fix z [m] of variance R [m^2] at t [s] (the
         filter at s_f, P00_f after it): a coasting's kinematic state moved to t and updated
         (H = [1, 0, 0]); a moved one as a scalar update, moved with the filter from here."""
-        if view[0] == "moved":
+        if isinstance(view, MovedView):
             s_m, var_m = self._motion_view(view, t, s_f, P00_f)
             k = var_m / (var_m + R)
-            return ("moved", s_m + k * (z - s_m), (1.0 - k) * var_m, s_f, P00_f, *view[5:])
+            return view._replace(s=s_m + k * (z - s_m), var=(1.0 - k) * var_m, s_filter=s_f, P00_filter=P00_f)
         x, P = self._model_view_at(view, t)
         K = P[:, 0] / (P[0, 0] + R)
         x = x + K * (z - x[0])
         P = P - np.outer(K, P[0, :])
-        return ("model", t, float(x[0]), float(x[1]), float(x[2]), _kinematic_covariance(P))
+        return ModelView(t, float(x[0]), float(x[1]), float(x[2]), _kinematic_covariance(P))
 
     # -- input -----------------------------------------------------------------
     def add(self, m) -> None:
@@ -2014,9 +1937,8 @@ class TrainFilter:
         lo, hi = float(s) - self._z * sd_s, float(s) + self._z * sd_s
         alt = aux.alternative
         if alt is not None:   # the unexplained fix, moved with the filter's motion since
-            t_a, z_a, R_a, s_a, P_a = alt[:5]
-            p_alt = z_a + (float(s) - s_a)
-            half = self._z * math.sqrt(R_a + max(var_s - P_a, 0.0))
+            p_alt = alt.z + (float(s) - alt.s)
+            half = self._z * math.sqrt(alt.R + max(var_s - alt.P00, 0.0))
             lo, hi = min(lo, p_alt - half), max(hi, p_alt + half)
             sd_s = max(sd_s, (hi - lo) / (2.0 * self._z))
         mode = self._mode(aux, t, sd_s)
@@ -2025,7 +1947,7 @@ class TrainFilter:
             half = self._z * math.sqrt(var_s + var_D)
             # from its current separation to the farthest one: the excluded sensor is no more
             # trusted than the others (right until then, it may have slipped back since)
-            near, far = sorted((D, rel[5]))
+            near, far = sorted((D, rel.farthest))
             alt_lo, alt_hi = float(s) + near - half, float(s) + far + half
             if alt_lo < lo or alt_hi > hi:
                 lo, hi = min(lo, alt_lo), max(hi, alt_hi)
@@ -2067,7 +1989,7 @@ class TrainFilter:
         return Estimate(t, float(s), float(v), float(a), sd_s, sd_v, lo, hi, self.cfg.confidence,
                         mode, scales, biases)
 
-    def _hypotheses_cover(self, aux: _Aux, t: float, s: float, var_s: float, v: float, var_v: float,
+    def _hypotheses_cover(self, aux: Bookkeeping, t: float, s: float, var_s: float, v: float, var_v: float,
                           lo: float, hi: float, sd_s: float, sd_v: float, mode: Mode) -> tuple:
         """(lo, hi, position and speed 1-sigma, mode) widened to cover, per fault hypothesis of
         the relative sensors (separation.hypotheses), the valid solution that widens the interval
@@ -2109,7 +2031,7 @@ class TrainFilter:
         scales = {name: x_err[i] + (x_err[o] if o is not None else 0.0) for name, i, o in self.layout.scale_terms}
         return scales, {name: x_err[i] for name, i in self.layout.bias.items()}
 
-    def _speed_covering_views(self, aux: _Aux, t: float, v: float, sd_v: float) -> float:
+    def _speed_covering_views(self, aux: Bookkeeping, t: float, v: float, sd_v: float) -> float:
         """The speed 1-sigma [m/s] to publish: the filter's, widened so that v +- z sd_v also
         covers the speed each excluded sensor with an undecided view last read (within
         ``slip_reference_timeout`` s), with its own noise: while no fix has decided which
@@ -2123,35 +2045,34 @@ class TrainFilter:
         half = base = self._z * sd_v
         for cls in aux.relative_alternatives:
             reading = aux.view_speeds.get(cls)
-            if reading is None or t - reading[0] > self.cfg.slip_reference_timeout:
+            if reading is None or t - reading.stamp > self.cfg.slip_reference_timeout:
                 continue
-            _, u, R = reading
-            half = max(half, abs(u - v) + self._z * math.sqrt(R + sd_v * sd_v))
+            half = max(half, abs(reading.speed - v) + self._z * math.sqrt(reading.var + sd_v * sd_v))
         if _coasting(aux):
-            _, t_c, s, v_c, a, p = aux.motion_views[-1]
-            _, v_m, _, _, var_m = _kinematics(s, v_c, a, p, max(t - t_c, 0.0), self.cfg.jerk_psd)
+            view = aux.motion_views[-1]
+            _, v_m, _, _, var_m = _kinematics(view.s, view.v, view.a, view.cov, max(t - view.stamp, 0.0),
+                                              self.cfg.jerk_psd)
             half = max(half, abs(v_m - v) + self._z * math.sqrt(var_m))
         for view in aux.motion_views:
-            if view[0] == "moved" and view[5] and view[7] > t:
+            if isinstance(view, MovedView) and view.r and view.until > t:
                 # a common error r of the sources in use that may still last: their speed x (1 + r)
-                r, var_r = view[5], view[6]
+                r, var_r = view.r, view.var_r
                 half = max(half, abs(v * r) + self._z * math.sqrt(sd_v * sd_v + v * v * var_r))
         return half / self._z if half > base else sd_v   # (z sd_v) / z may differ from sd_v by an ulp
 
-    def _motion_view(self, view: tuple, t: float, s_f: float, var_f: float) -> tuple[float, float]:
+    def _motion_view(self, view: ModelView | MovedView, t: float, s_f: float, var_f: float) -> tuple[float, float]:
         """(position [m], variance [m^2]) at t of a motion-model hypothesis: during its coasting
         the kinematic block from its start predicted with the white-jerk process noise; after it
         moved with the filter (position s_f [m], variance var_f [m^2] at t), the distance scaled
         by 1 + r, r the common scale error of the speed sources in use (``_coasting_ended``)."""
-        if view[0] == "moved":
-            _, s_m, var_m, s_end, P00_end, r, var_r, _ = view
-            d = s_f - s_end
-            return s_m + d * (1.0 + r), var_m + max(var_f - P00_end, 0.0) + (var_r * d * d if d else 0.0)
-        _, t_c, s, v, a, p = view
-        s_m, _, _, var, _ = _kinematics(s, v, a, p, max(t - t_c, 0.0), self.cfg.jerk_psd)
+        if isinstance(view, MovedView):
+            d = s_f - view.s_filter
+            return (view.s + d * (1.0 + view.r),
+                    view.var + max(var_f - view.P00_filter, 0.0) + (view.var_r * d * d if d else 0.0))
+        s_m, _, _, var, _ = _kinematics(view.s, view.v, view.a, view.cov, max(t - view.stamp, 0.0), self.cfg.jerk_psd)
         return s_m, var
 
-    def _mode(self, aux: _Aux, t: float, position_stddev: float) -> Mode:
+    def _mode(self, aux: Bookkeeping, t: float, position_stddev: float) -> Mode:
         if not aux.initialised:
             return Mode.INITIALISING
         if position_stddev > self.cfg.lost_stddev:
@@ -2163,7 +2084,7 @@ class TrainFilter:
                 return Mode.DEGRADED
         return Mode.NOMINAL
 
-    def _widened(self, aux: _Aux, t: float, position_stddev: float, mode: Mode) -> Mode:
+    def _widened(self, aux: Bookkeeping, t: float, position_stddev: float, mode: Mode) -> Mode:
         """The mode after the interval was widened to position_stddev [m]: LOST beyond
         ``lost_stddev``, else ``mode`` as it was (a DEGRADED view is not undone)."""
         return Mode.LOST if self._mode(aux, t, position_stddev) == Mode.LOST else mode
@@ -2177,7 +2098,7 @@ class TrainFilter:
         aux = self.aux
         return {"accepted": dict(aux.accepted), "gated": dict(aux.gated),
                 "rejected": dict(self.rejected), "slips": {"episodes": aux.slips},
-                "nis_mean": {k: total / count for k, (count, total) in aux.nis.items() if count},
+                "nis_mean": {k: seen.total / seen.count for k, seen in aux.nis.items() if seen.count},
                 "integrity": dict(aux.events),
                 "rollbacks": {"late": self.hist.rollbacks, "updates": self.applied}}
 

@@ -207,7 +207,7 @@ class Bookkeeping:
         # each relative sensor's own solution from the fixes (separation.py): sensor -> Sub
         self.subs: dict = {}
         # while one relative sensor with a persistent fault mode carries the speed alone: the
-        # solution without it (the fixes and the motion model, ``_track_lone``)
+        # solution without it (the fixes and the motion model, ``LoneSource.track_lone``)
         self.lone_view: LoneView | None = None
         # speed sources whose scale fault the others showed and whose constant scale now learns
         # it (``_relearn_fault``): their scale is plausible up to the fault's size
@@ -220,3 +220,19 @@ class Bookkeeping:
         for name in Bookkeeping.__slots__:
             setattr(new, name, getattr(self, name))
         return new
+
+
+def is_coasting(aux: Bookkeeping) -> bool:
+    """Whether the filter coasts between disagreeing speed sources (a motion-model hypothesis
+    of a coasting in progress)."""
+    return bool(aux.motion_views) and isinstance(aux.motion_views[-1], ModelView)
+
+
+def incremented(counter: dict, key: str) -> dict:
+    new = dict(counter)
+    new[key] = new.get(key, 0) + 1
+    return new
+
+
+# motion-model hypotheses kept at once (coastings between disagreeing speed sources)
+MAX_MOTION_VIEWS = 4

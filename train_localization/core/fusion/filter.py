@@ -36,16 +36,7 @@ information; the filter may say it does not know, never be confidently wrong):
               keeps its own dead reckoning from the fixes; the interval and the speed cover it,
               DEGRADED where the filter's own interval would not have (a radar scale fault
               absorbed into both scale states before any test sees it).
-  lone source while one relative sensor with a persistent fault mode (a radar's scale fault,
-              growing too slowly for any reading to disagree with the motion model) carries the
-              speed alone (the others not fitted, silent or suspended; a wheel in a slip
-              episode still counts: the episode is short and ends with a cross-check), nothing
-              but the fixes checks it. The interval also covers the solution without it: the
-              motion model from the filter's state when it became the lone one, conditioned on
-              the accepted fixes (one it cannot explain refutes it and it starts again from the
-              filter's), within what the sensor's fault can do over the distance since the last
-              accepted fix (z ``scale_fault_sigma`` x distance). DEGRADED where it separates
-              from the filter as a sensor's solution does.
+  lone source (lone.py)
   consistency the mean NIS of the last ``consistency_fixes`` accepted absolute fixes of
               sensors without a persistent fix error (balises, lugs, axle counters: one
               independent fix per reference) above its chi-square quantile means the
@@ -127,7 +118,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from enum import IntEnum
 
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
@@ -136,23 +126,17 @@ from scipy.stats import chi2, norm
 from ..measurements import MAX_SPEED, PositionFix
 from ..sensors import faults as fault_modes
 from ..signals import InputRejected
-from .bookkeeping import (Bookkeeping, Candidate, Fault, FaultWindow, LoneView, ModelView, MovedView, NisSum,
-                          PeerRun, PeerSpeed, Suspension, UnexplainedFix, View, ViewSpeed, WindowEntry)
+from .bookkeeping import (MAX_MOTION_VIEWS, Bookkeeping, Candidate, Fault, FaultWindow, ModelView, MovedView, NisSum,
+                          PeerRun, PeerSpeed, Suspension, UnexplainedFix, View, ViewSpeed, WindowEntry, incremented,
+                          is_coasting)
 from .config import FusionConfig, gate_probability
 from .history import History, order_key
 from .layout import StateLayout
 from . import impact
-from .models import ProcessModel, fixes_sharing, implied_speed, kinematic_mean, measurement
+from .models import ProcessModel, fixes_sharing, implied_speed, kinematic_mean, kinematics, measurement
+from .mode import Mode
 from . import separation
-
-
-class Mode(IntEnum):
-    """TrainState.mode (train_localization_msgs/TrainState)."""
-
-    INITIALISING = 0
-    NOMINAL = 1
-    DEGRADED = 2
-    LOST = 3
+from .lone import LoneSource
 
 
 MODE_INITIALISING, MODE_NOMINAL, MODE_DEGRADED, MODE_LOST = Mode
@@ -173,39 +157,6 @@ class Estimate:
     scales: dict[str, float]   # shared by the estimates of one filter state: read only
     biases: dict[str, float] = field(default_factory=dict)
 
-
-# references whose fixes the filter remembers (a reversal passes the last few again)
-_REMEMBERED_REFS = 32
-
-# motion-model hypotheses kept at once (coastings between disagreeing speed sources)
-_MAX_MOTION_VIEWS = 4
-
-
-
-def _kinematic_covariance(P) -> tuple:
-    """(P00, P01, P02, P11, P12, P22) of the position, speed and acceleration states, as floats."""
-    (p00, p01, p02), (_, p11, p12), (_, _, p22) = P[:3, :3].tolist()
-    return p00, p01, p02, p11, p12, p22
-
-
-def _kinematics(s: float, v: float, a: float, p: tuple, dt: float, q: float) -> tuple:
-    """(position [m], speed [m/s], acceleration [m/s^2], position and speed variances) dt [s]
-    after (s, v, a) with the kinematic covariance p (``_kinematic_covariance``), under the
-    white-jerk motion model of spectral density q [m^2/s^5]: the first three rows of F and Q,
-    the train held at rest where a braking brings it there (``kinematic_mean``). Plain floats:
-    numpy's per-call overhead dominates 3x3 arithmetic at 200 estimates/s."""
-    p00, p01, p02, p11, p12, p22 = p
-    h, dt2 = 0.5 * dt * dt, dt * dt
-    var_s = (p00 + 2 * dt * p01 + 2 * h * p02 + dt2 * p11 + 2 * dt * h * p12 + h * h * p22
-             + q * dt2 * dt2 * dt / 20)
-    var_v = p11 + 2 * dt * p12 + dt2 * p22 + q * dt2 * dt / 3
-    return (*kinematic_mean(s, v, a, dt), var_s, var_v)
-
-
-def _coasting(aux: Bookkeeping) -> bool:
-    """Whether the filter coasts between disagreeing speed sources (a motion-model hypothesis
-    of a coasting in progress)."""
-    return bool(aux.motion_views) and isinstance(aux.motion_views[-1], ModelView)
 
 
 def _speed_excluded(aux: Bookkeeping, cls: str, stamp: float) -> bool:
@@ -240,10 +191,14 @@ def _shows(fault: Fault | None, speed: float, variance: float, gate: float) -> b
     return e * e >= gate * variance
 
 
-def _inc(counter: dict, key: str) -> dict:
-    new = dict(counter)
-    new[key] = new.get(key, 0) + 1
-    return new
+def _kinematic_covariance(P) -> tuple:
+    """(P00, P01, P02, P11, P12, P22) of the position, speed and acceleration states, as floats."""
+    (p00, p01, p02), (_, p11, p12), (_, _, p22) = P[:3, :3].tolist()
+    return p00, p01, p02, p11, p12, p22
+
+
+# references whose fixes the filter remembers (a reversal passes the last few again)
+_REMEMBERED_REFS = 32
 
 
 class _Lookback(Exception):
@@ -280,7 +235,7 @@ class TrainFilter:
         self._hypotheses = separation.hypotheses(self.models, self._subs)
         # relative sensors with a fault no test of their own can tell from motion, which may begin
         # at any time (a radar's scale fault growing slowly): while one carries the speed alone, the
-        # interval covers the solution without it (``_track_lone``). A calibration fault (a worn
+        # interval covers the solution without it (``LoneSource.track_lone``). A calibration fault (a worn
         # wheel) is a constant: the sensor's own solution with its scale opened covers it
         self._persistent = frozenset(n for n, m in self.models.items() if m.relative and
                                      (fault_modes.PERSISTENT - fault_modes.CALIBRATION) & set(m.faults))
@@ -295,6 +250,8 @@ class TrainFilter:
         self._eye = np.eye(self.n)
         self.rejected: dict[str, int] = {}
         self.applied = 0          # measurement updates run, replays included
+        # the policies (one component each; they read and change the filter's state through it)
+        self.lone = LoneSource(self)
         self._clear(self._initial_state())
 
     # -- state handling --------------------------------------------------------
@@ -393,7 +350,7 @@ class TrainFilter:
         if is_fix and not aux.initialised:
             self._initialise(m)
             return
-        if _coasting(aux) and not all(_speed_excluded(aux, c, m.stamp) for c in aux.speed_sources):
+        if is_coasting(aux) and not all(_speed_excluded(aux, c, m.stamp) for c in aux.speed_sources):
             # a speed source is in use again: the coasting ends, its motion-model hypothesis moves
             # with the filter from now on until a fix rules it out
             aux.motion_views = aux.motion_views[:-1] + (self._coasting_ended(aux.motion_views[-1], m.stamp),)
@@ -446,7 +403,7 @@ class TrainFilter:
             self._reacquire(m)
             return
         if nis > self._gates[cls]:
-            aux.gated = _inc(aux.gated, cls)
+            aux.gated = incremented(aux.gated, cls)
             if is_fix and aux.initialised:
                 self._unexplained(m, z, R)
             return
@@ -458,7 +415,7 @@ class TrainFilter:
             self._correction_unconfirmed(x_before, nis)
         seen = aux.nis.get(cls, NisSum(0, 0.0))
         aux.nis = {**aux.nis, cls: NisSum(seen.count + 1, seen.total + nis)}
-        aux.accepted = _inc(aux.accepted, cls)
+        aux.accepted = incremented(aux.accepted, cls)
         aux.last_accepted = {**aux.last_accepted, cls: m.stamp}
         if cls in aux.episode_views or cls in aux.fault_windows:
             aux.episode_views = _without(aux.episode_views, cls)
@@ -469,7 +426,7 @@ class TrainFilter:
             if cls not in aux.speed_sources:
                 aux.speed_sources = aux.speed_sources | {cls}
             if self._persistent:
-                self._track_lone(m.stamp)
+                self.lone.track_lone(m.stamp)
         self._check_plausible()
 
     def _measurement(self, m):
@@ -500,7 +457,7 @@ class TrainFilter:
             # still slipping, or undecided
             if nis > self._slip_gate or undecided:
                 aux.slip_until = {**aux.slip_until, cls: m.stamp + cfg.slip_holdoff}
-            aux.gated = _inc(aux.gated, cls + "/slip")
+            aux.gated = incremented(aux.gated, cls + "/slip")
             self._separate(m, e, S)
             return True
         if alt is not None and alt.farthest ** 2 <= self._slip_gate * self._alternative_spread(cls, alt)[1]:
@@ -512,11 +469,11 @@ class TrainFilter:
         window, summed = self._windowed(aux.slip_window.get(cls, ()), m, e, S)
         if (nis > self._slip_gate or summed > self._slip_gate) and not self._judged(cls):
             # the only speed source, without slip physics (``_judged``): an outlying reading is
-            # gated; a fault that persists is the lone solution's to cover (``_track_lone``) and
+            # gated; a fault that persists is the lone solution's to cover (``LoneSource.track_lone``) and
             # the fix drift test's to find (``_fix_bias_consistency``)
             aux.slip_window = {**aux.slip_window, cls: ()}
             if nis > self._slip_gate:
-                aux.gated = _inc(aux.gated, cls)
+                aux.gated = incremented(aux.gated, cls)
                 return True
             return False
         if nis > self._slip_gate or summed > self._slip_gate:
@@ -536,7 +493,7 @@ class TrainFilter:
                 raise _Lookback(cls, window[k].stamp, shown)
             self._episode_starts(m, e, shown)
             aux.slip_until = {**aux.slip_until, cls: m.stamp + cfg.slip_holdoff}
-            aux.gated = _inc(aux.gated, cls + "/slip")
+            aux.gated = incremented(aux.gated, cls + "/slip")
             self._separate(m, e, S)
             return True
         aux.slip_window = {**aux.slip_window, cls: window}
@@ -544,7 +501,7 @@ class TrainFilter:
             # back from an episode: its first readings are judged together before one is applied
             # (a slide that goes on passes one reading's test while the reference is noisy, and
             # the precise sensor would be adopted at full weight)
-            aux.gated = _inc(aux.gated, cls + "/slip")
+            aux.gated = incremented(aux.gated, cls + "/slip")
             self._separate(m, e, S)
             return True
         return False
@@ -602,7 +559,7 @@ class TrainFilter:
         aux.relative_alternatives = _without(aux.relative_alternatives, cls)
         aux.view_speeds = _without(aux.view_speeds, cls)
         self._take_speed(m.stamp, [(u, white + common)], {cls})
-        aux.events = _inc(aux.events, "motion_model_refuted")
+        aux.events = incremented(aux.events, "motion_model_refuted")
         return True
 
     def _fault_ended(self, m, e: float, S: float) -> bool:
@@ -628,7 +585,7 @@ class TrainFilter:
         aux.impacts = impact.states_set(aux.impacts, [i])
         aux.scale_faults = aux.scale_faults - {cls}
         aux.slip_window = _without(aux.slip_window, cls)
-        aux.events = _inc(aux.events, "scale_fault_ended")
+        aux.events = incremented(aux.events, "scale_fault_ended")
         return True
 
     def _relearn_fault(self, cls: str) -> None:
@@ -656,7 +613,7 @@ class TrainFilter:
         aux.slip_window = _without(aux.slip_window, cls)
         aux.view_speeds = _without(aux.view_speeds, cls)
         self._end_exclusion(cls, aux.t)
-        aux.events = _inc(aux.events, "scale_fault_relearnt")
+        aux.events = incremented(aux.events, "scale_fault_relearnt")
 
     def _judged(self, cls: str) -> bool:
         """Whether a fault test may exclude relative sensor ``cls``: it has slip physics (a wheel's
@@ -715,7 +672,7 @@ class TrainFilter:
         if not physical and m.sensor not in aux.relative_alternatives:
             aux.relative_alternatives = {**aux.relative_alternatives, m.sensor: view}
             aux.episode_views = _without(aux.episode_views, m.sensor)
-            aux.events = _inc(aux.events, "ambiguous_slip")
+            aux.events = incremented(aux.events, "ambiguous_slip")
         if not physical and m.sensor not in aux.suspended:
             # suspected faulty: back only after agreeing for slip_window s without being applied
             # (one reading that slips through the gate would be adopted at full weight)
@@ -769,7 +726,7 @@ class TrainFilter:
         other = None
         if view is not None and len(in_use) == 1:
             other, e, v, var, common = in_use[0], z - hx, float(self.ekf.x[1, 0]), S, self._common(cls, h)
-        elif view is not None and not in_use and _coasting(aux) and len(peers) == 1 and cls in aux.peer_speeds:
+        elif view is not None and not in_use and is_coasting(aux) and len(peers) == 1 and cls in aux.peer_speeds:
             other = peers[0]
             own, peer = aux.peer_speeds[cls], aux.peer_speeds[other]
             v = peer.speed
@@ -818,7 +775,7 @@ class TrainFilter:
         moved = aux.motion_views[-1] if aux.motion_views else None
         if isinstance(moved, MovedView):
             aux.motion_views = aux.motion_views[:-1] + (moved._replace(r=0.0, var_r=0.0, until=math.inf),)
-        aux.events = _inc(aux.events, "transient_fault_outlasted")
+        aux.events = incremented(aux.events, "transient_fault_outlasted")
 
     def _swap(self, m, z: float, R: float, view: View, other: str) -> None:
         """The excluded sensor ``m.sensor`` was right and ``other``, the speed source in use, is
@@ -849,7 +806,7 @@ class TrainFilter:
         aux.slip_window = _without(aux.slip_window, cls)
         self._end_exclusion(cls, stamp)
         self._suspend(other, self._view_fault(aux.relative_alternatives[other], stamp))
-        aux.events = _inc(aux.events, "speed_sources_swapped")
+        aux.events = incremented(aux.events, "speed_sources_swapped")
         aux.unverified = "speed_sources_swapped"
 
     def _alternative_spread(self, cls: str, alt: View) -> tuple[float, float]:
@@ -895,7 +852,7 @@ class TrainFilter:
             elif explained or m.stamp - alt.since > self.cfg.branch_timeout:
                 # the filter explains the fix and this excluded sensor's view does not (or far
                 # worse): it was faulty
-                aux.events = _inc(aux.events, "excluded_sensor_confirmed_faulty")
+                aux.events = incremented(aux.events, "excluded_sensor_confirmed_faulty")
                 ruled_out += 1
                 if cls in self.layout.slip_sensors:
                     pass        # a slip ends by itself
@@ -907,7 +864,7 @@ class TrainFilter:
             else:
                 keep[cls] = alt
         aux.relative_alternatives = keep
-        if explained and ruled_out and len(fitting) == 1 and _coasting(aux):
+        if explained and ruled_out and len(fitting) == 1 and is_coasting(aux):
             # coasting between the excluded sensors, the fix rules out all views but one: that
             # sensor was right and is back (its view located by the fix merges into the filter's)
             cls = fitting[0][1]
@@ -920,7 +877,7 @@ class TrainFilter:
             aux.slip_window = _without(aux.slip_window, cls)
             if view is not None:
                 self._merge_view(view.separation ** 2 + view.white_var)
-            aux.events = _inc(aux.events, "excluded_sensor_confirmed_right")
+            aux.events = incremented(aux.events, "excluded_sensor_confirmed_right")
             return False
         if explained or not fitting:
             return False                           # the filter explains it, or nothing does
@@ -954,7 +911,7 @@ class TrainFilter:
         P = self.ekf.P.copy()
         P[0, 0] += spread
         self.ekf.P = P
-        self.aux.events = _inc(self.aux.events, "alternative_merged")
+        self.aux.events = incremented(self.aux.events, "alternative_merged")
 
     @staticmethod
     def _view_conditioned(alt: View, D: float, var_D: float, nu: float, S: float, R: float) -> View:
@@ -1009,13 +966,13 @@ class TrainFilter:
                 and self._fault_ended(m, e, S):
             # judged from its next reading on, at the scale without the fault
             aux.suspended = {**aux.suspended, m.sensor: Suspension(math.inf, (), fault)}
-            aux.gated = _inc(aux.gated, m.sensor + "/suspended")
+            aux.gated = incremented(aux.gated, m.sensor + "/suspended")
             self._separate(m, e, S)
             return True
         if (nis > self._slip_gate or summed > self._slip_gate) and self._outlasted_by(m):
             aux.relative_alternatives = _without(aux.relative_alternatives, m.sensor)
             self._relearn_fault(m.sensor)
-            aux.events = _inc(aux.events, "fault_outlasted_the_others")
+            aux.events = incremented(aux.events, "fault_outlasted_the_others")
             return False
         if nis > self._slip_gate or summed > self._slip_gate or not self._agreement_reference(m, S):
             since = math.inf
@@ -1025,10 +982,10 @@ class TrainFilter:
             aux.suspended = _without(aux.suspended, m.sensor)
             # its readings of the agreement so far are the slip test's window from here
             aux.slip_window = {**aux.slip_window, m.sensor: window}
-            aux.events = _inc(aux.events, "speed_source_restored")
+            aux.events = incremented(aux.events, "speed_source_restored")
             return False
         aux.suspended = {**aux.suspended, m.sensor: Suspension(since, window, fault)}
-        aux.gated = _inc(aux.gated, m.sensor + "/suspended")
+        aux.gated = incremented(aux.gated, m.sensor + "/suspended")
         self._separate(m, e, S)
         return True
 
@@ -1081,13 +1038,13 @@ class TrainFilter:
         of the coasting (both sensors may be wrong the same way, a radar scale fault during a
         wheel slip under traction). True if the speed was set."""
         aux = self.aux
-        coasting = _coasting(aux)
+        coasting = is_coasting(aux)
         half_range = 0.5 * (max(u for u, _ in readings) - min(u for u, _ in readings))
         if not coasting and float(self.ekf.P[1, 1]) <= half_range * half_range:
             return False                    # a short slip: the motion model still knows better
         if not coasting:
-            aux.motion_views = aux.motion_views[-(_MAX_MOTION_VIEWS - 1):] + (self._model_view(stamp),)
-            aux.events = _inc(aux.events, "coasting_between_speed_sources")
+            aux.motion_views = aux.motion_views[-(MAX_MOTION_VIEWS - 1):] + (self._model_view(stamp),)
+            aux.events = incremented(aux.events, "coasting_between_speed_sources")
             aux.unverified = aux.unverified or "speed_sources_disagree"
         self._set_speed(readings, middle=True)
         return True
@@ -1101,7 +1058,7 @@ class TrainFilter:
         have ended: r from the motion model's speed against theirs, combined with the prior of
         the smallest scale fault among them (a sensor without a speed fault mode rules the
         hypothesis out: r = 0)."""
-        s_m, v_m, _, var_m, var_v = _kinematics(view.s, view.v, view.a, view.cov, max(stamp - view.stamp, 0.0),
+        s_m, v_m, _, var_m, var_v = kinematics(view.s, view.v, view.a, view.cov, max(stamp - view.stamp, 0.0),
                                                 self.cfg.jerk_psd)
         s_f, v_f = float(self.ekf.x[0, 0]), float(self.ekf.x[1, 0])
         aux = self.aux
@@ -1185,7 +1142,7 @@ class TrainFilter:
         """Speed from independent readings that agree (weighted); the exclusions of ``sensors``
         end."""
         aux = self.aux
-        coasting = _coasting(aux)
+        coasting = is_coasting(aux)
         # the motion model's hypothesis: of the coasting, or the filter's own until now (its speed
         # rested on the motion model alone)
         view = aux.motion_views[-1] if coasting else self._model_view(stamp)
@@ -1197,9 +1154,9 @@ class TrainFilter:
         aux.peer_speeds, aux.peer_run = {}, None
         moved = self._coasting_ended(view, stamp)
         if coasting or moved.var_r > 0.0:
-            kept = aux.motion_views[:-1] if coasting else aux.motion_views[-(_MAX_MOTION_VIEWS - 1):]
+            kept = aux.motion_views[:-1] if coasting else aux.motion_views[-(MAX_MOTION_VIEWS - 1):]
             aux.motion_views = kept + (moved,)
-        aux.events = _inc(aux.events, "speed_reacquired")
+        aux.events = incremented(aux.events, "speed_reacquired")
         aux.unverified = "speed_reacquired"
 
     def _excluded(self, m, shown: float) -> None:
@@ -1211,11 +1168,11 @@ class TrainFilter:
         z, R, h, hx, _, S = self._innovation(m)
         if not aux.slip_until.get(cls, -math.inf) > m.stamp:
             self._episode_starts(m, z - hx, shown)
-            aux.events = _inc(aux.events, "slip_lookback")
+            aux.events = incremented(aux.events, "slip_lookback")
         self._separate(m, z - hx, S)
         aux.slip_until = {**aux.slip_until, cls: m.stamp + self.cfg.slip_holdoff}
         aux.slip_window = {**aux.slip_window, cls: ()}
-        aux.gated = _inc(aux.gated, cls + "/slip")
+        aux.gated = incremented(aux.gated, cls + "/slip")
 
     def _in_use(self, stamp: float, but: str | None = None) -> list[str]:
         """The speed sources in use at ``stamp`` [s]: accepted within ``slip_reference_timeout`` s
@@ -1236,7 +1193,7 @@ class TrainFilter:
         motion model alone, its speed uncertainty growing, would let a faulty sensor back in.
         S: the measurement's innovation variance (filter part + its own noise). While the filter
         coasts between excluded sources, its speed is theirs: no reference."""
-        if _coasting(self.aux):
+        if is_coasting(self.aux):
             return self._reference_ok(m)
         return self._reference_ok(m) or float(self.ekf.P[1, 1]) <= 0.5 * S
 
@@ -1278,7 +1235,7 @@ class TrainFilter:
             (cls,) = owners
             self._suspend(cls, self._state_fault(cls, x_before))
             aux = self.aux
-            aux.events = _inc(aux.events, "implausible_sensor_suspended")
+            aux.events = incremented(aux.events, "implausible_sensor_suspended")
             if aux.speed_sources - {cls} and cls not in aux.relative_alternatives:
                 # which state absorbs a disagreement follows the priors, not the fault: the other
                 # speed source may be the faulty one, so the suspended sensor's view is kept
@@ -1319,7 +1276,7 @@ class TrainFilter:
         self.ekf.x = x
         self.ekf.P = self._raised(P, faulty) if faulty else P
         aux.scale_faults = aux.scale_faults & frozenset(faulty)
-        aux.events = _inc(aux.events, reason)
+        aux.events = incremented(aux.events, reason)
         aux.unverified = reason
 
     def _correction_unconfirmed(self, x_before, nis: float) -> None:
@@ -1347,7 +1304,7 @@ class TrainFilter:
         aux = self.aux
         key = (m.sensor, m.reference_id)
         if key in aux.used_refs and float(self.ekf.P[0, 0]) < R:
-            aux.events = _inc(aux.events, "reference_revisited")
+            aux.events = incremented(aux.events, "reference_revisited")
             return True
         return False
 
@@ -1362,7 +1319,7 @@ class TrainFilter:
             # the filter explains an independent fix (not one of the same sensor with a fix-bias
             # state, whatever its reference: mm-wave station sets overlap): that one was wrong
             aux.alternative = None
-            aux.events = _inc(aux.events, "outlier_fix")
+            aux.events = incremented(aux.events, "outlier_fix")
         aux.unverified = ""
         aux.last_fix_accepted = m.stamp
         aux.s_last_fix = float(self.ekf.x[0, 0])
@@ -1376,7 +1333,7 @@ class TrainFilter:
             # independent fixes disagree more than the covariance says: all of it is too small
             self.ekf.P = self.ekf.P * mean
             window = ()
-            aux.events = _inc(aux.events, "inconsistent")
+            aux.events = incremented(aux.events, "inconsistent")
             aux.unverified = "inconsistent"
         aux.fix_nis = window
 
@@ -1429,7 +1386,7 @@ class TrainFilter:
         # pull the opened states again and again)
         faulty = () if noisy or pending else [c for c in self.layout.scale if "scale_fault" in self.models[c].faults]
         self.ekf.P = self._raised(P, faulty)
-        aux.events = _inc(aux.events, "inconsistent_fix_bias")
+        aux.events = incremented(aux.events, "inconsistent_fix_bias")
         # the fixes pull the filter by about the bias it had estimated (s = z - e, e now 0): the
         # dead-reckoned view stays where it was, moving with the filter's motion from there
         if not pending:
@@ -1523,10 +1480,10 @@ class TrainFilter:
         faulty = self._scale_faults_explaining(m, z, R)
         if faulty:
             self.ekf.P = self._raised(self.ekf.P, faulty)
-            aux.events = _inc(aux.events, "scale_fault_suspected")
+            aux.events = incremented(aux.events, "scale_fault_suspected")
         aux.alternative = UnexplainedFix(m.stamp, z, R, float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0]), m.sensor,
                                          m.reference_id, tuple(faulty))
-        aux.events = _inc(aux.events, "unexplained_fix")
+        aux.events = incremented(aux.events, "unexplained_fix")
 
     def _reacquire(self, m) -> None:
         """Two independent fixes agree with each other, not with the filter (the kept
@@ -1577,7 +1534,7 @@ class TrainFilter:
                 self._set_position(m)
                 self._first_position(m.stamp)
                 return
-            aux.events = _inc(aux.events, "candidate_replaced")
+            aux.events = incremented(aux.events, "candidate_replaced")
         aux.candidate = Candidate(m.stamp, z, R, x0, m.sensor, m.reference_id, P00)
 
     def _first_position(self, stamp: float) -> None:
@@ -1616,7 +1573,7 @@ class TrainFilter:
             P[0, 0] = R + P[f_idx, f_idx]
         self.ekf.x, self.ekf.P = x, P
         aux.impacts = impact.position_set_from_fix(aux.impacts, f_idx)
-        aux.accepted = _inc(aux.accepted, cls)
+        aux.accepted = incremented(aux.accepted, cls)
         aux.last_accepted = {**aux.last_accepted, cls: m.stamp}
         aux.last_fix_accepted = m.stamp
         aux.s_last_fix = float(x[0, 0])
@@ -1684,7 +1641,7 @@ class TrainFilter:
             return
         z, R = self._located(m)
         if aux.lone_view is not None:
-            self._lone_take_fix(m, z, R)
+            self.lone.lone_take_fix(m, z, R)
         x0, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
         if aux.motion_views:
             aux.motion_views = tuple(self._motion_view_fixed(view, m.stamp, z, R, x0, P00)
@@ -1695,113 +1652,13 @@ class TrainFilter:
                 new = separation.fix(sub, m.stamp, z, R, self._before, self._gates[m.sensor])
                 if new is None:
                     new = separation.seed(self._subs[name], m.stamp, x0, P00, float(self.ekf.x[1, 0]))
-                    aux.events = _inc(aux.events, "sensor_solution_refuted")
+                    aux.events = incremented(aux.events, "sensor_solution_refuted")
                 subs[name] = new
             aux.subs = subs
-
-    def _track_lone(self, stamp: float) -> None:
-        """Solution separation for the fault of a lone speed source. A relative sensor whose scale
-        fault no test of its own can see (a Doppler radar's, growing slowly: the speed it reads
-        drifts like an acceleration) may carry the speed alone: the only relative sensor, or the
-        others excluded or silent. Nothing then checks it but the fixes, and between them a
-        fault of a few percent runs the filter out of its interval while every test passes. The
-        solution without that sensor is the motion model from the last time another source
-        checked it, conditioned on the fixes the filter accepts (``_lone_take_fix``); the
-        interval covers it (``_lone_interval``). It starts when one such sensor is left in use
-        (accepted within ``slip_reference_timeout`` s), and ends when another source is in use
-        (``_lone_accompanied``). A wheel in a slip or slide episode still counts: the episode is
-        short (its ``fault_duration_max``) and ends with the wheel agreeing with the filter
-        again, which a drifting radar fails; a suspended sensor does not."""
-        aux, timeout = self.aux, self.cfg.slip_reference_timeout
-        in_use = [c for c in self.layout.relative if c not in aux.suspended
-                  and max(aux.last_accepted.get(c, -math.inf), aux.slip_until.get(c, -math.inf)) >= stamp - timeout]
-        lone = in_use[0] if len(in_use) == 1 and in_use[0] in self._persistent else None
-        if lone is None:
-            if aux.lone_view is not None and in_use:
-                self._lone_accompanied(stamp)
-        elif aux.lone_view is None or aux.lone_view.sensor != lone:
-            aux.lone_view = LoneView(self._lone_model_view(stamp, lone), lone, 0.0)
-
-    def _lone_accompanied(self, stamp: float) -> None:
-        """The lone source has company again: from ``stamp`` the sources in use check each other,
-        so its fault adds nothing more, but what it may have put into the filter's position while
-        it was alone stays there, unseen by the newcomer (a relative sensor tells the motion from
-        now on, not the distance already run), until a fix locates the train. The lone solution
-        (its interval at ``stamp``) therefore stays as a motion-model hypothesis that moves with
-        the filter (a MovedView, as a coasting's that ended): conditioned on the fixes, ruled out by
-        one it does not fit, no longer needed once the filter explains a fix."""
-        aux = self.aux
-        s, var_s = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
-        v, var_v = float(self.ekf.x[1, 0]), float(self.ekf.P[1, 1])
-        lo, hi, _, _, _ = self._lone_interval(aux, stamp, s, var_s, v, var_v)
-        aux.lone_view = None
-        half = self._z * math.sqrt(var_s)
-        if lo > hi or (lo >= s - half and hi <= s + half):
-            return     # ruled out, or within the filter's own interval
-        moved = MovedView(0.5 * (lo + hi), (0.5 * (hi - lo) / self._z) ** 2, s, var_s, 0.0, 0.0, math.inf)
-        views = aux.motion_views
-        if _coasting(aux):   # the coasting's own hypothesis stays the last one
-            aux.motion_views = views[-(_MAX_MOTION_VIEWS - 1):-1] + (moved, views[-1])
-        else:
-            aux.motion_views = views[-(_MAX_MOTION_VIEWS - 1):] + (moved,)
-        aux.events = _inc(aux.events, "lone_source_accompanied")
 
     def _model_view(self, stamp: float) -> ModelView:
         """The motion model's hypothesis from the filter's kinematic state now."""
         return ModelView(stamp, *self.ekf.x[:3, 0].tolist(), _kinematic_covariance(self.ekf.P))
-
-    def _lone_model_view(self, stamp: float, lone: str) -> ModelView:
-        """The motion model's hypothesis without lone source ``lone``, from the filter's state
-        now. Unless another speed source checked the filter's speed just before (accepted within
-        twice ``slip_reference_timeout``: a lone view starts once the others have been silent
-        that long), the speed is that sensor's own reading and its fault may have begun long
-        before: the speed's variance then holds its scale fault, (``scale_fault_sigma`` x v)^2,
-        for the fixes to narrow (``_motion_view_fixed``)."""
-        view = self._model_view(stamp)
-        checked = max((self.aux.last_accepted.get(c, -math.inf) for c in self.layout.relative if c != lone),
-                      default=-math.inf)
-        if checked >= stamp - 2.0 * self.cfg.slip_reference_timeout:
-            return view
-        p00, p01, p02, p11, p12, p22 = view.cov
-        p11 += (self.models[lone].scale_fault_sigma * view.v) ** 2
-        return view._replace(cov=(p00, p01, p02, p11, p12, p22))
-
-    def _lone_take_fix(self, m, z: float, R: float) -> None:
-        """The lone source's fault hypothesis after a fix the filter accepted (z, R from
-        ``_located``): conditioned on it; one it cannot explain refutes it (the train did move
-        as the sensor said), and it starts again from the filter's."""
-        aux = self.aux
-        held = aux.lone_view
-        view = held.view
-        s_f, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
-        s_m, var_m = self._motion_view(view, m.stamp, s_f, P00)
-        if (z - s_m) ** 2 > self._gates[m.sensor] * (R + var_m):
-            view = self._lone_model_view(m.stamp, held.sensor)
-            aux.events = _inc(aux.events, "lone_source_solution_refuted")
-        else:
-            view = self._motion_view_fixed(view, m.stamp, z, R, s_f, P00)
-        # the filter accepted the fix: its error before was at most the innovation and the fix's
-        # own error; the update took its gain's share of it (a DGPS fix little, a tag nearly all)
-        gain, nu = self._last_update
-        before = min(held.bound, abs(nu) + self._z * math.sqrt(R))
-        aux.lone_view = LoneView(view, held.sensor, (1.0 - min(max(float(gain[0]), 0.0), 1.0)) * before)
-
-    def _lone_interval(self, aux: Bookkeeping, t: float, s: float, var_s: float, v: float, var_v: float) -> tuple:
-        """(lo, hi [m], speed half-width [m/s], its position and variance) of the lone source's
-        fault hypothesis at t (the filter at s [m], var_s [m^2], v [m/s], var_v [m^2/s^2]): the
-        motion model's interval, within what the sensor's scale fault can have put into the
-        filter's position (the lone view's bound: z x ``scale_fault_sigma`` x the distance run,
-        less what the accepted fixes corrected, for a fault that began at any time since; both
-        hold under the hypothesis); empty (lo > hi) where they do not meet."""
-        lone = aux.lone_view
-        sigma_f, z = self.models[lone.sensor].scale_fault_sigma, self._z
-        bound = lone.bound + z * sigma_f * abs(v) * max(t - aux.t, 0.0)
-        view = lone.view
-        s_m, v_m, _, var_m, var_vm = _kinematics(view.s, view.v, view.a, view.cov, max(t - view.stamp, 0.0),
-                                                 self.cfg.jerk_psd)
-        half, cap = z * math.sqrt(var_m), math.sqrt(z * z * var_s + bound * bound)
-        half_v = min(abs(v_m - v) + z * math.sqrt(var_vm), z * math.sqrt(var_v + (sigma_f * v) ** 2))
-        return max(s_m - half, s - cap), min(s_m + half, s + cap), half_v, s_m, var_m
 
     def _model_view_at(self, view: ModelView, t: float) -> tuple[np.ndarray, np.ndarray]:
         """(kinematic state [s, v, a], its 3x3 covariance) of a coasting's view predicted to t [s]."""
@@ -1918,7 +1775,7 @@ class TrainFilter:
                                        impact.prepared(aux.impacts, self._z))
             x_err = c[2]
             dt = t - aux.t
-            s, v, a, var_s, var_v = _kinematics(x_err[0], x_err[1], x_err[2], c[3], dt, self.cfg.jerk_psd)
+            s, v, a, var_s, var_v = kinematics(x_err[0], x_err[1], x_err[2], c[3], dt, self.cfg.jerk_psd)
             scales, biases = c[4]
             if self.layout.gauss_markov:
                 x_err = list(x_err)
@@ -1934,6 +1791,17 @@ class TrainFilter:
         if not aux.initialised:
             return Estimate(t, math.nan, float(v), float(a), math.inf, sd_v, -math.inf, math.inf,
                             self.cfg.confidence, Mode.INITIALISING, scales, biases)
+        lo, hi, sd_s, sd_v, mode = self._interval(aux, t, s, v, var_s, var_v, sd_s, sd_v, xk, Pk)
+        return Estimate(t, float(s), float(v), float(a), sd_s, sd_v, lo, hi, self.cfg.confidence,
+                        mode, scales, biases)
+
+    def _interval(self, aux: Bookkeeping, t: float, s, v, var_s, var_v, sd_s, sd_v, xk, Pk) -> tuple:
+        """(lo, hi [m], position 1-sigma [m], speed 1-sigma [m/s], mode) at t [s] of the filter at
+        s [m], v [m/s] (variances var_s [m^2], var_v [m^2/s^2]; 1-sigma sd_s, sd_v): its
+        ``confidence`` interval widened to cover every pending hypothesis, in this order: the
+        unexplained fix, the excluded sensors' views, their speeds, the motion-model hypotheses,
+        the lone-source solution, the persistent-fault cover (impact.py; xk, Pk: the kept state
+        whose prepared cover ``_est_cache`` holds) and the sensors' own solutions."""
         lo, hi = float(s) - self._z * sd_s, float(s) + self._z * sd_s
         alt = aux.alternative
         if alt is not None:   # the unexplained fix, moved with the filter's motion since
@@ -1965,7 +1833,7 @@ class TrainFilter:
                 sd_s = max(sd_s, (hi - lo) / (2.0 * self._z))
                 mode = self._widened(aux, t, sd_s, mode)
         if aux.lone_view is not None:   # the solution without a lone speed source (its fault)
-            l_lo, l_hi, half_v, s_m, var_m = self._lone_interval(aux, t, float(s), var_s, float(v), var_v)
+            l_lo, l_hi, half_v, s_m, var_m = self.lone.lone_interval(aux, t, float(s), var_s, float(v), var_v)
             if l_lo <= l_hi and (l_lo < lo or l_hi > hi):
                 lo, hi = min(lo, l_lo), max(hi, l_hi)
                 sd_s = max(sd_s, (hi - lo) / (2.0 * self._z))
@@ -1986,8 +1854,7 @@ class TrainFilter:
         if aux.subs:   # the relative sensors' own solutions: per fault hypothesis (protection level)
             lo, hi, sd_s, sd_v, mode = self._hypotheses_cover(aux, t, float(s), var_s, float(v), var_v,
                                                                lo, hi, sd_s, sd_v, mode)
-        return Estimate(t, float(s), float(v), float(a), sd_s, sd_v, lo, hi, self.cfg.confidence,
-                        mode, scales, biases)
+        return lo, hi, sd_s, sd_v, mode
 
     def _hypotheses_cover(self, aux: Bookkeeping, t: float, s: float, var_s: float, v: float, var_v: float,
                           lo: float, hi: float, sd_s: float, sd_v: float, mode: Mode) -> tuple:
@@ -2048,9 +1915,9 @@ class TrainFilter:
             if reading is None or t - reading.stamp > self.cfg.slip_reference_timeout:
                 continue
             half = max(half, abs(reading.speed - v) + self._z * math.sqrt(reading.var + sd_v * sd_v))
-        if _coasting(aux):
+        if is_coasting(aux):
             view = aux.motion_views[-1]
-            _, v_m, _, _, var_m = _kinematics(view.s, view.v, view.a, view.cov, max(t - view.stamp, 0.0),
+            _, v_m, _, _, var_m = kinematics(view.s, view.v, view.a, view.cov, max(t - view.stamp, 0.0),
                                               self.cfg.jerk_psd)
             half = max(half, abs(v_m - v) + self._z * math.sqrt(var_m))
         for view in aux.motion_views:
@@ -2069,7 +1936,7 @@ class TrainFilter:
             d = s_f - view.s_filter
             return (view.s + d * (1.0 + view.r),
                     view.var + max(var_f - view.P00_filter, 0.0) + (view.var_r * d * d if d else 0.0))
-        s_m, _, _, var, _ = _kinematics(view.s, view.v, view.a, view.cov, max(t - view.stamp, 0.0), self.cfg.jerk_psd)
+        s_m, _, _, var, _ = kinematics(view.s, view.v, view.a, view.cov, max(t - view.stamp, 0.0), self.cfg.jerk_psd)
         return s_m, var
 
     def _mode(self, aux: Bookkeeping, t: float, position_stddev: float) -> Mode:

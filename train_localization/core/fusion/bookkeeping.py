@@ -228,6 +228,11 @@ def is_coasting(aux: Bookkeeping) -> bool:
     return bool(aux.motion_views) and isinstance(aux.motion_views[-1], ModelView)
 
 
+def speed_excluded(aux: Bookkeeping, cls: str, stamp: float) -> bool:
+    """Whether speed source ``cls`` is excluded at ``stamp`` (suspended, or in a slip episode)."""
+    return cls in aux.suspended or aux.slip_until.get(cls, -math.inf) > stamp
+
+
 def incremented(counter: dict, key: str) -> dict:
     new = dict(counter)
     new[key] = new.get(key, 0) + 1

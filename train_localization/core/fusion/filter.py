@@ -31,11 +31,7 @@ information; the filter may say it does not know, never be confidently wrong):
               scale nobody has): every relative sensor's error states are re-learnt from
               their priors and the position and speed covariance widened by what the
               corrupted states can have caused since the last accepted fix.
-  separation  each relative sensor that another's fault could pull (separation.py: against a
-              radar scale fault every other one, against a wheel slip the fault-free ones)
-              keeps its own dead reckoning from the fixes; the interval and the speed cover it,
-              DEGRADED where the filter's own interval would not have (a radar scale fault
-              absorbed into both scale states before any test sees it).
+  separation  (solutions.py)
   lone source (lone.py)
   consistency the mean NIS of the last ``consistency_fixes`` accepted absolute fixes of
               sensors without a persistent fix error (balises, lugs, axle counters: one
@@ -128,15 +124,16 @@ from ..sensors import faults as fault_modes
 from ..signals import InputRejected
 from .bookkeeping import (MAX_MOTION_VIEWS, Bookkeeping, Candidate, Fault, FaultWindow, ModelView, MovedView, NisSum,
                           PeerRun, PeerSpeed, Suspension, UnexplainedFix, View, ViewSpeed, WindowEntry, incremented,
-                          is_coasting)
+                          is_coasting, speed_excluded)
 from .config import FusionConfig, gate_probability
 from .history import History, order_key
 from .layout import StateLayout
 from . import impact
-from .models import ProcessModel, fixes_sharing, implied_speed, kinematic_mean, kinematics, measurement
+from .models import ProcessModel, implied_speed, kinematic_mean, kinematics, measurement
 from .mode import Mode
 from . import separation
 from .lone import LoneSource
+from .solutions import Solutions
 
 
 MODE_INITIALISING, MODE_NOMINAL, MODE_DEGRADED, MODE_LOST = Mode
@@ -157,11 +154,6 @@ class Estimate:
     scales: dict[str, float]   # shared by the estimates of one filter state: read only
     biases: dict[str, float] = field(default_factory=dict)
 
-
-
-def _speed_excluded(aux: Bookkeeping, cls: str, stamp: float) -> bool:
-    """Whether speed source ``cls`` is excluded at ``stamp`` (suspended, or in a slip episode)."""
-    return cls in aux.suspended or aux.slip_until.get(cls, -math.inf) > stamp
 
 
 def _without(mapping: dict, key: str) -> dict:
@@ -252,6 +244,7 @@ class TrainFilter:
         self.applied = 0          # measurement updates run, replays included
         # the policies (one component each; they read and change the filter's state through it)
         self.lone = LoneSource(self)
+        self.solutions = Solutions(self)
         self._clear(self._initial_state())
 
     # -- state handling --------------------------------------------------------
@@ -328,13 +321,13 @@ class TrainFilter:
         self._apply_policy(m)
         if self.aux.initialised:
             for key, sm in self._sensor_subs.get(m.sensor, ()):
-                self._sub_reading(m, key, sm)
+                self.solutions.sub_reading(m, key, sm)
 
     def _apply_policy(self, m) -> None:
         aux = self.aux = self.aux.copy()
         self._predict_to(m.stamp)
         if self._subs:
-            self._before = self._main()   # the filter before this measurement (separation.py)
+            self._before = self.solutions.main()   # the filter before this measurement (separation.py)
         self.applied += 1
         cls = m.sensor
         is_fix = isinstance(m, PositionFix)
@@ -342,7 +335,7 @@ class TrainFilter:
         # in use checks it (then its own innovations test the fault too)
         self._fault_input = None if is_fix or not self._fault_bounds else (
             cls, m.distance if hasattr(m, "distance") else m.speed, bool(self._in_use(m.stamp, but=cls)))
-        if is_fix:   # since the sensor's previous fix, before this one counts (_located)
+        if is_fix:   # since the sensor's previous fix, before this one counts (Solutions.located)
             self._since = m.stamp - aux.last_accepted.get(cls, -math.inf)
         if cls in self.layout.per_reference and is_fix and aux.fix_ref.get(cls) != m.reference_id:
             self._new_fix_bias(cls)
@@ -350,7 +343,7 @@ class TrainFilter:
         if is_fix and not aux.initialised:
             self._initialise(m)
             return
-        if is_coasting(aux) and not all(_speed_excluded(aux, c, m.stamp) for c in aux.speed_sources):
+        if is_coasting(aux) and not all(speed_excluded(aux, c, m.stamp) for c in aux.speed_sources):
             # a speed source is in use again: the coasting ends, its motion-model hypothesis moves
             # with the filter from now on until a fix rules it out
             aux.motion_views = aux.motion_views[:-1] + (self._coasting_ended(aux.motion_views[-1], m.stamp),)
@@ -372,7 +365,7 @@ class TrainFilter:
                 if (z - s_m) ** 2 / (R + var_m) <= gate:
                     kept.append(view)
             aux.motion_views = tuple(kept)
-        if not is_fix and _speed_excluded(aux, cls, m.stamp) \
+        if not is_fix and speed_excluded(aux, cls, m.stamp) \
                 and not self._agreement_reference(m, S) and self._blind_speed(m, z, R):
             z, R, h, hx, PHt, S = self._innovation(m)   # at the re-acquired speed
         nis = (z - hx) ** 2 / S
@@ -844,7 +837,7 @@ class TrainFilter:
                     keep[cls] = alt
                     continue
                 view = self._view_conditioned(alt, D, var_D, z - hx, S, R)
-                if _speed_excluded(aux, cls, m.stamp):
+                if speed_excluded(aux, cls, m.stamp):
                     keep[cls] = view
                 else:
                     # its sensor in use again and both located by the fix: merged (moment matching)
@@ -1062,7 +1055,7 @@ class TrainFilter:
                                                 self.cfg.jerk_psd)
         s_f, v_f = float(self.ekf.x[0, 0]), float(self.ekf.x[1, 0])
         aux = self.aux
-        in_use = [c for c in aux.speed_sources if not _speed_excluded(aux, c, stamp)]
+        in_use = [c for c in aux.speed_sources if not speed_excluded(aux, c, stamp)]
         models = [self.models[c] for c in in_use]
         r, var_r, until = 0.0, 0.0, math.inf
         if models and all(set(md.faults) & fault_modes.SPEED for md in models):
@@ -1178,7 +1171,7 @@ class TrainFilter:
         """The speed sources in use at ``stamp`` [s]: accepted within ``slip_reference_timeout`` s
         and not excluded (in an episode, or suspended since), ``but`` left out."""
         aux, recent = self.aux, stamp - self.cfg.slip_reference_timeout
-        return [s for s in aux.speed_sources if s != but and not _speed_excluded(aux, s, stamp)
+        return [s for s in aux.speed_sources if s != but and not speed_excluded(aux, s, stamp)
                 and aux.last_accepted.get(s, -math.inf) > recent]
 
     def _reference_ok(self, m) -> bool:
@@ -1323,7 +1316,7 @@ class TrainFilter:
         aux.unverified = ""
         aux.last_fix_accepted = m.stamp
         aux.s_last_fix = float(self.ekf.x[0, 0])
-        self._hypotheses_take_fix(m)
+        self.solutions.hypotheses_take_fix(m)
         if m.sensor in self.layout.fix:
             self._fix_bias_consistency(m, nis, u, S)
             return   # a fix with a persistent error: not an independent test of the others
@@ -1577,8 +1570,8 @@ class TrainFilter:
         aux.last_accepted = {**aux.last_accepted, cls: m.stamp}
         aux.last_fix_accepted = m.stamp
         aux.s_last_fix = float(x[0, 0])
-        self._seed_subs(m.stamp)
-        aux.lone_view = None      # the lone source's solution starts again from here (_track_lone)
+        self.solutions.seed_subs(m.stamp)
+        aux.lone_view = None      # the lone source's solution starts again from here (LoneSource.track_lone)
 
     def _new_fix_bias(self, cls: str) -> None:
         """A new reference: its fix bias is independent of the previous one."""
@@ -1592,69 +1585,6 @@ class TrainFilter:
         self.aux.impacts = impact.states_set(self.aux.impacts, [i])
 
     # -- solution separation (separation.py) -----------------------------------
-    def _seed_subs(self, stamp: float) -> None:
-        """Every relative sensor's own solution starts again from the filter's position."""
-        s, P00, v = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0]), float(self.ekf.x[1, 0])
-        self.aux.subs = {name: separation.seed(sm, stamp, s, P00, v) for name, sm in self._subs.items()}
-
-    def _main(self) -> separation.Main:
-        """The filter's own solution now, for the sensor solutions."""
-        x, P = self.ekf.x, self.ekf.P
-        return separation.Main(float(x[0, 0]), float(P[0, 0]), float(x[1, 0]), float(P[1, 1]))
-
-    def _sub_reading(self, m, key: str, sm) -> None:
-        """Sensor ``m.sensor``'s own solution ``key`` after its reading m; while the filter has
-        excluded it for its own fault (not as an undecided alternative) it follows the filter."""
-        aux, cls, before = self.aux, m.sensor, self._before
-        sub = aux.subs.get(key)
-        if sub is None:
-            sub = separation.seed(sm, m.stamp, before.s, before.P00, before.v)
-        elif _speed_excluded(aux, cls, m.stamp) and cls not in aux.relative_alternatives:
-            sub = separation.follow(sub, m.stamp, before)._replace(t_v=-math.inf)
-        else:
-            R = self._measurement(m)[1]
-            sub = separation.reading(sub, sm, m, R, float(self.ekf.x[2, 0]), before, self.cfg.slip_window)
-        aux.subs = {**aux.subs, key: sub}
-
-    def _located(self, m) -> tuple[float, float]:
-        """(position [m], variance [m^2]) of the train front that an accepted fix m gives under
-        any hypothesis. The filter's estimate of the fix's persistent error (fix bias) is not
-        used: it is learnt together with the filter's own solution and may hold what the filter
-        got wrong. Its prior variance is added, as shared by the sensor's fixes within its
-        correlation time (each counts for the fraction of that time since the previous one, as
-        ``models.fix_noise`` counts a decoder's excess)."""
-        z, R, _, _ = self._measurement(m)
-        f_idx = self.layout.fix.get(m.sensor)
-        if f_idx is not None:
-            shared = fixes_sharing(self.models[m.sensor], abs(float(self.ekf.x[1, 0])), self._since)
-            R += float(self.layout.prior_sigma[f_idx]) ** 2 * shared
-        return z, R
-
-    def _hypotheses_take_fix(self, m) -> None:
-        """An absolute fix the filter accepted locates the train under every hypothesis it
-        keeps: each relative sensor's own solution (separation.py; one that cannot explain the
-        fix is refuted and starts again from the filter's) and each motion-model hypothesis of
-        a coasting (conditioned on it: a fix that both explain tells where the train is, not
-        only which one is right)."""
-        aux = self.aux
-        if not aux.subs and not aux.motion_views and aux.lone_view is None:
-            return
-        z, R = self._located(m)
-        if aux.lone_view is not None:
-            self.lone.lone_take_fix(m, z, R)
-        x0, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
-        if aux.motion_views:
-            aux.motion_views = tuple(self._motion_view_fixed(view, m.stamp, z, R, x0, P00)
-                                     for view in aux.motion_views)
-        if aux.subs:
-            subs = {}
-            for name, sub in aux.subs.items():
-                new = separation.fix(sub, m.stamp, z, R, self._before, self._gates[m.sensor])
-                if new is None:
-                    new = separation.seed(self._subs[name], m.stamp, x0, P00, float(self.ekf.x[1, 0]))
-                    aux.events = incremented(aux.events, "sensor_solution_refuted")
-                subs[name] = new
-            aux.subs = subs
 
     def _model_view(self, stamp: float) -> ModelView:
         """The motion model's hypothesis from the filter's kinematic state now."""
@@ -1852,45 +1782,8 @@ class TrainFilter:
             if half_v > self._z * sd_v:
                 sd_v = half_v / self._z
         if aux.subs:   # the relative sensors' own solutions: per fault hypothesis (protection level)
-            lo, hi, sd_s, sd_v, mode = self._hypotheses_cover(aux, t, float(s), var_s, float(v), var_v,
+            lo, hi, sd_s, sd_v, mode = self.solutions.hypotheses_cover(aux, t, float(s), var_s, float(v), var_v,
                                                                lo, hi, sd_s, sd_v, mode)
-        return lo, hi, sd_s, sd_v, mode
-
-    def _hypotheses_cover(self, aux: Bookkeeping, t: float, s: float, var_s: float, v: float, var_v: float,
-                          lo: float, hi: float, sd_s: float, sd_v: float, mode: Mode) -> tuple:
-        """(lo, hi, position and speed 1-sigma, mode) widened to cover, per fault hypothesis of
-        the relative sensors (separation.hypotheses), the valid solution that widens the interval
-        least: each is a bound under that hypothesis. A solution whose sensor has not read since it
-        started is the filter's own. DEGRADED where the filter's interval alone would not have
-        covered the chosen solution (the separation beyond its test threshold)."""
-        z, placed = self._z, {}
-        for key, sub in aux.subs.items():
-            if not sub.own:
-                continue
-            s_j, var_j = separation.at(sub, t, var_s, v, var_v)
-            var_j = max(var_j, var_s)
-            half_v = (separation.speed_half_width(sub, self._subs[key], v, var_v, z)
-                      if t - sub.t_v <= self.cfg.slip_reference_timeout else 0.0)
-            placed[key] = (s_j, var_j, z * math.sqrt(var_j), half_v)
-        for valid in self._hypotheses.values():
-            # only a solution whose sensor reads is a bound of its own; one that follows the
-            # filter (its sensor silent or excluded) may carry the fault: then each is covered
-            # (one whose sensor has not read since it started is the filter's own: none)
-            own = [k for k in valid if k in placed]
-            reading = [k for k in own if placed[k][3] > 0.0]
-            chosen = [min(reading, key=lambda k: max(hi, placed[k][0] + placed[k][2])
-                          - min(lo, placed[k][0] - placed[k][2]))] if reading else own
-            for k in chosen:
-                s_j, var_j, half, _ = placed[k]
-                if s_j - half < lo or s_j + half > hi:
-                    lo, hi = min(lo, s_j - half), max(hi, s_j + half)
-                    sd_s = max(sd_s, (hi - lo) / (2.0 * z))
-                    mode = self._widened(aux, t, sd_s, mode)
-                    if mode == Mode.NOMINAL and separation.separated(s_j, var_j, s, var_s, z):
-                        mode = Mode.DEGRADED
-            half_v = min((placed[k][3] for k in reading), default=0.0)
-            if half_v > z * sd_v:
-                sd_v = half_v / z
         return lo, hi, sd_s, sd_v, mode
 
     def _error_states(self, x_err: list) -> tuple[dict[str, float], dict[str, float]]:

@@ -1,4 +1,5 @@
-"""The lone-source solution: the motion model without the relative sensor that carries the speed alone.
+"""The lone-source solution: the motion model without the relative sensor that carries the speed
+alone.
 
   lone source while one relative sensor with a persistent fault mode (a radar's scale fault,
               growing too slowly for any reading to disagree with the motion model) carries the
@@ -24,7 +25,7 @@ if TYPE_CHECKING:
 
 
 class LoneSource:
-    """The lone-source solution: a component of the filter (TrainFilter), which builds it
+    """The solution without a lone speed source: a component of the filter (TrainFilter), which builds it
     with itself as the context: its EKF state and bookkeeping, config, layout and models."""
 
     def __init__(self, f: TrainFilter):
@@ -95,7 +96,7 @@ class LoneSource:
 
     def lone_take_fix(self, m, z: float, R: float) -> None:
         """The lone source's fault hypothesis after a fix the filter accepted (z, R from
-        ``_located``): conditioned on it; one it cannot explain refutes it (the train did move
+        ``Solutions.located``): conditioned on it; one it cannot explain refutes it (the train did move
         as the sensor said), and it starts again from the filter's."""
         aux = self.f.aux
         held = aux.lone_view

@@ -121,7 +121,7 @@ class Solutions:
                 if s_j - half < lo or s_j + half > hi:
                     lo, hi = min(lo, s_j - half), max(hi, s_j + half)
                     sd_s = max(sd_s, (hi - lo) / (2.0 * z))
-                    mode = self.f._widened(aux, t, sd_s, mode)
+                    mode = self.f.interval.widened(aux, t, sd_s, mode)
                     if mode == Mode.NOMINAL and separation.separated(s_j, var_j, s, var_s, z):
                         mode = Mode.DEGRADED
             half_v = min((placed[k][3] for k in reading), default=0.0)

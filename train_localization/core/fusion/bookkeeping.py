@@ -239,5 +239,12 @@ def incremented(counter: dict, key: str) -> dict:
     return new
 
 
+def fault_at(fault: Fault, speed: float) -> float:
+    """The size [m/s] at ``speed`` [m/s] of a fault seen as a disagreement e0 at speed v0:
+    a scale error (e0 v / v0) or a bias (e0), the smaller of the two."""
+    e0, v0 = abs(fault.disagreement), abs(fault.speed)
+    return e0 * (min(1.0, abs(speed) / v0) if v0 > 0.0 else 1.0)
+
+
 # motion-model hypotheses kept at once (coastings between disagreeing speed sources)
 MAX_MOTION_VIEWS = 4

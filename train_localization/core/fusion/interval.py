@@ -62,7 +62,7 @@ class Interval:
         if sd_v_views > sd_v:
             sd_v, mode = sd_v_views, (Mode.DEGRADED if mode == Mode.NOMINAL else mode)
         for view in aux.motion_views:   # the motion model's own hypotheses of coastings
-            s_m, var_m = self.f._motion_view(view, t, float(s), var_s)
+            s_m, var_m = self.f.motion.motion_view(view, t, float(s), var_s)
             half = self.f._z * math.sqrt(var_m)
             if s_m - half < lo or s_m + half > hi:
                 lo, hi = min(lo, s_m - half), max(hi, s_m + half)
@@ -102,7 +102,7 @@ class Interval:
         sources may be wrong the same way (a slip during a radar scale fault), and the middle
         of two readings that happen to be close is no measurement. After a coasting or a
         re-acquisition, while the common error its motion-model hypothesis holds may still last
-        (``_coasting_ended``), it covers that error too."""
+        (``MotionViews.coasting_ended``), it covers that error too."""
         half = base = self.f._z * sd_v
         for cls in aux.relative_alternatives:
             reading = aux.view_speeds.get(cls)

@@ -84,8 +84,8 @@ class LoneSource:
         twice ``slip_reference_timeout``: a lone view starts once the others have been silent
         that long), the speed is that sensor's own reading and its fault may have begun long
         before: the speed's variance then holds its scale fault, (``scale_fault_sigma`` x v)^2,
-        for the fixes to narrow (``_motion_view_fixed``)."""
-        view = self.f._model_view(stamp)
+        for the fixes to narrow (``MotionViews.motion_view_fixed``)."""
+        view = self.f.motion.model_view(stamp)
         checked = max((self.f.aux.last_accepted.get(c, -math.inf) for c in self.f.layout.relative if c != lone),
                       default=-math.inf)
         if checked >= stamp - 2.0 * self.f.cfg.slip_reference_timeout:
@@ -102,12 +102,12 @@ class LoneSource:
         held = aux.lone_view
         view = held.view
         s_f, P00 = float(self.f.ekf.x[0, 0]), float(self.f.ekf.P[0, 0])
-        s_m, var_m = self.f._motion_view(view, m.stamp, s_f, P00)
+        s_m, var_m = self.f.motion.motion_view(view, m.stamp, s_f, P00)
         if (z - s_m) ** 2 > self.f._gates[m.sensor] * (R + var_m):
             view = self.lone_model_view(m.stamp, held.sensor)
             aux.events = incremented(aux.events, "lone_source_solution_refuted")
         else:
-            view = self.f._motion_view_fixed(view, m.stamp, z, R, s_f, P00)
+            view = self.f.motion.motion_view_fixed(view, m.stamp, z, R, s_f, P00)
         # the filter accepted the fix: its error before was at most the innovation and the fix's
         # own error; the update took its gain's share of it (a DGPS fix little, a tag nearly all)
         gain, nu = self.f._last_update

@@ -80,7 +80,7 @@ class Solutions:
             self.f.lone.lone_take_fix(m, z, R)
         x0, P00 = float(self.f.ekf.x[0, 0]), float(self.f.ekf.P[0, 0])
         if aux.motion_views:
-            aux.motion_views = tuple(self.f._motion_view_fixed(view, m.stamp, z, R, x0, P00)
+            aux.motion_views = tuple(self.f.motion.motion_view_fixed(view, m.stamp, z, R, x0, P00)
                                      for view in aux.motion_views)
         if aux.subs:
             subs = {}

@@ -233,6 +233,11 @@ def speed_excluded(aux: Bookkeeping, cls: str, stamp: float) -> bool:
     return cls in aux.suspended or aux.slip_until.get(cls, -math.inf) > stamp
 
 
+def without_key(mapping: dict, key: str) -> dict:
+    """A copy of ``mapping`` without ``key`` (the Bookkeeping containers are replaced, never changed)."""
+    return {k: v for k, v in mapping.items() if k != key}
+
+
 def incremented(counter: dict, key: str) -> dict:
     new = dict(counter)
     new[key] = new.get(key, 0) + 1

@@ -51,37 +51,12 @@ information; the filter may say it does not know, never be confidently wrong):
               another reference decides: one the filter explains drops it (the fix was the
               outlier); one that agrees with it means the filter was wrong: the position is
               taken from the fixes and the relative error states are re-learnt.
-  arbitration a wheel slips only under traction and slides only under braking: a slip
-              sensor's disagreement of another kind (it turns slower while the train
-              accelerates, or any at a steady speed), and any of the radar, may be the other
-              speed sources' fault. The filter still follows the majority view, but keeps the
-              excluded sensor's distance as the alternative (the interval covers it, DEGRADED)
-              (from its current separation to the farthest it reached: it may have slipped back
-              since) and suspends the sensor: it is back only after agreeing for ``slip_window`` s
-              without being applied (one reading that slips through the gate while the
-              reference is quiet would be adopted at full weight). An absolute fix decides:
-              if it agrees with the excluded sensor, the other speed sources are suspended
-              until they agree again, the position is taken from the fix and the relative
-              error states are re-learnt; if the filter explains it and the view does not, or
-              far less well (likelihood ratio beyond the gate: a view wide with its own scale
-              error), the sensor was faulty; if both explain it, the view is conditioned on
-              the fix (it locates the train under either hypothesis) and, its sensor in use
-              again, merged. An excluded or suspended sensor is only judged to agree again
-              while the filter's speed rests on something else (another speed source, or fixes
-              that give the speed better than the sensor's own noise), never on the motion
-              model or a coasting alone; a suspended sensor's own scale and bias errors, no
-              longer learnt, count as common to its readings in that test, and it agrees only
-              where the fault it was suspended for would stand out of its noise (a radar scale
-              fault agrees at standstill). A fix that only an
-              excluded view explains overturns the filter only if a fix of another,
-              independent reference agrees with it (not one of the same sensor with a fix-bias
-              state: mm-wave fixes share stations), unless its sensor has no outlier fault mode.
+  arbitration (arbitration.py)
   recalibration a fix of an independent reference whose innovation exceeds its expected
               size (NIS > 1) re-calibrates the speed and error states by more than the model
               expected: the covariance keeps that excess along the correction, so only the
               next fix can confirm it.
-  merge       an excluded sensor's view that stops being tracked (its episode ended with a
-              separation its own errors explain) is merged into the position covariance.
+  merge       (arbitration.py)
   blind       (motion_views.py)
   coasting    (motion_views.py)
   revisit     a fix of a reference the filter accepted before (a reversal over a balise)
@@ -101,9 +76,8 @@ from scipy.stats import chi2, norm
 from ..measurements import MAX_SPEED, PositionFix
 from ..sensors import faults as fault_modes
 from ..signals import InputRejected
-from .bookkeeping import (Bookkeeping, Candidate, Fault, FaultWindow, ModelView, MovedView, NisSum, Suspension,
-                          UnexplainedFix, View, ViewSpeed, WindowEntry, fault_at, incremented, is_coasting,
-                          speed_excluded)
+from .bookkeeping import (Bookkeeping, Candidate, Fault, FaultWindow, ModelView, MovedView, NisSum, UnexplainedFix,
+                          View, ViewSpeed, WindowEntry, incremented, is_coasting, speed_excluded, without_key)
 from .config import FusionConfig, gate_probability
 from .history import History, order_key
 from .layout import StateLayout
@@ -115,6 +89,7 @@ from .lone import LoneSource
 from .solutions import Solutions
 from .interval import Interval
 from .motion_views import MotionViews
+from .arbitration import Arbitration
 
 
 MODE_INITIALISING, MODE_NOMINAL, MODE_DEGRADED, MODE_LOST = Mode
@@ -135,11 +110,6 @@ class Estimate:
     scales: dict[str, float]   # shared by the estimates of one filter state: read only
     biases: dict[str, float] = field(default_factory=dict)
 
-
-
-def _without(mapping: dict, key: str) -> dict:
-    """A copy of ``mapping`` without ``key`` (the Bookkeeping containers are replaced, never changed)."""
-    return {k: v for k, v in mapping.items() if k != key}
 
 
 def _new_view(stamp: float, P00: float) -> View:
@@ -206,6 +176,7 @@ class TrainFilter:
         self.solutions = Solutions(self)
         self.interval = Interval(self)
         self.motion = MotionViews(self)
+        self.arbitration = Arbitration(self)
         self._clear(self._initial_state())
 
     # -- state handling --------------------------------------------------------
@@ -335,7 +306,7 @@ class TrainFilter:
             # and an old coasting's motion-model hypothesis (however vague) is no longer needed
             aux.motion_views = tuple(v for v in aux.motion_views if not isinstance(v, MovedView))
         checked = self.ekf.P
-        excluded = cls in aux.suspended and self._suspended(m, z - hx, S, nis, self._common(cls, h))
+        excluded = cls in aux.suspended and self.arbitration.suspended(m, z - hx, S, nis, self._common(cls, h))
         if not excluded and self.ekf.P is not checked:   # back with its scale opened (_relearn_fault)
             z, R, h, hx, PHt, S = self._innovation(m)
             nis = (z - hx) ** 2 / S
@@ -348,7 +319,7 @@ class TrainFilter:
         if self.ekf.P is not checked:   # its learnt fault ended (_fault_ended)
             z, R, h, hx, PHt, S = self._innovation(m)
             nis = (z - hx) ** 2 / S
-        if is_fix and aux.relative_alternatives and self._decide_relative(m, z, R, hx, S, nis):
+        if is_fix and aux.relative_alternatives and self.arbitration.decide_relative(m, z, R, hx, S, nis):
             return
         if is_fix and aux.alternative is not None and aux.alternative.opened and self._corroborated(m, z, R):
             # the kept fix, for which a scale was opened, and this one agree: the position from
@@ -372,8 +343,8 @@ class TrainFilter:
         aux.accepted = incremented(aux.accepted, cls)
         aux.last_accepted = {**aux.last_accepted, cls: m.stamp}
         if cls in aux.episode_views or cls in aux.fault_windows:
-            aux.episode_views = _without(aux.episode_views, cls)
-            aux.fault_windows = _without(aux.fault_windows, cls)
+            aux.episode_views = without_key(aux.episode_views, cls)
+            aux.fault_windows = without_key(aux.fault_windows, cls)
         if is_fix:
             self._fix_accepted(m, nis, (z - hx) / math.sqrt(S), S)
         else:
@@ -414,12 +385,12 @@ class TrainFilter:
             aux.gated = incremented(aux.gated, cls + "/slip")
             self._separate(m, e, S)
             return True
-        if alt is not None and alt.farthest ** 2 <= self._slip_gate * self._alternative_spread(cls, alt)[1]:
+        if alt is not None and alt.farthest ** 2 <= self._slip_gate * self.arbitration.alternative_spread(cls, alt)[1]:
             # the episode ended with a separation that the sensor's own errors explain: no longer
             # tracked as a view of its own, but merged into the position covariance (moment
             # matching of the two views, the filter's mean kept), so the interval still covers it
-            aux.relative_alternatives = _without(aux.relative_alternatives, cls)
-            self._merge_view(alt.farthest ** 2)
+            aux.relative_alternatives = without_key(aux.relative_alternatives, cls)
+            self.arbitration.merge_view(alt.farthest ** 2)
         window, summed = self._windowed(aux.slip_window.get(cls, ()), m, e, S)
         if (nis > self._slip_gate or summed > self._slip_gate) and not self._judged(cls):
             # the only speed source, without slip physics (``_judged``): an outlying reading is
@@ -509,9 +480,9 @@ class TrainFilter:
             return False
         z, R, _, _ = self._measurement(m)
         u, white, common = implied_speed(self.layout, self.ekf.x, self.ekf.P, m, z, R)
-        aux.episode_views = _without(aux.episode_views, cls)
-        aux.relative_alternatives = _without(aux.relative_alternatives, cls)
-        aux.view_speeds = _without(aux.view_speeds, cls)
+        aux.episode_views = without_key(aux.episode_views, cls)
+        aux.relative_alternatives = without_key(aux.relative_alternatives, cls)
+        aux.view_speeds = without_key(aux.view_speeds, cls)
         self.motion.take_speed(m.stamp, [(u, white + common)], {cls})
         aux.events = incremented(aux.events, "motion_model_refuted")
         return True
@@ -538,7 +509,7 @@ class TrainFilter:
         self.ekf.x, self.ekf.P = x, P
         aux.impacts = impact.states_set(aux.impacts, [i])
         aux.scale_faults = aux.scale_faults - {cls}
-        aux.slip_window = _without(aux.slip_window, cls)
+        aux.slip_window = without_key(aux.slip_window, cls)
         aux.events = incremented(aux.events, "scale_fault_ended")
         return True
 
@@ -564,9 +535,9 @@ class TrainFilter:
                 P[i, i] = floor
             self.ekf.P = P
         aux.scale_faults = aux.scale_faults | {cls}
-        aux.slip_window = _without(aux.slip_window, cls)
-        aux.view_speeds = _without(aux.view_speeds, cls)
-        self._end_exclusion(cls, aux.t)
+        aux.slip_window = without_key(aux.slip_window, cls)
+        aux.view_speeds = without_key(aux.view_speeds, cls)
+        self.arbitration.end_exclusion(cls, aux.t)
         aux.events = incremented(aux.events, "scale_fault_relearnt")
 
     def _judged(self, cls: str) -> bool:
@@ -625,12 +596,12 @@ class TrainFilter:
             aux.episode_views = {**aux.episode_views, m.sensor: view}   # its own fault: not in the interval
         if not physical and m.sensor not in aux.relative_alternatives:
             aux.relative_alternatives = {**aux.relative_alternatives, m.sensor: view}
-            aux.episode_views = _without(aux.episode_views, m.sensor)
+            aux.episode_views = without_key(aux.episode_views, m.sensor)
             aux.events = incremented(aux.events, "ambiguous_slip")
         if not physical and m.sensor not in aux.suspended:
             # suspected faulty: back only after agreeing for slip_window s without being applied
             # (one reading that slips through the gate would be adopted at full weight)
-            self._suspend(m.sensor, Fault(shown, float(self.ekf.x[1, 0])))
+            self.arbitration.suspend(m.sensor, Fault(shown, float(self.ekf.x[1, 0])))
 
     def _separate(self, m, e: float, S: float) -> None:
         """While a sensor is excluded as the alternative (or for its own slip: ``episode_views``),
@@ -670,7 +641,7 @@ class TrainFilter:
         If the disagreement since fits one scale error of that source (weighted least squares
         of the disagreements against the speed, the residual inside the chi-square quantile of
         ``slip_gate_probability``: back-to-back slips of different ratios do not), that one is
-        the faulty one: the two swap roles (``_swap``), or the coasting ends on this sensor
+        the faulty one: the two swap roles (``Arbitration.swap``), or the coasting ends on this sensor
         (``_coast_outlasted``). With more sources in use the majority stands."""
         aux, cls, stamp = self.aux, m.sensor, m.stamp
         view = aux.relative_alternatives.get(cls) or aux.episode_views.get(cls)
@@ -689,7 +660,7 @@ class TrainFilter:
         if other is None or "scale_fault" not in self.models[other].faults:
             # the evidence counts only while it is one source with a persistent fault mode
             if cls in aux.fault_windows:
-                aux.fault_windows = _without(aux.fault_windows, cls)
+                aux.fault_windows = without_key(aux.fault_windows, cls)
             return
         record = aux.fault_windows.get(cls)
         if record is None or record.against != (other, bool(in_use)):
@@ -707,7 +678,7 @@ class TrainFilter:
         # (their ratios differ, and each ramps down to none): the residual of that fit
         if record.sum_ee - s_ev * s_ev / s_vv <= chi2.ppf(self.cfg.slip_gate_probability, n - 1):
             if in_use:
-                self._swap(m, z, R, view, other)
+                self.arbitration.swap(m, z, R, view, other)
             else:
                 self._coast_outlasted(m, other, e, v)
 
@@ -723,237 +694,13 @@ class TrainFilter:
         aux, cls, stamp = self.aux, m.sensor, m.stamp
         own = aux.peer_speeds[cls]
         if other not in aux.suspended:
-            self._suspend(other, Fault(-e, v))
-        aux.fault_windows = _without(aux.fault_windows, cls)
+            self.arbitration.suspend(other, Fault(-e, v))
+        aux.fault_windows = without_key(aux.fault_windows, cls)
         self.motion.take_speed(stamp, [(own.speed, own.white_var + own.common_var)], {cls})
         moved = aux.motion_views[-1] if aux.motion_views else None
         if isinstance(moved, MovedView):
             aux.motion_views = aux.motion_views[:-1] + (moved._replace(r=0.0, var_r=0.0, until=math.inf),)
         aux.events = incremented(aux.events, "transient_fault_outlasted")
-
-    def _swap(self, m, z: float, R: float, view: View, other: str) -> None:
-        """The excluded sensor ``m.sensor`` was right and ``other``, the speed source in use, is
-        faulty: the filter takes the excluded sensor's view (its separation D added to the
-        position, the view's spread to the position variance, the speed from this reading), and
-        ``other``'s view becomes the alternative (-D: where it puts the train) while it is
-        suspended for the fault seen. The interval keeps covering both until a fix decides; the
-        filter awaits one (DEGRADED)."""
-        aux, cls, stamp = self.aux, m.sensor, m.stamp
-        D = view.separation
-        var_D = self._alternative_spread(cls, view)[1]
-        u, u_white, u_common = implied_speed(self.layout, self.ekf.x, self.ekf.P, m, z, R)
-        x, P = self.ekf.x.copy(), self.ekf.P.copy()
-        x[0, 0] += D
-        P[0, 0] = max(P[0, 0], view.base + var_D)
-        # its speed, a new error; the acceleration, which a scale error hardly changes, is kept
-        x[1, 0] = u
-        P[1, :] = 0.0
-        P[:, 1] = 0.0
-        P[1, 1] = u_white + u_common
-        self.ekf.x, self.ekf.P = x, P
-        aux.impacts = impact.speed_set(aux.impacts, u)
-        aux.relative_alternatives = {**_without(aux.relative_alternatives, cls),
-                                     other: view._replace(separation=-D, farthest=-D)}
-        aux.episode_views = _without(aux.episode_views, cls)
-        aux.fault_windows = _without(aux.fault_windows, cls)
-        aux.view_speeds = _without(aux.view_speeds, cls)
-        aux.slip_window = _without(aux.slip_window, cls)
-        self._end_exclusion(cls, stamp)
-        self._suspend(other, self._view_fault(aux.relative_alternatives[other], stamp))
-        aux.events = incremented(aux.events, "speed_sources_swapped")
-        aux.unverified = "speed_sources_swapped"
-
-    def _alternative_spread(self, cls: str, alt: View) -> tuple[float, float]:
-        """(separation D [m], its variance [m^2]) of a relative alternative."""
-        model = self.models[cls]
-        scale = model.scale_sigma + model.scale_offset_sigma
-        return alt.separation, alt.white_var + (scale * alt.run) ** 2
-
-    def _decide_relative(self, m, z: float, R: float, hx: float, S: float, nis: float) -> bool:
-        """An absolute fix decides between the filter and the excluded sensors' views. True if
-        the fix was used for it (the position re-acquired). A fix that only an excluded view
-        explains overturns the filter only if its sensor cannot produce outliers (NLOS,
-        misread, miscount), or an unexplained fix of another reference agrees with it;
-        otherwise it is kept as the unexplained alternative and the views stay undecided."""
-        aux = self.aux
-        gate = self._gates[m.sensor]
-        explained = nis <= gate
-        keep, fitting, ruled_out = {}, [], 0
-        for cls, alt in aux.relative_alternatives.items():
-            D, var_D = self._alternative_spread(cls, alt)
-            # the view's position: the filter's when it began (or was last located by a fix),
-            # moved by its own sensor since; the filter's uncertainty from a coasting since is
-            # not the view's
-            S_v = min(S, R + alt.base) + var_D
-            fits = (z - hx - D) ** 2 / S_v
-            # -2 ln of the fix's likelihood under the view against under the filter: a view wide
-            # with its own scale error still "fits" a precise fix that the filter explains far better
-            worse = fits + math.log(S_v / S) - nis
-            if fits <= gate and not (explained and worse > gate):
-                # still explains the fix: undecided; where the filter takes the fix, the view takes
-                # it too (it locates the train under either hypothesis): its separation and spread
-                # conditioned on the fix, its scale error counted from here
-                fitting.append((fits, cls))
-                if nis > gate:
-                    keep[cls] = alt
-                    continue
-                view = self._view_conditioned(alt, D, var_D, z - hx, S, R)
-                if speed_excluded(aux, cls, m.stamp):
-                    keep[cls] = view
-                else:
-                    # its sensor in use again and both located by the fix: merged (moment matching)
-                    self._merge_view(view.separation ** 2 + view.white_var)
-            elif explained or m.stamp - alt.since > self.cfg.branch_timeout:
-                # the filter explains the fix and this excluded sensor's view does not (or far
-                # worse): it was faulty
-                aux.events = incremented(aux.events, "excluded_sensor_confirmed_faulty")
-                ruled_out += 1
-                if cls in self.layout.slip_sensors:
-                    pass        # a slip ends by itself
-                elif "scale_fault" in self.models[cls].faults and self._in_use(m.stamp, but=cls):
-                    # a radar's scale fault, which the sources in use (shown right) can teach it
-                    self._relearn_fault(cls)
-                else:                                      # a faulty radar may not recover
-                    self._suspend(cls, self._view_fault(alt, m.stamp))
-            else:
-                keep[cls] = alt
-        aux.relative_alternatives = keep
-        if explained and ruled_out and len(fitting) == 1 and is_coasting(aux):
-            # coasting between the excluded sensors, the fix rules out all views but one: that
-            # sensor was right and is back (its view located by the fix merges into the filter's)
-            cls = fitting[0][1]
-            view = aux.relative_alternatives.pop(cls, None)
-            aux.relative_alternatives = dict(aux.relative_alternatives)
-            self._end_exclusion(cls, m.stamp)
-            reading = aux.peer_speeds.get(cls)
-            if reading is not None and reading.stamp > m.stamp - self.cfg.slip_reference_timeout:
-                self.motion.set_speed([(reading.speed, reading.white_var + reading.common_var)])   # its speed, not the middle
-            aux.slip_window = _without(aux.slip_window, cls)
-            if view is not None:
-                self._merge_view(view.separation ** 2 + view.white_var)
-            aux.events = incremented(aux.events, "excluded_sensor_confirmed_right")
-            return False
-        if explained or not fitting:
-            return False                           # the filter explains it, or nothing does
-        if fault_modes.OUTLIER.intersection(self.models[m.sensor].faults) and not self._corroborated(m, z, R):
-            return False
-        # an excluded sensor was right: the other speed sources are faulty
-        cls = min(fitting)[1]
-        fault = self._view_fault(aux.relative_alternatives[cls], m.stamp)
-        fault = None if fault is None else Fault(-fault.disagreement, fault.speed)   # the others ran behind it
-        self._set_position(m)
-        self._relearn("speed_source_faulty")
-        aux.relative_alternatives = {}
-        self._end_exclusion(cls, m.stamp)
-        for other in aux.speed_sources - {cls}:
-            self._suspend(other, fault)
-        return True
-
-    def _end_exclusion(self, cls: str, stamp: float) -> None:
-        """Speed source ``cls`` found right by a fix: its slip episode or suspension ends, and it
-        counts as in use from ``stamp`` (not as a sensor back from an episode that waits for a
-        reference to agree with)."""
-        aux = self.aux
-        aux.slip_until = {**aux.slip_until, cls: stamp}
-        aux.suspended = _without(aux.suspended, cls)
-        aux.last_accepted = {**aux.last_accepted, cls: stamp}
-
-    def _merge_view(self, spread: float) -> None:
-        """An excluded sensor's view no longer tracked of its own: its squared separation (plus
-        its own variance) [m^2] added to the position variance, the filter's mean kept (moment
-        matching of the two views), so the interval still covers it."""
-        P = self.ekf.P.copy()
-        P[0, 0] += spread
-        self.ekf.P = P
-        self.aux.events = incremented(self.aux.events, "alternative_merged")
-
-    @staticmethod
-    def _view_conditioned(alt: View, D: float, var_D: float, nu: float, S: float, R: float) -> View:
-        """An excluded sensor's view (separation D [m], variance var_D [m^2]) after a fix of
-        innovation nu [m] and innovation variance S = A + R [m^2] that the filter applies: the
-        view's position, predicted with variance A + var_D, and the filter's are both updated
-        by the fix (scalar Kalman updates); the new separation and the difference of their
-        posterior variances, and the filter's position variance after the fix (the view's base)."""
-        A = max(S - R, 0.0)
-        S_v = S + var_D
-        D_new = D + (A + var_D) / S_v * (nu - D) - A / S * nu
-        var_new = max(R * ((A + var_D) / S_v - A / S), 0.0)
-        return View(D_new, var_new, alt.since, alt.last, 0.0, D_new, A * R / S if S > 0.0 else 0.0)
-
-    def _suspend(self, cls: str, fault: Fault | None) -> None:
-        """Suspend speed source ``cls`` for the fault seen, or None if its size is not known, if
-        its own error model explains it (within the slip gate of the spread its scale and bias
-        priors give at that speed), or if the sensor has no persistent fault mode (a wheel: a
-        slip or slide ends with the adhesion, and the others may have been the wrong ones): such
-        a disagreement needs no proof of its absence before the sensor is back (a wheel that
-        agrees at a standstill is back)."""
-        persistent = "scale_fault" in self.models[cls].faults
-        if fault is not None and (not persistent or
-                                  fault.disagreement ** 2 <= self._slip_gate * self._model_variance(cls, fault.speed)):
-            fault = None
-        self.aux.suspended = {**self.aux.suspended, cls: Suspension(math.inf, (), fault)}
-
-    def _model_variance(self, cls: str, speed: float) -> float:
-        """The variance [m^2/s^2] of relative sensor ``cls``'s reading at ``speed`` [m/s] that its
-        error model's scale and bias priors allow."""
-        lay, sigma = self.layout, self.layout.prior_sigma
-        scale = sum(sigma[table[cls]] ** 2 for table in (lay.scale, lay.offset) if cls in table)
-        bias = sigma[lay.bias[cls]] ** 2 if cls in lay.bias else 0.0
-        return scale * speed * speed + bias
-
-    @staticmethod
-    def _view_fault(alt: View, stamp: float) -> Fault | None:
-        """The fault an excluded sensor's view shows: its mean disagreement [m/s] at the mean
-        speed [m/s] since the view began."""
-        dt = stamp - alt.since
-        return Fault(alt.separation / dt, alt.run / dt) if dt > 0.0 else None
-
-    def _suspended(self, m, e: float, S: float, nis: float, common: float) -> bool:
-        """A speed source found or suspected faulty: excluded until it agrees again (neither its
-        single nor its windowed disagreement test fires, with a reference to judge it by) for
-        ``slip_window`` s, in a window where the fault seen would have shown (``_would_show``)."""
-        aux = self.aux
-        held = aux.suspended[m.sensor]
-        since, fault = held.since, held.fault
-        window, summed = self._windowed(held.window, m, e, S, common)
-        if (nis > self._slip_gate or summed > self._slip_gate) and m.sensor in aux.scale_faults \
-                and self._fault_ended(m, e, S):
-            # judged from its next reading on, at the scale without the fault
-            aux.suspended = {**aux.suspended, m.sensor: Suspension(math.inf, (), fault)}
-            aux.gated = incremented(aux.gated, m.sensor + "/suspended")
-            self._separate(m, e, S)
-            return True
-        if (nis > self._slip_gate or summed > self._slip_gate) and self._outlasted_by(m):
-            aux.relative_alternatives = _without(aux.relative_alternatives, m.sensor)
-            self._relearn_fault(m.sensor)
-            aux.events = incremented(aux.events, "fault_outlasted_the_others")
-            return False
-        if nis > self._slip_gate or summed > self._slip_gate or not self._agreement_reference(m, S):
-            since = math.inf
-        elif since == math.inf:
-            since = m.stamp
-        if since != math.inf and m.stamp - since >= self.cfg.slip_window and self._would_show(fault, window):
-            aux.suspended = _without(aux.suspended, m.sensor)
-            # its readings of the agreement so far are the slip test's window from here
-            aux.slip_window = {**aux.slip_window, m.sensor: window}
-            aux.events = incremented(aux.events, "speed_source_restored")
-            return False
-        aux.suspended = {**aux.suspended, m.sensor: Suspension(since, window, fault)}
-        aux.gated = incremented(aux.gated, m.sensor + "/suspended")
-        self._separate(m, e, S)
-        return True
-
-    def _would_show(self, fault: Fault | None, window: tuple) -> bool:
-        """Whether the fault a sensor was suspended for, had it persisted, would stand out of the
-        readings' white noise over ``window`` (noncentrality of the summed disagreement at least
-        the slip gate, as when it was seen in use): agreement proves nothing where the fault
-        cannot show. The fault seen, e0 at speed v0, may be a scale error (e0 v / v0) or a bias
-        (e0); the smaller of the two at each reading's speed v counts. A radar reading 6 % low
-        agrees at standstill."""
-        if fault is None or len(window) < 3:
-            return fault is None
-        shown = sum(w.weight * fault_at(fault, w.speed) for w in window)
-        return shown * shown >= self._slip_gate * sum(w.white_var for w in window)
 
     def _excluded(self, m, shown: float) -> None:
         """Apply a measurement that a fault check excluded after the fact (a slip's onset), the
@@ -1029,7 +776,7 @@ class TrainFilter:
         self._relearn("implausible_error_state")
         if len(owners) == 1:
             (cls,) = owners
-            self._suspend(cls, self._state_fault(cls, x_before))
+            self.arbitration.suspend(cls, self._state_fault(cls, x_before))
             aux = self.aux
             aux.events = incremented(aux.events, "implausible_sensor_suspended")
             if aux.speed_sources - {cls} and cls not in aux.relative_alternatives:
@@ -1037,7 +784,7 @@ class TrainFilter:
                 # speed source may be the faulty one, so the suspended sensor's view is kept
                 aux.relative_alternatives = {**aux.relative_alternatives,
                                              cls: _new_view(aux.t, float(self.ekf.P[0, 0]))}
-                aux.episode_views = _without(aux.episode_views, cls)
+                aux.episode_views = without_key(aux.episode_views, cls)
 
     def _state_fault(self, cls: str, x) -> Fault:
         """The fault that relative sensor ``cls``'s error states in x had absorbed: its scale and
@@ -1162,7 +909,7 @@ class TrainFilter:
             return
         if drift and not noisy:
             self._drift_from_slip(m, summed, weights, S)
-        aux.fix_bias_nis = _without(aux.fix_bias_nis, cls)
+        aux.fix_bias_nis = without_key(aux.fix_bias_nis, cls)
         # an alternative of this sensor is pending (an earlier inconsistency's view, or an
         # unexplained fix of it): the question is open already
         pending = aux.alternative is not None and aux.alternative.sensor == cls

@@ -47,7 +47,7 @@ class Interval:
             sd_s = max(sd_s, (hi - lo) / (2.0 * self.f._z))
         mode = self.mode(aux, t, sd_s)
         for cls, rel in aux.relative_alternatives.items():   # the excluded sensors' views
-            D, var_D = self.f._alternative_spread(cls, rel)
+            D, var_D = self.f.arbitration.alternative_spread(cls, rel)
             half = self.f._z * math.sqrt(var_s + var_D)
             # from its current separation to the farthest one: the excluded sensor is no more
             # trusted than the others (right until then, it may have slipped back since)

@@ -13,6 +13,7 @@ import yaml
 from train_localization.core import campaign
 from train_localization.core.fusion import separation
 from train_localization.core.fusion.bookkeeping import View
+from train_localization.core.fusion.episodes import Episodes
 from train_localization.core.fusion.lone import LoneSource
 from train_localization.core.fusion import (MODE_DEGRADED, MODE_INITIALISING, MODE_LOST, MODE_NOMINAL, FusionConfig,
                                           TrainFilter, sensor_models)
@@ -970,7 +971,7 @@ def test_a_radar_silent_at_a_stop_does_not_put_the_stop_into_its_view(monkeypatc
     train is no longer suspended on the motion model, the next test; the window test is
     forced here to keep the excluded view's silence under test, as a radar beside a wheel
     has it.)"""
-    monkeypatch.setattr(TrainFilter, "_judged", lambda self, m: True)
+    monkeypatch.setattr(Episodes, "judged", lambda self, m: True)
     result = _exported("campaign_utm_radar_silent_at_a_stop.yaml")
     assert result["scores"]["integrity"]["outside_count"] == 0
     assert result["fusion"]["integrity"].get("ambiguous_slip", 0) >= 1       # the view was opened

@@ -94,7 +94,7 @@ class Arbitration:
                     pass        # a slip ends by itself
                 elif "scale_fault" in self.f.models[cls].faults and self.f._in_use(m.stamp, but=cls):
                     # a radar's scale fault, which the sources in use (shown right) can teach it
-                    self.f._relearn_fault(cls)
+                    self.f.episodes.relearn_fault(cls)
                 else:                                      # a faulty radar may not recover
                     self.suspend(cls, self.view_fault(alt, m.stamp))
             else:
@@ -220,17 +220,17 @@ class Arbitration:
         aux = self.f.aux
         held = aux.suspended[m.sensor]
         since, fault = held.since, held.fault
-        window, summed = self.f._windowed(held.window, m, e, S, common)
+        window, summed = self.f.episodes.windowed(held.window, m, e, S, common)
         if (nis > self.f._slip_gate or summed > self.f._slip_gate) and m.sensor in aux.scale_faults \
-                and self.f._fault_ended(m, e, S):
+                and self.f.episodes.fault_ended(m, e, S):
             # judged from its next reading on, at the scale without the fault
             aux.suspended = {**aux.suspended, m.sensor: Suspension(math.inf, (), fault)}
             aux.gated = incremented(aux.gated, m.sensor + "/suspended")
-            self.f._separate(m, e, S)
+            self.f.episodes.separate(m, e, S)
             return True
-        if (nis > self.f._slip_gate or summed > self.f._slip_gate) and self.f._outlasted_by(m):
+        if (nis > self.f._slip_gate or summed > self.f._slip_gate) and self.f.episodes.outlasted_by(m):
             aux.relative_alternatives = without_key(aux.relative_alternatives, m.sensor)
-            self.f._relearn_fault(m.sensor)
+            self.f.episodes.relearn_fault(m.sensor)
             aux.events = incremented(aux.events, "fault_outlasted_the_others")
             return False
         if nis > self.f._slip_gate or summed > self.f._slip_gate or not self.f._agreement_reference(m, S):
@@ -245,7 +245,7 @@ class Arbitration:
             return False
         aux.suspended = {**aux.suspended, m.sensor: Suspension(since, window, fault)}
         aux.gated = incremented(aux.gated, m.sensor + "/suspended")
-        self.f._separate(m, e, S)
+        self.f.episodes.separate(m, e, S)
         return True
 
     def would_show(self, fault: Fault | None, window: tuple) -> bool:

@@ -93,7 +93,7 @@ class Fault(NamedTuple):
 
 
 class WindowEntry(NamedTuple):
-    """One reading of a disagreement window (``TrainFilter._windowed``)."""
+    """One reading of a disagreement window (``Episodes.windowed``)."""
 
     stamp: float        # [s]
     distance: float     # e d [m]: the disagreement e [m/s] times the weight d
@@ -191,7 +191,7 @@ class Bookkeeping:
         self.view_speeds: dict[str, ViewSpeed] = {}
         # a sensor excluded for a slip or slide (its own fault, not kept in the interval): its
         # view all the same; and each excluded sensor with a bounded fault duration: the fit of a
-        # scale error of the other source (``_outlasted``)
+        # scale error of the other source (``Episodes.outlasted``)
         self.episode_views: dict[str, View] = {}
         self.fault_windows: dict[str, FaultWindow] = {}
         self.candidate: Candidate | None = None        # first fix awaiting confirmation
@@ -210,7 +210,7 @@ class Bookkeeping:
         # solution without it (the fixes and the motion model, ``LoneSource.track_lone``)
         self.lone_view: LoneView | None = None
         # speed sources whose scale fault the others showed and whose constant scale now learns
-        # it (``_relearn_fault``): their scale is plausible up to the fault's size
+        # it (``Episodes.relearn_fault``): their scale is plausible up to the fault's size
         self.scale_faults: frozenset = frozenset()
         # the persistent-fault hypotheses of the relative sensors (impact.py Bank), None before any
         self.impacts = None
@@ -236,6 +236,12 @@ def speed_excluded(aux: Bookkeeping, cls: str, stamp: float) -> bool:
 def without_key(mapping: dict, key: str) -> dict:
     """A copy of ``mapping`` without ``key`` (the Bookkeeping containers are replaced, never changed)."""
     return {k: v for k, v in mapping.items() if k != key}
+
+
+def new_view(stamp: float, P00: float) -> View:
+    """A relative sensor's view as it begins at ``stamp`` [s], the filter's position variance
+    P00 [m^2] its base."""
+    return View(0.0, 0.0, stamp, stamp, 0.0, 0.0, P00)
 
 
 def incremented(counter: dict, key: str) -> dict:

@@ -124,7 +124,7 @@ class Arbitration:
         fault = self.view_fault(aux.relative_alternatives[cls], m.stamp)
         fault = None if fault is None else Fault(-fault.disagreement, fault.speed)   # the others ran behind it
         self.f._set_position(m)
-        self.f._relearn("speed_source_faulty")
+        self.f.plausibility.relearn("speed_source_faulty")
         aux.relative_alternatives = {}
         self.end_exclusion(cls, m.stamp)
         for other in aux.speed_sources - {cls}:

@@ -16,12 +16,7 @@ information; the filter may say it does not know, never be confidently wrong):
   gate        a measurement whose normalised innovation squared (NIS) exceeds the
               chi-square quantile of its gate probability is rejected and counted.
   episodes    (episodes.py)
-  plausibility an error state estimated beyond ``plausible_sigmas`` of its prior (and beyond
-              the slip gate of its own variance: significantly) means a fault was absorbed
-              (the filter explained a slip or a faulty sensor with a
-              scale nobody has): every relative sensor's error states are re-learnt from
-              their priors and the position and speed covariance widened by what the
-              corrupted states can have caused since the last accepted fix.
+  plausibility (plausibility.py)
   separation  (solutions.py)
   lone source (lone.py)
   consistency the mean NIS of the last ``consistency_fixes`` accepted absolute fixes of
@@ -67,8 +62,8 @@ from scipy.stats import chi2, norm
 from ..measurements import MAX_SPEED, PositionFix
 from ..sensors import faults as fault_modes
 from ..signals import InputRejected
-from .bookkeeping import (Bookkeeping, Candidate, Fault, ModelView, MovedView, NisSum, UnexplainedFix, incremented,
-                          is_coasting, new_view, speed_excluded, without_key)
+from .bookkeeping import (Bookkeeping, Candidate, ModelView, MovedView, NisSum, UnexplainedFix, incremented,
+                          is_coasting, speed_excluded, without_key)
 from .config import FusionConfig, gate_probability
 from .history import History, order_key
 from .layout import StateLayout
@@ -83,6 +78,7 @@ from .interval import Interval
 from .motion_views import MotionViews
 from .arbitration import Arbitration
 from .episodes import Episodes
+from .plausibility import Plausibility
 
 
 MODE_INITIALISING, MODE_NOMINAL, MODE_DEGRADED, MODE_LOST = Mode
@@ -157,6 +153,7 @@ class TrainFilter:
         self.motion = MotionViews(self)
         self.arbitration = Arbitration(self)
         self.episodes = Episodes(self)
+        self.plausibility = Plausibility(self)
         self._clear(self._initial_state())
 
     # -- state handling --------------------------------------------------------
@@ -332,7 +329,7 @@ class TrainFilter:
                 aux.speed_sources = aux.speed_sources | {cls}
             if self._persistent:
                 self.lone.track_lone(m.stamp)
-        self._check_plausible()
+        self.plausibility.check_plausible()
 
     def _measurement(self, m):
         """(z, R, H row, h(x)) of a measurement at the current state (models.measurement), with
@@ -370,88 +367,6 @@ class TrainFilter:
         if is_coasting(self.aux):
             return self._reference_ok(m)
         return self._reference_ok(m) or float(self.ekf.P[1, 1]) <= 0.5 * S
-
-    def _check_plausible(self) -> None:
-        """Re-learn the relative sensors' error states if one of them left its plausible range.
-
-        If the states of one sensor alone left it, that sensor is outside its own error
-        model (a radar scale fault with no other speed source to disagree with): it is also
-        suspended until it agrees again, its view kept as the alternative if another speed source
-        may be the faulty one; the only relative sensor of a train without slip physics keeps
-        its readings in use, its scale opened to the fault's size. States of several sensors: a fault was absorbed between them (a
-        slip learnt as scales), which one cannot be told."""
-        idx = self.layout.relative_states
-        if not len(idx):
-            return
-        x = self.ekf.x[idx, 0]
-        sigma = self.layout.prior_sigma[idx]
-        if self.aux.scale_faults:   # a scale fault being learnt: plausible up to its size
-            lay = self.layout
-            faulted = {lay.fault_scale.get(c): self.models[c].scale_fault_sigma
-                       for c in self.aux.scale_faults}
-            sigma = np.array([math.hypot(sg, faulted.get(i, 0.0)) for i, sg in zip(idx.tolist(), sigma)])
-        # beyond the plausible range, and significantly so where a fix-bias inconsistency widened
-        # the state past its prior (a noisy estimate of a scale that may hold a fault is no proof)
-        bad = (np.abs(x) > self.cfg.plausible_sigmas * sigma) & \
-            (x * x > self._slip_gate * np.diag(self.ekf.P)[idx])
-        if not bad.any():
-            return
-        owners = {self.layout.owner[i] for i in idx[bad]}
-        x_before = self.ekf.x
-        if len(owners) == 1 and not self.episodes.judged(next(iter(owners))):
-            # the only relative sensor, without slip physics: suspended, nothing could show it
-            # agreeing again (``Episodes.judged``); its scale may hold a fault, opened to the fault's size
-            # for the fixes to teach, the lone solution covering it meanwhile
-            self._relearn("implausible_error_state", faulty=owners)
-            return
-        self._relearn("implausible_error_state")
-        if len(owners) == 1:
-            (cls,) = owners
-            self.arbitration.suspend(cls, self._state_fault(cls, x_before))
-            aux = self.aux
-            aux.events = incremented(aux.events, "implausible_sensor_suspended")
-            if aux.speed_sources - {cls} and cls not in aux.relative_alternatives:
-                # which state absorbs a disagreement follows the priors, not the fault: the other
-                # speed source may be the faulty one, so the suspended sensor's view is kept
-                aux.relative_alternatives = {**aux.relative_alternatives,
-                                             cls: new_view(aux.t, float(self.ekf.P[0, 0]))}
-                aux.episode_views = without_key(aux.episode_views, cls)
-
-    def _state_fault(self, cls: str, x) -> Fault:
-        """The fault that relative sensor ``cls``'s error states in x had absorbed: its scale and
-        bias error at the speed [m/s], the speed [m/s]."""
-        lay, v = self.layout, float(x[1, 0])
-        k = sum(float(x[i, 0]) + (float(x[o, 0]) if o is not None else 0.0)
-                for name, i, o in lay.scale_terms if name == cls)
-        b = float(x[lay.bias[cls], 0]) if cls in lay.bias else 0.0
-        return Fault(k * v + (b if v >= 0.0 else -b), v)
-
-    def _relearn(self, reason: str, faulty=()) -> None:
-        """Error states of the relative sensors back to their priors (the scales of ``faulty``
-        sensors, suspected of a scale fault, by the fault's size more: ``_raised``); the
-        position and speed covariance widened by what the discarded estimates can have caused
-        since the last accepted fix (scale x distance, scale x speed, bias x time)."""
-        aux, lay = self.aux, self.layout
-        x, P = self.ekf.x.copy(), self.ekf.P.copy()
-        scale = 0.0
-        for _, i, o in lay.scale_terms:
-            scale = max(scale, abs(x[i, 0] + (x[o, 0] if o is not None else 0.0)))
-        bias = max([abs(x[i, 0]) for i in lay.bias.values()], default=0.0)
-        dist = abs(x[0, 0] - aux.s_last_fix) if math.isfinite(aux.s_last_fix) else 0.0
-        since = aux.t - aux.last_fix_accepted if math.isfinite(aux.last_fix_accepted) else 0.0
-        P[0, 0] += (scale * dist + bias * since) ** 2
-        P[1, 1] += (scale * x[1, 0]) ** 2 + bias ** 2
-        idx = lay.relative_states
-        x[idx, 0] = 0.0
-        aux.impacts = impact.states_set(aux.impacts, idx)
-        P[idx, :] = 0.0
-        P[:, idx] = 0.0
-        P[idx, idx] = lay.prior_sigma[idx] ** 2
-        self.ekf.x = x
-        self.ekf.P = self._raised(P, faulty) if faulty else P
-        aux.scale_faults = aux.scale_faults & frozenset(faulty)
-        aux.events = incremented(aux.events, reason)
-        aux.unverified = reason
 
     def _correction_unconfirmed(self, x_before, nis: float) -> None:
         """A fix whose innovation exceeds its expected size (NIS > 1) corrected the speed and
@@ -552,7 +467,7 @@ class TrainFilter:
         P[0, 0] += bias * bias
         # the relative error states keep their estimates, their variance raised to at least their
         # prior's: the fixes that follow tell whether they hold a fault (learnt beyond
-        # plausibility, ``_check_plausible`` suspends the sensor) or the fix bias did
+        # plausibility, ``Plausibility.check_plausible`` suspends the sensor) or the fix bias did
         # a drift alone (small innovations of one sign: the dead reckoning parts at a rate, as a
         # scale fault makes it) raises a constant scale with a scale-fault mode to the fault's
         # size; not where the fixes are also noisier than their model (an NLOS step would pull a
@@ -641,7 +556,7 @@ class TrainFilter:
         size (``_raised``): under that hypothesis the filter's speed is wrong, and the interval
         of both the filter and the kept fix moves with the filter's motion. The next fix of
         another reference decides: one that agrees with the kept fix re-acquires the position
-        from itself, the scale left open for the fixes after it to learn (``_relearn``)."""
+        from itself, the scale left open for the fixes after it to learn (``Plausibility.relearn``)."""
         aux = self.aux
         if self._corroborated(m, z, R):
             # two independent fixes agree with each other, not with the filter: it was wrong
@@ -665,7 +580,7 @@ class TrainFilter:
         a scale opened for the alternative stays open."""
         faulty = self.aux.alternative.opened
         self._set_position(m)
-        self._relearn("reacquired", faulty)
+        self.plausibility.relearn("reacquired", faulty)
         self.aux.alternative = None
 
     def _corroborated(self, m, z: float, R: float) -> bool:

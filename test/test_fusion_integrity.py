@@ -14,6 +14,7 @@ from train_localization.core import campaign
 from train_localization.core.fusion import separation
 from train_localization.core.fusion.bookkeeping import View
 from train_localization.core.fusion.episodes import Episodes
+from train_localization.core.fusion.fixes import Fixes
 from train_localization.core.fusion.lone import LoneSource
 from train_localization.core.fusion import (MODE_DEGRADED, MODE_INITIALISING, MODE_LOST, MODE_NOMINAL, FusionConfig,
                                           TrainFilter, sensor_models)
@@ -849,7 +850,7 @@ def test_a_fix_that_a_lone_radars_scale_fault_explains_opens_its_scale(monkeypat
     assert outside and 15.0 < min(outside) and max(outside) < 20.0
     assert all(e.mode == MODE_NOMINAL for t, e, _, _ in checked if t < 15.0)
     assert all(e.mode != MODE_NOMINAL for t, e, _, _ in checked if 20.0 <= t < 40.0)
-    monkeypatch.setattr(TrainFilter, "_scale_faults_explaining", lambda self, m, z, R: [])
+    monkeypatch.setattr(Fixes, "scale_faults_explaining", lambda self, m, z, R: [])
     _, before = _lone_radar_ramp_run()
     assert sum(1 for t, e, s, _ in before if not e.position_min <= s <= e.position_max) > 800
 

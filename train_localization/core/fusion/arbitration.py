@@ -117,13 +117,13 @@ class Arbitration:
             return False
         if explained or not fitting:
             return False                           # the filter explains it, or nothing does
-        if fault_modes.OUTLIER.intersection(self.f.models[m.sensor].faults) and not self.f._corroborated(m, z, R):
+        if fault_modes.OUTLIER.intersection(self.f.models[m.sensor].faults) and not self.f.fixes.corroborated(m, z, R):
             return False
         # an excluded sensor was right: the other speed sources are faulty
         cls = min(fitting)[1]
         fault = self.view_fault(aux.relative_alternatives[cls], m.stamp)
         fault = None if fault is None else Fault(-fault.disagreement, fault.speed)   # the others ran behind it
-        self.f._set_position(m)
+        self.f.fixes.set_position(m)
         self.f.plausibility.relearn("speed_source_faulty")
         aux.relative_alternatives = {}
         self.end_exclusion(cls, m.stamp)

@@ -74,7 +74,7 @@ class Episodes:
         if (nis > self.f._slip_gate or summed > self.f._slip_gate) and not self.judged(cls):
             # the only speed source, without slip physics (``Episodes.judged``): an outlying reading is
             # gated; a fault that persists is the lone solution's to cover (``LoneSource.track_lone``) and
-            # the fix drift test's to find (``_fix_bias_consistency``)
+            # the fix drift test's to find (``Fixes.fix_bias_consistency``)
             aux.slip_window = {**aux.slip_window, cls: ()}
             if nis > self.f._slip_gate:
                 aux.gated = incremented(aux.gated, cls)

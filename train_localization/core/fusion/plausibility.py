@@ -85,7 +85,7 @@ class Plausibility:
 
     def relearn(self, reason: str, faulty=()) -> None:
         """Error states of the relative sensors back to their priors (the scales of ``faulty``
-        sensors, suspected of a scale fault, by the fault's size more: ``_raised``); the
+        sensors, suspected of a scale fault, by the fault's size more: ``Fixes.raised``); the
         position and speed covariance widened by what the discarded estimates can have caused
         since the last accepted fix (scale x distance, scale x speed, bias x time)."""
         aux, lay = self.f.aux, self.f.layout
@@ -105,7 +105,7 @@ class Plausibility:
         P[:, idx] = 0.0
         P[idx, idx] = lay.prior_sigma[idx] ** 2
         self.f.ekf.x = x
-        self.f.ekf.P = self.f._raised(P, faulty) if faulty else P
+        self.f.ekf.P = self.f.fixes.raised(P, faulty) if faulty else P
         aux.scale_faults = aux.scale_faults & frozenset(faulty)
         aux.events = incremented(aux.events, reason)
         aux.unverified = reason

@@ -245,6 +245,7 @@ def new_view(stamp: float, P00: float) -> View:
 
 
 def incremented(counter: dict, key: str) -> dict:
+    """A copy of ``counter`` with ``key`` counted once more."""
     new = dict(counter)
     new[key] = new.get(key, 0) + 1
     return new

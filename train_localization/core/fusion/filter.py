@@ -15,19 +15,16 @@ Fault policy (the rule of GNSS integrity monitoring: no hazardously misleading
 information; the filter may say it does not know, never be confidently wrong):
   gate        a measurement whose normalised innovation squared (NIS) exceeds the
               chi-square quantile of its gate probability is rejected and counted.
-  episodes    (episodes.py)
-  plausibility (plausibility.py)
-  separation  (solutions.py)
-  lone source (lone.py)
-  consistency (fixes.py)
-  unexplained (fixes.py)
-  arbitration (arbitration.py)
-  recalibration (fixes.py)
-  merge       (arbitration.py)
-  blind       (motion_views.py)
-  coasting    (motion_views.py)
-  revisit     (fixes.py)
-Modes and the published interval: interval.py.
+The other policies, each in the docstring of its own module, run by the filter as
+components (``_apply_policy`` is the order in which they act on a measurement):
+  episodes.py      episodes (slip, slide, scale-fault episodes of the relative sensors)
+  plausibility.py  plausibility (an error state beyond its prior: re-learn)
+  solutions.py     separation (each relative sensor's own solution)
+  lone.py          lone source (the solution without a lone speed source)
+  fixes.py         consistency, unexplained, recalibration, revisit (absolute fixes)
+  arbitration.py   arbitration, merge (the excluded sensor's view, suspension)
+  motion_views.py  blind, coasting (the motion model's own hypotheses)
+  interval.py      the modes and the published interval, widened to cover them all
 """
 from __future__ import annotations
 
@@ -48,16 +45,16 @@ from .layout import StateLayout
 from . import impact
 from .models import ProcessModel, kinematic_covariance, kinematics, measurement
 from .mode import Mode
-from .episodes import Lookback
 from . import separation
-from .lone import LoneSource
-from .solutions import Solutions
-from .interval import Interval
-from .motion_views import MotionViews
+# the policies (components)
 from .arbitration import Arbitration
-from .episodes import Episodes
-from .plausibility import Plausibility
+from .episodes import Episodes, Lookback
 from .fixes import Fixes
+from .interval import Interval
+from .lone import LoneSource
+from .motion_views import MotionViews
+from .plausibility import Plausibility
+from .solutions import Solutions
 
 
 MODE_INITIALISING, MODE_NOMINAL, MODE_DEGRADED, MODE_LOST = Mode
@@ -77,7 +74,6 @@ class Estimate:
     mode: int
     scales: dict[str, float]   # shared by the estimates of one filter state: read only
     biases: dict[str, float] = field(default_factory=dict)
-
 
 
 class TrainFilter:

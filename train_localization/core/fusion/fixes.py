@@ -252,7 +252,7 @@ class Fixes:
         return self.agrees(m, z, R, float(self.f.ekf.x[0, 0]), float(self.f.ekf.P[0, 0]), alt.z, alt.R, alt.s, alt.P00)
 
     def agrees(self, m, z: float, R: float, s: float, P00: float,
-                z_kept: float, R_kept: float, s_kept: float, P00_kept: float) -> bool:
+               z_kept: float, R_kept: float, s_kept: float, P00_kept: float) -> bool:
         """Whether fix ``m`` (z, R) agrees with a kept fix moved by the dead reckoning since:
         filter position and its variance s, P00 now, s_kept, P00_kept when it was kept."""
         var = R_kept + R + max(P00 - P00_kept, 0.0)

@@ -89,7 +89,7 @@ class Interval:
                 sd_v = half_v / self.f._z
         if aux.subs:   # the relative sensors' own solutions: per fault hypothesis (protection level)
             lo, hi, sd_s, sd_v, mode = self.f.solutions.hypotheses_cover(aux, t, float(s), var_s, float(v), var_v,
-                                                               lo, hi, sd_s, sd_v, mode)
+                                                                         lo, hi, sd_s, sd_v, mode)
         return lo, hi, sd_s, sd_v, mode
 
     def speed_covering_views(self, aux: Bookkeeping, t: float, v: float, sd_v: float) -> float:
@@ -112,7 +112,7 @@ class Interval:
         if is_coasting(aux):
             view = aux.motion_views[-1]
             _, v_m, _, _, var_m = kinematics(view.s, view.v, view.a, view.cov, max(t - view.stamp, 0.0),
-                                              self.f.cfg.jerk_psd)
+                                             self.f.cfg.jerk_psd)
             half = max(half, abs(v_m - v) + self.f._z * math.sqrt(var_m))
         for view in aux.motion_views:
             if isinstance(view, MovedView) and view.r and view.until > t:

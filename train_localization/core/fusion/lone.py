@@ -126,7 +126,7 @@ class LoneSource:
         bound = lone.bound + z * sigma_f * abs(v) * max(t - aux.t, 0.0)
         view = lone.view
         s_m, v_m, _, var_m, var_vm = kinematics(view.s, view.v, view.a, view.cov, max(t - view.stamp, 0.0),
-                                                 self.f.cfg.jerk_psd)
+                                                self.f.cfg.jerk_psd)
         half, cap = z * math.sqrt(var_m), math.sqrt(z * z * var_s + bound * bound)
         half_v = min(abs(v_m - v) + z * math.sqrt(var_vm), z * math.sqrt(var_v + (sigma_f * v) ** 2))
         return max(s_m - half, s - cap), min(s_m + half, s + cap), half_v, s_m, var_m

@@ -82,7 +82,7 @@ class MotionViews:
         the smallest scale fault among them (a sensor without a speed fault mode rules the
         hypothesis out: r = 0)."""
         s_m, v_m, _, var_m, var_v = kinematics(view.s, view.v, view.a, view.cov, max(stamp - view.stamp, 0.0),
-                                                self.f.cfg.jerk_psd)
+                                               self.f.cfg.jerk_psd)
         s_f, v_f = float(self.f.ekf.x[0, 0]), float(self.f.ekf.x[1, 0])
         aux = self.f.aux
         in_use = [c for c in aux.speed_sources if not speed_excluded(aux, c, stamp)]
@@ -112,7 +112,7 @@ class MotionViews:
         return np.array(kinematic_mean(view.s, view.v, view.a, dt)), P
 
     def motion_view_fixed(self, view: ModelView | MovedView, t: float, z: float, R: float, s_f: float,
-                           P00_f: float) -> ModelView | MovedView:
+                          P00_f: float) -> ModelView | MovedView:
         """A motion-model hypothesis conditioned on a fix z [m] of variance R [m^2] at t [s] (the
         filter at s_f, P00_f after it): a coasting's kinematic state moved to t and updated
         (H = [1, 0, 0]); a moved one as a scalar update, moved with the filter from here."""
@@ -139,7 +139,7 @@ class MotionViews:
         return s_m, var
 
     def peer_run(self, cls: str, stamp: float, u: float, white: float, common: float,
-                  peers: dict) -> str | None:
+                 peers: dict) -> str | None:
         """Extend the run of agreement of ``cls`` with an excluded peer: each reading inside the
         slip gate of the pair's variance, and their mean difference inside the slip gate of its
         own (white parts averaged, common parts not). The peer once it has lasted ``slip_window`` s,
@@ -245,7 +245,7 @@ class MotionViews:
             if not peers:
                 return False
             return self.coast(stamp, [(u, white + common)] +
-                               [(p.speed, p.white_var + p.common_var) for p in peers.values()])
+                              [(p.speed, p.white_var + p.common_var) for p in peers.values()])
         p = peers[peer]
         self.take_speed(stamp, [(u, white + common), (p.speed, p.white_var + p.common_var)], {cls, peer})
         return True

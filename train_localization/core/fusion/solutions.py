@@ -93,7 +93,7 @@ class Solutions:
             aux.subs = subs
 
     def hypotheses_cover(self, aux: Bookkeeping, t: float, s: float, var_s: float, v: float, var_v: float,
-                          lo: float, hi: float, sd_s: float, sd_v: float, mode: Mode) -> tuple:
+                         lo: float, hi: float, sd_s: float, sd_v: float, mode: Mode) -> tuple:
         """(lo, hi, position and speed 1-sigma, mode) widened to cover, per fault hypothesis of
         the relative sensors (separation.hypotheses), the valid solution that widens the interval
         least: each is a bound under that hypothesis. A solution whose sensor has not read since it

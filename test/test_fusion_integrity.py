@@ -842,7 +842,7 @@ def test_a_fix_that_a_lone_radars_scale_fault_explains_opens_its_scale(monkeypat
     (Without the lone radar's own protection, which covers the drift before the balise:
     the next test, and the persistent-fault cover of core/fusion/impact.py, left out here.)"""
     _without_fault_cover(monkeypatch)
-    monkeypatch.setattr(LoneSource, "track_lone", lambda self, stamp: None)
+    monkeypatch.setattr(LoneSource, "track", lambda self, stamp: None)
     f, checked = _lone_radar_ramp_run()
     events = f.counters()["integrity"]
     assert events["scale_fault_suspected"] == 1 and events["reacquired"] == 1
@@ -866,7 +866,7 @@ def test_the_solution_without_a_lone_radar_covers_its_fault_before_any_fix_shows
     assert all(e.position_min <= s <= e.position_max for _, e, s, _ in checked)
     half = {round(t, 2): 0.5 * (e.position_max - e.position_min) for t, e, _, _ in checked}
     assert 29.0 < half[9.5] < 3.29 * 0.05 * 200.0 and half[10.5] < 3.0
-    monkeypatch.setattr(LoneSource, "track_lone", lambda self, stamp: None)
+    monkeypatch.setattr(LoneSource, "track", lambda self, stamp: None)
     _, cover_only = _lone_radar_ramp_run()   # the persistent-fault cover (impact.py) alone holds it too
     assert all(e.position_min <= s <= e.position_max for _, e, s, _ in cover_only)
     _without_fault_cover(monkeypatch)
@@ -890,7 +890,7 @@ def test_a_lone_radars_solution_stays_when_a_second_source_comes_back_until_a_fi
 
     def dropped(self, stamp):
         self.f.aux.lone_view = None
-    monkeypatch.setattr(LoneSource, "lone_accompanied", dropped)
+    monkeypatch.setattr(LoneSource, "accompanied", dropped)
     cover_only = campaign.run_one("urban_maglev", 537686460, max_duration=25.0)
     assert cover_only["scores"]["integrity"]["outside_count"] == 0   # the persistent-fault cover holds it
     _without_fault_cover(monkeypatch)

@@ -207,7 +207,7 @@ class Bookkeeping:
         # each relative sensor's own solution from the fixes (separation.py): sensor -> Sub
         self.subs: dict = {}
         # while one relative sensor with a persistent fault mode carries the speed alone: the
-        # solution without it (the fixes and the motion model, ``LoneSource.track_lone``)
+        # solution without it (the fixes and the motion model, ``LoneSource.track``)
         self.lone_view: LoneView | None = None
         # speed sources whose scale fault the others showed and whose constant scale now learns
         # it (``Episodes.relearn_fault``): their scale is plausible up to the fault's size

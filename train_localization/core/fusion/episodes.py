@@ -73,7 +73,7 @@ class Episodes:
         window, summed = self.windowed(aux.slip_window.get(cls, ()), m, e, S)
         if (nis > self.f._slip_gate or summed > self.f._slip_gate) and not self.judged(cls):
             # the only speed source, without slip physics (``Episodes.judged``): an outlying reading is
-            # gated; a fault that persists is the lone solution's to cover (``LoneSource.track_lone``) and
+            # gated; a fault that persists is the lone solution's to cover (``LoneSource.track``) and
             # the fix drift test's to find (``Fixes.fix_bias_consistency``)
             aux.slip_window = {**aux.slip_window, cls: ()}
             if nis > self.f._slip_gate:

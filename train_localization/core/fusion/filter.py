@@ -102,7 +102,7 @@ class TrainFilter:
         self._hypotheses = separation.hypotheses(self.models, self._subs)
         # relative sensors with a fault no test of their own can tell from motion, which may begin
         # at any time (a radar's scale fault growing slowly): while one carries the speed alone, the
-        # interval covers the solution without it (``LoneSource.track_lone``). A calibration fault (a worn
+        # interval covers the solution without it (``LoneSource.track``). A calibration fault (a worn
         # wheel) is a constant: the sensor's own solution with its scale opened covers it
         self._persistent = frozenset(n for n, m in self.models.items() if m.relative and
                                      (fault_modes.PERSISTENT - fault_modes.CALIBRATION) & set(m.faults))
@@ -300,7 +300,7 @@ class TrainFilter:
             if cls not in aux.speed_sources:
                 aux.speed_sources = aux.speed_sources | {cls}
             if self._persistent:
-                self.lone.track_lone(m.stamp)
+                self.lone.track(m.stamp)
         self.plausibility.check_plausible()
 
     def _measurement(self, m):

@@ -352,7 +352,7 @@ class Fixes:
         aux.last_fix_accepted = m.stamp
         aux.s_last_fix = float(x[0, 0])
         self.f.solutions.seed_subs(m.stamp)
-        aux.lone_view = None      # the lone source's solution starts again from here (LoneSource.track_lone)
+        aux.lone_view = None      # the lone source's solution starts again from here (LoneSource.track)
 
     def new_fix_bias(self, cls: str) -> None:
         """A new reference: its fix bias is independent of the previous one."""

@@ -31,17 +31,17 @@ class LoneSource:
     def __init__(self, f: TrainFilter):
         self.f = f
 
-    def track_lone(self, stamp: float) -> None:
+    def track(self, stamp: float) -> None:
         """Solution separation for the fault of a lone speed source. A relative sensor whose scale
         fault no test of its own can see (a Doppler radar's, growing slowly: the speed it reads
         drifts like an acceleration) may carry the speed alone: the only relative sensor, or the
         others excluded or silent. Nothing then checks it but the fixes, and between them a
         fault of a few percent runs the filter out of its interval while every test passes. The
         solution without that sensor is the motion model from the last time another source
-        checked it, conditioned on the fixes the filter accepts (``LoneSource.lone_take_fix``); the
+        checked it, conditioned on the fixes the filter accepts (``LoneSource.take_fix``); the
         interval covers it (``LoneSource.lone_interval``). It starts when one such sensor is left in use
         (accepted within ``slip_reference_timeout`` s), and ends when another source is in use
-        (``LoneSource.lone_accompanied``). A wheel in a slip or slide episode still counts: the episode is
+        (``LoneSource.accompanied``). A wheel in a slip or slide episode still counts: the episode is
         short (its ``fault_duration_max``) and ends with the wheel agreeing with the filter
         again, which a drifting radar fails; a suspended sensor does not."""
         aux, timeout = self.f.aux, self.f.cfg.slip_reference_timeout
@@ -50,11 +50,11 @@ class LoneSource:
         lone = in_use[0] if len(in_use) == 1 and in_use[0] in self.f._persistent else None
         if lone is None:
             if aux.lone_view is not None and in_use:
-                self.lone_accompanied(stamp)
+                self.accompanied(stamp)
         elif aux.lone_view is None or aux.lone_view.sensor != lone:
             aux.lone_view = LoneView(self.lone_model_view(stamp, lone), lone, 0.0)
 
-    def lone_accompanied(self, stamp: float) -> None:
+    def accompanied(self, stamp: float) -> None:
         """The lone source has company again: from ``stamp`` the sources in use check each other,
         so its fault adds nothing more, but what it may have put into the filter's position while
         it was alone stays there, unseen by the newcomer (a relative sensor tells the motion from
@@ -94,7 +94,7 @@ class LoneSource:
         p11 += (self.f.models[lone].scale_fault_sigma * view.v) ** 2
         return view._replace(cov=(p00, p01, p02, p11, p12, p22))
 
-    def lone_take_fix(self, m, z: float, R: float) -> None:
+    def take_fix(self, m, z: float, R: float) -> None:
         """The lone source's fault hypothesis after a fix the filter accepted (z, R from
         ``Solutions.located``): conditioned on it; one it cannot explain refutes it (the train did move
         as the sensor said), and it starts again from the filter's."""

@@ -77,7 +77,7 @@ class Solutions:
             return
         z, R = self.located(m)
         if aux.lone_view is not None:
-            self.f.lone.lone_take_fix(m, z, R)
+            self.f.lone.take_fix(m, z, R)
         x0, P00 = float(self.f.ekf.x[0, 0]), float(self.f.ekf.P[0, 0])
         if aux.motion_views:
             aux.motion_views = tuple(self.f.motion.motion_view_fixed(view, m.stamp, z, R, x0, P00)

@@ -13,6 +13,9 @@ import yaml
 from train_localization.core import campaign
 from train_localization.core.fusion import separation
 from train_localization.core.fusion.bookkeeping import View
+from train_localization.core.fusion.episodes import Episodes
+from train_localization.core.fusion.fixes import Fixes
+from train_localization.core.fusion.lone import LoneSource
 from train_localization.core.fusion import (MODE_DEGRADED, MODE_INITIALISING, MODE_LOST, MODE_NOMINAL, FusionConfig,
                                           TrainFilter, sensor_models)
 from train_localization.core.measurements import DistanceIncrement, PositionFix, SpeedMeasurement
@@ -839,7 +842,7 @@ def test_a_fix_that_a_lone_radars_scale_fault_explains_opens_its_scale(monkeypat
     (Without the lone radar's own protection, which covers the drift before the balise:
     the next test, and the persistent-fault cover of core/fusion/impact.py, left out here.)"""
     _without_fault_cover(monkeypatch)
-    monkeypatch.setattr(TrainFilter, "_track_lone", lambda self, stamp: None)
+    monkeypatch.setattr(LoneSource, "track", lambda self, stamp: None)
     f, checked = _lone_radar_ramp_run()
     events = f.counters()["integrity"]
     assert events["scale_fault_suspected"] == 1 and events["reacquired"] == 1
@@ -847,7 +850,7 @@ def test_a_fix_that_a_lone_radars_scale_fault_explains_opens_its_scale(monkeypat
     assert outside and 15.0 < min(outside) and max(outside) < 20.0
     assert all(e.mode == MODE_NOMINAL for t, e, _, _ in checked if t < 15.0)
     assert all(e.mode != MODE_NOMINAL for t, e, _, _ in checked if 20.0 <= t < 40.0)
-    monkeypatch.setattr(TrainFilter, "_scale_faults_explaining", lambda self, m, z, R: [])
+    monkeypatch.setattr(Fixes, "scale_faults_explaining", lambda self, m, z, R: [])
     _, before = _lone_radar_ramp_run()
     assert sum(1 for t, e, s, _ in before if not e.position_min <= s <= e.position_max) > 800
 
@@ -863,7 +866,7 @@ def test_the_solution_without_a_lone_radar_covers_its_fault_before_any_fix_shows
     assert all(e.position_min <= s <= e.position_max for _, e, s, _ in checked)
     half = {round(t, 2): 0.5 * (e.position_max - e.position_min) for t, e, _, _ in checked}
     assert 29.0 < half[9.5] < 3.29 * 0.05 * 200.0 and half[10.5] < 3.0
-    monkeypatch.setattr(TrainFilter, "_track_lone", lambda self, stamp: None)
+    monkeypatch.setattr(LoneSource, "track", lambda self, stamp: None)
     _, cover_only = _lone_radar_ramp_run()   # the persistent-fault cover (impact.py) alone holds it too
     assert all(e.position_min <= s <= e.position_max for _, e, s, _ in cover_only)
     _without_fault_cover(monkeypatch)
@@ -886,8 +889,8 @@ def test_a_lone_radars_solution_stays_when_a_second_source_comes_back_until_a_fi
     assert run["scores"]["integrity"]["outside_count"] == 0
 
     def dropped(self, stamp):
-        self.aux.lone_view = None
-    monkeypatch.setattr(TrainFilter, "_lone_accompanied", dropped)
+        self.f.aux.lone_view = None
+    monkeypatch.setattr(LoneSource, "accompanied", dropped)
     cover_only = campaign.run_one("urban_maglev", 537686460, max_duration=25.0)
     assert cover_only["scores"]["integrity"]["outside_count"] == 0   # the persistent-fault cover holds it
     _without_fault_cover(monkeypatch)
@@ -969,7 +972,7 @@ def test_a_radar_silent_at_a_stop_does_not_put_the_stop_into_its_view(monkeypatc
     train is no longer suspended on the motion model, the next test; the window test is
     forced here to keep the excluded view's silence under test, as a radar beside a wheel
     has it.)"""
-    monkeypatch.setattr(TrainFilter, "_judged", lambda self, m: True)
+    monkeypatch.setattr(Episodes, "judged", lambda self, m: True)
     result = _exported("campaign_utm_radar_silent_at_a_stop.yaml")
     assert result["scores"]["integrity"]["outside_count"] == 0
     assert result["fusion"]["integrity"].get("ambiguous_slip", 0) >= 1       # the view was opened

@@ -93,7 +93,7 @@ class Fault(NamedTuple):
 
 
 class WindowEntry(NamedTuple):
-    """One reading of a disagreement window (``TrainFilter._windowed``)."""
+    """One reading of a disagreement window (``Episodes.windowed``)."""
 
     stamp: float        # [s]
     distance: float     # e d [m]: the disagreement e [m/s] times the weight d
@@ -191,7 +191,7 @@ class Bookkeeping:
         self.view_speeds: dict[str, ViewSpeed] = {}
         # a sensor excluded for a slip or slide (its own fault, not kept in the interval): its
         # view all the same; and each excluded sensor with a bounded fault duration: the fit of a
-        # scale error of the other source (``_outlasted``)
+        # scale error of the other source (``Episodes.outlasted``)
         self.episode_views: dict[str, View] = {}
         self.fault_windows: dict[str, FaultWindow] = {}
         self.candidate: Candidate | None = None        # first fix awaiting confirmation
@@ -207,10 +207,10 @@ class Bookkeeping:
         # each relative sensor's own solution from the fixes (separation.py): sensor -> Sub
         self.subs: dict = {}
         # while one relative sensor with a persistent fault mode carries the speed alone: the
-        # solution without it (the fixes and the motion model, ``_track_lone``)
+        # solution without it (the fixes and the motion model, ``LoneSource.track``)
         self.lone_view: LoneView | None = None
         # speed sources whose scale fault the others showed and whose constant scale now learns
-        # it (``_relearn_fault``): their scale is plausible up to the fault's size
+        # it (``Episodes.relearn_fault``): their scale is plausible up to the fault's size
         self.scale_faults: frozenset = frozenset()
         # the persistent-fault hypotheses of the relative sensors (impact.py Bank), None before any
         self.impacts = None
@@ -220,3 +220,43 @@ class Bookkeeping:
         for name in Bookkeeping.__slots__:
             setattr(new, name, getattr(self, name))
         return new
+
+
+def is_coasting(aux: Bookkeeping) -> bool:
+    """Whether the filter coasts between disagreeing speed sources (a motion-model hypothesis
+    of a coasting in progress)."""
+    return bool(aux.motion_views) and isinstance(aux.motion_views[-1], ModelView)
+
+
+def speed_excluded(aux: Bookkeeping, cls: str, stamp: float) -> bool:
+    """Whether speed source ``cls`` is excluded at ``stamp`` (suspended, or in a slip episode)."""
+    return cls in aux.suspended or aux.slip_until.get(cls, -math.inf) > stamp
+
+
+def without_key(mapping: dict, key: str) -> dict:
+    """A copy of ``mapping`` without ``key`` (the Bookkeeping containers are replaced, never changed)."""
+    return {k: v for k, v in mapping.items() if k != key}
+
+
+def new_view(stamp: float, P00: float) -> View:
+    """A relative sensor's view as it begins at ``stamp`` [s], the filter's position variance
+    P00 [m^2] its base."""
+    return View(0.0, 0.0, stamp, stamp, 0.0, 0.0, P00)
+
+
+def incremented(counter: dict, key: str) -> dict:
+    """A copy of ``counter`` with ``key`` counted once more."""
+    new = dict(counter)
+    new[key] = new.get(key, 0) + 1
+    return new
+
+
+def fault_at(fault: Fault, speed: float) -> float:
+    """The size [m/s] at ``speed`` [m/s] of a fault seen as a disagreement e0 at speed v0:
+    a scale error (e0 v / v0) or a bias (e0), the smaller of the two."""
+    e0, v0 = abs(fault.disagreement), abs(fault.speed)
+    return e0 * (min(1.0, abs(speed) / v0) if v0 > 0.0 else 1.0)
+
+
+# motion-model hypotheses kept at once (coastings between disagreeing speed sources)
+MAX_MOTION_VIEWS = 4

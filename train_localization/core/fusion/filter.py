@@ -15,119 +15,21 @@ Fault policy (the rule of GNSS integrity monitoring: no hazardously misleading
 information; the filter may say it does not know, never be confidently wrong):
   gate        a measurement whose normalised innovation squared (NIS) exceeds the
               chi-square quantile of its gate probability is rejected and counted.
-  episodes    (slip, slide, radar scale faults) an increment or speed of a relative sensor
-              with such fault modes that disagrees
-              (NIS above ``slip_gate_probability``), or whose innovations summed over
-              ``slip_window`` s disagree (a slip too small to show in one increment:
-              low speed, slow onset), while another speed source was accepted recently,
-              starts an episode: the sensor is excluded until ``slip_holdoff`` s after
-              its last disagreement. The increments just before that already disagreed
-              the same way (the onset of the slip) are excluded after the fact and the
-              history re-applied without them, so the slip is not carried in the speed
-              and scale states.
-  plausibility an error state estimated beyond ``plausible_sigmas`` of its prior (and beyond
-              the slip gate of its own variance: significantly) means a fault was absorbed
-              (the filter explained a slip or a faulty sensor with a
-              scale nobody has): every relative sensor's error states are re-learnt from
-              their priors and the position and speed covariance widened by what the
-              corrupted states can have caused since the last accepted fix.
-  separation  each relative sensor that another's fault could pull (separation.py: against a
-              radar scale fault every other one, against a wheel slip the fault-free ones)
-              keeps its own dead reckoning from the fixes; the interval and the speed cover it,
-              DEGRADED where the filter's own interval would not have (a radar scale fault
-              absorbed into both scale states before any test sees it).
-  lone source while one relative sensor with a persistent fault mode (a radar's scale fault,
-              growing too slowly for any reading to disagree with the motion model) carries the
-              speed alone (the others not fitted, silent or suspended; a wheel in a slip
-              episode still counts: the episode is short and ends with a cross-check), nothing
-              but the fixes checks it. The interval also covers the solution without it: the
-              motion model from the filter's state when it became the lone one, conditioned on
-              the accepted fixes (one it cannot explain refutes it and it starts again from the
-              filter's), within what the sensor's fault can do over the distance since the last
-              accepted fix (z ``scale_fault_sigma`` x distance). DEGRADED where it separates
-              from the filter as a sensor's solution does.
-  consistency the mean NIS of the last ``consistency_fixes`` accepted absolute fixes of
-              sensors without a persistent fix error (balises, lugs, axle counters: one
-              independent fix per reference) above its chi-square quantile means the
-              covariance is too small: it is scaled by that mean. The same test over each
-              sensor's own fixes with a fix-bias state (DGPS, mm-wave, INPO: the bias is a
-              state, so the innovations are white if the model holds) means the fixes and the
-              dead reckoning part faster than that bias can: a fault of the relative sensors
-              (a lone radar's scale fault) was being absorbed into the fix bias, or the fix
-              sensor has one beyond its model. Which, one cannot tell: the fix bias goes back
-              to its prior, the relative error states keep their estimates with at least
-              their prior uncertainty (after a drift, a scale with a scale-fault mode that
-              of the fault's size), and the dead-reckoned position is kept as the
-              alternative until an independent fix decides.
-  unexplained an absolute fix the gate rejects is kept as an alternative hypothesis: the
-              published interval covers it (moved with the filter's motion) until a fix of
-              another reference decides: one the filter explains drops it (the fix was the
-              outlier); one that agrees with it means the filter was wrong: the position is
-              taken from the fixes and the relative error states are re-learnt.
-  arbitration a wheel slips only under traction and slides only under braking: a slip
-              sensor's disagreement of another kind (it turns slower while the train
-              accelerates, or any at a steady speed), and any of the radar, may be the other
-              speed sources' fault. The filter still follows the majority view, but keeps the
-              excluded sensor's distance as the alternative (the interval covers it, DEGRADED)
-              (from its current separation to the farthest it reached: it may have slipped back
-              since) and suspends the sensor: it is back only after agreeing for ``slip_window`` s
-              without being applied (one reading that slips through the gate while the
-              reference is quiet would be adopted at full weight). An absolute fix decides:
-              if it agrees with the excluded sensor, the other speed sources are suspended
-              until they agree again, the position is taken from the fix and the relative
-              error states are re-learnt; if the filter explains it and the view does not, or
-              far less well (likelihood ratio beyond the gate: a view wide with its own scale
-              error), the sensor was faulty; if both explain it, the view is conditioned on
-              the fix (it locates the train under either hypothesis) and, its sensor in use
-              again, merged. An excluded or suspended sensor is only judged to agree again
-              while the filter's speed rests on something else (another speed source, or fixes
-              that give the speed better than the sensor's own noise), never on the motion
-              model or a coasting alone; a suspended sensor's own scale and bias errors, no
-              longer learnt, count as common to its readings in that test, and it agrees only
-              where the fault it was suspended for would stand out of its noise (a radar scale
-              fault agrees at standstill). A fix that only an
-              excluded view explains overturns the filter only if a fix of another,
-              independent reference agrees with it (not one of the same sensor with a fix-bias
-              state: mm-wave fixes share stations), unless its sensor has no outlier fault mode.
-  recalibration a fix of an independent reference whose innovation exceeds its expected
-              size (NIS > 1) re-calibrates the speed and error states by more than the model
-              expected: the covariance keeps that excess along the correction, so only the
-              next fix can confirm it.
-  merge       an excluded sensor's view that stops being tracked (its episode ended with a
-              separation its own errors explain) is merged into the position covariance.
-  blind       every speed source excluded at once and the speed resting on the motion model
-              alone: two excluded sources that agree with each other (reading by reading and
-              in their mean) for ``slip_window`` s give the speed back; their views stay in
-              the interval until a fix decides. A sensor whose view is undecided stays
-              excluded while nothing can show that it agrees, also after a dropout.
-  coasting    excluded sources that disagree: once the motion model knows the speed worse
-              than the middle of their readings does, the filter coasts on that middle
-              (not on the last acceleration). The motion model's own hypothesis from the
-              start of the coasting stays in the interval (both sources may be wrong the same
-              way) until a fix rules it out or, the filter back on its speed sources, a fix
-              confirms the filter. After the coasting (or a re-acquisition from the motion
-              model alone) it moves with the filter, its distance scaled by the scale error
-              the sources back in use may share (a radar scale fault as large as a wheel's
-              slide agrees with it): estimated from the motion model's speed against theirs
-              with the smallest scale-fault prior among them, until the shortest of their
-              transient faults must have ended. A fix the filter accepts locates the train
-              under that hypothesis too: it is conditioned on the fix.
-  revisit     a fix of a reference the filter accepted before (a reversal over a balise)
-              carries the same installation error: not applied while the filter knows its
-              position better than the fix.
-Modes: INITIALISING until the first absolute fix, or for sensors that can misread their
-reference until two fixes of different references agree (NaN position, infinite interval);
-LOST when the position 1-sigma exceeds ``lost_stddev``; DEGRADED while a continuous
-sensor is past its timeout, an unexplained fix is pending, or the filter has not been
-confirmed by an accepted fix since a re-learn or an inflation; else NOMINAL.
-[position_min, position_max] is the two-sided ``confidence`` interval, widened to
-cover a pending alternative.
+The other policies, each in the docstring of its own module, run by the filter as
+components (``_apply_policy`` is the order in which they act on a measurement):
+  episodes.py      episodes (slip, slide, scale-fault episodes of the relative sensors)
+  plausibility.py  plausibility (an error state beyond its prior: re-learn)
+  solutions.py     separation (each relative sensor's own solution)
+  lone.py          lone source (the solution without a lone speed source)
+  fixes.py         consistency, unexplained, recalibration, revisit (absolute fixes)
+  arbitration.py   arbitration, merge (the excluded sensor's view, suspension)
+  motion_views.py  blind, coasting (the motion model's own hypotheses)
+  interval.py      the modes and the published interval, widened to cover them all
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from enum import IntEnum
 
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
@@ -136,23 +38,23 @@ from scipy.stats import chi2, norm
 from ..measurements import MAX_SPEED, PositionFix
 from ..sensors import faults as fault_modes
 from ..signals import InputRejected
-from .bookkeeping import (Bookkeeping, Candidate, Fault, FaultWindow, LoneView, ModelView, MovedView, NisSum,
-                          PeerRun, PeerSpeed, Suspension, UnexplainedFix, View, ViewSpeed, WindowEntry)
+from .bookkeeping import Bookkeeping, MovedView, NisSum, incremented, is_coasting, speed_excluded, without_key
 from .config import FusionConfig, gate_probability
 from .history import History, order_key
 from .layout import StateLayout
 from . import impact
-from .models import ProcessModel, fixes_sharing, implied_speed, kinematic_mean, measurement
+from .models import ProcessModel, kinematic_covariance, kinematics, measurement
+from .mode import Mode
 from . import separation
-
-
-class Mode(IntEnum):
-    """TrainState.mode (train_localization_msgs/TrainState)."""
-
-    INITIALISING = 0
-    NOMINAL = 1
-    DEGRADED = 2
-    LOST = 3
+# the policies (components)
+from .arbitration import Arbitration
+from .episodes import Episodes, Lookback
+from .fixes import Fixes
+from .interval import Interval
+from .lone import LoneSource
+from .motion_views import MotionViews
+from .plausibility import Plausibility
+from .solutions import Solutions
 
 
 MODE_INITIALISING, MODE_NOMINAL, MODE_DEGRADED, MODE_LOST = Mode
@@ -172,86 +74,6 @@ class Estimate:
     mode: int
     scales: dict[str, float]   # shared by the estimates of one filter state: read only
     biases: dict[str, float] = field(default_factory=dict)
-
-
-# references whose fixes the filter remembers (a reversal passes the last few again)
-_REMEMBERED_REFS = 32
-
-# motion-model hypotheses kept at once (coastings between disagreeing speed sources)
-_MAX_MOTION_VIEWS = 4
-
-
-
-def _kinematic_covariance(P) -> tuple:
-    """(P00, P01, P02, P11, P12, P22) of the position, speed and acceleration states, as floats."""
-    (p00, p01, p02), (_, p11, p12), (_, _, p22) = P[:3, :3].tolist()
-    return p00, p01, p02, p11, p12, p22
-
-
-def _kinematics(s: float, v: float, a: float, p: tuple, dt: float, q: float) -> tuple:
-    """(position [m], speed [m/s], acceleration [m/s^2], position and speed variances) dt [s]
-    after (s, v, a) with the kinematic covariance p (``_kinematic_covariance``), under the
-    white-jerk motion model of spectral density q [m^2/s^5]: the first three rows of F and Q,
-    the train held at rest where a braking brings it there (``kinematic_mean``). Plain floats:
-    numpy's per-call overhead dominates 3x3 arithmetic at 200 estimates/s."""
-    p00, p01, p02, p11, p12, p22 = p
-    h, dt2 = 0.5 * dt * dt, dt * dt
-    var_s = (p00 + 2 * dt * p01 + 2 * h * p02 + dt2 * p11 + 2 * dt * h * p12 + h * h * p22
-             + q * dt2 * dt2 * dt / 20)
-    var_v = p11 + 2 * dt * p12 + dt2 * p22 + q * dt2 * dt / 3
-    return (*kinematic_mean(s, v, a, dt), var_s, var_v)
-
-
-def _coasting(aux: Bookkeeping) -> bool:
-    """Whether the filter coasts between disagreeing speed sources (a motion-model hypothesis
-    of a coasting in progress)."""
-    return bool(aux.motion_views) and isinstance(aux.motion_views[-1], ModelView)
-
-
-def _speed_excluded(aux: Bookkeeping, cls: str, stamp: float) -> bool:
-    """Whether speed source ``cls`` is excluded at ``stamp`` (suspended, or in a slip episode)."""
-    return cls in aux.suspended or aux.slip_until.get(cls, -math.inf) > stamp
-
-
-def _without(mapping: dict, key: str) -> dict:
-    """A copy of ``mapping`` without ``key`` (the Bookkeeping containers are replaced, never changed)."""
-    return {k: v for k, v in mapping.items() if k != key}
-
-
-def _new_view(stamp: float, P00: float) -> View:
-    """A relative sensor's view as it begins at ``stamp`` [s], the filter's position variance
-    P00 [m^2] its base."""
-    return View(0.0, 0.0, stamp, stamp, 0.0, 0.0, P00)
-
-
-def _fault_at(fault: Fault, speed: float) -> float:
-    """The size [m/s] at ``speed`` [m/s] of a fault seen as a disagreement e0 at speed v0:
-    a scale error (e0 v / v0) or a bias (e0), the smaller of the two."""
-    e0, v0 = abs(fault.disagreement), abs(fault.speed)
-    return e0 * (min(1.0, abs(speed) / v0) if v0 > 0.0 else 1.0)
-
-
-def _shows(fault: Fault | None, speed: float, variance: float, gate: float) -> bool:
-    """Whether a fault (``_fault_at``) at ``speed`` [m/s] stands out of a test statistic of
-    ``variance`` [m^2/s^2] at the chi-square ``gate``; None (size unknown) counts as shown."""
-    if fault is None:
-        return True
-    e = _fault_at(fault, speed)
-    return e * e >= gate * variance
-
-
-def _inc(counter: dict, key: str) -> dict:
-    new = dict(counter)
-    new[key] = new.get(key, 0) + 1
-    return new
-
-
-class _Lookback(Exception):
-    """Raised inside an update: exclude ``sensor``'s measurements from ``since`` and re-apply."""
-
-    def __init__(self, sensor: str, since: float, shown: float):
-        super().__init__(sensor)
-        self.sensor, self.since, self.shown = sensor, since, shown
 
 
 class TrainFilter:
@@ -280,7 +102,7 @@ class TrainFilter:
         self._hypotheses = separation.hypotheses(self.models, self._subs)
         # relative sensors with a fault no test of their own can tell from motion, which may begin
         # at any time (a radar's scale fault growing slowly): while one carries the speed alone, the
-        # interval covers the solution without it (``_track_lone``). A calibration fault (a worn
+        # interval covers the solution without it (``LoneSource.track``). A calibration fault (a worn
         # wheel) is a constant: the sensor's own solution with its scale opened covers it
         self._persistent = frozenset(n for n, m in self.models.items() if m.relative and
                                      (fault_modes.PERSISTENT - fault_modes.CALIBRATION) & set(m.faults))
@@ -295,6 +117,15 @@ class TrainFilter:
         self._eye = np.eye(self.n)
         self.rejected: dict[str, int] = {}
         self.applied = 0          # measurement updates run, replays included
+        # the policies (one component each; they read and change the filter's state through it)
+        self.lone = LoneSource(self)
+        self.solutions = Solutions(self)
+        self.interval = Interval(self)
+        self.motion = MotionViews(self)
+        self.arbitration = Arbitration(self)
+        self.episodes = Episodes(self)
+        self.plausibility = Plausibility(self)
+        self.fixes = Fixes(self)
         self._clear(self._initial_state())
 
     # -- state handling --------------------------------------------------------
@@ -371,13 +202,13 @@ class TrainFilter:
         self._apply_policy(m)
         if self.aux.initialised:
             for key, sm in self._sensor_subs.get(m.sensor, ()):
-                self._sub_reading(m, key, sm)
+                self.solutions.sub_reading(m, key, sm)
 
     def _apply_policy(self, m) -> None:
         aux = self.aux = self.aux.copy()
         self._predict_to(m.stamp)
         if self._subs:
-            self._before = self._main()   # the filter before this measurement (separation.py)
+            self._before = self.solutions.main()   # the filter before this measurement (separation.py)
         self.applied += 1
         cls = m.sensor
         is_fix = isinstance(m, PositionFix)
@@ -385,24 +216,24 @@ class TrainFilter:
         # in use checks it (then its own innovations test the fault too)
         self._fault_input = None if is_fix or not self._fault_bounds else (
             cls, m.distance if hasattr(m, "distance") else m.speed, bool(self._in_use(m.stamp, but=cls)))
-        if is_fix:   # since the sensor's previous fix, before this one counts (_located)
+        if is_fix:   # since the sensor's previous fix, before this one counts (Solutions.located)
             self._since = m.stamp - aux.last_accepted.get(cls, -math.inf)
         if cls in self.layout.per_reference and is_fix and aux.fix_ref.get(cls) != m.reference_id:
-            self._new_fix_bias(cls)
+            self.fixes.new_fix_bias(cls)
             aux.fix_ref = {**aux.fix_ref, cls: m.reference_id}
         if is_fix and not aux.initialised:
-            self._initialise(m)
+            self.fixes.initialise(m)
             return
-        if _coasting(aux) and not all(_speed_excluded(aux, c, m.stamp) for c in aux.speed_sources):
+        if is_coasting(aux) and not all(speed_excluded(aux, c, m.stamp) for c in aux.speed_sources):
             # a speed source is in use again: the coasting ends, its motion-model hypothesis moves
             # with the filter from now on until a fix rules it out
-            aux.motion_views = aux.motion_views[:-1] + (self._coasting_ended(aux.motion_views[-1], m.stamp),)
+            aux.motion_views = aux.motion_views[:-1] + (self.motion.coasting_ended(aux.motion_views[-1], m.stamp),)
         if any(isinstance(v, MovedView) and v.until <= m.stamp for v in aux.motion_views):
             # past the longest episode of a transient fault the sources in use may share: their
             # common error no longer grows; the hypothesis moves with the filter from here
             s_f, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
             aux.motion_views = tuple(
-                MovedView(*self._motion_view(v, m.stamp, s_f, P00), s_f, P00, 0.0, 0.0, math.inf)
+                MovedView(*self.motion.motion_view(v, m.stamp, s_f, P00), s_f, P00, 0.0, 0.0, math.inf)
                 if isinstance(v, MovedView) and v.until <= m.stamp else v for v in aux.motion_views)
         z, R, h, hx, PHt, S = self._innovation(m)
         if is_fix and aux.motion_views:
@@ -411,12 +242,12 @@ class TrainFilter:
             gate = self._gates[cls]
             kept = []
             for view in aux.motion_views:
-                s_m, var_m = self._motion_view(view, m.stamp, s_f, P00)
+                s_m, var_m = self.motion.motion_view(view, m.stamp, s_f, P00)
                 if (z - s_m) ** 2 / (R + var_m) <= gate:
                     kept.append(view)
             aux.motion_views = tuple(kept)
-        if not is_fix and _speed_excluded(aux, cls, m.stamp) \
-                and not self._agreement_reference(m, S) and self._blind_speed(m, z, R):
+        if not is_fix and speed_excluded(aux, cls, m.stamp) \
+                and not self._agreement_reference(m, S) and self.motion.blind_speed(m, z, R):
             z, R, h, hx, PHt, S = self._innovation(m)   # at the re-acquired speed
         nis = (z - hx) ** 2 / S
         if is_fix and nis <= self._gates[cls] and any(isinstance(v, MovedView) for v in aux.motion_views):
@@ -424,53 +255,53 @@ class TrainFilter:
             # and an old coasting's motion-model hypothesis (however vague) is no longer needed
             aux.motion_views = tuple(v for v in aux.motion_views if not isinstance(v, MovedView))
         checked = self.ekf.P
-        excluded = cls in aux.suspended and self._suspended(m, z - hx, S, nis, self._common(cls, h))
-        if not excluded and self.ekf.P is not checked:   # back with its scale opened (_relearn_fault)
+        excluded = cls in aux.suspended and self.arbitration.suspended(m, z - hx, S, nis, self.episodes.common(cls, h))
+        if not excluded and self.ekf.P is not checked:   # back with its scale opened (Episodes.relearn_fault)
             z, R, h, hx, PHt, S = self._innovation(m)
             nis = (z - hx) ** 2 / S
             checked = self.ekf.P
-        excluded = excluded or (cls in self.layout.episode_sensors and self._slipping(m, z - hx, S, nis))
+        excluded = excluded or (cls in self.layout.episode_sensors and self.episodes.slipping(m, z - hx, S, nis))
         if excluded:
             if cls in self._bounded:
-                self._outlasted(m, z, R, hx, S, h)
+                self.episodes.outlasted(m, z, R, hx, S, h)
             return
-        if self.ekf.P is not checked:   # its learnt fault ended (_fault_ended)
+        if self.ekf.P is not checked:   # its learnt fault ended (Episodes.fault_ended)
             z, R, h, hx, PHt, S = self._innovation(m)
             nis = (z - hx) ** 2 / S
-        if is_fix and aux.relative_alternatives and self._decide_relative(m, z, R, hx, S, nis):
+        if is_fix and aux.relative_alternatives and self.arbitration.decide_relative(m, z, R, hx, S, nis):
             return
-        if is_fix and aux.alternative is not None and aux.alternative.opened and self._corroborated(m, z, R):
+        if is_fix and aux.alternative is not None and aux.alternative.opened and self.fixes.corroborated(m, z, R):
             # the kept fix, for which a scale was opened, and this one agree: the position from
             # them, also where the filter's opened interval would have taken this one (it would
             # learn the scale from this fix against a position the kept fix showed wrong)
-            self._reacquire(m)
+            self.fixes.reacquire(m)
             return
         if nis > self._gates[cls]:
-            aux.gated = _inc(aux.gated, cls)
+            aux.gated = incremented(aux.gated, cls)
             if is_fix and aux.initialised:
-                self._unexplained(m, z, R)
+                self.fixes.unexplained(m, z, R)
             return
-        if is_fix and self._remembered(m, R):
+        if is_fix and self.fixes.remembered(m, R):
             return
         x_before = self.ekf.x
         self._update(z, R, h, hx, PHt, S)
         if is_fix and nis > 1.0 and cls not in self.layout.fix:
-            self._correction_unconfirmed(x_before, nis)
+            self.fixes.correction_unconfirmed(x_before, nis)
         seen = aux.nis.get(cls, NisSum(0, 0.0))
         aux.nis = {**aux.nis, cls: NisSum(seen.count + 1, seen.total + nis)}
-        aux.accepted = _inc(aux.accepted, cls)
+        aux.accepted = incremented(aux.accepted, cls)
         aux.last_accepted = {**aux.last_accepted, cls: m.stamp}
         if cls in aux.episode_views or cls in aux.fault_windows:
-            aux.episode_views = _without(aux.episode_views, cls)
-            aux.fault_windows = _without(aux.fault_windows, cls)
+            aux.episode_views = without_key(aux.episode_views, cls)
+            aux.fault_windows = without_key(aux.fault_windows, cls)
         if is_fix:
-            self._fix_accepted(m, nis, (z - hx) / math.sqrt(S), S)
+            self.fixes.fix_accepted(m, nis, (z - hx) / math.sqrt(S), S)
         else:
             if cls not in aux.speed_sources:
                 aux.speed_sources = aux.speed_sources | {cls}
             if self._persistent:
-                self._track_lone(m.stamp)
-        self._check_plausible()
+                self.lone.track(m.stamp)
+        self.plausibility.check_plausible()
 
     def _measurement(self, m):
         """(z, R, H row, h(x)) of a measurement at the current state (models.measurement), with
@@ -485,743 +316,12 @@ class TrainFilter:
         return z, R, h, hx, PHt, float(h.dot(PHt)) + R
 
     # -- fault policy ----------------------------------------------------------
-    def _slipping(self, m, e: float, S: float, nis: float) -> bool:
-        """Slip/slide check of one increment; True if it is excluded."""
-        aux, cfg, cls = self.aux, self.cfg, m.sensor
-        alt = aux.relative_alternatives.get(cls)
-        # excluded (a view of its own, or an episode) and not accepted since, and nothing to show
-        # that it agrees again: the filter's speed rests on the motion model or on a coasting
-        # between excluded sources (its holdoff may have passed without a measurement: a dropout)
-        accepted = aux.last_accepted.get(cls, -math.inf)
-        out = (alt is not None and accepted < alt.since) or \
-            accepted < aux.slip_until.get(cls, -math.inf) - cfg.slip_holdoff
-        undecided = out and not self._agreement_reference(m, S)
-        if aux.slip_until.get(cls, -math.inf) > m.stamp or undecided:
-            # still slipping, or undecided
-            if nis > self._slip_gate or undecided:
-                aux.slip_until = {**aux.slip_until, cls: m.stamp + cfg.slip_holdoff}
-            aux.gated = _inc(aux.gated, cls + "/slip")
-            self._separate(m, e, S)
-            return True
-        if alt is not None and alt.farthest ** 2 <= self._slip_gate * self._alternative_spread(cls, alt)[1]:
-            # the episode ended with a separation that the sensor's own errors explain: no longer
-            # tracked as a view of its own, but merged into the position covariance (moment
-            # matching of the two views, the filter's mean kept), so the interval still covers it
-            aux.relative_alternatives = _without(aux.relative_alternatives, cls)
-            self._merge_view(alt.farthest ** 2)
-        window, summed = self._windowed(aux.slip_window.get(cls, ()), m, e, S)
-        if (nis > self._slip_gate or summed > self._slip_gate) and not self._judged(cls):
-            # the only speed source, without slip physics (``_judged``): an outlying reading is
-            # gated; a fault that persists is the lone solution's to cover (``_track_lone``) and
-            # the fix drift test's to find (``_fix_bias_consistency``)
-            aux.slip_window = {**aux.slip_window, cls: ()}
-            if nis > self._slip_gate:
-                aux.gated = _inc(aux.gated, cls)
-                return True
-            return False
-        if nis > self._slip_gate or summed > self._slip_gate:
-            aux.slip_window = {**aux.slip_window, cls: ()}
-            # the disagreement that showed: this one, or the window's mean
-            shown = e if nis > self._slip_gate else sum(w.distance for w in window) / sum(w.weight for w in window)
-            if cls in aux.scale_faults and self._fault_ended(m, e, S):
-                return False
-            if self._refutes_model(m, shown):
-                return False
-            # the onset: the increments before this one that already disagreed the same way were
-            # absorbed (a slip ramps up): take them out and re-apply the history without them
-            k = len(window) - 1
-            while k > 0 and (window[k - 1].distance > 0.0) == (e > 0.0):
-                k -= 1
-            if k < len(window) - 1:
-                raise _Lookback(cls, window[k].stamp, shown)
-            self._episode_starts(m, e, shown)
-            aux.slip_until = {**aux.slip_until, cls: m.stamp + cfg.slip_holdoff}
-            aux.gated = _inc(aux.gated, cls + "/slip")
-            self._separate(m, e, S)
-            return True
-        aux.slip_window = {**aux.slip_window, cls: window}
-        if out and len(window) < 3:
-            # back from an episode: its first readings are judged together before one is applied
-            # (a slide that goes on passes one reading's test while the reference is noisy, and
-            # the precise sensor would be adopted at full weight)
-            aux.gated = _inc(aux.gated, cls + "/slip")
-            self._separate(m, e, S)
-            return True
-        return False
-
-    def _outlasted_by(self, m) -> bool:
-        """Whether suspended sensor ``m.sensor`` (a scale-fault mode), kept as an undecided
-        alternative, still disagreeing, has outlasted the faults of the speed sources in use:
-        each has only fault modes that end by themselves (a wheel's slip or slide, at most its
-        ``fault_duration_max`` s), has not been excluded since the view began, and the view is
-        older than the longest of those episodes and ``slip_window``. Then the fault is
-        ``m.sensor``'s: a wheel does not slip for longer."""
-        aux = self.aux
-        alt = aux.relative_alternatives.get(m.sensor)
-        if alt is None or "scale_fault" not in self.models[m.sensor].faults:
-            return False
-        in_use = self._in_use(m.stamp, but=m.sensor)
-        if not in_use or not all(c in self._bounded for c in in_use):
-            return False
-        since = alt.since
-        if any(aux.slip_until.get(c, -math.inf) > since for c in in_use):
-            return False
-        longest = max(self.models[c].fault_duration_max for c in in_use)
-        return m.stamp - since > longest + self.cfg.slip_window
-
-    def _slip_physics(self, cls: str, e: float) -> bool:
-        """Whether sensor ``cls``'s own fault modes can give a disagreement e [m/s] with the
-        filter's speed under the filter's drive (its acceleration along the motion): a wheel
-        slips only under traction (it turns faster) and slides only under braking (slower),
-        with at least ``slip_min_drive``."""
-        faults = self.models[cls].faults
-        v, a = float(self.ekf.x[1, 0]), float(self.ekf.x[2, 0])
-        sv = 1.0 if v >= 0.0 else -1.0
-        drive, excess, limit = a * sv, e * sv, self.cfg.slip_min_drive
-        return ("slip" in faults and drive >= limit and excess > 0.0) or \
-            ("slide" in faults and drive <= -limit and excess < 0.0)
-
-    def _refutes_model(self, m, e: float) -> bool:
-        """Slip sensor ``m.sensor``, with no other speed source in use, disagrees with the filter's
-        speed (the motion model's, since nothing else measures it) by e [m/s] in a way its own
-        fault modes cannot produce under the filter's drive: slower under traction (a driven
-        wheel only slips, reading fast), faster under braking (a braked wheel only slides),
-        either way with less drive than ``slip_min_drive``. Then the motion model is what is
-        wrong (an acceleration that ended, a braking that eased): the speed is taken from the
-        sensor, the acceleration back to its prior, its exclusion ends, and the motion model's
-        hypothesis stays in the interval until the sensor's longest episode has passed and
-        after, until a fix rules it out (``_take_speed``: if the drive was misjudged, the truth
-        lies between the two). True if so."""
-        cls, aux = m.sensor, self.aux
-        if not fault_modes.ADHESION & set(self.models[cls].faults) or self._reference_ok(m) \
-                or self._slip_physics(cls, e):
-            return False
-        z, R, _, _ = self._measurement(m)
-        u, white, common = implied_speed(self.layout, self.ekf.x, self.ekf.P, m, z, R)
-        aux.episode_views = _without(aux.episode_views, cls)
-        aux.relative_alternatives = _without(aux.relative_alternatives, cls)
-        aux.view_speeds = _without(aux.view_speeds, cls)
-        self._take_speed(m.stamp, [(u, white + common)], {cls})
-        aux.events = _inc(aux.events, "motion_model_refuted")
-        return True
-
-    def _fault_ended(self, m, e: float, S: float) -> bool:
-        """Sensor ``m.sensor``, whose scale fault is being learnt (``_relearn_fault``), disagrees
-        by e [m/s] (innovation variance S): if the reading agrees with its model without the
-        fault (its constant scale at its prior: within the slip gate), the fault has ended
-        rather than another source's begun. Then its constant scale is back to its prior, and
-        True."""
-        aux, lay, cls = self.aux, self.layout, m.sensor
-        i = lay.fault_scale[cls]
-        h = self._measurement(m)[2]
-        x, P = self.ekf.x, self.ekf.P
-        e_raw = e + float(h[i] * x[i, 0])
-        S_raw = S + float(h[i] * h[i]) * (lay.prior_sigma[i] ** 2 - float(P[i, i]))
-        if S_raw <= 0.0 or e_raw * e_raw > self._slip_gate * S_raw:
-            return False
-        x, P = x.copy(), P.copy()
-        x[i, 0] = 0.0
-        P[i, :] = 0.0
-        P[:, i] = 0.0
-        P[i, i] = lay.prior_sigma[i] ** 2
-        self.ekf.x, self.ekf.P = x, P
-        aux.impacts = impact.states_set(aux.impacts, [i])
-        aux.scale_faults = aux.scale_faults - {cls}
-        aux.slip_window = _without(aux.slip_window, cls)
-        aux.events = _inc(aux.events, "scale_fault_ended")
-        return True
-
-    def _relearn_fault(self, cls: str) -> None:
-        """Speed source ``cls`` has a scale fault that the others in use were shown not to have
-        (``_outlasted_by``, or a fix that the filter explains and its view does not): it is back
-        in use, its constant scale opened by the fault's size (``scale_fault_sigma``) to learn
-        the fault from them, and plausible up to that size. Suspended, it would never agree
-        again, and would be no reference while the others' own faults come (a wheel's slide
-        under braking would be seen against the motion model alone). The speed rests on the
-        others: it keeps its variance."""
-        aux, lay = self.aux, self.layout
-        i = lay.fault_scale[cls]
-        floor = lay.prior_sigma[i] ** 2 + self.models[cls].scale_fault_sigma ** 2
-        P = self.ekf.P
-        if P[i, i] < floor:
-            P = P.copy()
-            r = math.sqrt(floor / P[i, i]) if P[i, i] > 0.0 else 0.0
-            if r > 0.0:
-                P[i, :] *= r
-                P[:, i] *= r
-            else:
-                P[i, i] = floor
-            self.ekf.P = P
-        aux.scale_faults = aux.scale_faults | {cls}
-        aux.slip_window = _without(aux.slip_window, cls)
-        aux.view_speeds = _without(aux.view_speeds, cls)
-        self._end_exclusion(cls, aux.t)
-        aux.events = _inc(aux.events, "scale_fault_relearnt")
-
-    def _judged(self, cls: str) -> bool:
-        """Whether a fault test may exclude relative sensor ``cls``: it has slip physics (a wheel's
-        slip under traction stands out against the motion model), or another relative sensor
-        is configured (whose episodes and suspensions the test arbitrates, with the coastings
-        that keep both views). Not so the only relative sensor of a train without slip physics
-        (a UTM's radar): suspended, nothing could show it agreeing again (its readings are the
-        filter's speed; the fixes alone know the speed too poorly), and the filter would run on
-        the motion model for good; its persistent faults are the lone solution's to cover and
-        the fix drift test's to find."""
-        return len(self.layout.relative) > 1 or bool(fault_modes.ADHESION & set(self.models[cls].faults))
-
-    def _windowed(self, window: tuple, m, e: float, S: float, common: float = 0.0) -> tuple[tuple, float]:
-        """The disagreement window of a relative sensor with this measurement added, and its
-        test statistic: the innovations summed over ``slip_window`` s (as distances), squared,
-        over the variance of that sum (0 with fewer than 3). common [m^2/s^2]: for a suspended
-        sensor, whose error states are no longer learnt from its readings, the part of S from
-        them (scale, bias): the same error in every reading of the window, so its standard
-        deviations add up where the rest's variances do (its scale error is no disagreement
-        beyond its model). A sensor in use has those states learnt: its innovations are white.
-        Entries: WindowEntry."""
-        d = getattr(m, "duration", 0.0) or 0.0
-        weight = d if d > 0.0 else 1.0
-        window = tuple(w for w in window if w.stamp > m.stamp - self.cfg.slip_window)
-        speed = abs(float(self.ekf.x[1, 0]))
-        window += (WindowEntry(m.stamp, e * weight, (S - common) * weight * weight, math.sqrt(common) * weight,
-                               weight, speed),)
-        if len(window) < 3:
-            return window, 0.0
-        var = sum(w.white_var for w in window) + sum(w.common_sd for w in window) ** 2
-        return window, sum(w.distance for w in window) ** 2 / var
-
-    def _common(self, cls: str, h) -> float:
-        """The part [m^2/s^2] of a relative measurement's innovation variance that its sensor's
-        own error states (scale, offset, bias) contribute: h_k P_kk h_k over their indices."""
-        idx = self.layout.own_states.get(cls)
-        if idx is None:
-            return 0.0
-        hk = h[idx]
-        return max(float(hk.dot(self.ekf.P[np.ix_(idx, idx)]).dot(hk)), 0.0)
-
-    def _episode_starts(self, m, e: float, shown: float) -> None:
-        """A fault episode of ``m.sensor`` starts with the disagreement e [m/s] (``shown``: the
-        disagreement the test saw, e or its mean over the window). A wheel slips
-        only under traction (it turns faster) and slides only under braking (slower); a
-        disagreement of another kind, or of a sensor without slip physics (the radar), may
-        be the other speed sources' fault: then the sensor's own view is kept as the
-        alternative until an absolute fix decides."""
-        aux = self.aux
-        aux.slips += 1
-        # without another speed source the disagreement is with the motion model alone
-        physical = self._slip_physics(m.sensor, e) and self._reference_ok(m)
-        view = _new_view(m.stamp, float(self.ekf.P[0, 0]))
-        if physical and m.sensor not in aux.episode_views and m.sensor in self._bounded:
-            aux.episode_views = {**aux.episode_views, m.sensor: view}   # its own fault: not in the interval
-        if not physical and m.sensor not in aux.relative_alternatives:
-            aux.relative_alternatives = {**aux.relative_alternatives, m.sensor: view}
-            aux.episode_views = _without(aux.episode_views, m.sensor)
-            aux.events = _inc(aux.events, "ambiguous_slip")
-        if not physical and m.sensor not in aux.suspended:
-            # suspected faulty: back only after agreeing for slip_window s without being applied
-            # (one reading that slips through the gate would be adopted at full weight)
-            self._suspend(m.sensor, Fault(shown, float(self.ekf.x[1, 0])))
-
-    def _separate(self, m, e: float, S: float) -> None:
-        """While a sensor is excluded as the alternative (or for its own slip: ``episode_views``),
-        add up how far it ran ahead [m], the white part of its variance and the distance run
-        (its scale error is common to all)."""
-        aux = self.aux
-        alt = aux.relative_alternatives.get(m.sensor)
-        own = alt is None
-        if own:
-            alt = aux.episode_views.get(m.sensor)
-            if alt is None:
-                return
-        d = getattr(m, "duration", 0.0)
-        if not d:
-            # a speed holds since the previous one, not across a silence (a radar below its
-            # minimum speed at a stop): there the sensor told nothing, as in its own solution
-            d = m.stamp - alt.last if m.stamp - alt.last <= separation.SPEED_GAP else 0.0
-        R = max(S - float(self.ekf.P[1, 1]), 0.0)              # its own noise (speed units), roughly
-        D = alt.separation + e * d
-        view = alt._replace(separation=D, white_var=alt.white_var + R * d * d, last=m.stamp,
-                            run=alt.run + abs(float(self.ekf.x[1, 0])) * d,
-                            farthest=D if abs(D) > abs(alt.farthest) else alt.farthest)
-        if own:
-            aux.episode_views = {**aux.episode_views, m.sensor: view}
-            return
-        aux.view_speeds = {**aux.view_speeds, m.sensor: ViewSpeed(m.stamp, float(self.ekf.x[1, 0]) + e, R)}
-        aux.relative_alternatives = {**aux.relative_alternatives, m.sensor: view}
-
-    def _outlasted(self, m, z: float, R: float, hx: float, S: float, h) -> None:
-        """Sensor ``m.sensor``, excluded, whose fault modes all end by themselves (a wheel's slip
-        or slide, at most ``fault_duration_max`` s): if it has been excluded for longer and it
-        still disagrees (its disagreements summed over ``slip_window`` s, its own error states
-        common to them), its fault modes no longer explain the disagreement. The other side is
-        one speed source with a persistent fault mode (a radar scale fault): the one in use,
-        alone (the disagreement is the innovation), or, while the filter coasts between the
-        two, the other excluded one (the disagreement is the difference of their readings).
-        If the disagreement since fits one scale error of that source (weighted least squares
-        of the disagreements against the speed, the residual inside the chi-square quantile of
-        ``slip_gate_probability``: back-to-back slips of different ratios do not), that one is
-        the faulty one: the two swap roles (``_swap``), or the coasting ends on this sensor
-        (``_coast_outlasted``). With more sources in use the majority stands."""
-        aux, cls, stamp = self.aux, m.sensor, m.stamp
-        view = aux.relative_alternatives.get(cls) or aux.episode_views.get(cls)
-        recent = stamp - self.cfg.slip_reference_timeout
-        in_use = self._in_use(stamp, but=cls)
-        peers = [c for c, p in aux.peer_speeds.items() if c != cls and p.stamp > recent]
-        other = None
-        if view is not None and len(in_use) == 1:
-            other, e, v, var, common = in_use[0], z - hx, float(self.ekf.x[1, 0]), S, self._common(cls, h)
-        elif view is not None and not in_use and _coasting(aux) and len(peers) == 1 and cls in aux.peer_speeds:
-            other = peers[0]
-            own, peer = aux.peer_speeds[cls], aux.peer_speeds[other]
-            v = peer.speed
-            e, common = own.speed - v, own.common_var + peer.common_var
-            var = own.white_var + peer.white_var + common
-        if other is None or "scale_fault" not in self.models[other].faults:
-            # the evidence counts only while it is one source with a persistent fault mode
-            if cls in aux.fault_windows:
-                aux.fault_windows = _without(aux.fault_windows, cls)
-            return
-        record = aux.fault_windows.get(cls)
-        if record is None or record.against != (other, bool(in_use)):
-            record = FaultWindow((other, bool(in_use)), stamp, (), 0, 0.0, 0.0, 0.0)
-        window, summed = self._windowed(record.window, m, e, var, common)
-        record = record._replace(window=window, n=record.n + 1, sum_ev=record.sum_ev + e * v / var,
-                                 sum_vv=record.sum_vv + v * v / var, sum_ee=record.sum_ee + e * e / var)
-        aux.fault_windows = {**aux.fault_windows, cls: record}
-        n, s_ev, s_vv = record.n, record.sum_ev, record.sum_vv
-        # the whole window past the longest episode the sensor's model allows
-        if summed <= self._slip_gate or n < 3 or s_vv <= 0.0 or \
-                stamp - self.cfg.slip_window - record.since <= self.models[cls].fault_duration_max:
-            return
-        # a scale error of the other source is one ratio throughout; a chain of slips is not
-        # (their ratios differ, and each ramps down to none): the residual of that fit
-        if record.sum_ee - s_ev * s_ev / s_vv <= chi2.ppf(self.cfg.slip_gate_probability, n - 1):
-            if in_use:
-                self._swap(m, z, R, view, other)
-            else:
-                self._coast_outlasted(m, other, e, v)
-
-    def _coast_outlasted(self, m, other: str, e: float, v: float) -> None:
-        """The filter coasts between excluded ``m.sensor`` and ``other``, and the disagreement
-        e [m/s] (at speed v [m/s]) has outlasted ``m.sensor``'s transient fault modes: the
-        speed is taken from ``m.sensor``'s reading (its exclusion ends, as a re-acquisition)
-        and ``other`` stays suspended for the fault seen. Both sensors' views stay in the
-        interval until a fix decides, and so does the coasting's motion-model hypothesis (both
-        may have been wrong the same way while it lasted), moving with the filter from here:
-        ``m.sensor``'s fault cannot go on, so it shares no error with it from now on. The
-        filter awaits a fix (DEGRADED)."""
-        aux, cls, stamp = self.aux, m.sensor, m.stamp
-        own = aux.peer_speeds[cls]
-        if other not in aux.suspended:
-            self._suspend(other, Fault(-e, v))
-        aux.fault_windows = _without(aux.fault_windows, cls)
-        self._take_speed(stamp, [(own.speed, own.white_var + own.common_var)], {cls})
-        moved = aux.motion_views[-1] if aux.motion_views else None
-        if isinstance(moved, MovedView):
-            aux.motion_views = aux.motion_views[:-1] + (moved._replace(r=0.0, var_r=0.0, until=math.inf),)
-        aux.events = _inc(aux.events, "transient_fault_outlasted")
-
-    def _swap(self, m, z: float, R: float, view: View, other: str) -> None:
-        """The excluded sensor ``m.sensor`` was right and ``other``, the speed source in use, is
-        faulty: the filter takes the excluded sensor's view (its separation D added to the
-        position, the view's spread to the position variance, the speed from this reading), and
-        ``other``'s view becomes the alternative (-D: where it puts the train) while it is
-        suspended for the fault seen. The interval keeps covering both until a fix decides; the
-        filter awaits one (DEGRADED)."""
-        aux, cls, stamp = self.aux, m.sensor, m.stamp
-        D = view.separation
-        var_D = self._alternative_spread(cls, view)[1]
-        u, u_white, u_common = implied_speed(self.layout, self.ekf.x, self.ekf.P, m, z, R)
-        x, P = self.ekf.x.copy(), self.ekf.P.copy()
-        x[0, 0] += D
-        P[0, 0] = max(P[0, 0], view.base + var_D)
-        # its speed, a new error; the acceleration, which a scale error hardly changes, is kept
-        x[1, 0] = u
-        P[1, :] = 0.0
-        P[:, 1] = 0.0
-        P[1, 1] = u_white + u_common
-        self.ekf.x, self.ekf.P = x, P
-        aux.impacts = impact.speed_set(aux.impacts, u)
-        aux.relative_alternatives = {**_without(aux.relative_alternatives, cls),
-                                     other: view._replace(separation=-D, farthest=-D)}
-        aux.episode_views = _without(aux.episode_views, cls)
-        aux.fault_windows = _without(aux.fault_windows, cls)
-        aux.view_speeds = _without(aux.view_speeds, cls)
-        aux.slip_window = _without(aux.slip_window, cls)
-        self._end_exclusion(cls, stamp)
-        self._suspend(other, self._view_fault(aux.relative_alternatives[other], stamp))
-        aux.events = _inc(aux.events, "speed_sources_swapped")
-        aux.unverified = "speed_sources_swapped"
-
-    def _alternative_spread(self, cls: str, alt: View) -> tuple[float, float]:
-        """(separation D [m], its variance [m^2]) of a relative alternative."""
-        model = self.models[cls]
-        scale = model.scale_sigma + model.scale_offset_sigma
-        return alt.separation, alt.white_var + (scale * alt.run) ** 2
-
-    def _decide_relative(self, m, z: float, R: float, hx: float, S: float, nis: float) -> bool:
-        """An absolute fix decides between the filter and the excluded sensors' views. True if
-        the fix was used for it (the position re-acquired). A fix that only an excluded view
-        explains overturns the filter only if its sensor cannot produce outliers (NLOS,
-        misread, miscount), or an unexplained fix of another reference agrees with it;
-        otherwise it is kept as the unexplained alternative and the views stay undecided."""
-        aux = self.aux
-        gate = self._gates[m.sensor]
-        explained = nis <= gate
-        keep, fitting, ruled_out = {}, [], 0
-        for cls, alt in aux.relative_alternatives.items():
-            D, var_D = self._alternative_spread(cls, alt)
-            # the view's position: the filter's when it began (or was last located by a fix),
-            # moved by its own sensor since; the filter's uncertainty from a coasting since is
-            # not the view's
-            S_v = min(S, R + alt.base) + var_D
-            fits = (z - hx - D) ** 2 / S_v
-            # -2 ln of the fix's likelihood under the view against under the filter: a view wide
-            # with its own scale error still "fits" a precise fix that the filter explains far better
-            worse = fits + math.log(S_v / S) - nis
-            if fits <= gate and not (explained and worse > gate):
-                # still explains the fix: undecided; where the filter takes the fix, the view takes
-                # it too (it locates the train under either hypothesis): its separation and spread
-                # conditioned on the fix, its scale error counted from here
-                fitting.append((fits, cls))
-                if nis > gate:
-                    keep[cls] = alt
-                    continue
-                view = self._view_conditioned(alt, D, var_D, z - hx, S, R)
-                if _speed_excluded(aux, cls, m.stamp):
-                    keep[cls] = view
-                else:
-                    # its sensor in use again and both located by the fix: merged (moment matching)
-                    self._merge_view(view.separation ** 2 + view.white_var)
-            elif explained or m.stamp - alt.since > self.cfg.branch_timeout:
-                # the filter explains the fix and this excluded sensor's view does not (or far
-                # worse): it was faulty
-                aux.events = _inc(aux.events, "excluded_sensor_confirmed_faulty")
-                ruled_out += 1
-                if cls in self.layout.slip_sensors:
-                    pass        # a slip ends by itself
-                elif "scale_fault" in self.models[cls].faults and self._in_use(m.stamp, but=cls):
-                    # a radar's scale fault, which the sources in use (shown right) can teach it
-                    self._relearn_fault(cls)
-                else:                                      # a faulty radar may not recover
-                    self._suspend(cls, self._view_fault(alt, m.stamp))
-            else:
-                keep[cls] = alt
-        aux.relative_alternatives = keep
-        if explained and ruled_out and len(fitting) == 1 and _coasting(aux):
-            # coasting between the excluded sensors, the fix rules out all views but one: that
-            # sensor was right and is back (its view located by the fix merges into the filter's)
-            cls = fitting[0][1]
-            view = aux.relative_alternatives.pop(cls, None)
-            aux.relative_alternatives = dict(aux.relative_alternatives)
-            self._end_exclusion(cls, m.stamp)
-            reading = aux.peer_speeds.get(cls)
-            if reading is not None and reading.stamp > m.stamp - self.cfg.slip_reference_timeout:
-                self._set_speed([(reading.speed, reading.white_var + reading.common_var)])   # its speed, not the middle
-            aux.slip_window = _without(aux.slip_window, cls)
-            if view is not None:
-                self._merge_view(view.separation ** 2 + view.white_var)
-            aux.events = _inc(aux.events, "excluded_sensor_confirmed_right")
-            return False
-        if explained or not fitting:
-            return False                           # the filter explains it, or nothing does
-        if fault_modes.OUTLIER.intersection(self.models[m.sensor].faults) and not self._corroborated(m, z, R):
-            return False
-        # an excluded sensor was right: the other speed sources are faulty
-        cls = min(fitting)[1]
-        fault = self._view_fault(aux.relative_alternatives[cls], m.stamp)
-        fault = None if fault is None else Fault(-fault.disagreement, fault.speed)   # the others ran behind it
-        self._set_position(m)
-        self._relearn("speed_source_faulty")
-        aux.relative_alternatives = {}
-        self._end_exclusion(cls, m.stamp)
-        for other in aux.speed_sources - {cls}:
-            self._suspend(other, fault)
-        return True
-
-    def _end_exclusion(self, cls: str, stamp: float) -> None:
-        """Speed source ``cls`` found right by a fix: its slip episode or suspension ends, and it
-        counts as in use from ``stamp`` (not as a sensor back from an episode that waits for a
-        reference to agree with)."""
-        aux = self.aux
-        aux.slip_until = {**aux.slip_until, cls: stamp}
-        aux.suspended = _without(aux.suspended, cls)
-        aux.last_accepted = {**aux.last_accepted, cls: stamp}
-
-    def _merge_view(self, spread: float) -> None:
-        """An excluded sensor's view no longer tracked of its own: its squared separation (plus
-        its own variance) [m^2] added to the position variance, the filter's mean kept (moment
-        matching of the two views), so the interval still covers it."""
-        P = self.ekf.P.copy()
-        P[0, 0] += spread
-        self.ekf.P = P
-        self.aux.events = _inc(self.aux.events, "alternative_merged")
-
-    @staticmethod
-    def _view_conditioned(alt: View, D: float, var_D: float, nu: float, S: float, R: float) -> View:
-        """An excluded sensor's view (separation D [m], variance var_D [m^2]) after a fix of
-        innovation nu [m] and innovation variance S = A + R [m^2] that the filter applies: the
-        view's position, predicted with variance A + var_D, and the filter's are both updated
-        by the fix (scalar Kalman updates); the new separation and the difference of their
-        posterior variances, and the filter's position variance after the fix (the view's base)."""
-        A = max(S - R, 0.0)
-        S_v = S + var_D
-        D_new = D + (A + var_D) / S_v * (nu - D) - A / S * nu
-        var_new = max(R * ((A + var_D) / S_v - A / S), 0.0)
-        return View(D_new, var_new, alt.since, alt.last, 0.0, D_new, A * R / S if S > 0.0 else 0.0)
-
-    def _suspend(self, cls: str, fault: Fault | None) -> None:
-        """Suspend speed source ``cls`` for the fault seen, or None if its size is not known, if
-        its own error model explains it (within the slip gate of the spread its scale and bias
-        priors give at that speed), or if the sensor has no persistent fault mode (a wheel: a
-        slip or slide ends with the adhesion, and the others may have been the wrong ones): such
-        a disagreement needs no proof of its absence before the sensor is back (a wheel that
-        agrees at a standstill is back)."""
-        persistent = "scale_fault" in self.models[cls].faults
-        if fault is not None and (not persistent or
-                                  fault.disagreement ** 2 <= self._slip_gate * self._model_variance(cls, fault.speed)):
-            fault = None
-        self.aux.suspended = {**self.aux.suspended, cls: Suspension(math.inf, (), fault)}
-
-    def _model_variance(self, cls: str, speed: float) -> float:
-        """The variance [m^2/s^2] of relative sensor ``cls``'s reading at ``speed`` [m/s] that its
-        error model's scale and bias priors allow."""
-        lay, sigma = self.layout, self.layout.prior_sigma
-        scale = sum(sigma[table[cls]] ** 2 for table in (lay.scale, lay.offset) if cls in table)
-        bias = sigma[lay.bias[cls]] ** 2 if cls in lay.bias else 0.0
-        return scale * speed * speed + bias
-
-    @staticmethod
-    def _view_fault(alt: View, stamp: float) -> Fault | None:
-        """The fault an excluded sensor's view shows: its mean disagreement [m/s] at the mean
-        speed [m/s] since the view began."""
-        dt = stamp - alt.since
-        return Fault(alt.separation / dt, alt.run / dt) if dt > 0.0 else None
-
-    def _suspended(self, m, e: float, S: float, nis: float, common: float) -> bool:
-        """A speed source found or suspected faulty: excluded until it agrees again (neither its
-        single nor its windowed disagreement test fires, with a reference to judge it by) for
-        ``slip_window`` s, in a window where the fault seen would have shown (``_would_show``)."""
-        aux = self.aux
-        held = aux.suspended[m.sensor]
-        since, fault = held.since, held.fault
-        window, summed = self._windowed(held.window, m, e, S, common)
-        if (nis > self._slip_gate or summed > self._slip_gate) and m.sensor in aux.scale_faults \
-                and self._fault_ended(m, e, S):
-            # judged from its next reading on, at the scale without the fault
-            aux.suspended = {**aux.suspended, m.sensor: Suspension(math.inf, (), fault)}
-            aux.gated = _inc(aux.gated, m.sensor + "/suspended")
-            self._separate(m, e, S)
-            return True
-        if (nis > self._slip_gate or summed > self._slip_gate) and self._outlasted_by(m):
-            aux.relative_alternatives = _without(aux.relative_alternatives, m.sensor)
-            self._relearn_fault(m.sensor)
-            aux.events = _inc(aux.events, "fault_outlasted_the_others")
-            return False
-        if nis > self._slip_gate or summed > self._slip_gate or not self._agreement_reference(m, S):
-            since = math.inf
-        elif since == math.inf:
-            since = m.stamp
-        if since != math.inf and m.stamp - since >= self.cfg.slip_window and self._would_show(fault, window):
-            aux.suspended = _without(aux.suspended, m.sensor)
-            # its readings of the agreement so far are the slip test's window from here
-            aux.slip_window = {**aux.slip_window, m.sensor: window}
-            aux.events = _inc(aux.events, "speed_source_restored")
-            return False
-        aux.suspended = {**aux.suspended, m.sensor: Suspension(since, window, fault)}
-        aux.gated = _inc(aux.gated, m.sensor + "/suspended")
-        self._separate(m, e, S)
-        return True
-
-    def _would_show(self, fault: Fault | None, window: tuple) -> bool:
-        """Whether the fault a sensor was suspended for, had it persisted, would stand out of the
-        readings' white noise over ``window`` (noncentrality of the summed disagreement at least
-        the slip gate, as when it was seen in use): agreement proves nothing where the fault
-        cannot show. The fault seen, e0 at speed v0, may be a scale error (e0 v / v0) or a bias
-        (e0); the smaller of the two at each reading's speed v counts. A radar reading 6 % low
-        agrees at standstill."""
-        if fault is None or len(window) < 3:
-            return fault is None
-        shown = sum(w.weight * _fault_at(fault, w.speed) for w in window)
-        return shown * shown >= self._slip_gate * sum(w.white_var for w in window)
-
-    def _blind_speed(self, m, z: float, R: float) -> bool:
-        """Every speed source excluded (slip episodes, suspensions) and the filter's speed resting
-        on the motion model alone: the exclusions cannot end, since each excluded sensor waits
-        for a reference to agree with, and the dead reckoning drifts without bound. The
-        excluded sensors' own readings end it: two independent speed sources that give the same
-        speed (each reading inside the slip gate of their combined variance, and their mean
-        difference inside that of its own) for ``slip_window`` s without a break: a slip and a
-        radar fault do not give the same speed for long. (A wheel whose readings show no
-        acceleration is no such evidence: a slide can outlast the braking that started it.)
-        Then the speed is taken from those sensors (the acceleration back to its prior) and
-        their exclusions end; the excluded views stay in the interval until a fix decides
-        between them, and the filter awaits a confirming fix (DEGRADED). True if the speed
-        was re-acquired."""
-        aux, cfg, cls, stamp = self.aux, self.cfg, m.sensor, m.stamp
-        u, white, common = implied_speed(self.layout, self.ekf.x, self.ekf.P, m, z, R)
-        recent = stamp - cfg.slip_reference_timeout
-        peers = {c: p for c, p in aux.peer_speeds.items() if c != cls and p.stamp > recent}
-        aux.peer_speeds = {**peers, cls: PeerSpeed(stamp, u, white, common)}
-        peer = self._peer_run(cls, stamp, u, white, common, peers)
-        if peer is None:
-            if not peers:
-                return False
-            return self._coast(stamp, [(u, white + common)] +
-                               [(p.speed, p.white_var + p.common_var) for p in peers.values()])
-        p = peers[peer]
-        self._take_speed(stamp, [(u, white + common), (p.speed, p.white_var + p.common_var)], {cls, peer})
-        return True
-
-    def _coast(self, stamp: float, readings: list) -> bool:
-        """The excluded speed sources disagree: one of them, or both, is wrong. Once the motion
-        model knows the speed worse than the middle of their readings does (its variance beyond
-        the squared half-range: it runs away with the last acceleration, a braking that ended,
-        a reversal through a standstill), the filter coasts on that middle instead. The interval
-        keeps every hypothesis: each sensor's view, and the motion model's own from the start
-        of the coasting (both sensors may be wrong the same way, a radar scale fault during a
-        wheel slip under traction). True if the speed was set."""
-        aux = self.aux
-        coasting = _coasting(aux)
-        half_range = 0.5 * (max(u for u, _ in readings) - min(u for u, _ in readings))
-        if not coasting and float(self.ekf.P[1, 1]) <= half_range * half_range:
-            return False                    # a short slip: the motion model still knows better
-        if not coasting:
-            aux.motion_views = aux.motion_views[-(_MAX_MOTION_VIEWS - 1):] + (self._model_view(stamp),)
-            aux.events = _inc(aux.events, "coasting_between_speed_sources")
-            aux.unverified = aux.unverified or "speed_sources_disagree"
-        self._set_speed(readings, middle=True)
-        return True
-
-    def _coasting_ended(self, view: ModelView, stamp: float) -> MovedView:
-        """The motion-model hypothesis of a coasting that ends at ``stamp`` [s], as it moves with
-        the filter from here. The speed sources back in use were excluded for faults; that they
-        now agree does not prove both right: a radar scale fault and a wheel slide of the same
-        size agree. Under that hypothesis their common error persists as a scale error r
-        (a slip ratio, a scale fault) until the shortest of their transient fault modes must
-        have ended: r from the motion model's speed against theirs, combined with the prior of
-        the smallest scale fault among them (a sensor without a speed fault mode rules the
-        hypothesis out: r = 0)."""
-        s_m, v_m, _, var_m, var_v = _kinematics(view.s, view.v, view.a, view.cov, max(stamp - view.stamp, 0.0),
-                                                self.cfg.jerk_psd)
-        s_f, v_f = float(self.ekf.x[0, 0]), float(self.ekf.x[1, 0])
-        aux = self.aux
-        in_use = [c for c in aux.speed_sources if not _speed_excluded(aux, c, stamp)]
-        models = [self.models[c] for c in in_use]
-        r, var_r, until = 0.0, 0.0, math.inf
-        if models and all(set(md.faults) & fault_modes.SPEED for md in models):
-            # measured: r = (v_m - v_f) / v_f of variance var_v / v_f^2; prior N(0, prior)
-            prior = min((md.scale_fault_sigma ** 2 for md in models if "scale_fault" in md.faults), default=math.inf)
-            var_v = max(var_v, 1e-12)
-            info = v_f * v_f / var_v + (1.0 / prior if prior > 0.0 else math.inf)
-            var_r = 1.0 / info if info > 0.0 else math.inf
-            r = var_r * (v_m - v_f) * v_f / var_v if math.isfinite(var_r) else 0.0
-            until = stamp + min(md.fault_duration_max for md in models)
-        return MovedView(s_m, var_m, s_f, float(self.ekf.P[0, 0]), r, var_r, until)
-
-    def _peer_run(self, cls: str, stamp: float, u: float, white: float, common: float,
-                  peers: dict) -> str | None:
-        """Extend the run of agreement of ``cls`` with an excluded peer: each reading inside the
-        slip gate of the pair's variance, and their mean difference inside the slip gate of its
-        own (white parts averaged, common parts not). The peer once it has lasted ``slip_window`` s,
-        and only if the fault each of the two was suspended for would stand out of that mean
-        difference's spread (``_shows``): two sources whose common errors are wider than a radar's
-        scale fault "agree" with a slipping wheel as well."""
-        aux, cfg, gate = self.aux, self.cfg, self._slip_gate
-        run = aux.peer_run
-        fits = [c for c, p in peers.items()
-                if (u - p.speed) ** 2 <= gate * (white + common + p.white_var + p.common_var)]
-        if not fits:
-            aux.peer_run = None
-            return None
-        pairs = {tuple(sorted((cls, c))): c for c in fits}
-        pair = run.pair if run is not None and run.pair in pairs else next(iter(pairs))
-        if run is None or run.pair != pair or run.last < stamp - cfg.slip_reference_timeout:
-            run = PeerRun(pair, stamp, stamp, 0, 0.0, 0.0)
-        p = peers[pairs[pair]]
-        d = (u - p.speed) if pair[0] == cls else (p.speed - u)
-        n, sum_d, sum_white = run.n + 1, run.sum_diff + d, run.sum_white + white + p.white_var
-        if (sum_d / n) ** 2 > gate * (sum_white / (n * n) + common + p.common_var):
-            aux.peer_run = None
-            return None
-        aux.peer_run = PeerRun(pair, run.first, stamp, n, sum_d, sum_white)
-        if stamp - run.first < cfg.slip_window:
-            return None
-        spread = sum_white / (n * n) + common + p.common_var
-        faults = [aux.suspended[c].fault for c in pair if c in aux.suspended]
-        return pairs[pair] if all(_shows(f, u, spread, gate) for f in faults) else None
-
-    def _set_speed(self, readings: list, middle: bool = False) -> None:
-        """Speed from readings [(speed, variance)]: their weighted mean (``middle``: the middle
-        of their range), the largest distance to a reading added to its variance; the
-        acceleration back to its prior. Agreeing readings (a re-acquisition) give a speed
-        whose error is new: uncorrelated with the rest. The middle of disagreeing ones (a
-        coasting) keeps the error it had, of the faults that persist while it lasts: its
-        correlations are kept, rescaled to the new variance (a congruence, so P stays positive
-        semi-definite), and the position variance grows with the square of the time, not as a
-        sum of independent speed errors."""
-        weights = [1.0 / v for _, v in readings]
-        if middle:
-            u_hat = 0.5 * (min(u for u, _ in readings) + max(u for u, _ in readings))
-        else:
-            u_hat = sum(w * u for w, (u, _) in zip(weights, readings)) / sum(weights)
-        spread = max(abs(u - u_hat) for u, _ in readings)
-        var = 1.0 / sum(weights) + spread * spread
-        x, P = self.ekf.x.copy(), self.ekf.P.copy()
-        if middle and P[1, 1] > 0.0:
-            scale = math.sqrt(var / P[1, 1])
-            P[1, :] *= scale
-            P[:, 1] *= scale
-        else:
-            P[1, :] = 0.0
-            P[:, 1] = 0.0
-        P[2, :] = 0.0
-        P[:, 2] = 0.0
-        x[1, 0], P[1, 1] = u_hat, var
-        x[2, 0], P[2, 2] = 0.0, self.cfg.initial_accel_stddev ** 2
-        self.ekf.x, self.ekf.P = x, P
-        self.aux.impacts = impact.speed_set(self.aux.impacts, u_hat)
-
-    def _take_speed(self, stamp: float, readings: list, sensors: set) -> None:
-        """Speed from independent readings that agree (weighted); the exclusions of ``sensors``
-        end."""
-        aux = self.aux
-        coasting = _coasting(aux)
-        # the motion model's hypothesis: of the coasting, or the filter's own until now (its speed
-        # rested on the motion model alone)
-        view = aux.motion_views[-1] if coasting else self._model_view(stamp)
-        self._set_speed(readings)
-        aux.suspended = {c: v for c, v in aux.suspended.items() if c not in sensors}
-        aux.slip_until = {c: (min(t, stamp) if c in sensors else t) for c, t in aux.slip_until.items()}
-        aux.slip_window = {c: w for c, w in aux.slip_window.items() if c not in sensors}
-        aux.last_accepted = {**aux.last_accepted, **{c: stamp for c in sensors}}
-        aux.peer_speeds, aux.peer_run = {}, None
-        moved = self._coasting_ended(view, stamp)
-        if coasting or moved.var_r > 0.0:
-            kept = aux.motion_views[:-1] if coasting else aux.motion_views[-(_MAX_MOTION_VIEWS - 1):]
-            aux.motion_views = kept + (moved,)
-        aux.events = _inc(aux.events, "speed_reacquired")
-        aux.unverified = "speed_reacquired"
-
-    def _excluded(self, m, shown: float) -> None:
-        """Apply a measurement that a fault check excluded after the fact (a slip's onset), the
-        check having seen a disagreement of ``shown`` [m/s]."""
-        aux = self.aux = self.aux.copy()
-        self._predict_to(m.stamp)
-        cls = m.sensor
-        z, R, h, hx, _, S = self._innovation(m)
-        if not aux.slip_until.get(cls, -math.inf) > m.stamp:
-            self._episode_starts(m, z - hx, shown)
-            aux.events = _inc(aux.events, "slip_lookback")
-        self._separate(m, z - hx, S)
-        aux.slip_until = {**aux.slip_until, cls: m.stamp + self.cfg.slip_holdoff}
-        aux.slip_window = {**aux.slip_window, cls: ()}
-        aux.gated = _inc(aux.gated, cls + "/slip")
 
     def _in_use(self, stamp: float, but: str | None = None) -> list[str]:
         """The speed sources in use at ``stamp`` [s]: accepted within ``slip_reference_timeout`` s
         and not excluded (in an episode, or suspended since), ``but`` left out."""
         aux, recent = self.aux, stamp - self.cfg.slip_reference_timeout
-        return [s for s in aux.speed_sources if s != but and not _speed_excluded(aux, s, stamp)
+        return [s for s in aux.speed_sources if s != but and not speed_excluded(aux, s, stamp)
                 and aux.last_accepted.get(s, -math.inf) > recent]
 
     def _reference_ok(self, m) -> bool:
@@ -1236,596 +336,9 @@ class TrainFilter:
         motion model alone, its speed uncertainty growing, would let a faulty sensor back in.
         S: the measurement's innovation variance (filter part + its own noise). While the filter
         coasts between excluded sources, its speed is theirs: no reference."""
-        if _coasting(self.aux):
+        if is_coasting(self.aux):
             return self._reference_ok(m)
         return self._reference_ok(m) or float(self.ekf.P[1, 1]) <= 0.5 * S
-
-    def _check_plausible(self) -> None:
-        """Re-learn the relative sensors' error states if one of them left its plausible range.
-
-        If the states of one sensor alone left it, that sensor is outside its own error
-        model (a radar scale fault with no other speed source to disagree with): it is also
-        suspended until it agrees again, its view kept as the alternative if another speed source
-        may be the faulty one; the only relative sensor of a train without slip physics keeps
-        its readings in use, its scale opened to the fault's size. States of several sensors: a fault was absorbed between them (a
-        slip learnt as scales), which one cannot be told."""
-        idx = self.layout.relative_states
-        if not len(idx):
-            return
-        x = self.ekf.x[idx, 0]
-        sigma = self.layout.prior_sigma[idx]
-        if self.aux.scale_faults:   # a scale fault being learnt: plausible up to its size
-            lay = self.layout
-            faulted = {lay.fault_scale.get(c): self.models[c].scale_fault_sigma
-                       for c in self.aux.scale_faults}
-            sigma = np.array([math.hypot(sg, faulted.get(i, 0.0)) for i, sg in zip(idx.tolist(), sigma)])
-        # beyond the plausible range, and significantly so where a fix-bias inconsistency widened
-        # the state past its prior (a noisy estimate of a scale that may hold a fault is no proof)
-        bad = (np.abs(x) > self.cfg.plausible_sigmas * sigma) & \
-            (x * x > self._slip_gate * np.diag(self.ekf.P)[idx])
-        if not bad.any():
-            return
-        owners = {self.layout.owner[i] for i in idx[bad]}
-        x_before = self.ekf.x
-        if len(owners) == 1 and not self._judged(next(iter(owners))):
-            # the only relative sensor, without slip physics: suspended, nothing could show it
-            # agreeing again (``_judged``); its scale may hold a fault, opened to the fault's size
-            # for the fixes to teach, the lone solution covering it meanwhile
-            self._relearn("implausible_error_state", faulty=owners)
-            return
-        self._relearn("implausible_error_state")
-        if len(owners) == 1:
-            (cls,) = owners
-            self._suspend(cls, self._state_fault(cls, x_before))
-            aux = self.aux
-            aux.events = _inc(aux.events, "implausible_sensor_suspended")
-            if aux.speed_sources - {cls} and cls not in aux.relative_alternatives:
-                # which state absorbs a disagreement follows the priors, not the fault: the other
-                # speed source may be the faulty one, so the suspended sensor's view is kept
-                aux.relative_alternatives = {**aux.relative_alternatives,
-                                             cls: _new_view(aux.t, float(self.ekf.P[0, 0]))}
-                aux.episode_views = _without(aux.episode_views, cls)
-
-    def _state_fault(self, cls: str, x) -> Fault:
-        """The fault that relative sensor ``cls``'s error states in x had absorbed: its scale and
-        bias error at the speed [m/s], the speed [m/s]."""
-        lay, v = self.layout, float(x[1, 0])
-        k = sum(float(x[i, 0]) + (float(x[o, 0]) if o is not None else 0.0)
-                for name, i, o in lay.scale_terms if name == cls)
-        b = float(x[lay.bias[cls], 0]) if cls in lay.bias else 0.0
-        return Fault(k * v + (b if v >= 0.0 else -b), v)
-
-    def _relearn(self, reason: str, faulty=()) -> None:
-        """Error states of the relative sensors back to their priors (the scales of ``faulty``
-        sensors, suspected of a scale fault, by the fault's size more: ``_raised``); the
-        position and speed covariance widened by what the discarded estimates can have caused
-        since the last accepted fix (scale x distance, scale x speed, bias x time)."""
-        aux, lay = self.aux, self.layout
-        x, P = self.ekf.x.copy(), self.ekf.P.copy()
-        scale = 0.0
-        for _, i, o in lay.scale_terms:
-            scale = max(scale, abs(x[i, 0] + (x[o, 0] if o is not None else 0.0)))
-        bias = max([abs(x[i, 0]) for i in lay.bias.values()], default=0.0)
-        dist = abs(x[0, 0] - aux.s_last_fix) if math.isfinite(aux.s_last_fix) else 0.0
-        since = aux.t - aux.last_fix_accepted if math.isfinite(aux.last_fix_accepted) else 0.0
-        P[0, 0] += (scale * dist + bias * since) ** 2
-        P[1, 1] += (scale * x[1, 0]) ** 2 + bias ** 2
-        idx = lay.relative_states
-        x[idx, 0] = 0.0
-        aux.impacts = impact.states_set(aux.impacts, idx)
-        P[idx, :] = 0.0
-        P[:, idx] = 0.0
-        P[idx, idx] = lay.prior_sigma[idx] ** 2
-        self.ekf.x = x
-        self.ekf.P = self._raised(P, faulty) if faulty else P
-        aux.scale_faults = aux.scale_faults & frozenset(faulty)
-        aux.events = _inc(aux.events, reason)
-        aux.unverified = reason
-
-    def _correction_unconfirmed(self, x_before, nis: float) -> None:
-        """A fix whose innovation exceeds its expected size (NIS > 1) corrected the speed and
-        error states by d = K nu, more than the model expected (K S K^T): the excess may be the
-        error states' doing (the model's reading) or a one-off the model lacks (an undetected slip
-        onset, a fix error beyond its stddev). The covariance keeps that excess,
-        (1 - 1/NIS) d d^T, along d (innovation-based covariance matching, Mehra 1972), so one
-        fix cannot make the filter sure of a speed re-calibration that only the next fix can
-        confirm. The position, which the fix itself gives, is left as updated. Only for fixes of
-        independent references (no fix-bias state): a stream of fixes (mm-wave, INPO) confirms
-        or undoes a re-calibration milliseconds later."""
-        d = (self.ekf.x - x_before)[:, 0]   # a new array: zeroing its position entry changes nothing else
-        d[0] = 0.0
-        self.ekf.P = self.ekf.P + (1.0 - 1.0 / nis) * np.outer(d, d)
-
-    def _remembered(self, m, R: float) -> bool:
-        """A fix of a reference whose earlier fix the filter still holds: its error (a balise's
-        or a head's installation error, part of R) is the same as then, so it is no new
-        information while the filter knows its position better than the fix (P00 < R): not
-        applied, counted (``reference_revisited``). Sensors with a fix-bias state model this
-        themselves."""
-        if m.sensor in self.layout.fix:
-            return False
-        aux = self.aux
-        key = (m.sensor, m.reference_id)
-        if key in aux.used_refs and float(self.ekf.P[0, 0]) < R:
-            aux.events = _inc(aux.events, "reference_revisited")
-            return True
-        return False
-
-    def _fix_accepted(self, m, nis: float, u: float, S: float) -> None:
-        aux, cfg = self.aux, self.cfg
-        if m.sensor not in self.layout.fix:
-            key = (m.sensor, m.reference_id)
-            aux.used_refs = tuple(k for k in aux.used_refs if k != key)[-(_REMEMBERED_REFS - 1):] + (key,)
-        alt = aux.alternative
-        if alt is not None and (m.sensor != alt.sensor or
-                                (m.reference_id != alt.reference and m.sensor not in self.layout.fix)):
-            # the filter explains an independent fix (not one of the same sensor with a fix-bias
-            # state, whatever its reference: mm-wave station sets overlap): that one was wrong
-            aux.alternative = None
-            aux.events = _inc(aux.events, "outlier_fix")
-        aux.unverified = ""
-        aux.last_fix_accepted = m.stamp
-        aux.s_last_fix = float(self.ekf.x[0, 0])
-        self._hypotheses_take_fix(m)
-        if m.sensor in self.layout.fix:
-            self._fix_bias_consistency(m, nis, u, S)
-            return   # a fix with a persistent error: not an independent test of the others
-        window = (aux.fix_nis + (nis,))[-cfg.consistency_fixes:]
-        mean = sum(window) / len(window)
-        if len(window) == cfg.consistency_fixes and mean > self._consistency:
-            # independent fixes disagree more than the covariance says: all of it is too small
-            self.ekf.P = self.ekf.P * mean
-            window = ()
-            aux.events = _inc(aux.events, "inconsistent")
-            aux.unverified = "inconsistent"
-        aux.fix_nis = window
-
-    def _fix_bias_consistency(self, m, nis: float, u: float, S: float) -> None:
-        """Sensor m's accepted fixes (its fix bias a state: white innovations if the model holds)
-        test the model: the mean NIS of its last ``consistency_fixes`` beyond its chi-square
-        quantile, or their normalised innovations u (signed) summed with weights decaying over
-        ``slip_window`` s, normalised by the root of the sum of the squared weights (standard
-        normal if the model holds), beyond the slip gate (a drift shows as innovations of one
-        sign long before their squares stand out). Either means the fixes and the dead
-        reckoning part faster than the fix bias can (a lone radar's scale fault absorbed into a
-        DGPS bias, or a fix fault beyond the sensor's model). The fix bias goes back to its
-        prior, the relative error states keep their estimates with their prior uncertainty
-        (after a drift alone, a scale with a scale-fault mode that of the fault's size,
-        ``scale_fault_sigma``, and the speed with it), the position variance takes the bias the
-        filter had estimated, and the dead-reckoned position is kept as the alternative (the
-        interval covers it, DEGRADED) until a fix of an independent reference decides
-        (``_fix_accepted``)."""
-        aux, cls, cfg = self.aux, m.sensor, self.cfg
-        # (last NIS values, stamp [s], the signed sum and the sum of its squared weights, both
-        # decaying with time constant slip_window: a 200 Hz stream keeps O(1) state)
-        last, t, summed, weights = aux.fix_bias_nis.get(cls, ((), m.stamp, 0.0, 0.0))
-        decay = math.exp(-max(m.stamp - t, 0.0) / cfg.slip_window)
-        last = (last + (nis,))[-cfg.consistency_fixes:]
-        summed, weights = summed * decay + u, weights * decay * decay + 1.0
-        noisy = len(last) == cfg.consistency_fixes and sum(last) / len(last) > self._consistency
-        drift = weights >= 3.0 and summed * summed / weights > self._slip_gate
-        if not (noisy or drift):
-            aux.fix_bias_nis = {**aux.fix_bias_nis, cls: (last, m.stamp, summed, weights)}
-            return
-        if drift and not noisy:
-            self._drift_from_slip(m, summed, weights, S)
-        aux.fix_bias_nis = _without(aux.fix_bias_nis, cls)
-        # an alternative of this sensor is pending (an earlier inconsistency's view, or an
-        # unexplained fix of it): the question is open already
-        pending = aux.alternative is not None and aux.alternative.sensor == cls
-        i = self.layout.fix[cls]
-        bias = float(self.ekf.x[i, 0])
-        s_dr, P_dr = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
-        self._new_fix_bias(cls)
-        P = self.ekf.P.copy()
-        P[0, 0] += bias * bias
-        # the relative error states keep their estimates, their variance raised to at least their
-        # prior's: the fixes that follow tell whether they hold a fault (learnt beyond
-        # plausibility, ``_check_plausible`` suspends the sensor) or the fix bias did
-        # a drift alone (small innovations of one sign: the dead reckoning parts at a rate, as a
-        # scale fault makes it) raises a constant scale with a scale-fault mode to the fault's
-        # size; not where the fixes are also noisier than their model (an NLOS step would pull a
-        # scale opened that wide), nor again while the question is open (the same fixes would
-        # pull the opened states again and again)
-        faulty = () if noisy or pending else [c for c in self.layout.scale if "scale_fault" in self.models[c].faults]
-        self.ekf.P = self._raised(P, faulty)
-        aux.events = _inc(aux.events, "inconsistent_fix_bias")
-        # the fixes pull the filter by about the bias it had estimated (s = z - e, e now 0): the
-        # dead-reckoned view stays where it was, moving with the filter's motion from there
-        if not pending:
-            aux.alternative = UnexplainedFix(m.stamp, s_dr, P_dr, s_dr + bias, float(self.ekf.P[0, 0]), cls,
-                                             m.reference_id, ())
-
-    def _drift_from_slip(self, m, summed: float, weights: float, S: float) -> None:
-        """The fixes drift from the dead reckoning (``_fix_bias_consistency``: innovations of one
-        sign, their weighted sum ``summed`` over the root of ``weights``; S [m^2]: this fix's
-        innovation variance, which scales them back to metres). A speed source in use
-        whose transient fault mode fits the drift's direction under the present drive (a wheel
-        turning fast under traction, slip; slow under braking, slide) may have been slipping
-        too slowly for its own test: the filter followed it, so its readings agreed with the
-        filter, and only the fixes could tell. Its readings of the last ``history`` s are taken
-        out and the history is applied again without them (``_Lookback``, as at a slip's onset
-        that the window test found late): the fixes and the other sources carry the speed, and
-        the sensor is back once it agrees. A reading the fault did not touch costs precision,
-        not integrity; a slip left in would cost the interval."""
-        stamp = m.stamp
-        v, a = float(self.ekf.x[1, 0]), float(self.ekf.x[2, 0])
-        sv = 1.0 if v >= 0.0 else -1.0
-        drive = a * sv
-        # fixes behind the dead reckoning along the motion: the filter ran ahead of the train, a
-        # speed source read too fast
-        ahead = summed * sv < 0.0
-        limit = self.cfg.slip_min_drive
-        for cls in self._in_use(stamp):
-            if cls not in self._bounded:
-                continue
-            faults = self.models[cls].faults
-            if ("slip" in faults and drive >= limit and ahead) or ("slide" in faults and drive <= -limit and not ahead):
-                # the disagreement [m/s] the drift shows, about: the innovations' weighted mean [m]
-                # over the test's time constant, as a reading of that sensor would differ
-                shown = -summed / weights * math.sqrt(S) / self.cfg.slip_window
-                raise _Lookback(cls, stamp - self.cfg.history, shown)
-
-    def _raised(self, P, faulty) -> np.ndarray:
-        """Covariance P with the relative error states at least as uncertain as their priors,
-        and the constant scale of each sensor in ``faulty`` (with a scale-fault mode) by the
-        fault's size (``scale_fault_sigma``) more; the speed, learnt through the scales, as
-        uncertain as they became. Rows and columns are rescaled, so the correlations stay."""
-        lay = self.layout
-        idx = lay.relative_states
-        if not len(idx):
-            return P
-        P = P.copy()
-        floor = np.zeros(self.n)
-        floor[idx] = lay.prior_sigma[idx] ** 2
-        for name in faulty:
-            floor[lay.fault_scale[name]] += self.models[name].scale_fault_sigma ** 2
-        var = np.diag(P).copy()
-        scales = [*lay.scale.values(), *lay.offset.values()]
-        P[1, 1] += float(np.sum(np.maximum(floor[scales] - var[scales], 0.0))) * float(self.ekf.x[1, 0]) ** 2
-        ratio = np.sqrt(np.divide(np.maximum(var[idx], floor[idx]), var[idx], out=np.ones(len(idx)),
-                                  where=var[idx] > 0))
-        P[idx, :] *= ratio[:, None]
-        P[:, idx] *= ratio[None, :]
-        return P
-
-    def _scale_faults_explaining(self, m, z: float, R: float) -> list[str]:
-        """The speed sources in use with a scale-fault mode whose fault, over the distance run
-        since the last accepted fix, would explain independent fix ``m`` (z, R) that the
-        filter does not: the innovation inside the gate of its variance with that fault's
-        (``scale_fault_sigma`` x distance) added."""
-        aux, stamp = self.aux, m.stamp
-        if m.sensor in self.layout.fix or not math.isfinite(aux.s_last_fix):
-            return []
-        s, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
-        run = abs(s - aux.s_last_fix)
-        return [c for c in sorted(self._in_use(stamp)) if c in self.layout.scale
-                and "scale_fault" in self.models[c].faults
-                and (z - s) ** 2 <= self._gates[m.sensor] * (P00 + R + (self.models[c].scale_fault_sigma * run) ** 2)]
-
-    def _unexplained(self, m, z: float, R: float) -> None:
-        """A gated absolute fix: keep it as the alternative, or let it confirm the one kept.
-        Where a persistent scale fault of a speed source in use would explain it (a lone
-        radar's, which nothing else measures), that source's scale is opened to the fault's
-        size (``_raised``): under that hypothesis the filter's speed is wrong, and the interval
-        of both the filter and the kept fix moves with the filter's motion. The next fix of
-        another reference decides: one that agrees with the kept fix re-acquires the position
-        from itself, the scale left open for the fixes after it to learn (``_relearn``)."""
-        aux = self.aux
-        if self._corroborated(m, z, R):
-            # two independent fixes agree with each other, not with the filter: it was wrong
-            self._reacquire(m)
-            return
-        alt = aux.alternative
-        if alt is not None and m.stamp - alt.stamp <= self.cfg.branch_timeout and \
-                (m.sensor, m.reference_id) == (alt.sensor, alt.reference):
-            return   # the kept reference read again confirms nothing and stays the alternative
-        faulty = self._scale_faults_explaining(m, z, R)
-        if faulty:
-            self.ekf.P = self._raised(self.ekf.P, faulty)
-            aux.events = _inc(aux.events, "scale_fault_suspected")
-        aux.alternative = UnexplainedFix(m.stamp, z, R, float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0]), m.sensor,
-                                         m.reference_id, tuple(faulty))
-        aux.events = _inc(aux.events, "unexplained_fix")
-
-    def _reacquire(self, m) -> None:
-        """Two independent fixes agree with each other, not with the filter (the kept
-        alternative and ``m``): the position from ``m``, the relative error states re-learnt;
-        a scale opened for the alternative stays open."""
-        faulty = self.aux.alternative.opened
-        self._set_position(m)
-        self._relearn("reacquired", faulty)
-        self.aux.alternative = None
-
-    def _corroborated(self, m, z: float, R: float) -> bool:
-        """An unexplained fix of another, independent reference is kept and agrees with fix m
-        (z, R). Fixes of one sensor with a fix-bias state are not independent, whatever their
-        reference ids (mm-wave ranging: overlapping sets of stations, one NLOS or calibration
-        fault in all of them)."""
-        alt = self.aux.alternative
-        if alt is None or m.stamp - alt.stamp > self.cfg.branch_timeout:
-            return False
-        if m.sensor == alt.sensor and (m.reference_id == alt.reference or m.sensor in self.layout.fix):
-            return False
-        return self._agrees(m, z, R, float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0]), alt.z, alt.R, alt.s, alt.P00)
-
-    def _agrees(self, m, z: float, R: float, s: float, P00: float,
-                z_kept: float, R_kept: float, s_kept: float, P00_kept: float) -> bool:
-        """Whether fix ``m`` (z, R) agrees with a kept fix moved by the dead reckoning since:
-        filter position and its variance s, P00 now, s_kept, P00_kept when it was kept."""
-        var = R_kept + R + max(P00 - P00_kept, 0.0)
-        return (z - (z_kept + (s - s_kept))) ** 2 / var <= self._gates[m.sensor]
-
-    def _initialise(self, m) -> None:
-        """Claim the position from a fix. A fix of a sensor that can misread its reference (a
-        balise telegram, a lug code) is only a candidate: the position is set when a fix of
-        another reference agrees with it, moved by the dead reckoning since."""
-        aux, cfg = self.aux, self.cfg
-        if "misread" not in self.models[m.sensor].faults:
-            # a reference that cannot be misidentified (wayside heads, loops, ranging): its decoder
-            # withholds what it cannot tell (a miscounted axle, an unresolved NLOS)
-            self._set_position(m)
-            self._first_position(m.stamp)
-            return
-        z, R, _, _ = self._measurement(m)
-        x0, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
-        cand = aux.candidate
-        if cand is not None and m.stamp - cand.stamp <= cfg.branch_timeout:
-            if m.reference_id == cand.reference and m.sensor == cand.sensor:
-                return                               # the same reference confirms nothing
-            if self._agrees(m, z, R, x0, P00, cand.z, cand.R, cand.s, cand.P00):
-                self._set_position(m)
-                self._first_position(m.stamp)
-                return
-            aux.events = _inc(aux.events, "candidate_replaced")
-        aux.candidate = Candidate(m.stamp, z, R, x0, m.sensor, m.reference_id, P00)
-
-    def _first_position(self, stamp: float) -> None:
-        """The position is claimed for the first time (``_set_position`` has just taken it from a
-        fix). The motion model's hypotheses of coastings before it were kept in the frame of the
-        dead reckoning from the start; the fix locates the train under each of them: a moved
-        one adds nothing more and is dropped, a coasting in progress keeps its speed and
-        acceleration hypothesis and takes the filter's position."""
-        aux = self.aux
-        aux.initialised = True
-        aux.candidate = None
-        views = []
-        for view in aux.motion_views:
-            if isinstance(view, ModelView):
-                x, P = self._model_view_at(view, stamp)
-                views.append(ModelView(stamp, float(self.ekf.x[0, 0]), float(x[1]), float(x[2]),
-                                       (float(self.ekf.P[0, 0]), 0.0, 0.0, float(P[1, 1]), float(P[1, 2]),
-                                        float(P[2, 2]))))
-        aux.motion_views = tuple(views)
-
-    def _set_position(self, m) -> None:
-        """Take the position from a fix alone (first fix, re-acquisition): s = z - e."""
-        aux, cls = self.aux, m.sensor
-        z, R, _, _ = self._measurement(m)
-        x = self.ekf.x.copy()
-        P = self.ekf.P.copy()
-        P[0, :] = 0.0
-        P[:, 0] = 0.0
-        P[0, 0] = R
-        x[0, 0] = z
-        f_idx = self.layout.fix.get(cls)
-        if f_idx is not None:   # s = z - e: its covariances are those of -e
-            x[0, 0] -= x[f_idx, 0]
-            P[0, :] = -P[f_idx, :]
-            P[:, 0] = -P[:, f_idx]
-            P[0, 0] = R + P[f_idx, f_idx]
-        self.ekf.x, self.ekf.P = x, P
-        aux.impacts = impact.position_set_from_fix(aux.impacts, f_idx)
-        aux.accepted = _inc(aux.accepted, cls)
-        aux.last_accepted = {**aux.last_accepted, cls: m.stamp}
-        aux.last_fix_accepted = m.stamp
-        aux.s_last_fix = float(x[0, 0])
-        self._seed_subs(m.stamp)
-        aux.lone_view = None      # the lone source's solution starts again from here (_track_lone)
-
-    def _new_fix_bias(self, cls: str) -> None:
-        """A new reference: its fix bias is independent of the previous one."""
-        i = self.layout.fix[cls]
-        x, P = self.ekf.x.copy(), self.ekf.P.copy()
-        x[i, 0] = 0.0
-        P[i, :] = 0.0
-        P[:, i] = 0.0
-        P[i, i] = self.layout.prior_sigma[i] ** 2
-        self.ekf.x, self.ekf.P = x, P
-        self.aux.impacts = impact.states_set(self.aux.impacts, [i])
-
-    # -- solution separation (separation.py) -----------------------------------
-    def _seed_subs(self, stamp: float) -> None:
-        """Every relative sensor's own solution starts again from the filter's position."""
-        s, P00, v = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0]), float(self.ekf.x[1, 0])
-        self.aux.subs = {name: separation.seed(sm, stamp, s, P00, v) for name, sm in self._subs.items()}
-
-    def _main(self) -> separation.Main:
-        """The filter's own solution now, for the sensor solutions."""
-        x, P = self.ekf.x, self.ekf.P
-        return separation.Main(float(x[0, 0]), float(P[0, 0]), float(x[1, 0]), float(P[1, 1]))
-
-    def _sub_reading(self, m, key: str, sm) -> None:
-        """Sensor ``m.sensor``'s own solution ``key`` after its reading m; while the filter has
-        excluded it for its own fault (not as an undecided alternative) it follows the filter."""
-        aux, cls, before = self.aux, m.sensor, self._before
-        sub = aux.subs.get(key)
-        if sub is None:
-            sub = separation.seed(sm, m.stamp, before.s, before.P00, before.v)
-        elif _speed_excluded(aux, cls, m.stamp) and cls not in aux.relative_alternatives:
-            sub = separation.follow(sub, m.stamp, before)._replace(t_v=-math.inf)
-        else:
-            R = self._measurement(m)[1]
-            sub = separation.reading(sub, sm, m, R, float(self.ekf.x[2, 0]), before, self.cfg.slip_window)
-        aux.subs = {**aux.subs, key: sub}
-
-    def _located(self, m) -> tuple[float, float]:
-        """(position [m], variance [m^2]) of the train front that an accepted fix m gives under
-        any hypothesis. The filter's estimate of the fix's persistent error (fix bias) is not
-        used: it is learnt together with the filter's own solution and may hold what the filter
-        got wrong. Its prior variance is added, as shared by the sensor's fixes within its
-        correlation time (each counts for the fraction of that time since the previous one, as
-        ``models.fix_noise`` counts a decoder's excess)."""
-        z, R, _, _ = self._measurement(m)
-        f_idx = self.layout.fix.get(m.sensor)
-        if f_idx is not None:
-            shared = fixes_sharing(self.models[m.sensor], abs(float(self.ekf.x[1, 0])), self._since)
-            R += float(self.layout.prior_sigma[f_idx]) ** 2 * shared
-        return z, R
-
-    def _hypotheses_take_fix(self, m) -> None:
-        """An absolute fix the filter accepted locates the train under every hypothesis it
-        keeps: each relative sensor's own solution (separation.py; one that cannot explain the
-        fix is refuted and starts again from the filter's) and each motion-model hypothesis of
-        a coasting (conditioned on it: a fix that both explain tells where the train is, not
-        only which one is right)."""
-        aux = self.aux
-        if not aux.subs and not aux.motion_views and aux.lone_view is None:
-            return
-        z, R = self._located(m)
-        if aux.lone_view is not None:
-            self._lone_take_fix(m, z, R)
-        x0, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
-        if aux.motion_views:
-            aux.motion_views = tuple(self._motion_view_fixed(view, m.stamp, z, R, x0, P00)
-                                     for view in aux.motion_views)
-        if aux.subs:
-            subs = {}
-            for name, sub in aux.subs.items():
-                new = separation.fix(sub, m.stamp, z, R, self._before, self._gates[m.sensor])
-                if new is None:
-                    new = separation.seed(self._subs[name], m.stamp, x0, P00, float(self.ekf.x[1, 0]))
-                    aux.events = _inc(aux.events, "sensor_solution_refuted")
-                subs[name] = new
-            aux.subs = subs
-
-    def _track_lone(self, stamp: float) -> None:
-        """Solution separation for the fault of a lone speed source. A relative sensor whose scale
-        fault no test of its own can see (a Doppler radar's, growing slowly: the speed it reads
-        drifts like an acceleration) may carry the speed alone: the only relative sensor, or the
-        others excluded or silent. Nothing then checks it but the fixes, and between them a
-        fault of a few percent runs the filter out of its interval while every test passes. The
-        solution without that sensor is the motion model from the last time another source
-        checked it, conditioned on the fixes the filter accepts (``_lone_take_fix``); the
-        interval covers it (``_lone_interval``). It starts when one such sensor is left in use
-        (accepted within ``slip_reference_timeout`` s), and ends when another source is in use
-        (``_lone_accompanied``). A wheel in a slip or slide episode still counts: the episode is
-        short (its ``fault_duration_max``) and ends with the wheel agreeing with the filter
-        again, which a drifting radar fails; a suspended sensor does not."""
-        aux, timeout = self.aux, self.cfg.slip_reference_timeout
-        in_use = [c for c in self.layout.relative if c not in aux.suspended
-                  and max(aux.last_accepted.get(c, -math.inf), aux.slip_until.get(c, -math.inf)) >= stamp - timeout]
-        lone = in_use[0] if len(in_use) == 1 and in_use[0] in self._persistent else None
-        if lone is None:
-            if aux.lone_view is not None and in_use:
-                self._lone_accompanied(stamp)
-        elif aux.lone_view is None or aux.lone_view.sensor != lone:
-            aux.lone_view = LoneView(self._lone_model_view(stamp, lone), lone, 0.0)
-
-    def _lone_accompanied(self, stamp: float) -> None:
-        """The lone source has company again: from ``stamp`` the sources in use check each other,
-        so its fault adds nothing more, but what it may have put into the filter's position while
-        it was alone stays there, unseen by the newcomer (a relative sensor tells the motion from
-        now on, not the distance already run), until a fix locates the train. The lone solution
-        (its interval at ``stamp``) therefore stays as a motion-model hypothesis that moves with
-        the filter (a MovedView, as a coasting's that ended): conditioned on the fixes, ruled out by
-        one it does not fit, no longer needed once the filter explains a fix."""
-        aux = self.aux
-        s, var_s = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
-        v, var_v = float(self.ekf.x[1, 0]), float(self.ekf.P[1, 1])
-        lo, hi, _, _, _ = self._lone_interval(aux, stamp, s, var_s, v, var_v)
-        aux.lone_view = None
-        half = self._z * math.sqrt(var_s)
-        if lo > hi or (lo >= s - half and hi <= s + half):
-            return     # ruled out, or within the filter's own interval
-        moved = MovedView(0.5 * (lo + hi), (0.5 * (hi - lo) / self._z) ** 2, s, var_s, 0.0, 0.0, math.inf)
-        views = aux.motion_views
-        if _coasting(aux):   # the coasting's own hypothesis stays the last one
-            aux.motion_views = views[-(_MAX_MOTION_VIEWS - 1):-1] + (moved, views[-1])
-        else:
-            aux.motion_views = views[-(_MAX_MOTION_VIEWS - 1):] + (moved,)
-        aux.events = _inc(aux.events, "lone_source_accompanied")
-
-    def _model_view(self, stamp: float) -> ModelView:
-        """The motion model's hypothesis from the filter's kinematic state now."""
-        return ModelView(stamp, *self.ekf.x[:3, 0].tolist(), _kinematic_covariance(self.ekf.P))
-
-    def _lone_model_view(self, stamp: float, lone: str) -> ModelView:
-        """The motion model's hypothesis without lone source ``lone``, from the filter's state
-        now. Unless another speed source checked the filter's speed just before (accepted within
-        twice ``slip_reference_timeout``: a lone view starts once the others have been silent
-        that long), the speed is that sensor's own reading and its fault may have begun long
-        before: the speed's variance then holds its scale fault, (``scale_fault_sigma`` x v)^2,
-        for the fixes to narrow (``_motion_view_fixed``)."""
-        view = self._model_view(stamp)
-        checked = max((self.aux.last_accepted.get(c, -math.inf) for c in self.layout.relative if c != lone),
-                      default=-math.inf)
-        if checked >= stamp - 2.0 * self.cfg.slip_reference_timeout:
-            return view
-        p00, p01, p02, p11, p12, p22 = view.cov
-        p11 += (self.models[lone].scale_fault_sigma * view.v) ** 2
-        return view._replace(cov=(p00, p01, p02, p11, p12, p22))
-
-    def _lone_take_fix(self, m, z: float, R: float) -> None:
-        """The lone source's fault hypothesis after a fix the filter accepted (z, R from
-        ``_located``): conditioned on it; one it cannot explain refutes it (the train did move
-        as the sensor said), and it starts again from the filter's."""
-        aux = self.aux
-        held = aux.lone_view
-        view = held.view
-        s_f, P00 = float(self.ekf.x[0, 0]), float(self.ekf.P[0, 0])
-        s_m, var_m = self._motion_view(view, m.stamp, s_f, P00)
-        if (z - s_m) ** 2 > self._gates[m.sensor] * (R + var_m):
-            view = self._lone_model_view(m.stamp, held.sensor)
-            aux.events = _inc(aux.events, "lone_source_solution_refuted")
-        else:
-            view = self._motion_view_fixed(view, m.stamp, z, R, s_f, P00)
-        # the filter accepted the fix: its error before was at most the innovation and the fix's
-        # own error; the update took its gain's share of it (a DGPS fix little, a tag nearly all)
-        gain, nu = self._last_update
-        before = min(held.bound, abs(nu) + self._z * math.sqrt(R))
-        aux.lone_view = LoneView(view, held.sensor, (1.0 - min(max(float(gain[0]), 0.0), 1.0)) * before)
-
-    def _lone_interval(self, aux: Bookkeeping, t: float, s: float, var_s: float, v: float, var_v: float) -> tuple:
-        """(lo, hi [m], speed half-width [m/s], its position and variance) of the lone source's
-        fault hypothesis at t (the filter at s [m], var_s [m^2], v [m/s], var_v [m^2/s^2]): the
-        motion model's interval, within what the sensor's scale fault can have put into the
-        filter's position (the lone view's bound: z x ``scale_fault_sigma`` x the distance run,
-        less what the accepted fixes corrected, for a fault that began at any time since; both
-        hold under the hypothesis); empty (lo > hi) where they do not meet."""
-        lone = aux.lone_view
-        sigma_f, z = self.models[lone.sensor].scale_fault_sigma, self._z
-        bound = lone.bound + z * sigma_f * abs(v) * max(t - aux.t, 0.0)
-        view = lone.view
-        s_m, v_m, _, var_m, var_vm = _kinematics(view.s, view.v, view.a, view.cov, max(t - view.stamp, 0.0),
-                                                 self.cfg.jerk_psd)
-        half, cap = z * math.sqrt(var_m), math.sqrt(z * z * var_s + bound * bound)
-        half_v = min(abs(v_m - v) + z * math.sqrt(var_vm), z * math.sqrt(var_v + (sigma_f * v) ** 2))
-        return max(s_m - half, s - cap), min(s_m + half, s + cap), half_v, s_m, var_m
-
-    def _model_view_at(self, view: ModelView, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """(kinematic state [s, v, a], its 3x3 covariance) of a coasting's view predicted to t [s]."""
-        dt = max(t - view.stamp, 0.0)
-        F, _, Q = self.process.transition(dt)
-        F, Q = F[:3, :3], Q[:3, :3]      # the kinematic block: the error states do not enter it
-        p00, p01, p02, p11, p12, p22 = view.cov
-        P = F @ np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]]) @ F.T + Q
-        return np.array(kinematic_mean(view.s, view.v, view.a, dt)), P
-
-    def _motion_view_fixed(self, view: ModelView | MovedView, t: float, z: float, R: float, s_f: float,
-                           P00_f: float) -> ModelView | MovedView:
-        """A motion-model hypothesis conditioned on a fix z [m] of variance R [m^2] at t [s] (the
-        filter at s_f, P00_f after it): a coasting's kinematic state moved to t and updated
-        (H = [1, 0, 0]); a moved one as a scalar update, moved with the filter from here."""
-        if isinstance(view, MovedView):
-            s_m, var_m = self._motion_view(view, t, s_f, P00_f)
-            k = var_m / (var_m + R)
-            return view._replace(s=s_m + k * (z - s_m), var=(1.0 - k) * var_m, s_filter=s_f, P00_filter=P00_f)
-        x, P = self._model_view_at(view, t)
-        K = P[:, 0] / (P[0, 0] + R)
-        x = x + K * (z - x[0])
-        P = P - np.outer(K, P[0, :])
-        return ModelView(t, float(x[0]), float(x[1]), float(x[2]), _kinematic_covariance(P))
 
     # -- input -----------------------------------------------------------------
     def add(self, m) -> None:
@@ -1855,10 +368,10 @@ class TrainFilter:
             m = hist.meas[j]
             try:
                 if hist.keys[j] in hist.excluded:
-                    self._excluded(m, hist.excluded[hist.keys[j]][1])
+                    self.episodes.excluded(m, hist.excluded[hist.keys[j]][1])
                 else:
                     self._apply(m)
-            except _Lookback as back:
+            except Lookback as back:
                 i = j
                 while i > 0 and hist.stamps[i - 1] >= back.since:
                     i -= 1
@@ -1914,11 +427,11 @@ class TrainFilter:
             c = self._est_cache
             if c[0] is not xk or c[1] is not Pk:
                 x_err = xk[:, 0].tolist()
-                c = self._est_cache = (xk, Pk, x_err, _kinematic_covariance(Pk), self._error_states(x_err),
+                c = self._est_cache = (xk, Pk, x_err, kinematic_covariance(Pk), self._error_states(x_err),
                                        impact.prepared(aux.impacts, self._z))
             x_err = c[2]
             dt = t - aux.t
-            s, v, a, var_s, var_v = _kinematics(x_err[0], x_err[1], x_err[2], c[3], dt, self.cfg.jerk_psd)
+            s, v, a, var_s, var_v = kinematics(x_err[0], x_err[1], x_err[2], c[3], dt, self.cfg.jerk_psd)
             scales, biases = c[4]
             if self.layout.gauss_markov:
                 x_err = list(x_err)
@@ -1934,164 +447,18 @@ class TrainFilter:
         if not aux.initialised:
             return Estimate(t, math.nan, float(v), float(a), math.inf, sd_v, -math.inf, math.inf,
                             self.cfg.confidence, Mode.INITIALISING, scales, biases)
-        lo, hi = float(s) - self._z * sd_s, float(s) + self._z * sd_s
-        alt = aux.alternative
-        if alt is not None:   # the unexplained fix, moved with the filter's motion since
-            p_alt = alt.z + (float(s) - alt.s)
-            half = self._z * math.sqrt(alt.R + max(var_s - alt.P00, 0.0))
-            lo, hi = min(lo, p_alt - half), max(hi, p_alt + half)
-            sd_s = max(sd_s, (hi - lo) / (2.0 * self._z))
-        mode = self._mode(aux, t, sd_s)
-        for cls, rel in aux.relative_alternatives.items():   # the excluded sensors' views
-            D, var_D = self._alternative_spread(cls, rel)
-            half = self._z * math.sqrt(var_s + var_D)
-            # from its current separation to the farthest one: the excluded sensor is no more
-            # trusted than the others (right until then, it may have slipped back since)
-            near, far = sorted((D, rel.farthest))
-            alt_lo, alt_hi = float(s) + near - half, float(s) + far + half
-            if alt_lo < lo or alt_hi > hi:
-                lo, hi = min(lo, alt_lo), max(hi, alt_hi)
-                sd_s = max(sd_s, (hi - lo) / (2.0 * self._z))
-                mode = self._widened(aux, t, sd_s, mode)
-                mode = Mode.DEGRADED if mode == Mode.NOMINAL else mode
-        sd_v_views = self._speed_covering_views(aux, t, float(v), sd_v)
-        if sd_v_views > sd_v:
-            sd_v, mode = sd_v_views, (Mode.DEGRADED if mode == Mode.NOMINAL else mode)
-        for view in aux.motion_views:   # the motion model's own hypotheses of coastings
-            s_m, var_m = self._motion_view(view, t, float(s), var_s)
-            half = self._z * math.sqrt(var_m)
-            if s_m - half < lo or s_m + half > hi:
-                lo, hi = min(lo, s_m - half), max(hi, s_m + half)
-                sd_s = max(sd_s, (hi - lo) / (2.0 * self._z))
-                mode = self._widened(aux, t, sd_s, mode)
-        if aux.lone_view is not None:   # the solution without a lone speed source (its fault)
-            l_lo, l_hi, half_v, s_m, var_m = self._lone_interval(aux, t, float(s), var_s, float(v), var_v)
-            if l_lo <= l_hi and (l_lo < lo or l_hi > hi):
-                lo, hi = min(lo, l_lo), max(hi, l_hi)
-                sd_s = max(sd_s, (hi - lo) / (2.0 * self._z))
-                mode = self._widened(aux, t, sd_s, mode)
-                if mode == Mode.NOMINAL and separation.separated(s_m, var_m, float(s), var_s, self._z):
-                    mode = Mode.DEGRADED
-            if half_v > self._z * sd_v:
-                sd_v = half_v / self._z
-        if aux.impacts is not None:   # the persistent faults of the relative sensors the data has not excluded
-            bank = self._est_cache[5] if self._est_cache[0] is xk and self._est_cache[1] is Pk else aux.impacts
-            half_s, half_v = impact.cover(bank, t - aux.t, self._z, max(var_s, 0.0), max(var_v, 0.0))
-            if float(s) - half_s < lo or float(s) + half_s > hi:
-                lo, hi = min(lo, float(s) - half_s), max(hi, float(s) + half_s)
-                sd_s = max(sd_s, (hi - lo) / (2.0 * self._z))
-                mode = self._widened(aux, t, sd_s, mode)
-            if half_v > self._z * sd_v:
-                sd_v = half_v / self._z
-        if aux.subs:   # the relative sensors' own solutions: per fault hypothesis (protection level)
-            lo, hi, sd_s, sd_v, mode = self._hypotheses_cover(aux, t, float(s), var_s, float(v), var_v,
-                                                               lo, hi, sd_s, sd_v, mode)
+        lo, hi, sd_s, sd_v, mode = self.interval.cover(aux, t, s, v, var_s, var_v, sd_s, sd_v, xk, Pk)
         return Estimate(t, float(s), float(v), float(a), sd_s, sd_v, lo, hi, self.cfg.confidence,
                         mode, scales, biases)
-
-    def _hypotheses_cover(self, aux: Bookkeeping, t: float, s: float, var_s: float, v: float, var_v: float,
-                          lo: float, hi: float, sd_s: float, sd_v: float, mode: Mode) -> tuple:
-        """(lo, hi, position and speed 1-sigma, mode) widened to cover, per fault hypothesis of
-        the relative sensors (separation.hypotheses), the valid solution that widens the interval
-        least: each is a bound under that hypothesis. A solution whose sensor has not read since it
-        started is the filter's own. DEGRADED where the filter's interval alone would not have
-        covered the chosen solution (the separation beyond its test threshold)."""
-        z, placed = self._z, {}
-        for key, sub in aux.subs.items():
-            if not sub.own:
-                continue
-            s_j, var_j = separation.at(sub, t, var_s, v, var_v)
-            var_j = max(var_j, var_s)
-            half_v = (separation.speed_half_width(sub, self._subs[key], v, var_v, z)
-                      if t - sub.t_v <= self.cfg.slip_reference_timeout else 0.0)
-            placed[key] = (s_j, var_j, z * math.sqrt(var_j), half_v)
-        for valid in self._hypotheses.values():
-            # only a solution whose sensor reads is a bound of its own; one that follows the
-            # filter (its sensor silent or excluded) may carry the fault: then each is covered
-            # (one whose sensor has not read since it started is the filter's own: none)
-            own = [k for k in valid if k in placed]
-            reading = [k for k in own if placed[k][3] > 0.0]
-            chosen = [min(reading, key=lambda k: max(hi, placed[k][0] + placed[k][2])
-                          - min(lo, placed[k][0] - placed[k][2]))] if reading else own
-            for k in chosen:
-                s_j, var_j, half, _ = placed[k]
-                if s_j - half < lo or s_j + half > hi:
-                    lo, hi = min(lo, s_j - half), max(hi, s_j + half)
-                    sd_s = max(sd_s, (hi - lo) / (2.0 * z))
-                    mode = self._widened(aux, t, sd_s, mode)
-                    if mode == Mode.NOMINAL and separation.separated(s_j, var_j, s, var_s, z):
-                        mode = Mode.DEGRADED
-            half_v = min((placed[k][3] for k in reading), default=0.0)
-            if half_v > z * sd_v:
-                sd_v = half_v / z
-        return lo, hi, sd_s, sd_v, mode
 
     def _error_states(self, x_err: list) -> tuple[dict[str, float], dict[str, float]]:
         """({sensor: scale error [1]}, {sensor: bias [m/s]}) of the error states x_err."""
         scales = {name: x_err[i] + (x_err[o] if o is not None else 0.0) for name, i, o in self.layout.scale_terms}
         return scales, {name: x_err[i] for name, i in self.layout.bias.items()}
 
-    def _speed_covering_views(self, aux: Bookkeeping, t: float, v: float, sd_v: float) -> float:
-        """The speed 1-sigma [m/s] to publish: the filter's, widened so that v +- z sd_v also
-        covers the speed each excluded sensor with an undecided view last read (within
-        ``slip_reference_timeout`` s), with its own noise: while no fix has decided which
-        source is faulty, the speed of either may be the true one (the position interval
-        covers their views the same way). While the filter coasts between disagreeing
-        sources it also covers the motion model's speed from the start of the coasting: both
-        sources may be wrong the same way (a slip during a radar scale fault), and the middle
-        of two readings that happen to be close is no measurement. After a coasting or a
-        re-acquisition, while the common error its motion-model hypothesis holds may still last
-        (``_coasting_ended``), it covers that error too."""
-        half = base = self._z * sd_v
-        for cls in aux.relative_alternatives:
-            reading = aux.view_speeds.get(cls)
-            if reading is None or t - reading.stamp > self.cfg.slip_reference_timeout:
-                continue
-            half = max(half, abs(reading.speed - v) + self._z * math.sqrt(reading.var + sd_v * sd_v))
-        if _coasting(aux):
-            view = aux.motion_views[-1]
-            _, v_m, _, _, var_m = _kinematics(view.s, view.v, view.a, view.cov, max(t - view.stamp, 0.0),
-                                              self.cfg.jerk_psd)
-            half = max(half, abs(v_m - v) + self._z * math.sqrt(var_m))
-        for view in aux.motion_views:
-            if isinstance(view, MovedView) and view.r and view.until > t:
-                # a common error r of the sources in use that may still last: their speed x (1 + r)
-                r, var_r = view.r, view.var_r
-                half = max(half, abs(v * r) + self._z * math.sqrt(sd_v * sd_v + v * v * var_r))
-        return half / self._z if half > base else sd_v   # (z sd_v) / z may differ from sd_v by an ulp
-
-    def _motion_view(self, view: ModelView | MovedView, t: float, s_f: float, var_f: float) -> tuple[float, float]:
-        """(position [m], variance [m^2]) at t of a motion-model hypothesis: during its coasting
-        the kinematic block from its start predicted with the white-jerk process noise; after it
-        moved with the filter (position s_f [m], variance var_f [m^2] at t), the distance scaled
-        by 1 + r, r the common scale error of the speed sources in use (``_coasting_ended``)."""
-        if isinstance(view, MovedView):
-            d = s_f - view.s_filter
-            return (view.s + d * (1.0 + view.r),
-                    view.var + max(var_f - view.P00_filter, 0.0) + (view.var_r * d * d if d else 0.0))
-        s_m, _, _, var, _ = _kinematics(view.s, view.v, view.a, view.cov, max(t - view.stamp, 0.0), self.cfg.jerk_psd)
-        return s_m, var
-
-    def _mode(self, aux: Bookkeeping, t: float, position_stddev: float) -> Mode:
-        if not aux.initialised:
-            return Mode.INITIALISING
-        if position_stddev > self.cfg.lost_stddev:
-            return Mode.LOST
-        if aux.alternative is not None or aux.unverified or aux.suspended:
-            return Mode.DEGRADED
-        for sensor, timeout in self.timeouts.items():
-            if t - aux.last_accepted.get(sensor, -math.inf) > timeout:
-                return Mode.DEGRADED
-        return Mode.NOMINAL
-
-    def _widened(self, aux: Bookkeeping, t: float, position_stddev: float, mode: Mode) -> Mode:
-        """The mode after the interval was widened to position_stddev [m]: LOST beyond
-        ``lost_stddev``, else ``mode`` as it was (a DEGRADED view is not undone)."""
-        return Mode.LOST if self._mode(aux, t, position_stddev) == Mode.LOST else mode
-
     def mode(self, t: float, position_stddev: float) -> Mode:
         self._catch_up()
-        return self._mode(self.aux, t, position_stddev)
+        return self.interval.mode(self.aux, t, position_stddev)
 
     def counters(self) -> dict[str, dict]:
         self._catch_up()

@@ -210,3 +210,23 @@ def implied_speed(layout: StateLayout, x_col, P, m, z: float, R: float) -> tuple
     creep = layout.models[cls].creep_coefficient * abs(a) * abs(u)
     common = var_g * u * u + (P[b, b] if b is not None else 0.0) + creep * creep
     return float(u), float(R / (g * g)), float(common)
+
+
+def kinematics(s: float, v: float, a: float, p: tuple, dt: float, q: float) -> tuple:
+    """(position [m], speed [m/s], acceleration [m/s^2], position and speed variances) dt [s]
+    after (s, v, a) with the kinematic covariance p (``kinematic_covariance``), under the
+    white-jerk motion model of spectral density q [m^2/s^5]: the first three rows of F and Q,
+    the train held at rest where a braking brings it there (``kinematic_mean``). Plain floats:
+    numpy's per-call overhead dominates 3x3 arithmetic at 200 estimates/s."""
+    p00, p01, p02, p11, p12, p22 = p
+    h, dt2 = 0.5 * dt * dt, dt * dt
+    var_s = (p00 + 2 * dt * p01 + 2 * h * p02 + dt2 * p11 + 2 * dt * h * p12 + h * h * p22
+             + q * dt2 * dt2 * dt / 20)
+    var_v = p11 + 2 * dt * p12 + dt2 * p22 + q * dt2 * dt / 3
+    return (*kinematic_mean(s, v, a, dt), var_s, var_v)
+
+
+def kinematic_covariance(P) -> tuple:
+    """(P00, P01, P02, P11, P12, P22) of the position, speed and acceleration states, as floats."""
+    (p00, p01, p02), (_, p11, p12), (_, _, p22) = P[:3, :3].tolist()
+    return p00, p01, p02, p11, p12, p22

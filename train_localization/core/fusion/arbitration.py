@@ -1,0 +1,276 @@
+"""Arbitration between disagreeing speed sources: the excluded sensor's view, its suspension, and
+the fix that decides.
+
+  arbitration a wheel slips only under traction and slides only under braking: a slip
+              sensor's disagreement of another kind (it turns slower while the train
+              accelerates, or any at a steady speed), and any of the radar, may be the other
+              speed sources' fault. The filter still follows the majority view, but keeps the
+              excluded sensor's distance as the alternative (the interval covers it, DEGRADED)
+              (from its current separation to the farthest it reached: it may have slipped back
+              since) and suspends the sensor: it is back only after agreeing for ``slip_window`` s
+              without being applied (one reading that slips through the gate while the
+              reference is quiet would be adopted at full weight). An absolute fix decides:
+              if it agrees with the excluded sensor, the other speed sources are suspended
+              until they agree again, the position is taken from the fix and the relative
+              error states are re-learnt; if the filter explains it and the view does not, or
+              far less well (likelihood ratio beyond the gate: a view wide with its own scale
+              error), the sensor was faulty; if both explain it, the view is conditioned on
+              the fix (it locates the train under either hypothesis) and, its sensor in use
+              again, merged. An excluded or suspended sensor is only judged to agree again
+              while the filter's speed rests on something else (another speed source, or fixes
+              that give the speed better than the sensor's own noise), never on the motion
+              model or a coasting alone; a suspended sensor's own scale and bias errors, no
+              longer learnt, count as common to its readings in that test, and it agrees only
+              where the fault it was suspended for would stand out of its noise (a radar scale
+              fault agrees at standstill). A fix that only an
+              excluded view explains overturns the filter only if a fix of another,
+              independent reference agrees with it (not one of the same sensor with a fix-bias
+              state: mm-wave fixes share stations), unless its sensor has no outlier fault mode.
+  merge       an excluded sensor's view that stops being tracked (its episode ended with a
+              separation its own errors explain) is merged into the position covariance.
+"""
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+from ..sensors import faults as fault_modes
+from .bookkeeping import Fault, Suspension, View, fault_at, incremented, is_coasting, speed_excluded, without_key
+from . import impact
+from .models import implied_speed
+from . import separation
+
+if TYPE_CHECKING:
+    from .filter import TrainFilter
+
+
+class Arbitration:
+    """Arbitration between disagreeing speed sources: a component of the filter (TrainFilter), which builds it
+    with itself as the context: its EKF state and bookkeeping, config, layout and models."""
+
+    def __init__(self, f: TrainFilter):
+        self.f = f
+
+    def decide_relative(self, m, z: float, R: float, hx: float, S: float, nis: float) -> bool:
+        """An absolute fix decides between the filter and the excluded sensors' views. True if
+        the fix was used for it (the position re-acquired). A fix that only an excluded view
+        explains overturns the filter only if its sensor cannot produce outliers (NLOS,
+        misread, miscount), or an unexplained fix of another reference agrees with it;
+        otherwise it is kept as the unexplained alternative and the views stay undecided."""
+        aux = self.f.aux
+        gate = self.f._gates[m.sensor]
+        explained = nis <= gate
+        keep, fitting, ruled_out = {}, [], 0
+        for cls, alt in aux.relative_alternatives.items():
+            D, var_D = self.alternative_spread(cls, alt)
+            # the view's position: the filter's when it began (or was last located by a fix),
+            # moved by its own sensor since; the filter's uncertainty from a coasting since is
+            # not the view's
+            S_v = min(S, R + alt.base) + var_D
+            fits = (z - hx - D) ** 2 / S_v
+            # -2 ln of the fix's likelihood under the view against under the filter: a view wide
+            # with its own scale error still "fits" a precise fix that the filter explains far better
+            worse = fits + math.log(S_v / S) - nis
+            if fits <= gate and not (explained and worse > gate):
+                # still explains the fix: undecided; where the filter takes the fix, the view takes
+                # it too (it locates the train under either hypothesis): its separation and spread
+                # conditioned on the fix, its scale error counted from here
+                fitting.append((fits, cls))
+                if nis > gate:
+                    keep[cls] = alt
+                    continue
+                view = self.view_conditioned(alt, D, var_D, z - hx, S, R)
+                if speed_excluded(aux, cls, m.stamp):
+                    keep[cls] = view
+                else:
+                    # its sensor in use again and both located by the fix: merged (moment matching)
+                    self.merge_view(view.separation ** 2 + view.white_var)
+            elif explained or m.stamp - alt.since > self.f.cfg.branch_timeout:
+                # the filter explains the fix and this excluded sensor's view does not (or far
+                # worse): it was faulty
+                aux.events = incremented(aux.events, "excluded_sensor_confirmed_faulty")
+                ruled_out += 1
+                if cls in self.f.layout.slip_sensors:
+                    pass        # a slip ends by itself
+                elif "scale_fault" in self.f.models[cls].faults and self.f._in_use(m.stamp, but=cls):
+                    # a radar's scale fault, which the sources in use (shown right) can teach it
+                    self.f.episodes.relearn_fault(cls)
+                else:                                      # a faulty radar may not recover
+                    self.suspend(cls, self.view_fault(alt, m.stamp))
+            else:
+                keep[cls] = alt
+        aux.relative_alternatives = keep
+        if explained and ruled_out and len(fitting) == 1 and is_coasting(aux):
+            # coasting between the excluded sensors, the fix rules out all views but one: that
+            # sensor was right and is back (its view located by the fix merges into the filter's)
+            cls = fitting[0][1]
+            view = aux.relative_alternatives.pop(cls, None)
+            aux.relative_alternatives = dict(aux.relative_alternatives)
+            self.end_exclusion(cls, m.stamp)
+            reading = aux.peer_speeds.get(cls)
+            if reading is not None and reading.stamp > m.stamp - self.f.cfg.slip_reference_timeout:
+                self.f.motion.set_speed([(reading.speed, reading.white_var + reading.common_var)])   # its speed, not the middle
+            aux.slip_window = without_key(aux.slip_window, cls)
+            if view is not None:
+                self.merge_view(view.separation ** 2 + view.white_var)
+            aux.events = incremented(aux.events, "excluded_sensor_confirmed_right")
+            return False
+        if explained or not fitting:
+            return False                           # the filter explains it, or nothing does
+        if fault_modes.OUTLIER.intersection(self.f.models[m.sensor].faults) and not self.f.fixes.corroborated(m, z, R):
+            return False
+        # an excluded sensor was right: the other speed sources are faulty
+        cls = min(fitting)[1]
+        fault = self.view_fault(aux.relative_alternatives[cls], m.stamp)
+        fault = None if fault is None else Fault(-fault.disagreement, fault.speed)   # the others ran behind it
+        self.f.fixes.set_position(m)
+        self.f.plausibility.relearn("speed_source_faulty")
+        aux.relative_alternatives = {}
+        self.end_exclusion(cls, m.stamp)
+        for other in aux.speed_sources - {cls}:
+            self.suspend(other, fault)
+        return True
+
+    def swap(self, m, z: float, R: float, view: View, other: str) -> None:
+        """The excluded sensor ``m.sensor`` was right and ``other``, the speed source in use, is
+        faulty: the filter takes the excluded sensor's view (its separation D added to the
+        position, the view's spread to the position variance, the speed from this reading), and
+        ``other``'s view becomes the alternative (-D: where it puts the train) while it is
+        suspended for the fault seen. The interval keeps covering both until a fix decides; the
+        filter awaits one (DEGRADED)."""
+        aux, cls, stamp = self.f.aux, m.sensor, m.stamp
+        D = view.separation
+        var_D = self.alternative_spread(cls, view)[1]
+        u, u_white, u_common = implied_speed(self.f.layout, self.f.ekf.x, self.f.ekf.P, m, z, R)
+        x, P = self.f.ekf.x.copy(), self.f.ekf.P.copy()
+        x[0, 0] += D
+        P[0, 0] = max(P[0, 0], view.base + var_D)
+        # its speed, a new error; the acceleration, which a scale error hardly changes, is kept
+        x[1, 0] = u
+        P[1, :] = 0.0
+        P[:, 1] = 0.0
+        P[1, 1] = u_white + u_common
+        self.f.ekf.x, self.f.ekf.P = x, P
+        aux.impacts = impact.speed_set(aux.impacts, u)
+        aux.relative_alternatives = {**without_key(aux.relative_alternatives, cls),
+                                     other: view._replace(separation=-D, farthest=-D)}
+        aux.episode_views = without_key(aux.episode_views, cls)
+        aux.fault_windows = without_key(aux.fault_windows, cls)
+        aux.view_speeds = without_key(aux.view_speeds, cls)
+        aux.slip_window = without_key(aux.slip_window, cls)
+        self.end_exclusion(cls, stamp)
+        self.suspend(other, self.view_fault(aux.relative_alternatives[other], stamp))
+        aux.events = incremented(aux.events, "speed_sources_swapped")
+        aux.unverified = "speed_sources_swapped"
+
+    def alternative_spread(self, cls: str, alt: View) -> tuple[float, float]:
+        """(separation D [m], its variance [m^2]) of a relative alternative."""
+        model = self.f.models[cls]
+        scale = model.scale_sigma + model.scale_offset_sigma
+        return alt.separation, alt.white_var + (scale * alt.run) ** 2
+
+    def end_exclusion(self, cls: str, stamp: float) -> None:
+        """Speed source ``cls`` found right by a fix: its slip episode or suspension ends, and it
+        counts as in use from ``stamp`` (not as a sensor back from an episode that waits for a
+        reference to agree with)."""
+        aux = self.f.aux
+        aux.slip_until = {**aux.slip_until, cls: stamp}
+        aux.suspended = without_key(aux.suspended, cls)
+        aux.last_accepted = {**aux.last_accepted, cls: stamp}
+
+    def merge_view(self, spread: float) -> None:
+        """An excluded sensor's view no longer tracked of its own: its squared separation (plus
+        its own variance) [m^2] added to the position variance, the filter's mean kept (moment
+        matching of the two views), so the interval still covers it."""
+        P = self.f.ekf.P.copy()
+        P[0, 0] += spread
+        self.f.ekf.P = P
+        self.f.aux.events = incremented(self.f.aux.events, "alternative_merged")
+
+    @staticmethod
+    def view_conditioned(alt: View, D: float, var_D: float, nu: float, S: float, R: float) -> View:
+        """An excluded sensor's view (separation D [m], variance var_D [m^2]) after a fix of
+        innovation nu [m] and innovation variance S = A + R [m^2] that the filter applies: the
+        view's position, predicted with variance A + var_D, and the filter's are both updated
+        by the fix (scalar Kalman updates); the new separation and the difference of their
+        posterior variances, and the filter's position variance after the fix (the view's base)."""
+        A = max(S - R, 0.0)
+        S_v = S + var_D
+        D_new = D + (A + var_D) / S_v * (nu - D) - A / S * nu
+        var_new = max(R * ((A + var_D) / S_v - A / S), 0.0)
+        return View(D_new, var_new, alt.since, alt.last, 0.0, D_new, A * R / S if S > 0.0 else 0.0)
+
+    def suspend(self, cls: str, fault: Fault | None) -> None:
+        """Suspend speed source ``cls`` for the fault seen, or None if its size is not known, if
+        its own error model explains it (within the slip gate of the spread its scale and bias
+        priors give at that speed), or if the sensor has no persistent fault mode (a wheel: a
+        slip or slide ends with the adhesion, and the others may have been the wrong ones): such
+        a disagreement needs no proof of its absence before the sensor is back (a wheel that
+        agrees at a standstill is back)."""
+        persistent = "scale_fault" in self.f.models[cls].faults
+        if fault is not None and (not persistent or
+                                  fault.disagreement ** 2 <= self.f._slip_gate * self.model_variance(cls, fault.speed)):
+            fault = None
+        self.f.aux.suspended = {**self.f.aux.suspended, cls: Suspension(math.inf, (), fault)}
+
+    def suspended(self, m, e: float, S: float, nis: float, common: float) -> bool:
+        """A speed source found or suspected faulty: excluded until it agrees again (neither its
+        single nor its windowed disagreement test fires, with a reference to judge it by) for
+        ``slip_window`` s, in a window where the fault seen would have shown (``Arbitration.would_show``)."""
+        aux = self.f.aux
+        held = aux.suspended[m.sensor]
+        since, fault = held.since, held.fault
+        window, summed = self.f.episodes.windowed(held.window, m, e, S, common)
+        if (nis > self.f._slip_gate or summed > self.f._slip_gate) and m.sensor in aux.scale_faults \
+                and self.f.episodes.fault_ended(m, e, S):
+            # judged from its next reading on, at the scale without the fault
+            aux.suspended = {**aux.suspended, m.sensor: Suspension(math.inf, (), fault)}
+            aux.gated = incremented(aux.gated, m.sensor + "/suspended")
+            self.f.episodes.separate(m, e, S)
+            return True
+        if (nis > self.f._slip_gate or summed > self.f._slip_gate) and self.f.episodes.outlasted_by(m):
+            aux.relative_alternatives = without_key(aux.relative_alternatives, m.sensor)
+            self.f.episodes.relearn_fault(m.sensor)
+            aux.events = incremented(aux.events, "fault_outlasted_the_others")
+            return False
+        if nis > self.f._slip_gate or summed > self.f._slip_gate or not self.f._agreement_reference(m, S):
+            since = math.inf
+        elif since == math.inf:
+            since = m.stamp
+        if since != math.inf and m.stamp - since >= self.f.cfg.slip_window and self.would_show(fault, window):
+            aux.suspended = without_key(aux.suspended, m.sensor)
+            # its readings of the agreement so far are the slip test's window from here
+            aux.slip_window = {**aux.slip_window, m.sensor: window}
+            aux.events = incremented(aux.events, "speed_source_restored")
+            return False
+        aux.suspended = {**aux.suspended, m.sensor: Suspension(since, window, fault)}
+        aux.gated = incremented(aux.gated, m.sensor + "/suspended")
+        self.f.episodes.separate(m, e, S)
+        return True
+
+    def would_show(self, fault: Fault | None, window: tuple) -> bool:
+        """Whether the fault a sensor was suspended for, had it persisted, would stand out of the
+        readings' white noise over ``window`` (noncentrality of the summed disagreement at least
+        the slip gate, as when it was seen in use): agreement proves nothing where the fault
+        cannot show. The fault seen, e0 at speed v0, may be a scale error (e0 v / v0) or a bias
+        (e0); the smaller of the two at each reading's speed v counts. A radar reading 6 % low
+        agrees at standstill."""
+        if fault is None or len(window) < 3:
+            return fault is None
+        shown = sum(w.weight * fault_at(fault, w.speed) for w in window)
+        return shown * shown >= self.f._slip_gate * sum(w.white_var for w in window)
+
+    def model_variance(self, cls: str, speed: float) -> float:
+        """The variance [m^2/s^2] of relative sensor ``cls``'s reading at ``speed`` [m/s] that its
+        error model's scale and bias priors allow."""
+        lay, sigma = self.f.layout, self.f.layout.prior_sigma
+        scale = sum(sigma[table[cls]] ** 2 for table in (lay.scale, lay.offset) if cls in table)
+        bias = sigma[lay.bias[cls]] ** 2 if cls in lay.bias else 0.0
+        return scale * speed * speed + bias
+
+    @staticmethod
+    def view_fault(alt: View, stamp: float) -> Fault | None:
+        """The fault an excluded sensor's view shows: its mean disagreement [m/s] at the mean
+        speed [m/s] since the view began."""
+        dt = stamp - alt.since
+        return Fault(alt.separation / dt, alt.run / dt) if dt > 0.0 else None

@@ -1,0 +1,139 @@
+"""The published interval and mode: the filter's ``confidence`` interval widened to cover every
+pending hypothesis.
+
+Modes: INITIALISING until the first absolute fix, or for sensors that can misread their
+reference until two fixes of different references agree (NaN position, infinite interval);
+LOST when the position 1-sigma exceeds ``lost_stddev``; DEGRADED while a continuous
+sensor is past its timeout, an unexplained fix is pending, or the filter has not been
+confirmed by an accepted fix since a re-learn or an inflation; else NOMINAL.
+[position_min, position_max] is the two-sided ``confidence`` interval, widened to
+cover a pending alternative.
+"""
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+from .bookkeeping import Bookkeeping, MovedView, is_coasting
+from . import impact
+from .models import kinematics
+from .mode import Mode
+from . import separation
+
+if TYPE_CHECKING:
+    from .filter import TrainFilter
+
+
+class Interval:
+    """The published interval and mode: a component of the filter (TrainFilter), which builds it
+    with itself as the context: its EKF state and bookkeeping, config, layout and models."""
+
+    def __init__(self, f: TrainFilter):
+        self.f = f
+
+    def cover(self, aux: Bookkeeping, t: float, s, v, var_s, var_v, sd_s, sd_v, xk, Pk) -> tuple:
+        """(lo, hi [m], position 1-sigma [m], speed 1-sigma [m/s], mode) at t [s] of the filter at
+        s [m], v [m/s] (variances var_s [m^2], var_v [m^2/s^2]; 1-sigma sd_s, sd_v): its
+        ``confidence`` interval widened to cover every pending hypothesis, in this order: the
+        unexplained fix, the excluded sensors' views, their speeds, the motion-model hypotheses,
+        the lone-source solution, the persistent-fault cover (impact.py; xk, Pk: the kept state
+        whose prepared cover ``_est_cache`` holds) and the sensors' own solutions."""
+        lo, hi = float(s) - self.f._z * sd_s, float(s) + self.f._z * sd_s
+        alt = aux.alternative
+        if alt is not None:   # the unexplained fix, moved with the filter's motion since
+            p_alt = alt.z + (float(s) - alt.s)
+            half = self.f._z * math.sqrt(alt.R + max(var_s - alt.P00, 0.0))
+            lo, hi = min(lo, p_alt - half), max(hi, p_alt + half)
+            sd_s = max(sd_s, (hi - lo) / (2.0 * self.f._z))
+        mode = self.mode(aux, t, sd_s)
+        for cls, rel in aux.relative_alternatives.items():   # the excluded sensors' views
+            D, var_D = self.f.arbitration.alternative_spread(cls, rel)
+            half = self.f._z * math.sqrt(var_s + var_D)
+            # from its current separation to the farthest one: the excluded sensor is no more
+            # trusted than the others (right until then, it may have slipped back since)
+            near, far = sorted((D, rel.farthest))
+            alt_lo, alt_hi = float(s) + near - half, float(s) + far + half
+            if alt_lo < lo or alt_hi > hi:
+                lo, hi = min(lo, alt_lo), max(hi, alt_hi)
+                sd_s = max(sd_s, (hi - lo) / (2.0 * self.f._z))
+                mode = self.widened(aux, t, sd_s, mode)
+                mode = Mode.DEGRADED if mode == Mode.NOMINAL else mode
+        sd_v_views = self.speed_covering_views(aux, t, float(v), sd_v)
+        if sd_v_views > sd_v:
+            sd_v, mode = sd_v_views, (Mode.DEGRADED if mode == Mode.NOMINAL else mode)
+        for view in aux.motion_views:   # the motion model's own hypotheses of coastings
+            s_m, var_m = self.f.motion.motion_view(view, t, float(s), var_s)
+            half = self.f._z * math.sqrt(var_m)
+            if s_m - half < lo or s_m + half > hi:
+                lo, hi = min(lo, s_m - half), max(hi, s_m + half)
+                sd_s = max(sd_s, (hi - lo) / (2.0 * self.f._z))
+                mode = self.widened(aux, t, sd_s, mode)
+        if aux.lone_view is not None:   # the solution without a lone speed source (its fault)
+            l_lo, l_hi, half_v, s_m, var_m = self.f.lone.lone_interval(aux, t, float(s), var_s, float(v), var_v)
+            if l_lo <= l_hi and (l_lo < lo or l_hi > hi):
+                lo, hi = min(lo, l_lo), max(hi, l_hi)
+                sd_s = max(sd_s, (hi - lo) / (2.0 * self.f._z))
+                mode = self.widened(aux, t, sd_s, mode)
+                if mode == Mode.NOMINAL and separation.separated(s_m, var_m, float(s), var_s, self.f._z):
+                    mode = Mode.DEGRADED
+            if half_v > self.f._z * sd_v:
+                sd_v = half_v / self.f._z
+        if aux.impacts is not None:   # the persistent faults of the relative sensors the data has not excluded
+            bank = self.f._est_cache[5] if self.f._est_cache[0] is xk and self.f._est_cache[1] is Pk else aux.impacts
+            half_s, half_v = impact.cover(bank, t - aux.t, self.f._z, max(var_s, 0.0), max(var_v, 0.0))
+            if float(s) - half_s < lo or float(s) + half_s > hi:
+                lo, hi = min(lo, float(s) - half_s), max(hi, float(s) + half_s)
+                sd_s = max(sd_s, (hi - lo) / (2.0 * self.f._z))
+                mode = self.widened(aux, t, sd_s, mode)
+            if half_v > self.f._z * sd_v:
+                sd_v = half_v / self.f._z
+        if aux.subs:   # the relative sensors' own solutions: per fault hypothesis (protection level)
+            lo, hi, sd_s, sd_v, mode = self.f.solutions.hypotheses_cover(aux, t, float(s), var_s, float(v), var_v,
+                                                                         lo, hi, sd_s, sd_v, mode)
+        return lo, hi, sd_s, sd_v, mode
+
+    def speed_covering_views(self, aux: Bookkeeping, t: float, v: float, sd_v: float) -> float:
+        """The speed 1-sigma [m/s] to publish: the filter's, widened so that v +- z sd_v also
+        covers the speed each excluded sensor with an undecided view last read (within
+        ``slip_reference_timeout`` s), with its own noise: while no fix has decided which
+        source is faulty, the speed of either may be the true one (the position interval
+        covers their views the same way). While the filter coasts between disagreeing
+        sources it also covers the motion model's speed from the start of the coasting: both
+        sources may be wrong the same way (a slip during a radar scale fault), and the middle
+        of two readings that happen to be close is no measurement. After a coasting or a
+        re-acquisition, while the common error its motion-model hypothesis holds may still last
+        (``MotionViews.coasting_ended``), it covers that error too."""
+        half = base = self.f._z * sd_v
+        for cls in aux.relative_alternatives:
+            reading = aux.view_speeds.get(cls)
+            if reading is None or t - reading.stamp > self.f.cfg.slip_reference_timeout:
+                continue
+            half = max(half, abs(reading.speed - v) + self.f._z * math.sqrt(reading.var + sd_v * sd_v))
+        if is_coasting(aux):
+            view = aux.motion_views[-1]
+            _, v_m, _, _, var_m = kinematics(view.s, view.v, view.a, view.cov, max(t - view.stamp, 0.0),
+                                             self.f.cfg.jerk_psd)
+            half = max(half, abs(v_m - v) + self.f._z * math.sqrt(var_m))
+        for view in aux.motion_views:
+            if isinstance(view, MovedView) and view.r and view.until > t:
+                # a common error r of the sources in use that may still last: their speed x (1 + r)
+                r, var_r = view.r, view.var_r
+                half = max(half, abs(v * r) + self.f._z * math.sqrt(sd_v * sd_v + v * v * var_r))
+        return half / self.f._z if half > base else sd_v   # (z sd_v) / z may differ from sd_v by an ulp
+
+    def mode(self, aux: Bookkeeping, t: float, position_stddev: float) -> Mode:
+        if not aux.initialised:
+            return Mode.INITIALISING
+        if position_stddev > self.f.cfg.lost_stddev:
+            return Mode.LOST
+        if aux.alternative is not None or aux.unverified or aux.suspended:
+            return Mode.DEGRADED
+        for sensor, timeout in self.f.timeouts.items():
+            if t - aux.last_accepted.get(sensor, -math.inf) > timeout:
+                return Mode.DEGRADED
+        return Mode.NOMINAL
+
+    def widened(self, aux: Bookkeeping, t: float, position_stddev: float, mode: Mode) -> Mode:
+        """The mode after the interval was widened to position_stddev [m]: LOST beyond
+        ``lost_stddev``, else ``mode`` as it was (a DEGRADED view is not undone)."""
+        return Mode.LOST if self.mode(aux, t, position_stddev) == Mode.LOST else mode

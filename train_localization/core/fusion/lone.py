@@ -1,0 +1,132 @@
+"""The lone-source solution: the motion model without the relative sensor that carries the speed
+alone.
+
+  lone source while one relative sensor with a persistent fault mode (a radar's scale fault,
+              growing too slowly for any reading to disagree with the motion model) carries the
+              speed alone (the others not fitted, silent or suspended; a wheel in a slip
+              episode still counts: the episode is short and ends with a cross-check), nothing
+              but the fixes checks it. The interval also covers the solution without it: the
+              motion model from the filter's state when it became the lone one, conditioned on
+              the accepted fixes (one it cannot explain refutes it and it starts again from the
+              filter's), within what the sensor's fault can do over the distance since the last
+              accepted fix (z ``scale_fault_sigma`` x distance). DEGRADED where it separates
+              from the filter as a sensor's solution does.
+"""
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+from .bookkeeping import MAX_MOTION_VIEWS, Bookkeeping, LoneView, ModelView, MovedView, incremented, is_coasting
+from .models import kinematics
+
+if TYPE_CHECKING:
+    from .filter import TrainFilter
+
+
+class LoneSource:
+    """The solution without a lone speed source: a component of the filter (TrainFilter), which builds it
+    with itself as the context: its EKF state and bookkeeping, config, layout and models."""
+
+    def __init__(self, f: TrainFilter):
+        self.f = f
+
+    def track(self, stamp: float) -> None:
+        """Solution separation for the fault of a lone speed source. A relative sensor whose scale
+        fault no test of its own can see (a Doppler radar's, growing slowly: the speed it reads
+        drifts like an acceleration) may carry the speed alone: the only relative sensor, or the
+        others excluded or silent. Nothing then checks it but the fixes, and between them a
+        fault of a few percent runs the filter out of its interval while every test passes. The
+        solution without that sensor is the motion model from the last time another source
+        checked it, conditioned on the fixes the filter accepts (``LoneSource.take_fix``); the
+        interval covers it (``LoneSource.lone_interval``). It starts when one such sensor is left in use
+        (accepted within ``slip_reference_timeout`` s), and ends when another source is in use
+        (``LoneSource.accompanied``). A wheel in a slip or slide episode still counts: the episode is
+        short (its ``fault_duration_max``) and ends with the wheel agreeing with the filter
+        again, which a drifting radar fails; a suspended sensor does not."""
+        aux, timeout = self.f.aux, self.f.cfg.slip_reference_timeout
+        in_use = [c for c in self.f.layout.relative if c not in aux.suspended
+                  and max(aux.last_accepted.get(c, -math.inf), aux.slip_until.get(c, -math.inf)) >= stamp - timeout]
+        lone = in_use[0] if len(in_use) == 1 and in_use[0] in self.f._persistent else None
+        if lone is None:
+            if aux.lone_view is not None and in_use:
+                self.accompanied(stamp)
+        elif aux.lone_view is None or aux.lone_view.sensor != lone:
+            aux.lone_view = LoneView(self.lone_model_view(stamp, lone), lone, 0.0)
+
+    def accompanied(self, stamp: float) -> None:
+        """The lone source has company again: from ``stamp`` the sources in use check each other,
+        so its fault adds nothing more, but what it may have put into the filter's position while
+        it was alone stays there, unseen by the newcomer (a relative sensor tells the motion from
+        now on, not the distance already run), until a fix locates the train. The lone solution
+        (its interval at ``stamp``) therefore stays as a motion-model hypothesis that moves with
+        the filter (a MovedView, as a coasting's that ended): conditioned on the fixes, ruled out by
+        one it does not fit, no longer needed once the filter explains a fix."""
+        aux = self.f.aux
+        s, var_s = float(self.f.ekf.x[0, 0]), float(self.f.ekf.P[0, 0])
+        v, var_v = float(self.f.ekf.x[1, 0]), float(self.f.ekf.P[1, 1])
+        lo, hi, _, _, _ = self.lone_interval(aux, stamp, s, var_s, v, var_v)
+        aux.lone_view = None
+        half = self.f._z * math.sqrt(var_s)
+        if lo > hi or (lo >= s - half and hi <= s + half):
+            return     # ruled out, or within the filter's own interval
+        moved = MovedView(0.5 * (lo + hi), (0.5 * (hi - lo) / self.f._z) ** 2, s, var_s, 0.0, 0.0, math.inf)
+        views = aux.motion_views
+        if is_coasting(aux):   # the coasting's own hypothesis stays the last one
+            aux.motion_views = views[-(MAX_MOTION_VIEWS - 1):-1] + (moved, views[-1])
+        else:
+            aux.motion_views = views[-(MAX_MOTION_VIEWS - 1):] + (moved,)
+        aux.events = incremented(aux.events, "lone_source_accompanied")
+
+    def lone_model_view(self, stamp: float, lone: str) -> ModelView:
+        """The motion model's hypothesis without lone source ``lone``, from the filter's state
+        now. Unless another speed source checked the filter's speed just before (accepted within
+        twice ``slip_reference_timeout``: a lone view starts once the others have been silent
+        that long), the speed is that sensor's own reading and its fault may have begun long
+        before: the speed's variance then holds its scale fault, (``scale_fault_sigma`` x v)^2,
+        for the fixes to narrow (``MotionViews.motion_view_fixed``)."""
+        view = self.f.motion.model_view(stamp)
+        checked = max((self.f.aux.last_accepted.get(c, -math.inf) for c in self.f.layout.relative if c != lone),
+                      default=-math.inf)
+        if checked >= stamp - 2.0 * self.f.cfg.slip_reference_timeout:
+            return view
+        p00, p01, p02, p11, p12, p22 = view.cov
+        p11 += (self.f.models[lone].scale_fault_sigma * view.v) ** 2
+        return view._replace(cov=(p00, p01, p02, p11, p12, p22))
+
+    def take_fix(self, m, z: float, R: float) -> None:
+        """The lone source's fault hypothesis after a fix the filter accepted (z, R from
+        ``Solutions.located``): conditioned on it; one it cannot explain refutes it (the train did move
+        as the sensor said), and it starts again from the filter's."""
+        aux = self.f.aux
+        held = aux.lone_view
+        view = held.view
+        s_f, P00 = float(self.f.ekf.x[0, 0]), float(self.f.ekf.P[0, 0])
+        s_m, var_m = self.f.motion.motion_view(view, m.stamp, s_f, P00)
+        if (z - s_m) ** 2 > self.f._gates[m.sensor] * (R + var_m):
+            view = self.lone_model_view(m.stamp, held.sensor)
+            aux.events = incremented(aux.events, "lone_source_solution_refuted")
+        else:
+            view = self.f.motion.motion_view_fixed(view, m.stamp, z, R, s_f, P00)
+        # the filter accepted the fix: its error before was at most the innovation and the fix's
+        # own error; the update took its gain's share of it (a DGPS fix little, a tag nearly all)
+        gain, nu = self.f._last_update
+        before = min(held.bound, abs(nu) + self.f._z * math.sqrt(R))
+        aux.lone_view = LoneView(view, held.sensor, (1.0 - min(max(float(gain[0]), 0.0), 1.0)) * before)
+
+    def lone_interval(self, aux: Bookkeeping, t: float, s: float, var_s: float, v: float, var_v: float) -> tuple:
+        """(lo, hi [m], speed half-width [m/s], its position and variance) of the lone source's
+        fault hypothesis at t (the filter at s [m], var_s [m^2], v [m/s], var_v [m^2/s^2]): the
+        motion model's interval, within what the sensor's scale fault can have put into the
+        filter's position (the lone view's bound: z x ``scale_fault_sigma`` x the distance run,
+        less what the accepted fixes corrected, for a fault that began at any time since; both
+        hold under the hypothesis); empty (lo > hi) where they do not meet."""
+        lone = aux.lone_view
+        sigma_f, z = self.f.models[lone.sensor].scale_fault_sigma, self.f._z
+        bound = lone.bound + z * sigma_f * abs(v) * max(t - aux.t, 0.0)
+        view = lone.view
+        s_m, v_m, _, var_m, var_vm = kinematics(view.s, view.v, view.a, view.cov, max(t - view.stamp, 0.0),
+                                                self.f.cfg.jerk_psd)
+        half, cap = z * math.sqrt(var_m), math.sqrt(z * z * var_s + bound * bound)
+        half_v = min(abs(v_m - v) + z * math.sqrt(var_vm), z * math.sqrt(var_v + (sigma_f * v) ** 2))
+        return max(s_m - half, s - cap), min(s_m + half, s + cap), half_v, s_m, var_m

@@ -1,0 +1,251 @@
+"""The motion model's own hypotheses: coasting between disagreeing speed sources, and a speed given
+back while every source is excluded (blind).
+
+  blind       every speed source excluded at once and the speed resting on the motion model
+              alone: two excluded sources that agree with each other (reading by reading and
+              in their mean) for ``slip_window`` s give the speed back; their views stay in
+              the interval until a fix decides. A sensor whose view is undecided stays
+              excluded while nothing can show that it agrees, also after a dropout.
+  coasting    excluded sources that disagree: once the motion model knows the speed worse
+              than the middle of their readings does, the filter coasts on that middle
+              (not on the last acceleration). The motion model's own hypothesis from the
+              start of the coasting stays in the interval (both sources may be wrong the same
+              way) until a fix rules it out or, the filter back on its speed sources, a fix
+              confirms the filter. After the coasting (or a re-acquisition from the motion
+              model alone) it moves with the filter, its distance scaled by the scale error
+              the sources back in use may share (a radar scale fault as large as a wheel's
+              slide agrees with it): estimated from the motion model's speed against theirs
+              with the smallest scale-fault prior among them, until the shortest of their
+              transient faults must have ended. A fix the filter accepts locates the train
+              under that hypothesis too: it is conditioned on the fix.
+"""
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..sensors import faults as fault_modes
+from .bookkeeping import (MAX_MOTION_VIEWS, Fault, ModelView, MovedView, PeerRun, PeerSpeed, fault_at, incremented,
+                          is_coasting, speed_excluded)
+from . import impact
+from .models import implied_speed, kinematic_covariance, kinematic_mean, kinematics
+
+if TYPE_CHECKING:
+    from .filter import TrainFilter
+
+
+def _shows(fault: Fault | None, speed: float, variance: float, gate: float) -> bool:
+    """Whether a fault (``fault_at``) at ``speed`` [m/s] stands out of a test statistic of
+    ``variance`` [m^2/s^2] at the chi-square ``gate``; None (size unknown) counts as shown."""
+    if fault is None:
+        return True
+    e = fault_at(fault, speed)
+    return e * e >= gate * variance
+
+
+class MotionViews:
+    """The motion model's own hypotheses: a component of the filter (TrainFilter), which builds it
+    with itself as the context: its EKF state and bookkeeping, config, layout and models."""
+
+    def __init__(self, f: TrainFilter):
+        self.f = f
+
+    def coast(self, stamp: float, readings: list) -> bool:
+        """The excluded speed sources disagree: one of them, or both, is wrong. Once the motion
+        model knows the speed worse than the middle of their readings does (its variance beyond
+        the squared half-range: it runs away with the last acceleration, a braking that ended,
+        a reversal through a standstill), the filter coasts on that middle instead. The interval
+        keeps every hypothesis: each sensor's view, and the motion model's own from the start
+        of the coasting (both sensors may be wrong the same way, a radar scale fault during a
+        wheel slip under traction). True if the speed was set."""
+        aux = self.f.aux
+        coasting = is_coasting(aux)
+        half_range = 0.5 * (max(u for u, _ in readings) - min(u for u, _ in readings))
+        if not coasting and float(self.f.ekf.P[1, 1]) <= half_range * half_range:
+            return False                    # a short slip: the motion model still knows better
+        if not coasting:
+            aux.motion_views = aux.motion_views[-(MAX_MOTION_VIEWS - 1):] + (self.model_view(stamp),)
+            aux.events = incremented(aux.events, "coasting_between_speed_sources")
+            aux.unverified = aux.unverified or "speed_sources_disagree"
+        self.set_speed(readings, middle=True)
+        return True
+
+    def coasting_ended(self, view: ModelView, stamp: float) -> MovedView:
+        """The motion-model hypothesis of a coasting that ends at ``stamp`` [s], as it moves with
+        the filter from here. The speed sources back in use were excluded for faults; that they
+        now agree does not prove both right: a radar scale fault and a wheel slide of the same
+        size agree. Under that hypothesis their common error persists as a scale error r
+        (a slip ratio, a scale fault) until the shortest of their transient fault modes must
+        have ended: r from the motion model's speed against theirs, combined with the prior of
+        the smallest scale fault among them (a sensor without a speed fault mode rules the
+        hypothesis out: r = 0)."""
+        s_m, v_m, _, var_m, var_v = kinematics(view.s, view.v, view.a, view.cov, max(stamp - view.stamp, 0.0),
+                                               self.f.cfg.jerk_psd)
+        s_f, v_f = float(self.f.ekf.x[0, 0]), float(self.f.ekf.x[1, 0])
+        aux = self.f.aux
+        in_use = [c for c in aux.speed_sources if not speed_excluded(aux, c, stamp)]
+        models = [self.f.models[c] for c in in_use]
+        r, var_r, until = 0.0, 0.0, math.inf
+        if models and all(set(md.faults) & fault_modes.SPEED for md in models):
+            # measured: r = (v_m - v_f) / v_f of variance var_v / v_f^2; prior N(0, prior)
+            prior = min((md.scale_fault_sigma ** 2 for md in models if "scale_fault" in md.faults), default=math.inf)
+            var_v = max(var_v, 1e-12)
+            info = v_f * v_f / var_v + (1.0 / prior if prior > 0.0 else math.inf)
+            var_r = 1.0 / info if info > 0.0 else math.inf
+            r = var_r * (v_m - v_f) * v_f / var_v if math.isfinite(var_r) else 0.0
+            until = stamp + min(md.fault_duration_max for md in models)
+        return MovedView(s_m, var_m, s_f, float(self.f.ekf.P[0, 0]), r, var_r, until)
+
+    def model_view(self, stamp: float) -> ModelView:
+        """The motion model's hypothesis from the filter's kinematic state now."""
+        return ModelView(stamp, *self.f.ekf.x[:3, 0].tolist(), kinematic_covariance(self.f.ekf.P))
+
+    def model_view_at(self, view: ModelView, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """(kinematic state [s, v, a], its 3x3 covariance) of a coasting's view predicted to t [s]."""
+        dt = max(t - view.stamp, 0.0)
+        F, _, Q = self.f.process.transition(dt)
+        F, Q = F[:3, :3], Q[:3, :3]      # the kinematic block: the error states do not enter it
+        p00, p01, p02, p11, p12, p22 = view.cov
+        P = F @ np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]]) @ F.T + Q
+        return np.array(kinematic_mean(view.s, view.v, view.a, dt)), P
+
+    def motion_view_fixed(self, view: ModelView | MovedView, t: float, z: float, R: float, s_f: float,
+                          P00_f: float) -> ModelView | MovedView:
+        """A motion-model hypothesis conditioned on a fix z [m] of variance R [m^2] at t [s] (the
+        filter at s_f, P00_f after it): a coasting's kinematic state moved to t and updated
+        (H = [1, 0, 0]); a moved one as a scalar update, moved with the filter from here."""
+        if isinstance(view, MovedView):
+            s_m, var_m = self.motion_view(view, t, s_f, P00_f)
+            k = var_m / (var_m + R)
+            return view._replace(s=s_m + k * (z - s_m), var=(1.0 - k) * var_m, s_filter=s_f, P00_filter=P00_f)
+        x, P = self.model_view_at(view, t)
+        K = P[:, 0] / (P[0, 0] + R)
+        x = x + K * (z - x[0])
+        P = P - np.outer(K, P[0, :])
+        return ModelView(t, float(x[0]), float(x[1]), float(x[2]), kinematic_covariance(P))
+
+    def motion_view(self, view: ModelView | MovedView, t: float, s_f: float, var_f: float) -> tuple[float, float]:
+        """(position [m], variance [m^2]) at t of a motion-model hypothesis: during its coasting
+        the kinematic block from its start predicted with the white-jerk process noise; after it
+        moved with the filter (position s_f [m], variance var_f [m^2] at t), the distance scaled
+        by 1 + r, r the common scale error of the speed sources in use (``MotionViews.coasting_ended``)."""
+        if isinstance(view, MovedView):
+            d = s_f - view.s_filter
+            return (view.s + d * (1.0 + view.r),
+                    view.var + max(var_f - view.P00_filter, 0.0) + (view.var_r * d * d if d else 0.0))
+        s_m, _, _, var, _ = kinematics(view.s, view.v, view.a, view.cov, max(t - view.stamp, 0.0), self.f.cfg.jerk_psd)
+        return s_m, var
+
+    def peer_run(self, cls: str, stamp: float, u: float, white: float, common: float,
+                 peers: dict) -> str | None:
+        """Extend the run of agreement of ``cls`` with an excluded peer: each reading inside the
+        slip gate of the pair's variance, and their mean difference inside the slip gate of its
+        own (white parts averaged, common parts not). The peer once it has lasted ``slip_window`` s,
+        and only if the fault each of the two was suspended for would stand out of that mean
+        difference's spread (``_shows``): two sources whose common errors are wider than a radar's
+        scale fault "agree" with a slipping wheel as well."""
+        aux, cfg, gate = self.f.aux, self.f.cfg, self.f._slip_gate
+        run = aux.peer_run
+        fits = [c for c, p in peers.items()
+                if (u - p.speed) ** 2 <= gate * (white + common + p.white_var + p.common_var)]
+        if not fits:
+            aux.peer_run = None
+            return None
+        pairs = {tuple(sorted((cls, c))): c for c in fits}
+        pair = run.pair if run is not None and run.pair in pairs else next(iter(pairs))
+        if run is None or run.pair != pair or run.last < stamp - cfg.slip_reference_timeout:
+            run = PeerRun(pair, stamp, stamp, 0, 0.0, 0.0)
+        p = peers[pairs[pair]]
+        d = (u - p.speed) if pair[0] == cls else (p.speed - u)
+        n, sum_d, sum_white = run.n + 1, run.sum_diff + d, run.sum_white + white + p.white_var
+        if (sum_d / n) ** 2 > gate * (sum_white / (n * n) + common + p.common_var):
+            aux.peer_run = None
+            return None
+        aux.peer_run = PeerRun(pair, run.first, stamp, n, sum_d, sum_white)
+        if stamp - run.first < cfg.slip_window:
+            return None
+        spread = sum_white / (n * n) + common + p.common_var
+        faults = [aux.suspended[c].fault for c in pair if c in aux.suspended]
+        return pairs[pair] if all(_shows(f, u, spread, gate) for f in faults) else None
+
+    def set_speed(self, readings: list, middle: bool = False) -> None:
+        """Speed from readings [(speed, variance)]: their weighted mean (``middle``: the middle
+        of their range), the largest distance to a reading added to its variance; the
+        acceleration back to its prior. Agreeing readings (a re-acquisition) give a speed
+        whose error is new: uncorrelated with the rest. The middle of disagreeing ones (a
+        coasting) keeps the error it had, of the faults that persist while it lasts: its
+        correlations are kept, rescaled to the new variance (a congruence, so P stays positive
+        semi-definite), and the position variance grows with the square of the time, not as a
+        sum of independent speed errors."""
+        weights = [1.0 / v for _, v in readings]
+        if middle:
+            u_hat = 0.5 * (min(u for u, _ in readings) + max(u for u, _ in readings))
+        else:
+            u_hat = sum(w * u for w, (u, _) in zip(weights, readings)) / sum(weights)
+        spread = max(abs(u - u_hat) for u, _ in readings)
+        var = 1.0 / sum(weights) + spread * spread
+        x, P = self.f.ekf.x.copy(), self.f.ekf.P.copy()
+        if middle and P[1, 1] > 0.0:
+            scale = math.sqrt(var / P[1, 1])
+            P[1, :] *= scale
+            P[:, 1] *= scale
+        else:
+            P[1, :] = 0.0
+            P[:, 1] = 0.0
+        P[2, :] = 0.0
+        P[:, 2] = 0.0
+        x[1, 0], P[1, 1] = u_hat, var
+        x[2, 0], P[2, 2] = 0.0, self.f.cfg.initial_accel_stddev ** 2
+        self.f.ekf.x, self.f.ekf.P = x, P
+        self.f.aux.impacts = impact.speed_set(self.f.aux.impacts, u_hat)
+
+    def take_speed(self, stamp: float, readings: list, sensors: set) -> None:
+        """Speed from independent readings that agree (weighted); the exclusions of ``sensors``
+        end."""
+        aux = self.f.aux
+        coasting = is_coasting(aux)
+        # the motion model's hypothesis: of the coasting, or the filter's own until now (its speed
+        # rested on the motion model alone)
+        view = aux.motion_views[-1] if coasting else self.model_view(stamp)
+        self.set_speed(readings)
+        aux.suspended = {c: v for c, v in aux.suspended.items() if c not in sensors}
+        aux.slip_until = {c: (min(t, stamp) if c in sensors else t) for c, t in aux.slip_until.items()}
+        aux.slip_window = {c: w for c, w in aux.slip_window.items() if c not in sensors}
+        aux.last_accepted = {**aux.last_accepted, **{c: stamp for c in sensors}}
+        aux.peer_speeds, aux.peer_run = {}, None
+        moved = self.coasting_ended(view, stamp)
+        if coasting or moved.var_r > 0.0:
+            kept = aux.motion_views[:-1] if coasting else aux.motion_views[-(MAX_MOTION_VIEWS - 1):]
+            aux.motion_views = kept + (moved,)
+        aux.events = incremented(aux.events, "speed_reacquired")
+        aux.unverified = "speed_reacquired"
+
+    def blind_speed(self, m, z: float, R: float) -> bool:
+        """Every speed source excluded (slip episodes, suspensions) and the filter's speed resting
+        on the motion model alone: the exclusions cannot end, since each excluded sensor waits
+        for a reference to agree with, and the dead reckoning drifts without bound. The
+        excluded sensors' own readings end it: two independent speed sources that give the same
+        speed (each reading inside the slip gate of their combined variance, and their mean
+        difference inside that of its own) for ``slip_window`` s without a break: a slip and a
+        radar fault do not give the same speed for long. (A wheel whose readings show no
+        acceleration is no such evidence: a slide can outlast the braking that started it.)
+        Then the speed is taken from those sensors (the acceleration back to its prior) and
+        their exclusions end; the excluded views stay in the interval until a fix decides
+        between them, and the filter awaits a confirming fix (DEGRADED). True if the speed
+        was re-acquired."""
+        aux, cfg, cls, stamp = self.f.aux, self.f.cfg, m.sensor, m.stamp
+        u, white, common = implied_speed(self.f.layout, self.f.ekf.x, self.f.ekf.P, m, z, R)
+        recent = stamp - cfg.slip_reference_timeout
+        peers = {c: p for c, p in aux.peer_speeds.items() if c != cls and p.stamp > recent}
+        aux.peer_speeds = {**peers, cls: PeerSpeed(stamp, u, white, common)}
+        peer = self.peer_run(cls, stamp, u, white, common, peers)
+        if peer is None:
+            if not peers:
+                return False
+            return self.coast(stamp, [(u, white + common)] +
+                              [(p.speed, p.white_var + p.common_var) for p in peers.values()])
+        p = peers[peer]
+        self.take_speed(stamp, [(u, white + common), (p.speed, p.white_var + p.common_var)], {cls, peer})
+        return True

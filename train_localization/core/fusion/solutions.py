@@ -1,0 +1,130 @@
+"""The relative sensors' own solutions (separation.py) kept beside the filter, and the fixes that
+locate the train under every hypothesis.
+
+  separation  each relative sensor that another's fault could pull (separation.py: against a
+              radar scale fault every other one, against a wheel slip the fault-free ones)
+              keeps its own dead reckoning from the fixes; the interval and the speed cover it,
+              DEGRADED where the filter's own interval would not have (a radar scale fault
+              absorbed into both scale states before any test sees it).
+"""
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+from .bookkeeping import Bookkeeping, incremented, speed_excluded
+from .models import fixes_sharing
+from .mode import Mode
+from . import separation
+
+if TYPE_CHECKING:
+    from .filter import TrainFilter
+
+
+class Solutions:
+    """The relative sensors' own solutions: a component of the filter (TrainFilter), which builds it
+    with itself as the context: its EKF state and bookkeeping, config, layout and models."""
+
+    def __init__(self, f: TrainFilter):
+        self.f = f
+
+    def seed_subs(self, stamp: float) -> None:
+        """Every relative sensor's own solution starts again from the filter's position."""
+        s, P00, v = float(self.f.ekf.x[0, 0]), float(self.f.ekf.P[0, 0]), float(self.f.ekf.x[1, 0])
+        self.f.aux.subs = {name: separation.seed(sm, stamp, s, P00, v) for name, sm in self.f._subs.items()}
+
+    def main(self) -> separation.Main:
+        """The filter's own solution now, for the sensor solutions."""
+        x, P = self.f.ekf.x, self.f.ekf.P
+        return separation.Main(float(x[0, 0]), float(P[0, 0]), float(x[1, 0]), float(P[1, 1]))
+
+    def sub_reading(self, m, key: str, sm) -> None:
+        """Sensor ``m.sensor``'s own solution ``key`` after its reading m; while the filter has
+        excluded it for its own fault (not as an undecided alternative) it follows the filter."""
+        aux, cls, before = self.f.aux, m.sensor, self.f._before
+        sub = aux.subs.get(key)
+        if sub is None:
+            sub = separation.seed(sm, m.stamp, before.s, before.P00, before.v)
+        elif speed_excluded(aux, cls, m.stamp) and cls not in aux.relative_alternatives:
+            sub = separation.follow(sub, m.stamp, before)._replace(t_v=-math.inf)
+        else:
+            R = self.f._measurement(m)[1]
+            sub = separation.reading(sub, sm, m, R, float(self.f.ekf.x[2, 0]), before, self.f.cfg.slip_window)
+        aux.subs = {**aux.subs, key: sub}
+
+    def located(self, m) -> tuple[float, float]:
+        """(position [m], variance [m^2]) of the train front that an accepted fix m gives under
+        any hypothesis. The filter's estimate of the fix's persistent error (fix bias) is not
+        used: it is learnt together with the filter's own solution and may hold what the filter
+        got wrong. Its prior variance is added, as shared by the sensor's fixes within its
+        correlation time (each counts for the fraction of that time since the previous one, as
+        ``models.fix_noise`` counts a decoder's excess)."""
+        z, R, _, _ = self.f._measurement(m)
+        f_idx = self.f.layout.fix.get(m.sensor)
+        if f_idx is not None:
+            shared = fixes_sharing(self.f.models[m.sensor], abs(float(self.f.ekf.x[1, 0])), self.f._since)
+            R += float(self.f.layout.prior_sigma[f_idx]) ** 2 * shared
+        return z, R
+
+    def hypotheses_take_fix(self, m) -> None:
+        """An absolute fix the filter accepted locates the train under every hypothesis it
+        keeps: each relative sensor's own solution (separation.py; one that cannot explain the
+        fix is refuted and starts again from the filter's) and each motion-model hypothesis of
+        a coasting (conditioned on it: a fix that both explain tells where the train is, not
+        only which one is right)."""
+        aux = self.f.aux
+        if not aux.subs and not aux.motion_views and aux.lone_view is None:
+            return
+        z, R = self.located(m)
+        if aux.lone_view is not None:
+            self.f.lone.take_fix(m, z, R)
+        x0, P00 = float(self.f.ekf.x[0, 0]), float(self.f.ekf.P[0, 0])
+        if aux.motion_views:
+            aux.motion_views = tuple(self.f.motion.motion_view_fixed(view, m.stamp, z, R, x0, P00)
+                                     for view in aux.motion_views)
+        if aux.subs:
+            subs = {}
+            for name, sub in aux.subs.items():
+                new = separation.fix(sub, m.stamp, z, R, self.f._before, self.f._gates[m.sensor])
+                if new is None:
+                    new = separation.seed(self.f._subs[name], m.stamp, x0, P00, float(self.f.ekf.x[1, 0]))
+                    aux.events = incremented(aux.events, "sensor_solution_refuted")
+                subs[name] = new
+            aux.subs = subs
+
+    def hypotheses_cover(self, aux: Bookkeeping, t: float, s: float, var_s: float, v: float, var_v: float,
+                         lo: float, hi: float, sd_s: float, sd_v: float, mode: Mode) -> tuple:
+        """(lo, hi, position and speed 1-sigma, mode) widened to cover, per fault hypothesis of
+        the relative sensors (separation.hypotheses), the valid solution that widens the interval
+        least: each is a bound under that hypothesis. A solution whose sensor has not read since it
+        started is the filter's own. DEGRADED where the filter's interval alone would not have
+        covered the chosen solution (the separation beyond its test threshold)."""
+        z, placed = self.f._z, {}
+        for key, sub in aux.subs.items():
+            if not sub.own:
+                continue
+            s_j, var_j = separation.at(sub, t, var_s, v, var_v)
+            var_j = max(var_j, var_s)
+            half_v = (separation.speed_half_width(sub, self.f._subs[key], v, var_v, z)
+                      if t - sub.t_v <= self.f.cfg.slip_reference_timeout else 0.0)
+            placed[key] = (s_j, var_j, z * math.sqrt(var_j), half_v)
+        for valid in self.f._hypotheses.values():
+            # only a solution whose sensor reads is a bound of its own; one that follows the
+            # filter (its sensor silent or excluded) may carry the fault: then each is covered
+            # (one whose sensor has not read since it started is the filter's own: none)
+            own = [k for k in valid if k in placed]
+            reading = [k for k in own if placed[k][3] > 0.0]
+            chosen = [min(reading, key=lambda k: max(hi, placed[k][0] + placed[k][2])
+                          - min(lo, placed[k][0] - placed[k][2]))] if reading else own
+            for k in chosen:
+                s_j, var_j, half, _ = placed[k]
+                if s_j - half < lo or s_j + half > hi:
+                    lo, hi = min(lo, s_j - half), max(hi, s_j + half)
+                    sd_s = max(sd_s, (hi - lo) / (2.0 * z))
+                    mode = self.f.interval.widened(aux, t, sd_s, mode)
+                    if mode == Mode.NOMINAL and separation.separated(s_j, var_j, s, var_s, z):
+                        mode = Mode.DEGRADED
+            half_v = min((placed[k][3] for k in reading), default=0.0)
+            if half_v > z * sd_v:
+                sd_v = half_v / z
+        return lo, hi, sd_s, sd_v, mode

@@ -32,24 +32,17 @@ the fix that decides.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
+from .component import Component
 from ..sensors import faults as fault_modes
 from .bookkeeping import Fault, Suspension, View, fault_at, incremented, is_coasting, speed_excluded, without_key
 from . import impact
 from .models import implied_speed
 from . import separation
 
-if TYPE_CHECKING:
-    from .filter import TrainFilter
 
-
-class Arbitration:
-    """Arbitration between disagreeing speed sources: a component of the filter (TrainFilter), which builds it
-    with itself as the context: its EKF state and bookkeeping, config, layout and models."""
-
-    def __init__(self, f: TrainFilter):
-        self.f = f
+class Arbitration(Component):
+    """Arbitration between disagreeing speed sources."""
 
     def decide_relative(self, m, z: float, R: float, hx: float, S: float, nis: float) -> bool:
         """An absolute fix decides between the filter and the excluded sensors' views. True if

@@ -15,20 +15,17 @@ and end them.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.stats import chi2
 
+from .component import Component
 from ..sensors import faults as fault_modes
 from .bookkeeping import (Fault, FaultWindow, MovedView, ViewSpeed, WindowEntry, incremented, is_coasting, new_view,
                           without_key)
 from . import impact
 from .models import implied_speed
 from . import separation
-
-if TYPE_CHECKING:
-    from .filter import TrainFilter
 
 
 class Lookback(Exception):
@@ -39,12 +36,8 @@ class Lookback(Exception):
         self.sensor, self.since, self.shown = sensor, since, shown
 
 
-class Episodes:
-    """Fault episodes of the relative sensors: a component of the filter (TrainFilter), which builds it
-    with itself as the context: its EKF state and bookkeeping, config, layout and models."""
-
-    def __init__(self, f: TrainFilter):
-        self.f = f
+class Episodes(Component):
+    """Fault episodes of the relative sensors."""
 
     def slipping(self, m, e: float, S: float, nis: float) -> bool:
         """Slip/slide check of one increment; True if it is excluded."""

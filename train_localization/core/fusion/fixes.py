@@ -30,28 +30,22 @@ and revisits.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .component import Component
 from .bookkeeping import Candidate, ModelView, UnexplainedFix, incremented, without_key
 from . import impact
 from .episodes import Lookback
 
-if TYPE_CHECKING:
-    from .filter import TrainFilter
 
 
 # references whose fixes the filter remembers (a reversal passes the last few again)
 _REMEMBERED_REFS = 32
 
 
-class Fixes:
-    """The policies on absolute fixes: a component of the filter (TrainFilter), which builds it
-    with itself as the context: its EKF state and bookkeeping, config, layout and models."""
-
-    def __init__(self, f: TrainFilter):
-        self.f = f
+class Fixes(Component):
+    """The policies on absolute fixes."""
 
     def fix_accepted(self, m, nis: float, u: float, S: float) -> None:
         aux, cfg = self.f.aux, self.f.cfg

@@ -12,24 +12,17 @@ cover a pending alternative.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
+from .component import Component
 from .bookkeeping import Bookkeeping, MovedView, is_coasting
 from . import impact
 from .models import kinematics
 from .mode import Mode
 from . import separation
 
-if TYPE_CHECKING:
-    from .filter import TrainFilter
 
-
-class Interval:
-    """The published interval and mode: a component of the filter (TrainFilter), which builds it
-    with itself as the context: its EKF state and bookkeeping, config, layout and models."""
-
-    def __init__(self, f: TrainFilter):
-        self.f = f
+class Interval(Component):
+    """The published interval and mode."""
 
     def cover(self, aux: Bookkeeping, t: float, s, v, var_s, var_v, sd_s, sd_v, xk, Pk) -> tuple:
         """(lo, hi [m], position 1-sigma [m], speed 1-sigma [m/s], mode) at t [s] of the filter at
@@ -54,9 +47,7 @@ class Interval:
             near, far = sorted((D, rel.farthest))
             alt_lo, alt_hi = float(s) + near - half, float(s) + far + half
             if alt_lo < lo or alt_hi > hi:
-                lo, hi = min(lo, alt_lo), max(hi, alt_hi)
-                sd_s = max(sd_s, (hi - lo) / (2.0 * self.f._z))
-                mode = self.widened(aux, t, sd_s, mode)
+                lo, hi, sd_s, mode = self.widen(aux, t, lo, hi, sd_s, mode, alt_lo, alt_hi)
                 mode = Mode.DEGRADED if mode == Mode.NOMINAL else mode
         sd_v_views = self.speed_covering_views(aux, t, float(v), sd_v)
         if sd_v_views > sd_v:
@@ -65,15 +56,11 @@ class Interval:
             s_m, var_m = self.f.motion.motion_view(view, t, float(s), var_s)
             half = self.f._z * math.sqrt(var_m)
             if s_m - half < lo or s_m + half > hi:
-                lo, hi = min(lo, s_m - half), max(hi, s_m + half)
-                sd_s = max(sd_s, (hi - lo) / (2.0 * self.f._z))
-                mode = self.widened(aux, t, sd_s, mode)
+                lo, hi, sd_s, mode = self.widen(aux, t, lo, hi, sd_s, mode, s_m - half, s_m + half)
         if aux.lone_view is not None:   # the solution without a lone speed source (its fault)
             l_lo, l_hi, half_v, s_m, var_m = self.f.lone.lone_interval(aux, t, float(s), var_s, float(v), var_v)
             if l_lo <= l_hi and (l_lo < lo or l_hi > hi):
-                lo, hi = min(lo, l_lo), max(hi, l_hi)
-                sd_s = max(sd_s, (hi - lo) / (2.0 * self.f._z))
-                mode = self.widened(aux, t, sd_s, mode)
+                lo, hi, sd_s, mode = self.widen(aux, t, lo, hi, sd_s, mode, l_lo, l_hi)
                 if mode == Mode.NOMINAL and separation.separated(s_m, var_m, float(s), var_s, self.f._z):
                     mode = Mode.DEGRADED
             if half_v > self.f._z * sd_v:
@@ -82,9 +69,7 @@ class Interval:
             bank = self.f._est_cache[5] if self.f._est_cache[0] is xk and self.f._est_cache[1] is Pk else aux.impacts
             half_s, half_v = impact.cover(bank, t - aux.t, self.f._z, max(var_s, 0.0), max(var_v, 0.0))
             if float(s) - half_s < lo or float(s) + half_s > hi:
-                lo, hi = min(lo, float(s) - half_s), max(hi, float(s) + half_s)
-                sd_s = max(sd_s, (hi - lo) / (2.0 * self.f._z))
-                mode = self.widened(aux, t, sd_s, mode)
+                lo, hi, sd_s, mode = self.widen(aux, t, lo, hi, sd_s, mode, float(s) - half_s, float(s) + half_s)
             if half_v > self.f._z * sd_v:
                 sd_v = half_v / self.f._z
         if aux.subs:   # the relative sensors' own solutions: per fault hypothesis (protection level)
@@ -132,6 +117,15 @@ class Interval:
             if t - aux.last_accepted.get(sensor, -math.inf) > timeout:
                 return Mode.DEGRADED
         return Mode.NOMINAL
+
+    def widen(self, aux: Bookkeeping, t: float, lo: float, hi: float, sd_s: float, mode: Mode,
+              cover_lo: float, cover_hi: float) -> tuple[float, float, float, Mode]:
+        """(lo, hi [m], position 1-sigma [m], mode) of the interval [lo, hi] widened to cover
+        [cover_lo, cover_hi]: the 1-sigma at least the widened half-width / z, the mode
+        ``widened``."""
+        lo, hi = min(lo, cover_lo), max(hi, cover_hi)
+        sd_s = max(sd_s, (hi - lo) / (2.0 * self.f._z))
+        return lo, hi, sd_s, self.widened(aux, t, sd_s, mode)
 
     def widened(self, aux: Bookkeeping, t: float, position_stddev: float, mode: Mode) -> Mode:
         """The mode after the interval was widened to position_stddev [m]: LOST beyond

@@ -15,21 +15,14 @@ alone.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
+from .component import Component
 from .bookkeeping import MAX_MOTION_VIEWS, Bookkeeping, LoneView, ModelView, MovedView, incremented, is_coasting
 from .models import kinematics
 
-if TYPE_CHECKING:
-    from .filter import TrainFilter
 
-
-class LoneSource:
-    """The solution without a lone speed source: a component of the filter (TrainFilter), which builds it
-    with itself as the context: its EKF state and bookkeeping, config, layout and models."""
-
-    def __init__(self, f: TrainFilter):
-        self.f = f
+class LoneSource(Component):
+    """The solution without a lone speed source."""
 
     def track(self, stamp: float) -> None:
         """Solution separation for the fault of a lone speed source. A relative sensor whose scale

@@ -22,18 +22,15 @@ back while every source is excluded (blind).
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .component import Component
 from ..sensors import faults as fault_modes
 from .bookkeeping import (MAX_MOTION_VIEWS, Fault, ModelView, MovedView, PeerRun, PeerSpeed, fault_at, incremented,
                           is_coasting, speed_excluded)
 from . import impact
 from .models import implied_speed, kinematic_covariance, kinematic_mean, kinematics
-
-if TYPE_CHECKING:
-    from .filter import TrainFilter
 
 
 def _shows(fault: Fault | None, speed: float, variance: float, gate: float) -> bool:
@@ -45,12 +42,8 @@ def _shows(fault: Fault | None, speed: float, variance: float, gate: float) -> b
     return e * e >= gate * variance
 
 
-class MotionViews:
-    """The motion model's own hypotheses: a component of the filter (TrainFilter), which builds it
-    with itself as the context: its EKF state and bookkeeping, config, layout and models."""
-
-    def __init__(self, f: TrainFilter):
-        self.f = f
+class MotionViews(Component):
+    """The motion model's own hypotheses."""
 
     def coast(self, stamp: float, readings: list) -> bool:
         """The excluded speed sources disagree: one of them, or both, is wrong. Once the motion

@@ -10,23 +10,16 @@
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .component import Component
 from .bookkeeping import Fault, incremented, new_view, without_key
 from . import impact
 
-if TYPE_CHECKING:
-    from .filter import TrainFilter
 
-
-class Plausibility:
-    """Plausibility of the error states: a component of the filter (TrainFilter), which builds it
-    with itself as the context: its EKF state and bookkeeping, config, layout and models."""
-
-    def __init__(self, f: TrainFilter):
-        self.f = f
+class Plausibility(Component):
+    """Plausibility of the error states."""
 
     def check_plausible(self) -> None:
         """Re-learn the relative sensors' error states if one of them left its plausible range.

@@ -2,31 +2,36 @@
 locate the train under every hypothesis.
 
   separation  each relative sensor that another's fault could pull (separation.py: against a
-              radar scale fault every other one, against a wheel slip the fault-free ones)
-              keeps its own dead reckoning from the fixes; the interval and the speed cover it,
-              DEGRADED where the filter's own interval would not have (a radar scale fault
-              absorbed into both scale states before any test sees it).
+              radar scale fault or a worn wheel every other one, against a wheel slip the
+              fault-free ones; against its own wear the wheel, its scale opened) keeps its own
+              dead reckoning from the fixes; per fault hypothesis the interval and the speed
+              cover the valid one that widens them least, DEGRADED where the filter's own
+              interval would not have (a radar scale fault absorbed into both scale states
+              before any test sees it).
 """
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import NamedTuple
 
+from .component import Component
 from .bookkeeping import Bookkeeping, incremented, speed_excluded
 from .models import fixes_sharing
 from .mode import Mode
 from . import separation
 
-if TYPE_CHECKING:
-    from .filter import TrainFilter
+
+class Placed(NamedTuple):
+    """A sensor solution placed at the time of a published state."""
+
+    s: float           # position [m]
+    var: float         # its variance, at least the filter's [m^2]
+    half: float        # z x its 1-sigma [m]
+    half_v: float      # half-width [m/s] of the speeds it allows; 0 while its sensor does not read
 
 
-class Solutions:
-    """The relative sensors' own solutions: a component of the filter (TrainFilter), which builds it
-    with itself as the context: its EKF state and bookkeeping, config, layout and models."""
-
-    def __init__(self, f: TrainFilter):
-        self.f = f
+class Solutions(Component):
+    """The relative sensors' own solutions."""
 
     def seed_subs(self, stamp: float) -> None:
         """Every relative sensor's own solution starts again from the filter's position."""
@@ -107,24 +112,22 @@ class Solutions:
             var_j = max(var_j, var_s)
             half_v = (separation.speed_half_width(sub, self.f._subs[key], v, var_v, z)
                       if t - sub.t_v <= self.f.cfg.slip_reference_timeout else 0.0)
-            placed[key] = (s_j, var_j, z * math.sqrt(var_j), half_v)
+            placed[key] = Placed(s_j, var_j, z * math.sqrt(var_j), half_v)
         for valid in self.f._hypotheses.values():
             # only a solution whose sensor reads is a bound of its own; one that follows the
             # filter (its sensor silent or excluded) may carry the fault: then each is covered
             # (one whose sensor has not read since it started is the filter's own: none)
             own = [k for k in valid if k in placed]
-            reading = [k for k in own if placed[k][3] > 0.0]
-            chosen = [min(reading, key=lambda k: max(hi, placed[k][0] + placed[k][2])
-                          - min(lo, placed[k][0] - placed[k][2]))] if reading else own
+            reading = [k for k in own if placed[k].half_v > 0.0]
+            chosen = [min(reading, key=lambda k: max(hi, placed[k].s + placed[k].half)
+                          - min(lo, placed[k].s - placed[k].half))] if reading else own
             for k in chosen:
-                s_j, var_j, half, _ = placed[k]
-                if s_j - half < lo or s_j + half > hi:
-                    lo, hi = min(lo, s_j - half), max(hi, s_j + half)
-                    sd_s = max(sd_s, (hi - lo) / (2.0 * z))
-                    mode = self.f.interval.widened(aux, t, sd_s, mode)
-                    if mode == Mode.NOMINAL and separation.separated(s_j, var_j, s, var_s, z):
+                p = placed[k]
+                if p.s - p.half < lo or p.s + p.half > hi:
+                    lo, hi, sd_s, mode = self.f.interval.widen(aux, t, lo, hi, sd_s, mode, p.s - p.half, p.s + p.half)
+                    if mode == Mode.NOMINAL and separation.separated(p.s, p.var, s, var_s, z):
                         mode = Mode.DEGRADED
-            half_v = min((placed[k][3] for k in reading), default=0.0)
+            half_v = min((placed[k].half_v for k in reading), default=0.0)
             if half_v > z * sd_v:
                 sd_v = half_v / z
         return lo, hi, sd_s, sd_v, mode

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -10,19 +9,20 @@ import time
 from pathlib import Path
 
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-# Test domains are 102..221, apart from the 10..99 that tl_demo picks for its own runs. Under
-# pytest-xdist (scripts/test.sh) every worker process gets a domain of its own: the first
-# process draws the base, the workers inherit it and add their index (gw0, gw1, ...).
-os.environ.setdefault("TL_TEST_DOMAIN_BASE", str(random.Random(os.getpid() ^ time.time_ns()).randint(0, 119)))
-_WORKER = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
-os.environ["ROS_DOMAIN_ID"] = str(102 + (int(os.environ["TL_TEST_DOMAIN_BASE"]) + int(_WORKER[2:] or 0)) % 120)
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from train_localization.tools import domains  # noqa: E402
+
+# Test domains are 102..221, apart from the 10..99 that tl_demo leases for its own runs. Every
+# test process (each pytest-xdist worker of scripts/test.sh) leases one of its own for its
+# lifetime, so no two processes of this project on the host share one (tools/domains.py).
+_DOMAIN = domains.lease(102, 221)
+os.environ["ROS_DOMAIN_ID"] = str(_DOMAIN.domain)
 os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
 os.environ["PYTHONUNBUFFERED"] = "1"
 
 import pytest  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 
 @pytest.fixture(scope="session")

@@ -67,3 +67,25 @@ def test_every_diagnostics_report_is_stamped_in_the_simulated_time(demo_run):
     assert "simulator" in stamps and "fusion" in stamps
     assert all(0.0 <= t <= scenario.duration + 5.0 for ts in stamps.values() for t in ts), \
         {k: max(v) for k, v in stamps.items()}
+
+
+def test_a_leased_domain_is_not_leased_again_until_released():
+    """Two runs on one host never share a ROS_DOMAIN_ID (two demo graphs on one domain record
+    each other's messages): a domain held by one lease is skipped by the next, whatever the
+    random order, and free again once released. 232 is outside every range the project uses."""
+    import subprocess
+    import sys
+    from train_localization.tools import domains
+    first = domains.lease(232, 232)
+    assert first.domain == 232
+    with pytest.raises(RuntimeError, match="no free ROS_DOMAIN_ID in 232..232"):
+        domains.lease(232, 232)
+    other = subprocess.run([sys.executable, "-c", "from train_localization.tools import domains; "
+                            "print(domains.lease(231, 232).domain)"], cwd=ROOT, capture_output=True, text=True)
+    assert other.stdout.strip() == "231", other.stderr
+    first.release()
+    again = domains.lease(232, 232)
+    assert again.domain == 232
+    again.release()
+    with pytest.raises(ValueError, match="within 0..232"):
+        domains.lease(200, 240)

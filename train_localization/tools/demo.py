@@ -10,15 +10,14 @@ in /<train>, the wayside sensor nodes and the association in /wayside, the simul
 publishing every device's raw blocks) and prints the summary of each train; with a changeover
 section also its catenary events, evaluated from the ABB commands the live controller published
 (recorded in the bag) against the recorded truth. DDS stays on loopback and
-the run gets its own ROS_DOMAIN_ID (unless ROS_DOMAIN_ID is set by the caller
-and TL_DOMAIN_FROM_ENV=1).
+the run gets its own ROS_DOMAIN_ID, one in 10..99 that no other run of this project on the
+host holds (tools/domains.py), unless the caller sets ROS_DOMAIN_ID and TL_DOMAIN_FROM_ENV=1.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -32,6 +31,7 @@ from ..core.scenario import Scenario
 from ..core.scoring import StateSeries, score
 from ..core.offline import FUSED_TOPIC, TRUTH_TOPIC, scenario_from_bag
 from ..graph import NAMESPACE, demo_graph, line_graph, ros_args
+from . import domains
 
 
 def spec_sensor(node: str) -> str:
@@ -93,8 +93,9 @@ def run_nodes(graph: list, driver: str, log_dir: Path, timeout: float) -> dict:
     by namespace/name."""
     env = dict(os.environ)
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = env.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    if env.get("TL_DOMAIN_FROM_ENV") != "1":
-        env["ROS_DOMAIN_ID"] = str(random.Random(os.getpid() ^ time.time_ns()).randint(110, 199) % 101 + 1)
+    held = domains.lease(10, 99) if env.get("TL_DOMAIN_FROM_ENV") != "1" else None
+    if held is not None:
+        env["ROS_DOMAIN_ID"] = str(held.domain)
     env.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
     env["PYTHONUNBUFFERED"] = "1"
     log_dir.mkdir(parents=True, exist_ok=True)
@@ -126,6 +127,8 @@ def run_nodes(graph: list, driver: str, log_dir: Path, timeout: float) -> dict:
                 proc.wait()
         codes[name] = proc.returncode
         log.close()
+    if held is not None:
+        held.release()
     return codes
 
 

@@ -51,6 +51,9 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable
 
+from .domains import DomainLease
+from . import domains
+
 ACCEPTED = "accepted"
 FUSION = "fusion"
 # scenarios that provide the valid raw blocks: the first one that lists a sensor node is used
@@ -505,11 +508,11 @@ def rss_mb(pid: int) -> float | None:
     return None
 
 
-def pick_domain() -> int:
-    """A random ROS_DOMAIN_ID in 1..101, not the caller's own (its graph never sees the fuzz)."""
-    own = os.environ.get("ROS_DOMAIN_ID", "")
-    choices = [d for d in range(1, 102) if str(d) != own.strip()]
-    return random.SystemRandom().choice(choices)
+def pick_domain() -> DomainLease:
+    """A free ROS_DOMAIN_ID in 1..101 held for the run (tools/domains.py), not the caller's own
+    (its graph never sees the fuzz)."""
+    own = os.environ.get("ROS_DOMAIN_ID", "").strip()
+    return domains.lease(1, 101, avoid=[int(own)] if own.isdigit() else [])
 
 
 def child_env(domain: int) -> dict:
@@ -840,7 +843,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--seed", type=int, default=0, help="seed of the mix: the same seed sends the same messages")
     ap.add_argument("--namespace", default="/fuzz", help="namespace of the started nodes (default /fuzz)")
     ap.add_argument("--domain-id", type=_domain, default=None, metavar="ID",
-                    help="ROS_DOMAIN_ID of the run (default: a random one other than the caller's)")
+                    help="ROS_DOMAIN_ID of the run (default: a free one in 1..101 other than the caller's)")
     ap.add_argument("--log-dir", default="out/fuzz", help="directory of the nodes' logs (default out/fuzz)")
     ap.add_argument("--json", default=None, metavar="PATH", help="also write the per-node report as JSON")
     ap.add_argument("--startup-timeout", type=float, default=60.0,
@@ -854,7 +857,8 @@ def main(argv=None) -> int:
     args = parse_args(argv)
     if not args.namespace.startswith("/"):
         args.namespace = "/" + args.namespace
-    domain = args.domain_id if args.domain_id is not None else pick_domain()
+    held = pick_domain() if args.domain_id is None else None
+    domain = args.domain_id if held is None else held.domain
     t0 = time.monotonic()
     try:
         reports = run(args.nodes, args.messages, args.seed, args.namespace, domain, Path(args.log_dir),

@@ -1,0 +1,68 @@
+"""ROS_DOMAIN_IDs for the project's own runs (demo, fuzz, test workers): one free domain per
+run, held for as long as the run lives.
+
+A random pick alone lets two runs on one host share a domain (two pytest workers each running
+a demo graph did, and each recorded the other's messages). A lease is an exclusive ``flock`` on
+a per-domain file in the temporary directory: every run of this project on the host skips a
+domain another one holds, and the kernel drops the lock when the holder exits, however it
+exits. Programs that are not this project do not take the locks; the ranges below keep clear
+of ROS 2's default domain 0.
+"""
+from __future__ import annotations
+
+import fcntl
+import os
+import random
+import tempfile
+from pathlib import Path
+from typing import IO, Iterable, NamedTuple
+
+LOCK_DIR = Path(tempfile.gettempdir()) / "train_localization-domains"
+
+
+class DomainLease(NamedTuple):
+    """A ROS_DOMAIN_ID held by this process: ``handle`` keeps the lock; close it to free it."""
+
+    domain: int
+    handle: IO
+
+    def release(self) -> None:
+        """Free the domain for other runs (also done by the kernel when the process exits)."""
+        self.handle.close()
+
+
+def _try_lock(domain: int) -> IO | None:
+    """The open, exclusively locked lock file of ``domain``, or None when another run holds it
+    (or the file cannot be opened by this user)."""
+    try:
+        handle = open(LOCK_DIR / f"{domain}.lock", "a")   # close-on-exec: children do not hold it
+    except OSError:
+        return None
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        handle.close()
+        return None
+    return handle
+
+
+def lease(low: int, high: int, avoid: Iterable[int] = ()) -> DomainLease:
+    """A free ROS_DOMAIN_ID in ``low..high`` (inclusive), not in ``avoid``, tried in random
+    order and held by this process until released or the process exits. Raises RuntimeError
+    when every domain of the range is held."""
+    if not 0 <= low <= high <= 232:
+        raise ValueError(f"a ROS_DOMAIN_ID range is within 0..232, got {low}..{high}")
+    LOCK_DIR.mkdir(parents=True, exist_ok=True)
+    try:
+        os.chmod(LOCK_DIR, 0o1777)   # shared by every user of the host, like /tmp itself
+    except OSError:
+        pass
+    skipped = set(avoid)
+    candidates = [d for d in range(low, high + 1) if d not in skipped]
+    random.SystemRandom().shuffle(candidates)
+    for domain in candidates:
+        handle = _try_lock(domain)
+        if handle is not None:
+            return DomainLease(domain, handle)
+    raise RuntimeError(f"no free ROS_DOMAIN_ID in {low}..{high}: every one is held by another "
+                       f"run of this project (locks in {LOCK_DIR})")

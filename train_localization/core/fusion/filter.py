@@ -111,6 +111,10 @@ class TrainFilter:
         # the state (impact.py)
         self._fault_bounds = {n: self._z * m.scale_fault_sigma for n, m in self.models.items()
                               if n in self._persistent and m.scale_fault_sigma > 0.0}
+        # position sensors whose runs of fixes may share an offset (faults.OFFSET) -> its bound in each
+        # fix's own 1-sigma: the gate's radius (impact.py)
+        self._offset_bounds = {n: math.sqrt(self._gates[n]) for n, m in self.models.items()
+                               if m.measures == "position" and fault_modes.OFFSET & set(m.faults)}
         self._fault_input: tuple | None = None   # (sensor, its fault per unit) of the reading being applied
         self._est_cache: tuple = (None, None, None, None, None, None)
         self._last_update = (np.zeros(self.n), 0.0)   # (Kalman gain, innovation) of the last update
@@ -175,7 +179,8 @@ class TrainFilter:
             self.ekf.x, self.ekf.P = self.process.predict(self.ekf.x, self.ekf.P, aux.t, t)
             aux.t = t
             if self._fault_bounds and aux.initialised and (
-                    aux.impacts is None or t - aux.impacts.last_onset >= self.cfg.fault_onset_spacing):
+                    aux.impacts is None or
+                    t - aux.impacts.last_onset_of(self._fault_bounds) >= self.cfg.fault_onset_spacing):
                 aux.impacts = impact.started(aux.impacts, self._fault_bounds, t, self.n, self.cfg.fault_onsets,
                                              self._z)
             if aux.lone_view is not None:   # what a lone source's scale fault adds over the distance
@@ -214,8 +219,16 @@ class TrainFilter:
         is_fix = isinstance(m, PositionFix)
         # what this reading's own scale fault would add (impact.py), and whether another speed source
         # in use checks it (then its own innovations test the fault too)
-        self._fault_input = None if is_fix or not self._fault_bounds else (
-            cls, m.distance if hasattr(m, "distance") else m.speed, bool(self._in_use(m.stamp, but=cls)))
+        if is_fix:   # a fix's own offset per unit is its 1-sigma; the dead reckoning checks it
+            self._fault_input = (cls, m.position_stddev, True) if cls in self._offset_bounds else None
+        else:
+            self._fault_input = None if not self._fault_bounds else (
+                cls, m.distance if hasattr(m, "distance") else m.speed, bool(self._in_use(m.stamp, but=cls)))
+        if cls in self._offset_bounds and (aux.impacts is None or m.stamp - aux.impacts.last_onset_of((cls,))
+                                           >= self.cfg.fault_onset_spacing):
+            # a run of this sensor's fixes sharing an offset may begin with this one
+            aux.impacts = impact.started(aux.impacts, {cls: self._offset_bounds[cls]}, m.stamp, self.n,
+                                         self.cfg.fault_onsets, self._z, offset=True)
         if is_fix:   # since the sensor's previous fix, before this one counts (Solutions.located)
             self._since = m.stamp - aux.last_accepted.get(cls, -math.inf)
         if cls in self.layout.per_reference and is_fix and aux.fix_ref.get(cls) != m.reference_id:

@@ -1,4 +1,5 @@
-"""Fault impact: the protection level of a persistent fault of a relative sensor, by construction.
+"""Fault impact: the protection level of a persistent fault, by construction: a relative sensor's
+scale fault, or an offset shared by a run of a position sensor's fixes.
 
 The filter is linear in the errors of what it takes in. A scale fault f of relative sensor j
 (a Doppler radar reading 7 % low) adds f x v to each of j's speeds (f x d to each of its
@@ -26,6 +27,15 @@ fault is followed from onsets ``fault_onset_spacing`` s apart (config.py); so is
 each onset the hypothesis that matters most is also followed as ended there (its error stays
 in the state while its sensor, right again, agrees with the others). At most ``fault_onsets``
 per sensor: the newest active ones always, and the others whose cover is the largest.
+
+An offset of a run of fixes (faults.OFFSET: each fix of sensor j carries f x its own 1-sigma, the
+same f for the whole run) is the same linear algebra with delta = the fix's 1-sigma for j's fixes.
+Its bound is the single-fix gate's radius (sqrt of the chi-square gate, in the fix's own sigma):
+a larger offset fails the gate of a filter that knows its position. Its onsets are the sensor's
+fixes (``fault_onset_spacing`` s apart at most), and the dead reckoning and every other sensor's
+fixes test it: the jump at the run's first fix is its evidence, so a run the filter has absorbed
+stays covered by the size of that jump (within the bound), and a later clean fix, or another
+sensor's, shrinks it.
 """
 from __future__ import annotations
 
@@ -48,6 +58,7 @@ class Impact(NamedTuple):
     info: float          # Fisher information about the fault from the innovations since the onset [1]
     score: float         # sum g nu / S [1]
     active: bool = True  # the fault goes on (its sensor's readings carry it)
+    offset: bool = False  # an offset of a run of fixes (per unit: one 1-sigma of each fix), else a scale
 
     def fault(self, bound: float, z: float) -> tuple[float, float]:
         """(mean, 1-sigma) [1] of the fault the data allows: the least-squares estimate within
@@ -72,24 +83,26 @@ class Bank:
     sensors: tuple[str, ...]
     onsets: np.ndarray   # (k,) [s]
     active: np.ndarray   # (k,) bool
-    bounds: np.ndarray   # (k,) the sensor's fault bound z x scale_fault_sigma [1]
+    bounds: np.ndarray   # (k,) the fault's bound: z x scale_fault_sigma, or the fix gate's radius [1]
     E: np.ndarray        # (k, n) state error per unit fault
     info: np.ndarray     # (k,)
     score: np.ndarray    # (k,)
+    offset: np.ndarray   # (k,) bool: an offset of a run of fixes (Impact.offset)
 
     def __len__(self) -> int:
         return len(self.sensors)
 
     def __getitem__(self, k: int) -> Impact:   # a view of hypothesis k
         return Impact(self.sensors[k], float(self.onsets[k]), self.E[k], float(self.info[k]), float(self.score[k]),
-                      bool(self.active[k]))
+                      bool(self.active[k]), bool(self.offset[k]))
 
     def __iter__(self):
         return (self[k] for k in range(len(self)))
 
-    @property
-    def last_onset(self) -> float:
-        return float(self.onsets[-1]) if len(self) else -math.inf
+    def last_onset_of(self, sensors) -> float:
+        """The newest onset [s] of the hypotheses of ``sensors`` (-inf: none)."""
+        own = [float(t) for s, t in zip(self.sensors, self.onsets) if s in sensors]
+        return max(own, default=-math.inf)
 
     def _replace(self, **changes) -> "Bank":
         return dataclasses.replace(self, **changes)
@@ -103,6 +116,16 @@ def _fault(info: np.ndarray, score: np.ndarray, bound: np.ndarray, z: float) -> 
     mean = np.where(tested, np.clip(score / safe, -bound, bound), 0.0)
     sigma = np.where(tested, np.minimum(prior, 1.0 / np.sqrt(safe)), prior)
     return mean, sigma
+
+
+def _within_bound(mean: np.ndarray, sigma: np.ndarray, bound: np.ndarray, z: float,
+                  offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(mean, 1-sigma) of an offset fault (rows ``offset``) kept within its bound: the faults the
+    data allows, mean +- z sigma, cut to +-bound, as their middle and half-width / z (an offset
+    is never larger than the gate's radius; a mean at the bound with an untested spread would
+    cover twice it). Scale-fault rows are left as they are."""
+    lo, hi = np.maximum(mean - z * sigma, -bound), np.minimum(mean + z * sigma, bound)
+    return np.where(offset, 0.5 * (lo + hi), mean), np.where(offset, 0.5 * (hi - lo) / z, sigma)
 
 
 def _excluded_beyond(mean, sigma, bound, z: float):
@@ -119,13 +142,13 @@ def _covers(bank: Bank, z: float) -> np.ndarray:
 def _rows(bank: Bank, keep) -> Bank:
     keep = list(keep)
     return Bank(tuple(bank.sensors[k] for k in keep), bank.onsets[keep], bank.active[keep], bank.bounds[keep],
-                bank.E[keep], bank.info[keep], bank.score[keep])
+                bank.E[keep], bank.info[keep], bank.score[keep], bank.offset[keep])
 
 
 def _joined(a: Bank, b: Bank) -> Bank:
     """The hypotheses of ``a`` followed by those of ``b``."""
     return Bank(a.sensors + b.sensors, *(np.concatenate([getattr(a, f), getattr(b, f)])
-                                         for f in ("onsets", "active", "bounds", "E", "info", "score")))
+                                         for f in ("onsets", "active", "bounds", "E", "info", "score", "offset")))
 
 
 def _keeps_none(transform):
@@ -136,16 +159,18 @@ def _keeps_none(transform):
     return wrapped
 
 
-def started(bank: Bank | None, bounds: dict[str, float], onset: float, n: int, max_onsets: int, z: float) -> Bank:
+def started(bank: Bank | None, bounds: dict[str, float], onset: float, n: int, max_onsets: int, z: float,
+            offset: bool = False) -> Bank:
     """``bank`` plus, per sensor of ``bounds`` (sensor -> fault bound), a new hypothesis from
-    ``onset`` [s] (e = 0), and the fault that matters most so far ended at ``onset`` (a fault
+    ``onset`` [s] (e = 0; ``offset``: of a run of that sensor's fixes, else of its scale), and the fault that matters most so far ended at ``onset`` (a fault
     that ended leaves its error in the state, while its sensor's readings, right again, agree:
     followed as still going on, the data would exclude it). Beyond ``max_onsets`` for a sensor
     one is dropped: never one of the newest quarter of the active ones (a fault that began at a
     stop has put nothing in yet, and is the least tested once the train moves), else the one
     whose cover (|e_0| x the size not excluded) is smallest."""
     if bank is None:
-        bank = Bank((), np.zeros(0), np.zeros(0, bool), np.zeros(0), np.zeros((0, n)), np.zeros(0), np.zeros(0))
+        bank = Bank((), np.zeros(0), np.zeros(0, bool), np.zeros(0), np.zeros((0, n)), np.zeros(0), np.zeros(0),
+                    np.zeros(0, bool))
     for sensor, bound in bounds.items():
         covers = _covers(bank, z)
         going_on = [k for k in range(len(bank)) if bank.sensors[k] == sensor and bank.active[k]]
@@ -155,7 +180,7 @@ def started(bank: Bank | None, bounds: dict[str, float], onset: float, n: int, m
                 ended = _rows(bank, [largest])
                 bank = _joined(bank, dataclasses.replace(ended, active=np.zeros(1, bool)))
         bank = _joined(bank, Bank((sensor,), np.array([onset]), np.ones(1, bool), np.array([bound]), np.zeros((1, n)),
-                                  np.zeros(1), np.zeros(1)))
+                                  np.zeros(1), np.zeros(1), np.full(1, offset)))
         covers = _covers(bank, z)
         own = [k for k in range(len(bank)) if bank.sensors[k] == sensor]
         drop = set()
@@ -178,7 +203,8 @@ def predicted(bank: Bank, F: np.ndarray) -> Bank:
 def updated(bank: Bank, fault_input: tuple | None, h: np.ndarray, K: np.ndarray, nu: float, S: float) -> Bank:
     """After a scalar update with row h, gain K (n,), innovation nu and its variance S, of a
     reading whose own fault per unit is ``fault_input`` = (sensor, v or d, whether another speed
-    source in use checks it), None for a fix."""
+    source in use checks it; for a fix of a sensor with an offset fault: its 1-sigma, True), None for
+    a reading that carries none."""
     g = -bank.E.dot(h)
     tests = np.ones(len(bank), bool)
     if fault_input is not None:
@@ -200,21 +226,25 @@ def states_set(bank: Bank, idx, value: float = 0.0) -> Bank:
 
 
 @_keeps_none
-def position_set_from_fix(bank: Bank, fix_bias_index: int | None) -> Bank:
+def position_set_from_fix(bank: Bank, fix_bias_index: int | None, fault_input: tuple | None = None) -> Bank:
     """The position was taken from a fix alone (s = z - fix bias): its error per unit fault is
-    minus that of the fix bias (0 without one)."""
+    minus that of the fix bias (0 without one), plus the fix's own offset per unit for the going-on
+    offset hypotheses of its sensor (``fault_input`` = (sensor, the fix's 1-sigma), as ``updated``)."""
     E = bank.E.copy()
     E[:, 0] = -E[:, fix_bias_index] if fix_bias_index is not None else 0.0
+    if fault_input is not None:
+        own = np.array([s == fault_input[0] for s in bank.sensors], dtype=bool) & bank.active & bank.offset
+        E[own, 0] += fault_input[1]
     return bank._replace(E=E)
 
 
 @_keeps_none
 def speed_set(bank: Bank, speed: float) -> Bank:
-    """The speed was set from readings that may include the faulty sensor's: its error per unit
-    fault is taken as the whole speed while the fault goes on (the fault's full share), 0 once it
-    ended; the acceleration's as 0."""
+    """The speed was set from relative readings that may include the faulty sensor's: its error per
+    unit scale fault is taken as the whole speed while the fault goes on (the fault's full share), 0
+    once it ended or for a fix offset (no fix in it); the acceleration's as 0."""
     E = bank.E.copy()
-    E[:, 1] = np.where(bank.active, abs(speed), 0.0)
+    E[:, 1] = np.where(bank.active & ~bank.offset, abs(speed), 0.0)
     E[:, 2] = 0.0
     return bank._replace(E=E)
 
@@ -224,26 +254,33 @@ class Prepared(NamedTuple):
     measurements share it (the fusion benchmark: numpy's per-call overhead on a few rows was
     3x the rest of a published state)."""
 
-    rows: tuple   # ((e0, e1, e2, fault mean, fault 1-sigma), ...)
+    rows: tuple   # ((e0, e1, e2, fault mean, fault 1-sigma, an offset: bounded, not spread), ...)
 
 
 @_keeps_none
 def prepared(bank: Bank, z: float) -> Prepared:
     """The bank's rows for ``cover`` (None: no hypothesis yet)."""
-    mean, sigma = _fault(bank.info, bank.score, bank.bounds, z)
+    mean, sigma = _within_bound(*_fault(bank.info, bank.score, bank.bounds, z), bank.bounds, z, bank.offset)
     return Prepared(tuple(zip(bank.E[:, 0].tolist(), bank.E[:, 1].tolist(), bank.E[:, 2].tolist(),
-                              mean.tolist(), sigma.tolist())))
+                              mean.tolist(), sigma.tolist(), bank.offset.tolist())))
 
 
 def cover(bank: Bank | Prepared, dt: float, z: float, var_s: float, var_v: float) -> tuple[float, float]:
     """(position [m], speed [m/s]) half-widths of the interval that covers every hypothesis at dt
     [s] after the filter's state, whose own variances there are var_s [m^2], var_v [m^2/s^2]:
     per hypothesis the fault's mean effect plus z x (the filter's noise and the fault's spread,
-    root-sum-squared), the largest over the hypotheses and the fault-free z sigma."""
+    root-sum-squared), the largest over the hypotheses and the fault-free z sigma. An offset is a
+    bounded bias, not a spread: its largest effect within mean +- z sigma (``_within_bound``) is
+    added to the filter's z sigma (ARAIM's bias + K sigma)."""
     rows = (bank if isinstance(bank, Prepared) else prepared(bank, z)).rows
-    half_s, half_v = z * math.sqrt(var_s), z * math.sqrt(var_v)
-    for e0, e1, e2, mean, sigma in rows:
+    sd_s, sd_v = math.sqrt(var_s), math.sqrt(var_v)
+    half_s, half_v = z * sd_s, z * sd_v
+    for e0, e1, e2, mean, sigma, offset in rows:
         p, v = e0 + e1 * dt + 0.5 * e2 * dt * dt, e1 + e2 * dt
-        half_s = max(half_s, abs(p * mean) + z * math.sqrt(var_s + (p * sigma) ** 2))
-        half_v = max(half_v, abs(v * mean) + z * math.sqrt(var_v + (v * sigma) ** 2))
+        if offset:
+            half_s = max(half_s, abs(p) * (abs(mean) + z * sigma) + z * sd_s)
+            half_v = max(half_v, abs(v) * (abs(mean) + z * sigma) + z * sd_v)
+        else:
+            half_s = max(half_s, abs(p * mean) + z * math.sqrt(var_s + (p * sigma) ** 2))
+            half_v = max(half_v, abs(v * mean) + z * math.sqrt(var_v + (v * sigma) ** 2))
     return half_s, half_v

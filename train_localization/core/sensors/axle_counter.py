@@ -739,7 +739,8 @@ def front_offsets(params: dict) -> tuple[tuple[int, float], ...]:
 
 def error_model(params: dict, track, vehicle) -> ErrorModel:
     """Axle-counter fixes for the fusion: white (head survey, axle offset and edge timing
-    in the decoder's stddev); fault mode: a miscount (missed or extra axle). Floor: ``fix_sigma``
+    in the decoder's stddev); fault modes: a miscount (missed or extra axle), an offset of a run of fixes (a
+    head off its surveyed place). Floor: ``fix_sigma``
     without the decoder's terms, max(hypot(head_position_sigma, axle_offset_sigma), 1 mm).
     References: the device's heads (``_heads``, as the decoder), window the head's chainage +
     o x d over every (o, d) of ``front_offsets``; an empty table if the track has none."""
@@ -753,7 +754,7 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
         references = ReferenceTable({str(h["id"]): ReferenceWindow(float(h["position"]) + min(offs),
                                                                    float(h["position"]) + max(offs))
                                      for h in heads})
-    return ErrorModel("axle_counter", "position", faults=("miscount",), min_stddev=fix_sigma(params),
+    return ErrorModel("axle_counter", "position", faults=("miscount", "offset"), min_stddev=fix_sigma(params),
                       references=references)
 
 

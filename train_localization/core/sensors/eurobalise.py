@@ -673,14 +673,15 @@ def fix_position(params: dict, item: dict) -> float:
 
 def error_model(params: dict, track, vehicle) -> ErrorModel:
     """Balise fixes for the fusion: white (reading window and peak timing in the decoder's
-    stddev); fault mode: a misread telegram. Floor: ``fix_sigma`` without timing,
+    stddev); fault modes: a misread telegram, an offset of a run of fixes (a balise off its
+    surveyed place, revisited after a reversal). Floor: ``fix_sigma`` without timing,
     max(location_sigma, 1 mm). References: every balise of the track, window the point
     chainage + antenna_offset (``fix_position``; the refusal's 5 sigma is the margin)."""
     references = None
     if track is not None:
         references = ReferenceTable({str(it["id"]): ReferenceWindow(fix_position(params, it), fix_position(params, it))
                                      for it in track.items(KIND)})
-    return ErrorModel(KIND, "position", faults=("misread",), min_stddev=fix_sigma(params), references=references)
+    return ErrorModel(KIND, "position", faults=("misread", "offset"), min_stddev=fix_sigma(params), references=references)
 
 
 SPEC = SensorSpec(

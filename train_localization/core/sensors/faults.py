@@ -13,7 +13,8 @@ class FaultMode(NamedTuple):
 
     name: str
     effect: str          # "outlier": a confident wrong fix; "speed": a relative sensor reads a wrong
-                         # speed for a while; "silence": no data (the sensor's timeout covers it)
+                         # speed for a while; "offset": a run of fixes shares one error; "silence": no
+                         # data (the sensor's timeout covers it)
     persistent: bool     # lasts until repaired: no test of the sensor's own readings tells it from motion
     description: str
 
@@ -27,6 +28,11 @@ CATALOGUE = (
     FaultMode("wear", "speed", True, "a wheel's diameter beyond its tolerance by up to its scale_fault_sigma "
                                      "(a missed re-calibration, a re-profiled or changed wheel whose "
                                      "diameter was not re-entered)"),
+    FaultMode("offset", "offset", True, "a run of a position sensor's fixes shares one offset, each within the "
+                                        "single-fix gate of its own 1-sigma, so that every check of one fix "
+                                        "passes (a balise laid or surveyed off, a wrong antenna offset or "
+                                        "latency, a reversal over the same installation errors, a run of "
+                                        "forged fixes)"),
     FaultMode("dropout", "silence", False, "the sensor is silent for a while"),
     FaultMode("outage", "silence", False, "a wayside device or base station is out"),
     FaultMode("nlos", "outlier", False, "a range or fix from a reflected path (mm-wave, DGPS multipath)"),
@@ -44,6 +50,9 @@ SPEED = frozenset(mode.name for mode in CATALOGUE if mode.effect == "speed")
 ADHESION = frozenset(("slip", "slide"))
 # speed faults that persist: nothing but a fix or another speed source can show them
 PERSISTENT = frozenset(mode.name for mode in CATALOGUE if mode.effect == "speed" and mode.persistent)
+# a fix sensor's offset of a run of fixes (the sensors whose model calls their fixes independent,
+# one per reference: a fix-bias state models the others' persistent errors)
+OFFSET = frozenset(mode.name for mode in CATALOGUE if mode.effect == "offset")
 # persistent faults that are a constant scale error beyond the sensor's tolerance (a missed
 # calibration): the sensor's own dead reckoning, its scale opened by the fault's size and learnt
 # from the fixes, is a solution valid under them

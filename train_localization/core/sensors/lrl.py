@@ -693,7 +693,8 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
             windows[str(item["id"])] = ReferenceWindow(min(lo, old.lo), max(hi, old.hi)) if old is not None else \
                 ReferenceWindow(lo, hi)
         references = ReferenceTable(windows)
-    return ErrorModel("lrl", "position", faults=("misread",), min_stddev=fix_sigma(params), references=references)
+    return ErrorModel("lrl", "position", faults=("misread", "offset"), min_stddev=fix_sigma(params),
+                      references=references)
 
 
 SPEC = SensorSpec(

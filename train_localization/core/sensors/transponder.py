@@ -352,14 +352,16 @@ def fix_position(params: dict, item: dict) -> float:
 
 def error_model(params: dict, track, vehicle) -> ErrorModel:
     """Tag fixes for the fusion: white (each tag's installation error is its own, read once a
-    passage; the edge timing), both in the decoder's stddev; fault mode: a misread id. Floor:
+    passage; the edge timing), both in the decoder's stddev; fault modes: a misread id, an offset of a run of fixes.
+    Floor:
     ``fix_sigma`` without timing, max(install_sigma, 1 mm). References: every tag of the track,
     window the point chainage + antenna_offset (``fix_position``)."""
     references = None
     if track is not None:
         references = ReferenceTable({str(it["id"]): ReferenceWindow(fix_position(params, it), fix_position(params, it))
                                      for it in track.items(KIND)})
-    return ErrorModel(SENSOR, "position", faults=("misread",), min_stddev=fix_sigma(params), references=references)
+    return ErrorModel(SENSOR, "position", faults=("misread", "offset"), min_stddev=fix_sigma(params),
+                      references=references)
 
 
 SPEC = SensorSpec(

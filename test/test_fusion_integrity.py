@@ -819,6 +819,24 @@ def test_a_sensor_solution_learns_its_scale_from_the_fixes_and_is_refuted_by_one
     assert separation.fix(sub, 100.0, s + 20.0, 0.09, main, 15.0) is None
 
 
+def test_a_sensor_solution_started_at_a_fix_moves_with_its_own_first_reading_not_the_filters_motion():
+    """Campaign run conventional:3779352276: the first position came from an axle-counter fix
+    while the filter's speed, taken from a worn wheel, was 0.5 m/s high; the radar's solution,
+    started there, moved with the filter until the radar's first reading 0.8 s later (its readings
+    came late), 0.42 m off and as narrow as the filter: under the worn-wheel hypothesis it was
+    the bound, and the truth left the interval for 6 NOMINAL states. The solution's first reading
+    within SPEED_GAP carries it over that time with the radar's own speed."""
+    sm = separation.sub_models(sensor_models(["wheel_sensor", "doppler_radar"], None, Vehicle()))["doppler"]
+    sub = separation.seed(sm, 39.727, 1000.0, 0.0006, 28.5)          # the filter's speed, 0.5 m/s high
+    main = separation.Main(1000.0 + 28.5 * 0.8, 0.0009, 28.5, 0.013)
+    sub = separation.reading(sub, sm, SpeedMeasurement(40.527, "doppler", "d", 28.0, 0.1), 0.01, 0.0, main, 1.0)
+    assert sub.own and sub.t == pytest.approx(40.527)
+    assert sub.s == pytest.approx(1000.0 + 28.0 * 0.8, abs=0.01)         # the radar's 28 m/s, not 28.5
+    assert math.sqrt(sub.pss) >= 28.0 * 0.8 * math.sqrt(sm.scale_var)   # with its scale's uncertainty
+
+
+
+
 def _lone_radar_ramp_run():
     """A steady 20 m/s with the radar as the only speed source; its scale error grows from 0
     at 10 s to -6 % at 25 s (a film building up: too gradual for any reading to disagree with

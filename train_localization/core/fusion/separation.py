@@ -217,8 +217,12 @@ def reading(sub: Sub, sm: SubModel, m, R: float, a: float, main: Main, window: f
         dv, var_dv = u - v, R
     if isinstance(m, SpeedMeasurement):
         dt = m.stamp - sub.t
-        if 0.0 < dt <= SPEED_GAP and math.isfinite(sub.t_v):
-            sub = _anchored(_advance(sub, sm, m.stamp, dt, 0.5 * (u + v + sub.dv), R), main)
+        if 0.0 < dt <= SPEED_GAP:
+            # its own speed over the time since its last reading (the mean of this one and the
+            # filter's then, less their averaged difference); after a start, this one alone: the
+            # filter's motion since may carry the very fault the solution is kept against
+            prev = 0.5 * (u + v + sub.dv) if math.isfinite(sub.t_v) else u
+            sub = _anchored(_advance(sub, sm, m.stamp, dt, prev, R), main)
         else:
             sub = follow(sub, m.stamp, main)
         return sub._replace(own=True, t_v=m.stamp, dv=dv, var_dv=var_dv)

@@ -382,7 +382,7 @@ class PatternBeltDecoder(Decoder):
         self.estimator = IncrementEstimator(self.sensor, self.unit_id, self.counter, self.step, self.step,
                                             p["scale_sigma"], p["speed_window"],
                                             position_jitter=p["transition_jitter"], timing_sigma=0.05,
-                                            unevenness=transition_unevenness(p))
+                                            unevenness=transition_unevenness(p), settles=True)
         self._y = np.full(3, -1, dtype=np.int64)   # Schmitt outputs (-1 unknown)
         self._env_last: np.ndarray | None = None   # last envelope sample of the previous block
         self._rows = np.empty((0, 1), dtype=np.int64)  # 1..n as a column (Schmitt trigger)

@@ -525,6 +525,40 @@ def test_runner_publishes_on_a_fixed_grid_and_reports_rejections():
     assert out[0][1] == ["eurobalise"] and out[1][1] == []
 
 
+def _balises_and_radar(r: FusionRunner, t0: float, t1: float) -> list:
+    """Feed r a train at 20 m/s (radar at 20 Hz, a balise every 100 m) from t0 to t1 [s] and
+    advance it every 50 ms; the estimates."""
+    out = []
+    for k in range(int(round(t0 * 20)) + 1, int(round(t1 * 20)) + 1):
+        t = k / 20.0
+        r.add(speed(t, 20.0), now=t)
+        if k % 100 == 0:
+            r.add(fix(t, 20.0 * t, 0.5, ref=f"B{k}"), now=t)
+        out += [e for e, _ in r.advance(t)]
+    return out
+
+
+def test_a_clock_that_jumps_back_moves_the_grid_and_a_loop_restarts_the_filter():
+    """One /clock message 1e6 s ahead: the runner had published one state there and then nothing
+    for good (its grid stayed at 1e6 s). Its grid now follows the clock back and the filter,
+    whose data lie before the clock, goes on; a clock back before the filter's data (a bag in a
+    loop) starts the filter afresh and the data from the start are taken again."""
+    r = FusionRunner(config("doppler_radar", "eurobalise_reader"), rate=20.0)
+    before = _balises_and_radar(r, 0.0, 30.0)
+    assert before[-1].mode == MODE_NOMINAL
+    (far,) = [e for e, _ in r.advance(30.0 + 1e6)]          # time passing: predicted there
+    assert far.mode == MODE_LOST
+    after = _balises_and_radar(r, 30.0, 40.0)
+    assert len(after) == 200 and after[0].stamp == pytest.approx(30.05)
+    assert all(e.mode == MODE_NOMINAL for e in after)        # the filter went on
+    assert r.counters()["clock"] == {"back": 1, "filter_reset": 0}
+    looped = _balises_and_radar(r, 0.0, 30.0)                # the bag again from its start
+    assert r.counters()["clock"] == {"back": 2, "filter_reset": 1}
+    assert r.rejected.get("too_late", 0) == 0
+    assert looped[0].mode == MODE_INITIALISING and looped[-1].mode == MODE_NOMINAL
+    assert abs(looped[-1].position - 600.0) < 1.0
+
+
 def test_every_tuning_field_is_a_documented_node_parameter():
     from train_localization.nodes.fusion import (_from_ros, _ros_value, error_model_parameters,
                                                  overrides_from_parameters)

@@ -765,6 +765,46 @@ def test_a_stopped_clock_makes_the_fusion_report_stale(ros_context, start_node):
         node.destroy_node()
 
 
+def test_one_clock_message_far_ahead_does_not_stop_the_fusions_states(ros_context, start_node):
+    """Over DDS: one /clock message 1e6 s ahead of the others. The fusion had published one state
+    there and then nothing for good (its output grid stayed at 1e6 s); its grid now follows the
+    clock back (core/fusion/runner.py), and the states go on at the clock's time."""
+    from rosgraph_msgs.msg import Clock
+    from train_localization_msgs.msg import TrainState
+    from train_localization.nodes.common import CLOCK_QOS, LATCHED_QOS
+
+    proc = start_node("fusion", "--ros-args", *NS, "-p", "use_sim_time:=true", "-p", "sensors:=[axle_counter]",
+                      "-p", "publish_rate:=20.0")
+    node = ros_context.create_node("probe_clock_jump", namespace="/train")
+    clock_pub = node.create_publisher(Clock, "/clock", CLOCK_QOS)
+    stamps = []
+    node.create_subscription(TrainState, "localization/state",
+                             lambda m: stamps.append(m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec), LATCHED_QOS)
+
+    def tick(t):
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = int(t), int(round((t % 1) * 1e9))
+        clock_pub.publish(msg)
+        spin_until(node, lambda: False, 0.05)
+    try:
+        assert spin_until(node, lambda: clock_pub.get_subscription_count() > 0, 30.0), proc.output()
+        t = 100.0
+        for _ in range(40):
+            t += 0.05
+            tick(t)
+        tick(t + 1e6)
+        spin_until(node, lambda: False, 0.3)
+        for _ in range(40):
+            t += 0.05
+            tick(t)
+        spin_until(node, lambda: False, 0.5)
+        after = [s for s in stamps if 102.5 < s < 1e5]
+        assert len(after) >= 20, (stamps[-5:], proc.output())
+        assert proc.interrupt() == 0
+    finally:
+        node.destroy_node()
+
+
 def test_numeric_parameters_carry_their_range_and_a_value_beyond_it_stops_the_node(ros_context, start_node):
     """A sensor node's limited parameters have the range in their descriptor (what ``ros2
     param describe`` shows); a value beyond it, given as a double or as an integer, stops the

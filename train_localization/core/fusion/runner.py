@@ -27,6 +27,12 @@ class FusionRunner:
     ``now`` given to ``add`` (the live node's clock).
     A configured ``initial_position`` puts the train there, at rest, at the time of the first
     measurement or output, whichever comes first.
+
+    A clock that jumps back (one /clock message far ahead and then the real one again, a bag
+    played in a loop) moves the grid back with it: the outputs go on at the clock's time, and
+    where the clock is now before the filter's measurements (the loop's start) the filter
+    starts afresh, as robot_localization's ``reset_on_time_jump`` does; counted in
+    ``counters()["clock"]``. A jump forward is only time passing: the states predicted to it.
     """
 
     def __init__(self, config: FusionConfig, rate: float = 200.0):
@@ -39,6 +45,8 @@ class FusionRunner:
         self.rejected: dict[str, int] = {}
         self.last_error: InputRejected | None = None   # why the last rejected measurement was
         self._start_pending = math.isfinite(config.initial_position)
+        self._last_clock: float | None = None   # the caller's clock when last seen [s]
+        self.clock_jumps = {"back": 0, "filter_reset": 0}
 
     def _start(self, t: float) -> None:
         """The known start position (``initial_position``), at rest, at ``t`` [s]."""
@@ -51,7 +59,7 @@ class FusionRunner:
         """Take measurement ``m`` (True) or refuse and count it (False). ``now`` [s]: the
         caller's clock, if it has one (the live node)."""
         if now is not None:
-            self._clock_at(now)
+            self._follow_clock(now)
         try:
             self.admission.check(m, self.clock)
             if self._start_pending:
@@ -82,11 +90,34 @@ class FusionRunner:
 
     def counters(self) -> dict[str, dict]:
         """The filter's counters, with every refused measurement by reason (admission's and the
-        history's)."""
-        return {**self.filter.counters(), "rejected": dict(self.rejected)}
+        history's), and the clock's jumps back."""
+        return {**self.filter.counters(), "rejected": dict(self.rejected), "clock": dict(self.clock_jumps)}
+
+    def _clock_jumped_back(self, t: float) -> None:
+        """The clock is at ``t`` [s], before the last output: the grid and the clock follow it; a
+        filter whose measurements all lie after t - ``history`` (a loop) starts afresh."""
+        self.clock_jumps["back"] += 1
+        self._next_k = None
+        self.clock = t
+        stamps = self.filter.hist.stamps
+        if stamps and t < stamps[-1] - self.filter.cfg.history:
+            self.clock_jumps["filter_reset"] += 1
+            self.filter.reset()
+            self._start_pending = math.isfinite(self.filter.cfg.initial_position)
+
+    def _follow_clock(self, t: float) -> None:
+        """The caller's clock is at ``t`` [s]: a jump back by more than one output period is
+        followed (``_clock_jumped_back``), else the runner's clock moves on."""
+        if self._last_clock is not None and t < self._last_clock - self.period:
+            self._clock_jumped_back(t)
+        if math.isfinite(t):
+            self._last_clock = t
+        self._clock_at(t)
 
     def advance(self, t: float, max_catch_up: int = 1000) -> list[tuple[Estimate, list[str]]]:
-        self._clock_at(t)
+        """The estimates of every grid time <= t [s] not produced yet (at most ``max_catch_up``
+        behind t), each with the sensor classes used since the previous one."""
+        self._follow_clock(t)
         if self._start_pending:
             self._start(t)
         k_now = math.floor(t / self.period + 1e-9)

@@ -89,3 +89,15 @@ def test_a_leased_domain_is_not_leased_again_until_released():
     again.release()
     with pytest.raises(ValueError, match="within 0..232"):
         domains.lease(200, 240)
+
+
+def test_a_discovery_range_set_but_empty_is_taken_as_unset():
+    """tl_demo and the launch files keep the caller's ROS_AUTOMATIC_DISCOVERY_RANGE, LOCALHOST if
+    unset; set but empty had been kept empty, which rmw takes for its default (the subnet: the
+    nodes multicast off the machine)."""
+    from train_localization.tools import domains
+    assert domains.discovery_range({}) == "LOCALHOST"
+    assert domains.discovery_range({"ROS_AUTOMATIC_DISCOVERY_RANGE": ""}) == "LOCALHOST"
+    assert domains.discovery_range({"ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET"}) == "SUBNET"
+    launch = (ROOT / "train_localization" / "launch_common.py").read_text()
+    assert 'SetEnvironmentVariable("ROS_AUTOMATIC_DISCOVERY_RANGE", discovery_range(os.environ))' in launch

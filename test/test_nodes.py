@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import subprocess
 import time
 
 import numpy as np
@@ -832,3 +833,27 @@ def test_numeric_parameters_carry_their_range_and_a_value_beyond_it_stops_the_no
         assert bad.proc.wait(timeout=30) == 2, bad.output()
         out = bad.output()
         assert "[fatal]" in out and "max_block_duration" in out and "Traceback" not in out, out
+
+
+def test_every_node_executable_prints_its_usage_on_help_and_starts_nothing(tmp_path):
+    """``<exe> --help`` prints the node's usage (its topics and parameters) and exits 0 without
+    starting: the fusion and the wheel sensor had ignored it and started, the recorder had started
+    writing recording.mcap in the current directory. A missing required parameter is one line."""
+    from concurrent.futures import ThreadPoolExecutor
+    from train_localization.tools.demo import executable
+    from test_package import EXECUTABLES
+    names = [*EXECUTABLES, "wayside_occupancy", "neutral_section_controller", "crosscheck", "association"]
+
+    def run(exe):
+        return exe, subprocess.run([executable(exe), "--help"], cwd=tmp_path, capture_output=True, text=True,
+                                   timeout=60)
+    with ThreadPoolExecutor(4) as pool:
+        for exe, done in pool.map(run, names):
+            assert done.returncode == 0, (exe, done.stdout[-500:], done.stderr[-500:])
+            assert "arameter" in done.stdout and len(done.stdout.splitlines()) > 5, (exe, done.stdout)
+    assert list(tmp_path.iterdir()) == []                    # no bag, no log written
+    missing = subprocess.run([executable("replayer")], cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    assert missing.returncode == 2
+    assert missing.stdout.strip().splitlines()[-1] == \
+        "[fatal] ConfigurationError: parameter 'bag' is required (an MCAP file to play)"
+    assert "Traceback" not in missing.stdout + missing.stderr

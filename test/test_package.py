@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import ast
+import re
 import os
 import shutil
 import subprocess
@@ -76,6 +77,26 @@ def test_package_xml_dependencies_are_rosdep_keys():
         launch = ast.parse((ROOT / launch_file).read_text())
         imported = {(n.module or "").split(".")[0] for n in ast.walk(launch) if isinstance(n, ast.ImportFrom)}
         assert {"launch"} <= imported <= keys | {"train_localization"}, launch_file
+
+
+def test_package_xml_declares_the_ros_packages_the_code_imports_and_no_other():
+    """Every ROS package a module of the package imports (rclpy, ament_index_python, launch,
+    interface packages) is an exec_depend of package.xml, and every interface package declared
+    is imported somewhere: builtin_interfaces and rcl_interfaces were imported undeclared,
+    std_srvs declared unused."""
+    import xml.etree.ElementTree as ET
+    root = ET.parse(ROOT / "package.xml").getroot()
+    declared = {e.text.strip() for e in root if e.tag.endswith("depend")}
+    ros = re.compile(r"^(rclpy|ament_index_python|launch|launch_ros|\w+_(msgs|srvs|interfaces))$")
+    imported = set()
+    for path in [*(ROOT / "train_localization").rglob("*.py"), *(ROOT / "launch").glob("*.py")]:
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module] if isinstance(node, ast.ImportFrom) and node.module and not node.level else []
+            imported |= {n.split(".")[0] for n in names if ros.match(n.split(".")[0])}
+    assert imported <= declared, sorted(imported - declared)
+    interfaces = {d for d in declared if re.match(r"^\w+_(msgs|srvs|interfaces)$", d)}
+    assert interfaces <= imported, sorted(interfaces - imported)
 
 
 def test_no_node_changes_the_discovery_variables():

@@ -11,8 +11,10 @@ from ament_index_python.packages import get_package_share_directory
 from launch.actions import DeclareLaunchArgument, EmitEvent, RegisterEventHandler, SetEnvironmentVariable
 from launch.event_handlers import OnProcessExit
 from launch.events import Shutdown
-from launch.substitutions import EnvironmentVariable, LaunchConfiguration
+from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
+
+from train_localization.tools.domains import discovery_range
 
 # nodes whose exit ends the run: not restarted, their exit shuts the launch down
 DRIVERS = ("simulator", "replayer")
@@ -30,8 +32,7 @@ def common_arguments() -> list:
                                           "simulator, the replayer or the recorder)"),
         DeclareLaunchArgument("respawn_delay", default_value="2.0",
                               description="seconds before such a node is restarted (>= 0)"),
-        SetEnvironmentVariable("ROS_AUTOMATIC_DISCOVERY_RANGE",
-                               EnvironmentVariable("ROS_AUTOMATIC_DISCOVERY_RANGE", default_value="LOCALHOST")),
+        SetEnvironmentVariable("ROS_AUTOMATIC_DISCOVERY_RANGE", discovery_range(os.environ)),
     ]
 
 

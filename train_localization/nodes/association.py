@@ -93,4 +93,4 @@ class AssociationNode(Node):
 
 
 def main(args=None):
-    return spin(AssociationNode, args)
+    return spin(AssociationNode, args, usage=__doc__)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import signal
+import sys
 import time
 from collections import Counter
 
@@ -232,12 +233,23 @@ def now_sec(node: Node) -> float:
 DRAIN_TIMEOUT = 1.5
 
 
-def spin(node_factory, args=None) -> int:
+def wants_help(argv: list[str]) -> bool:
+    """``-h`` or ``--help`` among the arguments before ``--ros-args``."""
+    user = argv[:argv.index("--ros-args")] if "--ros-args" in argv else argv
+    return any(a in ("-h", "--help") for a in user)
+
+
+def spin(node_factory, args=None, usage: str | None = None) -> int:
     """Create the node, spin it until SIGINT/SIGTERM or it asks to stop, shut down cleanly.
 
-    The node may define ``finished`` (bool attribute) to end the spin by itself and
-    ``close()`` for final work (flushing files) that must run on every exit path.
+    ``-h``/``--help`` (before ``--ros-args``) prints ``usage`` (the node's topics and parameters)
+    and returns 0 without starting the node. The node may define ``finished`` (bool attribute)
+    to end the spin by itself and ``close()`` for final work (flushing files) that must run on
+    every exit path.
     """
+    if wants_help(list(sys.argv[1:] if args is None else args)):
+        print((usage or "no usage given").strip())
+        return 0
     rclpy.init(args=args, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     stop = {"flag": False}
 

@@ -441,4 +441,4 @@ class FusionNode(ManagedNode):
 
 
 def main(args=None):
-    return spin(FusionNode, args)
+    return spin(FusionNode, args, usage=__doc__)

@@ -85,4 +85,4 @@ class RecorderNode(Node):
 
 
 def main(args=None):
-    return spin(RecorderNode, args)
+    return spin(RecorderNode, args, usage=__doc__)

@@ -35,7 +35,7 @@ from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 
 from ..core.bagio import recovered_copy
-from .common import CLOCK_QOS, LATCHED_QOS, STATE_QOS, STREAM_QOS, declare, spin
+from .common import CLOCK_QOS, LATCHED_QOS, STATE_QOS, STREAM_QOS, ConfigurationError, declare, spin
 from .recorder import message_class
 
 
@@ -44,7 +44,7 @@ class ReplayerNode(Node):
         super().__init__("replayer")
         self.bag = declare(self, "bag", "", "MCAP file to play")
         if not self.bag:
-            raise ValueError("parameter 'bag' is required")
+            raise ConfigurationError("parameter 'bag' is required (an MCAP file to play)")
         self.rate = float(declare(self, "rate", 1.0, "playback speed factor; 0 = as fast as possible"))
         self.start_offset = float(declare(self, "start_offset", 0.0, "skip this much of the bag [s]"))
         self.loop = bool(declare(self, "loop", False, "start again at the end"))
@@ -54,7 +54,7 @@ class ReplayerNode(Node):
             if item:
                 src, sep, dst = item.partition(":=")
                 if not sep:
-                    raise ValueError(f"remap entry {item!r} is not 'from:=to'")
+                    raise ConfigurationError(f"remap entry {item!r} is not 'from:=to'")
                 self.remap[src] = dst
         self.clock_period = 1.0 / float(declare(self, "clock_rate", 100.0, "/clock rate [Hz of bag time]"))
         self.exit_at_end = bool(declare(self, "exit_at_end", True, "shut down at the end"))
@@ -154,4 +154,4 @@ class ReplayerNode(Node):
 
 
 def main(args=None):
-    return spin(ReplayerNode, args)
+    return spin(ReplayerNode, args, usage=__doc__)

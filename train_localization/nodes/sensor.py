@@ -27,6 +27,7 @@ from ..core import convert
 from ..core.pipeline import SensorPipeline
 from ..core.scenario import Scenario, Vehicle
 from ..core.sensors import NODE_NAMES, spec as sensor_spec
+from ..core.sensors.base import COMMON_PARAMS
 from ..core.signals import InputRejected
 from ..core.track import Track
 from ..core import paths
@@ -80,7 +81,6 @@ class SensorNode(ManagedNode):
         else:
             scenario, track, vehicle = None, Track.from_yaml(paths.resolve(track_path)), Vehicle()
         # every sensor parameter is a ROS parameter; the scenario gives the defaults
-        from ..core.sensors.base import COMMON_PARAMS
         for name, p in {**COMMON_PARAMS, **self.spec.params}.items():
             default = overrides.get(name, p.default)
             if isinstance(p.default, float):
@@ -174,8 +174,21 @@ class SensorNode(ManagedNode):
         self.diag.values.update({f"decoder/{k}": str(v) for k, v in self.pipe.decoder.stats.items()})
 
 
+def usage(node_name: str | None) -> str:
+    """The help of a sensor node: this module's description, then its kind's parameters with their
+    defaults, units and ranges (core/sensors/<kind>.py)."""
+    if node_name is None:
+        return __doc__
+    s = sensor_spec(node_name)
+    lines = [f"{node_name}: {s.description}", "", __doc__, f"Parameters of {node_name} (default; meaning [range]):"]
+    for name, p in {**COMMON_PARAMS, **s.params}.items():
+        lines.append(f"  {name} ({p.default!r}) {p.description}" +
+                     (f" [{p.limits[0]:g} .. {p.limits[1]:g}]" if p.limits else ""))
+    return "\n".join(lines)
+
+
 def main(args=None, node_name: str | None = None):
-    return spin(lambda: SensorNode(node_name), args)
+    return spin(lambda: SensorNode(node_name), args, usage=usage(node_name))
 
 
 def _entry(node_name):

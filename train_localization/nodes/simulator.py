@@ -174,4 +174,4 @@ class SimulatorNode(Node):
 
 
 def main(args=None):
-    return spin(SimulatorNode, args)
+    return spin(SimulatorNode, args, usage=__doc__)

@@ -58,4 +58,4 @@ class SpeedControllerNode(Node):
 
 
 def main(args=None):
-    return spin(SpeedControllerNode, args)
+    return spin(SpeedControllerNode, args, usage=__doc__)

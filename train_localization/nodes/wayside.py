@@ -204,12 +204,12 @@ class CrossCheckNode(Node):
 
 
 def main_occupancy(args=None):
-    sys.exit(spin(WaysideOccupancyNode, args))
+    sys.exit(spin(WaysideOccupancyNode, args, usage=f"{__doc__}\n{WaysideOccupancyNode.__doc__}"))
 
 
 def main_controller(args=None):
-    sys.exit(spin(ChangeoverControllerNode, args))
+    sys.exit(spin(ChangeoverControllerNode, args, usage=f"{__doc__}\n{ChangeoverControllerNode.__doc__}"))
 
 
 def main_crosscheck(args=None):
-    sys.exit(spin(CrossCheckNode, args))
+    sys.exit(spin(CrossCheckNode, args, usage=f"{__doc__}\n{CrossCheckNode.__doc__}"))

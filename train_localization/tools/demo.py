@@ -92,7 +92,7 @@ def run_nodes(graph: list, driver: str, log_dir: Path, timeout: float) -> dict:
     by name; (namespace, executable, name, parameters) run in their namespace and are keyed
     by namespace/name."""
     env = dict(os.environ)
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = env.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = domains.discovery_range(env)
     held = domains.lease(10, 99) if env.get("TL_DOMAIN_FROM_ENV") != "1" else None
     if held is not None:
         env["ROS_DOMAIN_ID"] = str(held.domain)

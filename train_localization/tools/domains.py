@@ -1,5 +1,5 @@
-"""ROS_DOMAIN_IDs for the project's own runs (demo, fuzz, test workers): one free domain per
-run, held for as long as the run lives.
+"""The DDS environment of the project's own runs (demo, fuzz, test workers, launch files): the
+discovery range, and one free ROS_DOMAIN_ID per run, held for as long as the run lives.
 
 A random pick alone lets two runs on one host share a domain (two pytest workers each running
 a demo graph did, and each recorded the other's messages). A lease is an exclusive ``flock`` on
@@ -18,6 +18,12 @@ from pathlib import Path
 from typing import IO, Iterable, NamedTuple
 
 LOCK_DIR = Path(tempfile.gettempdir()) / "train_localization-domains"
+
+
+def discovery_range(environ) -> str:
+    """The caller's ROS_AUTOMATIC_DISCOVERY_RANGE; unset or empty (rmw takes an empty value for
+    its default, the subnet): LOCALHOST."""
+    return environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE") or "LOCALHOST"
 
 
 class DomainLease(NamedTuple):

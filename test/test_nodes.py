@@ -445,13 +445,14 @@ def test_fusion_takes_nested_per_sensor_parameters_from_a_params_file(ros_contex
         assert reply is not None, proc.output()
         values = reply.values   # an integer stays an integer parameter; the node takes it as a double
         assert [v.double_value or float(v.integer_value) for v in values[:3]] == [0.02, 3.0, 20.0]
-        assert values[3].string_value == "misread"
+        assert values[3].string_value == "misread,offset"
         assert "error model of doppler overridden: scale_sigma=0.02, timeout=3.0" in proc.output()
         assert "eurobalise overridden" not in proc.output()
         assert proc.interrupt() == 0
     finally:
         node.destroy_node()
-    example = start_node("fusion", "--ros-args", *NS, "--params-file", str(ROOT / "config" / "params" / "fusion.yaml"))
+    # the example, run as its header says (no namespace given: its keys must apply anyway)
+    example = start_node("fusion", "--ros-args", "--params-file", str(ROOT / "config" / "params" / "fusion.yaml"))
     spin_until(ros_context.create_node("probe_example"), lambda: "overridden" in example.output(), 20.0)
     assert example.proc.poll() is None, example.output()
     assert "error model of doppler overridden: scale_sigma=0.004" in example.output()
@@ -459,15 +460,25 @@ def test_fusion_takes_nested_per_sensor_parameters_from_a_params_file(ros_contex
 
 
 @pytest.mark.parametrize("exe", ["wheel_sensor", "eurobalise_reader"])
-def test_a_sensor_node_starts_from_its_example_params_file(exe, start_node):
+def test_a_sensor_node_starts_from_its_example_params_file(exe, start_node, tmp_path):
     """config/params/<node>.yaml (every parameter at its default, NaN included) is read by
-    ROS's own params-file parser; the node then runs until interrupted."""
+    ROS's own params-file parser, run as its header says and in the demo's namespace (its keys
+    apply in any); the node then runs until interrupted. A value changed in a copy is applied
+    (the files had been keyed /train/<node>: run as documented, they applied nothing)."""
     from conftest import ROOT
-    proc = start_node(exe, "--ros-args", *NS, "--params-file", str(ROOT / "config" / "params" / f"{exe}.yaml"),
-                      "-p", "mode:=ingest")
-    time.sleep(3.0)
-    assert proc.proc.poll() is None, proc.output()
-    assert proc.interrupt() == 0, proc.output()
+    text = (ROOT / "config" / "params" / f"{exe}.yaml").read_text()
+    header = text.splitlines()[1]
+    assert header == f"# ros2 run train_localization {exe} --ros-args --params-file config/params/{exe}.yaml"
+    for ns in ([], NS):
+        proc = start_node(exe, "--ros-args", *ns, "--params-file", str(ROOT / "config" / "params" / f"{exe}.yaml"),
+                          "-p", "mode:=ingest")
+        time.sleep(3.0)
+        assert proc.proc.poll() is None, proc.output()
+        assert proc.interrupt() == 0, proc.output()
+    bad = tmp_path / f"{exe}.yaml"
+    bad.write_text(text.replace("    mode: sim ", "    mode: neither "))
+    proc = start_node(exe, "--ros-args", "--params-file", str(bad))
+    assert proc.proc.wait(timeout=30) == 2 and "mode" in proc.output(), proc.output()
 
 
 def test_fusion_reports_each_input_with_its_frequency_and_silence(ros_context, start_node):

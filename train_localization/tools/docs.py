@@ -74,7 +74,8 @@ def sensor_params_file(node: str) -> str:
     lines = [f"# Parameters of the {node} node at their defaults (generated: python -m "
              "train_localization.tools.docs --write).",
              f"# ros2 run train_localization {node} --ros-args --params-file config/params/{node}.yaml",
-             f"/train/{node}:", "  ros__parameters:",
+             "# Keyed /** : applies to the node whatever its name and namespace (one node per file).",
+             "/**:", "  ros__parameters:",
              '    mode: sim                  # sim: from ground_truth/state; ingest: decode sensors/<sensor>/raw',
              '    scenario: ""               # scenario YAML (track, vehicle, seed, sensor overrides)',
              "    track: config/track_conventional.yaml   # track YAML when no scenario is given"]

@@ -139,6 +139,40 @@ def test_fusion_node_rejects_nan_and_too_late_measurements(ros_context, start_no
         node.destroy_node()
 
 
+def test_ids_of_a_megabyte_are_refused_and_never_echoed_whole(ros_context, start_node):
+    """Over DDS: a fix whose sensor, track, unit or reference id is 1 MB long. A refused 1 MB
+    sensor or track id had become the fusion's last_error, republished on /diagnostics every
+    second; a 1 MB unit or reference id had been accepted. Every id is at most 64 characters
+    (core/signals.py require_short), refused as ``too_long``, and last_error is bounded."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from train_localization_msgs.msg import PositionFix
+    from train_localization.nodes.common import MAX_ERROR_LENGTH, STREAM_QOS
+
+    proc = start_node("fusion", "--ros-args", *NS)
+    node = ros_context.create_node("probe_long_ids", namespace="/train")
+    pub = node.create_publisher(PositionFix, "sensors/eurobalise/position", STREAM_QOS)
+    diags = []
+    node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+    huge = "X" * 1_000_000
+    try:
+        assert spin_until(node, lambda: pub.get_subscription_count() > 0, 30.0), proc.output()
+        for t, field in enumerate(("sensor", "track_id", "unit_id", "reference_id")):
+            ids = {"sensor": "eurobalise", "unit_id": "btm", "track_id": "conventional_line", "reference_id": "EB000"}
+            m = PositionFix(**{**ids, field: huge}, position=502.0, position_stddev=1.0)
+            m.header.stamp.sec = 10 + t
+            pub.publish(m)
+        key = "rejected/sensors/eurobalise/position/too_long"
+        assert spin_until(node, lambda: _diag_values(diags, "fusion").get(key) == "4", 20.0), \
+            (_diag_values(diags, "fusion"), proc.output()[-2000:])
+        values = _diag_values(diags, "fusion")
+        assert "accepted/sensors/eurobalise/position" not in values
+        assert all(len(v) <= MAX_ERROR_LENGTH for v in values.values())
+        assert max(len(line) for line in proc.output().splitlines()) < 2 * MAX_ERROR_LENGTH
+        assert proc.interrupt() == 0
+    finally:
+        node.destroy_node()
+
+
 def test_sensor_node_in_sim_mode_rejects_bad_truth_states(ros_context, start_node):
     from diagnostic_msgs.msg import DiagnosticArray
     from train_localization_msgs.msg import RawBlock, TrainState

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from .signals import MAX_STAMP, InputRejected
+from .signals import MAX_STAMP, InputRejected, require_short
 
 
 # Physical limits of any measurement (reason "implausible" beyond them): no line is longer
@@ -49,6 +49,8 @@ class PositionFix:
     residuals: tuple[float, ...] = field(default=())
 
     def validate(self) -> None:
+        require_short("PositionFix", sensor=self.sensor, unit_id=self.unit_id, track_id=self.track_id,
+                      reference_id=self.reference_id)
         isfinite = math.isfinite
         if not (isfinite(self.stamp) and isfinite(self.position) and isfinite(self.position_stddev)):
             _require_finite("PositionFix", stamp=self.stamp, position=self.position,
@@ -71,6 +73,7 @@ class SpeedMeasurement:
     speed_stddev: float
 
     def validate(self) -> None:
+        require_short("SpeedMeasurement", sensor=self.sensor, unit_id=self.unit_id)
         isfinite = math.isfinite
         if not (isfinite(self.stamp) and isfinite(self.speed) and isfinite(self.speed_stddev)):
             _require_finite("SpeedMeasurement", stamp=self.stamp, speed=self.speed,
@@ -96,6 +99,7 @@ class DistanceIncrement:
     speed_stddev: float
 
     def validate(self) -> None:
+        require_short("DistanceIncrement", sensor=self.sensor, unit_id=self.unit_id)
         _require_finite("DistanceIncrement", stamp=self.stamp, duration=self.duration,
                         distance=self.distance, distance_stddev=self.distance_stddev,
                         speed=self.speed, speed_stddev=self.speed_stddev)
@@ -135,6 +139,9 @@ class SectionOccupancy:
     sections: tuple[SectionState, ...]
 
     def validate(self) -> None:
+        require_short("SectionOccupancy", source=self.source)
+        for section in self.sections:
+            require_short("SectionOccupancy", section_id=section.section_id)
         _require_finite("SectionOccupancy", stamp=self.stamp)
         _require_range("SectionOccupancy", "stamp", self.stamp, -MAX_STAMP, MAX_STAMP)
 

@@ -33,6 +33,19 @@ class InputRejected(ValueError):
         return type(self), (self.reason, self.message)
 
 
+# longest id a message may carry (sensor, unit, track, reference, section, channel): the
+# equipment's ids are a few characters; a longer one is refused and never echoed whole
+MAX_ID_LENGTH = 64
+
+
+def require_short(kind: str, **ids: str) -> None:
+    """Raises InputRejected("too_long") naming the first of ``ids`` longer than MAX_ID_LENGTH."""
+    for name, value in ids.items():
+        if len(value) > MAX_ID_LENGTH:
+            raise InputRejected("too_long", f"{kind}.{name} of {len(value)} characters (at most "
+                                            f"{MAX_ID_LENGTH}): {value[:16]!r}...")
+
+
 @dataclass(frozen=True)
 class RawBlock:
     """``n_samples`` samples of ``len(channels)`` channels from one device.
@@ -82,6 +95,11 @@ class RawBlock:
         """
         channels = tuple(channels)
         units = tuple(units)
+        require_short("RawBlock", sensor=sensor, unit_id=unit_id)
+        if len(channels) > MAX_CHANNELS:
+            raise InputRejected("channels", f"{len(channels)} channels (at most {MAX_CHANNELS})")
+        for name in (*channels, *units):
+            require_short("RawBlock", channel=name)
         flat = np.asarray(flat, dtype=np.float32)
         if not channels:
             raise InputRejected("channels", "block has no channels")
@@ -121,6 +139,7 @@ class RawBlock:
 # decoder and its memory)
 SAMPLE_RATE_RANGE = (1.0, 1.0e8)
 MAX_BLOCK_VALUES = 2_000_000
+MAX_CHANNELS = 64       # the devices have 1-12
 MAX_STAMP = 2.0 ** 31   # [s]: the reach of a ROS time stamp (int32 seconds)
 RESYNC_BLOCKS = 3   # rejected blocks in a row that continue one another: the device's sequence again
 

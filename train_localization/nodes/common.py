@@ -57,6 +57,9 @@ def rclpy_classes() -> MsgClasses:
                       SectionOccupancy=m.SectionOccupancy, array=array)
 
 
+MAX_ERROR_LENGTH = 256   # characters of the last refusal a node republishes on /diagnostics
+
+
 class Diagnostics:
     """Counts accepted / rejected input by reason and publishes /diagnostics at 1 Hz.
 
@@ -83,8 +86,8 @@ class Diagnostics:
 
     def reject(self, stream: str, reason: str, message: str) -> None:
         self.rejected[f"{stream}/{reason}"] += 1
-        self.last_error = f"{stream}: {message}"
-        self.node.get_logger().warn(f"rejected input on {stream}: {message}", throttle_duration_sec=1.0)
+        self.last_error = f"{stream}: {message}"[:MAX_ERROR_LENGTH]   # echoed every second: bounded
+        self.node.get_logger().warn(f"rejected input on {self.last_error}", throttle_duration_sec=1.0)
 
     def set_status(self, level: int, message: str) -> None:
         self.level, self.message = level, message

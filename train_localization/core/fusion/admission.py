@@ -10,6 +10,7 @@ reason                    refused
 ``nan``                   a stamp, value or stddev that is NaN or infinite
 ``stddev``                a stddev or duration <= 0
 ``implausible``           beyond the physical limits (core/measurements.py)
+``too_long``              an id (sensor, unit, track, reference) beyond 64 characters
 ``unknown_sensor``        a sensor class the fusion is not configured for
 ``wrong_kind``            a measurement of another kind than its sensor gives
 ``wrong_track``           a fix that names another track than the fusion's

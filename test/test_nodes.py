@@ -206,6 +206,63 @@ def test_sensor_node_in_sim_mode_rejects_bad_truth_states(ros_context, start_nod
         node.destroy_node()
 
 
+def test_states_stamped_far_ahead_of_the_clock_are_refused_and_blind_nothing(ros_context, start_node):
+    """Over DDS, under use_sim_time at 100 s: a truth state stamped + 1000 s and one + 1e6 s to a
+    sensor node in simulator mode, a fused state stamped + 1e6 s to the line's association. The
+    sensor node had burst 20,000 blocks and then refused every real truth state (or stopped
+    its diagnostics and grown 6 MB/s); the association had refused every later real state
+    (``stamp_back``). Each is now refused as ``future`` (parameter future_tolerance) and the
+    real states go on being taken."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rosgraph_msgs.msg import Clock
+    from train_localization_msgs.msg import RawBlock, TrainState
+    from train_localization.nodes.common import CLOCK_QOS, STREAM_QOS
+    from conftest import ROOT
+
+    sensor = start_node("doppler_radar", "--ros-args", *NS, "-p", "mode:=sim", "-p", "use_sim_time:=true")
+    assoc = start_node("association", "--ros-args", "-r", "__ns:=/wayside", "-p", "use_sim_time:=true",
+                       "-p", f"scenario:={ROOT / 'config' / 'scenario_line_pair.yaml'}")
+    node = ros_context.create_node("probe_future_states", namespace="/train")
+    clock_pub = node.create_publisher(Clock, "/clock", CLOCK_QOS)
+    truth_pub = node.create_publisher(TrainState, "ground_truth/state", STREAM_QOS)
+    lead_pub = node.create_publisher(TrainState, "/lead/localization/state", STREAM_QOS)
+    raws, diags = [], []
+    node.create_subscription(RawBlock, "sensors/doppler/raw", raws.append, STREAM_QOS)
+    node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+
+    def stamped(t, position):
+        m = TrainState(track_id="conventional_line", position=position, speed=20.0, mode=1)
+        m.header.stamp.sec, m.header.stamp.nanosec = int(t), int(round((t % 1) * 1e9))
+        return m
+    try:
+        assert spin_until(node, lambda: truth_pub.get_subscription_count() > 0 and lead_pub.get_subscription_count() > 0
+                          and clock_pub.get_subscription_count() >= 2, 30.0), sensor.output() + assoc.output()
+        t = 100.0
+        for k in range(60):
+            t = 100.0 + 0.01 * k
+            if k % 10 == 0:
+                clock = Clock()
+                clock.clock.sec, clock.clock.nanosec = int(t), int(round((t % 1) * 1e9))
+                clock_pub.publish(clock)
+                spin_until(node, lambda: False, 0.05)
+            truth_pub.publish(stamped(t, 100.0 + 0.2 * k))
+            lead_pub.publish(stamped(t, 100.0 + 0.2 * k))
+            if k == 20:
+                for ahead in (1000.0, 1e6):
+                    truth_pub.publish(stamped(t + ahead, 100.0))
+                lead_pub.publish(stamped(t + 1e6, 100.0))
+        assert spin_until(node, lambda: _diag_values(diags, "doppler").get("accepted/ground_truth/state") == "60"
+                          and _diag_values(diags, "association").get("accepted//lead/localization/state") == "60",
+                          20.0), ([s.name for a in diags[-3:] for s in a.status], sensor.output()[-1500:],
+                                  assoc.output()[-1500:])
+        assert _diag_values(diags, "doppler")["rejected/ground_truth/state/future"] == "2"
+        assert _diag_values(diags, "association")["rejected//lead/localization/state/future"] == "1"
+        assert len(raws) <= 12                     # 0.6 s of truth: no burst of blocks
+        assert sensor.interrupt() == 0 and assoc.interrupt() == 0
+    finally:
+        node.destroy_node()
+
+
 def test_fusion_diagnostics_level_follows_the_mode(ros_context, start_node):
     """WARN while no position is claimed, ERROR when LOST (one wayside fix and no speed
     source: the interval soon exceeds lost_stddev), OK when NOMINAL (after an operator

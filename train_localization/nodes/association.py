@@ -13,6 +13,8 @@ Parameters:
                                 scenario's ``association:``, else 3.29)
   min_speed (double)            [m/s] fused speed below which it gives no direction
   history (double, 10.0)        [s] of fused states kept per train
+  future_tolerance (double, 2.0) [s]: a fused state stamped further ahead of the node clock is
+                                refused (``future``): one far ahead would make every later one old
 """
 from __future__ import annotations
 
@@ -23,7 +25,8 @@ from ..core.association import Associator, FusedState
 from ..core.scenario import ScenarioError
 from ..core.sensors import spec as sensor_spec
 from ..core.signals import InputRejected
-from .common import STREAM_QOS, Diagnostics, declare, rclpy_classes, required_scenario, spin
+from .common import (STREAM_QOS, Diagnostics, declare, declare_future_tolerance, now_sec, rclpy_classes,
+                     refuse_future, required_scenario, spin)
 
 
 class AssociationNode(Node):
@@ -39,6 +42,7 @@ class AssociationNode(Node):
                                   "direction [m/s]", read_only=True, limits=(0.0, 10.0)))
         self.history = float(declare(self, "history", 10.0, "fused states kept per train [s]", read_only=True,
                                      limits=(0.1, 3600.0)))
+        self.future_tolerance = declare_future_tolerance(self, "a train's fused state")
         self.mc = rclpy_classes()
         self.states = {name: [] for name in line.trains}
         self.assoc = Associator(self.states, {n: tr.track.track_id for n, tr in line.trains.items()}, gate, min_speed)
@@ -64,6 +68,11 @@ class AssociationNode(Node):
         states = self.states[train]
         state = FusedState(convert.stamp_to_sec(msg.header.stamp), float(msg.position), float(msg.position_min),
                            float(msg.position_max), float(msg.speed), float(msg.speed_stddev), int(msg.mode))
+        try:
+            refuse_future(state.stamp, now_sec(self), self.future_tolerance, "fused state")
+        except InputRejected as exc:
+            self.diag.reject(f"/{train}/localization/state", exc.reason, str(exc))
+            return
         if states and state.stamp <= states[-1].stamp:
             self.diag.reject(f"/{train}/localization/state", "stamp_back", "fused state not newer than the last")
             return

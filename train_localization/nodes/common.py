@@ -29,6 +29,7 @@ from ..core.convert import MsgClasses
 from ..core.sensors.base import out_of_limits
 from ..core.scenario import ScenarioError
 from ..core.track import TrackError
+from ..core.signals import InputRejected
 
 STREAM_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.VOLATILE)
@@ -230,6 +231,26 @@ def required_scenario(node: Node, description: str, needed: str):
 
 def now_sec(node: Node) -> float:
     return node.get_clock().now().nanoseconds * 1e-9
+
+
+# default of the nodes' parameter future_tolerance [s]
+FUTURE_TOLERANCE = 2.0
+
+
+def refuse_future(stamp: float, now: float, tolerance: float, what: str) -> None:
+    """Raises InputRejected("future") for ``what`` stamped further than ``tolerance`` [s] ahead
+    of the node clock ``now`` [s] (0: no /clock received yet, nothing to compare): one message
+    stamped far ahead would become the reference that every later, real one is refused against."""
+    if now > 0.0 and stamp - now > tolerance:
+        raise InputRejected("future", f"{what} stamped {stamp - now:.3f} s ahead of the node clock "
+                                      f"(parameter future_tolerance: {tolerance:g} s)")
+
+
+def declare_future_tolerance(node: Node, what: str) -> float:
+    """The node's ``future_tolerance`` parameter [s] (refuse_future) for the messages ``what``."""
+    return float(declare(node, "future_tolerance", FUTURE_TOLERANCE, f"{what} stamped further ahead of the node "
+                         "clock than this [s] is refused (future): one stamped far ahead would become the "
+                         "reference of the next ones", read_only=True, limits=(1.0e-3, 3600.0)))
 
 
 # longest time a stopping node keeps taking already delivered messages [s]

@@ -31,10 +31,9 @@ from ..core.sensors.base import COMMON_PARAMS
 from ..core.signals import InputRejected
 from ..core.track import Track
 from ..core import paths
-from .common import LATCHED_QOS, STREAM_QOS, ConfigurationError, ManagedNode, declare, now_sec, rclpy_classes, spin
+from .common import (LATCHED_QOS, STREAM_QOS, ConfigurationError, ManagedNode, declare,
+                     declare_future_tolerance, now_sec, rclpy_classes, refuse_future, spin)
 
-# default of the parameter future_tolerance [s]
-FUTURE_TOLERANCE = 2.0
 
 
 class SensorNode(ManagedNode):
@@ -88,10 +87,7 @@ class SensorNode(ManagedNode):
             if isinstance(p.default, list) and not default:
                 continue  # empty lists have no ROS parameter type; keep the default
             overrides[name] = declare(self, name, default, p.description, read_only=True, limits=p.limits)
-        self.future_tolerance = declare(
-            self, "future_tolerance", FUTURE_TOLERANCE, "ingest: a raw block whose last sample is stamped further ahead of "
-            "the node clock than this [s] is refused (future): one block stamped far ahead would become "
-            "the reference of the next ones", read_only=True, limits=(1.0e-3, 3600.0))
+        self.future_tolerance = declare_future_tolerance(self, "a raw block (its last sample) or a truth state")
         unit = overrides.get("unit_id") or self.spec.sensor
         rng = scenario.rng(self.spec.node, unit) if scenario else None
         if mode == "sim" and rng is None:
@@ -139,7 +135,9 @@ class SensorNode(ManagedNode):
 
     def on_truth(self, msg):
         try:
-            blocks = self.pipe.on_truth(convert.truth_from_msg(msg))
+            truth = convert.truth_from_msg(msg)
+            refuse_future(truth.stamp, now_sec(self), self.future_tolerance, "truth state")
+            blocks = self.pipe.on_truth(truth)
         except InputRejected as exc:
             self.diag.reject("ground_truth/state", exc.reason, str(exc))
             return
@@ -151,10 +149,7 @@ class SensorNode(ManagedNode):
     def on_raw(self, msg):
         try:
             block = convert.raw_block_from_msg(msg)
-            now = now_sec(self)
-            if now > 0.0 and block.t_end - now > self.future_tolerance:   # 0: no /clock received yet
-                raise InputRejected("future", f"block ends {block.t_end - now:.3f} s ahead of the node clock "
-                                    f"(parameter future_tolerance: {self.future_tolerance:g} s)")
+            refuse_future(block.t_end, now_sec(self), self.future_tolerance, "raw block end")
         except InputRejected as exc:
             self.pipe.rejected[exc.reason] += 1
             self.diag.reject("raw", exc.reason, str(exc))

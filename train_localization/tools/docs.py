@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from ..core.sensors import NODE_NAMES, spec
 from ..core.sensors.base import COMMON_PARAMS
-from ..nodes.sensor import FUTURE_TOLERANCE
+from ..nodes.common import FUTURE_TOLERANCE
 
 BEGIN, END = "<!-- sensor-params:begin -->", "<!-- sensor-params:end -->"
 FUSION_BEGIN, FUSION_END = "<!-- fusion-params:begin -->", "<!-- fusion-params:end -->"
@@ -29,8 +29,8 @@ def _meaning(p) -> str:
 def sensor_params_markdown() -> str:
     lines = ["Common to every sensor node: `mode` (`\"sim\"` | `\"ingest\"`), `scenario` (YAML: track, "
              "vehicle, seed, overrides), `track` (YAML, when no scenario), `future_tolerance` (double, "
-             f"default {FUTURE_TOLERANCE} s, 0.001 .. 3600: in ingest mode a raw block ending further ahead of the node "
-             "clock is refused as `future`), and:", "",
+             f"default {FUTURE_TOLERANCE} s, 0.001 .. 3600: a raw block (ingest) or a truth state (sim) stamped further "
+             "ahead of the node clock is refused as `future`), and:", "",
              "| parameter | default | meaning |", "|---|---|---|"]
     lines += [f"| `{n}` | {_value(p.default)} | {_meaning(p)} |" for n, p in COMMON_PARAMS.items()]
     for node in NODE_NAMES:

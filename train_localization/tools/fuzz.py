@@ -322,7 +322,7 @@ def sensor_plan(node: str, n: int, seed: int) -> Plan:
     from ..core.sensors import spec
     from ..core.signals import InputRejected
     from ..nodes.common import rclpy_classes
-    from ..nodes.sensor import FUTURE_TOLERANCE
+    from ..nodes.common import FUTURE_TOLERANCE
 
     rng = random.Random(f"{seed}/{node}")
     slots, n_tail = _layout(n, rng, list(RAW_KINDS))

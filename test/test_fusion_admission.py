@@ -198,3 +198,18 @@ def test_an_operators_position_the_filter_cannot_take_is_refused(request_, reaso
         r.admission.check_set_position(*request_)
     assert getattr(exc.value, "reason", None) == reason
     r.admission.check_set_position(500.0, 0.1, 0.0, 0.001)   # an ordinary one is taken
+
+
+def test_a_flood_on_one_input_is_shed_to_its_rate_and_the_others_keep_theirs():
+    """core/fusion/shedding.py: 10,000 messages in one second on one input with max_input_rate
+    100/s: the burst (0.25 s worth, 25) and 100/s after it are taken, the rest shed and counted;
+    another input at its own 20/s loses nothing."""
+    from train_localization.core.fusion.shedding import InputShedder
+    shedder = InputShedder(100.0)
+    flood = sum(shedder.admit("sensors/doppler/speed", k * 1e-4) for k in range(10_000))
+    steady = sum(shedder.admit("sensors/wheel/distance", k * 0.05) for k in range(20))
+    assert flood == 25 + 100 - 1 or flood == 25 + 100   # the last token may fall on the second's end
+    assert steady == 20
+    assert shedder.shed == {"sensors/doppler/speed": 10_000 - flood}
+    with pytest.raises(ValueError):
+        InputShedder(0.0)

@@ -959,3 +959,17 @@ def test_every_node_executable_prints_its_usage_on_help_and_starts_nothing(tmp_p
     assert missing.stdout.strip().splitlines()[-1] == \
         "[fatal] ConfigurationError: parameter 'bag' is required (an MCAP file to play)"
     assert "Traceback" not in missing.stdout + missing.stderr
+
+
+def test_a_flood_on_one_input_is_shed_and_the_states_keep_coming(tmp_path):
+    """Over DDS (tl_bench flood): 5,000 valid Doppler speeds a second for 2 s into the live
+    fusion. Before, 4,400/s had stopped its states for the flood's length (5,300/s: 58 Hz, 10 s
+    behind). The excess beyond max_input_rate (1000/s) is shed before any work and counted, and
+    the node publishes its states from the input's callbacks when its timer falls behind. The
+    rates themselves are the benchmark's (README, Reliability); here only that states came
+    during the flood and what was shed was counted."""
+    from train_localization.tools import bench_flood
+    (row,) = bench_flood.run([5000.0], 2.0, tmp_path)
+    assert row.sent_rate > 2500.0, row                   # the flood was one
+    assert row.shed >= 0.5 * (row.sent_rate - 1000.0) * 2.0, row
+    assert row.output_rate > 50.0, row

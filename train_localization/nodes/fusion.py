@@ -24,6 +24,8 @@ Parameters:
                                 anything else stops the node with the list of known ones)
   sensor_params (string, "")    YAML file: sensor node name -> parameters; the error models of the
                                 subscribed sensors are built from it (without a scenario)
+  max_input_rate (double, 1000.0) [messages/s] per input topic, 1 .. 1e6: beyond it the excess is
+                                shed before any work and counted (shed/<topic>; core/fusion/shedding.py)
   publish_rate (double, 200.0)  [Hz], (0, 1000] (MLX position system updates every 5 ms, seed 002);
                                 the only parameter that may change at run time (the others are
                                 read-only); an integer is taken for a double everywhere
@@ -46,6 +48,7 @@ from rclpy.node import Node
 
 from ..core import convert, paths
 from ..core.fusion import FusionConfig, FusionRunner, Mode, estimate_to_msg, fusion_config, sensor_models
+from ..core.fusion.shedding import InputShedder
 from ..core.scenario import Scenario
 from ..core.signals import InputRejected
 from ..core.track import Track
@@ -226,6 +229,11 @@ class FusionNode(ManagedNode):
                                   "odom -> base_frame on /tf: then this node publishes map -> odom (as "
                                   "robot_localization does); empty: map -> base_frame", read_only=True)
         self._odom_base = None   # latest odom -> base_frame from /tf: (x, y, yaw)
+        max_input_rate = float(declare(self, "max_input_rate", 1000.0, "messages per second per input topic "
+                                       "beyond which the excess is shed before any work (counted: "
+                                       "shed/<topic>); the fastest device sends 200/s", read_only=True,
+                                       limits=(1.0, 1.0e6)))
+        self.shedder = InputShedder(max_input_rate)
         self.runner = FusionRunner(cfg, float(self.get_parameter("publish_rate").value))
         self.filter = self.runner.filter
         self.mc = rclpy_classes()
@@ -311,6 +319,8 @@ class FusionNode(ManagedNode):
         return sensor_models({by_class[c]: given.get(by_class[c], {}) for c in classes}, self.track, Vehicle())
 
     def on_measurement(self, topic, parse, msg):
+        if not self.shedder.admit(topic, time.monotonic()):
+            return   # a flood: shed before any work, counted (input_statuses reports it)
         try:
             m = parse(msg)
             sensor = topic.split("/")[1]
@@ -329,6 +339,10 @@ class FusionNode(ManagedNode):
         seen = self._inputs.setdefault(m.sensor, [0, None, None])
         seen[0] += 1
         seen[1], seen[2] = time.monotonic(), now - m.stamp
+        if self._timer is not None and self.runner.due(now - 2.0 * self.runner.period):
+            # the timer is late behind a stream of input (the executor serves the input first):
+            # the states are the product, published from here at their rate
+            self.on_timer()
 
     def input_statuses(self) -> list:
         """One status per subscribed sensor (diagnostic_updater's frequency and timestamp
@@ -337,6 +351,7 @@ class FusionNode(ManagedNode):
         or its last message was older than the history or stamped in the future."""
         from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
         now = time.monotonic()
+        self._report_counters()
         silent = now - self._last_state_wall
         if self._timer is not None and silent > max(2.0, 5.0 * self.runner.period):
             # active, but no state for seconds of wall time: the clock (/clock) stopped
@@ -389,9 +404,17 @@ class FusionNode(ManagedNode):
             est = states[-1][0]
             self.diag.set_status(*mode_status(est))
             self.diag.values.update({"mode": str(est.mode), "position_stddev": f"{est.position_stddev:.3f}"})
-            for group, values in self.runner.counters().items():
-                for k, v in values.items():
-                    self.diag.values[f"filter/{group}/{k}"] = f"{v:.3f}" if isinstance(v, float) else str(v)
+
+    def _report_counters(self) -> None:
+        """The filter's counters and the shed inputs into the diagnostics (at their 1 Hz, not at
+        every state: building them costs as much as a state)."""
+        if self.runner is None:
+            return
+        for group, values in self.runner.counters().items():
+            for k, v in values.items():
+                self.diag.values[f"filter/{group}/{k}"] = f"{v:.3f}" if isinstance(v, float) else str(v)
+        for topic, n in self.shedder.shed.items():
+            self.diag.values[f"shed/{topic}"] = str(n)
 
     def publish_state(self, est, used):
         self._last_state_wall = time.monotonic()

@@ -5,6 +5,8 @@
   tl_bench replay    offline replay speed of every bag in bags/ [x real time], serial
                      and with decoding worker processes (tl_replay's default)
   tl_bench fusion    the fusion benchmark (train_localization.tools.bench_fusion)
+  tl_bench flood     the live fusion node's states against a flood on one input
+                     (train_localization.tools.bench_flood; --rates, --seconds)
 
 Timings are wall-clock (sensors, fusion: one core); run on an idle machine and
 repeat: shared machines are noisy.
@@ -118,8 +120,11 @@ def bench_replay(repeat: int = 3) -> list[dict]:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("what", choices=["sensors", "replay", "fusion"])
-    args = ap.parse_args(argv)
+    ap.add_argument("what", choices=["sensors", "replay", "fusion", "flood"])
+    args, rest = ap.parse_known_args(argv)
+    if args.what == "flood":
+        from . import bench_flood
+        return bench_flood.main(rest)
     if args.what == "sensors":
         print(f"{'sensor':20s} {'speed km/h':>10s} {'decode samples/s':>17s} {'real-time need':>15s} {'ratio':>8s}")
         for r in bench_sensors():

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
 import subprocess
 import sys
 import tempfile
@@ -25,7 +24,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import domains
-from .demo import executable
+from .demo import executable, stop
 
 NAMESPACE = "/flood"
 PUBLISH_RATE = 200.0   # [Hz] of the fusion's states (its default)
@@ -46,16 +45,6 @@ class FloodRow(NamedTuple):
 def _start(exe: str, args: list[str], env: dict, log: Path) -> subprocess.Popen:
     return subprocess.Popen([executable(exe), "--ros-args", "-r", f"__ns:={NAMESPACE}", *args], env=env,
                             stdout=open(log, "w"), stderr=subprocess.STDOUT, start_new_session=True)
-
-
-def _stop(proc: subprocess.Popen) -> None:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
 
 
 def run(rates: list[float], seconds: float, work: Path, max_input_rate: float = 1000.0) -> list[FloodRow]:
@@ -110,8 +99,8 @@ def run(rates: list[float], seconds: float, work: Path, max_input_rate: float = 
     finally:
         node.destroy_node()
         context.try_shutdown()
-        _stop(recorder)
-        _stop(fusion)
+        stop(recorder)
+        stop(fusion)
         lease.release()
     states, shed_at = [], []
     for topic, _, t_ns, msg in read_bag(bag):

@@ -84,6 +84,19 @@ def _command(exe: str) -> list[str]:
         raise
 
 
+def stop(proc: subprocess.Popen, timeout: float = 15.0) -> int:
+    """Stop a node process as a user does (SIGINT), killed if it has not exited within
+    ``timeout`` [s]; its exit code."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    return proc.returncode
+
+
 def run_nodes(graph: list, driver: str, log_dir: Path, timeout: float) -> dict:
     """Start a graph's nodes (graph.py entries) as processes, wait at most ``timeout`` s for
     the ``driver`` (simulator or replayer) to finish, stop the others with SIGINT (the
@@ -118,14 +131,7 @@ def run_nodes(graph: list, driver: str, log_dir: Path, timeout: float) -> dict:
     order = [n for n in procs if n not in (driver, recorder)] + [n for n in (recorder, driver) if n in procs]
     for name in order:
         proc, log = procs[name]
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-        codes[name] = proc.returncode
+        codes[name] = stop(proc)
         log.close()
     if held is not None:
         held.release()

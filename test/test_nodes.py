@@ -611,6 +611,66 @@ def test_fusion_reports_each_input_with_its_frequency_and_silence(ros_context, s
         node.destroy_node()
 
 
+def test_an_event_input_that_misses_a_reference_the_train_passed_is_a_warning(ros_context, start_node):
+    """Over DDS, simulated time: a train at 100 m/s located by balises EB000 and EB001 (1 km
+    apart); the reader then says nothing while the fused interval passes EB002. The fusion's
+    status of that input had stayed OK (no timeout for an event sensor); it is WARN naming the
+    balise, and OK again once a fix of EB003 comes."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rosgraph_msgs.msg import Clock
+    from train_localization_msgs.msg import PositionFix, SpeedMeasurement
+    from train_localization.nodes.common import CLOCK_QOS, STREAM_QOS
+
+    proc = start_node("fusion", "--ros-args", *NS, "-p", "use_sim_time:=true", "-p", "sensors:=[doppler,eurobalise]")
+    node = ros_context.create_node("probe_expected", namespace="/train")
+    clock_pub = node.create_publisher(Clock, "/clock", CLOCK_QOS)
+    speed_pub = node.create_publisher(SpeedMeasurement, "sensors/doppler/speed", STREAM_QOS)
+    fix_pub = node.create_publisher(PositionFix, "sensors/eurobalise/position", STREAM_QOS)
+    diags = []
+    node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+
+    def stamp(m, t):
+        m.header.stamp.sec, m.header.stamp.nanosec = int(t), int(round((t % 1) * 1e9))
+        return m
+
+    def balise():
+        for arr in reversed(diags):
+            for st in arr.status:
+                if st.name.endswith("input eurobalise"):
+                    return (st.level[0] if isinstance(st.level, bytes) else st.level), st.message
+        return None, ""
+
+    def drive(t0, t1, fixes):
+        for k in range(int(round(t0 * 20)), int(round(t1 * 20))):
+            t = k / 20.0
+            clock = Clock()
+            clock.clock.sec, clock.clock.nanosec = int(t), int(round((t % 1) * 1e9))
+            clock_pub.publish(clock)
+            speed_pub.publish(stamp(SpeedMeasurement(sensor="doppler", unit_id="radar", speed=100.0,
+                                                     speed_stddev=0.1), t))
+            if k % 200 == 0 and k // 200 in fixes:
+                n = k // 200
+                fix_pub.publish(stamp(PositionFix(sensor="eurobalise", unit_id="btm", track_id="conventional_line",
+                                                  reference_id=f"EB{n:03d}", position=502.0 + 1000.0 * n,
+                                                  position_stddev=0.4), t))
+            if k % 10 == 0:
+                spin_until(node, lambda: False, 0.03)
+    try:
+        assert spin_until(node, lambda: fix_pub.get_subscription_count() > 0 and speed_pub.get_subscription_count() > 0,
+                          30.0), proc.output()
+        drive(0.0, 15.0, fixes={0, 1})
+        spin_until(node, lambda: False, 1.5)
+        assert balise()[0] == 0, balise()
+        drive(15.0, 26.0, fixes=set())                    # past EB002 (2,502 m at 20 s)
+        assert spin_until(node, lambda: balise()[0] == 1, 5.0), (balise(), proc.output()[-1500:])
+        assert "EB002" in balise()[1]
+        drive(26.0, 31.0, fixes={3})                      # EB003 read at 30 s
+        assert spin_until(node, lambda: balise()[0] == 0, 5.0), balise()
+        assert proc.interrupt() == 0
+    finally:
+        node.destroy_node()
+
+
 def test_managed_fusion_follows_its_lifecycle_transitions(ros_context, start_node):
     """managed:=true: unconfigured at start (nothing published); configure -> inactive;
     activate -> states published; deactivate -> none; activate again -> published; cleanup

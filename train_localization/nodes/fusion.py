@@ -239,6 +239,10 @@ class FusionNode(ManagedNode):
         self.mc = rclpy_classes()
         self.sensors = sensors
         self._inputs: dict[str, list] = {}   # sensor -> [accepted since the last report, wall time, age]
+        # event sensors (no timeout, references on the track) -> chainage [m] of their last accepted
+        # fix, or where the train was first located: the references passed since are expected
+        self._fixed_at: dict[str, float] = {}
+        self._last_est = None
         self._inputs_since = self._last_state_wall = time.monotonic()
         self.diag.extra(self.input_statuses)
         self.state_pub = self.create_lifecycle_publisher(self.mc.TrainState, "localization/state", STATE_QOS)
@@ -339,6 +343,8 @@ class FusionNode(ManagedNode):
         seen = self._inputs.setdefault(m.sensor, [0, None, None])
         seen[0] += 1
         seen[1], seen[2] = time.monotonic(), now - m.stamp
+        if hasattr(m, "reference_id"):
+            self._fixed_at[m.sensor] = m.position
         if self._timer is not None and self.runner.due(now - 2.0 * self.runner.period):
             # the timer is late behind a stream of input (the executor serves the input first):
             # the states are the product, published from here at their rate
@@ -366,8 +372,12 @@ class FusionNode(ManagedNode):
             timeout = self.filter.timeouts.get(sensor)
             silent = now - last_wall if last_wall is not None else math.inf
             level, message = 0, "OK"
+            passed = self._passed_unread(sensor) if timeout is None else []
             if timeout is not None and silent > timeout:
                 level, message = 1, f"no accepted measurement for {silent:.1f} s (timeout {timeout:g} s)"
+            elif passed:
+                level, message = 1, (f"no fix since {self._fixed_at[sensor]:.1f} m, though the train has passed "
+                                     f"{len(passed)} of its references ({', '.join(passed[:3])})")
             elif age is not None and not -0.05 <= age <= self.filter.cfg.history:
                 level, message = 1, f"last measurement stamped {age:.3f} s before the node clock"
             values = [KeyValue(key="frequency_hz", value=f"{count / elapsed:.2f}"),
@@ -377,6 +387,16 @@ class FusionNode(ManagedNode):
                                         message=message, hardware_id=self.get_fully_qualified_name(),
                                         values=values))
         return out
+
+    def _passed_unread(self, sensor: str) -> list[str]:
+        """The references of event sensor ``sensor`` (no timeout: a balise reader, an axle
+        counter) that the train has passed, by its fused interval, since the sensor's last
+        accepted fix (or since it was first located): each should have given one."""
+        model, est = self.filter.models.get(sensor), self._last_est
+        if model is None or model.references is None or est is None or not math.isfinite(est.position):
+            return []
+        since = self._fixed_at.setdefault(sensor, est.position)
+        return model.references.passed(since, est.position_min, est.position_max)
 
     def on_set_position(self, request, response):
         t = now_sec(self)
@@ -418,6 +438,7 @@ class FusionNode(ManagedNode):
 
     def publish_state(self, est, used):
         self._last_state_wall = time.monotonic()
+        self._last_est = est
         msg = estimate_to_msg(self.mc, est, self.track.track_id, used)
         self.state_pub.publish(msg)
         if not math.isfinite(est.position):

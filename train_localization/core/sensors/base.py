@@ -165,6 +165,18 @@ class ReferenceTable:
     def __post_init__(self):
         object.__setattr__(self, "windows", MappingProxyType(dict(self.windows)))
 
+    def passed(self, since: float, lo: float, hi: float) -> list[str]:
+        """The references the train has passed since it was at ``since`` [m] (its last fix of
+        this sensor) now that it is within [lo, hi] [m]: those whose whole window lies between
+        the two, in the direction it went (nearest first)."""
+        if lo > since:
+            ahead = [(w.lo, ref) for ref, w in self.windows.items() if w.lo > since and w.hi < lo]
+            return [ref for _, ref in sorted(ahead)]
+        if hi < since:
+            behind = [(-w.hi, ref) for ref, w in self.windows.items() if w.hi < since and w.lo > hi]
+            return [ref for _, ref in sorted(behind)]
+        return []
+
     def refusal(self, reference_id: str, position: float, stddev: float) -> InputRejected | None:
         """Why a fix naming ``reference_id`` at ``position`` [m] with 1-sigma ``stddev`` [m]
         cannot be an honest fix of this sensor on this track, or None."""

@@ -494,7 +494,9 @@ def test_run_time_parameter_changes_take_effect_or_are_refused_with_a_reason(ros
         assert set_param("publish_rate", 20.0).successful
         spin_until(node, lambda: False, 0.5)
         assert rate_over(2.0) > 10.0
-        refused = set_param("publish_rate", 2000.0)
+        refused = set_param("publish_rate", 2000.0)   # beyond the range in its descriptor: rclpy refuses
+        assert not refused.successful and "publish_rate out of range Min: 0.0, Max: 1000.0" in refused.reason
+        refused = set_param("publish_rate", 0.0)      # in the range, but no rate: the node refuses
         assert not refused.successful and "(0, 1000]" in refused.reason
         refused = set_param("gate_probability", 2.0)
         assert not refused.successful and "read-only" in refused.reason.lower()

@@ -195,7 +195,8 @@ class FusionNode(ManagedNode):
 
     def __init__(self):
         super().__init__("fusion", "fusion")
-        rate = declare(self, "publish_rate", 200.0, "state publish rate [Hz], (0, 1000]; may change at run time")
+        rate = declare(self, "publish_rate", 200.0, "state publish rate [Hz], > 0; may change at run time",
+                       limits=(0.0, MAX_PUBLISH_RATE))
         problem = publish_rate_problem(rate)
         if problem:
             raise ConfigurationError(f"parameter {problem}")

@@ -194,8 +194,10 @@ def test_each_train_keeps_its_integrity():
         assert rep["states_with_position"] > 0.4 * rep["states"], name
         assert it["inside_fraction"] >= 0.999, (name, it)
         # the leader's radar is its only speed source: its interval covers a radar scale fault
-        # over the distance since the last fix (3.29 x 5 % of up to 200 m each side)
-        bound = 3.29 * 0.05 * 200.0 if name == "lead" else 10.0
+        # over the distance since the last fix (3.29 x 5 % of up to 200 m each side); the
+        # follower's three wayside axle-counter fixes (1-sigma 1 m) may share an offset up to
+        # the gate's radius, 3.89 m (core/fusion/impact.py): 8.4 m without that hypothesis
+        bound = 3.29 * 0.05 * 200.0 if name == "lead" else 16.0
         assert it["mean_interval_width_m"] < bound, (name, it)
     # the follower's position comes from the associated wayside fixes only
     follow = result.trains["follow"]

@@ -373,7 +373,7 @@ def test_a_tags_installation_error_is_drawn_once_and_bounded():
     dev = sim._pos - nominal
     assert np.all(np.abs(dev) <= transponder.INSTALL_BOUND * 0.2) and 0.1 < np.std(dev) < 0.3
     model = spec(TAGS).errors(TP, run.pipe.track, Vehicle())
-    assert model.measures == "position" and model.faults == ("misread",) and model.fix_bias_sigma == 0.0
+    assert model.measures == "position" and model.faults == ("misread", "offset") and model.fix_bias_sigma == 0.0
 
 
 def test_the_two_kinds_are_registered_with_the_seed():

@@ -177,8 +177,7 @@ def usage(node_name: str | None) -> str:
     s = sensor_spec(node_name)
     lines = [f"{node_name}: {s.description}", "", __doc__, f"Parameters of {node_name} (default; meaning [range]):"]
     for name, p in {**COMMON_PARAMS, **s.params}.items():
-        lines.append(f"  {name} ({p.default!r}) {p.description}" +
-                     (f" [{p.limits[0]:g} .. {p.limits[1]:g}]" if p.limits else ""))
+        lines.append(f"  {name} ({p.default!r}) {p.meaning}")
     return "\n".join(lines)
 
 

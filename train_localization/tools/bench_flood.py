@@ -58,9 +58,7 @@ def run(rates: list[float], seconds: float, work: Path, max_input_rate: float = 
     from ..nodes.common import STREAM_QOS
 
     lease = domains.lease(10, 99)
-    env = {**os.environ, "ROS_DOMAIN_ID": str(lease.domain), "PYTHONUNBUFFERED": "1",
-           "ROS_AUTOMATIC_DISCOVERY_RANGE": domains.discovery_range(os.environ)}
-    env.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+    env = domains.node_env(lease.domain)
     bag = work / "flood.mcap"
     fusion = _start("fusion", ["-p", "sensors:=[doppler, eurobalise]", "-p", f"publish_rate:={PUBLISH_RATE}",
                                "-p", f"max_input_rate:={max_input_rate}"], env, work / "fusion.log")

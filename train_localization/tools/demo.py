@@ -104,13 +104,8 @@ def run_nodes(graph: list, driver: str, log_dir: Path, timeout: float) -> dict:
     TL_DOMAIN_FROM_ENV=1. Entries (executable, name, parameters) run in /train and are keyed
     by name; (namespace, executable, name, parameters) run in their namespace and are keyed
     by namespace/name."""
-    env = dict(os.environ)
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = domains.discovery_range(env)
-    held = domains.lease(10, 99) if env.get("TL_DOMAIN_FROM_ENV") != "1" else None
-    if held is not None:
-        env["ROS_DOMAIN_ID"] = str(held.domain)
-    env.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
-    env["PYTHONUNBUFFERED"] = "1"
+    held = domains.lease(10, 99) if os.environ.get("TL_DOMAIN_FROM_ENV") != "1" else None
+    env = domains.node_env(held.domain if held is not None else None)
     log_dir.mkdir(parents=True, exist_ok=True)
     procs = {}
     for entry in graph:

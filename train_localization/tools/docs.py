@@ -21,25 +21,20 @@ def _value(v) -> str:
 
 
 
-def _meaning(p) -> str:
-    """A parameter's description and, for a number with limits, its range (as the node says)."""
-    return p.description + (f" [{p.limits[0]:g} .. {p.limits[1]:g}]" if p.limits else "")
-
-
 def sensor_params_markdown() -> str:
     lines = ["Common to every sensor node: `mode` (`\"sim\"` | `\"ingest\"`), `scenario` (YAML: track, "
              "vehicle, seed, overrides), `track` (YAML, when no scenario), `future_tolerance` (double, "
              f"default {FUTURE_TOLERANCE} s, 0.001 .. 3600: a raw block (ingest) or a truth state (sim) stamped further "
              "ahead of the node clock is refused as `future`), and:", "",
              "| parameter | default | meaning |", "|---|---|---|"]
-    lines += [f"| `{n}` | {_value(p.default)} | {_meaning(p)} |" for n, p in COMMON_PARAMS.items()]
+    lines += [f"| `{n}` | {_value(p.default)} | {p.meaning} |" for n, p in COMMON_PARAMS.items()]
     for node in NODE_NAMES:
         s = spec(node)
         outs = ", ".join(f"`sensors/{s.sensor}/{o}`" if o != "sections" else "`wayside/sections`" for o in s.outputs)
         lines += ["", f"#### `{node}` — {s.description}", "",
                   f"Seeds: {', '.join(s.seeds)}. Raw: `sensors/{s.sensor}/raw`. Output: {outs}.", "",
                   "| parameter | default | meaning |", "|---|---|---|"]
-        lines += [f"| `{n}` | {_value(p.default)} | {_meaning(p).replace('|', '/')} |" for n, p in s.params.items()]
+        lines += [f"| `{n}` | {_value(p.default)} | {p.meaning.replace('|', '/')} |" for n, p in s.params.items()]
     return "\n".join(lines) + "\n"
 
 
@@ -83,7 +78,7 @@ def sensor_params_file(node: str) -> str:
         if isinstance(p.default, list) and not p.default:
             continue   # an empty list has no ROS parameter type: the default applies
         value = _yaml_value(p.default)
-        lines.append(f"    {name}: {value}  # {_meaning(p)}")
+        lines.append(f"    {name}: {value}  # {p.meaning}")
     return "\n".join(lines) + "\n"
 
 

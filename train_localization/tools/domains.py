@@ -26,6 +26,19 @@ def discovery_range(environ) -> str:
     return environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE") or "LOCALHOST"
 
 
+def node_env(domain: int | None) -> dict:
+    """The environment of node processes a tool starts: the caller's, with the discovery range
+    (``discovery_range``), ``domain`` as ROS_DOMAIN_ID (None: the caller's), Fast DDS unless the
+    caller chose an rmw, and unbuffered Python output (their logs)."""
+    env = dict(os.environ)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = discovery_range(env)
+    if domain is not None:
+        env["ROS_DOMAIN_ID"] = str(domain)
+    env.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
+
+
 class DomainLease(NamedTuple):
     """A ROS_DOMAIN_ID held by this process: ``handle`` keeps the lock; close it to free it."""
 

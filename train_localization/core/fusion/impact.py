@@ -99,6 +99,10 @@ class Bank:
     def __iter__(self):
         return (self[k] for k in range(len(self)))
 
+    def of(self, sensor: str) -> np.ndarray:
+        """(k,) bool: the hypotheses of ``sensor``."""
+        return np.array([s == sensor for s in self.sensors], dtype=bool)
+
     def last_onset_of(self, sensors) -> float:
         """The newest onset [s] of the hypotheses of ``sensors`` (-inf: none)."""
         own = [float(t) for s, t in zip(self.sensors, self.onsets) if s in sensors]
@@ -208,7 +212,7 @@ def updated(bank: Bank, fault_input: tuple | None, h: np.ndarray, K: np.ndarray,
     g = -bank.E.dot(h)
     tests = np.ones(len(bank), bool)
     if fault_input is not None:
-        own = np.array([s == fault_input[0] for s in bank.sensors])
+        own = bank.of(fault_input[0])
         g = g + np.where(own & bank.active, fault_input[1], 0.0)
         if not fault_input[2]:   # against the motion model alone a ramp passes: no test
             tests = ~own
@@ -233,7 +237,7 @@ def position_set_from_fix(bank: Bank, fix_bias_index: int | None, fault_input: t
     E = bank.E.copy()
     E[:, 0] = -E[:, fix_bias_index] if fix_bias_index is not None else 0.0
     if fault_input is not None:
-        own = np.array([s == fault_input[0] for s in bank.sensors], dtype=bool) & bank.active & bank.offset
+        own = bank.of(fault_input[0]) & bank.active & bank.offset
         E[own, 0] += fault_input[1]
     return bank._replace(E=E)
 

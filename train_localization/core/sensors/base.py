@@ -47,6 +47,11 @@ class Param:
         """An int or float parameter (not a bool): one that has limits."""
         return isinstance(self.default, (int, float)) and not isinstance(self.default, bool)
 
+    @property
+    def meaning(self) -> str:
+        """Its description and, for a number with limits, its range (as the node says)."""
+        return self.description + (f" [{self.limits[0]:g} .. {self.limits[1]:g}]" if self.limits else "")
+
     def refusal(self, name: str, value) -> str | None:
         """Why ``value`` is refused by the limits (one line, as the node says), or None."""
         return out_of_limits(name, value, self.limits, self.default)

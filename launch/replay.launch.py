@@ -25,14 +25,14 @@ from launch.substitutions import LaunchConfiguration
 from train_localization.core.offline import scenario_from_bag
 from train_localization.core.scenario import Scenario
 from train_localization.graph import NAMESPACE, replay_graph
-from train_localization.launch_common import common_arguments, flag, graph_actions
+from train_localization.launch_common import common_arguments, flag, graph_actions, scenario_path
 
 
 def _nodes(context):
     bag = os.path.abspath(LaunchConfiguration("bag").perform(context))
     given = LaunchConfiguration("scenario").perform(context)
     if given:
-        scenario_file = os.path.abspath(given)
+        scenario_file = scenario_path(given)
         scenario = Scenario.from_yaml(scenario_file)
     else:   # the bag's own scenario, written where the nodes can read it
         scenario = scenario_from_bag(bag)
@@ -51,7 +51,9 @@ def generate_launch_description():
     return LaunchDescription([
         DeclareLaunchArgument("bag", description="the recorded MCAP bag to play (raw topics under /train)"),
         DeclareLaunchArgument("scenario", default_value="",
-                              description="scenario YAML for the nodes; empty = the bag's own (/train/scenario)"),
+                              description="scenario YAML for the nodes; empty = the bag's own (/train/scenario); a "
+                                          "relative path is looked up in the current directory, then in the "
+                                          "package's share"),
         DeclareLaunchArgument("rate", default_value="1.0",
                               description="playback speed as a multiple of real time (> 0)"),
         DeclareLaunchArgument("namespace", default_value=NAMESPACE,

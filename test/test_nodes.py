@@ -206,63 +206,6 @@ def test_sensor_node_in_sim_mode_rejects_bad_truth_states(ros_context, start_nod
         node.destroy_node()
 
 
-def test_states_stamped_far_ahead_of_the_clock_are_refused_and_blind_nothing(ros_context, start_node):
-    """Over DDS, under use_sim_time at 100 s: a truth state stamped + 1000 s and one + 1e6 s to a
-    sensor node in simulator mode, a fused state stamped + 1e6 s to the line's association. The
-    sensor node had burst 20,000 blocks and then refused every real truth state (or stopped
-    its diagnostics and grown 6 MB/s); the association had refused every later real state
-    (``stamp_back``). Each is now refused as ``future`` (parameter future_tolerance) and the
-    real states go on being taken."""
-    from diagnostic_msgs.msg import DiagnosticArray
-    from rosgraph_msgs.msg import Clock
-    from train_localization_msgs.msg import RawBlock, TrainState
-    from train_localization.nodes.common import CLOCK_QOS, STREAM_QOS
-    from conftest import ROOT
-
-    sensor = start_node("doppler_radar", "--ros-args", *NS, "-p", "mode:=sim", "-p", "use_sim_time:=true")
-    assoc = start_node("association", "--ros-args", "-r", "__ns:=/wayside", "-p", "use_sim_time:=true",
-                       "-p", f"scenario:={ROOT / 'config' / 'scenario_line_pair.yaml'}")
-    node = ros_context.create_node("probe_future_states", namespace="/train")
-    clock_pub = node.create_publisher(Clock, "/clock", CLOCK_QOS)
-    truth_pub = node.create_publisher(TrainState, "ground_truth/state", STREAM_QOS)
-    lead_pub = node.create_publisher(TrainState, "/lead/localization/state", STREAM_QOS)
-    raws, diags = [], []
-    node.create_subscription(RawBlock, "sensors/doppler/raw", raws.append, STREAM_QOS)
-    node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
-
-    def stamped(t, position):
-        m = TrainState(track_id="conventional_line", position=position, speed=20.0, mode=1)
-        m.header.stamp.sec, m.header.stamp.nanosec = int(t), int(round((t % 1) * 1e9))
-        return m
-    try:
-        assert spin_until(node, lambda: truth_pub.get_subscription_count() > 0 and lead_pub.get_subscription_count() > 0
-                          and clock_pub.get_subscription_count() >= 2, 30.0), sensor.output() + assoc.output()
-        t = 100.0
-        for k in range(60):
-            t = 100.0 + 0.01 * k
-            if k % 10 == 0:
-                clock = Clock()
-                clock.clock.sec, clock.clock.nanosec = int(t), int(round((t % 1) * 1e9))
-                clock_pub.publish(clock)
-                spin_until(node, lambda: False, 0.05)
-            truth_pub.publish(stamped(t, 100.0 + 0.2 * k))
-            lead_pub.publish(stamped(t, 100.0 + 0.2 * k))
-            if k == 20:
-                for ahead in (1000.0, 1e6):
-                    truth_pub.publish(stamped(t + ahead, 100.0))
-                lead_pub.publish(stamped(t + 1e6, 100.0))
-        assert spin_until(node, lambda: _diag_values(diags, "doppler").get("accepted/ground_truth/state") == "60"
-                          and _diag_values(diags, "association").get("accepted//lead/localization/state") == "60",
-                          20.0), ([s.name for a in diags[-3:] for s in a.status], sensor.output()[-1500:],
-                                  assoc.output()[-1500:])
-        assert _diag_values(diags, "doppler")["rejected/ground_truth/state/future"] == "2"
-        assert _diag_values(diags, "association")["rejected//lead/localization/state/future"] == "1"
-        assert len(raws) <= 12                     # 0.6 s of truth: no burst of blocks
-        assert sensor.interrupt() == 0 and assoc.interrupt() == 0
-    finally:
-        node.destroy_node()
-
-
 def test_fusion_diagnostics_level_follows_the_mode(ros_context, start_node):
     """WARN while no position is claimed, ERROR when LOST (one wayside fix and no speed
     source: the interval soon exceeds lost_stddev), OK when NOMINAL (after an operator
@@ -521,8 +464,11 @@ def test_fusion_parameters_out_of_range_stop_the_node_in_one_line(start_node):
 def test_fusion_takes_nested_per_sensor_parameters_from_a_params_file(ros_context, start_node, tmp_path):
     """The usual YAML params-file form: ``doppler: {scale_sigma: ...}`` nested under the node
     overrides that field of the Doppler's own error model (logged), integers are taken for
-    doubles, and the example file in config/params starts the node."""
-    from rcl_interfaces.srv import GetParameters
+    doubles and read back as doubles (also one set at run time), a nested field has its range
+    in its descriptor, one beyond it stops the node in one line, and the example file in
+    config/params starts the node."""
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import DescribeParameters, GetParameters, SetParameters
     from conftest import ROOT
 
     params = tmp_path / "fusion.yaml"
@@ -536,14 +482,33 @@ def test_fusion_takes_nested_per_sensor_parameters_from_a_params_file(ros_contex
         reply = ask(node, client, GetParameters.Request(names=["doppler.scale_sigma", "doppler.timeout",
                                                                "publish_rate", "eurobalise.faults"]))
         assert reply is not None, proc.output()
-        values = reply.values   # an integer stays an integer parameter; the node takes it as a double
-        assert [v.double_value or float(v.integer_value) for v in values[:3]] == [0.02, 3.0, 20.0]
+        values = reply.values   # the integers given (3, 20) are stored as the doubles they mean
+        assert [v.type for v in values[:3]] == [ParameterType.PARAMETER_DOUBLE] * 3
+        assert [v.double_value for v in values[:3]] == [0.02, 3.0, 20.0]
         assert values[3].string_value == "misread,offset"
         assert "error model of doppler overridden: scale_sigma=0.02, timeout=3.0" in proc.output()
         assert "eurobalise overridden" not in proc.output()
+        describe = node.create_client(DescribeParameters, "fusion/describe_parameters")
+        assert spin_until(node, describe.service_is_ready, 10.0)
+        described = ask(node, describe, DescribeParameters.Request(names=["doppler.scale_sigma",
+                                                                         "doppler.timeout"])).descriptors
+        assert [(d.floating_point_range[0].from_value, d.floating_point_range[0].to_value) for d in described] \
+            == [(0.0, 1.0), (0.0, float("inf"))]
+        assert all(d.read_only for d in described)
+        setter = node.create_client(SetParameters, "fusion/set_parameters")
+        assert spin_until(node, setter.service_is_ready, 10.0)
+        integer = ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=40)
+        assert ask(node, setter, SetParameters.Request(parameters=[Parameter(name="publish_rate",
+                                                                             value=integer)])).results[0].successful
+        rate = ask(node, client, GetParameters.Request(names=["publish_rate"])).values[0]
+        assert (rate.type, rate.double_value) == (ParameterType.PARAMETER_DOUBLE, 40.0)
         assert proc.interrupt() == 0
     finally:
         node.destroy_node()
+    params.write_text("/**:\n  ros__parameters:\n    sensors: [doppler]\n    doppler:\n      scale_sigma: 2.0\n")
+    beyond = start_node("fusion", "--ros-args", *NS, "--params-file", str(params))
+    assert beyond.proc.wait(timeout=30) == 2, beyond.output()
+    assert "doppler.scale_sigma out of range" in beyond.output() and "Traceback" not in beyond.output()
     # the example, run as its header says (no namespace given: its keys must apply anyway)
     example = start_node("fusion", "--ros-args", "--params-file", str(ROOT / "config" / "params" / "fusion.yaml"))
     spin_until(ros_context.create_node("probe_example"), lambda: "overridden" in example.output(), 20.0)

@@ -267,6 +267,33 @@ def test_closed_loop_tracks_the_speed_steps_through_the_localisation():
     assert sc_["integrity"]["inside_fraction"] == 1.0
 
 
+def test_on_the_closed_track_both_streams_publish_the_chainage_wrapped_round_the_ring():
+    """One convention for a closed track (TrainState.msg): the truth and the fused state give
+    the position in [0, circumference); the fused interval moves with it (min <= position <=
+    max, an end may pass the seam), and is scored from the messages as from the estimates.
+    The fused messages gave the unwrapped distance (690 m on the 3.15 m ring)."""
+    from train_localization.core.bagio import typestore_classes
+    from train_localization.core.fusion.runner import estimate_to_msg
+    sc, res = _closed_run()
+    circ = sc.track.circumference
+    mc = typestore_classes()
+    msgs = [estimate_to_msg(mc, e, sc.track.track_id, [], circ) for e in res.estimates]
+    claimed = [(e, m) for e, m in zip(res.estimates, msgs) if np.isfinite(e.position)]
+    assert max(e.position for e, _ in claimed) > 10 * circ              # the filter's own distance runs on
+    assert all(0.0 <= m.position < circ for _, m in claimed)
+    assert all(m.position_min <= m.position <= m.position_max for _, m in claimed)
+    assert all(m.position_max - m.position_min == pytest.approx(e.position_max - e.position_min)
+               for e, m in claimed)
+    assert any(m.position_min < 0.0 or m.position_max >= circ for _, m in claimed)   # across the seam
+    assert all(0.0 <= s.position < circ for s in res.truth)
+    t = np.array([s.stamp for s in res.truth])
+    truth = StateSeries.of_truth(t, [s.position for s in res.truth], [s.speed for s in res.truth])
+    from_msgs = score(truth, StateSeries.from_msgs(msgs), circumference=circ)
+    from_estimates = score(truth, StateSeries.from_estimates(res.estimates), circumference=circ)
+    assert from_msgs["integrity"]["inside_fraction"] == from_estimates["integrity"]["inside_fraction"] == 1.0
+    assert from_msgs["position_error_m"]["max"] == pytest.approx(from_estimates["position_error_m"]["max"])
+
+
 # --------------------------------------------------------------------------- error-model floor
 FLOOR_CASES = {   # name: (initial speed [m/s], duration [s], profile)
     "standstill": (0.0, 12.5, [{"speed": 0.0, "hold": 60.0}]),

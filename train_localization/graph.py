@@ -1,7 +1,8 @@
 """The node graphs, in one place: used by tools/demo.py and launch/.
 
 Each entry is (executable, node name, parameters). Everything runs in the
-``/train`` namespace with use_sim_time (the simulator or the replayer publishes /clock).
+``/train`` namespace, with use_sim_time where the simulator or the replayer publishes /clock
+(the on-board graph of a train fed from outside: on the host's clock unless told otherwise).
 A line of several trains (``line_graph``) puts each node in its own namespace: each
 train's sensor nodes and fusion in ``/<train>``, the wayside sensor nodes in ``/wayside``.
 """
@@ -48,11 +49,29 @@ def demo_graph(scenario: str, sensors: list[str], bag: str, rate: float = 1.0,
     return nodes
 
 
+def onboard_graph(scenario: str, sensors: list[str], out_bag: str, record: bool = True,
+                  use_sim_time: bool = False) -> list[tuple[str, str, dict]]:
+    """The on-board graph of a train whose raw sensor blocks come from outside: recorder (if
+    ``record``), one sensor node per entry of ``sensors`` (node names) in ingest mode (it
+    decodes what arrives on sensors/<sensor>/raw: the device drivers', or a bag player's),
+    and the fusion. ``use_sim_time``: the nodes take their time from /clock (a player of
+    recorded data publishes it) instead of the host's clock."""
+    from .core.sensors import spec
+    classes = [spec(n).sensor for n in sensors]
+    nodes = []
+    if record:
+        nodes.append(("recorder", "recorder", {"output": out_bag, "use_sim_time": use_sim_time}))
+    nodes += [(name, name, {"mode": "ingest", "scenario": scenario, "use_sim_time": use_sim_time})
+              for name in sensors]
+    nodes.append(("fusion", "fusion", {"scenario": scenario, "sensors": classes, "use_sim_time": use_sim_time}))
+    return nodes
+
+
 def replay_graph(bag: str, scenario: str, sensors: list[str], out_bag: str, rate: float = 1.0,
                  record: bool = True, namespace: str = NAMESPACE) -> list[tuple[str, str, dict]]:
-    """Recorder (if ``record``) of the re-fused run, one sensor node per entry of ``sensors``
-    (node names) in ingest mode, fusion, and the replayer of ``bag`` (recorded under
-    NAMESPACE): its raw topics, ground truth and scenario, moved to ``namespace``.
+    """The on-board graph (onboard_graph, on the bag's time: use_sim_time) and the replayer of
+    ``bag`` (recorded under NAMESPACE): its raw topics, ground truth and scenario, moved to
+    ``namespace``.
 
     The replayer publishes /clock from the bag's time line and starts once every sensor
     node (and the recorder) listens to what it plays and every node listens to /clock."""
@@ -60,11 +79,7 @@ def replay_graph(bag: str, scenario: str, sensors: list[str], out_bag: str, rate
     classes = [spec(n).sensor for n in sensors]
     played = [f"{NAMESPACE}/sensors/{c}/raw" for c in classes] + [f"{NAMESPACE}/ground_truth/state",
                                                                    f"{NAMESPACE}/scenario"]
-    nodes = []
-    if record:
-        nodes.append(("recorder", "recorder", {"output": out_bag, "use_sim_time": True}))
-    nodes += [(name, name, {"mode": "ingest", "scenario": scenario, "use_sim_time": True}) for name in sensors]
-    nodes.append(("fusion", "fusion", {"scenario": scenario, "sensors": classes, "use_sim_time": True}))
+    nodes = onboard_graph(scenario, sensors, out_bag, record, use_sim_time=True)
     replayer = {"bag": bag, "rate": rate, "topics": played,
                 # one subscriber per raw topic (its sensor node), and the recorder on every played topic;
                 # every node on /clock (the fusion listens to no played topic: without it, the first

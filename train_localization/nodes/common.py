@@ -9,7 +9,10 @@ message is the current state), the section occupancy with the depth of all secti
 """
 from __future__ import annotations
 
+import gc
+import logging
 import math
+import os
 import signal
 import sys
 import time
@@ -23,6 +26,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from ..core.convert import MsgClasses
@@ -30,6 +34,7 @@ from ..core.sensors.base import out_of_limits
 from ..core.scenario import ScenarioError
 from ..core.track import TrackError
 from ..core.signals import InputRejected
+from . import exit_guard
 
 STREAM_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.VOLATILE)
@@ -157,16 +162,38 @@ def declare(node: Node, name: str, default, description: str = "", read_only: bo
             desc.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
     if isinstance(default, float):
         desc.dynamic_typing = True
+        desc.read_only = False       # until an integer given is stored as the double it means
         value = node.declare_parameter(name, default, desc).value
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigurationError(f"parameter {name!r} must be a number, got {value!r}")
         value = float(value)
+        _double_parameters(node).add(name)
+        node.set_parameters([Parameter(name, Parameter.Type.DOUBLE, value)])
+        if read_only:   # a copy: the node keeps the declared descriptor object itself
+            node.set_descriptor(name, ParameterDescriptor(
+                name=name, type=desc.type, description=desc.description, read_only=True, dynamic_typing=True,
+                floating_point_range=desc.floating_point_range))
     else:
         value = node.declare_parameter(name, default, desc).value
     why = out_of_limits(name, value, limits, default)
     if why:
         raise ConfigurationError(why)
     return value
+
+
+def _double_parameters(node: Node) -> set:
+    """The node's double parameters (declared from a float default, dynamically typed so that
+    ``-p rate:=2`` is taken): an integer set at run time is stored as the double it means (a
+    pre-set callback), so that the parameter reads back as a double."""
+    names = getattr(node, "_tl_double_parameters", None)
+    if names is None:
+        names = node._tl_double_parameters = set()
+
+        def as_double(params: list) -> list:
+            return [Parameter(p.name, Parameter.Type.DOUBLE, float(p.value))
+                    if p.name in names and p.type_ == Parameter.Type.INTEGER else p for p in params]
+        node.add_pre_set_parameters_callback(as_double)
+    return names
 
 
 # what a user's parameters or files can get wrong: one line, exit code 2 (or a failed configure)
@@ -270,6 +297,13 @@ def spin(node_factory, args=None, usage: str | None = None) -> int:
     and returns 0 without starting the node. The node may define ``finished`` (bool attribute)
     to end the spin by itself and ``close()`` for final work (flushing files) that must run on
     every exit path.
+
+    A node run as its own program (``args`` None: the process's command line) ends the process
+    right after its explicit shutdown (files closed, DDS participant deleted, output flushed)
+    with ``os._exit``: the interpreter's teardown of numpy, scipy and the ROS libraries is CPU
+    work of a few tenths of a second that, on a loaded host, took longer than launch's 5 s grace
+    after SIGINT; and the ROS libraries' teardown is bounded by TEARDOWN_BUDGET
+    (test/test_stop.py; docs/decisions.md).
     """
     if wants_help(list(sys.argv[1:] if args is None else args)):
         print((usage or "no usage given").strip())
@@ -282,7 +316,7 @@ def spin(node_factory, args=None, usage: str | None = None) -> int:
 
     signal.signal(signal.SIGINT, _on_signal)
     signal.signal(signal.SIGTERM, _on_signal)
-    node = None
+    node = executor = None
     code = 0
     try:
         node = node_factory()
@@ -310,10 +344,44 @@ def spin(node_factory, args=None, usage: str | None = None) -> int:
         print(f"[fatal] {exc}", flush=True)
         code = 1
     finally:
+        if node is not None and hasattr(node, "close"):
+            node.close()
+        if args is None:
+            _flush_output()
+            exit_guard.arm(TEARDOWN_BUDGET, code)
         if node is not None:
-            if hasattr(node, "close"):
-                node.close()
+            if executor is not None:
+                executor.shutdown()
             node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
+        # the node's callbacks hold it in reference cycles, and through it the DDS participant:
+        # collected now, the participant leaves (peers drop it at once, its shared-memory files
+        # are removed) before the process ends
+        executor = node = None
+        gc.collect()
+        rclpy.get_default_context().destroy()
+    if args is None:
+        _leave_process(code)
     return code
+
+
+# longest time the ROS libraries' teardown may take once the node has closed [s]; beyond it the
+# process ends without it (nodes/exit_guard.py)
+TEARDOWN_BUDGET = 2.0
+
+
+def _leave_process(code: int) -> None:
+    """End the process with ``code`` once everything is flushed, without the interpreter's
+    teardown (spin)."""
+    logging.shutdown()
+    _flush_output()
+    os._exit(code)
+
+
+def _flush_output() -> None:
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):   # a closed or broken pipe: nothing left to save
+            pass

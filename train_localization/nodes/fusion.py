@@ -53,6 +53,7 @@ from ..core.scenario import Scenario
 from ..core.signals import InputRejected
 from ..core.track import Track
 from ..core.sensors import NODE_NAMES, sensor_classes, spec
+from ..core.sensors.base import ERROR_MODEL_LIMITS
 from .common import (STATE_QOS, STREAM_QOS, ConfigurationError, ManagedNode, declare, now_sec, rclpy_classes,
                      spin)
 
@@ -117,7 +118,8 @@ def declare_fusion_config(node: Node, base: FusionConfig, track) -> FusionConfig
         for sensor, own in base.sensors.items():
             start = own.overridden((base.overrides or {}).get(sensor))
             given = {name: declare(node, f"{sensor}.{name}", value, f"{sensor} error model: {name} (core/sensors/"
-                                   "base.py ErrorModel; default: the sensor's own model)", read_only=True)
+                                   "base.py ErrorModel; default: the sensor's own model)", read_only=True,
+                                   limits=ERROR_MODEL_LIMITS.get(name))
                      for name, value in error_model_parameters(start).items()}
             changed = overrides_from_parameters(own, given)
             if changed:
@@ -440,7 +442,7 @@ class FusionNode(ManagedNode):
     def publish_state(self, est, used):
         self._last_state_wall = time.monotonic()
         self._last_est = est
-        msg = estimate_to_msg(self.mc, est, self.track.track_id, used)
+        msg = estimate_to_msg(self.mc, est, self.track.track_id, used, self.track.circumference)
         self.state_pub.publish(msg)
         if not math.isfinite(est.position):
             return

@@ -13,15 +13,20 @@ samples, empty or ragged data, wrong channels or units, sample rates 0, < 0, NaN
 1e300 or another than the device's, another sensor's name or unit_id, duplicate and
 backwards seq/stamps, seq 2^32-1, stamps far ahead or beyond 2^31 s (nanosec >= 1e9),
 blocks at and beyond the size limit
-(core/signals.py MAX_BLOCK_VALUES); for the fusion NaN/inf/0/<0/1e-300/1e300 values and
-stddevs, speeds 1e4 m/s, positions 1e12 m and off the track, another track_id, an unknown
-or another sensor's name, late, duplicate and future stamps, increments of 1e-300 s.
+(core/signals.py MAX_BLOCK_VALUES), a unit_id or channel name of 1 MB; for the fusion
+NaN/inf/0/<0/1e-300/1e300 values and stddevs, speeds 1e4 m/s, positions 1e12 m and off the
+track, another track_id, an unknown or another sensor's name, late, duplicate and future
+stamps, increments of 1e-300 s, a sensor, unit_id, track_id or reference_id of 1 MB.
 
 Valid raw blocks are those the core simulator makes (the blocks a sensor node in sim
 mode publishes); valid fusion input is what their decoders make, stamped with the wall
 clock when sent. What a sensor node must count is computed here by the core
 ``SensorPipeline`` fed the same messages in the same order; the fusion's reasons are
 fixed by construction. A lost message, a crash or a wrong counter therefore shows.
+
+Then the attacks that are not one bad message (``--attacks``, tools/fuzz_attacks.py): hostile
+set_position requests, /clock jumps, states stamped far ahead to a sensor node in simulator
+mode and to the line's association, a flood on one fusion input; each with nodes of its own.
 
 After the mix, a tail of valid messages must all be accepted (a bad message must not blind
 the input). Printed per node: sent (bad/good), accepted, the tail, alive, exit code on
@@ -70,6 +75,7 @@ FUTURE_SEC = 2 ** 31 - 1  # largest header.stamp.sec (int32) [s]
 SEQ_MAX = 2 ** 32 - 1     # largest RawBlock.seq (uint32)
 IN_FLIGHT = 400           # messages sent to one node and not yet counted in its diagnostics
 ONCE = frozenset({"too_large", "at_limit"})   # kinds of about 8 MB: at most one per node
+LONG_TEXT = "x" * 1_000_000   # an id of 1 MB (ids are refused beyond 64 characters, core/signals.py)
 
 # raw-block kinds -> the reason the sensor node must count whatever came before (None: it
 # depends on the node's state, e.g. a duplicate seq after a block that was itself refused,
@@ -82,7 +88,7 @@ RAW_KINDS = {
     "rate_1e-300": "sample_rate", "rate_1e300": "sample_rate", "rate_doubled": "sample_rate",
     "wrong_sensor": "sensor", "duplicate": None, "seq_back": None, "stamp_back": None, "seq_max": None,
     "stamp_future": None, "stamp_overflow": "stamp", "too_large": "too_large", "at_limit": "too_large",
-    "foreign_unit": None,
+    "foreign_unit": None, "long_unit_id": "too_long", "long_channel": "too_long",
 }
 
 # fusion kinds -> (message kind the kind needs: position/speed/distance/any, reason to count)
@@ -97,6 +103,8 @@ FUSION_KINDS = {
     "too_late": ("any", "too_late"), "future": ("any", "future"),
     "duration_1e-300": ("distance", "implausible"), "duration_zero": ("distance", "stddev"),
     "duration_nan": ("distance", "nan"), "distance_1e12": ("distance", "implausible"),
+    "long_unit_id": ("any", "too_long"), "long_sensor": ("any", "too_long"),
+    "long_track_id": ("position", "too_long"), "long_reference_id": ("position", "too_long"),
 }
 
 # kinds that input validation should refuse but the nodes accept: reported as findings (the
@@ -298,6 +306,10 @@ def _raw_bad(kind: str, nxt, last_msg, rng: random.Random, mc):
         msg.header.stamp.nanosec = last_msg.header.stamp.nanosec
     elif kind == "seq_max":
         msg.seq = SEQ_MAX
+    elif kind == "long_unit_id":
+        msg.unit_id = LONG_TEXT
+    elif kind == "long_channel":
+        msg.channels = [LONG_TEXT] + list(msg.channels)[1:]
     elif kind == "stamp_future":
         msg.header.stamp.sec, msg.header.stamp.nanosec = FUTURE_SEC, 0
     elif kind == "stamp_overflow":   # nanosec beyond 1e9: the stamp passes 2^31 s
@@ -459,6 +471,8 @@ def fusion_plan(n: int, seed: int) -> Plan:
                 msg.duration = {"duration_1e-300": 1e-300, "duration_zero": 0.0, "duration_nan": math.nan}[kind]
             elif kind == "distance_1e12":
                 msg.distance = 1.0e12
+            elif kind.startswith("long_"):
+                setattr(msg, kind[len("long_"):], LONG_TEXT)
             return msg
         return Item(kind, topic, build, expect)
 
@@ -817,6 +831,18 @@ def _node_list(text: str) -> list[str]:
     return list(dict.fromkeys(names))
 
 
+def _attack_list(text: str) -> list[str]:
+    from .fuzz_attacks import ATTACKS
+    names = [a.strip() for a in text.split(",") if a.strip()]
+    if names == ["none"]:
+        return []
+    unknown = [a for a in names if a not in ATTACKS]
+    if unknown or not names:
+        raise argparse.ArgumentTypeError(f"unknown attack(s) {', '.join(unknown) or '(none given)'}; "
+                                         f"known: {', '.join(ATTACKS)}, or none")
+    return list(dict.fromkeys(names))
+
+
 def _messages(text: str) -> int:
     n = int(text)
     if n < 20:
@@ -833,6 +859,7 @@ def _domain(text: str) -> int:
 
 def parse_args(argv=None) -> argparse.Namespace:
     from ..core.sensors import NODE_NAMES
+    from .fuzz_attacks import ATTACKS
     ap = argparse.ArgumentParser(prog="python -m train_localization.tools.fuzz", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--nodes", type=_node_list, default=list(NODE_NAMES) + [FUSION],
@@ -848,6 +875,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--json", default=None, metavar="PATH", help="also write the per-node report as JSON")
     ap.add_argument("--startup-timeout", type=float, default=60.0,
                     help="wall time the nodes have to come up [s] (default 60)")
+    ap.add_argument("--attacks", type=_attack_list, default=list(ATTACKS), metavar="LIST",
+                    help="attacks run after the message mix, comma-separated, or 'none' (default: "
+                         f"{','.join(ATTACKS)}; tools/fuzz_attacks.py)")
     ap.add_argument("--settle-timeout", type=float, default=30.0,
                     help="wall time to wait for a node's diagnostics to count what was sent [s] (default 30)")
     return ap.parse_args(argv)
@@ -863,18 +893,29 @@ def main(argv=None) -> int:
     try:
         reports = run(args.nodes, args.messages, args.seed, args.namespace, domain, Path(args.log_dir),
                       args.startup_timeout, args.settle_timeout)
+        from .fuzz_attacks import run_attacks
+        attacks = run_attacks(args.attacks, args.namespace, domain, Path(args.log_dir))
     except KeyboardInterrupt:
         print("[fuzz] interrupted; the nodes are stopped", file=sys.stderr)
         return 130
+    finally:
+        if held is not None:
+            held.release()
     print_table(reports)
     failing = [r for r in reports if r.failures]
     for r in failing:
         print(f"FAIL {r.node}: {'; '.join(r.failures)} (log: {Path(args.log_dir) / (r.node + '.log')})")
-    print(f"[fuzz] {len(reports) - len(failing)} of {len(reports)} node(s) passed in {time.monotonic() - t0:.1f} s")
+    for a in attacks:
+        if not a.passed:
+            print(f"FAIL attack {a.attack}: {a.detail} (logs: {args.log_dir})")
+    failed_attacks = [a for a in attacks if not a.passed]
+    print(f"[fuzz] {len(reports) - len(failing)} of {len(reports)} node(s) and {len(attacks) - len(failed_attacks)} "
+          f"of {len(attacks)} attack(s) passed in {time.monotonic() - t0:.1f} s")
     if args.json:
         Path(args.json).write_text(json.dumps({"domain_id": domain, "seed": args.seed, "messages": args.messages,
-                                               "nodes": [r.to_dict() for r in reports]}, indent=2))
-    return 1 if failing else 0
+                                               "nodes": [r.to_dict() for r in reports],
+                                               "attacks": [a.to_dict() for a in attacks]}, indent=2))
+    return 1 if failing or failed_attacks else 0
 
 
 if __name__ == "__main__":

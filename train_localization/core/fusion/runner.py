@@ -131,7 +131,16 @@ class FusionRunner:
         return out
 
 
-def estimate_to_msg(mc, est: Estimate, track_id: str, sensors):
-    return convert.train_state_to_msg(mc, est.stamp, track_id, est.position, est.speed, est.acceleration,
-                                      est.position_stddev, est.speed_stddev, est.position_min,
-                                      est.position_max, est.confidence, est.mode, sensors)
+def estimate_to_msg(mc, est: Estimate, track_id: str, sensors, circumference: float | None = None):
+    """The TrainState message of an estimate. On a closed track (``circumference`` [m]) the
+    position is published as the truth is, wrapped into [0, circumference), and the interval
+    moves with it: position_min <= position <= position_max still holds, so near the seam an
+    end may lie below 0 or beyond the circumference (msg_defs TrainState.msg). The filter
+    itself runs on the unwrapped distance."""
+    position, lo, hi = est.position, est.position_min, est.position_max
+    if circumference and math.isfinite(position):
+        laps = math.floor(position / circumference) * circumference
+        position, lo, hi = position - laps, lo - laps, hi - laps
+    return convert.train_state_to_msg(mc, est.stamp, track_id, position, est.speed, est.acceleration,
+                                      est.position_stddev, est.speed_stddev, lo, hi, est.confidence, est.mode,
+                                      sensors)

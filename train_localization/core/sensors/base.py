@@ -203,6 +203,18 @@ def _short(text: str, limit: int = 64) -> str:
     return text if len(text) <= limit else text[:limit] + "..."
 
 
+# the range of each number of an ErrorModel (checked when one is made; the fusion node's nested
+# parameters <sensor>.<field> carry it in their descriptors): scale errors as fractions, a wheel's
+# creep coefficient [s^2/m], the gate's probability (1: no gate; NaN: the fusion's global one)
+ERROR_MODEL_LIMITS = {
+    "scale_sigma": (0.0, 1.0), "scale_tau": (0.0, math.inf), "scale_offset_sigma": (0.0, 1.0),
+    "bias_sigma": (0.0, math.inf), "fix_bias_sigma": (0.0, math.inf), "fix_bias_length": (0.0, math.inf),
+    "fix_bias_tau": (0.0, math.inf), "fix_white_sigma": (0.0, math.inf), "reported_scale": (0.0, 1.0),
+    "reported_bias": (0.0, math.inf), "reported_fix_bias": (0.0, math.inf), "creep_coefficient": (0.0, 1.0),
+    "scale_fault_sigma": (0.0, 1.0), "fault_duration_max": (0.0, math.inf), "timeout": (0.0, math.inf),
+    "gate_probability": (0.5, 1.0), "stddev_factor": (1.0e-3, 1.0e3), "min_stddev": (0.0, math.inf),
+}
+
 
 @dataclass(frozen=True)
 class ErrorModel:
@@ -253,10 +265,12 @@ class ErrorModel:
         unknown = set(self.faults) - set(FAULT_MODES)
         if unknown:
             raise ValueError(f"{self.sensor}: unknown fault modes {sorted(unknown)}; known: {FAULT_MODES}")
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if isinstance(value, float) and f.name != "gate_probability" and not value >= 0.0:
-                raise ValueError(f"{self.sensor}: error model {f.name} = {value} must be >= 0")
+        for name, (lo, hi) in ERROR_MODEL_LIMITS.items():
+            value = getattr(self, name)
+            if name == "gate_probability" and math.isnan(value):
+                continue
+            if not lo <= value <= hi:
+                raise ValueError(f"{self.sensor}: error model {name} = {value} must be in [{lo:g}, {hi:g}]")
 
     @property
     def relative(self) -> bool:

@@ -1,0 +1,275 @@
+"""Attacks on the live nodes that are not one malformed message (tl_fuzz ``--attacks``):
+the ways an attacker or a faulty integration kills, blinds or stalls a node over DDS.
+
+  set_position   localization/set_position with a position stddev of 1e200 or inf, a speed
+                 stddev of 1e300, a speed of 1e300 or NaN, a position of 1e12, 1e300 or
+                 -5e6 m: each answered "refused" with its reason; a valid request then
+                 taken (NOMINAL there); the fusion alive.
+  clock_jumps    a fusion on use_sim_time: /clock jumps 1e6 s ahead once, later 30 s back
+                 (a bag played in a loop): the states keep coming at the clock's time after
+                 each jump.
+  future_states  a sensor node in simulator mode fed truth states stamped 1000 s and 1e6 s
+                 ahead, the line's association fed another train's state stamped 1e6 s
+                 ahead: each refused as ``future``, every real state taken, no burst of
+                 blocks.
+  flood          valid speeds as fast as the probe can publish (thousands a second) into one
+                 fusion input for 3 s: the states keep at least half their rate and what
+                 was shed is counted (``shed/<topic>``).
+
+Each starts its own nodes under ``<namespace>/<attack>`` on the run's domain (DDS on loopback)
+and judges by what comes back over DDS: replies, states, /diagnostics.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .fuzz import Child, Probe, child_env
+
+ATTACKS = ("set_position", "clock_jumps", "future_states", "flood")
+FLOOD_SECONDS = 3.0
+STATE_RATE = 20.0         # [Hz] publish_rate of the attacked fusions
+FLOOD_STATE_RATE = 200.0  # [Hz] the flooded fusion's: its default
+
+
+@dataclass
+class AttackResult:
+    """What one attack found: passed or not, and why, in one line."""
+    attack: str
+    passed: bool = False
+    detail: str = ""
+    exit_codes: dict = field(default_factory=dict)   # node -> exit code on SIGINT
+
+    def to_dict(self) -> dict:
+        return {"attack": self.attack, "passed": self.passed, "detail": self.detail, "exit_codes": self.exit_codes}
+
+
+class Bench(Probe):
+    """The attack's nodes (fuzz.Child) and the probe's own ROS node (fuzz.Probe) on the run's
+    domain, with the latest diagnostics of every node by hardware_id (``<namespace>/<name>``)."""
+
+    def __init__(self, attack: str, namespace: str, domain: int, log_dir: Path):
+        from diagnostic_msgs.msg import DiagnosticArray
+        super().__init__(domain, f"{namespace.rstrip('/')}/{attack}", [])
+        self.env, self.log_dir, self.children = child_env(domain), log_dir, {}
+        self.diag: dict[str, dict[str, str]] = {}
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_any_diag, 50)
+
+    def _on_any_diag(self, arr) -> None:
+        for st in arr.status:
+            if ": input " not in st.name:
+                self.diag[st.hardware_id] = {kv.key: kv.value for kv in st.values}
+
+    def start(self, exe: str, name: str, params: dict, namespace: str | None = None) -> Child:
+        """Start node ``exe`` as ``<namespace>/<name>`` (default: the attack's namespace)."""
+        from ..graph import ros_args
+        ns = namespace or self.namespace
+        log = self.log_dir / f"{ns.strip('/').replace('/', '_')}_{name}.log"
+        child = self.children[f"{ns.rstrip('/')}/{name}"] = Child(exe, ros_args(name, params, ns), self.env, log)
+        return child
+
+    def values(self, node_path: str) -> dict[str, str]:
+        """The latest key/values of a node's own diagnostics (``<namespace>/<name>``)."""
+        return self.diag.get(node_path, {})
+
+    def dead(self) -> list[str]:
+        """The attack's nodes that have exited."""
+        return [k for k, c in self.children.items() if c.proc.poll() is not None]
+
+    def stop(self, result: AttackResult) -> None:
+        """SIGINT to the attack's nodes (their exit codes into ``result``), then the probe."""
+        deadline = time.monotonic() + 15.0
+        for child in self.children.values():
+            child.interrupt()
+        for key, child in self.children.items():
+            result.exit_codes[key] = child.stop(deadline - time.monotonic())
+        self.close()
+
+
+def _stamp(msg, t: float) -> None:
+    msg.sec, msg.nanosec = int(t), int(round((t % 1) * 1e9)) % 1_000_000_000
+
+
+def _sec(stamp) -> float:
+    return stamp.sec + 1e-9 * stamp.nanosec
+
+
+def attack_set_position(bench: Bench) -> tuple[bool, str]:
+    from train_localization_msgs.msg import TrainState
+    from train_localization_msgs.srv import SetPosition
+    from ..nodes.common import STREAM_QOS
+    bench.start("fusion", "fusion", {"sensors": ["eurobalise"], "publish_rate": STATE_RATE})
+    client = bench.node.create_client(SetPosition, "localization/set_position")
+    states = []
+    bench.node.create_subscription(TrainState, "localization/state", states.append, STREAM_QOS)
+    if not bench.spin_until(client.service_is_ready, 60.0):
+        return False, "the fusion's set_position service did not come up"
+
+    def ask(position, sd, speed, sd_v):
+        future = client.call_async(SetPosition.Request(position=position, position_stddev=sd, speed=speed,
+                                                       speed_stddev=sd_v))
+        bench.spin_until(future.done, 10.0)
+        return future.result() if future.done() else None
+    hostile = ((500.0, 1e200, 0.0, 0.1), (500.0, math.inf, 0.0, 0.1), (500.0, 0.1, 0.0, 1e300),
+               (500.0, 0.1, 1e300, 0.1), (500.0, 0.1, math.nan, 0.1), (1e12, 0.1, 0.0, 0.1),
+               (1e300, 0.1, 0.0, 0.1), (-5e6, 0.1, 0.0, 0.1))
+    for request in hostile:
+        reply = ask(*request)
+        if reply is None:
+            return False, f"no reply to {request} (the fusion {'died' if bench.dead() else 'hangs'})"
+        if reply.success or not reply.message.startswith("refused"):
+            return False, f"{request} answered {reply.success} '{reply.message}'"
+    reply = ask(500.0, 0.1, 0.0, 0.001)
+    if reply is None or not reply.success:
+        return False, f"a valid request after them: {reply}"
+    if not bench.spin_until(lambda: states and states[-1].mode == TrainState.MODE_NOMINAL
+                            and abs(states[-1].position - 500.0) < 0.01, 20.0):
+        return False, "no NOMINAL state at the position set"
+    return True, f"{len(hostile)} hostile requests refused with a reason; a valid one taken"
+
+
+def attack_clock_jumps(bench: Bench) -> tuple[bool, str]:
+    from rosgraph_msgs.msg import Clock
+    from train_localization_msgs.msg import TrainState
+    from ..nodes.common import CLOCK_QOS, STREAM_QOS
+    bench.start("fusion", "fusion", {"sensors": ["axle_counter"], "publish_rate": STATE_RATE, "use_sim_time": True})
+    clock_pub = bench.node.create_publisher(Clock, "/clock", CLOCK_QOS)
+    stamps: list[float] = []
+    bench.node.create_subscription(TrainState, "localization/state",
+                                   lambda m: stamps.append(_sec(m.header.stamp)), STREAM_QOS)
+    if not bench.spin_until(lambda: clock_pub.get_subscription_count() > 0, 60.0):
+        return False, "the fusion did not subscribe /clock"
+
+    def tick(t: float) -> None:
+        msg = Clock()
+        _stamp(msg.clock, t)
+        clock_pub.publish(msg)
+        bench.spin(0.05)
+
+    def run_from(t: float, steps: int) -> float:
+        for _ in range(steps):
+            t += 0.05
+            tick(t)
+        return t
+    t = run_from(100.0, 40)
+    phases = []
+    tick(t + 1e6)                                    # one message far ahead
+    start = t
+    t = run_from(t, 40)
+    phases.append(("1e6 s ahead", start, t))
+    t -= 30.0                                        # a bag played again from an earlier time
+    start = t
+    t = run_from(t, 40)
+    phases.append(("30 s back", start, t))
+    bench.spin(0.5)
+    for name, lo, hi in phases:
+        after = [s for s in stamps if lo + 0.5 < s <= hi + 1e-6]
+        if len(after) < 0.5 * STATE_RATE * (hi - lo - 0.5):
+            return False, f"after the jump {name}: {len(after)} states at the clock's time (last {stamps[-3:]})"
+    return True, "the states follow /clock after a jump 1e6 s ahead and one 30 s back"
+
+
+def attack_future_states(bench: Bench) -> tuple[bool, str]:
+    from rosgraph_msgs.msg import Clock
+    from train_localization_msgs.msg import RawBlock, TrainState
+    from ..core import paths
+    from ..nodes.common import CLOCK_QOS, STREAM_QOS
+    sensor_ns, line = f"{bench.namespace}/train", str(paths.resolve("config/scenario_line_pair.yaml").resolve())
+    bench.start("doppler_radar", "doppler_radar", {"mode": "sim", "use_sim_time": True,
+                                                   "scenario": str(paths.resolve("config/scenario_demo.yaml").resolve())},
+                namespace=sensor_ns)
+    bench.start("association", "association", {"scenario": line, "use_sim_time": True},
+                namespace=f"{bench.namespace}/wayside")
+    clock_pub = bench.node.create_publisher(Clock, "/clock", CLOCK_QOS)
+    truth_pub = bench.node.create_publisher(TrainState, f"{sensor_ns}/ground_truth/state", STREAM_QOS)
+    lead_pub = bench.node.create_publisher(TrainState, "/lead/localization/state", STREAM_QOS)
+    raws = []
+    bench.node.create_subscription(RawBlock, f"{sensor_ns}/sensors/doppler/raw", raws.append, STREAM_QOS)
+    if not bench.spin_until(lambda: truth_pub.get_subscription_count() > 0 and lead_pub.get_subscription_count() > 0
+                            and clock_pub.get_subscription_count() >= 2, 60.0):
+        return False, "the sensor node or the association did not come up"
+
+    def state(t: float, position: float):
+        m = TrainState(track_id="conventional_line", position=position, speed=20.0, mode=1)
+        _stamp(m.header.stamp, t)
+        return m
+    for k in range(60):
+        t = 100.0 + 0.01 * k
+        if k % 10 == 0:
+            clock = Clock()
+            _stamp(clock.clock, t)
+            clock_pub.publish(clock)
+            bench.spin(0.05)
+        truth_pub.publish(state(t, 100.0 + 0.2 * k))
+        lead_pub.publish(state(t, 100.0 + 0.2 * k))
+        if k == 20:
+            for ahead in (1000.0, 1e6):
+                truth_pub.publish(state(t + ahead, 100.0))
+            lead_pub.publish(state(t + 1e6, 100.0))
+    sensor, assoc = f"{sensor_ns}/doppler_radar", f"{bench.namespace}/wayside/association"
+    if not bench.spin_until(lambda: bench.values(sensor).get("accepted/ground_truth/state") == "60"
+                            and bench.values(assoc).get("accepted//lead/localization/state") == "60", 20.0):
+        return False, f"real states not all taken: {bench.values(sensor)}, {bench.values(assoc)}"
+    refused = (bench.values(sensor).get("rejected/ground_truth/state/future"),
+               bench.values(assoc).get("rejected//lead/localization/state/future"))
+    if refused != ("2", "1"):
+        return False, f"refused as future: truth {refused[0]} (expected 2), other train {refused[1]} (expected 1)"
+    if len(raws) > 12:
+        return False, f"{len(raws)} raw blocks for 0.6 s of truth (a burst)"
+    return True, "3 states stamped far ahead refused as future; the 120 real ones taken; no burst of blocks"
+
+
+def attack_flood(bench: Bench) -> tuple[bool, str]:
+    from train_localization_msgs.msg import SpeedMeasurement, TrainState
+    from ..nodes.common import STREAM_QOS
+    bench.start("fusion", "fusion", {"sensors": ["doppler", "eurobalise"], "publish_rate": FLOOD_STATE_RATE})
+    path = f"{bench.namespace}/fusion"
+    pub = bench.node.create_publisher(SpeedMeasurement, "sensors/doppler/speed", STREAM_QOS)
+    stamps: list[float] = []
+    bench.node.create_subscription(TrainState, "localization/state",
+                                   lambda m: stamps.append(time.monotonic()), STREAM_QOS)
+    if not bench.spin_until(lambda: pub.get_subscription_count() > 0 and len(stamps) > 10, 60.0):
+        return False, "the fusion did not come up"
+    bench.spin(1.0)
+    msg = SpeedMeasurement(sensor="doppler", unit_id="radar0", speed=10.0, speed_stddev=0.1)
+    t0, sent = time.monotonic(), 0
+    while time.monotonic() - t0 < FLOOD_SECONDS:
+        for _ in range(50):
+            _stamp(msg.header.stamp, time.time())
+            pub.publish(msg)
+            sent += 1
+        bench.executor.spin_once(timeout_sec=0.0)
+    t1 = time.monotonic()
+    bench.spin(2.0)
+    during = sum(t0 + 0.5 <= s <= t1 for s in stamps) / (t1 - t0 - 0.5)
+    shed = sum(int(v) for k, v in bench.values(path).items() if k.startswith("shed/"))
+    detail = (f"{sent / (t1 - t0):.0f} speeds/s for {t1 - t0:.1f} s: {during:.0f} states/s during the flood "
+              f"(rate {FLOOD_STATE_RATE:g} Hz), {shed} shed")
+    if bench.dead():
+        return False, "the fusion died: " + detail
+    return during >= 0.5 * FLOOD_STATE_RATE and (shed > 0 or sent / (t1 - t0) <= 1000.0), detail
+
+
+_RUN = {"set_position": attack_set_position, "clock_jumps": attack_clock_jumps,
+        "future_states": attack_future_states, "flood": attack_flood}
+
+
+def run_attacks(attacks: list[str], namespace: str, domain: int, log_dir: Path) -> list[AttackResult]:
+    """Run ``attacks`` one after the other; each starts and stops its own nodes."""
+    results = []
+    for attack in attacks:
+        result = AttackResult(attack)
+        bench = Bench(attack, namespace, domain, log_dir)
+        try:
+            result.passed, result.detail = _RUN[attack](bench)
+        finally:
+            bench.stop(result)
+        unclean = {k: c for k, c in result.exit_codes.items() if c != 0}
+        if unclean:
+            result.passed = False
+            result.detail += f"; exit codes on SIGINT {unclean}"
+        results.append(result)
+        print(f"[fuzz] attack {attack}: {'passed' if result.passed else 'FAILED'}: {result.detail}", flush=True)
+    return results

@@ -1,4 +1,5 @@
-"""README.md stays true: quick start, node list, parameter tables."""
+"""README.md stays true and short: quick start, node list, the pages it points to; the
+parameter tables of docs/nodes.md stay those of the code."""
 from __future__ import annotations
 
 import re
@@ -9,6 +10,7 @@ from train_localization.tools.docs import (BEGIN, END, FUSION_BEGIN, FUSION_END,
                                           sensor_params_markdown)
 
 README = (ROOT / "README.md").read_text()
+NODES_PAGE = (ROOT / "docs" / "nodes.md").read_text()
 
 
 def test_quick_start_holds_exactly_the_demo_then_the_test_command():
@@ -20,12 +22,25 @@ def test_quick_start_holds_exactly_the_demo_then_the_test_command():
 
 
 def test_every_node_is_documented_with_its_current_parameters():
-    table = README.split(BEGIN, 1)[1].split(END, 1)[0]
+    table = NODES_PAGE.split(BEGIN, 1)[1].split(END, 1)[0]
     assert table.strip() == sensor_params_markdown().strip(), "run: python -m train_localization.tools.docs --write"
-    fusion = README.split(FUSION_BEGIN, 1)[1].split(FUSION_END, 1)[0]
+    fusion = NODES_PAGE.split(FUSION_BEGIN, 1)[1].split(FUSION_END, 1)[0]
     assert fusion.strip() == fusion_params_markdown().strip(), "run: python -m train_localization.tools.docs --write"
-    for node in ("simulator", "fusion", "recorder", "replayer", *NODE_NAMES):
-        assert f"`{node}`" in README
+    import ast
+    setup = ast.parse((ROOT / "setup.py").read_text())
+    nodes = next(ast.literal_eval(st.value) for st in setup.body
+                 if isinstance(st, ast.Assign) and getattr(st.targets[0], "id", "") == "NODES")
+    assert {"simulator", "fusion", "recorder", "replayer"} <= set(nodes)
+    for node in (*nodes, *NODE_NAMES):
+        assert f"`{node}`" in README and f"`{node}`" in NODES_PAGE + (ROOT / "docs" / "changeover.md").read_text()
+
+
+def test_the_readme_is_a_users_page_that_points_to_pages_that_exist():
+    """Under 400 lines; every docs/ page it names exists, and every page of docs/ is named."""
+    assert README.count("\n") < 400
+    named = set(re.findall(r"`(docs/[\w.]+\.md)`", README))
+    assert named and all((ROOT / page).exists() for page in named), named
+    assert {f"docs/{p.name}" for p in (ROOT / "docs").glob("*.md")} <= named
 
 
 def test_example_params_files_hold_every_sensor_parameter_at_its_default():

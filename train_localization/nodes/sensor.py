@@ -12,7 +12,7 @@ core.pipeline.SensorPipeline:
 Decoded output: sensors/<sensor>/position | speed | distance, and wayside/sections
 for occupancy. Common parameters: mode, scenario (YAML: track, vehicle, seed and
 this sensor's parameter overrides), track (track YAML, used when no scenario is
-given), plus every parameter of the sensor kind (README and core/sensors/*.py list
+given), plus every parameter of the sensor kind (docs/nodes.md and core/sensors/*.py list
 them with units and sources), and ``managed`` (a lifecycle node: see SensorNode). Bad
 raw blocks or truth states are rejected with a diagnostic and counted; the node keeps
 running.

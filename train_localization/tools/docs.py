@@ -1,9 +1,9 @@
-"""Markdown tables of every sensor node's parameters (kept in README.md) and the example
+"""Markdown tables of every sensor node's parameters (kept in docs/nodes.md) and the example
 params files of the sensor nodes (config/params/<node>.yaml).
 
   python -m train_localization.tools.docs            # print the tables
-  python -m train_localization.tools.docs --write    # update README.md and config/params
-test/test_readme.py checks that README.md holds exactly this text between the
+  python -m train_localization.tools.docs --write    # update docs/nodes.md and config/params
+test/test_readme.py checks that docs/nodes.md holds exactly this text between the
 markers ``<!-- sensor-params:begin/end -->`` and ``<!-- fusion-params:begin/end -->``.
 """
 from __future__ import annotations
@@ -114,7 +114,7 @@ def splice(text: str, begin: str, end: str, body: str) -> str:
 if __name__ == "__main__":
     import sys
     from ..core.paths import SOURCE_ROOT
-    readme = SOURCE_ROOT / "README.md"
+    readme = SOURCE_ROOT / "docs" / "nodes.md"
     if sys.argv[1:] == ["--write"]:
         text = splice(readme.read_text(), BEGIN, END, sensor_params_markdown())
         readme.write_text(splice(text, FUSION_BEGIN, FUSION_END, fusion_params_markdown()))

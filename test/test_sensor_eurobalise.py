@@ -14,7 +14,7 @@ from train_localization.core.pipeline import run_offline, simulate_and_decode
 from train_localization.core.scenario import Scenario
 from train_localization.core.sensors import eurobalise as eb
 from train_localization.core.signals import InputRejected, RawBlock
-from train_localization.core.track import Track
+from train_localization.core.track import Track, TrackError
 
 NODE = "eurobalise_reader"
 KIND = "eurobalise"
@@ -88,10 +88,42 @@ def test_speed_limit_of_the_window_inverts_table4(kmh):
     assert eb.max_read_speed(1.0) == 0.0                        # more than the balise can give
 
 
-def test_default_sensitivity_reads_long_telegrams_at_500_kmh():
+def test_the_long_telegram_is_read_to_300_kmh_and_the_short_one_beyond_as_the_seed_says():
+    """Seed 001 section 1: the standard (1023-bit) telegram is read up to 300 km/h, 300-500 km/h
+    needs the short (341-bit) one. Table 4's field at 300 km/h reads the long telegram to
+    exactly 300 km/h and the short one to 899 km/h; the default sensitivity keeps that
+    reading at 300 km/h on a passage three field_sigma weak, and not at 400 km/h."""
     p = {k: v.default for k, v in eb.PARAMS.items()}
-    v_max = eb.max_read_speed(p["read_threshold"], eb.telegram_time(p["telegram_bits"], p["bit_rate"]))
-    assert 500 / 3.6 < v_max < 600 / 3.6
+    long_t, short_t = (eb.telegram_time(eb.TELEGRAM_BITS[k], p["bit_rate"]) for k in ("long", "short"))
+    assert eb.TELEGRAM_BITS == {"long": 1023, "short": 341}
+    assert rel(eb.max_read_speed(SEED_TABLE4[300] * 1e-3, long_t) * 3.6, 299.7) < 1e-3
+    assert rel(eb.max_read_speed(SEED_TABLE4[300] * 1e-3, short_t) * 3.6, 899.2) < 1e-3
+    weak = 1.0 - 3.0 * p["field_sigma"]
+    assert eb.max_read_speed(p["read_threshold"] / weak, long_t) * 3.6 >= 300.0
+    assert eb.max_read_speed(p["read_threshold"], long_t) * 3.6 < 400.0
+    assert eb.max_read_speed(p["read_threshold"] / weak, short_t) * 3.6 > 500.0
+
+
+@pytest.mark.parametrize("telegram, read", [("long", False), ("short", True)])
+def test_above_300_kmh_a_line_of_long_telegrams_loses_its_balises_and_one_of_short_ones_keeps_them(
+        telegram, read):
+    """500 km/h both ways, the top of the seed's short-telegram range, with the default reader:
+    every passage of a long-telegram balise is a failed read, every short-telegram one is read.
+    (Between 300 and about 450 km/h a long telegram is read on the passages whose field is
+    strong enough: 26 % of them at 400 km/h.)"""
+    for v in (500 / 3.6, -500 / 3.6):
+        _, fixes, rejected, pipe, traj = run(scenario(v, 4300.0 / abs(v), track=balise_track(telegram=telegram)))
+        ids = passed(pipe.track, traj)
+        assert not rejected and len(ids) > 100 and pipe.decoder.stats["passages"] == len(ids)
+        assert (len(fixes), pipe.decoder.stats["failed_reads"]) == ((len(ids), 0) if read else (0, len(ids)))
+
+
+def test_a_balise_that_names_no_telegram_length_is_refused_in_one_line():
+    track = Track.from_dict({"track_id": "EB", "length": 3000.0, "equipment": {"eurobalise": [
+        {"id": "101", "position": 900.0, "telegram": "medium"}]}})
+    params = {k: v.default for k, v in eb.PARAMS.items()}
+    with pytest.raises(TrackError, match="eurobalise 101: telegram 'medium' is not one of long, short"):
+        eb.EurobaliseDecoder(params, track)
 
 
 def test_telegram_ids_fit_float32_and_are_unique():
@@ -116,12 +148,14 @@ def test_raw_rate_is_modest_and_resolves_the_peak_at_500_kmh():
 
 # ---------------------------------------------------------------- simulation
 
-def balise_track(length=6000.0):
+def balise_track(length=6000.0, telegram="short"):
+    """A test line; its balises send the short telegram unless told otherwise, as a line run
+    above 300 km/h needs (seed 001 section 1): the passages here run up to 500 km/h."""
     return {"track_id": "EB", "length": length, "equipment": {"eurobalise": [
-        {"id": "101", "position": 900.0},
-        {"id": "A1", "position": 1500.0, "group": "A"},
-        {"id": "A2", "position": 1503.0, "group": "A"},
-        {"every": 25.0, "start": 2000.0, "end": 5000.0, "id": "EB{n:03d}"},
+        {"id": "101", "position": 900.0, "telegram": telegram},
+        {"id": "A1", "position": 1500.0, "group": "A", "telegram": telegram},
+        {"id": "A2", "position": 1503.0, "group": "A", "telegram": telegram},
+        {"every": 25.0, "start": 2000.0, "end": 5000.0, "id": "EB{n:03d}", "telegram": telegram},
     ]}}
 
 
@@ -212,13 +246,14 @@ def test_direction_from_balise_group(v):
 
 def test_failed_reads_above_the_speed_limit_of_the_window():
     """With Table 4's H_min(500 km/h) as sensitivity the window fits one 1023-bit telegram up
-    to 500 km/h: below it every balise is read, above it none, each counted as failed."""
+    to 500 km/h: below it every balise (sending the long telegram) is read, above it none, each
+    counted as failed."""
     sens = {"read_threshold": SEED_TABLE4[500] * 1e-3, "field_sigma": 0.0, "telegram_error_rate": 0.0}
     v_max = eb.max_read_speed(SEED_TABLE4[500] * 1e-3)
     for factor, readable in ((0.97, True), (1.03, False)):
         for sign in (1, -1):
             v = sign * factor * v_max
-            _, fixes, rejected, pipe, traj = run(scenario(v, 4300.0 / abs(v), sens))
+            _, fixes, rejected, pipe, traj = run(scenario(v, 4300.0 / abs(v), sens, track=balise_track(telegram="long")))
             ids = passed(pipe.track, traj)
             st = pipe.decoder.stats
             assert st["passages"] == len(ids) and not rejected
@@ -227,7 +262,7 @@ def test_failed_reads_above_the_speed_limit_of_the_window():
             else:
                 assert not fixes and st["failed_reads"] == len(ids)
     # the short telegram (341 bit) fits at 1.03 x that speed
-    _, fixes, _, pipe, traj = run(scenario(1.03 * v_max, 10.0, {**sens, "telegram_bits": 341}))
+    _, fixes, _, pipe, traj = run(scenario(1.03 * v_max, 10.0, sens))
     assert len(fixes) == len(passed(pipe.track, traj)) > 5
 
 

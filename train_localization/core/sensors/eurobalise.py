@@ -30,7 +30,10 @@ balises of the track (equipment kind ``eurobalise``). Raw signal (default 5 kHz)
     -- seed 001 ref. 2 --, antenna height) of 1-sigma ``field_sigma``, plus white
     receiver noise ``field_noise``;
   * ``telegram`` [1]: the 14-bit telegram id (NID) of the balise at the sample where
-    a telegram has been received completely, 0 elsewhere. A telegram copy completes
+    a telegram has been received completely, 0 elsewhere. Each balise of the track sends
+    the standard (long) telegram of 1023 bit or the short one of 341 bit (its ``telegram``
+    key, ``long`` by default): seed 001 section 1, the long telegram is read up to
+    300 km/h, above it (300-500 km/h) the short one is needed. A telegram copy completes
     T_r after the antenna entered the readable window (gain x H(max(|u| - a/2, 0)) >=
     ``read_threshold``) and counts only if the antenna is still inside the window
     then; copies are repeated every T_r while inside, each is corrupt with
@@ -78,7 +81,7 @@ import numpy as np
 
 from ..measurements import PositionFix
 from ..signals import InputRejected, RawBlock
-from ..track import nearby_runs
+from ..track import TrackError, nearby_runs
 from .base import MIN_FIX_SIGMA, Decoder, ErrorModel, Param, ReferenceTable, ReferenceWindow, SensorSpec, Simulator
 
 KIND = "eurobalise"
@@ -105,6 +108,9 @@ TABLE1 = {
     "f": 4.23e6,               # balise transmission frequency [Hz]
     "y": 0.200,                # vertical antenna-balise distance [m]
 }
+# Telegram lengths [bit] (seed 001 section 1 and Table 1): the standard (long) telegram, read
+# up to 300 km/h, and the short one that 300-500 km/h needs
+TELEGRAM_BITS = {"long": 1023, "short": 341}
 # Seed 001 Tables 2-4 (speed [km/h] -> reading distance [mm], M [nH], H_min [mA/m]).
 TABLE2_MM = {100: 5.19, 200: 30.38, 300: 55.58, 400: 80.77, 500: 106.0, 600: 131.2}
 TABLE3_NH = {100: 3.0712, 200: 2.9722, 300: 2.7536, 400: 2.4577, 500: 2.1299, 600: 1.8079}
@@ -114,14 +120,14 @@ PARAMS = {
     "antenna_offset": Param(2.0, "distance of the antenna centre behind the train front [m] "
                                  "(assumption: antenna under the leading bogie); within a train of up to 1 km",
                             (0.0, 1000.0)),
-    "telegram_bits": Param(1023, "telegram length l_t [bit] (seed 001 Table 1: standard telegram 1023; "
-                                 "short telegram 341)", (341, 1023)),
     "bit_rate": Param(564e3, "up-link bit rate r_t [bit/s] (seed 001 Table 1)", (1.0e5, 1.0e6)),
     "vertical_distance": Param(0.200, "vertical distance antenna-balise y [m] (seed 001 Table 1)", (0.05, 1.0)),
     "balise_current": Param(10e-3, "balise loop current I_w [A] (seed 001 Table 1)", (1.0e-4, 1.0)),
-    "read_threshold": Param(1.40e-3, "BTM read sensitivity H_th [A/m]: seed 001 Table 4 needs 1.514 mA/m "
-                                     "at 500 km/h (Eurobalise design speed, seed 001 sec. 1); 0.7 dB design "
-                                     "margin -> long telegram readable up to ~549 km/h", (1.0e-5, 0.1)),
+    "read_threshold": Param(1.78e-3, "BTM read sensitivity H_th [A/m]: seed 001 Table 4's 1.957 mA/m, the "
+                                     "field that reads the long telegram at 300 km/h (sec. 1), with the margin "
+                                     "of a passage 3 field_sigma weak (x 0.91): the long telegram is read to "
+                                     "300 km/h on such a passage and to 385 km/h on a nominal one, the short "
+                                     "one to 900 km/h", (1.0e-5, 0.1)),
     "field_sigma": Param(0.03, "1-sigma per-passage relative variation of the up-link field [1] (balise "
                                "current tolerance, metal masses/rebar near the balise: seed 001 ref. 2, "
                                "antenna height; assumption)", (0.0, 1.0)),
@@ -238,6 +244,15 @@ def read_field_strength(emf, f: float = TABLE1["f"], l_n: float = TABLE1["L_n"],
             / (omega * MU0 * c * d * turns_n))
 
 
+def balise_telegram_bits(item: dict) -> int:
+    """Length [bit] of the telegram a balise of the track sends: its ``telegram`` key, ``long``
+    (the default, 1023 bit) or ``short`` (341 bit); TrackError otherwise."""
+    kind = str(item.get("telegram", "long"))
+    if kind not in TELEGRAM_BITS:
+        raise TrackError(f"eurobalise {item.get('id')}: telegram {kind!r} is not one of {', '.join(TELEGRAM_BITS)}")
+    return TELEGRAM_BITS[kind]
+
+
 def required_field(speed, t_r: float | None = None, y: float = TABLE1["y"],
                    current: float = TABLE1["I_w"]):
     """H_min [A/m] needed to read a telegram at ``speed`` [m/s]: eq. 1-2 -> x (Table 2)
@@ -352,7 +367,8 @@ class EurobaliseSimulator(Simulator):
         order = np.argsort(pos, kind="stable")
         self._pos = pos[order]
         self._nid = np.array([nid[str(items[i]["id"])] for i in order], dtype=float)
-        self._t_r = telegram_time(p["telegram_bits"], p["bit_rate"])
+        # T_r of each balise's telegram [s]
+        self._t_r = np.array([telegram_time(balise_telegram_bits(items[i]), p["bit_rate"]) for i in order])
         self._passage: dict | None = None
 
     def _installation_errors(self, n: int) -> np.ndarray:
@@ -376,7 +392,7 @@ class EurobaliseSimulator(Simulator):
         """Telegram copies completing up to t_limit while in the window; deliver the first good one."""
         err = self.params["telegram_error_rate"]
         while not ps["done"]:
-            t_done = ps["t_in"] + ps["copy"] * self._t_r
+            t_done = ps["t_in"] + ps["copy"] * self._t_r[ps["k"]]
             if t_done > t_limit + 1e-12:
                 return
             ps["copy"] += 1
@@ -476,6 +492,8 @@ class EurobaliseDecoder(Decoder):
         p = self.params
         items = track.items(KIND)
         nid = telegram_ids(items)
+        for it in items:
+            balise_telegram_bits(it)   # a track that names no telegram length is refused here too
         self._by_nid = {nid[str(it["id"])]: it for it in items}
         self._half_width, self._rel_slope = _half_max_geometry(p["vertical_distance"])
         self._peak_nominal = float(loop_field(0.0, p["vertical_distance"], current=p["balise_current"]))
@@ -686,6 +704,8 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
 
 SPEC = SensorSpec(
     node="eurobalise_reader", sensor=KIND, simulator=EurobaliseSimulator, decoder=EurobaliseDecoder,
-    params=PARAMS, description="on-board Eurobalise reader (BTM): balise telegram -> position fix",
+    params=PARAMS, description="on-board Eurobalise reader (BTM): balise telegram -> position fix; each balise "
+    "of the track sends the long telegram (1023 bit, read to 300 km/h) or the short one (341 bit, beyond): "
+    "its `telegram: long | short` key (seed 001 section 1)",
     seeds=("001",), outputs=("position",), error_model=error_model,
 )

@@ -19,7 +19,11 @@ motor period (seed 000 section 2.1.2), which seed 002 section 2.2.1 gives as +-8
 
 Period: 8 deg = 12 mm means 360 deg = 540 mm, i.e. one electrical period of the
 long-stator motor = 2 pole pitches. The Transrapid pole pitch is 258 mm, so the
-default period is p = 0.516 m (8 deg = 11.5 mm ~ 12 mm). (Seed 003's experimental
+default period is p = 0.516 m (8 deg = 11.5 mm ~ 12 mm). The two seeds part here: seed 000
+gives the +-8 deg "over one pole length", which read as 360 deg per pole pitch would be
+8/360 x 258 mm = 5.7 mm. The default follows seed 002, which states the millimetres, and
+the degrees as electrical ones: a pole pitch spans 180 electrical degrees, so the 360 deg
+of the loop's phase are the motor's period of two pole pitches (docs/references.md). (Seed 003's experimental
 crossed loop has a 0.63 m period: its 1/3-period pulse train repeats every 21 cm,
 section 4.1.)
 

@@ -1000,3 +1000,73 @@ def test_a_flood_on_one_input_is_shed_and_the_states_keep_coming(tmp_path):
     assert row.sent_rate > 2500.0, row                   # the flood was one
     assert row.shed >= 0.5 * (row.sent_rate - 1000.0) * 2.0, row
     assert row.output_rate > 50.0, row
+
+
+def test_the_onboard_graph_decodes_and_fuses_blocks_stamped_on_the_hosts_clock(ros_context, start_node):
+    """graph.onboard_graph (launch/onboard.launch.py) with use_sim_time false, over DDS: raw
+    blocks published in real time and stamped with the host's clock, as a device driver on a
+    train does (about 1.8e9 s); the operator sets the position at departure. The fused states
+    are stamped on the host's clock, use the wheel and the radar, and hold the truth inside
+    their interval."""
+    import dataclasses
+    from train_localization_msgs.msg import TrainState
+    from train_localization_msgs.srv import SetPosition
+    from train_localization.core.convert import raw_block_to_msg
+    from train_localization.core.pipeline import SensorPipeline
+    from train_localization.core.scenario import Scenario
+    from train_localization.core.sensors import spec
+    from train_localization.graph import onboard_graph, ros_args
+    from train_localization.nodes.common import STREAM_QOS, rclpy_classes
+    from conftest import ROOT
+
+    scenario_path = str(ROOT / "config" / "scenario_demo.yaml")
+    sensors = ["wheel_sensor", "doppler_radar", "eurobalise_reader"]
+    # the demo train 20 m before balise group EB000 at 25 m/s, 12 s
+    sc = dataclasses.replace(Scenario.from_yaml(scenario_path), start_position=480.0, start_speed=25.0, duration=12.0)
+    traj = sc.trajectory()
+    blocks = []
+    for node in sensors:
+        pipe = SensorPipeline(spec(node), sc.sensors.get(node, {}), sc.track, sc.vehicle, sc.rng(node, spec(node).sensor))
+        for k in range(int(sc.duration * sc.truth_rate) + 1):
+            blocks += [(node, b) for b in pipe.on_truth(traj.state_at(k / sc.truth_rate))]
+    blocks.sort(key=lambda nb: nb[1].t0 + nb[1].duration)
+    graph = onboard_graph(scenario_path, sensors, "", record=False, use_sim_time=False)
+    assert all(params["use_sim_time"] is False for _, _, params in graph)
+    procs = [start_node(exe, *ros_args(name, params)) for exe, name, params in graph]
+    node = ros_context.create_node("probe_onboard", namespace="/train")
+    mc = rclpy_classes()
+    pubs = {n: node.create_publisher(mc.RawBlock, f"sensors/{spec(n).sensor}/raw", STREAM_QOS) for n in sensors}
+    states = []
+    node.create_subscription(TrainState, "localization/state", lambda m: states.append((m, time.time())), STREAM_QOS)
+    operator = node.create_client(SetPosition, "localization/set_position")
+    try:
+        assert spin_until(node, lambda: all(p.get_subscription_count() > 0 for p in pubs.values()) and states, 60.0), \
+            [p.output()[-800:] for p in procs]
+        assert spin_until(node, operator.service_is_ready, 10.0)
+        wall0, set_at = time.time() + 0.5, None
+        for name, block in blocks:                      # each block when its last sample is taken
+            end = wall0 + block.t0 + block.duration
+            spin_until(node, lambda: time.time() >= end, max(0.0, end - time.time()) + 0.01)
+            pubs[name].publish(raw_block_to_msg(dataclasses.replace(block, t0=wall0 + block.t0), mc))
+            if set_at is None and end > wall0 + 1.0:   # the operator, at departure
+                set_at = time.time() - wall0
+                truth = traj.state_at(set_at)
+                reply = ask(node, operator, SetPosition.Request(position=truth.position, position_stddev=0.5,
+                                                                speed=truth.speed, speed_stddev=0.1))
+                assert reply is not None and reply.success, reply
+        spin_until(node, lambda: False, 1.5)
+        assert all(p.proc.poll() is None for p in procs), [p.output()[-800:] for p in procs]
+        after = [(m, rx) for m, rx in states if rx > wall0 + set_at + 0.5]
+        assert len(after) > 100
+        for m, rx in after:                             # stamped on the host's clock, not behind it
+            assert abs(m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec - rx) < 1.0
+        claimed = [m for m, _ in after if m.mode in (TrainState.MODE_NOMINAL, TrainState.MODE_DEGRADED)]
+        for m in claimed:                               # while the blocks came (the truth ends there)
+            t = m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec - wall0
+            if t <= sc.duration:
+                truth = traj.state_at(t).position
+                assert m.position_min <= truth <= m.position_max, (t, truth, m.position_min, m.position_max)
+        assert len(claimed) > 0.9 * len(after) and {"wheel", "doppler"} <= {s for m, _ in after for s in m.sensors}
+        assert all(p.interrupt() == 0 for p in procs)
+    finally:
+        node.destroy_node()

@@ -537,3 +537,18 @@ def test_crosscheck_node_flags_a_train_claiming_a_clear_section(ros_context):
         for n in (node, probe):
             ex.remove_node(n)
             n.destroy_node()
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_the_seeds_switching_moments_bridge_the_phases_where_ours_do_not(direction):
+    """Seed 004 section 4.1 taken literally (SeedMomentsController: B feeds as soon as a train is
+    in the changeover section, A again when it has left): the train's pantograph reaches the
+    air section between A and the neutral while the neutral is fed from B, which joins the two
+    phases (A -> B: on entering, the neutral goes to B before the pantograph has crossed air
+    section 1; B -> A: the neutral stays on B until the train has left, past air section 1).
+    Ours, on the same passage and detection: no short circuit, no switching under a pantograph."""
+    _, ours = sim(direction=direction)
+    _, seed = sim(direction=direction, controller_kind="seed")
+    assert not ours.short_circuits and not ours.air_switchings
+    assert len(seed.short_circuits) >= 1
+    assert switch_sequence(seed)[:2] == [("ABB-1", False), ("ABB-2", True)]   # the seed's order, at entry

@@ -1,7 +1,7 @@
 """tl_neutral: randomised passages through the neutral-section changeover (seed 004
 sections 4.1-4.2, Fig. 5-6).
 
-  tl_neutral --passages 200 --seed 0 [--faults] [--jobs N] [--out FILE]
+  tl_neutral --passages 200 --seed 0 [--faults] [--controller staged|seed] [--jobs N] [--out FILE]
 
 Draws the runs (core/wayside/changeover_campaign.py: speeds 30-330 km/h, both directions,
 headways down to close following, detector noise; ``--faults``: one injected fault in half
@@ -11,17 +11,21 @@ circuits, switchings with a pantograph in an air section, safe-state entries by 
 and the dead time per passage (min / median / p95 / max) against the time the train needs
 to cross the neutral section, and writes the summary as JSON (default
 out/neutral_campaign.json). Exit code 0 (a campaign is a measurement) unless ``--check``:
-then 1 when a nominal run has a short circuit or an air-section switching.
+then 1 when a nominal run has a short circuit or an air-section switching. ``--controller
+seed`` runs the same passages with seed 004 section 4.1's switching moments taken literally
+(core/wayside/neutral_section.py SeedMomentsController) instead of ours, for comparison.
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
 from pathlib import Path
 
 from ..core.wayside.changeover_campaign import generate, summarise
+from ..core.wayside.neutral_section import CONTROLLERS
 from ..core.wayside.passage import simulate
 
 
@@ -66,6 +70,8 @@ def main(argv=None) -> int:
     ap.add_argument("--passages", type=int, default=200, help="number of train passages (200)")
     ap.add_argument("--seed", type=int, default=0, help="campaign seed (0)")
     ap.add_argument("--faults", action="store_true", help="inject one fault in half of the runs")
+    ap.add_argument("--controller", choices=sorted(CONTROLLERS), default="staged",
+                    help="staged: ours (default); seed: seed 004 section 4.1's switching moments, for comparison")
     ap.add_argument("--jobs", type=int, default=1, help="worker processes (1)")
     ap.add_argument("--out", default="out/neutral_campaign.json", help="JSON summary (out/neutral_campaign.json)")
     ap.add_argument("--check", action="store_true", help="exit 1 on a short circuit or air-section switching in a "
@@ -73,7 +79,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.passages < 1 or args.jobs < 1:
         ap.error("--passages and --jobs must be >= 1")
-    runs = generate(args.passages, args.seed, args.faults)
+    runs = [dataclasses.replace(run, controller_kind=args.controller)
+            for run in generate(args.passages, args.seed, args.faults)]
     t0 = time.monotonic()
     if args.jobs > 1:
         from multiprocessing import get_context
@@ -82,7 +89,7 @@ def main(argv=None) -> int:
     else:
         results = [simulate(run) for run in runs]
     summary = summarise(runs, results)
-    summary.update(seed=args.seed, faults=args.faults, wall_s=time.monotonic() - t0)
+    summary.update(seed=args.seed, faults=args.faults, controller=args.controller, wall_s=time.monotonic() - t0)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(summary, indent=1))

@@ -232,3 +232,23 @@ class ChangeoverController:
         return {"mode": self.mode, "feed": self.feed, "ABB-1": "on" if self.abb[ABB1] else "off",
                 "ABB-2": "on" if self.abb[ABB2] else "off", "safe": self.safe, "reason": self.reason,
                 "safe_entries": len(self.safe_entries)}
+
+
+class SeedMomentsController(ChangeoverController):
+    """Seed 004 section 4.1's switching moments taken literally, for comparison (tl_neutral
+    ``--controller seed``): with no train in the changeover section (S1 and S2 clear) the
+    neutral is fed from A; as soon as a train is in it (either section occupied) ABB-1 opens
+    and ABB-2 closes, B feeds; when it has left (both clear) back to A. In both directions.
+    The same detection, safe state and timing as ChangeoverController; what differs is the
+    moment of each switching: it does not wait for the train's pantographs to be clear of the
+    air section between A and the neutral (docs/changeover.md, "The seed's moments")."""
+
+    def _step(self, now: float, w: CombinedSection, e: CombinedSection) -> None:
+        if self.mode == "IDLE" and (w.state == OCCUPIED or e.state == OCCUPIED):
+            self._go(now, "SEED_IN", "B", "a train in the changeover section: neutral to B (seed 004 section 4.1)")
+        elif self.mode == "SEED_IN" and w.state == CLEAR and e.state == CLEAR:
+            self._go(now, "IDLE", "A", "the train has left the changeover section: neutral back to A")
+
+
+# the controllers tl_neutral can run: ours (the default) and the seed's moments
+CONTROLLERS = {"staged": ChangeoverController, "seed": SeedMomentsController}

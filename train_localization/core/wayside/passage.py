@@ -32,7 +32,7 @@ from ..sensors.base import resolve_params
 from ..signals import RawBlock
 from ..track import Track
 from .catenary import Layout, Switching, effective, events, pantograph_chainages
-from .neutral_section import ChangeoverController
+from .neutral_section import CONTROLLERS
 from .occupancy import PARAMS as OCC_PARAMS, CombinedOccupancy, SectionMap
 
 BLOCK = 0.05          # [s] raw block of both systems; the controller runs at every block end
@@ -131,6 +131,7 @@ class Run:
     axle_counter: dict = field(default_factory=dict)    # axle_counter overrides (faults: 'AC1@T:extra')
     occupancy: dict = field(default_factory=dict)       # occupancy.PARAMS overrides
     controller: dict = field(default_factory=dict)      # neutral_section.PARAMS overrides
+    controller_kind: str = "staged"                     # neutral_section.CONTROLLERS: "staged" or "seed"
     command_latency: float = 0.01                       # decision -> ABB gate signal [s] (assumption)
     drop: tuple[str, ...] = ()                          # systems whose reports are lost ("axle_counter", ...)
     label: str = ""                                     # the injected fault, if any
@@ -228,7 +229,7 @@ def simulate(run: Run) -> RunResult:
     ac_dec = acm.AxleCounterDecoder(ac_params, track)
 
     combined = CombinedOccupancy(SectionMap.fig6(), resolve_params(OCC_PARAMS, run.occupancy))
-    ctrl = ChangeoverController(run.controller)
+    ctrl = CONTROLLERS[run.controller_kind](run.controller)
     n_tc = circuits.samples_per_block
     n_ac = device.samples_per_block
     axle_off = [np.asarray(t.axles, dtype=float) for t in trains]

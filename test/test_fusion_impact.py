@@ -162,3 +162,17 @@ def test_a_run_of_fixes_sharing_an_offset_within_the_gate_is_covered_whatever_it
                       np.mean([e.position_max - e.position_min for _, e, _ in uncovered]))
     assert runs_outside_plain >= 10
     assert 1.0 < min(ratios) and max(ratios) < 2.0
+
+
+def test_a_run_of_lzb_fixes_sharing_an_offset_beyond_the_survey_prior_is_covered():
+    """Campaign run lzb:296076971 of seed 0: 4 LZB fixes 3.3 sigma off from 96 s. The loop's
+    survey state (0.05 m a priori) could not hold it: 79 states outside while NOMINAL (99.64 %)
+    until the LZB declared the ``offset`` mode like the other fix sensors; now every state is
+    inside, the mean width 50.4 -> 50.5 m."""
+    from train_localization.core import campaign
+    from train_localization.core.sensors import lzb
+    assert "offset" in lzb.error_model(dict(survey_sigma=0.05, **{k: p.default for k, p in lzb.PARAMS.items()
+                                                                   if k != "survey_sigma"}), None, None).faults
+    run = campaign.run_one("lzb", 296076971)
+    assert run["conditions"]["adversarial"]["kind"] == "offset" and run["conditions"]["adversarial"]["sensor"] == "lzb"
+    assert run["scores"]["integrity"]["outside_count"] == 0

@@ -257,8 +257,12 @@ def _valid_blocks(node: str, scenario, count: int) -> list:
     t0 = _moving_since(scenario)
     block = float(scenario.sensors.get(node, {}).get("block_duration", 0.05))
     t_end = t0 + (count + 2) * block + 0.1
-    short = replace(scenario, duration=min(scenario.duration, t_end + 1.0))
-    blocks = [b for b in simulate_and_decode(node, short, t_end=t_end).blocks if b.t0 >= t0 - 1e-9]
+    while True:   # a device may send its blocks less often than every block_duration (the DGPS: its fixes)
+        short = replace(scenario, duration=min(scenario.duration, t_end + 1.0))
+        blocks = [b for b in simulate_and_decode(node, short, t_end=t_end).blocks if b.t0 >= t0 - 1e-9]
+        if len(blocks) >= count or t_end >= scenario.duration:
+            break
+        t_end = min(scenario.duration, t0 + 2.0 * (t_end - t0))
     if len(blocks) < count:
         raise RuntimeError(f"{node}: the simulator made {len(blocks)} blocks, {count} needed")
     return blocks[:count]

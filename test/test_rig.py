@@ -277,7 +277,7 @@ def test_on_the_closed_track_both_streams_publish_the_chainage_wrapped_round_the
     sc, res = _closed_run()
     circ = sc.track.circumference
     mc = typestore_classes()
-    msgs = [estimate_to_msg(mc, e, sc.track.track_id, [], circ) for e in res.estimates]
+    msgs = [estimate_to_msg(mc, e, sc.track.track_id, [], sc.track) for e in res.estimates]
     claimed = [(e, m) for e, m in zip(res.estimates, msgs) if np.isfinite(e.position)]
     assert max(e.position for e, _ in claimed) > 10 * circ              # the filter's own distance runs on
     assert all(0.0 <= m.position < circ for _, m in claimed)

@@ -232,7 +232,6 @@ class _Output:
                  namespace: str = NAMESPACE):
         self.runner, self.result, self.writer, self.mc, self.track_id = runner, result, writer, mc, track_id
         self.namespace = namespace
-        self._circumference = getattr(runner.filter.cfg.track, "circumference", None)
         self._pending: list = []
 
     def reject(self, exc: InputRejected) -> None:
@@ -272,7 +271,7 @@ class _Output:
             self.result.estimates.append(est)
             if self.writer:
                 self.writer.write(f"{self.namespace}/localization/state",
-                                  estimate_to_msg(self.mc, est, self.track_id, used, self._circumference),
+                                  estimate_to_msg(self.mc, est, self.track_id, used, self.runner.filter.cfg.track),
                                   _ns(est.stamp))
 
 

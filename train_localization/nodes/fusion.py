@@ -442,7 +442,7 @@ class FusionNode(ManagedNode):
     def publish_state(self, est, used):
         self._last_state_wall = time.monotonic()
         self._last_est = est
-        msg = estimate_to_msg(self.mc, est, self.track.track_id, used, self.track.circumference)
+        msg = estimate_to_msg(self.mc, est, self.track.track_id, used, self.track)
         self.state_pub.publish(msg)
         if not math.isfinite(est.position):
             return

@@ -388,12 +388,19 @@ class _Stamps:
         return self.last
 
 
+def set_time(time_msg, t: float) -> None:
+    """A builtin_interfaces/Time (a header's stamp, a Clock's clock) set to ``t`` [s]."""
+    from ..core.convert import NS, sec_to_ns
+    time_msg.sec, time_msg.nanosec = divmod(sec_to_ns(t), NS)
+
+
 def _set_stamp(msg, t: float) -> None:
-    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(round(t * 1e9)), 1_000_000_000)
+    set_time(msg.header.stamp, t)
 
 
 def _stamp(msg) -> float:
-    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+    from ..core.convert import stamp_to_sec
+    return stamp_to_sec(msg.header.stamp)
 
 
 def _fusion_pool():

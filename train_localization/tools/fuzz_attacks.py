@@ -26,7 +26,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .fuzz import Child, Probe, child_env
+from ..core.convert import stamp_to_sec
+from .fuzz import Child, Probe, child_env, set_time
 
 ATTACKS = ("set_position", "clock_jumps", "future_states", "flood")
 FLOOD_SECONDS = 3.0
@@ -88,14 +89,6 @@ class Bench(Probe):
         self.close()
 
 
-def _stamp(msg, t: float) -> None:
-    msg.sec, msg.nanosec = int(t), int(round((t % 1) * 1e9)) % 1_000_000_000
-
-
-def _sec(stamp) -> float:
-    return stamp.sec + 1e-9 * stamp.nanosec
-
-
 def attack_set_position(bench: Bench) -> tuple[bool, str]:
     from train_localization_msgs.msg import TrainState
     from train_localization_msgs.srv import SetPosition
@@ -138,13 +131,13 @@ def attack_clock_jumps(bench: Bench) -> tuple[bool, str]:
     clock_pub = bench.node.create_publisher(Clock, "/clock", CLOCK_QOS)
     stamps: list[float] = []
     bench.node.create_subscription(TrainState, "localization/state",
-                                   lambda m: stamps.append(_sec(m.header.stamp)), STREAM_QOS)
+                                   lambda m: stamps.append(stamp_to_sec(m.header.stamp)), STREAM_QOS)
     if not bench.spin_until(lambda: clock_pub.get_subscription_count() > 0, 60.0):
         return False, "the fusion did not subscribe /clock"
 
     def tick(t: float) -> None:
         msg = Clock()
-        _stamp(msg.clock, t)
+        set_time(msg.clock, t)
         clock_pub.publish(msg)
         bench.spin(0.05)
 
@@ -193,13 +186,13 @@ def attack_future_states(bench: Bench) -> tuple[bool, str]:
 
     def state(t: float, position: float):
         m = TrainState(track_id="conventional_line", position=position, speed=20.0, mode=1)
-        _stamp(m.header.stamp, t)
+        set_time(m.header.stamp, t)
         return m
     for k in range(60):
         t = 100.0 + 0.01 * k
         if k % 10 == 0:
             clock = Clock()
-            _stamp(clock.clock, t)
+            set_time(clock.clock, t)
             clock_pub.publish(clock)
             bench.spin(0.05)
         truth_pub.publish(state(t, 100.0 + 0.2 * k))
@@ -237,7 +230,7 @@ def attack_flood(bench: Bench) -> tuple[bool, str]:
     t0, sent = time.monotonic(), 0
     while time.monotonic() - t0 < FLOOD_SECONDS:
         for _ in range(50):
-            _stamp(msg.header.stamp, time.time())
+            set_time(msg.header.stamp, time.time())
             pub.publish(msg)
             sent += 1
         bench.executor.spin_once(timeout_sec=0.0)

@@ -131,15 +131,15 @@ class FusionRunner:
         return out
 
 
-def estimate_to_msg(mc, est: Estimate, track_id: str, sensors, circumference: float | None = None):
-    """The TrainState message of an estimate. On a closed track (``circumference`` [m]) the
-    position is published as the truth is, wrapped into [0, circumference), and the interval
-    moves with it: position_min <= position <= position_max still holds, so near the seam an
-    end may lie below 0 or beyond the circumference (msg_defs TrainState.msg). The filter
-    itself runs on the unwrapped distance."""
+def estimate_to_msg(mc, est: Estimate, track_id: str, sensors, track=None):
+    """The TrainState message of an estimate. On a closed ``track`` (core/track.py Track) the
+    position is published as the truth is, wrapped into [0, circumference) by ``Track.wrap``,
+    and the interval moves with it: position_min <= position <= position_max still holds, so
+    near the seam an end may lie below 0 or beyond the circumference (msg_defs TrainState.msg).
+    The filter itself runs on the unwrapped distance."""
     position, lo, hi = est.position, est.position_min, est.position_max
-    if circumference and math.isfinite(position):
-        laps = math.floor(position / circumference) * circumference
+    if track is not None and track.closed and math.isfinite(position):
+        laps = position - float(track.wrap(position))
         position, lo, hi = position - laps, lo - laps, hi - laps
     return convert.train_state_to_msg(mc, est.stamp, track_id, position, est.speed, est.acceleration,
                                       est.position_stddev, est.speed_stddev, lo, hi, est.confidence, est.mode,

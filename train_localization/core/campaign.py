@@ -41,6 +41,7 @@ from .scoring import StateSeries, passing_times, run_scores
 from . import hard_conditions
 from .oracle import availability, fault_free, ratios
 from .sensors import sensor_classes
+from .wayside import stator
 from .sensors import wheel as _wheel
 
 FAMILIES = ("conventional", "urban_maglev", "highspeed_maglev")
@@ -661,6 +662,22 @@ def _mbahn(d: _Draw) -> tuple[dict, dict]:
     return scenario, conditions
 
 
+# long-stator families: the guideway is fed section by section (seed 000 section 2)
+STATOR_FAMILIES = ("highspeed_maglev", "mlx")
+STATOR_STATE_AGE = 0.3    # [s] age of a fused state the drawn sections leave room for (delivery delays)
+
+
+def _stator_sections(family: str, seed: int, body: dict, v_max: float) -> list[dict]:
+    """The stator sections of a long-stator run, from a stream of their own (the rest of the
+    run is drawn the same with or without them): contiguous over the track, each 1.0-1.5 x
+    the least length the controller needs at the run's top speed (stator.min_section_length,
+    an interval of 5 m)."""
+    rng = np.random.default_rng([seed, 5000, ALL_FAMILIES.index(family)])
+    least = stator.min_section_length(stator.controller_params(), body["vehicle"]["length"],
+                                      v_max, 5.0, STATOR_STATE_AGE)
+    return stator.lay_sections(0.0, body["track"]["length"], _g(least * rng.uniform(1.0, 1.5)))
+
+
 _GENERATORS = {"conventional": _conventional, "urban_maglev": _urban, "highspeed_maglev": _highspeed_maglev,
                "lzb": _lzb, "utm": _utm, "mlx": _mlx, "hsst": _hsst, "mbahn": _mbahn}
 
@@ -683,6 +700,10 @@ def generate(family: str, seed: int, max_duration: float | None = None) -> dict:
                                   _coarse(body["profile"], body["initial"]["speed"], body["duration"]))
     if attack:
         delivery["adversarial"] = attack
+    if family in STATOR_FAMILIES:
+        v_max = max([abs(body["initial"]["speed"])] + [abs(leg["speed"]) for leg in body["profile"]])
+        body["track"]["equipment"][stator.KIND] = _stator_sections(family, seed, body, v_max)
+        conditions["stator_section_length"] = body["track"]["equipment"][stator.KIND][0]["end"]
     if max_duration is not None and max_duration < body["duration"]:
         body["duration"] = float(max_duration)
     body["track"]["track_id"] = f"{body['track']['track_id']}_{seed}"
@@ -748,12 +769,24 @@ def run_scenario(data: dict, oracle: bool = False) -> dict:
            "delivery": camp.get("delivery", {}), "sensor_params": data.get("sensors", {}), "scores": scores,
            "fusion": runner.filter.counters(), "fusion_rejected": dict(runner.rejected), "sensors": per_sensor,
            "devices": devices}
+    layout = stator.Layout.from_track(sc.track)
+    if len(layout):
+        out["stator"] = stator_scores(layout, sc, StateSeries.from_estimates(estimates), traj)
     if oracle:
         clean = fault_free(delivered, traj)
         _, told, _, _ = fuse_arrivals(config, clean, sc.duration, FUSION_RATE)
         out["availability"] = {**availability(estimates, told, traj, config.lost_stddev),
                                "left_out": len(delivered) - len(clean)}
     return out
+
+
+def stator_scores(layout: "stator.Layout", sc: Scenario, fused: StateSeries, traj: Trajectory) -> dict:
+    """The stator feeding of a run (core/wayside/stator.py) driven by its fused states and
+    evaluated on its true motion: StatorReport figures and the controller's counters."""
+    vehicle = stator.Vehicle(sc.vehicle.length, sc.orientation())
+    ctrl = stator.run_controller(layout, vehicle, fused)
+    report = stator.evaluate(layout, ctrl.commands, traj.t, traj.position, vehicle)
+    return {**report.as_dict(), "controller": dict(ctrl.counters)}
 
 
 def run_one(family: str, seed: int, max_duration: float | None = None, oracle: bool = False) -> dict:
@@ -846,10 +879,33 @@ def _summary(results: list[dict]) -> dict:
         for reason, n in r.get("fusion_rejected", {}).items():
             refused[reason] = refused.get(reason, 0) + n
     out["fusion_refused"] = dict(sorted(refused.items()))
+    fed = [r for r in ok if "stator" in r]
+    if fed:
+        out["stator"] = _stator_summary(fed)
     told = [r["availability"] for r in ok if "availability" in r]
     if told:
         out["availability"] = ratios(told)
     return out
+
+
+def _stator_summary(runs: list[dict]) -> dict:
+    """The stator feeding over the long-stator runs: switchings under the vehicle and double
+    feeds (goal 0), the thrust-loss time per section passage per run."""
+    per_passage = np.array([r["stator"]["thrust_loss_per_passage_s"] or 0.0 for r in runs])
+    return {"runs": len(runs), "section_passages": sum(r["stator"]["section_passages"] for r in runs),
+            "switchings": sum(r["stator"]["switchings"] for r in runs),
+            "switched_under_vehicle": sum(r["stator"]["switched_under_vehicle"] for r in runs),
+            "runs_switched_under_vehicle": [[r["family"], r["seed"], r["stator"]["switched_under_vehicle"]]
+                                            for r in runs if r["stator"]["switched_under_vehicle"]],
+            "double_feed": sum(r["stator"]["double_feed"] for r in runs),
+            "thrust_loss_s": sum(r["stator"]["thrust_loss_s"] for r in runs),
+            "runs_with_thrust_loss": [[r["family"], r["seed"], r["stator"]["thrust_loss_s"]]
+                                      for r in runs if r["stator"]["thrust_loss_s"] > 0.0],
+            "thrust_loss_per_passage_s": {"median": float(np.median(per_passage)),
+                                          "p95": float(np.percentile(per_passage, 95)),
+                                          "max": float(per_passage.max())},
+            "inverter_busy": sum(r["stator"]["controller"]["inverter_busy"] for r in runs),
+            "held": sum(r["stator"]["controller"]["held"] for r in runs)}
 
 
 def summarise(results: list[dict]) -> dict:
@@ -867,6 +923,8 @@ def summarise(results: list[dict]) -> dict:
         "no_errors": a["errors"] == 0,
         "none_outside_nominal": a["outside_nominal"] == 0,
     }
+    if "stator" in a:
+        out["checks"]["stator_none_switched_under_vehicle"] = a["stator"]["switched_under_vehicle"] == 0
     out["passed"] = all(out["checks"].values())
     return jsonable(out)
 

@@ -21,7 +21,8 @@ integrity.png (inside fraction per run, sorted), error_vs_half_width.png,
 normalised_error.png (histogram with the N(0, 1) density). The summary table is
 printed at the end. The exit code is 0 (a campaign is a measurement) unless
 ``--check``: then 1 if the truth is inside the interval in < 99.9 % of all states,
-any run < 99.5 %, any excursion lasts > 2 s, or any run failed.
+any run < 99.5 %, any excursion lasts > 2 s, any run failed, or (the long-stator
+families, core/wayside/stator.py) a stator section switched under a vehicle.
 """
 from __future__ import annotations
 
@@ -246,11 +247,22 @@ def summary_table(summary: dict) -> str:
                          f"{a['oracle_mean_width_m']:.3f} m = {a['width_ratio']:.3f}, RMS error ratio "
                          f"{a['error_ratio']:.3f}, LOST where the oracle was not {a['lost_needlessly']} states "
                          f"({_pct(a['lost_needlessly_fraction'])})")
+    for name, s in rows:
+        st = s.get("stator")
+        if st:
+            pp = st["thrust_loss_per_passage_s"]
+            lines.append(f"{name}: stator feeding ({st['runs']} runs, {st['section_passages']} section passages, "
+                         f"{st['switchings']} switchings): switched under the vehicle {st['switched_under_vehicle']}, "
+                         f"an inverter feeding two sections {st['double_feed']}, thrust lost {st['thrust_loss_s']:.3f} s "
+                         f"in {len(st['runs_with_thrust_loss'])} runs; per passage median {pp['median']:.4f} s, "
+                         f"p95 {pp['p95']:.4f} s, max {pp['max']:.4f} s")
     lines.append(f"targets: all states >= {100 * INSIDE_TARGET:.1f} % inside: {checks['inside_fraction']}; "
                  f"every run >= {100 * RUN_TARGET:.1f} %: {checks['every_run_above_99_5']}; "
                  f"no excursion > {EXCURSION_LIMIT:.0f} s: {checks['excursions_within_2_s']}; "
                  f"no failed run: {checks['no_errors']}; "
-                 f"none outside while NOMINAL: {checks.get('none_outside_nominal')} -> "
+                 f"none outside while NOMINAL: {checks.get('none_outside_nominal')}"
+                 + (f"; no stator section switched under a vehicle: {checks['stator_none_switched_under_vehicle']}"
+                    if "stator_none_switched_under_vehicle" in checks else "") + " -> "
                  f"{'PASSED' if summary['passed'] else 'FAILED'}")
     return "\n".join(lines)
 

@@ -14,6 +14,7 @@ _MODULES = {
     "inpo_receiver": "inpo",
     "pattern_belt": "pattern_belt",
     "mmwave_ranging": "mmwave",
+    "mmwave_tdoa": "mmwave_tdoa",
     "axle_counter": "axle_counter",
     "lzb_receiver": "lzb",
     "track_circuit_receiver": "track_circuit",

@@ -305,15 +305,21 @@ class MmWaveSimulator(Simulator):
         super().__init__(*args)
         self.ids, self.pos, self.perp, self.codes = _stations(self.track, self.params)
         n = len(self.ids)
-        self.cal = self.rng.normal(0.0, self.params["cal_sigma"], n)
+        self.cal = self._station_bias(n)
         self.nlos_left = np.zeros(n)
         self.nlos_bias = np.zeros(n)
         index = {sid: k for k, sid in enumerate(self.ids)}
         self.faults = []
-        for sid, t0, t1, bias in _parse_faults(self.params["faults"]):
+        for sid, t0, t1, bias in self._parse_faults(self.params["faults"]):
             if sid not in index:
                 raise ValueError(f"mmwave fault names unknown station {sid!r}")
             self.faults.append((index[sid], t0, t1, bias))
+
+    def _station_bias(self, n: int) -> np.ndarray:
+        """Constant range bias [m] of each of the n stations: the antenna-delay calibration."""
+        return self.rng.normal(0.0, self.params["cal_sigma"], n)
+
+    _parse_faults = staticmethod(_parse_faults)
 
     def samples(self, times, position, speed, acceleration):
         p = self.params
@@ -321,6 +327,25 @@ class MmWaveSimulator(Simulator):
         out = np.zeros((n, 3 * N_SLOTS))
         if m == 0:
             return out
+        r, bias, noise, snr, lost = self._radio(times, position)
+        measured = r + self.cal[None, :] + bias + noise
+        replied = ~lost & (snr >= p["snr_threshold"]) & (measured > 0.0)
+        chosen, ok = handover(r, p["max_range"])
+        for k in range(min(N_SLOTS, m)):
+            j = chosen[:, k]
+            valid = ok[:, k]
+            rep = valid & replied[np.arange(n), j]
+            out[:, 3 * k] = np.where(valid, self.codes[j], 0)
+            out[:, 3 * k + 1] = np.where(rep, measured[np.arange(n), j] / C_AIR, 0.0)
+            out[:, 3 * k + 2] = np.where(rep, snr[np.arange(n), j], 0.0)
+        return out
+
+    def _radio(self, times, position):
+        """The radio channel of every station at the epochs ``times``: true range r [m], the
+        NLOS and injected range bias [m], the ranging noise [m], the first-path SNR [dB] and
+        the lost replies, all (n, stations) (the random draws in a fixed order)."""
+        p = self.params
+        n, m = len(times), len(self.ids)
         dt = 1.0 / self.sample_rate
         x = position - p["orientation"] * p["antenna_offset"]
         r = np.hypot(x[:, None] - self.pos[None, :], self.perp[None, :])  # (n, m)
@@ -347,22 +372,19 @@ class MmWaveSimulator(Simulator):
         snr = (p["snr_ref"] - 20.0 * np.log10(np.maximum(r, 1.0) / p["ref_range"])
                - np.where(nlos, p["nlos_snr_loss"], 0.0) + self.rng.normal(0.0, p["snr_fading"], (n, m)))
         noise = self.rng.normal(0.0, 1.0, (n, m)) * range_sigma(snr, p)
-        measured = r + self.cal[None, :] + bias + noise
-        replied = ~lost & (snr >= p["snr_threshold"]) & (measured > 0.0)
-        # hand-over set: the N_SLOTS nearest stations within max_range, slots by chainage
-        in_range = r <= p["max_range"]
-        order = np.argsort(np.where(in_range, r, np.inf), axis=1, kind="stable")[:, :N_SLOTS]
-        rows = np.arange(n)[:, None]
-        chosen = np.sort(order, axis=1)  # station index order = chainage order
-        ok = in_range[rows, chosen]  # fewer stations in range than slots: the rest stay empty (code 0)
-        for k in range(min(N_SLOTS, m)):
-            j = chosen[:, k]
-            valid = ok[:, k]
-            rep = valid & replied[np.arange(n), j]
-            out[:, 3 * k] = np.where(valid, self.codes[j], 0)
-            out[:, 3 * k + 1] = np.where(rep, measured[np.arange(n), j] / C_AIR, 0.0)
-            out[:, 3 * k + 2] = np.where(rep, snr[np.arange(n), j], 0.0)
-        return out
+        return r, bias, noise, snr, lost
+
+
+def handover(r: np.ndarray, max_range: float, slots: int = N_SLOTS):
+    """Hand-over set of the radio at each epoch: the ``slots`` nearest stations within
+    ``max_range`` of the ranges r (n, stations), slots by chainage. Returns the station index
+    per slot (n, slots) and whether the slot holds a station (fewer stations in range than
+    slots: the rest stay empty)."""
+    in_range = r <= max_range
+    order = np.argsort(np.where(in_range, r, np.inf), axis=1, kind="stable")[:, :slots]
+    rows = np.arange(len(r))[:, None]
+    chosen = np.sort(order, axis=1)  # station index order = chainage order
+    return chosen, in_range[rows, chosen]
 
 
 class _Pattern:
@@ -415,7 +437,197 @@ def _picker(order: list[int]):
     return operator.itemgetter(*order)
 
 
-class MmWaveDecoder(Decoder):
+class SolutionSeparation:
+    """Fault detection and isolation by solution separation over the subsets of the stations in
+    view, shared by the ranging decoder and the TDOA one (mmwave_tdoa.py): see the module
+    docstring, "Fault detection and isolation" and "Protection". ``_init_separation`` sets
+    what it needs from the parameters (protection_probability, nlos_rate, nlos_duration; the
+    methods read min_stations and max_fault_bias); ``_gate_dof`` gives the consistency test's
+    gate for a subset of k rows from dof = k - 1 (a user with other unknowns overrides it)."""
+
+    def _init_separation(self, params: dict, slots: int = N_SLOTS) -> None:
+        self._cols: dict = {}
+        self._k_cover = float(-ndtri(0.5 * (1.0 - params["protection_probability"])))
+        self._subset_tabs: dict = {}
+        self._slot_bits = 1 << np.arange(slots)
+        self._slot_pairs = [int(a | b) for a, b in itertools.combinations(self._slot_bits.tolist(), 2)]
+        busy = params["nlos_rate"] * params["nlos_duration"]   # NLOS occupancy odds p / (1 - p) of a station
+        risk = 1.0 - params["protection_probability"]
+        # given one fault, a second is about p / (1 - p) as likely: cover it after an isolation
+        self._cover_second_fault = busy > risk
+        # both of two stations at once, a priori: two in view give no fix where that is likely
+        self._withhold_two = busy * busy > risk
+
+    def _subsets(self, m: int) -> "_Subsets":
+        """Table of the non-empty subsets of m rows (cached per m)."""
+        tab = self._subset_tabs.get(m)
+        if tab is None:
+            tab = self._subset_tabs[m] = _Subsets(m, self._gate_dof)
+        return tab
+
+    def _gate_dof(self, dof: int) -> float:
+        """Chi-square gate of the consistency test with ``dof`` degrees of freedom (inf for 0)."""
+        if dof <= 0:
+            return math.inf
+        return float(chdtri(dof, 1.0 - self.params["outlier_probability"]))
+
+    def _isolate(self, tab, xs, var, chi2, full, mirrors):
+        """Fault detection and isolation by solution separation.
+
+        xs, var, chi2: (n_subsets, n) solution, its LS variance and its chi-square per subset of
+        the rows of ``tab`` and per epoch; full: (n,) index of the subset of the rows in view
+        (-1: none); mirrors: see _subset_protection. Returns the chosen subset (n,), ok (n,),
+        the published 1-sigma (n,; see _protection; infinite where a fault would be unbounded:
+        to be withheld) and two masks (n,): unidentifiable (a fault that cannot be isolated,
+        also a failing test without a station to spare) and inconsistent (no subset with a
+        station to spare passes: more than one fault).
+
+        * Detection: the rows in view are used if their chi-square test passes.
+        * Isolation: else the largest subsets (at least max(2, min_stations) rows) that pass
+          are the candidates; the largest positive residual is not necessarily the faulty
+          row when the redundancy is low. One candidate: its complement is excluded.
+          Several: if every two of them agree (their +-k sigma intervals overlap) the fix is
+          the candidate whose sigma, widened to cover every candidate's interval, is
+          smallest; if two of them disagree the fault cannot be identified: no fix (counted
+          in ``stats["unidentifiable"]``). Publishing one wide fix covering the disagreeing
+          candidates is not done: the truth is near one of them, not between them, and a
+          sigma spanning both would dress a bimodal error as a Gaussian one. No candidate at
+          all: no fix (``stats["inconsistent"]``).
+        """
+        n = xs.shape[1]
+        kz = self._k_cover
+        size = tab.size[:, None]
+        fbits = (full + 1)[None, :]
+        avail = (tab.bits[:, None] & fbits) == tab.bits[:, None]
+        cons = avail & (chi2 <= tab.gate[:, None]) & (var < np.inf)
+        n_full = tab.size[full] * (full >= 0)
+        min_keep = max(2, self.params["min_stations"])
+        eligible = cons & ((size == n_full) | (size >= min_keep))
+        level = np.maximum.reduce(np.where(eligible, size, 0), axis=0)
+        chosen = np.where(full >= 0, full, 0)
+        ok = level > 0
+        isolate = ok & (level < n_full)
+        sigma = np.full(n, np.inf)
+        keep = ok & ~isolate
+        if _any(keep):
+            ki = keep.nonzero()[0]
+            sigma[ki] = self._subset_protection(tab, xs, var, chosen[ki], ki, mirrors)
+        if _any(isolate):
+            ci = isolate.nonzero()[0]
+            cand = eligible[:, ci] & (size == level[ci])
+            sub, col = cand.nonzero()
+            p_c = np.full(cand.shape, np.inf)
+            p_c[sub, col] = self._subset_protection(tab, xs, var, sub, ci[col], mirrors)
+            x_c = xs[:, ci]
+            dist = np.abs(x_c[:, None, :] - x_c[None, :, :])      # (S, S', k)
+            pair = cand[:, None, :] & cand[None, :, :]
+            disagree = _any((pair & (dist > kz * (p_c[:, None, :] + p_c[None, :, :]))).reshape(-1, len(ci)))
+            cover = np.where(pair, dist / kz + p_c[None, :, :], -np.inf)
+            cover = np.where(cand, np.maximum.reduce(cover, axis=1), np.inf)
+            pick = cover.argmin(axis=0)
+            chosen[ci] = pick
+            sigma[ci] = cover[pick, self._columns(len(ci))]
+            if self._cover_second_fault:
+                sigma[ci] = np.maximum(sigma[ci], self._second_fault(tab, xs, var, chi2, pick, ci, full[ci] + 1))
+            ok[ci] = ~disagree
+            unident = np.zeros(n, dtype=bool)
+            unident[ci] = disagree
+        else:
+            unident = isolate
+        # nothing passes: a fault with no station to spare (2 stations: either may be the
+        # faulty one) is not identifiable; with stations to spare, more than one is faulty
+        none = (full >= 0) & (level == 0)
+        spare = n_full > min_keep
+        return chosen, ok, sigma, unident | (none & ~spare), none & spare
+
+    def _second_fault(self, tab, xs, var, chi2, sub, col, full_bits):
+        """Published 1-sigma (K,) that also covers two faults inside each chosen subset ``sub``
+        (K,) at epochs ``col`` (K,): the isolation found one fault, and its leave-one-out
+        protection covers one more, but two faults that agree (two NLOS ranges lengthened
+        alike) pass the test together and isolate the one good station instead. Given one
+        fault, such a pair is about p / (1 - p) as likely as the single fault, p the
+        probability that a station is in NLOS at an epoch (``nlos_rate`` x ``nlos_duration``
+        as an on/off occupancy). For each pair of the subset's stations, the solution of
+        the stations in view without them (if consistent) is covered as the others are:
+        its separation / k + its sigma; where none is left, or it is unbounded, the sigma is
+        infinite (no fix)."""
+        x_s = xs[sub, col]
+        sigma = np.zeros(len(col))
+        bits = tab.bits[sub]
+        for pair in self._slot_pairs:
+            inside = (bits & pair) == pair
+            if not _any(inside):
+                continue
+            rest = (full_bits & ~pair) - 1            # subset index of the stations left (-1: none)
+            k = np.maximum(rest, 0)
+            fits = (rest >= 0) & (chi2[k, col] <= tab.gate[k])
+            cover = np.where(fits, np.abs(xs[k, col] - x_s) / self._k_cover + np.sqrt(var[k, col]), np.inf)
+            sigma = np.where(inside & ((rest < 0) | fits), np.maximum(sigma, cover), sigma)
+        return sigma
+
+    def _subset_protection(self, tab, xs, var, sub, col, mirrors):
+        """Published 1-sigma (K,) of the solutions of subsets ``sub`` (K,) at epochs ``col``
+        (K,), from the solutions without each of their rows (_protection).
+
+        mirrors: (mirror (m, n), reach (m, m, n)): the mirror image of each row's
+        single-row solution about its station, and whether a fault of row j within
+        ``max_fault_bias`` could put the train there (reach[j, k]); where a fault of row j
+        leaves row k alone, the separation covers that mirror too (_mirrors).
+        """
+        loo = tab.loo[sub].T                     # (m, K)
+        has = tab.loo_ok[sub].T
+        x_s = xs[sub, col]
+        sep = np.abs(xs[loo, col] - x_s)
+        k = tab.loo_row[sub].T
+        if mirrors is not None and _any(k >= 0, axis=None):
+            mirror, reach = mirrors
+            kk = np.maximum(k, 0)
+            far = (k >= 0) & reach[np.arange(len(k))[:, None], kk, col]
+            sep = np.where(far, np.maximum(sep, np.abs(mirror[kk, col] - x_s)), sep)
+        return self._protection(sep, np.sqrt(var[loo, col]), has, np.sqrt(var[sub, col]))
+
+    def _mirrors(self, x_single, s, r_fn):
+        """(mirror, reach) for _subset_protection. A single range leaves the side of its
+        station open: x_single (m, n) is each row's single-row solution, s (m, n) its
+        station's chainage, so the mirror image 2 s - x_single fits that range as well.
+        r_fn(mirror) -> (m_j, m_k, n) residuals of every row j at the mirror images of every
+        row k: a fault of row j can put the train at row k's mirror only with a bias of that
+        size, so it counts up to ``max_fault_bias``."""
+        mirror = 2.0 * s - x_single
+        return mirror, np.abs(r_fn(mirror)) <= self.params["max_fault_bias"]
+
+    def _protection(self, sep, sd_j, has, sd):
+        """Published 1-sigma (K,) of a solution of LS sigma ``sd`` (K,) whose rows j (axis 0
+        of the (m, K) arrays, where ``has``) may be faulty: ``sep`` is the separation from
+        the solution without row j, ``sd_j`` that solution's sigma.
+
+        Were row j biased by any amount that the test let pass, the solution without it is
+        unbiased, so the error is -+sep_j plus that solution's own error: |error| <= sep_j +
+        k sd_j with the probability of the +-k sigma interval (k = normal quantile of
+        ``protection_probability``), for every size of the bias, seen by the test or not.
+        The published sigma max(sd, max_j sep_j / k + sd_j) therefore puts the error of any
+        single fault inside +-k sigma with that probability (solution-separation protection
+        level, as ARAIM, with every fault mode covered in full: a fault here is no rare
+        independent event but may persist over many epochs -- a biased calibration, a
+        structure in the line of sight -- so the risk is not discounted by a prior). It is
+        what the test cannot see at low redundancy: a row with a large leverage moves x and
+        hides its bias in the residuals, and the solution without it is much less precise
+        (large sd_j). A mode without a solution (sd_j infinite) gives no bound: infinite
+        sigma, no fix.
+        """
+        reach = np.where(has, sep * (1.0 / self._k_cover) + sd_j, 0.0)
+        return np.maximum(sd, np.maximum.reduce(reach, axis=0))
+
+    def _columns(self, n):
+        """np.arange(n), cached per block length."""
+        cols = self._cols.get(n)
+        if cols is None:
+            cols = self._cols[n] = np.arange(n)
+            cols.flags.writeable = False
+        return cols
+
+
+class MmWaveDecoder(SolutionSeparation, Decoder):
     """Decoder. Arrays over the epochs and slots of a block are slot-major, (N_SLOTS, n):
     per-epoch values (n,) then broadcast without reshaping, and sums over the slots (axis 0)
     add the slots in order, as a row sum does."""
@@ -444,25 +656,15 @@ class MmWaveDecoder(Decoder):
         self._pos_increasing = bool(np.all(self.pos[1:] > self.pos[:-1]))
         self._patterns: dict = {}
         self._ref_cache: dict = {}
-        self._cols: dict = {}
         # range_sigma(snr)^2 + cal_sigma^2 = const + coef * exp(snr * expo)
         self._sig2_const = params["range_sigma_floor"] ** 2 + params["cal_sigma"] ** 2
         self._sig2_snr = (params["range_sigma_snr"] * 10.0 ** (SNR_NOISE_REF / 20.0)) ** 2
         self._sig2_exp = -math.log(10.0) / 10.0
         # the 1 mm floor of sigma^2 can only act if the constant part is below it
         self._sig2_floor = not self._sig2_const >= MIN_RANGE_VAR
-        self._k_cover = float(-ndtri(0.5 * (1.0 - params["protection_probability"])))
-        self._subset_tabs: dict = {}
+        self._init_separation(params)
         self._block_loo: dict = {}   # per number of stations: all of them, then without each
-        self._slot_bits = 1 << np.arange(N_SLOTS)
         self._single_index = self._slot_bits - 1   # subset index of each slot alone
-        self._slot_pairs = [int(a | b) for a, b in itertools.combinations(self._slot_bits.tolist(), 2)]
-        busy = params["nlos_rate"] * params["nlos_duration"]   # NLOS occupancy odds p / (1 - p) of a station
-        risk = 1.0 - params["protection_probability"]
-        # given one fault, a second is about p / (1 - p) as likely: cover it after an isolation
-        self._cover_second_fault = busy > risk
-        # both of two stations at once, a priori: two in view give no fix where that is likely
-        self._withhold_two = busy * busy > risk
         self._gate_size = np.array([self._gate_dof(k - 1) for k in range(N_SLOTS + 1)])   # by stations
         self._prev_t: float | None = None
         self._prev_x: float | None = None
@@ -771,167 +973,6 @@ class MmWaveDecoder(Decoder):
         var = np.where(info > 1e-6, 1.0 / np.maximum(info, 1e-300), np.inf)
         return x, var, chi2, e
 
-    # -- fault detection and isolation ----------------------------------------------------
-    def _subsets(self, m: int) -> "_Subsets":
-        """Table of the non-empty subsets of m rows (cached per m)."""
-        tab = self._subset_tabs.get(m)
-        if tab is None:
-            tab = self._subset_tabs[m] = _Subsets(m, self._gate_dof)
-        return tab
-
-    def _gate_dof(self, dof: int) -> float:
-        """Chi-square gate of the consistency test with ``dof`` degrees of freedom (inf for 0)."""
-        if dof <= 0:
-            return math.inf
-        return float(chdtri(dof, 1.0 - self.params["outlier_probability"]))
-
-    def _isolate(self, tab, xs, var, chi2, full, mirrors):
-        """Fault detection and isolation by solution separation.
-
-        xs, var, chi2: (n_subsets, n) solution, its LS variance and its chi-square per subset of
-        the rows of ``tab`` and per epoch; full: (n,) index of the subset of the rows in view
-        (-1: none); mirrors: see _subset_protection. Returns the chosen subset (n,), ok (n,),
-        the published 1-sigma (n,; see _protection; infinite where a fault would be unbounded:
-        to be withheld) and two masks (n,): unidentifiable (a fault that cannot be isolated,
-        also a failing test without a station to spare) and inconsistent (no subset with a
-        station to spare passes: more than one fault).
-
-        * Detection: the rows in view are used if their chi-square test passes.
-        * Isolation: else the largest subsets (at least max(2, min_stations) rows) that pass
-          are the candidates; the largest positive residual is not necessarily the faulty
-          row when the redundancy is low. One candidate: its complement is excluded.
-          Several: if every two of them agree (their +-k sigma intervals overlap) the fix is
-          the candidate whose sigma, widened to cover every candidate's interval, is
-          smallest; if two of them disagree the fault cannot be identified: no fix (counted
-          in ``stats["unidentifiable"]``). Publishing one wide fix covering the disagreeing
-          candidates is not done: the truth is near one of them, not between them, and a
-          sigma spanning both would dress a bimodal error as a Gaussian one. No candidate at
-          all: no fix (``stats["inconsistent"]``).
-        """
-        n = xs.shape[1]
-        kz = self._k_cover
-        size = tab.size[:, None]
-        fbits = (full + 1)[None, :]
-        avail = (tab.bits[:, None] & fbits) == tab.bits[:, None]
-        cons = avail & (chi2 <= tab.gate[:, None]) & (var < np.inf)
-        n_full = tab.size[full] * (full >= 0)
-        min_keep = max(2, self.params["min_stations"])
-        eligible = cons & ((size == n_full) | (size >= min_keep))
-        level = np.maximum.reduce(np.where(eligible, size, 0), axis=0)
-        chosen = np.where(full >= 0, full, 0)
-        ok = level > 0
-        isolate = ok & (level < n_full)
-        sigma = np.full(n, np.inf)
-        keep = ok & ~isolate
-        if _any(keep):
-            ki = keep.nonzero()[0]
-            sigma[ki] = self._subset_protection(tab, xs, var, chosen[ki], ki, mirrors)
-        if _any(isolate):
-            ci = isolate.nonzero()[0]
-            cand = eligible[:, ci] & (size == level[ci])
-            sub, col = cand.nonzero()
-            p_c = np.full(cand.shape, np.inf)
-            p_c[sub, col] = self._subset_protection(tab, xs, var, sub, ci[col], mirrors)
-            x_c = xs[:, ci]
-            dist = np.abs(x_c[:, None, :] - x_c[None, :, :])      # (S, S', k)
-            pair = cand[:, None, :] & cand[None, :, :]
-            disagree = _any((pair & (dist > kz * (p_c[:, None, :] + p_c[None, :, :]))).reshape(-1, len(ci)))
-            cover = np.where(pair, dist / kz + p_c[None, :, :], -np.inf)
-            cover = np.where(cand, np.maximum.reduce(cover, axis=1), np.inf)
-            pick = cover.argmin(axis=0)
-            chosen[ci] = pick
-            sigma[ci] = cover[pick, self._columns(len(ci))]
-            if self._cover_second_fault:
-                sigma[ci] = np.maximum(sigma[ci], self._second_fault(tab, xs, var, chi2, pick, ci, full[ci] + 1))
-            ok[ci] = ~disagree
-            unident = np.zeros(n, dtype=bool)
-            unident[ci] = disagree
-        else:
-            unident = isolate
-        # nothing passes: a fault with no station to spare (2 stations: either may be the
-        # faulty one) is not identifiable; with stations to spare, more than one is faulty
-        none = (full >= 0) & (level == 0)
-        spare = n_full > min_keep
-        return chosen, ok, sigma, unident | (none & ~spare), none & spare
-
-    def _second_fault(self, tab, xs, var, chi2, sub, col, full_bits):
-        """Published 1-sigma (K,) that also covers two faults inside each chosen subset ``sub``
-        (K,) at epochs ``col`` (K,): the isolation found one fault, and its leave-one-out
-        protection covers one more, but two faults that agree (two NLOS ranges lengthened
-        alike) pass the test together and isolate the one good station instead. Given one
-        fault, such a pair is about p / (1 - p) as likely as the single fault, p the
-        probability that a station is in NLOS at an epoch (``nlos_rate`` x ``nlos_duration``
-        as an on/off occupancy). For each pair of the subset's stations, the solution of
-        the stations in view without them (if consistent) is covered as the others are:
-        its separation / k + its sigma; where none is left, or it is unbounded, the sigma is
-        infinite (no fix)."""
-        x_s = xs[sub, col]
-        sigma = np.zeros(len(col))
-        bits = tab.bits[sub]
-        for pair in self._slot_pairs:
-            inside = (bits & pair) == pair
-            if not _any(inside):
-                continue
-            rest = (full_bits & ~pair) - 1            # subset index of the stations left (-1: none)
-            k = np.maximum(rest, 0)
-            fits = (rest >= 0) & (chi2[k, col] <= tab.gate[k])
-            cover = np.where(fits, np.abs(xs[k, col] - x_s) / self._k_cover + np.sqrt(var[k, col]), np.inf)
-            sigma = np.where(inside & ((rest < 0) | fits), np.maximum(sigma, cover), sigma)
-        return sigma
-
-    def _subset_protection(self, tab, xs, var, sub, col, mirrors):
-        """Published 1-sigma (K,) of the solutions of subsets ``sub`` (K,) at epochs ``col``
-        (K,), from the solutions without each of their rows (_protection).
-
-        mirrors: (mirror (m, n), reach (m, m, n)): the mirror image of each row's
-        single-row solution about its station, and whether a fault of row j within
-        ``max_fault_bias`` could put the train there (reach[j, k]); where a fault of row j
-        leaves row k alone, the separation covers that mirror too (_mirrors).
-        """
-        loo = tab.loo[sub].T                     # (m, K)
-        has = tab.loo_ok[sub].T
-        x_s = xs[sub, col]
-        sep = np.abs(xs[loo, col] - x_s)
-        k = tab.loo_row[sub].T
-        if mirrors is not None and _any(k >= 0, axis=None):
-            mirror, reach = mirrors
-            kk = np.maximum(k, 0)
-            far = (k >= 0) & reach[np.arange(len(k))[:, None], kk, col]
-            sep = np.where(far, np.maximum(sep, np.abs(mirror[kk, col] - x_s)), sep)
-        return self._protection(sep, np.sqrt(var[loo, col]), has, np.sqrt(var[sub, col]))
-
-    def _mirrors(self, x_single, s, r_fn):
-        """(mirror, reach) for _subset_protection. A single range leaves the side of its
-        station open: x_single (m, n) is each row's single-row solution, s (m, n) its
-        station's chainage, so the mirror image 2 s - x_single fits that range as well.
-        r_fn(mirror) -> (m_j, m_k, n) residuals of every row j at the mirror images of every
-        row k: a fault of row j can put the train at row k's mirror only with a bias of that
-        size, so it counts up to ``max_fault_bias``."""
-        mirror = 2.0 * s - x_single
-        return mirror, np.abs(r_fn(mirror)) <= self.params["max_fault_bias"]
-
-    def _protection(self, sep, sd_j, has, sd):
-        """Published 1-sigma (K,) of a solution of LS sigma ``sd`` (K,) whose rows j (axis 0
-        of the (m, K) arrays, where ``has``) may be faulty: ``sep`` is the separation from
-        the solution without row j, ``sd_j`` that solution's sigma.
-
-        Were row j biased by any amount that the test let pass, the solution without it is
-        unbiased, so the error is -+sep_j plus that solution's own error: |error| <= sep_j +
-        k sd_j with the probability of the +-k sigma interval (k = normal quantile of
-        ``protection_probability``), for every size of the bias, seen by the test or not.
-        The published sigma max(sd, max_j sep_j / k + sd_j) therefore puts the error of any
-        single fault inside +-k sigma with that probability (solution-separation protection
-        level, as ARAIM, with every fault mode covered in full: a fault here is no rare
-        independent event but may persist over many epochs -- a biased calibration, a
-        structure in the line of sight -- so the risk is not discounted by a prior). It is
-        what the test cannot see at low redundancy: a row with a large leverage moves x and
-        hides its bias in the residuals, and the solution without it is much less precise
-        (large sd_j). A mode without a solution (sd_j infinite) gives no bound: infinite
-        sigma, no fix.
-        """
-        reach = np.where(has, sep * (1.0 / self._k_cover) + sd_j, 0.0)
-        return np.maximum(sd, np.maximum.reduce(reach, axis=0))
-
     def _subset_solutions(self, maskf, x0, r, s, d2, w):
         """Gauss-Newton solutions of subsets of the slots (maskf: (S, N_SLOTS), 1 for a slot
         in the subset), started from the all-in-view solution x0 (n,): x, LS variance,
@@ -1077,14 +1118,6 @@ class MmWaveDecoder(Decoder):
                 if isolate:
                     var = np.where(single, var + p["unchecked_sigma"] ** 2, var)
         return x, ok, used, e, var
-
-    def _columns(self, n):
-        """np.arange(n), cached per block length."""
-        cols = self._cols.get(n)
-        if cols is None:
-            cols = self._cols[n] = np.arange(n)
-            cols.flags.writeable = False
-        return cols
 
     def _prediction(self, times):
         """Age [s] of the previous solution and the position predicted from it at ``times``."""

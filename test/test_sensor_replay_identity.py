@@ -22,7 +22,7 @@ CONVENTIONAL = {
     "initial": {"position": 880.0, "speed": 30.0},
     "profile": [{"speed": 40.0, "hold": 30.0}],
     "sensors": {"wheel_sensor": {"max_speed": 50.0, "sample_rate": 6000.0}, "doppler_radar": {},
-                "eurobalise_reader": {}, "lrl_scanner": {"n_sensors": 2}, "mmwave_ranging": {},
+                "eurobalise_reader": {}, "lrl_scanner": {"n_sensors": 2}, "mmwave_ranging": {}, "mmwave_tdoa": {},
                 "axle_counter": {"heads": "AC00"}},
 }
 MAGLEV = {

@@ -137,14 +137,18 @@ from .mmwave import (C_AIR, MIN_RANGE_VAR, PARAMS as TWR_PARAMS, STATION_KIND, M
 SLOTS = 6                # stations received at once (correlator channels of the receiver)
 TICK = 2.0 ** -20        # coarse counter step of the receiver's timestamps [s] (~0.95 us)
 NO_REPLY = -1.0          # arrival_k of a slot without a reply
+CHUNK = 50               # epochs solved at once (memory of the subset arrays: 63 x 6 x CHUNK)
 GN_ITERATIONS = 8        # Gauss-Newton steps from the pair start (linear within metres)
 CLOCK = "clock"          # the receiver clock in ``faults``
-_SHARED = ("max_range", "snr_ref", "ref_range", "snr_fading", "snr_threshold", "range_sigma_floor",
+_SHARED = ("snr_ref", "ref_range", "snr_fading", "snr_threshold", "range_sigma_floor",
            "range_sigma_snr", "nlos_rate", "nlos_duration", "nlos_bias_mean", "nlos_snr_loss", "dropout_prob",
            "station_height", "antenna_height", "antenna_offset", "orientation", "outlier_probability",
            "protection_probability")
 
 PARAMS = {
+    "max_range": Param(1000.0, "radio range of a base station [m]; the nearest 6 stations within it are "
+                               "received (38 GHz line-of-sight radio link, seed 002 section 2.2.1; ~1 km cells)",
+                       (1.0, 10000.0)),
     **{name: TWR_PARAMS[name] for name in _SHARED},
     "sync_sigma": Param(0.3, "1-sigma constant synchronisation offset of a station [ns] (0.3 ns = 9 cm; "
                              "White-Rabbit / PTP-class fibre timing of the wayside)", (0.0, 1000.0)),
@@ -154,8 +158,8 @@ PARAMS = {
     "clock_phase": Param(-1.0, "receiver clock phase at t = 0 as a fraction of the frame period [1]; "
                                "negative = drawn uniformly per run (a free-running clock)", (-1.0, 1.0)),
     "min_stations": Param(3, "least number of consistent stations for a fix [1]: 3 allow the test (2 = "
-                             "also publish unchecked fixes of two stations); at most the 4 received",
-                          (2, 4)),
+                             "also publish unchecked fixes of two stations); at most the 6 received",
+                          (2, 6)),
     "unchecked_sigma": Param(0.5, "1-sigma added to a two-station fix (min_stations 2) [m]: without "
                                   "redundancy an NLOS bias (mean ~1 m) cannot be detected", (0.0, 50.0)),
     "max_geometry_sigma": Param(5.0, "largest LS 1-sigma of a fix [m]: beyond all stations on one side the "
@@ -365,8 +369,14 @@ class MmWaveTdoaDecoder(SolutionSeparation, Decoder):
         times = block.t0 + self.sample_offsets(n, block.sample_rate)
         self.stats["epochs"] += n
         valid = replied & (snr >= p["snr_threshold"])
+        if not n:
+            return []
+        phase = coarse + fine
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-            x, ok, used, resid, sigma = self._solve(idx, coarse + fine, snr, valid, period)
+            # in chunks of epochs: the subset arrays of a long block stay small
+            parts = [self._solve(idx[:, a:a + CHUNK], phase[:, a:a + CHUNK], snr[:, a:a + CHUNK],
+                                 valid[:, a:a + CHUNK], period) for a in range(0, n, CHUNK)]
+        x, ok, used, resid, sigma = (np.concatenate([q[k] for q in parts], axis=-1) for k in range(5))
         n_ok = int(np.count_nonzero(ok))
         self.stats["no_fix"] += n - n_ok
         self.stats["rejected_stations"] += int(np.count_nonzero(valid & ~used & ok))

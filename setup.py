@@ -19,6 +19,7 @@ NODES = {
     "crosscheck": "train_localization.nodes.wayside:main_crosscheck",
     "association": "train_localization.nodes.association:main",
     "speed_controller": "train_localization.nodes.speed_controller:main",
+    "stator_section_controller": "train_localization.nodes.stator:main",
 }
 
 

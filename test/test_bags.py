@@ -12,7 +12,9 @@ from train_localization.core import convert
 from train_localization.core.bagio import read_bag
 from train_localization.core.fusion import Mode
 from train_localization.core.offline import replay_bag, replay_line, scenario_from_bag
-from train_localization.core.report import evaluate, line_report, recorded_changeover
+from train_localization.core.report import evaluate, line_report, recorded_changeover, recorded_stator
+from train_localization.core.scoring import StateSeries
+from train_localization.core.wayside import stator
 from train_localization.tools.make_bags import metric
 from train_localization.tools.replay import recorded_run
 
@@ -120,3 +122,40 @@ def test_a_changeover_bag_switches_live_and_replayed_without_a_short_circuit(rep
     assert [(c["switch"], c["on"]) for c in live["commands"]] == [(c["switch"], c["on"]) for c in offline["commands"]]
     # the same decisions within the live controller's timer period and message delays
     assert np.allclose([c["stamp"] for c in live["commands"]], [c["stamp"] for c in offline["commands"]], atol=0.3)
+
+
+def test_a_long_stator_bag_feeds_live_and_replayed_without_a_switching_under_the_vehicle(replayed):
+    """A bag whose track has stator sections (core/wayside/stator.py): the live
+    stator_section_controller's recorded feed and the controller replayed on the offline
+    fused states switch no section under the vehicle, lose no thrust, never feed two sections
+    from one inverter, and switch the same sections at about the same times."""
+    name, runs, _, line = replayed
+    bag = BAGS / f"{name}.mcap"
+    scenario = scenario_from_bag(bag)
+    if line is not None or not scenario.track.items(stator.KIND):
+        pytest.skip(f"{name}: no long-stator sections")
+    live = recorded_stator(bag, scenario, "/train")
+    run = runs["train"]
+    layout = stator.Layout.from_track(scenario.track)
+    vehicle = stator.Vehicle(scenario.vehicle.length, scenario.orientation())
+    ctrl = stator.run_controller(layout, vehicle, StateSeries.from_estimates(run.estimates))
+    truth = np.array([s.stamp for s in run.truth]), np.array([s.position for s in run.truth])
+    offline = stator.evaluate(layout, ctrl.commands, *truth, vehicle).as_dict()
+    for label, st in (("live", live), ("replayed", offline)):
+        assert st["section_passages"] >= 20, f"{name} {label}: {st}"
+        assert st["switched_under_vehicle"] == 0 and st["double_feed"] == 0, f"{name} {label}: {st}"
+        assert st["thrust_loss_s"] == 0.0, f"{name} {label}: {st}"
+    feeds = _live_switch_ons(bag)
+    replayed_ons = [(c.stamp, c.section) for c in ctrl.commands if c.on]
+    assert [s for _, s in feeds] == [s for _, s in replayed_ons]
+    assert np.allclose([t for t, _ in feeds], [t for t, _ in replayed_ons], atol=0.3)
+
+
+def _live_switch_ons(bag):
+    """(stamp, section) of every section the live controller switched on, in order."""
+    fed, out = set(), []
+    for _, _, _, msg in read_bag(bag, [f"/train/{stator.FEED_TOPIC}"]):
+        now = {sid for sid, on in zip(msg.section_ids, msg.fed) if on}
+        out += [(convert.stamp_to_sec(msg.header.stamp), sid) for sid in sorted(now - fed)]
+        fed = now
+    return out

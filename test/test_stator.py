@@ -117,3 +117,19 @@ def test_long_stator_campaign_runs_switch_no_section_under_the_vehicle():
     summary = campaign.summarise([r])
     assert summary["checks"]["stator_none_switched_under_vehicle"] is True
     assert not math.isnan(summary["all"]["stator"]["thrust_loss_per_passage_s"]["max"])
+
+
+def test_the_node_takes_a_claimed_state_and_refuses_one_it_cannot_use():
+    from train_localization.nodes.stator import view_from_msg
+    from train_localization_msgs.msg import TrainState
+    msg = TrainState(position=1000.0, position_min=999.0, position_max=1001.5, speed=100.0, speed_stddev=0.1, mode=1)
+    msg.header.stamp.sec, msg.header.stamp.nanosec = 12, 500_000_000
+    assert view_from_msg(msg) == stator.TrainView(12.5, True, 999.0, 1001.5, 100.0, 0.1)
+    msg.mode = 0                       # initialising: not claimed, held by the controller
+    assert view_from_msg(msg).claimed is False
+    msg.mode, msg.position_min, msg.position_max = 2, 1002.0, 1001.0
+    with pytest.raises(ValueError, match="interval"):
+        view_from_msg(msg)
+    msg.position_min, msg.speed_stddev = 999.0, float("nan")
+    with pytest.raises(ValueError, match="speed"):
+        view_from_msg(msg)

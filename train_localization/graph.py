@@ -21,10 +21,12 @@ def lean_exclude(trains) -> list[str]:
 
 def demo_graph(scenario: str, sensors: list[str], bag: str, rate: float = 1.0,
                exclude: list[str] | None = None, record: bool = True,
-               controller: bool = False) -> list[tuple[str, str, dict]]:
+               controller: bool = False, stator: bool = False) -> list[tuple[str, str, dict]]:
     """Recorder (if ``record``), one sensor node per entry of ``sensors`` (node names),
     fusion, the speed controller (if ``controller``: a scenario with a ``control`` section,
-    whose simulator drives the vehicle by its traction command), simulator.
+    whose simulator drives the vehicle by its traction command), the stator section
+    controller (if ``stator``: a track with long-stator sections, core/wayside/stator.py,
+    fed from the fused state), simulator.
 
     ``exclude``: topics the recorder leaves out (default: only /rosout and
     /parameter_events; LEAN_EXCLUDE also drops what the fused state determines).
@@ -41,6 +43,9 @@ def demo_graph(scenario: str, sensors: list[str], bag: str, rate: float = 1.0,
     nodes.append(("fusion", "fusion", {"scenario": scenario, "sensors": classes, "use_sim_time": True}))
     if controller:
         nodes.append(("speed_controller", "speed_controller", {"scenario": scenario, "use_sim_time": True}))
+    if stator:
+        nodes.append(("stator_section_controller", "stator_section_controller",
+                      {"scenario": scenario, "use_sim_time": True}))
     # the simulator starts once the recorder and every sensor node listen to the truth and the
     # fusion publishes (a fusion still starting would miss the first seconds of fused states)
     nodes.append(("simulator", "simulator", {"scenario": scenario, "rate": rate, "start_delay": 1.0,

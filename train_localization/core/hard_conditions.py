@@ -31,6 +31,7 @@ P_TUNNEL, P_WORN, P_CRAWL, P_ADVERSARIAL = 0.25, 0.1, 0.1, 0.1
 # sensor nodes whose fixes name equipment of the track, and their classes
 FIX_SENSORS = {"eurobalise_reader": "eurobalise", "axle_counter": "axle_counter", "tag_reader": "transponder",
                "lrl_scanner": "lrl", "inpo_receiver": "inpo", "lzb_receiver": "lzb", "mmwave_ranging": "mmwave",
+               "mmwave_tdoa": "mmwave_tdoa",
                "dgps_receiver": "dgps", "track_circuit_receiver": "track_circuit", "checkin_loop": "checkin"}
 
 

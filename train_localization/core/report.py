@@ -317,6 +317,30 @@ def recorded_changeover(bag, scenario) -> dict:
     return {**line_events(site, scenario, arrays, switchings), "commands": commands}
 
 
+def recorded_stator(bag, scenario, namespace: str) -> dict:
+    """Stator feeding events of a one-train bag (core/wayside/stator.py) with the feed that the
+    live stator_section_controller recorded under ``namespace`` and the recorded truth; the
+    controller's parameters at their defaults (the graph's)."""
+    from .bagio import read_bag
+    from .convert import stamp_to_sec
+    from .wayside import stator
+    ns = namespace.rstrip("/")
+    feed_topic, truth_topic = f"{ns}/{stator.FEED_TOPIC}", f"{ns}/ground_truth/state"
+    feeds, truth = [], []
+    for topic, _, _, msg in read_bag(bag, [feed_topic, truth_topic]):
+        stamp = stamp_to_sec(msg.header.stamp)
+        if topic == truth_topic:
+            truth.append((stamp, float(msg.position)))
+        else:
+            feeds.append((stamp, [sid for sid, on in zip(msg.section_ids, msg.fed) if on]))
+    params = stator.controller_params()
+    layout = stator.Layout.from_track(scenario.track, params["inverters"])
+    commands = stator.commands_from_feed(feeds, params["command_latency"] + params["switch_time"])
+    arr = np.array(truth, dtype=float).reshape(-1, 2)
+    vehicle = stator.Vehicle(scenario.vehicle.length, scenario.orientation())
+    return {**stator.evaluate(layout, commands, arr[:, 0], arr[:, 1], vehicle).as_dict(), "feed_messages": len(feeds)}
+
+
 def line_report(result) -> dict:
     """{"trains": train name -> evaluate() report, "association": association_check(),
     "changeover": changeover_check() (a line with a changeover section)}."""

@@ -26,10 +26,11 @@ from pathlib import Path
 
 from ..core import paths
 from ..core.bagio import read_bag, topic_counts
-from ..core.report import jsonable, recorded_changeover
+from ..core.report import jsonable, recorded_changeover, recorded_stator
 from ..core.scenario import Scenario
 from ..core.scoring import StateSeries, score
 from ..core.offline import FUSED_TOPIC, TRUTH_TOPIC, scenario_from_bag
+from ..core.wayside.stator import KIND as STATOR_KIND
 from ..graph import NAMESPACE, demo_graph, line_graph, ros_args
 from . import domains
 
@@ -57,7 +58,7 @@ def run_graph(scenario_path: str, bag: Path, rate: float, log_dir: Path, timeout
     if bag.exists():
         bag.unlink()
     graph = demo_graph(str(paths.resolve(scenario_path)), list(scenario.sensors), str(bag), rate, exclude,
-                       controller=bool(scenario.control))
+                       controller=bool(scenario.control), stator=bool(scenario.track.items(STATOR_KIND)))
     return run_nodes(graph, "simulator", log_dir, timeout or (scenario.duration / max(rate, 1e-3) + 60.0))
 
 
@@ -190,6 +191,14 @@ def print_changeover(co: dict, source: str) -> None:
               f"leading pantograph over the neutral section: {co['crossing_time_s'][name]:.2f} s)")
 
 
+def print_stator(st: dict) -> None:
+    """The long-stator feeding events of a one-train run (core/report.py recorded_stator)."""
+    print(f"\n[stator] with the live controller's recorded feed ({st['feed_messages']} messages, "
+          f"{st['switchings']} switchings, {st['section_passages']} sections passed): switched under the vehicle "
+          f"{st['switched_under_vehicle']}, an inverter feeding two sections {st['double_feed']}, thrust lost "
+          f"{st['thrust_loss_s']:.3f} s (from {st['startup_s']:.2f} s, when the first commands took effect)")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenario", default="config/scenario_demo.yaml")
@@ -216,6 +225,9 @@ def main(argv=None) -> int:
         summary = summarise(bag)
         summary["exit_codes"] = codes
         print_summary(summary)
+        if scenario.track.items(STATOR_KIND):
+            summary["stator"] = jsonable(recorded_stator(bag, scenario, NAMESPACE))
+            print_stator(summary["stator"])
     bad = {n: c for n, c in codes.items() if c not in (0,)}
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     if bad:

@@ -285,6 +285,19 @@ def run_controller(layout: Layout, vehicle: Vehicle, series, overrides: dict | N
     return ctrl
 
 
+def commands_from_feed(feeds, delay: float) -> list[Command]:
+    """The commands behind a recorded feed stream: ``feeds`` (stamp [s], fed section ids) in
+    time order, as the controller publishes them on every change; each change is a command
+    decided at its stamp, effective ``delay`` [s] (command_latency + switch_time) later."""
+    out, fed = [], set()
+    for stamp, ids in feeds:
+        now = set(ids)
+        out += [Command(stamp, stamp + delay, sid, False) for sid in sorted(fed - now)]
+        out += [Command(stamp, stamp + delay, sid, True) for sid in sorted(now - fed)]
+        fed = now
+    return out
+
+
 @dataclass
 class StatorReport:
     """What the feeding did on the true motion of one train (seconds, counts)."""

@@ -1,0 +1,155 @@
+"""``stator_section_controller``: sectional feeding of a long-stator guideway from the fused
+train states (core/wayside/stator.py, seed 000 section 2), a thin shell.
+
+Subscribes ``localization/state`` (TrainState: one train, this namespace) or, with
+``trains``, ``/<name>/localization/state`` of each train of a line; every ``period`` it
+decides which stator sections its inverters feed and publishes ``stator/feed``
+(StatorFeed, reliable + transient-local) on every change and every second.
+
+Parameters: ``scenario`` (YAML: the track with its ``stator_section`` items, the vehicle's
+length and orientation; a line scenario gives each train's) or ``track`` (track YAML) with
+``train_length`` [m] and ``orientation`` (+1/-1); ``trains`` (names of a line's trains; empty:
+the train of this namespace); the PARAMS of core/wayside/stator.py (``inverters``,
+``command_latency``, ``switch_time``, ``period``, ``margin``, ``speed_confidence``,
+``max_state_age``). The timer runs on the node clock (use_sim_time on simulated time).
+
+/diagnostics: the fed sections and the controller's counters; WARN while a train is held
+(its state is stale, or it has no claimed position: nothing is switched for it) or a section
+waits for its inverter; a state that cannot be used (NaN, an interval upside down) is
+counted as rejected and ignored.
+"""
+from __future__ import annotations
+
+import math
+import sys
+
+from rclpy.node import Node
+
+from ..core import convert, paths
+from ..core.scenario import Scenario
+from ..core.track import Track
+from ..core.wayside import stator
+from .common import LATCHED_QOS, STATE_QOS, ConfigurationError, Diagnostics, declare, now_sec, rclpy_classes, spin
+
+PUBLISH_EVERY = 1.0    # [s] the feed is republished at least this often
+
+
+def view_from_msg(msg) -> stator.TrainView:
+    """The controller's view of a TrainState message (InputRejected-free: ValueError if unusable)."""
+    lo, hi = float(msg.position_min), float(msg.position_max)
+    claimed = msg.mode in (1, 2)
+    if claimed and not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+        raise ValueError(f"interval [{lo}, {hi}] is not usable")
+    v, sv = float(msg.speed), float(msg.speed_stddev)
+    if claimed and not (math.isfinite(v) and math.isfinite(sv) and sv >= 0.0):
+        raise ValueError(f"speed {v} +- {sv} is not usable")
+    return stator.TrainView(convert.stamp_to_sec(msg.header.stamp), claimed, lo, hi, v, sv)
+
+
+class StatorControllerNode(Node):
+    def __init__(self, **kw):
+        Node.__init__(self, "stator_section_controller", **kw)
+        from train_localization_msgs.msg import StatorFeed
+        self._feed_cls = StatorFeed
+        self.diag = Diagnostics(self, "long-stator sectional feeding")
+        track, vehicles, topics = self._configuration()
+        params = {name: declare(self, name, p.default, p.description, read_only=True, limits=p.limits)
+                  for name, p in stator.PARAMS.items()}
+        try:
+            layout = stator.Layout.from_track(track, int(params["inverters"]))
+        except stator.StatorError as exc:
+            raise ConfigurationError(str(exc)) from None
+        if not len(layout):
+            raise ConfigurationError(f"track {track.track_id} has no {stator.KIND} items: nothing to feed")
+        self.ctrl = stator.StatorController(layout, vehicles, params)
+        self.states: dict[str, stator.TrainView] = {}
+        state_cls = rclpy_classes().TrainState
+        for name, topic in topics.items():
+            self.create_subscription(state_cls, topic, lambda msg, n=name: self.on_state(n, msg), STATE_QOS)
+        self.pub = self.create_publisher(StatorFeed, stator.FEED_TOPIC, LATCHED_QOS)
+        self._last_fed: tuple | None = None
+        self._last_pub = -math.inf
+        self.create_timer(params["period"], self.evaluate)
+        self.diag.set_status(1, "no train state yet: nothing fed")
+
+    def _configuration(self) -> tuple[Track, dict, dict]:
+        """(track, train name -> stator.Vehicle, train name -> state topic) from the parameters."""
+        scenario_path = declare(self, "scenario", "", "scenario YAML (track with stator sections, vehicle)",
+                                read_only=True)
+        track_path = declare(self, "track", "config/track_maglev.yaml", "track YAML when no scenario is given",
+                             read_only=True)
+        trains = [str(t) for t in declare(self, "trains", [""], "names of a line's trains whose "
+                                          "/<name>/localization/state are fed; [''] = the train of this namespace",
+                                          read_only=True) if str(t)]
+        length = declare(self, "train_length", 200.0, "vehicle length behind the front [m] (without a scenario)",
+                         read_only=True, limits=(1.0, 2000.0))
+        orientation = declare(self, "orientation", 1, "+1: the front faces increasing chainage, -1: decreasing "
+                              "(without a scenario)", read_only=True, limits=(-1, 1))
+        if orientation == 0:
+            raise ConfigurationError("parameter 'orientation' must be +1 or -1")
+        if not scenario_path:
+            track = Track.from_yaml(paths.resolve(track_path))
+            names = trains or ["train"]
+            vehicles = {n: stator.Vehicle(float(length), int(orientation)) for n in names}
+        else:
+            line = Scenario.from_yaml(scenario_path)
+            track = line.track
+            if trains:
+                vehicles = {n: stator.Vehicle(line.train(n).vehicle.length, line.train(n).orientation())
+                            for n in trains}
+            else:
+                own = line.for_namespace(self.get_namespace())
+                vehicles = {"train": stator.Vehicle(own.vehicle.length, own.orientation())}
+        topics = ({n: f"/{n}/localization/state" for n in trains} if trains
+                  else {next(iter(vehicles)): "localization/state"})
+        return track, vehicles, topics
+
+    def on_state(self, name: str, msg) -> None:
+        try:
+            view = view_from_msg(msg)
+        except ValueError as exc:
+            self.diag.reject("localization/state", "implausible", str(exc))
+            return
+        self.states[name] = view
+        self.diag.accept("localization/state")
+
+    def now(self) -> float:
+        """Node clock, or the latest state's stamp while no clock runs."""
+        t = now_sec(self)
+        return t if t > 0.0 else max((v.stamp for v in self.states.values()), default=0.0)
+
+    def evaluate(self) -> None:
+        now = self.now()
+        if not self.states:
+            return
+        busy_before = self.ctrl.counters["inverter_busy"]
+        held_before = self.ctrl.counters["held"]
+        for cmd in self.ctrl.update(now, self.states):
+            self.get_logger().info(f"{cmd.section} {'on' if cmd.on else 'off'} (effective {cmd.effective:.3f} s)")
+        fed = tuple(self.ctrl.fed_sections())
+        if fed != self._last_fed or now - self._last_pub >= PUBLISH_EVERY:
+            self.pub.publish(self._feed_msg(now))
+            self._last_fed, self._last_pub = fed, now
+        self.diag.values["fed"] = ",".join(fed)
+        self.diag.values.update({k: str(v) for k, v in self.ctrl.counters.items()})
+        notes = []
+        if self.ctrl.counters["held"] > held_before:
+            notes.append("a train is held (stale state or no claimed position): nothing switched for it")
+        if self.ctrl.counters["inverter_busy"] > busy_before:
+            notes.append("a needed section waits for its inverter")
+        self.diag.set_status(1 if notes else 0, "; ".join(notes) or f"feeding {', '.join(fed) or 'nothing'}")
+
+    def _feed_msg(self, now: float):
+        sections = self.ctrl.layout.sections
+        fed = set(self.ctrl.fed_sections())
+        msg = self._feed_cls()
+        sec, nanosec = divmod(convert.sec_to_ns(now), convert.NS)
+        msg.header.stamp.sec, msg.header.stamp.nanosec = int(sec), int(nanosec)
+        msg.section_ids = [s.section_id for s in sections]
+        msg.inverters = [s.inverter for s in sections]
+        msg.fed = [s.section_id in fed for s in sections]
+        return msg
+
+
+def main(args=None):
+    sys.exit(spin(StatorControllerNode, args, usage=f"{__doc__}\n{StatorControllerNode.__doc__}"))

@@ -22,7 +22,7 @@ normalised_error.png (histogram with the N(0, 1) density). The summary table is
 printed at the end. The exit code is 0 (a campaign is a measurement) unless
 ``--check``: then 1 if the truth is inside the interval in < 99.9 % of all states,
 any run < 99.5 %, any excursion lasts > 2 s, any run failed, or (the long-stator
-families, core/wayside/stator.py) a stator section switched under a vehicle.
+families, core/wayside/stator.py) a stator section switched off under a vehicle.
 """
 from __future__ import annotations
 
@@ -252,7 +252,8 @@ def summary_table(summary: dict) -> str:
         if st:
             pp = st["thrust_loss_per_passage_s"]
             lines.append(f"{name}: stator feeding ({st['runs']} runs, {st['section_passages']} section passages, "
-                         f"{st['switchings']} switchings): switched under the vehicle {st['switched_under_vehicle']}, "
+                         f"{st['switchings']} switchings): switched off under the vehicle {st['switched_off_under_vehicle']}, "
+                         f"switched on late (the vehicle over it) {st['switched_on_late']}, "
                          f"an inverter feeding two sections {st['double_feed']}, thrust lost {st['thrust_loss_s']:.3f} s "
                          f"in {len(st['runs_with_thrust_loss'])} runs; per passage median {pp['median']:.4f} s, "
                          f"p95 {pp['p95']:.4f} s, max {pp['max']:.4f} s")
@@ -261,8 +262,9 @@ def summary_table(summary: dict) -> str:
                  f"no excursion > {EXCURSION_LIMIT:.0f} s: {checks['excursions_within_2_s']}; "
                  f"no failed run: {checks['no_errors']}; "
                  f"none outside while NOMINAL: {checks.get('none_outside_nominal')}"
-                 + (f"; no stator section switched under a vehicle: {checks['stator_none_switched_under_vehicle']}"
-                    if "stator_none_switched_under_vehicle" in checks else "") + " -> "
+                 + (f"; no stator section switched off under a vehicle: "
+                    f"{checks['stator_none_switched_off_under_vehicle']}"
+                    if "stator_none_switched_off_under_vehicle" in checks else "") + " -> "
                  f"{'PASSED' if summary['passed'] else 'FAILED'}")
     return "\n".join(lines)
 

@@ -194,8 +194,8 @@ def print_changeover(co: dict, source: str) -> None:
 def print_stator(st: dict) -> None:
     """The long-stator feeding events of a one-train run (core/report.py recorded_stator)."""
     print(f"\n[stator] with the live controller's recorded feed ({st['feed_messages']} messages, "
-          f"{st['switchings']} switchings, {st['section_passages']} sections passed): switched under the vehicle "
-          f"{st['switched_under_vehicle']}, an inverter feeding two sections {st['double_feed']}, thrust lost "
+          f"{st['switchings']} switchings, {st['section_passages']} sections passed): switched off under the vehicle "
+          f"{st['switched_off_under_vehicle']}, switched on late {st['switched_on_late']}, an inverter feeding two sections {st['double_feed']}, thrust lost "
           f"{st['thrust_loss_s']:.3f} s (from {st['startup_s']:.2f} s, when the first commands took effect)")
 
 

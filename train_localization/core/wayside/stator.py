@@ -304,15 +304,19 @@ class StatorReport:
 
     thrust_loss_s: float = 0.0            # time with part of the vehicle over an unfed section
     thrust_deficit_s: float = 0.0         # integral of the unfed share of the vehicle's length
-    switched_under_vehicle: list = field(default_factory=list)   # (time, section, "on"/"off")
+    # (time, section, "on"/"off"): "off" cut the motor current under the vehicle (the hazard);
+    # "on" closed late, onto a section the vehicle had reached unfed (thrust lost before)
+    switched_under_vehicle: list = field(default_factory=list)
     double_feed: list = field(default_factory=list)              # (time, inverter, sections)
     section_passages: int = 0             # sections the vehicle's front entered
     switchings: int = 0
     startup_s: float = 0.0                # from the motion's start until the first commands took effect
 
     def as_dict(self) -> dict:
+        off = sum(1 for e in self.switched_under_vehicle if e[2] == "off")
         return {"thrust_loss_s": self.thrust_loss_s, "thrust_deficit_s": self.thrust_deficit_s,
                 "switched_under_vehicle": len(self.switched_under_vehicle),
+                "switched_off_under_vehicle": off, "switched_on_late": len(self.switched_under_vehicle) - off,
                 "switched_under_vehicle_list": [list(e) for e in self.switched_under_vehicle[:20]],
                 "double_feed": len(self.double_feed), "section_passages": self.section_passages,
                 "switchings": self.switchings, "startup_s": self.startup_s,

@@ -92,7 +92,9 @@ def test_the_later_families_draw_their_equipment_and_faults(draws):
     assert 20 < sum("faults" in d["sensors"]["dgps_receiver"] for d in draws["utm"]) < 65
     for data in draws["mlx"]:
         assert data["track"]["equipment"]["null_flux_coils"][0]["end"] == data["track"]["length"]
-    assert 35 < sum(bool(d["sensors"]["mmwave_ranging"]["faults"]) for d in draws["mlx"]) < 85
+    radio = [d["sensors"].get("mmwave_ranging") or d["sensors"]["mmwave_tdoa"] for d in draws["mlx"]]
+    biased = [[f for f in r["faults"].split(";") if f and "sync=" not in f] for r in radio]
+    assert 35 < sum(bool(b) for b in biased) < 85
     # HSST: touching check-in blocks from 0 to the end of the line (seed 000 section 2.2.1);
     # a failed rear transmitter in ~10 % of the runs
     for data in draws["hsst"]:
@@ -103,6 +105,37 @@ def test_the_later_families_draw_their_equipment_and_faults(draws):
     for data in draws["mbahn"]:
         assert data["sensors"]["pole_position"]["top_speed"] >= 22.2
         assert data["track"]["equipment"]["transponder_tag"]
+
+
+def test_mlx_runs_on_dense_stations_position_by_time_differences_in_half_of_them(draws):
+    """mmwave_tdoa instead of mmwave_ranging in about half of the mlx runs whose stations are at
+    most 500 m apart, never on sparser ones; a third of them with a station losing its
+    synchronisation near the train; the long-stator families lay their stator sections."""
+    dense = [d for d in draws["mlx"] if d["campaign"]["conditions"]["station_spacing"] <= 500.0]
+    tdoa = [d for d in draws["mlx"] if "mmwave_tdoa" in d["sensors"]]
+    assert all(d in dense and "mmwave_ranging" not in d["sensors"] for d in tdoa)
+    assert all(d["campaign"]["conditions"]["ranging"] == "tdoa" for d in tdoa)
+    assert 0.3 * len(dense) < len(tdoa) < 0.7 * len(dense)
+    synced = [d for d in tdoa if "sync=" in d["sensors"]["mmwave_tdoa"]["faults"]]
+    assert 0.1 * len(tdoa) < len(synced) < 0.6 * len(tdoa)
+    for d in tdoa:
+        spacing = d["campaign"]["conditions"]["station_spacing"]
+        assert d["sensors"]["mmwave_tdoa"]["max_range"] == pytest.approx(2.6 * spacing + 100.0, rel=1e-5)
+    for family in ("highspeed_maglev", "mlx"):
+        for d in draws[family]:
+            sections = d["track"]["equipment"]["stator_section"]
+            assert sections[0]["position"] == 0.0 and sections[-1]["end"] == d["track"]["length"]
+            assert all(a["end"] == b["position"] for a, b in zip(sections, sections[1:]))
+    assert not any("stator_section" in d["track"]["equipment"] for d in draws["conventional"])
+
+
+def test_a_tdoa_run_keeps_the_truth_inside_its_interval():
+    seed = next(s for s in range(100) if "mmwave_tdoa" in generate("mlx", s)["sensors"])
+    r = run_one("mlx", seed, max_duration=20.0)
+    assert "error" not in r, r.get("traceback")
+    assert r["devices"]["mmwave_tdoa"]["decoder"]["fixes"] > 0.5 * r["devices"]["mmwave_tdoa"]["decoder"]["epochs"]
+    assert r["scores"]["integrity"]["inside_fraction"] == 1.0
+    assert "mmwave_tdoa" in r["sensors"] and r["sensors"]["mmwave_tdoa"]["delivered"] > 1000
 
 
 def test_radar_scale_faults_come_at_once_or_grow_over_a_ramp(draws):

@@ -679,6 +679,37 @@ def _stator_sections(family: str, seed: int, body: dict, v_max: float, max_delay
     return stator.lay_sections(0.0, body["track"]["length"], _g(least * rng.uniform(1.0, 1.5)))
 
 
+TDOA_SHARE = 0.5          # share of the mlx runs whose radio positions by time differences
+TDOA_MAX_SPACING = 500.0  # [m] a line equipped for TDOA: stations at most this far apart
+
+
+def _tdoa_ranging(seed: int, body: dict, conditions: dict) -> None:
+    """Half of the mlx runs on stations at most TDOA_MAX_SPACING apart position by time
+    differences (mmwave_tdoa, seed 002 section 2.2.2) instead of two-way ranging, from a
+    stream of their own: the same NLOS, dropout and fault draws, the stations' synchronisation
+    (0.1-1 ns), the receiver clock (0.5-10 ppm) and, in a third of them, one station losing
+    its synchronisation (0.5-5 ns/s for 2-15 s) near the train. The radio takes the 6
+    stations nearest (1-D TDOA needs two on each side of the antenna: docs/nodes.md)."""
+    rng = np.random.default_rng([seed, 5001])
+    if conditions.get("station_spacing", math.inf) > TDOA_MAX_SPACING or rng.random() >= TDOA_SHARE:
+        return
+    twr = body["sensors"].pop("mmwave_ranging")
+    tdoa = {k: twr[k] for k in ("nlos_rate", "nlos_bias_mean", "dropout_prob", "faults")}
+    tdoa.update(sync_sigma=_g(rng.uniform(0.1, 1.0)), clock_drift=_g(rng.uniform(0.5, 10.0)),
+                max_range=_g(2.6 * conditions["station_spacing"] + 100.0))
+    if rng.random() < 1.0 / 3.0:
+        stations = body["track"]["equipment"]["mmwave_station"]
+        t0 = float(rng.uniform(0.0, 0.8 * body["duration"]))
+        traj = _coarse(body["profile"], body["initial"]["speed"], body["duration"])
+        front = float(np.interp(t0, traj.t, traj.position)) + body["initial"]["position"]
+        k = int(np.argmin([abs(st["position"] - front) for st in stations]))
+        fault = f"{stations[k]['id']}@{_g(t0)}-{_g(t0 + rng.uniform(2.0, 15.0))}:sync={_g(rng.uniform(0.5, 5.0))}"
+        tdoa["faults"] = ";".join(filter(None, [tdoa["faults"], fault]))
+        conditions["sync_fault"] = fault
+    body["sensors"]["mmwave_tdoa"] = tdoa
+    conditions["ranging"] = "tdoa"
+
+
 _GENERATORS = {"conventional": _conventional, "urban_maglev": _urban, "highspeed_maglev": _highspeed_maglev,
                "lzb": _lzb, "utm": _utm, "mlx": _mlx, "hsst": _hsst, "mbahn": _mbahn}
 
@@ -691,6 +722,8 @@ def generate(family: str, seed: int, max_duration: float | None = None) -> dict:
         raise ValueError(f"unknown family {family!r}; known: {', '.join(ALL_FAMILIES)}")
     d = _Draw(seed)
     body, conditions = _GENERATORS[family](d)
+    if family == "mlx":
+        _tdoa_ranging(seed, body, conditions)
     classes = sensor_classes()
     delivery = _delivery(d, body["duration"], [classes[n] for n in body["sensors"]])
     conditions["max_delay"] = delivery["max_delay"]

@@ -801,12 +801,12 @@ def test_a_sensor_solution_learns_its_scale_from_the_fixes_and_is_refuted_by_one
     scale (to within the fixes' 0.3 m over the distance), after which it tracks the truth; a fix
     20 m off refutes it."""
     sm = separation.sub_models(sensor_models(["wheel_sensor", "doppler_radar"], None, Vehicle()))["wheel"]
-    sub = separation.seed(sm, 0.0, 0.0, 0.01, 20.0)
+    sub = separation.seed(sm, 0.0, 0.0, 0.01, 0.0)
     v, s, errors = 20.0, 0.0, []
     for j in range(1, 2001):     # 100 s at 20 m/s, increments of 50 ms, fixes every 1 km
         t = j * 0.05
         s += v * 0.05
-        main = separation.Main(s, 0.01, v, 0.01)   # the filter, here right
+        main = separation.Main(s, 0.01, v, 0.01, s)   # the filter, here right (its odometer too)
         sub = separation.reading(sub, sm, DistanceIncrement(t, "wheel", "w", 0.05, 1.01 * v * 0.05, 0.002, v, 0.6),
                                  (0.002 / 0.05) ** 2, 0.0, main, 1.0)
         if j % 1000 == 0:
@@ -819,6 +819,26 @@ def test_a_sensor_solution_learns_its_scale_from_the_fixes_and_is_refuted_by_one
     assert separation.fix(sub, 100.0, s + 20.0, 0.09, main, 15.0) is None
 
 
+def test_a_silent_sensors_solution_moves_as_the_filter_ran_through_a_stop_not_at_its_end_speeds():
+    """Campaign run lzb:3996091297: the radar, silent below its minimum speed from 131.7 s
+    through a stop until 146.4 s, had its own solution carried over those 14.7 s at the mean of
+    the filter's speeds at both ends (about 1 m/s and 0.5 m/s): 12 m on, while the train stood
+    still. On the restart the radar read again and that solution, under the worn-wheel
+    hypothesis the narrowest bound, cut the interval 0.2 m short of the truth for 17 s. A solution
+    without readings moves as the filter's odometer did (its motion by its own speed, stops
+    included)."""
+    sm = separation.sub_models(sensor_models(["wheel_sensor", "doppler_radar"], None, Vehicle()))["doppler"]
+    at_anchor = separation.Main(14180.0, 0.4, 1.06, 0.01, 5000.0)     # last radar reading, 1.06 m/s
+    sub = separation.reading(separation.seed(sm, 131.0, 14179.3, 0.4, 4999.3), sm,
+                             SpeedMeasurement(131.67, "doppler", "d", 1.06, 0.05), 0.0025, 0.0, at_anchor, 1.0)
+    # 14.7 s later: the filter ran 6.2 m (slowing, stopped 12 s, starting at 0.5 m/s)
+    s, var = separation.at(sub, 146.4, 0.46, 0.5, 0.004, 5006.2)
+    assert s == pytest.approx(sub.s + 6.2, abs=1e-9)
+    assert var >= sub.pss
+    later = separation.follow(sub, 146.4, separation.Main(14186.2, 0.46, 0.5, 0.004, 5006.2))
+    assert later.s == pytest.approx(s) and later.pss == pytest.approx(var)
+
+
 def test_a_sensor_solution_started_at_a_fix_moves_with_its_own_first_reading_not_the_filters_motion():
     """Campaign run conventional:3779352276: the first position came from an axle-counter fix
     while the filter's speed, taken from a worn wheel, was 0.5 m/s high; the radar's solution,
@@ -827,8 +847,8 @@ def test_a_sensor_solution_started_at_a_fix_moves_with_its_own_first_reading_not
     the bound, and the truth left the interval for 6 NOMINAL states. The solution's first reading
     within SPEED_GAP carries it over that time with the radar's own speed."""
     sm = separation.sub_models(sensor_models(["wheel_sensor", "doppler_radar"], None, Vehicle()))["doppler"]
-    sub = separation.seed(sm, 39.727, 1000.0, 0.0006, 28.5)          # the filter's speed, 0.5 m/s high
-    main = separation.Main(1000.0 + 28.5 * 0.8, 0.0009, 28.5, 0.013)
+    sub = separation.seed(sm, 39.727, 1000.0, 0.0006, 1000.0)        # the filter's speed, 0.5 m/s high
+    main = separation.Main(1000.0 + 28.5 * 0.8, 0.0009, 28.5, 0.013, 1000.0 + 28.5 * 0.8)
     sub = separation.reading(sub, sm, SpeedMeasurement(40.527, "doppler", "d", 28.0, 0.1), 0.01, 0.0, main, 1.0)
     assert sub.own and sub.t == pytest.approx(40.527)
     assert sub.s == pytest.approx(1000.0 + 28.0 * 0.8, abs=0.01)         # the radar's 28 m/s, not 28.5

@@ -161,7 +161,7 @@ class Bookkeeping:
                  "alternative", "events", "unverified", "s_last_fix", "relative_alternatives", "suspended",
                  "candidate", "used_refs", "peer_speeds", "peer_run", "motion_views", "view_speeds",
                  "episode_views", "fault_windows", "subs", "fix_bias_nis", "lone_view", "scale_faults",
-                 "impacts")
+                 "impacts", "odometer")
 
     def __init__(self):
         self.initialised = False
@@ -214,6 +214,9 @@ class Bookkeeping:
         self.scale_faults: frozenset = frozenset()
         # the persistent-fault hypotheses of the relative sensors (impact.py Bank), None before any
         self.impacts = None
+        # the filter's position moved by its own speed only, without the corrections of updates [m]:
+        # how far the filter believes the train ran between two times (separation.py follows it)
+        self.odometer = 0.0
 
     def copy(self) -> "Bookkeeping":
         new = object.__new__(Bookkeeping)

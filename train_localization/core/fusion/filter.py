@@ -162,7 +162,7 @@ class TrainFilter:
             aux.last_accepted = {"operator": stamp if stamp is not None else 0.0}
             aux.s_last_fix = position
             aux.subs = {name: separation.seed(sm, stamp if stamp is not None else 0.0, position,
-                                              position_stddev ** 2, speed) for name, sm in self._subs.items()}
+                                              position_stddev ** 2, aux.odometer) for name, sm in self._subs.items()}
         aux.t = stamp
         self._clear((x, P, aux))
         if stamp is not None:
@@ -177,6 +177,7 @@ class TrainFilter:
             s0 = self.ekf.x[0, 0]
             aux.impacts = impact.predicted(aux.impacts, self.process.transition(t - aux.t)[0])
             self.ekf.x, self.ekf.P = self.process.predict(self.ekf.x, self.ekf.P, aux.t, t)
+            aux.odometer += float(self.ekf.x[0, 0] - s0)
             aux.t = t
             if self._fault_bounds and aux.initialised and (
                     aux.impacts is None or
@@ -433,6 +434,7 @@ class TrainFilter:
         if aux.t is None or t < aux.t:
             x, P, aux = self.state(t)
             s, v, a, var_s, var_v = x[0], x[1], x[2], P[0, 0], P[1, 1]
+            xk = self._kept(t)[0]
             scales, biases = self._error_states(x.tolist())
         else:
             # plain floats: numpy's per-call overhead dominates 3x3 arithmetic; the error states
@@ -460,7 +462,8 @@ class TrainFilter:
         if not aux.initialised:
             return Estimate(t, math.nan, float(v), float(a), math.inf, sd_v, -math.inf, math.inf,
                             self.cfg.confidence, Mode.INITIALISING, scales, biases)
-        lo, hi, sd_s, sd_v, mode = self.interval.cover(aux, t, s, v, var_s, var_v, sd_s, sd_v, xk, Pk)
+        odometer = aux.odometer + float(s - xk[0, 0])   # the prediction from the kept state moves by speed only
+        lo, hi, sd_s, sd_v, mode = self.interval.cover(aux, t, s, v, var_s, var_v, sd_s, sd_v, xk, Pk, odometer)
         return Estimate(t, float(s), float(v), float(a), sd_s, sd_v, lo, hi, self.cfg.confidence,
                         mode, scales, biases)
 

@@ -24,13 +24,14 @@ from . import separation
 class Interval(Component):
     """The published interval and mode."""
 
-    def cover(self, aux: Bookkeeping, t: float, s, v, var_s, var_v, sd_s, sd_v, xk, Pk) -> tuple:
+    def cover(self, aux: Bookkeeping, t: float, s, v, var_s, var_v, sd_s, sd_v, xk, Pk, odometer: float) -> tuple:
         """(lo, hi [m], position 1-sigma [m], speed 1-sigma [m/s], mode) at t [s] of the filter at
         s [m], v [m/s] (variances var_s [m^2], var_v [m^2/s^2]; 1-sigma sd_s, sd_v): its
         ``confidence`` interval widened to cover every pending hypothesis, in this order: the
         unexplained fix, the excluded sensors' views, their speeds, the motion-model hypotheses,
         the lone-source solution, the persistent-fault cover (impact.py; xk, Pk: the kept state
-        whose prepared cover ``_est_cache`` holds) and the sensors' own solutions."""
+        whose prepared cover ``_est_cache`` holds) and the sensors' own solutions (``odometer``: the
+        filter's odometer at t, Bookkeeping.odometer)."""
         lo, hi = float(s) - self.f._z * sd_s, float(s) + self.f._z * sd_s
         alt = aux.alternative
         if alt is not None:   # the unexplained fix, moved with the filter's motion since
@@ -74,7 +75,7 @@ class Interval(Component):
                 sd_v = half_v / self.f._z
         if aux.subs:   # the relative sensors' own solutions: per fault hypothesis (protection level)
             lo, hi, sd_s, sd_v, mode = self.f.solutions.hypotheses_cover(aux, t, float(s), var_s, float(v), var_v,
-                                                                         lo, hi, sd_s, sd_v, mode)
+                                                                         lo, hi, sd_s, sd_v, mode, odometer)
         return lo, hi, sd_s, sd_v, mode
 
     def speed_covering_views(self, aux: Bookkeeping, t: float, v: float, sd_v: float) -> float:

@@ -65,6 +65,7 @@ class Main(NamedTuple):
     P00: float             # its variance [m^2]
     v: float               # speed [m/s]
     var_v: float           # its variance [m^2/s^2]
+    d: float               # its odometer (Bookkeeping.odometer): its position moved by its speed only [m]
 
 
 class Sub(NamedTuple):
@@ -83,7 +84,7 @@ class Sub(NamedTuple):
     anchor_t: float        # time [s] of its last own reading or fix; its position [m] and variance
     anchor_s: float        # [m^2] then; a
     anchor_pss: float      # time without readings since follows the filter's motion from there:
-    base_v: float          # the filter's speed [m/s] and position variance [m^2] then
+    base_d: float          # the filter's odometer [m] and position variance [m^2] then
     base_P00: float
     own: bool              # whether it has integrated a reading of its own since it started
     t_v: float             # stamp of its last own speed [s] (-inf: following the filter)
@@ -147,40 +148,42 @@ def hypotheses(models: dict, subs: dict[str, SubModel]) -> dict[str, tuple[str, 
     return out
 
 
-def seed(sm: SubModel, t: float, s: float, var_s: float, v: float) -> Sub:
-    """A solution that starts at the filter's position s [m] (variance var_s [m^2]) and speed v
-    [m/s] at t [s], its error states at their priors."""
-    return Sub(t, s, 0.0, 0.0, var_s, 0.0, 0.0, sm.scale_var, 0.0, sm.bias_var, t, s, var_s, v, var_s, False,
+def seed(sm: SubModel, t: float, s: float, var_s: float, d: float) -> Sub:
+    """A solution that starts at the filter's position s [m] (variance var_s [m^2]) at t [s], the
+    filter's odometer then d [m] (Main.d), its error states at their priors."""
+    return Sub(t, s, 0.0, 0.0, var_s, 0.0, 0.0, sm.scale_var, 0.0, sm.bias_var, t, s, var_s, d, var_s, False,
                -math.inf, 0.0, 0.0)
 
 
 def _anchored(sub: Sub, main: Main) -> Sub:
     """The solution anchored here: a later time without readings follows the filter from ``main``."""
-    return sub._replace(anchor_t=sub.t, anchor_s=sub.s, anchor_pss=sub.pss, base_v=main.v, base_P00=main.P00)
+    return sub._replace(anchor_t=sub.t, anchor_s=sub.s, anchor_pss=sub.pss, base_d=main.d, base_P00=main.P00)
 
 
 def follow(sub: Sub, t: float, main: Main, own: float = 0.0) -> Sub:
     """The solution moved to t [s] with the filter (``main`` at t): a time without a reading of
     its own, or one the filter excluded as its sensor's own fault. From its last own reading or
-    fix it moves with the filter's speed (its motion, not the corrections other sensors make to
-    its position) and its variance grows as the filter's did (the filter's dead reckoning over
+    fix it moves as the filter's odometer did (its motion by its speed, not the corrections other
+    sensors make to its position: over a stop and a start as the filter ran, not at the mean of
+    its speeds at both ends) and its variance grows as the filter's did (the filter's dead reckoning over
     that time; counted from there, so that the ups and downs of the filter's variance in between
     do not add up); ``own`` [s]: the part of it up to t that a reading of the sensor covers."""
     if t <= sub.t:
         return sub
-    s, pss = _moved(sub, t, main.v, main.P00, main.var_v, own)
+    s, pss = _moved(sub, t, main.d, main.v, main.P00, main.var_v, own)
     return sub._replace(t=t, s=s, pss=pss)
 
 
-def _moved(sub: Sub, t: float, v: float, P00: float, var_v: float, own: float = 0.0) -> tuple[float, float]:
-    """(position [m], variance [m^2]) of ``follow`` at t > sub.t, the filter's speed v [m/s],
-    its variance var_v and its position variance P00 [m^2] at t."""
+def _moved(sub: Sub, t: float, d: float, v: float, P00: float, var_v: float, own: float = 0.0) -> tuple[float, float]:
+    """(position [m], variance [m^2]) of ``follow`` at t > sub.t, the filter's odometer d [m],
+    speed v [m/s], its variance var_v and its position variance P00 [m^2] at t; the last ``own``
+    seconds (a reading's own increment) at the speed v."""
     # the variance of the filter's displacement since the anchor: its position variance's growth,
     # at most that of a persistent speed error over the time (the growth also holds what other
     # sensors taught it about where it was then)
     dt = t - sub.anchor_t
     grown = min(max(P00 - sub.base_P00, 0.0), var_v * dt * dt)
-    return sub.anchor_s + 0.5 * (sub.base_v + v) * (dt - own), sub.anchor_pss + grown
+    return sub.anchor_s + (d - sub.base_d) - v * own, sub.anchor_pss + grown
 
 
 def _advance(sub: Sub, sm: SubModel, t: float, dt: float, u: float, R: float) -> Sub:
@@ -252,7 +255,7 @@ def fix(sub: Sub, t: float, z: float, R: float, before: Main, gate: float) -> Su
     excluded), the solution moves to the fix with the filter and is anchored there."""
     moved = follow(sub, t, before)
     if t - sub.t > SPEED_GAP or sub.t != sub.anchor_t:   # silent, or following the filter
-        sub = moved._replace(anchor_t=t, anchor_s=moved.s, anchor_pss=moved.pss, base_v=before.v,
+        sub = moved._replace(anchor_t=t, anchor_s=moved.s, anchor_pss=moved.pss, base_d=before.d,
                              base_P00=before.P00)
     else:
         R += moved.pss - sub.pss
@@ -267,13 +270,13 @@ def fix(sub: Sub, t: float, z: float, R: float, before: Main, gate: float) -> Su
     return new._replace(anchor_s=new.s, anchor_pss=new.pss)
 
 
-def at(sub: Sub, t: float, var_s: float, v: float, var_v: float) -> tuple[float, float]:
+def at(sub: Sub, t: float, var_s: float, v: float, var_v: float, d: float) -> tuple[float, float]:
     """(position [m], variance [m^2]) of the solution at t [s], moved with the filter since its
-    last reading (the filter's position variance var_s [m^2], speed v [m/s] and its variance
-    var_v at t); the estimate's ``follow`` without a new solution."""
+    last reading (the filter's position variance var_s [m^2], speed v [m/s], its variance var_v
+    and its odometer d [m] at t); the estimate's ``follow`` without a new solution."""
     if t <= sub.t:
         return sub.s, sub.pss
-    return _moved(sub, t, v, var_s, var_v)
+    return _moved(sub, t, d, v, var_s, var_v)
 
 
 def separated(s_sub: float, var_sub: float, s: float, var_s: float, z: float) -> bool:

@@ -35,13 +35,13 @@ class Solutions(Component):
 
     def seed_subs(self, stamp: float) -> None:
         """Every relative sensor's own solution starts again from the filter's position."""
-        s, P00, v = float(self.f.ekf.x[0, 0]), float(self.f.ekf.P[0, 0]), float(self.f.ekf.x[1, 0])
-        self.f.aux.subs = {name: separation.seed(sm, stamp, s, P00, v) for name, sm in self.f._subs.items()}
+        s, P00, d = float(self.f.ekf.x[0, 0]), float(self.f.ekf.P[0, 0]), self.f.aux.odometer
+        self.f.aux.subs = {name: separation.seed(sm, stamp, s, P00, d) for name, sm in self.f._subs.items()}
 
     def main(self) -> separation.Main:
         """The filter's own solution now, for the sensor solutions."""
         x, P = self.f.ekf.x, self.f.ekf.P
-        return separation.Main(float(x[0, 0]), float(P[0, 0]), float(x[1, 0]), float(P[1, 1]))
+        return separation.Main(float(x[0, 0]), float(P[0, 0]), float(x[1, 0]), float(P[1, 1]), self.f.aux.odometer)
 
     def sub_reading(self, m, key: str, sm) -> None:
         """Sensor ``m.sensor``'s own solution ``key`` after its reading m; while the filter has
@@ -49,7 +49,7 @@ class Solutions(Component):
         aux, cls, before = self.f.aux, m.sensor, self.f._before
         sub = aux.subs.get(key)
         if sub is None:
-            sub = separation.seed(sm, m.stamp, before.s, before.P00, before.v)
+            sub = separation.seed(sm, m.stamp, before.s, before.P00, before.d)
         elif speed_excluded(aux, cls, m.stamp) and cls not in aux.relative_alternatives:
             sub = separation.follow(sub, m.stamp, before)._replace(t_v=-math.inf)
         else:
@@ -92,23 +92,24 @@ class Solutions(Component):
             for name, sub in aux.subs.items():
                 new = separation.fix(sub, m.stamp, z, R, self.f._before, self.f._gates[m.sensor])
                 if new is None:
-                    new = separation.seed(self.f._subs[name], m.stamp, x0, P00, float(self.f.ekf.x[1, 0]))
+                    new = separation.seed(self.f._subs[name], m.stamp, x0, P00, aux.odometer)
                     aux.events = incremented(aux.events, "sensor_solution_refuted")
                 subs[name] = new
             aux.subs = subs
 
     def hypotheses_cover(self, aux: Bookkeeping, t: float, s: float, var_s: float, v: float, var_v: float,
-                         lo: float, hi: float, sd_s: float, sd_v: float, mode: Mode) -> tuple:
+                         lo: float, hi: float, sd_s: float, sd_v: float, mode: Mode, odometer: float) -> tuple:
         """(lo, hi, position and speed 1-sigma, mode) widened to cover, per fault hypothesis of
         the relative sensors (separation.hypotheses), the valid solution that widens the interval
         least: each is a bound under that hypothesis. A solution whose sensor has not read since it
         started is the filter's own. DEGRADED where the filter's interval alone would not have
-        covered the chosen solution (the separation beyond its test threshold)."""
+        covered the chosen solution (the separation beyond its test threshold). ``odometer``: the
+        filter's at t (Bookkeeping.odometer), which a solution without readings follows."""
         z, placed = self.f._z, {}
         for key, sub in aux.subs.items():
             if not sub.own:
                 continue
-            s_j, var_j = separation.at(sub, t, var_s, v, var_v)
+            s_j, var_j = separation.at(sub, t, var_s, v, var_v, odometer)
             var_j = max(var_j, var_s)
             half_v = (separation.speed_half_width(sub, self.f._subs[key], v, var_v, z)
                       if t - sub.t_v <= self.f.cfg.slip_reference_timeout else 0.0)

@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from conftest import ask, lifecycle_replies, spin_until
+from conftest import ROOT, ask, lifecycle_replies, spin_until
 from train_localization.core.sensors import NODE_NAMES
 
 NS = ["-r", "__ns:=/train"]
@@ -23,6 +23,7 @@ NODE_ARGS = {
     "track_circuit_receiver": ["-p", "track:=config/track_highspeed.yaml"],
     "checkin_loop": ["-p", "track:=config/track_hsst.yaml"],
     "wayside_occupancy": [], "neutral_section_controller": [], "crosscheck": [],
+    "stator_section_controller": [],   # its default track (config/track_maglev.yaml) has stator sections
     "rig_loop_receiver": ["-p", "track:=config/track_rig.yaml"],
     "speed_controller": ["-p", "scenario:=config/scenario_rig.yaml"],
 }
@@ -971,7 +972,8 @@ def test_every_node_executable_prints_its_usage_on_help_and_starts_nothing(tmp_p
     from concurrent.futures import ThreadPoolExecutor
     from train_localization.tools.demo import executable
     from test_package import EXECUTABLES
-    names = [*EXECUTABLES, "wayside_occupancy", "neutral_section_controller", "crosscheck", "association"]
+    names = [*EXECUTABLES, "wayside_occupancy", "neutral_section_controller", "crosscheck", "association",
+             "stator_section_controller"]
 
     def run(exe):
         return exe, subprocess.run([executable(exe), "--help"], cwd=tmp_path, capture_output=True, text=True,
@@ -1070,3 +1072,14 @@ def test_the_onboard_graph_decodes_and_fuses_blocks_stamped_on_the_hosts_clock(r
         assert all(p.interrupt() == 0 for p in procs)
     finally:
         node.destroy_node()
+
+
+def test_the_stator_controller_refuses_a_track_without_stator_sections_in_one_line(tmp_path):
+    from train_localization.tools.demo import executable
+    done = subprocess.run([executable("stator_section_controller"), "--ros-args", "-p",
+                           f"track:={ROOT / 'config' / 'track_conventional.yaml'}"],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert done.stdout.strip().splitlines()[-1] == ("[fatal] ConfigurationError: track conventional_line has no "
+                                                    "stator_section items: nothing to feed")
+    assert "Traceback" not in done.stdout + done.stderr

@@ -167,8 +167,9 @@ def fix_noise(layout: StateLayout, m, speed: float, since: float) -> float:
     """Variance [m^2] of a position fix as white noise: its reported variance without the
     fix-bias part the state carries (``reported_fix_bias``). What it reports beyond its
     model's ``fix_white_sigma`` (a decoder's protection against an undetected fault) persists
-    as long as the fault's cause, the fix-bias correlation time at this speed [m/s]
-    (``fix_bias_tau``, ``fix_bias_length``): the fixes within it share one such error, so
+    as long as the fault's cause, its correlation time at this speed [m/s]
+    (``fix_excess_tau``, ``fix_excess_length``; the fix bias's where not given): the fixes
+    within it share one such error, so
     each of them counts for the fraction ``since`` / that time of one fix (R of the excess
     multiplied by the number of fixes that share it; since [s]: time since the sensor's
     previous fix)."""
@@ -180,14 +181,22 @@ def fix_noise(layout: StateLayout, m, speed: float, since: float) -> float:
     white = model.fix_white_sigma ** 2
     if R <= white:
         return R
-    return white + (R - white) * fixes_sharing(model, speed, since)
+    tau = model.fix_bias_tau if math.isnan(model.fix_excess_tau) else model.fix_excess_tau
+    length = model.fix_bias_length if math.isnan(model.fix_excess_length) else model.fix_excess_length
+    return white + (R - white) * sharing(tau, length, speed, since)
 
 
 def fixes_sharing(model, speed: float, since: float) -> float:
-    """How many fixes of a sensor share one persistent error (at least 1): its correlation time
-    at ``speed`` [m/s] (``fix_bias_tau``, ``fix_bias_length``) over ``since`` [s], the time since
+    """How many fixes of a sensor share one fix bias (at least 1): its correlation time at
+    ``speed`` [m/s] (``fix_bias_tau``, ``fix_bias_length``) over ``since`` [s], the time since
     the sensor's previous fix."""
-    rate = 1.0 / model.fix_bias_tau + speed / model.fix_bias_length
+    return sharing(model.fix_bias_tau, model.fix_bias_length, speed, since)
+
+
+def sharing(tau: float, length: float, speed: float, since: float) -> float:
+    """How many fixes ``since`` [s] apart share one error of correlation time ``tau`` [s] and
+    length ``length`` [m] at ``speed`` [m/s] (at least 1)."""
+    rate = 1.0 / tau + speed / length
     shared = 1.0 / (rate * since) if rate > 0.0 and since > 0.0 else 1.0
     return max(shared, 1.0)
 

@@ -209,11 +209,16 @@ def _short(text: str, limit: int = 64) -> str:
 ERROR_MODEL_LIMITS = {
     "scale_sigma": (0.0, 1.0), "scale_tau": (0.0, math.inf), "scale_offset_sigma": (0.0, 1.0),
     "bias_sigma": (0.0, math.inf), "fix_bias_sigma": (0.0, math.inf), "fix_bias_length": (0.0, math.inf),
-    "fix_bias_tau": (0.0, math.inf), "fix_white_sigma": (0.0, math.inf), "reported_scale": (0.0, 1.0),
+    "fix_bias_tau": (0.0, math.inf), "fix_excess_length": (0.0, math.inf), "fix_excess_tau": (0.0, math.inf),
+    "fix_white_sigma": (0.0, math.inf), "reported_scale": (0.0, 1.0),
     "reported_bias": (0.0, math.inf), "reported_fix_bias": (0.0, math.inf), "creep_coefficient": (0.0, 1.0),
     "scale_fault_sigma": (0.0, 1.0), "fault_duration_max": (0.0, math.inf), "timeout": (0.0, math.inf),
     "gate_probability": (0.5, 1.0), "stddev_factor": (1.0e-3, 1.0e3), "min_stddev": (0.0, math.inf),
 }
+
+
+# the fields whose NaN means "as the fusion or another field has it"
+NAN_MEANS_DEFAULT = ("gate_probability", "fix_excess_length", "fix_excess_tau")
 
 
 @dataclass(frozen=True)
@@ -238,7 +243,9 @@ class ErrorModel:
     fix_bias_per_reference: bool = False  # a new reference_id draws a new, independent fix bias
     fix_white_sigma: float = math.inf    # largest white 1-sigma of one fix [m]; what a fix reports beyond
                                          # it (the decoder's protection against an undetected fault)
-                                         # persists over the fix-bias correlation time: not averaged
+                                         # persists as long as its cause: not averaged over that time
+    fix_excess_length: float = math.nan  # that cause's correlation length [m] and time [s] (a transient
+    fix_excess_tau: float = math.nan     # fault: an NLOS episode); NaN = the fix bias's
     reported_scale: float = 0.0          # scale 1-sigma included in the reported stddev
     reported_bias: float = 0.0           # bias 1-sigma [m/s] included in the reported stddev
     reported_fix_bias: float = 0.0       # fix-bias 1-sigma [m] included in the reported stddev
@@ -267,7 +274,7 @@ class ErrorModel:
             raise ValueError(f"{self.sensor}: unknown fault modes {sorted(unknown)}; known: {FAULT_MODES}")
         for name, (lo, hi) in ERROR_MODEL_LIMITS.items():
             value = getattr(self, name)
-            if name == "gate_probability" and math.isnan(value):
+            if name in NAN_MEANS_DEFAULT and math.isnan(value):
                 continue
             if not lo <= value <= hi:
                 raise ValueError(f"{self.sensor}: error model {name} = {value} must be in [{lo:g}, {hi:g}]")

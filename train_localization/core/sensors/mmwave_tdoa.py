@@ -492,12 +492,21 @@ class MmWaveTdoaDecoder(SolutionSeparation, Decoder):
 
 
 def error_model(params: dict, track, vehicle) -> ErrorModel:
-    """TDOA fixes for the fusion, as mmwave.py's: besides the white timing noise, per-station
-    errors persist from epoch to epoch: the synchronisation offsets (``sync_sigma``) and NLOS
-    excess paths small enough to pass the test. One fix-bias state of hypot(sync offset,
-    range_sigma_floor) carries them; it decorrelates as the stations in view change (the
-    mean station spacing) and as NLOS episodes end (``nlos_duration``). The receiver clock
-    cancels and adds nothing."""
+    """TDOA fixes for the fusion: besides the white timing noise, per-station errors persist
+    from epoch to epoch, of two kinds:
+
+    * the synchronisation offsets (``sync_sigma``), constant: one fix-bias state carries the
+      position error they make, sync offset / sqrt(2) with at least one station on each side
+      of the antenna (sigma / sqrt(sum (g_i - mean g)^2), the slopes g_i = +-1: 1 / sqrt(2)
+      for one on each side, less with more; a poorer geometry shows in the fix's own sigma,
+      whose excess the fusion does not average, below). It does not decorrelate in time (a
+      standing or slow train keeps its stations and their offsets), only as the stations in
+      view change: over the SLOTS stations received, SLOTS x the mean spacing;
+    * NLOS excess paths that the test let pass: the published sigma is the protection level
+      that covers them; what a fix reports beyond its white noise lasts as long as its cause,
+      an NLOS episode (``nlos_duration``, or while the station is in view).
+
+    The receiver clock cancels and adds nothing."""
     positions = sorted(float(it["position"]) for it in track.items(STATION_KIND)) if track is not None else []
     spacing = (positions[-1] - positions[0]) / (len(positions) - 1) if len(positions) > 1 else math.inf
     references = None
@@ -508,8 +517,9 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
             windows[str(sid)] = windows["!" + str(sid)] = ReferenceWindow(*station_window(params, x))
         references = ReferenceTable(windows, separator=",")
     return ErrorModel("mmwave_tdoa", "position",
-                      fix_bias_sigma=math.hypot(sync_sigma_m(params), params["range_sigma_floor"]),
-                      fix_bias_length=spacing, fix_bias_tau=params["nlos_duration"],
+                      fix_bias_sigma=sync_sigma_m(params) / math.sqrt(2.0),
+                      fix_bias_length=SLOTS * spacing, fix_bias_tau=math.inf,
+                      fix_excess_length=spacing, fix_excess_tau=params["nlos_duration"],
                       fix_white_sigma=math.hypot(params["range_sigma_floor"], params["range_sigma_snr"]),
                       faults=("nlos", "outage"), min_stddev=min_fix_sigma(params), references=references)
 

@@ -52,7 +52,8 @@ def _scenario(node: str, speed: float) -> Scenario:
                                             "length": 1500.0, "system": "UM71C", "line": "T1"}]
     track["equipment"]["transponder_tag"] = [{"every": 100.0, "start": 50.0, "end": 19950.0, "id": "TG{n:03d}"}]
     track["equipment"]["structure"] = [{"id": "BR1", "type": "bridge", "start": 200.0, "end": 220.0}]
-    track["equipment"]["checkin_block"] = [{"every": 300.0, "start": 0.0, "end": 19700.0, "id": "B{n:02d}",
+    # 32 blocks: two channels each, within a raw block's MAX_CHANNELS (signals.py)
+    track["equipment"]["checkin_block"] = [{"every": 300.0, "start": 0.0, "end": 9300.0, "id": "B{n:02d}",
                                             "length": 300.0}]
     params = SPEEDS.get(node, (V500, {}))[1]
     return Scenario.from_dict({

@@ -320,7 +320,8 @@ def recorded_changeover(bag, scenario) -> dict:
 def recorded_stator(bag, scenario, namespace: str) -> dict:
     """Stator feeding events of a one-train bag (core/wayside/stator.py) with the feed that the
     live stator_section_controller recorded under ``namespace`` and the recorded truth; the
-    controller's parameters at their defaults (the graph's)."""
+    controller's parameters at their defaults (the graph's); ``switch_ons``: (decision stamp,
+    section) of every section it switched on, in order."""
     from .bagio import read_bag
     from .convert import stamp_to_sec
     from .wayside import stator
@@ -338,7 +339,8 @@ def recorded_stator(bag, scenario, namespace: str) -> dict:
     commands = stator.commands_from_feed(feeds, params["command_latency"] + params["switch_time"])
     arr = np.array(truth, dtype=float).reshape(-1, 2)
     vehicle = stator.Vehicle(scenario.vehicle.length, scenario.orientation())
-    return {**stator.evaluate(layout, commands, arr[:, 0], arr[:, 1], vehicle).as_dict(), "feed_messages": len(feeds)}
+    return {**stator.evaluate(layout, commands, arr[:, 0], arr[:, 1], vehicle).as_dict(), "feed_messages": len(feeds),
+            "switch_ons": [(c.stamp, c.section) for c in commands if c.on]}
 
 
 def line_report(result) -> dict:

@@ -63,9 +63,9 @@ class StatorControllerNode(Node):
             raise ConfigurationError(f"track {track.track_id} has no {stator.KIND} items: nothing to feed")
         self.ctrl = stator.StatorController(layout, vehicles, params)
         self.states: dict[str, stator.TrainView] = {}
-        state_cls = rclpy_classes().TrainState
+        self.mc = rclpy_classes()
         for name, topic in topics.items():
-            self.create_subscription(state_cls, topic, lambda msg, n=name: self.on_state(n, msg), STATE_QOS)
+            self.create_subscription(self.mc.TrainState, topic, lambda msg, n=name: self.on_state(n, msg), STATE_QOS)
         self.pub = self.create_publisher(StatorFeed, stator.FEED_TOPIC, LATCHED_QOS)
         self._last_fed: tuple | None = None
         self._last_pub = -math.inf
@@ -142,13 +142,8 @@ class StatorControllerNode(Node):
     def _feed_msg(self, now: float):
         sections = self.ctrl.layout.sections
         fed = set(self.ctrl.fed_sections())
-        msg = self._feed_cls()
-        sec, nanosec = divmod(convert.sec_to_ns(now), convert.NS)
-        msg.header.stamp.sec, msg.header.stamp.nanosec = int(sec), int(nanosec)
-        msg.section_ids = [s.section_id for s in sections]
-        msg.inverters = [s.inverter for s in sections]
-        msg.fed = [s.section_id in fed for s in sections]
-        return msg
+        return self._feed_cls(header=self.mc.header(now), section_ids=[s.section_id for s in sections],
+                              inverters=[s.inverter for s in sections], fed=[s.section_id in fed for s in sections])
 
 
 def main(args=None):

@@ -434,7 +434,6 @@ class TrainFilter:
         if aux.t is None or t < aux.t:
             x, P, aux = self.state(t)
             s, v, a, var_s, var_v = x[0], x[1], x[2], P[0, 0], P[1, 1]
-            xk = self._kept(t)[0]
             scales, biases = self._error_states(x.tolist())
         else:
             # plain floats: numpy's per-call overhead dominates 3x3 arithmetic; the error states

@@ -1224,6 +1224,21 @@ class MmWaveDecoder(SolutionSeparation, Decoder):
             done = biggest <= tol
 
 
+def station_references(track, params: dict) -> tuple[float, ReferenceTable | None]:
+    """(mean spacing of the track's stations [m], inf with fewer than two; the references a fix
+    can name: each station, and "!" + each for an excluded one, with the front's window while
+    the radio hears it (station_window); None without a track)."""
+    if track is None:
+        return math.inf, None
+    ids, pos, _, _ = _stations(track, params)
+    positions = np.sort(pos)
+    spacing = float(positions[-1] - positions[0]) / (len(positions) - 1) if len(positions) > 1 else math.inf
+    windows = {}
+    for sid, x in zip(ids, pos.tolist()):
+        windows[str(sid)] = windows["!" + str(sid)] = ReferenceWindow(*station_window(params, x))
+    return spacing, ReferenceTable(windows, separator=",")
+
+
 def error_model(params: dict, track, vehicle) -> ErrorModel:
     """mm-wave fixes for the fusion: besides the white ranging noise, per-station errors
     persist from epoch to epoch: the calibration biases (``cal_sigma``) and NLOS biases
@@ -1234,16 +1249,7 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
     the noise of one range at 20 dB SNR: what a fix reports beyond it is the protection
     against an undetected fault (a biased range the test let pass), which lasts as long as
     its cause: the fusion does not average it over the fixes within that time."""
-    positions = sorted(float(it["position"]) for it in track.items(STATION_KIND)) if track is not None else []
-    spacing = (positions[-1] - positions[0]) / (len(positions) - 1) if len(positions) > 1 else math.inf
-    references = None
-    if track is not None:
-        # a fix names the stations it used, then "!" + the excluded ones, joined by ","
-        ids, pos, _, _ = _stations(track, params)
-        windows = {}
-        for sid, x in zip(ids, pos.tolist()):
-            windows[str(sid)] = windows["!" + str(sid)] = ReferenceWindow(*station_window(params, x))
-        references = ReferenceTable(windows, separator=",")
+    spacing, references = station_references(track, params)
     return ErrorModel("mmwave", "position", fix_bias_sigma=math.hypot(params["cal_sigma"],
                                                                       params["range_sigma_floor"]),
                       fix_bias_length=spacing, fix_bias_tau=params["nlos_duration"],

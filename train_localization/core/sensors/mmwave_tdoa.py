@@ -129,10 +129,9 @@ from scipy.special import chdtri
 from ..measurements import PositionFix
 from ..signals import InputRejected, RawBlock
 from ..track import Track
-from .base import Decoder, ErrorModel, Param, ReferenceTable, ReferenceWindow, SensorSpec
-from .mmwave import (C_AIR, MIN_RANGE_VAR, PARAMS as TWR_PARAMS, STATION_KIND, MmWaveSimulator,
-                     SolutionSeparation, _parse_faults, _picker, _stations, _Subsets, handover, range_sigma,
-                     station_window)
+from .base import Decoder, ErrorModel, Param, SensorSpec
+from .mmwave import (C_AIR, MIN_RANGE_VAR, PARAMS as TWR_PARAMS, MmWaveSimulator, SolutionSeparation,
+                     _parse_faults, _picker, _stations, _Subsets, handover, range_sigma, station_references)
 
 SLOTS = 6                # stations received at once (correlator channels of the receiver)
 TICK = 2.0 ** -20        # coarse counter step of the receiver's timestamps [s] (~0.95 us)
@@ -507,15 +506,7 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
       an NLOS episode (``nlos_duration``, or while the station is in view).
 
     The receiver clock cancels and adds nothing."""
-    positions = sorted(float(it["position"]) for it in track.items(STATION_KIND)) if track is not None else []
-    spacing = (positions[-1] - positions[0]) / (len(positions) - 1) if len(positions) > 1 else math.inf
-    references = None
-    if track is not None:
-        ids, pos, _, _ = _stations(track, params)
-        windows = {}
-        for sid, x in zip(ids, pos.tolist()):
-            windows[str(sid)] = windows["!" + str(sid)] = ReferenceWindow(*station_window(params, x))
-        references = ReferenceTable(windows, separator=",")
+    spacing, references = station_references(track, params)
     return ErrorModel("mmwave_tdoa", "position",
                       fix_bias_sigma=sync_sigma_m(params) / math.sqrt(2.0),
                       fix_bias_length=SLOTS * spacing, fix_bias_tau=math.inf,

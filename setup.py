@@ -20,6 +20,8 @@ NODES = {
     "association": "train_localization.nodes.association:main",
     "speed_controller": "train_localization.nodes.speed_controller:main",
     "stator_section_controller": "train_localization.nodes.stator:main",
+    "etcs_location": "train_localization.nodes.etcs_location:main",
+    "atp_supervision": "train_localization.nodes.atp_supervision:main",
 }
 
 

@@ -213,7 +213,7 @@ def test_installation_errors_stay_within_the_location_accuracy_bound():
     location_sigma, within the commissioned accuracy bound (3 sigma: +-1 m for the default
     0.33 m): the 3-sigma-truncated normal's spread, and nothing beyond the bound."""
     _, _, _, pipe, _ = run(scenario(40.0, 0.5, sensors={"location_sigma": 0.4}))
-    err = pipe.simulator._installation_errors(200_000)
+    err = pipe.simulator._installation_errors(np.full(200_000, 0.4))
     assert np.max(np.abs(err)) <= 3.0 * 0.4
     assert np.std(err) == pytest.approx(0.4 * math.sqrt(0.97334), rel=0.01)   # truncated at +-3 sigma
     assert np.mean(np.abs(err) > 2.0 * 0.4) == pytest.approx(0.0428, abs=0.002)

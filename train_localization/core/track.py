@@ -9,8 +9,12 @@ only to place the train in ``map`` for visualisation and odometry messages.
 
 Equipment is listed per kind. Each entry is a dict with at least ``id`` and
 ``position`` [m]; a generator entry ``{every: d, start: s0, end: s1, id: "BG{n:03d}"}``
-expands to one item every ``d`` metres. Extra keys (a balise telegram, an LRL code,
+expands to one item every ``d`` metres (its other string values may use ``{n}`` too, e.g. a
+balise's ``group: "BG{n:03d}"``). Extra keys (a balise telegram, an LRL code,
 a base station's lateral offset, ...) stay in the dict for the sensor models.
+
+ETCS data (balise groups' Q_LOCACC, linking) are the ``etcs`` block and keys of the
+``eurobalise`` items: core/etcs/track_data.py.
 
 Equipment that extends along the track (INPO sections ``inpo_section``, pattern belts
 ``pattern_belt``, LZB cable loops ``lzb_loop``, track circuits ``track_circuit``) gives its start as ``position`` (or
@@ -48,7 +52,8 @@ def _expand(kind: str, entries: list) -> list[dict]:
             template = str(entry.get("id", kind + "{n:03d}"))
             extra = {k: v for k, v in entry.items() if k not in ("every", "start", "end", "id")}
             for n, pos in enumerate(np.arange(start, end + 1e-9, every)):
-                items.append({**extra, "id": template.format(n=n), "position": float(pos)})
+                items.append({**{k: v.format(n=n) if isinstance(v, str) else v for k, v in extra.items()},
+                              "id": template.format(n=n), "position": float(pos)})
         else:
             if "position" not in entry and "start" not in entry:
                 raise TrackError(f"equipment '{kind}': entry {entry!r} has no 'position'")
@@ -108,6 +113,7 @@ class Track:
     segments: list[tuple[float, float]] = field(default_factory=list)  # (length [m], curvature [1/m])
     resolution: float = 10.0  # polyline step [m]
     closed: bool = False      # a loop: chainage ``length`` is chainage 0 again (the rig's disc, seed 003)
+    etcs: dict = field(default_factory=dict)  # ETCS data: national values, linking (core/etcs/track_data.py)
 
     def __post_init__(self):
         if not (self.length > 0 and math.isfinite(self.length)):
@@ -117,6 +123,9 @@ class Track:
                 if not 0.0 <= item["position"] <= self.length:
                     raise TrackError(f"{kind} '{item['id']}' at {item['position']} m is off the track "
                                      f"(0..{self.length} m)")
+        if self.etcs:   # refused on load, in one line, like the rest of the file
+            from .etcs.track_data import EtcsData
+            EtcsData.from_track(self)
         self._build_polyline()
 
     def _build_polyline(self):
@@ -264,6 +273,7 @@ class Track:
                            for kind, entries in (data.get("equipment", {}) or {}).items()},
                 closed=bool(data.get("closed", False)),
                 resolution=float(data.get("resolution", 10.0)),
+                etcs=data.get("etcs") or {},
             )
         except KeyError as exc:
             raise TrackError(f"track description lacks the key {exc}") from None

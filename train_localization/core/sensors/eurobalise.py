@@ -45,7 +45,10 @@ balises of the track (equipment kind ``eurobalise``). Raw signal (default 5 kHz)
   installation/survey error of 1-sigma ``location_sigma`` per balise (drawn once), within
   the location accuracy it is commissioned to (+-``LOCATION_BOUND`` sigma: ETCS gives the
   balise location accuracy as a bound, Q_LOCACC, and a balise surveyed beyond it is re-laid,
-  so a draw beyond it is drawn again).
+  so a draw beyond it is drawn again). Where the track gives the balise's Q_LOCACC (its
+  ``q_locacc`` key or the national value of its ``etcs`` block, core/etcs/track_data.py) that
+  bound is Q_LOCACC: the balise's 1-sigma is Q_LOCACC / LOCATION_BOUND, in the simulator and in
+  the decoder's stddev alike (``balise_location_sigma``).
 
 Sample rate: the field peak is 0.31 m wide at half maximum (eq. 3, y = 200 mm),
 2.2 ms at 500 km/h: 5 kHz gives 11 samples across it; 2 channels -> 10 k samples/s.
@@ -81,6 +84,7 @@ import numpy as np
 
 from ..measurements import PositionFix
 from ..signals import InputRejected, RawBlock
+from ..etcs.track_data import q_locacc_of_balise
 from ..track import TrackError, nearby_runs
 from .base import MIN_FIX_SIGMA, Decoder, ErrorModel, Param, ReferenceTable, ReferenceWindow, SensorSpec, Simulator
 
@@ -363,7 +367,7 @@ class EurobaliseSimulator(Simulator):
         items = self.track.items(KIND)
         nid = telegram_ids(items)
         pos = np.array([it["position"] for it in items], dtype=float)
-        pos = pos + self._installation_errors(len(items))
+        pos = pos + self._installation_errors(np.array([balise_location_sigma(p, self.track, it) for it in items]))
         order = np.argsort(pos, kind="stable")
         self._pos = pos[order]
         self._nid = np.array([nid[str(items[i]["id"])] for i in order], dtype=float)
@@ -371,14 +375,13 @@ class EurobaliseSimulator(Simulator):
         self._t_r = np.array([telegram_time(balise_telegram_bits(items[i]), p["bit_rate"]) for i in order])
         self._passage: dict | None = None
 
-    def _installation_errors(self, n: int) -> np.ndarray:
-        """Real centre minus track-file chainage of n balises [m]: Gaussian of 1-sigma
-        ``location_sigma`` within the commissioned accuracy bound (beyond it: re-laid, drawn again)."""
-        sigma = self.params["location_sigma"]
-        err = self.rng.normal(0.0, sigma, n)
+    def _installation_errors(self, sigma: np.ndarray) -> np.ndarray:
+        """Real centre minus track-file chainage of balises of 1-sigma ``sigma`` [m]: Gaussian
+        within the commissioned accuracy bound (beyond it: re-laid, drawn again)."""
+        err = self.rng.standard_normal(sigma.size) * sigma
         beyond = np.abs(err) > LOCATION_BOUND * sigma
         while beyond.any():
-            err[beyond] = self.rng.normal(0.0, sigma, int(beyond.sum()))
+            err[beyond] = self.rng.standard_normal(int(beyond.sum())) * sigma[beyond]
             beyond = np.abs(err) > LOCATION_BOUND * sigma
         return err
 
@@ -604,7 +607,8 @@ class EurobaliseDecoder(Decoder):
         step = float(b2["position"]) - float(b1["position"])
         acc, tol = p["max_acceleration"], p["speed_tolerance"]
         # the balises' real centres differ from the track file (3.29 sigma, both)
-        margin = 3.29 * math.sqrt(2.0) * p["location_sigma"] + 0.5
+        margin = 3.29 * math.hypot(balise_location_sigma(p, self.track, b1),
+                                   balise_location_sigma(p, self.track, b2)) + 0.5
         if t2 < t1:
             step = -step
         speeds1 = (max(0.0, v1 * (1.0 - tol) - 0.5), v1 * (1.0 + tol) + 0.5)
@@ -663,7 +667,7 @@ class EurobaliseDecoder(Decoder):
         # halved (in variance) by the midpoint; the interpolation error of a symmetric peak
         # cancels in the midpoint
         slope = self._rel_slope * 2.0 * half
-        sigma = fix_sigma(p, 0.5 * (p["field_noise"] / slope) ** 2)
+        sigma = fix_sigma(balise_location_sigma(p, self.track, item), 0.5 * (p["field_noise"] / slope) ** 2)
         direction = 0
         if self._last_read is not None:
             t_last, last = self._last_read
@@ -676,11 +680,18 @@ class EurobaliseDecoder(Decoder):
                            fix_position(p, item), float(sigma), direction)
 
 
-def fix_sigma(params: dict, timing_var: float = 0.0) -> float:
-    """1-sigma [m] of a balise fix: the balise's ``location_sigma`` and the peak-timing variance
+def balise_location_sigma(params: dict, track, item: dict) -> float:
+    """1-sigma [m] of one balise's real centre vs its chainage: its Q_LOCACC / LOCATION_BOUND
+    where the track gives one (core/etcs/track_data.py), else the reader's ``location_sigma``."""
+    q = q_locacc_of_balise(track, item)
+    return params["location_sigma"] if q is None else q / LOCATION_BOUND
+
+
+def fix_sigma(location_sigma: float, timing_var: float = 0.0) -> float:
+    """1-sigma [m] of a balise fix: the balise's location 1-sigma [m] and the peak-timing variance
     ``timing_var`` [m^2] (the decoder's), at least MIN_FIX_SIGMA; with timing_var 0 the least
-    a fix reports (the error model's floor)."""
-    return max(math.sqrt(params["location_sigma"] ** 2 + timing_var), MIN_FIX_SIGMA)
+    a fix of that balise reports."""
+    return max(math.sqrt(location_sigma ** 2 + timing_var), MIN_FIX_SIGMA)
 
 
 def fix_position(params: dict, item: dict) -> float:
@@ -692,14 +703,16 @@ def fix_position(params: dict, item: dict) -> float:
 def error_model(params: dict, track, vehicle) -> ErrorModel:
     """Balise fixes for the fusion: white (reading window and peak timing in the decoder's
     stddev); fault modes: a misread telegram, an offset of a run of fixes (a balise off its
-    surveyed place, revisited after a reversal). Floor: ``fix_sigma`` without timing,
-    max(location_sigma, 1 mm). References: every balise of the track, window the point
+    surveyed place, revisited after a reversal). Floor: ``fix_sigma`` without timing of the
+    track's most accurately located balise (``balise_location_sigma``), at least 1 mm. References: every balise of the track, window the point
     chainage + antenna_offset (``fix_position``; the refusal's 5 sigma is the margin)."""
     references = None
+    floor = params["location_sigma"]
     if track is not None:
         references = ReferenceTable({str(it["id"]): ReferenceWindow(fix_position(params, it), fix_position(params, it))
                                      for it in track.items(KIND)})
-    return ErrorModel(KIND, "position", faults=("misread", "offset"), min_stddev=fix_sigma(params), references=references)
+        floor = min((balise_location_sigma(params, track, it) for it in track.items(KIND)), default=floor)
+    return ErrorModel(KIND, "position", faults=("misread", "offset"), min_stddev=fix_sigma(floor), references=references)
 
 
 SPEC = SensorSpec(

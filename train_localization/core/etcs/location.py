@@ -1,0 +1,300 @@
+"""The ETCS location report of one train from its fused state and its balise reads (SUBSET-026
+section 3.6; docs/etcs.md): the functional core of the ``etcs_location`` node.
+
+Safe front ends. The fused state's interval [position_min, position_max] is the protection
+level of the integrity work: it contains the true front at the state's confidence, balise
+location errors included (the Eurobalise reader's error model has each balise's Q_LOCACC as
+the bound of its location error, core/sensors/eurobalise.py). So the min and max safe front
+ends are its ends, taken along the train's orientation, and
+
+    L_DOUBTOVER  = estimated - min safe front end     (the odometer may have over-read)
+    L_DOUBTUNDER = max safe front end - estimated     (it may have under-read)
+
+asymmetric where the fusion's interval is (a slipping wheel over-reads). They play the part
+of SUBSET-026 3.6.4's Q_LOCACC + over-/under-reading amount, and can be smaller than the
+LRBG's Q_LOCACC when other groups and sensors locate the train better than the LRBG alone.
+While the odometer monitoring (core/etcs/odometer.py) finds the odometer impaired they are
+at least Q_LOCACC + 5 m + 5 % of the distance from the LRBG (SUBSET-041 5.3.1.1), the mode at
+least DEGRADED. v_ura = z x speed_stddev, z the two-sided normal quantile of the state's
+confidence.
+
+LRBG. A balise fix (PositionFix of the Eurobalise reader, ``reference_id`` a balise id) is
+taken once a fused state at or after its stamp has come (the interval at the read is then
+known: the nearer of the two states around the stamp, widened to both). Its group becomes the
+LRBG (event LRBG) when
+  * the track has no linking, or there is no LRBG yet, or the LRBG's linking announces no
+    group in the direction of travel (the event says "unlinked"); or
+  * it is the group the linking expects and was read inside its expectation window
+    (core/etcs/linking.py) in the link's direction.
+Otherwise it is not taken: a group outside its window (OUTSIDE_WINDOW), passed against its
+link (WRONG_DIRECTION, reaction train trip), a group the linking does not announce
+(NOT_LINKED), a balise the ETCS data do not know (UNKNOWN_GROUP). A read of the LRBG's own
+group again (its second balise, a reversal over it) changes nothing. A linked group whose
+window closed (the min safe front end past its end) ``fix_latency`` ago without a read is
+missed (MISSED_LINKED_GROUP with the link's Q_LINKREACTION); the linking chains on from it.
+The direction of travel is the fix's (the order of a group's balises) where it has one, else
+the fused speed's sign where |v| > v_ura. The last ``PREVIOUS_LRBGS`` LRBGs are kept.
+"""
+from __future__ import annotations
+
+import math
+from bisect import bisect_left
+from collections import deque
+from dataclasses import dataclass
+
+from scipy.special import ndtri
+
+from ..measurements import PositionFix
+from ..sensors.base import Param, check_declared, resolve_params
+from . import odometer
+from .linking import Expectation, expect
+from .records import EventKind, LocationEvent, LocationReport, QDirLrbg, Reaction
+from .track_data import EtcsData
+
+PREVIOUS_LRBGS = 8          # LRBGs kept besides the current one (SUBSET-026 3.6.2.2.2: at least 7)
+MODE_NOMINAL, MODE_DEGRADED = 1, 2
+
+PARAMS = {
+    "orientation": Param(1, "direction the train's front faces: +1 increasing chainage, -1 decreasing", (-1, 1)),
+    "fix_latency": Param(1.0, "longest a balise fix takes to arrive after its stamp [s]: a linked group is "
+                              "missed this long after its window closed", (0.0, 30.0)),
+    "history": Param(30.0, "fused states kept to place late balise fixes [s]; an older fix is refused",
+                     (1.0, 600.0)),
+    **odometer.PARAMS,
+}
+check_declared(PARAMS, "etcs location PARAMS")
+
+
+@dataclass(frozen=True)
+class FusedState:
+    """What the location function takes of a fused state (TrainState / core.fusion Estimate)."""
+    t: float
+    position: float
+    position_min: float
+    position_max: float
+    speed: float
+    speed_stddev: float
+    confidence: float
+    mode: int
+
+    @classmethod
+    def from_estimate(cls, est) -> "FusedState":
+        return cls(est.stamp, est.position, est.position_min, est.position_max, est.speed, est.speed_stddev,
+                   est.confidence, est.mode)
+
+    @property
+    def claimed(self) -> bool:
+        return self.mode in (MODE_NOMINAL, MODE_DEGRADED)
+
+
+@dataclass
+class _Lrbg:
+    nid_bg: str
+    t: float
+    direction: int          # of travel over it: +1 increasing chainage, -1, 0 unknown
+    odometer: float         # odometer reading at the read [m]
+
+
+class LocationTracker:
+    """``on_fix`` takes balise fixes, ``on_state`` the fused states (in time order) and returns
+    the report of that state and the events it completed; ``stats`` counts what was refused."""
+
+    def __init__(self, data: EtcsData, params: dict | None = None):
+        self.data = data
+        self.params = resolve_params(PARAMS, params)
+        self.orientation = 1 if int(self.params["orientation"]) >= 0 else -1
+        self.monitor = odometer.OdometerMonitor(self.params)
+        self.lrbg: _Lrbg | None = None
+        self.previous: deque[str] = deque(maxlen=PREVIOUS_LRBGS)
+        self.expected: Expectation | None = None
+        self._missed_chain: tuple[str, float] = ("", 0.0)   # (group the links chain on from, distance to it)
+        self._front_offset = 0.0
+        self._closed_at: float | None = None
+        self._states: deque[tuple[FusedState, float]] = deque()   # (state, odometer reading [m])
+        self._odometer = 0.0
+        self._pending: list[PositionFix] = []
+        self.stats = {"fixes": 0, "lrbg": 0, "outside_window": 0, "missed": 0, "wrong_direction": 0,
+                      "not_linked": 0, "unknown_group": 0, "same_group": 0, "too_old": 0, "direction_unknown": 0}
+
+    # ----------------------------------------------------------------------- inputs
+    def on_fix(self, fix: PositionFix) -> None:
+        """A balise fix; taken at the first fused state at or after its stamp."""
+        self.stats["fixes"] += 1
+        self._pending.append(fix)
+
+    def on_state(self, state: FusedState) -> tuple[LocationReport, list[LocationEvent]]:
+        """The report of one fused state (states in time order) and the events due by then."""
+        if self._states:
+            last, reading = self._states[-1]
+            self._odometer = reading + 0.5 * (last.speed + state.speed) * (state.t - last.t)
+        self._states.append((state, self._odometer))
+        while self._states and self._states[0][0].t < state.t - self.params["history"]:
+            self._states.popleft()
+        events: list[LocationEvent] = []
+        due = sorted((f for f in self._pending if f.stamp <= state.t), key=lambda f: f.stamp)
+        self._pending = [f for f in self._pending if f.stamp > state.t]
+        for fix in due:
+            events += self._take(fix)
+        events += self._check_window(state)
+        return self._report(state), events
+
+    # ----------------------------------------------------------------------- reads
+    def _at(self, t: float) -> tuple[FusedState, float, float, float] | None:
+        """(state nearest t, odometer at t [m], interval lo, hi around t) from the history, None if too old."""
+        times = [s.t for s, _ in self._states]
+        if not times or t < times[0] - 1e-9:
+            return None
+        k = bisect_left(times, t)
+        after = self._states[min(k, len(times) - 1)]
+        before = self._states[max(k - 1, 0)] if times[min(k, len(times) - 1)] > t else after
+        (s0, o0), (s1, o1) = before, after
+        f = 0.0 if s1.t == s0.t else (t - s0.t) / (s1.t - s0.t)
+        nearest = s1 if f >= 0.5 else s0
+        lo, hi = min(s0.position_min, s1.position_min), max(s0.position_max, s1.position_max)
+        return nearest, o0 + f * (o1 - o0), lo, hi
+
+    def _direction(self, fix: PositionFix, state: FusedState) -> int:
+        if fix.direction:
+            return 1 if fix.direction > 0 else -1
+        if abs(state.speed) > self._v_ura(state):
+            return 1 if state.speed > 0 else -1
+        return 0
+
+    def _event(self, t, kind, nid, reaction=Reaction.NONE, detail="") -> LocationEvent:
+        return LocationEvent(float(t), EventKind(kind), nid, Reaction(reaction), detail)
+
+    def _take(self, fix: PositionFix) -> list[LocationEvent]:
+        nid = self.data.group_of_balise.get(fix.reference_id)
+        if nid is None:
+            self.stats["unknown_group"] += 1
+            return [self._event(fix.stamp, EventKind.UNKNOWN_GROUP, fix.reference_id,
+                                detail=f"balise {fix.reference_id} is in no balise group of the ETCS data: ignored")]
+        at = self._at(fix.stamp)
+        if at is None:
+            self.stats["too_old"] += 1
+            return []
+        state, reading, lo, hi = at
+        if self.lrbg is not None and nid == self.lrbg.nid_bg:
+            self.stats["same_group"] += 1
+            if fix.direction and not self.lrbg.direction:
+                self.lrbg.direction = 1 if fix.direction > 0 else -1
+            return []
+        direction = self._direction(fix, state)
+        exp = self.expected
+        if exp is not None and nid == exp.nid_bg:
+            if fix.direction and (1 if fix.direction > 0 else -1) != exp.direction:
+                self.stats["wrong_direction"] += 1
+                return [self._event(fix.stamp, EventKind.WRONG_DIRECTION, nid, Reaction.TRAIN_TRIP,
+                                    f"group {nid} passed towards {fix.direction:+d}, linked towards {exp.direction:+d}")]
+            offset = fix.position - self._balise_chainage(fix.reference_id)
+            window = (exp.window[0] + offset - self._front_offset, exp.window[1] + offset - self._front_offset)
+            if not (lo <= window[1] and hi >= window[0]):
+                self.stats["outside_window"] += 1
+                return [self._event(fix.stamp, EventKind.OUTSIDE_WINDOW, nid, Reaction.NONE,
+                                    f"group {nid} read with the front in [{lo:.2f}, {hi:.2f}] m, window "
+                                    f"[{window[0]:.2f}, {window[1]:.2f}] m: rejected")]
+            return self._new_lrbg(fix, nid, exp.direction, reading, exp, "linked")
+        if exp is not None:
+            self.stats["not_linked"] += 1
+            return [self._event(fix.stamp, EventKind.NOT_LINKED, nid, Reaction.NONE,
+                                f"group {nid} read while the linking expects {exp.nid_bg}: ignored")]
+        if direction == 0:
+            self.stats["direction_unknown"] += 1
+        return self._new_lrbg(fix, nid, direction, reading, None, "unlinked")
+
+    def _balise_chainage(self, balise: str) -> float:
+        group = self.data.groups[self.data.group_of_balise[balise]]
+        return group.positions[group.balises.index(balise)]
+
+    def _new_lrbg(self, fix: PositionFix, nid: str, direction: int, reading: float, exp: Expectation | None,
+                  how: str) -> list[LocationEvent]:
+        events = []
+        if exp is not None and self.lrbg is not None:
+            measured = abs(reading - self.lrbg.odometer)
+            verdict = self.monitor.add(odometer.PairError(fix.stamp, exp.distance, measured - exp.distance))
+            if verdict is not None:
+                kind = EventKind.ODOMETER_IMPAIRED if verdict else EventKind.ODOMETER_RESTORED
+                events.append(self._event(fix.stamp, kind, "", detail=f"odometer {measured:.2f} m over "
+                                          f"{exp.distance:.2f} m linked from {self.lrbg.nid_bg} to {nid}"))
+        if self.lrbg is not None:
+            self.previous.appendleft(self.lrbg.nid_bg)
+        self.lrbg = _Lrbg(nid, fix.stamp, direction, reading)
+        self._front_offset = fix.position - self._balise_chainage(fix.reference_id)
+        self.stats["lrbg"] += 1
+        self._missed_chain = (nid, 0.0)
+        self._expect(direction)
+        events.append(self._event(fix.stamp, EventKind.LRBG, nid, detail=f"{how} group {nid} is the LRBG"))
+        return events
+
+    def _expect(self, direction: int) -> None:
+        self._closed_at = None
+        if self.lrbg is None or direction == 0:
+            self.expected = None
+            return
+        after, so_far = self._missed_chain
+        self.expected = expect(self.data, self.data.groups[self.lrbg.nid_bg], after, direction, so_far,
+                               self._front_offset)
+
+    def _check_window(self, state: FusedState) -> list[LocationEvent]:
+        exp = self.expected
+        if self.lrbg is not None and exp is None and self.data.linked and state.claimed:
+            # a reversal: the linking the other way on
+            d = 1 if state.speed > self._v_ura(state) else -1 if state.speed < -self._v_ura(state) else 0
+            if d and d != self.lrbg.direction:
+                self.lrbg.direction = d
+                self._missed_chain = (self.lrbg.nid_bg, 0.0)
+                self._expect(d)
+            return []
+        if exp is None or not state.claimed:
+            return []
+        if state.speed * exp.direction < -self._v_ura(state):
+            # the train runs the other way: expect the group linked that way instead
+            self.lrbg.direction = -exp.direction
+            self._missed_chain = (self.lrbg.nid_bg, 0.0)
+            self._expect(-exp.direction)
+            return []
+        if not exp.passed(state.position_min, state.position_max):
+            self._closed_at = None
+            return []
+        if self._closed_at is None:
+            self._closed_at = state.t
+        if state.t < self._closed_at + self.params["fix_latency"]:
+            return []
+        self.stats["missed"] += 1
+        event = self._event(self._closed_at, EventKind.MISSED_LINKED_GROUP, exp.nid_bg, exp.reaction,
+                            f"linked group {exp.nid_bg} not read in its window [{exp.window[0]:.2f}, "
+                            f"{exp.window[1]:.2f}] m")
+        self._missed_chain = (exp.nid_bg, exp.distance)
+        self._expect(exp.direction)
+        return [event]
+
+    # ----------------------------------------------------------------------- report
+    @staticmethod
+    def _v_ura(state: FusedState) -> float:
+        conf = min(max(state.confidence, 0.5), 1.0 - 1e-15)
+        return float(ndtri(0.5 * (1.0 + conf))) * state.speed_stddev
+
+    def _report(self, state: FusedState) -> LocationReport:
+        o = self.orientation
+        est = state.position
+        ahead_min, ahead_max = (state.position_min, state.position_max) if o > 0 else \
+            (state.position_max, state.position_min)
+        over, under = abs(est - ahead_min), abs(ahead_max - est)
+        lrbg = self.data.groups[self.lrbg.nid_bg] if self.lrbg is not None else None
+        d_lrbg = (est - lrbg.reference) * lrbg.orientation if lrbg is not None else math.nan
+        q = lrbg.q_locacc if lrbg is not None else math.nan
+        mode = state.mode
+        if self.monitor.impaired:
+            fallback = (q if lrbg is not None else 0.0) + self.monitor.allowance(d_lrbg if lrbg is not None else 0.0)
+            over, under = max(over, fallback), max(under, fallback)
+            mode = MODE_DEGRADED if mode == MODE_NOMINAL else mode
+        if lrbg is None:
+            qdir = QDirLrbg.UNKNOWN
+        else:
+            qdir = QDirLrbg.NOMINAL if o == lrbg.orientation else QDirLrbg.REVERSE
+        return LocationReport(
+            t=state.t, track_id=self.data.track_id, nid_lrbg=lrbg.nid_bg if lrbg is not None else "",
+            d_lrbg=d_lrbg, q_dirlrbg=qdir, q_locacc=q, l_doubtover=over, l_doubtunder=under,
+            estimated_front_end=est, min_safe_front_end=est - o * over, max_safe_front_end=est + o * under,
+            v_est=o * state.speed, v_ura=self._v_ura(state), odometer_impaired=self.monitor.impaired,
+            previous_lrbgs=tuple(self.previous), mode=mode)

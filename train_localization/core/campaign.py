@@ -46,7 +46,7 @@ from .sensors import wheel as _wheel
 
 FAMILIES = ("conventional", "urban_maglev", "highspeed_maglev")
 # families of the later sensor kinds (issue 11), run with --families
-MORE_FAMILIES = ("lzb", "utm", "mlx", "hsst", "mbahn")
+MORE_FAMILIES = ("lzb", "utm", "mlx", "hsst", "mbahn", "etcs")
 ALL_FAMILIES = FAMILIES + MORE_FAMILIES
 FUSION_RATE = 200.0   # published states per second (the fusion node's default)
 KMH = 1.0 / 3.6
@@ -348,6 +348,36 @@ def _conventional(d: _Draw) -> tuple[dict, dict]:
                   **{k: wheel[k] for k in ("slip_rate", "slip_ratio_max", "slip_duration", "slip_accel_threshold",
                                            "diameter_error", "driven_axle")},
                   "axle_counter_faults": axle["faults"]}
+    return scenario, conditions
+
+
+def _etcs(d: _Draw) -> tuple[dict, dict]:
+    """A conventional run (``_conventional``) on a line with ETCS data (core/etcs/track_data.py):
+    every balise location a group of two 3 m apart, Q_LOCACC of 1-5 m per group (the reader's
+    location error bounded by it), linking both ways with a drawn Q_LINKREACTION, and in a third
+    of the runs one group the train passes out of order (a linked group missed)."""
+    scenario, conditions = _conventional(d)
+    track = scenario["track"]
+    groups = sorted({b.get("group", b["id"]): b["position"] for b in track["equipment"]["eurobalise"]}.items(),
+                    key=lambda kv: kv[1])
+    balises = []
+    for n, (_, x) in enumerate(groups):
+        q = (1.0, 1.0, 2.0, 3.0, 5.0)[d.int(0, 4)]
+        balises += [{"id": f"BG{n:03d}a", "position": x, "group": f"BG{n:03d}", "q_locacc": q},
+                    {"id": f"BG{n:03d}b", "position": _g(x + 3.0, 8), "group": f"BG{n:03d}", "q_locacc": q}]
+    track["equipment"]["eurobalise"] = [b for b in balises if b["position"] <= track["length"]]
+    reaction = ("service_brake", "train_trip", "none")[d.int(0, 2)]
+    track["etcs"] = {"linking": "auto", "link_reaction": reaction}
+    reader = scenario["sensors"]["eurobalise_reader"]
+    reader.pop("location_sigma")
+    front = np.asarray(_coarse(scenario["profile"], scenario["initial"]["speed"], scenario["duration"]).position) \
+        + scenario["initial"]["position"]
+    passed = [b for b in track["equipment"]["eurobalise"][::2] if front.min() + 50.0 < b["position"] < front.max() - 50.0]
+    silent = ""
+    if passed and d.chance(1.0 / 3.0):
+        silent = passed[d.int(0, len(passed) - 1)]["group"]
+        reader["silent_balises"] = f"{silent}a,{silent}b"
+    conditions.update({"link_reaction": reaction, "silent_group": silent, "groups_passed": len(passed)})
     return scenario, conditions
 
 
@@ -711,7 +741,7 @@ def _tdoa_ranging(seed: int, body: dict, conditions: dict) -> None:
 
 
 _GENERATORS = {"conventional": _conventional, "urban_maglev": _urban, "highspeed_maglev": _highspeed_maglev,
-               "lzb": _lzb, "utm": _utm, "mlx": _mlx, "hsst": _hsst, "mbahn": _mbahn}
+               "lzb": _lzb, "utm": _utm, "mlx": _mlx, "hsst": _hsst, "mbahn": _mbahn, "etcs": _etcs}
 
 def generate(family: str, seed: int, max_duration: float | None = None) -> dict:
     """The scenario dict of run (family, seed): ``Scenario.from_dict`` loads it.
@@ -803,6 +833,8 @@ def run_scenario(data: dict, oracle: bool = False) -> dict:
            "delivery": camp.get("delivery", {}), "sensor_params": data.get("sensors", {}), "scores": scores,
            "fusion": runner.filter.counters(), "fusion_rejected": dict(runner.rejected), "sensors": per_sensor,
            "devices": devices}
+    if "eurobalise_reader" in sc.sensors:
+        out["etcs"] = etcs_scores(sc, estimates, delivered, arrivals, traj)
     layout = stator.Layout.from_track(sc.track)
     if len(layout):
         out["stator"] = stator_scores(layout, sc, StateSeries.from_estimates(estimates), traj)
@@ -812,6 +844,24 @@ def run_scenario(data: dict, oracle: bool = False) -> dict:
         out["availability"] = {**availability(estimates, told, traj, config.lost_stddev),
                                "left_out": len(delivered) - len(clean)}
     return out
+
+
+def etcs_scores(sc: Scenario, estimates, delivered, arrivals, traj: Trajectory) -> dict:
+    """The ETCS location function (core/etcs) over a run's fused states and delivered balise
+    fixes, scored on its truth (core/etcs/scoring.py). A track without ETCS data is scored
+    without linking, each group's Q_LOCACC the reader's location bound."""
+    from .etcs import scoring as etcs_scoring
+    from .etcs.track_data import EtcsData
+    from .sensors import eurobalise
+    sigma = (sc.sensors["eurobalise_reader"] or {}).get("location_sigma", eurobalise.PARAMS["location_sigma"].default)
+    data = EtcsData.from_track(sc.track, national_default=eurobalise.LOCATION_BOUND * float(sigma))
+    orientation = sc.orientation()
+    run = etcs_scoring.run_location(data, {"orientation": orientation}, estimates, delivered)
+    read: dict[str, list[float]] = {}
+    for _, m in arrivals:
+        if getattr(m, "sensor", "") == "eurobalise" and m.reference_id in data.group_of_balise:
+            read.setdefault(data.group_of_balise[m.reference_id], []).append(m.stamp)
+    return etcs_scoring.location_scores(run, traj.t, traj.position, traj.speed, orientation, read)
 
 
 def stator_scores(layout: "stator.Layout", sc: Scenario, fused: StateSeries, traj: Trajectory) -> dict:

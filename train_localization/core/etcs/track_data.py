@@ -80,8 +80,10 @@ class EtcsData:
         return self.links.get((nid_bg, int(direction)))
 
     @classmethod
-    def from_track(cls, track: Track) -> "EtcsData":
-        """The ETCS data of a track; TrackError in one line if it is inconsistent."""
+    def from_track(cls, track: Track, national_default: float | None = None) -> "EtcsData":
+        """The ETCS data of a track; TrackError in one line if it is inconsistent.
+        ``national_default`` [m]: the national value of Q_LOCACC where the track gives none (the
+        campaign scores a track without ETCS data with its reader's location bound)."""
         block = track.etcs or {}
         if not isinstance(block, dict):
             raise TrackError(f"track {track.track_id}: 'etcs' must be a mapping")
@@ -89,6 +91,8 @@ class EtcsData:
         if unknown:
             raise TrackError(f"track {track.track_id}: unknown keys in 'etcs': {', '.join(sorted(unknown))}")
         national = block.get("q_nvlocacc")
+        if national is None:
+            national = national_default
         if national is not None:
             national = _q_locacc(national, f"track {track.track_id}: etcs.q_nvlocacc")
         groups, group_of = _groups(track, national)

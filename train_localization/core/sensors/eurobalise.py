@@ -144,6 +144,8 @@ PARAMS = {
     "location_sigma": Param(0.33, "1-sigma error of a balise's real centre vs its chainage in the track "
                                   "file [m] (installation + survey; ETCS balise location accuracy +-1 m "
                                   "(SUBSET-036) taken as 3 sigma, the bound of the simulated error)", (0.0, 10.0)),
+    "silent_balises": Param("", "comma-separated ids of balises of the track that are out of order: no up-link "
+                                "field, no telegram (simulation only; a linked group missed, docs/etcs.md)"),
     "detect_level": Param(0.5e-3, "field above which the decoder considers a balise passage [A/m] "
                                   "(~25 sigma of field_noise, ~1/4 of the 2.18 mA/m peak)", (1.0e-6, 0.1)),
     "group_length": Param(12.0, "balises of one group (same 'group' key) read within this distance of "
@@ -368,7 +370,12 @@ class EurobaliseSimulator(Simulator):
         nid = telegram_ids(items)
         pos = np.array([it["position"] for it in items], dtype=float)
         pos = pos + self._installation_errors(np.array([balise_location_sigma(p, self.track, it) for it in items]))
-        order = np.argsort(pos, kind="stable")
+        silent = {b.strip() for b in str(p["silent_balises"]).split(",") if b.strip()}
+        unknown = silent - {str(it["id"]) for it in items}
+        if unknown:
+            raise TrackError(f"silent_balises names balises not on track {self.track.track_id}: "
+                             f"{', '.join(sorted(unknown))}")
+        order = np.array([k for k in np.argsort(pos, kind="stable") if str(items[k]["id"]) not in silent], dtype=int)
         self._pos = pos[order]
         self._nid = np.array([nid[str(items[i]["id"])] for i in order], dtype=float)
         # T_r of each balise's telegram [s]

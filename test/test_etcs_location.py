@@ -1,0 +1,245 @@
+"""The ETCS location function (core/etcs; docs/etcs.md): the track's balise groups, Q_LOCACC
+and linking, the location report's LRBG, doubts and safe front ends from the fused interval,
+the expectation windows and their events, the odometer monitoring, and the campaign's ETCS
+family scored on its truth."""
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from train_localization.core import campaign
+from train_localization.core.etcs.location import PREVIOUS_LRBGS, FusedState, LocationTracker
+from train_localization.core.etcs.records import EventKind, QDirLrbg, Reaction
+from train_localization.core.etcs.track_data import EtcsData
+from train_localization.core.measurements import PositionFix
+from train_localization.core.sensors import eurobalise
+from train_localization.core.track import Track, TrackError
+
+ANTENNA = 2.0          # reader's antenna behind the front [m]
+SPEED = 50.0           # [m/s]
+HALF = 1.0             # half width of the fused interval [m]
+CONF = 0.999999
+STEP = 0.01         # between fused states [s]
+
+
+def _track(linking="auto", q=1.0, national=None, groups=12, spacing=1000.0, extra_etcs=None, **balise) -> Track:
+    etcs = {"linking": linking, "link_reaction": "service_brake", **(extra_etcs or {})}
+    if national is not None:
+        etcs["q_nvlocacc"] = national
+    if linking is None:
+        etcs.pop("linking")
+    entry = {"every": spacing, "start": 500.0, "end": 500.0 + spacing * (groups - 1), "id": "BG{n:03d}a",
+             "group": "BG{n:03d}", **balise}
+    second = {**entry, "start": 503.0, "end": 503.0 + spacing * (groups - 1), "id": "BG{n:03d}b"}
+    if q is not None:
+        entry["q_locacc"] = second["q_locacc"] = q
+    return Track.from_dict({"track_id": "etcs_test", "length": 500.0 + spacing * groups,
+                            "equipment": {"eurobalise": [entry, second]}, "etcs": etcs})
+
+
+class Run:
+    """A train at SPEED from chainage 0 whose fused interval is +-HALF about the truth (+ bias),
+    states every STEP, and a balise fix for each balise it passes (unless silenced)."""
+
+    def __init__(self, track: Track, speed: float = SPEED, bias=lambda t: 0.0, odometer_scale: float = 1.0,
+                 silent=(), moved=None, directions: bool = True, orientation: int = 1):
+        self.track, self.speed, self.bias = track, speed, bias
+        self.tracker = LocationTracker(EtcsData.from_track(track), {"orientation": orientation})
+        self.scale = odometer_scale
+        self.fixes = []
+        for it in track.items("eurobalise"):
+            if it["id"] in silent:
+                continue
+            front = it["position"] + ANTENNA + (moved or {}).get(it["id"], 0.0)
+            t = front / speed
+            direction = (1 if it["id"].endswith("b") else 0) if directions else 0
+            self.fixes.append(PositionFix(t, "eurobalise", "r", track.track_id, it["id"], it["position"] + ANTENNA,
+                                          0.33, direction))
+        self.reports, self.events = [], []
+
+    def run(self, duration: float):
+        fixes = sorted(self.fixes, key=lambda f: f.stamp)
+        j = 0
+        for t in np.arange(0.0, duration, STEP):
+            while j < len(fixes) and fixes[j].stamp <= t:
+                self.tracker.on_fix(fixes[j])
+                j += 1
+            x = self.speed * t + self.bias(t)
+            report, events = self.tracker.on_state(FusedState(float(t), x, x - HALF, x + HALF, self.speed * self.scale,
+                                                              0.05, CONF, 1))
+            self.reports.append(report)
+            self.events += events
+        return self
+
+    def kinds(self, kind):
+        return [e for e in self.events if e.kind == kind]
+
+
+# ------------------------------------------------------------------------- track data
+def test_groups_take_their_balises_q_locacc_and_reference_and_auto_linking_their_chainages():
+    data = EtcsData.from_track(_track(q=2.0))
+    g = data.groups["BG003"]
+    assert g.balises == ("BG003a", "BG003b") and g.positions == (3500.0, 3503.0)
+    assert g.reference == 3500.0 and g.orientation == 1 and g.q_locacc == 2.0
+    assert data.group_of_balise["BG003b"] == "BG003"
+    up, down = data.link_after("BG003", 1), data.link_after("BG003", -1)
+    assert (up.to_bg, up.distance, up.reaction) == ("BG004", 1000.0, Reaction.SERVICE_BRAKE)
+    assert (down.to_bg, down.distance) == ("BG002", 1000.0)
+    assert data.link_after("BG011", 1) is None and data.link_after("BG000", -1) is None
+
+
+def test_a_group_without_q_locacc_takes_the_national_value_and_without_one_the_track_is_refused():
+    assert EtcsData.from_track(_track(q=None, national=12.0)).groups["BG000"].q_locacc == 12.0
+    with pytest.raises(TrackError, match=r"^balise group BG000 has no q_locacc and track etcs_test no national "
+                                         r"value \(etcs.q_nvlocacc\)$"):
+        _track(q=None)
+
+
+def test_a_linking_distance_that_does_not_match_the_chainages_is_refused_in_one_line():
+    links = [{"from": "BG000", "to": "BG001", "distance": 1000.4}]
+    assert EtcsData.from_track(_track(linking=links)).link_after("BG000", 1).distance == 1000.4
+    with pytest.raises(TrackError) as err:
+        _track(linking=[{"from": "BG000", "to": "BG001", "distance": 1001.0}])
+    assert str(err.value) == ("track etcs_test: link BG000 -> BG001 distance 1001 m does not match the chainages "
+                              "(1000 m apart, tolerance 0.5 m)")
+    for bad, words in (([{"from": "BG000", "to": "BG099", "distance": 1.0}], "unknown balise group BG099"),
+                       ([{"from": "BG000", "to": "BG001", "distance": 1000.0, "reaction": "stop"}], "reaction 'stop'"),
+                       ("nearest", "must be 'auto' or a list")):
+        with pytest.raises(TrackError, match=words):
+            _track(linking=bad)
+    with pytest.raises(TrackError, match="outside 0..63 m"):
+        _track(q=80.0)
+    with pytest.raises(TrackError, match="unknown keys in 'etcs': linkage"):
+        _track(extra_etcs={"linkage": 1})
+
+
+def test_the_readers_location_error_is_bounded_by_each_balises_q_locacc():
+    """The reader's error model and simulator take a balise's Q_LOCACC as the bound of its
+    location error (1-sigma Q_LOCACC / 3); a track without it keeps location_sigma."""
+    params = {k: v.default for k, v in eurobalise.PARAMS.items()}
+    track = _track(q=3.0)
+    item = track.items("eurobalise")[0]
+    assert eurobalise.balise_location_sigma(params, track, item) == pytest.approx(1.0)
+    plain = Track.from_dict({"track_id": "p", "length": 100.0, "equipment": {"eurobalise": [{"id": "1", "position": 50.0}]}})
+    assert eurobalise.balise_location_sigma(params, plain, plain.items("eurobalise")[0]) == params["location_sigma"]
+    model = eurobalise.error_model(params, track, None)
+    assert model.min_stddev == pytest.approx(1.0)
+    sim = eurobalise.EurobaliseSimulator.__new__(eurobalise.EurobaliseSimulator)
+    sim.rng = np.random.default_rng(4)
+    err = sim._installation_errors(np.full(100_000, 1.0))
+    assert np.max(np.abs(err)) <= 3.0 and np.std(err) == pytest.approx(math.sqrt(0.97334), rel=0.02)
+
+
+# ------------------------------------------------------------------------- location report
+def test_the_report_follows_the_lrbg_with_the_fused_interval_as_its_safe_front_ends():
+    run = Run(_track()).run(235.0)
+    lrbgs = run.kinds(EventKind.LRBG)
+    assert [e.nid_bg for e in lrbgs] == [f"BG{n:03d}" for n in range(12)]
+    assert "unlinked" in lrbgs[0].detail and all("linked group" in e.detail for e in lrbgs[1:])
+    last = run.reports[-1]
+    assert last.nid_lrbg == "BG011" and last.q_dirlrbg == QDirLrbg.NOMINAL and last.q_locacc == 1.0
+    x = SPEED * last.t
+    assert last.d_lrbg == pytest.approx(x - 11500.0)
+    assert last.l_doubtover == pytest.approx(HALF) and last.l_doubtunder == pytest.approx(HALF)
+    assert (last.min_safe_front_end, last.max_safe_front_end) == pytest.approx((x - HALF, x + HALF))
+    assert last.v_est == SPEED and last.v_ura == pytest.approx(4.8916 * 0.05, rel=1e-4)
+    assert last.previous_lrbgs == tuple(f"BG{n:03d}" for n in range(10, 10 - PREVIOUS_LRBGS, -1))
+    assert len(last.previous_lrbgs) >= 7 and not last.odometer_impaired
+    assert not run.kinds(EventKind.MISSED_LINKED_GROUP) and run.tracker.stats["same_group"] == 12
+
+
+def test_a_train_facing_decreasing_chainage_reports_its_safe_front_ends_ahead_of_it():
+    run = Run(_track(), orientation=-1).run(20.0)
+    last = run.reports[-1]
+    assert last.max_safe_front_end < last.estimated_front_end < last.min_safe_front_end
+    assert last.v_est == -SPEED and last.q_dirlrbg == QDirLrbg.REVERSE
+
+
+def test_a_missed_linked_group_is_reported_with_its_reaction_and_linking_chains_on():
+    run = Run(_track(), silent={"BG004a", "BG004b"}).run(130.0)
+    missed = run.kinds(EventKind.MISSED_LINKED_GROUP)
+    assert [(e.nid_bg, e.reaction) for e in missed] == [("BG004", Reaction.SERVICE_BRAKE)]
+    # closed when the min safe front end passed the window's end: 3503 m + 2 m + Q_LOCACC 1 m
+    assert missed[0].t == pytest.approx((4506.0 + HALF) / SPEED, abs=0.011)
+    assert [e.nid_bg for e in run.kinds(EventKind.LRBG)][4] == "BG005"   # read in the chained window
+
+
+def test_the_expected_group_read_outside_its_window_is_rejected_then_missed():
+    """A group read 20 m from its linked place (relaid without new data) while the interval is
+    +-1 m: rejected, then missed; the next group is taken in its window."""
+    run = Run(_track(), moved={"BG004a": 20.0, "BG004b": 20.0}).run(235.0)
+    assert [e.nid_bg for e in run.kinds(EventKind.OUTSIDE_WINDOW)] == ["BG004", "BG004"]
+    assert [e.nid_bg for e in run.kinds(EventKind.MISSED_LINKED_GROUP)] == ["BG004"]
+    assert "BG004" not in [e.nid_bg for e in run.kinds(EventKind.LRBG)]
+    assert run.reports[-1].nid_lrbg == "BG011"
+
+
+def test_a_group_the_linking_does_not_announce_and_an_unknown_balise_are_ignored_with_an_event():
+    track = _track()
+    run = Run(track)
+    run.fixes.append(PositionFix(50.0, "eurobalise", "r", track.track_id, "BG009a", 9502.0, 0.33, 0))
+    run.fixes.append(PositionFix(51.0, "eurobalise", "r", track.track_id, "XX1", 9502.0, 0.33, 0))
+    run.run(60.0)
+    assert [e.nid_bg for e in run.kinds(EventKind.NOT_LINKED)] == ["BG009"]
+    assert [e.nid_bg for e in run.kinds(EventKind.UNKNOWN_GROUP)] == ["XX1"]
+    assert "BG009" not in [e.nid_bg for e in run.kinds(EventKind.LRBG)]
+
+
+def test_a_linked_group_passed_against_its_link_trips_the_train():
+    track = _track()
+    run = Run(track)
+    run.fixes = [replace(f, direction=-1) if f.reference_id == "BG003b" else f
+                 for f in run.fixes if f.reference_id != "BG003a"]
+    run.run(80.0)
+    wrong = run.kinds(EventKind.WRONG_DIRECTION)
+    assert [(e.nid_bg, e.reaction) for e in wrong] == [("BG003", Reaction.TRAIN_TRIP)]
+
+
+def test_an_over_reading_odometer_is_impaired_and_the_doubts_fall_back_to_subset041():
+    """The fused speed 10 % high while the balises show the true progress: every linked pair
+    over-reads 100 m per km; the odometer is impaired, the report DEGRADED with doubts of at
+    least Q_LOCACC + 5 m + 5 % of d_lrbg."""
+    run = Run(_track(), odometer_scale=1.1).run(130.0)
+    impaired = run.kinds(EventKind.ODOMETER_IMPAIRED)
+    assert len(impaired) == 1 and impaired[0].t == pytest.approx(1502.0 / SPEED, abs=0.01)
+    last = run.reports[-1]
+    assert last.odometer_impaired and last.mode == 2
+    assert last.l_doubtover == pytest.approx(1.0 + 5.0 + 0.05 * last.d_lrbg)
+    assert not run.kinds(EventKind.ODOMETER_RESTORED)
+
+
+def test_an_odometer_back_within_accuracy_for_a_monitoring_distance_is_restored():
+    run = Run(_track(), odometer_scale=1.0)
+    run.scale = 1.1
+    tracker = run.tracker
+    run.run(35.0)       # over-reading over BG000..BG003
+    assert tracker.monitor.impaired
+    run.scale = 1.0
+    run.reports, run.events = [], []
+    fixes = [f for f in run.fixes if f.stamp > 35.0]
+    run.fixes = fixes
+    for t in np.arange(35.0, 80.0, STEP):
+        while run.fixes and run.fixes[0].stamp <= t:
+            tracker.on_fix(run.fixes.pop(0))
+        x = SPEED * t
+        report, events = tracker.on_state(FusedState(float(t), x, x - HALF, x + HALF, SPEED, 0.05, CONF, 1))
+        run.events += events
+    restored = run.kinds(EventKind.ODOMETER_RESTORED)
+    assert len(restored) == 1 and not tracker.monitor.impaired
+    # two pairs within 5 m + 5 % after the impairment (BG001-BG002, BG002-BG003) make the 2000 m
+    # monitoring distance
+    assert restored[0].nid_bg == "" and restored[0].t == pytest.approx(3502.0 / SPEED, abs=0.01)
+
+
+# ------------------------------------------------------------------------- campaign
+def test_an_etcs_campaign_run_misses_its_silent_group_with_the_drawn_reaction_and_stays_inside():
+    seed = campaign.run_seed(0, 11)
+    r = campaign.run_one("etcs", seed, max_duration=150.0)
+    assert "error" not in r, r.get("traceback")
+    e, cond = r["etcs"], r["conditions"]
+    assert cond["silent_group"] == "BG019" and cond["link_reaction"] == "service_brake"
+    assert e["outside"] == 0 and e["claimed"] > 20000 and e["speed_inside_share"] == 1.0
+    assert e["events"]["missed_linked_group"] >= 1 and e["missed_but_read"] == 0
+    assert e["events"]["outside_window"] == 0 and e["events"]["wrong_direction"] == 0
+    assert e["ratio_subset041"]["median"] < 0.3 and e["ratio_fixed_rule"]["median"] < 1.0

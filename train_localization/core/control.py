@@ -10,23 +10,33 @@ the loop through the localisation.
 no differentiation of noise), conditional integration as anti-windup while the thrust is at its
 limit, and a stop rule (set-point 0 and the disc below ``stop_speed``: no thrust, integral
 cleared; the bearings' static friction holds it). A state without a usable speed (NaN, or a
-1-sigma above ``max_speed_stddev``) commands no thrust.
+1-sigma above ``max_speed_stddev``) commands no thrust. The ATP supervision overrides it
+(``set_brake``, AtpCommand.BRAKE_*, core/etcs/supervision.py): while a service or emergency
+brake is commanded the thrust is full braking against the motion, ``-sign(speed) *
+force_limit`` (none below ``stop_speed``, where the stop rule holds the vehicle), and the
+integral is cleared; once released the PID resumes from its set-point.
 
 ``closed_loop`` steps dynamics (core/dynamics.py), the scenario's sensor simulators and
 decoders, the fusion and the controller together in increments of the truth step: the sensor
 pipelines already take the truth state by state (core/pipeline.py), so the loop hands them the
 state the dynamics reached instead of a precomputed trajectory, and the controller acts on the
-newest fused state at every step. ``step_response`` gives the overshoot and the settling time of
+newest fused state at every step; an optional ``supervisor`` (t, RunResult so far) -> brake
+commands its brake at each step. ``step_response`` gives the overshoot and the settling time of
 each set-point step.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
+from .etcs.supervision import Brake
 from .sensors.base import Param, check_declared, resolve_params
+
+if TYPE_CHECKING:
+    from .offline import RunResult
 
 CONTROL_PARAMS = {
     "kp": Param(86.0, "proportional gain [N/(m/s)] (2 zeta omega m: omega 2.5 rad/s, zeta 0.9, equivalent mass "
@@ -75,7 +85,8 @@ def control_config(control: dict) -> tuple[dict, tuple[SetPoint, ...]]:
 
 
 class SpeedController:
-    """PID speed controller on the fused state; ``update`` returns the thrust command [N]."""
+    """PID speed controller on the fused state; ``update`` returns the thrust command [N],
+    full braking while ``set_brake`` holds a brake (module doc)."""
 
     def __init__(self, params: dict, setpoints: tuple[SetPoint, ...], force_limit: float):
         self.params = params
@@ -84,6 +95,12 @@ class SpeedController:
         self.integral = 0.0      # [m]
         self.t_last: float | None = None
         self.command = 0.0
+        self.brake = Brake.NONE  # commanded by the ATP supervision
+
+    def set_brake(self, brake: int) -> None:
+        """The ATP's brake command (Brake / AtpCommand.BRAKE_*: 0 none, 1 service, 2 emergency;
+        ValueError for another value), obeyed from the next ``update``."""
+        self.brake = Brake(int(brake))
 
     def setpoint(self, t: float) -> float:
         """Set-point speed at ``t`` [m/s] (the last one that has started; 0 before the first)."""
@@ -102,6 +119,10 @@ class SpeedController:
         if not (math.isfinite(speed) and math.isfinite(speed_stddev)) or speed_stddev > p["max_speed_stddev"]:
             self.integral, self.command = 0.0, 0.0
             return 0.0
+        if self.brake != Brake.NONE:   # ATP intervention: full braking against the motion, no integral
+            self.integral = 0.0
+            self.command = 0.0 if abs(speed) < p["stop_speed"] else -math.copysign(self.force_limit, speed)
+            return self.command
         if target == 0.0 and abs(speed) < p["stop_speed"]:
             self.integral, self.command = 0.0, 0.0
             return 0.0
@@ -170,6 +191,7 @@ class ClosedLoopResult:
     estimates: list = field(default_factory=list)    # Estimate
     commands: list = field(default_factory=list)     # (t [s], set-point [m/s], thrust command [N])
     fv_speed: list = field(default_factory=list)     # (t [s], F/V output [m/s]) of rig-loop receivers
+    brakes: list = field(default_factory=list)       # (t [s], Brake) of the supervisor, when one is given
     measurements: list = field(default_factory=list)
     rejected: dict = field(default_factory=dict)
     setpoints: tuple = ()
@@ -178,7 +200,8 @@ class ClosedLoopResult:
     runner: object = None
 
 
-def closed_loop(scenario, t_end: float | None = None, fusion_rate: float = 200.0) -> ClosedLoopResult:
+def closed_loop(scenario, t_end: float | None = None, fusion_rate: float = 200.0,
+                supervisor: Callable[[float, "RunResult"], int] | None = None) -> ClosedLoopResult:
     """Run a scenario with ``control`` in closed loop: dynamics -> sensors -> fusion -> PID -> dynamics.
 
     At each truth step (1 / truth_rate) the controller's command of the step before acts on the
@@ -187,6 +210,12 @@ def closed_loop(scenario, t_end: float | None = None, fusion_rate: float = 200.0
     newest of them. A scenario whose track gives no absolute position (the rig) states where
     the vehicle starts in its fusion tuning (``initial_position``, as the live fusion node's
     parameter); from there the fusion counts.
+
+    ``supervisor`` (optional; e.g. the ETCS location function and the ATP supervision on the
+    fused states): called at every truth step ``t`` [s] after the fusion, before the
+    controller, with the RunResult so far (``estimates`` up to t); it returns the brake to
+    command (Brake / AtpCommand.BRAKE_*), handed to ``SpeedController.set_brake`` and recorded
+    in ``ClosedLoopResult.brakes``. Without it the loop is as before.
     """
     from .convert import canonical
     from .dynamics import Dynamics
@@ -218,6 +247,9 @@ def closed_loop(scenario, t_end: float | None = None, fusion_rate: float = 200.0
                 out.decode(pipe, block, t)
         out.states(t)
         est = run.estimates[-1] if run.estimates else None
+        if supervisor is not None:
+            ctrl.set_brake(supervisor(t, run))
+            res.brakes.append((t, ctrl.brake))
         if est is None:
             force = 0.0
         else:

@@ -6,11 +6,17 @@ Parameters:
                                core/dynamics.py)
 Topics:
   subscribes localization/state   TrainState of the fusion (reliable, deep queue: every state)
+             atp/command          AtpCommand of atp_supervision (reliable): while its brake is
+                                  service or emergency the thrust is full braking against the
+                                  motion and the integral is cleared; released, the PID resumes
+                                  (nobody publishing: no brake)
   publishes  control/traction     std_msgs/Float64, thrust command along the track [N]
              control/setpoint     std_msgs/Float64, the set-point speed in force [m/s]
-             /diagnostics         states taken and refused, the last command
+             /diagnostics         states and ATP commands taken and refused, the last command,
+                                  the ATP brake in force
 A state whose speed is not finite or whose stamp goes back is refused and counted; the
 controller then commands nothing until the next good state (core.control.SpeedController).
+An ATP command with an unknown brake is refused and counted; the brake in force stands.
 """
 from __future__ import annotations
 
@@ -40,6 +46,20 @@ class SpeedControllerNode(Node):
         self.diag = Diagnostics(self, "speed_controller")
         self._t_last: float | None = None
         self.create_subscription(self.mc.TrainState, "localization/state", self.on_state, STREAM_QOS)
+        from train_localization_msgs.msg import AtpCommand
+        self.create_subscription(AtpCommand, "atp/command", self.on_atp_command, STREAM_QOS)
+        self.diag.values["atp_brake"] = self.controller.brake.name
+
+    def on_atp_command(self, msg) -> None:
+        try:
+            self.controller.set_brake(msg.brake)
+        except ValueError:
+            self.diag.reject("atp/command", "brake", f"brake {msg.brake} is not one of AtpCommand.BRAKE_*")
+            return
+        self.diag.accept("atp/command")
+        if self.diag.values.get("atp_brake") != self.controller.brake.name:
+            self.get_logger().info(f"ATP brake {self.controller.brake.name.lower()}: {msg.reason}")
+        self.diag.values["atp_brake"] = self.controller.brake.name
 
     def on_state(self, msg) -> None:
         t = stamp_to_sec(msg.header.stamp)

@@ -1,0 +1,171 @@
+"""``atp_supervision``: the ATP supervision of one train to its end of authority from the ETCS
+location reports (core/etcs/supervision.py, SUBSET-026 section 3.13 simplified), a thin shell.
+
+Topics:
+  subscribes localization/etcs         EtcsLocation of etcs_location (reliable, every report)
+             localization/etcs_events  EtcsEvent (reliable): linking reactions (train trip,
+                                       service brake; none is counted)
+             atp/end_of_authority      std_msgs/Float64, a new end of authority (chainage [m];
+                                       reliable, volatile: the parameter gives the first one)
+  publishes  atp/command               AtpCommand (reliable) for every report, every event with
+                                       a reaction and every new authority: status, brake (held
+                                       until standstill), distance to the EOA, permitted speed
+             /diagnostics              OK (normal, indication, warning), WARN on intervention,
+                                       ERROR on trip; the supervision's counters
+
+Parameters (core/etcs/supervision.py PARAMS, read at start): ``end_of_authority`` (chainage
+[m]; NaN: none until one comes on the topic), ``orientation`` (+1/-1: the direction the
+train's front faces), ``emergency_deceleration`` and ``service_deceleration`` [m/s^2],
+``brake_build_up_time`` [s], ``warning_time`` and ``indication_time`` [s],
+``standstill_speed`` [m/s].
+
+A report that claims a position (mode NOMINAL or DEGRADED) with a front end or speed that is
+not finite, safe front ends upside down, a negative doubt or v_ura, or a stamp not after the
+last one, an event with an unknown kind or reaction, and a non-finite end of authority are
+refused and counted (rejected/<topic>/<reason>); the last command stands.
+"""
+from __future__ import annotations
+
+import math
+import sys
+
+from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float64
+
+from ..core.convert import stamp_to_sec
+from ..core.etcs import supervision
+from ..core.etcs.records import EventKind, LocationEvent, LocationReport, QDirLrbg, Reaction
+from ..core.signals import InputRejected
+from .common import STREAM_QOS, ConfigurationError, Diagnostics, declare, rclpy_classes, spin
+
+REPORTS, EVENTS, AUTHORITY, COMMAND = ("localization/etcs", "localization/etcs_events", "atp/end_of_authority",
+                                       "atp/command")
+# a new authority: reliable (none lost), volatile (matches any reliable publisher)
+AUTHORITY_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE)
+CLAIMED_MODES = (1, 2)   # TrainState.MODE_NOMINAL, MODE_DEGRADED
+LEVEL = {supervision.Status.INTERVENTION: 1, supervision.Status.TRIP: 2}   # others: OK
+
+
+def report_from_msg(msg, orientation: int = 1) -> LocationReport:
+    """The LocationReport of an EtcsLocation message; InputRejected (a ValueError: ``nan``,
+    ``implausible``) for a report that cannot be used."""
+    t = stamp_to_sec(msg.header.stamp)
+    claimed = msg.mode in CLAIMED_MODES
+    lo, est, hi = float(msg.min_safe_front_end), float(msg.estimated_front_end), float(msg.max_safe_front_end)
+    v, v_ura = float(msg.v_est), float(msg.v_ura)
+    if claimed:
+        if not all(math.isfinite(x) for x in (lo, est, hi)):
+            raise InputRejected("nan", f"front ends {lo} / {est} / {hi} m are not finite in a claimed position")
+        if orientation * (hi - lo) < 0.0:
+            raise InputRejected("implausible", f"min safe front end {lo:.3f} m is ahead of the max safe "
+                                               f"front end {hi:.3f} m")
+        if not (math.isfinite(v) and math.isfinite(v_ura)):
+            raise InputRejected("nan", f"speed {v} +- {v_ura} m/s is not finite in a claimed position")
+    if v_ura < 0.0 or msg.l_doubtover < 0.0 or msg.l_doubtunder < 0.0:
+        raise InputRejected("implausible", f"negative v_ura {v_ura} or doubts {msg.l_doubtover} / "
+                                           f"{msg.l_doubtunder}")
+    try:
+        q_dir = QDirLrbg(msg.q_dirlrbg)
+    except ValueError:
+        raise InputRejected("implausible", f"q_dirlrbg {msg.q_dirlrbg} is not one of Q_DIRLRBG_*") from None
+    return LocationReport(t, msg.track_id, msg.nid_lrbg, float(msg.d_lrbg), q_dir, float(msg.q_locacc),
+                          float(msg.l_doubtover), float(msg.l_doubtunder), est, lo, hi, v, v_ura,
+                          bool(msg.odometer_impaired), tuple(msg.previous_lrbgs), int(msg.mode))
+
+
+def event_from_msg(msg) -> LocationEvent:
+    """The LocationEvent of an EtcsEvent message (InputRejected ``unknown`` for an unknown kind
+    or reaction)."""
+    try:
+        kind, reaction = EventKind(msg.kind), Reaction(msg.reaction)
+    except ValueError:
+        raise InputRejected("unknown", f"kind {msg.kind} / reaction {msg.reaction} unknown") from None
+    return LocationEvent(stamp_to_sec(msg.header.stamp), kind, msg.nid_bg, reaction, msg.detail)
+
+
+class AtpSupervisionNode(Node):
+    """Supervision to the end of authority; see the module doc."""
+
+    def __init__(self, **kw):
+        Node.__init__(self, "atp_supervision", **kw)
+        from train_localization_msgs.msg import AtpCommand, EtcsEvent, EtcsLocation
+        self._cmd_cls = AtpCommand
+        self.diag = Diagnostics(self, "ATP supervision to the end of authority")
+        params = {name: declare(self, name, p.default, p.description, read_only=True, limits=p.limits)
+                  for name, p in supervision.PARAMS.items()}
+        try:
+            self.sup = supervision.Supervision(params)
+        except ValueError as exc:
+            raise ConfigurationError(str(exc)) from None
+        self.mc = rclpy_classes()
+        self.track_id = ""
+        self._t_last: float | None = None
+        self.pub = self.create_publisher(AtpCommand, COMMAND, STREAM_QOS)
+        self.create_subscription(EtcsLocation, REPORTS, self.on_report, STREAM_QOS)
+        self.create_subscription(EtcsEvent, EVENTS, self.on_event, STREAM_QOS)
+        self.create_subscription(Float64, AUTHORITY, self.on_authority, AUTHORITY_QOS)
+        self.diag.set_status(0, "no location report yet")
+
+    def on_report(self, msg) -> None:
+        try:
+            report = report_from_msg(msg, self.sup.orientation)
+        except InputRejected as exc:
+            self.diag.reject(REPORTS, exc.reason, exc.message)
+            return
+        if self._t_last is not None and report.t <= self._t_last:
+            self.diag.reject(REPORTS, "stamp_back", f"report at {report.t:.6f} s after {self._t_last:.6f} s")
+            return
+        self._t_last = report.t
+        self.track_id = report.track_id
+        self.diag.accept(REPORTS)
+        self.publish(self.sup.update(report))
+
+    def on_event(self, msg) -> None:
+        try:
+            event = event_from_msg(msg)
+        except InputRejected as exc:
+            self.diag.reject(EVENTS, exc.reason, exc.message)
+            return
+        self.diag.accept(EVENTS)
+        decision = self.sup.on_event(event)
+        if event.reaction != Reaction.NONE:
+            self.get_logger().warn(f"{event.reaction.name.lower()} on {event.kind.name.lower()} {event.nid_bg}")
+            self.publish(decision)
+        else:
+            self._diagnose(decision)
+
+    def on_authority(self, msg) -> None:
+        try:
+            decision = self.sup.set_authority(msg.data)
+        except ValueError as exc:
+            self.diag.reject(AUTHORITY, "nan" if not math.isfinite(msg.data) else "range", str(exc))
+            return
+        self.diag.accept(AUTHORITY)
+        self.get_logger().info(f"end of authority {msg.data:.2f} m")
+        if self.sup.last_report is not None:
+            self.publish(decision)
+        else:
+            self._diagnose(decision)
+
+    def publish(self, d: supervision.AtpDecision) -> None:
+        self.pub.publish(self._cmd_cls(header=self.mc.header(d.t), track_id=self.track_id, status=int(d.status),
+                                       brake=int(d.brake), end_of_authority=d.end_of_authority,
+                                       distance_to_eoa=d.distance_to_eoa, permitted_speed=d.permitted_speed,
+                                       reason=d.reason))
+        self._diagnose(d)
+
+    def _diagnose(self, d: supervision.AtpDecision) -> None:
+        previous = self.diag.values.get("status")
+        self.diag.values.update({"status": d.status.name, "brake": d.brake.name,
+                                 "end_of_authority_m": f"{d.end_of_authority:.2f}",
+                                 "distance_to_eoa_m": f"{d.distance_to_eoa:.2f}",
+                                 "permitted_speed_mps": f"{d.permitted_speed:.2f}"})
+        self.diag.values.update({k: str(v) for k, v in self.sup.stats.items()})
+        self.diag.set_status(LEVEL.get(d.status, 0), f"{d.status.name.lower()}: {d.reason}")
+        if previous != d.status.name and d.status >= supervision.Status.INTERVENTION:
+            self.get_logger().warn(f"{d.status.name.lower()}, brake {d.brake.name.lower()}: {d.reason}")
+
+
+def main(args=None):
+    sys.exit(spin(AtpSupervisionNode, args, usage=f"{__doc__}\n{AtpSupervisionNode.__doc__}"))

@@ -764,6 +764,12 @@ def generate(family: str, seed: int, max_duration: float | None = None) -> dict:
                                   _coarse(body["profile"], body["initial"]["speed"], body["duration"]))
     if attack:
         delivery["adversarial"] = attack
+    reader = body["sensors"].get("eurobalise_reader", {})
+    if reader.get("silent_balises"):   # a hard condition (a tunnel) may have taken the silent group away
+        on_track = {b["id"] for b in body["track"]["equipment"].get("eurobalise", [])}
+        kept = [b for b in reader["silent_balises"].split(",") if b in on_track]
+        reader["silent_balises"] = ",".join(kept)
+        conditions["silent_group"] = conditions["silent_group"] if kept else ""
     if family in STATOR_FAMILIES:
         v_max = max([abs(body["initial"]["speed"])] + [abs(leg["speed"]) for leg in body["profile"]])
         body["track"]["equipment"][stator.KIND] = _stator_sections(family, seed, body, v_max, delivery["max_delay"])
@@ -966,6 +972,9 @@ def _summary(results: list[dict]) -> dict:
     fed = [r for r in ok if "stator" in r]
     if fed:
         out["stator"] = _stator_summary(fed)
+    located = [r for r in ok if r.get("etcs", {}).get("claimed")]
+    if located:
+        out["etcs"] = _etcs_summary(located)
     told = [r["availability"] for r in ok if "availability" in r]
     if told:
         out["availability"] = ratios(told)
@@ -995,6 +1004,40 @@ def _stator_summary(runs: list[dict]) -> dict:
             "held": sum(r["stator"]["controller"]["held"] for r in runs)}
 
 
+def _etcs_summary(runs: list[dict]) -> dict:
+    """The ETCS location function over the runs with a Eurobalise reader (core/etcs/scoring.py):
+    the true front within [min, max safe front end] over all claimed reports (goal 99.9 %), the
+    runs' median doubt against SUBSET-041's 5 m + 5 % (goal <= 0.3) and against the fixed rule
+    Q_LOCACC + 1 %, v_ura covering the true speed and within SUBSET-041's speed band, events."""
+    claimed = sum(r["etcs"]["claimed"] for r in runs)
+    outside = sum(r["etcs"]["outside"] for r in runs)
+    with_lrbg = [r for r in runs if r["etcs"].get("with_lrbg")]
+
+    def medians(key):
+        x = np.array([r["etcs"][key]["median"] for r in with_lrbg])
+        return {"median": float(np.median(x)), "p95": float(np.percentile(x, 95)), "max": float(x.max())} \
+            if x.size else None
+    events: dict[str, int] = {}
+    for r in runs:
+        for k, n in r["etcs"]["events"].items():
+            events[k] = events.get(k, 0) + n
+    weights = np.array([r["etcs"]["claimed"] for r in runs], dtype=float)
+    return {"runs": len(runs), "reports_claimed": claimed, "outside": outside,
+            "inside_share": (claimed - outside) / claimed if claimed else None,
+            "runs_outside": [[r["family"], r["seed"], r["etcs"]["outside"]] for r in runs if r["etcs"]["outside"]],
+            "run_median_ratio_subset041": medians("ratio_subset041"),
+            "run_median_ratio_fixed_rule": medians("ratio_fixed_rule"),
+            "run_median_doubt_m": medians("doubt_m"),
+            "runs_ratio_subset041_above_0_3": [[r["family"], r["seed"], r["etcs"]["ratio_subset041"]["median"]]
+                                               for r in with_lrbg if r["etcs"]["ratio_subset041"]["median"] > 0.3],
+            "speed_inside_share": float(np.average([r["etcs"]["speed_inside_share"] for r in runs], weights=weights)),
+            "speed_within_subset041_share": float(np.average([r["etcs"]["speed_within_subset041_share"] for r in runs],
+                                                             weights=weights)),
+            "events": dict(sorted(events.items())),
+            "missed_but_read": sum(r["etcs"].get("missed_but_read", 0) for r in runs),
+            "silent_groups": sum(1 for r in runs if r["conditions"].get("silent_group"))}
+
+
 def summarise(results: list[dict]) -> dict:
     """Figures over all runs and per family (see ``_summary``) and the pass/fail of the targets:
     inside fraction over all states >= 99.9 %, every run >= 99.5 %, no excursion > 2 s, no error,
@@ -1012,6 +1055,8 @@ def summarise(results: list[dict]) -> dict:
     }
     if "stator" in a:
         out["checks"]["stator_none_switched_off_under_vehicle"] = a["stator"]["switched_off_under_vehicle"] == 0
+    if "etcs" in a:
+        out["checks"]["etcs_safe_front_ends"] = a["etcs"]["inside_share"] >= INSIDE_TARGET
     out["passed"] = all(out["checks"].values())
     return jsonable(out)
 

@@ -22,7 +22,9 @@ normalised_error.png (histogram with the N(0, 1) density). The summary table is
 printed at the end. The exit code is 0 (a campaign is a measurement) unless
 ``--check``: then 1 if the truth is inside the interval in < 99.9 % of all states,
 any run < 99.5 %, any excursion lasts > 2 s, any run failed, or (the long-stator
-families, core/wayside/stator.py) a stator section switched off under a vehicle.
+families, core/wayside/stator.py) a stator section switched off under a vehicle, or (runs with
+a Eurobalise reader, core/etcs) the true front is within the ETCS safe front ends in < 99.9 %
+of the location reports.
 """
 from __future__ import annotations
 
@@ -257,6 +259,20 @@ def summary_table(summary: dict) -> str:
                          f"an inverter feeding two sections {st['double_feed']}, thrust lost {st['thrust_loss_s']:.3f} s "
                          f"in {len(st['runs_with_thrust_loss'])} runs; per passage median {pp['median']:.4f} s, "
                          f"p95 {pp['p95']:.4f} s, max {pp['max']:.4f} s")
+    for name, s in rows:
+        e = s.get("etcs")
+        if e:
+            r041, rfix = e["run_median_ratio_subset041"], e["run_median_ratio_fixed_rule"]
+            ev = e["events"]
+            lines.append(f"{name}: ETCS location ({e['runs']} runs, {e['reports_claimed']} reports): true front within "
+                         f"the safe front ends {_pct(e['inside_share'])} ({e['outside']} outside); doubt / (5 m + 5 %) "
+                         + (f"run medians: median {r041['median']:.3f}, p95 {r041['p95']:.3f}; doubt / (Q_LOCACC + "
+                            f"1 %): median {rfix['median']:.3f}, p95 {rfix['p95']:.3f}; " if r041 else "- ; ")
+                         + f"v_ura covers the speed {_pct(e['speed_inside_share'])}, within SUBSET-041's band "
+                         f"{_pct(e['speed_within_subset041_share'])}; missed linked groups "
+                         f"{ev.get('missed_linked_group', 0)} ({e['missed_but_read']} read), outside window "
+                         f"{ev.get('outside_window', 0)}, wrong direction {ev.get('wrong_direction', 0)}, odometer "
+                         f"impaired {ev.get('odometer_impaired', 0)}")
     lines.append(f"targets: all states >= {100 * INSIDE_TARGET:.1f} % inside: {checks['inside_fraction']}; "
                  f"every run >= {100 * RUN_TARGET:.1f} %: {checks['every_run_above_99_5']}; "
                  f"no excursion > {EXCURSION_LIMIT:.0f} s: {checks['excursions_within_2_s']}; "
@@ -264,7 +280,9 @@ def summary_table(summary: dict) -> str:
                  f"none outside while NOMINAL: {checks.get('none_outside_nominal')}"
                  + (f"; no stator section switched off under a vehicle: "
                     f"{checks['stator_none_switched_off_under_vehicle']}"
-                    if "stator_none_switched_off_under_vehicle" in checks else "") + " -> "
+                    if "stator_none_switched_off_under_vehicle" in checks else "")
+                 + (f"; ETCS safe front ends >= {100 * INSIDE_TARGET:.1f} %: {checks['etcs_safe_front_ends']}"
+                    if "etcs_safe_front_ends" in checks else "") + " -> "
                  f"{'PASSED' if summary['passed'] else 'FAILED'}")
     return "\n".join(lines)
 

@@ -24,7 +24,9 @@ def _report(t: float, front: float, v: float, half: float = 2.0, v_ura: float = 
 
 
 def _sup(**overrides) -> Supervision:
-    return Supervision({"end_of_authority": EOA, **overrides})
+    """A supervision to EOA; the train of these tests does not accelerate during the brake
+    build-up (traction_acceleration 0) unless told."""
+    return Supervision({"end_of_authority": EOA, "traction_acceleration": 0.0, **overrides})
 
 
 def _diag_values(msgs, name_part):
@@ -53,7 +55,7 @@ def test_the_enums_are_the_messages_constants_and_every_parameter_has_a_range():
 
 
 def test_the_curves_are_the_constant_deceleration_formulas():
-    p = atp.supervision_params()
+    p = atp.supervision_params({"traction_acceleration": 0.0})
     v = 20.0 + 0.5                                       # |v_est| + v_ura
     c = atp.curves(v, p)
     assert c.ebi == pytest.approx(20.5 * 1.5 + 20.5 ** 2 / (2 * 0.7), abs=1e-12)   # 330.93 m
@@ -64,14 +66,14 @@ def test_the_curves_are_the_constant_deceleration_formulas():
     assert atp.permitted_speed(-1.0, p) == 0.0 and math.isnan(atp.permitted_speed(math.nan, p))
     assert atp.stopping_point(100.0, -20.5, 0.7, 1.5, orientation=-1) == pytest.approx(100.0 - c.ebi)
     # a service deceleration above the emergency one: the SBI coincides with the EBI, never after it
-    fast = atp.supervision_params({"service_deceleration": 1.0})
+    fast = atp.supervision_params({"service_deceleration": 1.0, "traction_acceleration": 0.0})
     assert atp.curves(v, fast).sbi == atp.curves(v, fast).ebi
 
     # the supervision on either side of the EBI distance, in both orientations
     for o in (1, -1):
         eoa = o * EOA
         for margin, brake in ((-0.01, Brake.EMERGENCY), (0.01, Brake.SERVICE)):
-            sup = Supervision({"end_of_authority": eoa, "orientation": o})
+            sup = Supervision({"end_of_authority": eoa, "orientation": o, "traction_acceleration": 0.0})
             d = sup.update(_report(1.0, eoa - o * (c.ebi + margin + 2.0), o * 20.0, orientation=o))
             assert (d.status, d.brake) == (Status.INTERVENTION, brake), d
             assert d.distance_to_eoa == pytest.approx(c.ebi + margin)
@@ -137,13 +139,16 @@ def test_linking_reactions_trip_brake_or_are_only_counted():
     assert sup.stats["intervention_link"] == 1 and sup.stats["trip_link"] == 1 and sup.stats["events"] == 3
 
 
-def test_no_position_while_moving_is_an_emergency_brake_and_at_a_standstill_holds():
+def test_no_position_is_staff_responsible_above_its_speed_an_emergency_brake_and_at_a_standstill_holds():
     sup = _sup()
     d = sup.update(_report(1.0, 1000.0, 0.0, mode=0))          # initialising at rest: nothing to do
     assert (d.status, d.brake) == (Status.NORMAL, Brake.NONE) and "standstill" in d.reason
-    d = sup.update(_report(2.0, math.nan, 3.0, mode=3))        # lost while moving: fail safe
+    d = sup.update(_report(1.5, math.nan, 8.0, mode=0))        # no position yet, within 40 km/h: staff responsible
+    assert (d.status, d.brake) == (Status.NORMAL, Brake.NONE) and "staff responsible" in d.reason
+    assert d.permitted_speed == pytest.approx(40.0 / 3.6)
+    d = sup.update(_report(2.0, math.nan, 13.0, mode=3))       # lost while moving above it: fail safe
     assert (d.status, d.brake) == (Status.INTERVENTION, Brake.EMERGENCY) and "fail safe" in d.reason
-    assert math.isnan(d.distance_to_eoa) and math.isnan(d.permitted_speed)
+    assert math.isnan(d.distance_to_eoa)
     d = sup.update(_report(9.0, math.nan, 0.0, mode=3))        # stopped, still lost: the brake is held
     assert d.brake == Brake.EMERGENCY and "no usable position at a standstill" in d.reason
     d = sup.update(_report(10.0, 1010.0, 0.0))                 # a position again, at rest: released
@@ -173,6 +178,25 @@ def test_a_brake_is_held_until_standstill_whatever_the_curves_say_after():
     sup = _sup()
     d = sup.update(_report(1.0, EOA - 2.97, 0.0))                # 0.97 m: between EBI 0.93, SBI 1.0 m
     assert (d.status, d.brake) == (Status.INTERVENTION, Brake.SERVICE)
+
+
+def test_the_curves_allow_for_the_acceleration_during_the_brake_build_up():
+    """A train still accelerating at 0.5 m/s^2 while its brake builds up over 1.5 s: 20.5 m/s
+    becomes 21.25 m/s; the EBI distance is the build-up distance then the braking from there,
+    and the permitted speed inverts it. At rest the train still needs a_t T^2 / 2 + (a_t T)^2 /
+    (2 a): a brake released at a standstill just short of the EOA is commanded again."""
+    p = atp.supervision_params()
+    assert p["traction_acceleration"] == 0.5
+    c = atp.curves(20.5, p)
+    assert c.ebi == pytest.approx(20.5 * 1.5 + 0.25 * 1.5 ** 2 + 21.25 ** 2 / 1.4, abs=1e-12)
+    assert c.sbi == pytest.approx(20.5 * 1.5 + 0.25 * 1.5 ** 2 + 21.25 ** 2 / 1.0, abs=1e-12)
+    assert atp.permitted_speed(c.sbi, p) == pytest.approx(20.5, abs=1e-9)
+    at_rest = atp.curves(0.0, p).sbi
+    assert at_rest == pytest.approx(0.25 * 1.5 ** 2 + 0.75 ** 2 / 1.0)
+    assert atp.permitted_speed(0.5 * at_rest, p) == 0.0
+    sup = Supervision({"end_of_authority": EOA})
+    between = 0.5 * (atp.curves(0.0, p).ebi + at_rest)
+    assert sup.update(_report(1.0, EOA - 2.0 - between, 0.0, v_ura=0.0)).brake == Brake.SERVICE
 
 
 def test_a_train_braking_when_commanded_stops_short_of_the_eoa_and_never_trips():

@@ -19,6 +19,10 @@ scenario without ``trains:`` is one train named ``train`` (namespace ``/train``)
 ``Scenario.train(name)`` is one train's scenario: what a one-train run needs (its
 vehicle, profile, on-board sensors, fusion, its own random streams).
 
+ATP: ``atp`` gives the supervision of the train to an end of authority (the parameters of
+core/etcs/supervision.py, ``end_of_authority`` among them); with ``control`` the supervision's
+brake acts on the motion (core/etcs/supervised_run.py, the atp_supervision node).
+
 Closed loop: instead of ``profile`` a scenario may give ``control`` (a speed controller and
 its set-points, core/control.py) and ``dynamics`` (the vehicle's drive and resistance,
 core/dynamics.py); its motion then comes from ``core.control.closed_loop`` (offline) or from
@@ -98,6 +102,7 @@ class Scenario:
     description: dict = field(default_factory=dict, repr=False)  # the YAML, track inlined
     control: dict = field(default_factory=dict)    # closed-loop speed control (core/control.py); {} = profile
     dynamics: dict = field(default_factory=dict)   # drive and resistance parameters (core/dynamics.py)
+    atp: dict = field(default_factory=dict)        # ATP supervision to an end of authority (core/etcs/supervision.py)
     # name -> one train's scenario: {train_name: self} but for a line (set by from_dict)
     trains: dict[str, "Scenario"] = field(default_factory=dict, init=False, repr=False, compare=False)
     wayside: dict[str, dict] = field(default_factory=dict)  # wayside sensor node name -> parameters
@@ -219,6 +224,12 @@ class Scenario:
                     resolve_params(DYNAMICS_PARAMS, train.dynamics)
                 except ValueError as exc:
                     raise ScenarioError(f"scenario {scenario.name}: {exc}") from None
+            if train.atp:
+                from .etcs.supervision import supervision_params
+                try:
+                    supervision_params(train.atp)
+                except ValueError as exc:
+                    raise ScenarioError(f"scenario {scenario.name}: atp: {exc}") from None
         return scenario
 
     def orientation(self) -> int:
@@ -267,7 +278,7 @@ def _train_fields(data: dict) -> dict:
                 start_speed=float(init.get("speed", 0.0)),
                 sensors={name: dict(params or {}) for name, params in (data.get("sensors", {}) or {}).items()},
                 fusion=dict(data.get("fusion", {}) or {}),
-                control=control, dynamics=dict(data.get("dynamics", {}) or {}))
+                control=control, dynamics=dict(data.get("dynamics", {}) or {}), atp=dict(data.get("atp", {}) or {}))
 
 
 def _line(cls, data: dict, common: dict) -> Scenario:

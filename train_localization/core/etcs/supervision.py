@@ -5,9 +5,11 @@ section 3.13 simplified to a constant-deceleration braking model (the functional
 Speeds and distances. ``v = |v_est| + v_ura`` [m/s] is the highest speed the train can have;
 distances run along the train's orientation (``orientation``: +1 when its front faces
 increasing chainage) from the **max safe front end** to the EOA (``distance_to_eoa`` [m]).
-A brake commanded at speed v stops the train within ``v T + v^2 / (2 a)`` [m]
-(``braking_distance``: T = ``brake_build_up_time``, the time until the brake acts fully, run
-at speed v; then the constant deceleration a).
+A brake commanded at speed v stops the train within ``v T + a_t T^2 / 2 + (v + a_t T)^2 / (2 a)``
+[m] (``braking_distance``: T = ``brake_build_up_time``, the time until the brake acts fully,
+during which the train may still accelerate at ``traction_acceleration`` a_t -- the traction
+is cut off, the brake builds up: SUBSET-026 3.13.9.3's acceleration over the traction cut-off
+--; then the constant deceleration a).
 
 Curves (``curves``), each a distance to the EOA at or below which it is reached:
   * EBI, emergency brake intervention: ``v T + v^2 / (2 emergency_deceleration)``;
@@ -30,9 +32,12 @@ Linking reactions (``on_event``): a LocationEvent asking for TRAIN_TRIP trips th
 SERVICE_BRAKE commands the service brake until standstill, NONE does nothing (counted).
 
 No position. A report without a claimed position (``has_position`` False: initialising or
-lost), or with a speed that cannot be used (NaN), while the train moves commands the
-emergency brake (fail safe), with the reason; at a standstill the decision is held as it was
-(no brake applied, none released) until a report with a position comes.
+lost) leaves no end of authority to supervise: the train runs as in Staff Responsible
+(SUBSET-026 4.4.11), its speed ``|v_est| + v_ura`` supervised against
+``unknown_position_speed`` (V_NVSTFF, 40 km/h by default); above it, or with a speed that
+cannot be used (NaN), the emergency brake (fail safe), with the reason. At a standstill the
+decision is held as it was (no brake applied, none released) until a report with a position
+comes.
 
 Holding. A commanded brake is held, whatever the curves say after, until the standstill:
 ``|v_est| < standstill_speed`` in a report with a position (v_ura is left out: a train at
@@ -79,10 +84,15 @@ PARAMS = {
     "service_deceleration": Param(0.5, "service brake deceleration of the braking model [m/s^2]", (0.01, 10.0)),
     "brake_build_up_time": Param(1.5, "time from the brake command until the brake acts fully, run at the "
                                       "speed of the command [s]", (0.0, 30.0)),
+    "traction_acceleration": Param(0.5, "largest acceleration of the train during the brake build-up time "
+                                        "(traction not yet cut off) [m/s^2]", (0.0, 5.0)),
     "warning_time": Param(2.0, "the warning point is this time at the current speed before the SBI [s]",
                           (0.0, 60.0)),
     "indication_time": Param(5.0, "the indication point is this time at the current speed before the "
                                   "warning point [s]", (0.0, 120.0)),
+    "unknown_position_speed": Param(40.0 / 3.6, "speed supervised while the location report claims no position "
+                                                "(Staff Responsible, V_NVSTFF) [m/s]; above it the emergency brake",
+                                    (0.0, 100.0)),
     "standstill_speed": Param(0.1, "below this |v_est| a commanded brake is released (standstill) [m/s]",
                               (0.001, 5.0)),
 }
@@ -94,17 +104,19 @@ def supervision_params(overrides: dict | None = None) -> dict:
     return resolve_params(PARAMS, overrides)
 
 
-def braking_distance(v: float, deceleration: float, build_up_time: float) -> float:
+def braking_distance(v: float, deceleration: float, build_up_time: float, acceleration: float = 0.0) -> float:
     """Distance [m] from a brake command at speed ``v`` >= 0 [m/s] to the standstill: the
-    build-up time [s] at v, then ``deceleration`` [m/s^2]."""
-    return v * build_up_time + v * v / (2.0 * deceleration)
+    build-up time [s] accelerating at ``acceleration`` [m/s^2] at most, then ``deceleration``
+    [m/s^2] from the speed reached."""
+    top = v + acceleration * build_up_time
+    return v * build_up_time + 0.5 * acceleration * build_up_time ** 2 + top * top / (2.0 * deceleration)
 
 
 def stopping_point(front: float, v: float, deceleration: float, build_up_time: float,
-                   orientation: int = 1) -> float:
+                   orientation: int = 1, acceleration: float = 0.0) -> float:
     """Chainage [m] where a front at ``front`` [m] moving at ``v`` [m/s] (either sign: its
     size is used) stops when braked now (``braking_distance`` ahead along ``orientation``)."""
-    return front + orientation * braking_distance(abs(v), deceleration, build_up_time)
+    return front + orientation * braking_distance(abs(v), deceleration, build_up_time, acceleration)
 
 
 @dataclass(frozen=True)
@@ -120,24 +132,26 @@ class Curves:
 
 def curves(v: float, params: dict) -> Curves:
     """The supervision curves at speed ``v`` >= 0 [m/s] (module doc) for resolved ``params``."""
-    t_bs = params["brake_build_up_time"]
-    ebi = braking_distance(v, params["emergency_deceleration"], t_bs)
-    sbi = max(braking_distance(v, params["service_deceleration"], t_bs), ebi)
+    t_bs, a_t = params["brake_build_up_time"], params["traction_acceleration"]
+    ebi = braking_distance(v, params["emergency_deceleration"], t_bs, a_t)
+    sbi = max(braking_distance(v, params["service_deceleration"], t_bs, a_t), ebi)
     warning = sbi + params["warning_time"] * v
     return Curves(v, ebi, sbi, warning, warning + params["indication_time"] * v)
 
 
 def permitted_speed(distance: float, params: dict) -> float:
-    """Speed [m/s] whose SBI distance is ``distance`` [m] (to the EOA): the positive root of
-    ``v T + v^2 / (2 a) = distance`` with a the smaller deceleration; 0 for distance <= 0,
-    NaN for NaN."""
+    """Speed [m/s] whose SBI distance is ``distance`` [m] (to the EOA): the root v >= 0 of
+    ``braking_distance(v, a, T, a_t) = distance`` with a the smaller deceleration (with
+    w = v + a_t T: w^2 / (2 a) + w T - a_t T^2 / 2 = distance); 0 where even v = 0 needs more
+    (and for distance <= 0), NaN for NaN."""
     if math.isnan(distance):
         return math.nan
     if distance <= 0.0:
         return 0.0
     a = min(params["service_deceleration"], params["emergency_deceleration"])
-    t_bs = params["brake_build_up_time"]
-    return a * (math.sqrt(t_bs * t_bs + 2.0 * distance / a) - t_bs)
+    t_bs, a_t = params["brake_build_up_time"], params["traction_acceleration"]
+    w = a * (math.sqrt(t_bs * t_bs + 2.0 * (distance + 0.5 * a_t * t_bs * t_bs) / a) - t_bs)
+    return max(0.0, w - a_t * t_bs)
 
 
 @dataclass(frozen=True)
@@ -250,9 +264,14 @@ class Supervision:
             reason = f"no usable position at a standstill (mode {report.mode}): decision held"
             if self.last is not None:
                 status = self.last.status
+        elif abs(report.v_est) + report.v_ura <= p["unknown_position_speed"]:   # False for NaN
+            reason = (f"no usable position (mode {report.mode}): staff responsible, {abs(report.v_est):.2f} + "
+                      f"{report.v_ura:.2f} m/s within {p['unknown_position_speed']:.2f} m/s")
+            allowed = p["unknown_position_speed"]
         else:
-            reason = (f"no usable position while moving (mode {report.mode}, v_est {report.v_est:.2f} m/s): "
-                      "emergency brake (fail safe)")
+            reason = (f"no usable position while moving (mode {report.mode}, v_est {report.v_est:.2f} + "
+                      f"{report.v_ura:.2f} m/s above {p['unknown_position_speed']:.2f} m/s): emergency brake "
+                      "(fail safe)")
             self._intervene(Brake.EMERGENCY, reason, "no_position")
         if self.trip_reason:
             status, reason = Status.TRIP, self.trip_reason

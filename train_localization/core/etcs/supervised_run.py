@@ -1,0 +1,223 @@
+"""A train supervised to its end of authority in closed loop (docs/etcs.md): dynamics -> sensors
+-> fusion -> ETCS location -> ATP supervision -> speed controller -> dynamics, offline.
+
+``EtcsSupervisor`` is ``core.control.closed_loop``'s supervisor: at every truth step it gives
+the location function (core/etcs/location.py) the fused states and balise fixes made since
+the step before, the supervision (core/etcs/supervision.py) its reports and events, and
+returns the brake to command, as the etcs_location and atp_supervision nodes do live.
+``supervised_stop`` runs a scenario with ``control`` and ``atp`` and scores the stop on the
+truth: where the true front came to rest against the end of authority (``margin`` [m], > 0
+short of it), the trips and the interventions.
+
+``draw_stop`` / ``stop_runs`` are the randomised stops of ``tools/etcs_stops.py``: the driver
+(the PID) never brakes for the end of authority, so the supervision must stop the train,
+over drawn speeds, EOA places, braking capability, Q_LOCACC, wheel slides in the braking,
+radar faults and missed balise groups.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..measurements import PositionFix
+from .location import FusedState, LocationTracker
+from .records import LocationEvent, LocationReport
+from .supervision import AtpDecision, Brake, Status, Supervision
+from .track_data import EtcsData
+
+READER = "eurobalise"
+
+
+class EtcsSupervisor:
+    """closed_loop's supervisor: the location function and the supervision on the run so far."""
+
+    def __init__(self, data: EtcsData, location_params: dict | None, atp_params: dict | None):
+        self.tracker = LocationTracker(data, location_params)
+        self.supervision = Supervision(atp_params)
+        self.reports: list[LocationReport] = []
+        self.events: list[LocationEvent] = []
+        self.decisions: list[AtpDecision] = []
+        self._estimates = 0
+        self._measurements = 0
+        self._brake = Brake.NONE
+
+    def __call__(self, t: float, run) -> Brake:
+        for m in run.measurements[self._measurements:]:
+            if isinstance(m, PositionFix) and m.sensor == READER:
+                self.tracker.on_fix(m)
+        self._measurements = len(run.measurements)
+        for est in run.estimates[self._estimates:]:
+            report, events = self.tracker.on_state(FusedState.from_estimate(est))
+            self.reports.append(report)
+            for event in events:
+                self.events.append(event)
+                self.supervision.on_event(event)
+            decision = self.supervision.update(report)
+            self.decisions.append(decision)
+            self._brake = decision.brake
+        self._estimates = len(run.estimates)
+        return self._brake
+
+
+@dataclass
+class StopResult:
+    """A supervised run scored on its truth: how close the true front came to the EOA."""
+    end_of_authority: float          # chainage [m]
+    closest_front: float             # the true front's furthest point along the orientation [m]
+    margin: float                    # EOA - closest_front along the orientation [m]: > 0 short of it
+    stopped: bool                    # at rest (|v| < 0.05 m/s) at some time after the first intervention
+    trips: int
+    interventions: int
+    max_status: int
+    min_truth_to_safe_front: float   # least (truth - min safe front end) along the orientation [m]: >= 0 safe
+    max_safe_front_overshoot: float  # largest (truth - max safe front end) [m]: <= 0 safe
+    events: dict = field(default_factory=dict)
+    supervisor: EtcsSupervisor | None = None
+    loop: object = None
+
+
+def supervised_stop(scenario, t_end: float | None = None) -> StopResult:
+    """Run a scenario with ``control`` and ``atp`` in closed loop under the ETCS supervision."""
+    from ..control import closed_loop
+    orientation = scenario.orientation()
+    atp = {"orientation": orientation, **scenario.atp}
+    data = EtcsData.from_track(scenario.track)
+    sup = EtcsSupervisor(data, {"orientation": orientation}, atp)
+    loop = closed_loop(scenario, t_end, supervisor=sup)
+    eoa = float(atp["end_of_authority"])
+    truth_t = np.array([s.stamp for s in loop.truth])
+    truth_x = np.array(loop.distance)
+    truth_v = np.array([s.speed for s in loop.truth])
+    closest = float(np.max(truth_x * orientation)) * orientation
+    braked = [t for t, brake in loop.brakes if brake != Brake.NONE]
+    stopped = bool(braked) and bool(np.any((truth_t > braked[0]) & (np.abs(truth_v) < 0.05)))
+    reps = [r for r in sup.reports if r.has_position]
+    gap_min, over_max = math.inf, -math.inf
+    if reps:
+        t = np.array([r.t for r in reps])
+        x = np.interp(t, truth_t, truth_x)
+        lo = np.array([r.min_safe_front_end for r in reps])
+        hi = np.array([r.max_safe_front_end for r in reps])
+        gap_min = float(np.min((x - lo) * orientation))
+        over_max = float(np.max((x - hi) * orientation))
+    kinds: dict[str, int] = {}
+    for e in sup.events:
+        kinds[e.kind.name.lower()] = kinds.get(e.kind.name.lower(), 0) + 1
+    stats = sup.supervision.stats
+    return StopResult(eoa, closest, (eoa - closest) * orientation, stopped,
+                      int(stats.get("trips", 0)), int(stats.get("interventions", 0)),
+                      max((int(d.status) for d in sup.decisions), default=int(Status.NORMAL)),
+                      gap_min, over_max, kinds, sup, loop)
+
+
+# ----------------------------------------------------------------------------- randomised stops
+KMH = 1.0 / 3.6
+MASS = 4.0e5            # [kg] the train of the drawn stops (its PID gains follow from it)
+
+
+def draw_stop(seed: int) -> dict:
+    """The scenario dict of randomised stop ``seed``: a 200 m train on a drawn ETCS line (balise
+    groups of two every 600-1500 m, Q_LOCACC 1-5 m, linking both ways, reaction none or service
+    brake), starting just behind the first group, its driver running at 60-160 km/h towards an
+    EOA 2-6 km ahead and never braking for it; the braking it really has (0.55-0.9 m/s^2) is
+    at least what the supervision assumes (80-95 % of it); a 5-25 % wheel slide in the braking
+    in half the runs, a Doppler scale fault in a third, a silent balise group on the way in a
+    third."""
+    rng = np.random.default_rng(seed)
+
+    def u(lo, hi):
+        return float(f"{rng.uniform(lo, hi):.6g}")
+    spacing = u(600.0, 1500.0)
+    q = [1.0, 1.0, 2.0, 3.0, 5.0]
+    first = 500.0
+    v_top = u(60.0, 160.0) * KMH
+    eoa_distance = u(2000.0, 6000.0)
+    start = first - u(10.0, 60.0)
+    eoa = start + eoa_distance
+    length = eoa + 3000.0
+    groups = np.arange(first, length - 100.0, spacing)
+    balises = []
+    for n, x in enumerate(groups):
+        qa = q[int(rng.integers(0, len(q)))]
+        balises += [{"id": f"BG{n:03d}a", "position": float(x), "group": f"BG{n:03d}", "q_locacc": qa},
+                    {"id": f"BG{n:03d}b", "position": float(x) + 3.0, "group": f"BG{n:03d}", "q_locacc": qa}]
+    reaction = ("none", "service_brake")[int(rng.integers(0, 2))]
+    decel = u(0.55, 0.9)
+    assumed = decel * u(0.8, 0.95)
+    lag = u(0.2, 1.0)
+    resistance = (4000.0, 100.0, 6.0)
+    t_run = v_top / (decel * 0.8) + eoa_distance / v_top + v_top / decel + 40.0
+    sensors = {"wheel_sensor": {}, "doppler_radar": {}, "eurobalise_reader": {},
+               "axle_counter": {"heads": "AC00,AC01"}}
+    faults = {}
+    if rng.random() < 0.5:
+        brake_at = (eoa_distance - v_top ** 2 / (2.0 * assumed)) / v_top + v_top / (decel * 0.8)
+        ratio = -u(0.05, 0.25)
+        sensors["wheel_sensor"]["slip_episodes"] = [u(0.5 * brake_at, 1.2 * brake_at), u(1.0, 6.0), ratio]
+        faults["slide"] = ratio
+    if rng.random() < 1.0 / 3.0:
+        t0 = u(0.0, t_run)
+        sensors["doppler_radar"]["faults"] = f"{t0:.5g}-{t0 + u(2.0, 30.0):.5g}:{u(-0.08, 0.08):.4g}"
+        faults["doppler"] = sensors["doppler_radar"]["faults"]
+    on_the_way = [f"BG{n:03d}" for n, x in enumerate(groups) if start + 50.0 < x < eoa - 50.0]
+    if on_the_way and rng.random() < 1.0 / 3.0:
+        silent = on_the_way[int(rng.integers(0, len(on_the_way)))]
+        sensors["eurobalise_reader"]["silent_balises"] = f"{silent}a,{silent}b"
+        faults["silent_group"] = silent
+    duration = float(f"{t_run:.6g}")
+    track = {"track_id": f"etcs_stop_{seed}", "length": float(f"{length:.6g}"),
+             "equipment": {"eurobalise": balises,
+                           "axle_counter_head": [{"id": "AC00", "position": first + 0.5 * spacing},
+                                                 {"id": "AC01", "position": first + 1.5 * spacing}]},
+             "etcs": {"linking": "auto", "link_reaction": reaction}}
+    omega, zeta = 0.3, 0.9
+    return {"name": f"etcs_stop_{seed}", "seed": int(seed), "track": track, "duration": duration, "truth_rate": 100.0,
+            "vehicle": {"type": "conventional", "length": 200.0, "wheel_diameter": 0.92,
+                        "axles": [2.5, 5.0, 22.5, 25.0, 27.5, 30.0, 47.5, 50.0]},
+            "initial": {"position": float(f"{start:.6g}"), "speed": 0.0},
+            "control": {"kind": "pid", "kp": 2.0 * zeta * omega * MASS, "ki": omega ** 2 * MASS, "kd": 0.0,
+                        "max_speed_stddev": 2.0,
+                        "setpoints": [{"t": 1.0, "speed": v_top}, {"t": duration - 15.0, "speed": 0.0}]},
+            "dynamics": {"inertia": MASS, "lim_radius": 1.0, "lim_force": decel * MASS + 0.0, "lims": 1,
+                         "force_lag": lag, "resistance_a": resistance[0], "resistance_b": resistance[1],
+                         "resistance_c": resistance[2], "substep": 0.01},
+            "atp": {"end_of_authority": float(f"{eoa:.6g}"), "service_deceleration": assumed,
+                    "emergency_deceleration": assumed, "brake_build_up_time": lag + 1.0,
+                    "traction_acceleration": decel},
+            "sensors": sensors,
+            "draw": {"top_speed_kmh": v_top / KMH, "eoa_distance": eoa_distance, "deceleration": decel,
+                     "assumed_deceleration": assumed, "force_lag": lag, "link_reaction": reaction,
+                     "balise_spacing": spacing, **faults}}
+
+
+def stop_summary(results: list[dict]) -> dict:
+    """Figures of randomised stops (``run_stop`` dicts): the margins short of the EOA (goal:
+    never negative), trips (goal 0), runs that did not stop, and the safe front ends' coverage."""
+    ok = [r for r in results if "error" not in r]
+    margins = np.array([r["margin"] for r in ok])
+    return {"runs": len(results), "errors": [[r["seed"], r["error"]] for r in results if "error" in r],
+            "margin_m": ({"min": float(margins.min()), "p5": float(np.percentile(margins, 5)),
+                          "median": float(np.median(margins)), "max": float(margins.max())} if margins.size else None),
+            "overruns": sum(1 for r in ok if r["margin"] < 0.0),
+            "trips": sum(r["trips"] for r in ok), "not_stopped": [r["seed"] for r in ok if not r["stopped"]],
+            "safe_front_violations": sum(1 for r in ok if r["min_truth_to_safe_front"] < 0.0
+                                         or r["max_safe_front_overshoot"] > 0.0),
+            "interventions": sum(r["interventions"] for r in ok),
+            "missed_linked_groups": sum(r["events"].get("missed_linked_group", 0) for r in ok)}
+
+
+def run_stop(seed: int) -> dict:
+    """Draw, run and score randomised stop ``seed``: a JSON-serialisable dict (an error entry
+    if the run fails)."""
+    import traceback
+    from ..scenario import Scenario
+    data = draw_stop(seed)
+    out = {"seed": int(seed), "draw": data["draw"]}
+    try:
+        res = supervised_stop(Scenario.from_dict({k: v for k, v in data.items() if k != "draw"}))
+    except Exception as exc:     # a failing run is a result, not the end of the others
+        return {**out, "error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc()}
+    out.update({k: v for k, v in res.__dict__.items() if k not in ("supervisor", "loop")})
+    return out

@@ -1,0 +1,72 @@
+"""Supervised stops at an end of authority in closed loop (core/etcs/supervised_run.py;
+docs/etcs.md): randomised runs, or one scenario.
+
+    python -m train_localization.tools.etcs_stops --runs 40 --seed 0 [--workers 2] [--out DIR]
+    python -m train_localization.tools.etcs_stops --scenario config/scenario_etcs_stop.yaml
+
+Each randomised run draws a line, a speed, an EOA, the braking and faults (``draw_stop``),
+runs dynamics, sensors, fusion, the ETCS location function, the ATP supervision and the
+speed controller together and scores where the true front came closest to the EOA. Printed:
+one line per run and the summary (margins short of the EOA, overruns, trips, the safe front
+ends' coverage); ``--out`` writes runs.json and summary.json. Exit code 0, or with ``--check``
+1 if any run overran its EOA, tripped, failed or had the truth outside its safe front ends.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+
+def _line(r: dict) -> str:
+    if "error" in r:
+        return f"seed {r['seed']}: ERROR {r['error']}"
+    d = r["draw"]
+    return (f"seed {r['seed']}: {d['top_speed_kmh']:.0f} km/h, EOA {d['eoa_distance']:.0f} m ahead, braking "
+            f"{d['deceleration']:.2f} m/s^2 (assumed {d['assumed_deceleration']:.2f}) -> stopped "
+            f"{r['margin']:.1f} m short, trips {r['trips']}, interventions {r['interventions']}, events {r['events']}")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--runs", type=int, default=20, help="randomised runs (default 20)")
+    ap.add_argument("--seed", type=int, default=0, help="base seed: run i has seed base + i")
+    ap.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")
+    ap.add_argument("--scenario", help="run this scenario YAML (with control and atp) instead")
+    ap.add_argument("--out", help="directory for runs.json and summary.json")
+    ap.add_argument("--check", action="store_true", help="exit 1 on an overrun, a trip, a failure or the truth "
+                                                         "outside the safe front ends")
+    args = ap.parse_args(argv)
+    from ..core.etcs import supervised_run as sr
+    if args.scenario:
+        from ..core.scenario import Scenario
+        res = sr.supervised_stop(Scenario.from_yaml(args.scenario))
+        print(f"{args.scenario}: EOA {res.end_of_authority:.1f} m, the front came to {res.closest_front:.2f} m: "
+              f"{res.margin:.2f} m short; stopped {res.stopped}, trips {res.trips}, interventions "
+              f"{res.interventions}, events {res.events}; truth - min safe front end >= "
+              f"{res.min_truth_to_safe_front:.3f} m, truth - max safe front end <= {res.max_safe_front_overshoot:.3f} m")
+        bad = res.margin < 0 or res.trips or res.min_truth_to_safe_front < 0 or res.max_safe_front_overshoot > 0
+        return 1 if args.check and bad else 0
+    seeds = [args.seed + i for i in range(args.runs)]
+    with ProcessPoolExecutor(max(1, args.workers)) as pool:
+        results = []
+        for r in pool.map(sr.run_stop, seeds):
+            print(_line(r), flush=True)
+            results.append(r)
+    summary = sr.stop_summary(results)
+    print(json.dumps(summary, indent=1))
+    if args.out:
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "runs.json").write_text(json.dumps(results, indent=1, default=float))
+        (out / "summary.json").write_text(json.dumps(summary, indent=1))
+    bad = summary["overruns"] or summary["trips"] or summary["errors"] or summary["safe_front_violations"]
+    return 1 if args.check and bad else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

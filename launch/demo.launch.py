@@ -23,8 +23,7 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 
 from train_localization.core.scenario import Scenario
-from train_localization.core.wayside.stator import KIND as STATOR_KIND
-from train_localization.graph import NAMESPACE, demo_graph
+from train_localization.graph import NAMESPACE, demo_graph, graph_options
 from train_localization.launch_common import common_arguments, flag, graph_actions, scenario_path
 
 
@@ -34,8 +33,7 @@ def _nodes(context):
     rate = float(LaunchConfiguration("rate").perform(context))
     namespace = LaunchConfiguration("namespace").perform(context)
     sc = Scenario.from_yaml(scenario)
-    graph = demo_graph(scenario, list(sc.sensors), bag, rate, record=flag(context, "record"),
-                       controller=bool(sc.control), stator=bool(sc.track.items(STATOR_KIND)))
+    graph = demo_graph(scenario, list(sc.sensors), bag, rate, record=flag(context, "record"), **graph_options(sc))
     return graph_actions(context, graph, namespace)
 
 

@@ -19,14 +19,28 @@ def lean_exclude(trains) -> list[str]:
     return LEAN_EXCLUDE[:3] + [f"/{name}/localization/odometry" for name in trains]
 
 
+def graph_options(sc) -> dict:
+    """The optional nodes a scenario (core.scenario.Scenario) needs in ``demo_graph``: the speed
+    controller for ``control``, the stator section controller for a track with stator sections,
+    the ETCS location function for a track with ETCS data (``etcs``), the ATP supervision for
+    ``atp`` (its parameters, the train's orientation)."""
+    from .core.wayside.stator import KIND as STATOR_KIND
+    atp = {**{"orientation": sc.orientation()}, **sc.atp} if sc.atp else None
+    return {"controller": bool(sc.control), "stator": bool(sc.track.items(STATOR_KIND)),
+            "etcs": bool(sc.track.etcs) or atp is not None, "atp": atp}
+
+
 def demo_graph(scenario: str, sensors: list[str], bag: str, rate: float = 1.0,
                exclude: list[str] | None = None, record: bool = True,
-               controller: bool = False, stator: bool = False) -> list[tuple[str, str, dict]]:
+               controller: bool = False, stator: bool = False, etcs: bool = False,
+               atp: dict | None = None) -> list[tuple[str, str, dict]]:
     """Recorder (if ``record``), one sensor node per entry of ``sensors`` (node names),
     fusion, the speed controller (if ``controller``: a scenario with a ``control`` section,
     whose simulator drives the vehicle by its traction command), the stator section
     controller (if ``stator``: a track with long-stator sections, core/wayside/stator.py,
-    fed from the fused state), simulator.
+    fed from the fused state), the ETCS location function (if ``etcs``: a track with ETCS
+    data, core/etcs), the ATP supervision (if ``atp``: its parameters), simulator
+    (``graph_options`` gives the flags of a scenario).
 
     ``exclude``: topics the recorder leaves out (default: only /rosout and
     /parameter_events; LEAN_EXCLUDE also drops what the fused state determines).
@@ -46,6 +60,10 @@ def demo_graph(scenario: str, sensors: list[str], bag: str, rate: float = 1.0,
     if stator:
         nodes.append(("stator_section_controller", "stator_section_controller",
                       {"scenario": scenario, "use_sim_time": True}))
+    if etcs:
+        nodes.append(("etcs_location", "etcs_location", {"scenario": scenario, "use_sim_time": True}))
+    if atp is not None:
+        nodes.append(("atp_supervision", "atp_supervision", {**atp, "use_sim_time": True}))
     # the simulator starts once the recorder and every sensor node listen to the truth and the
     # fusion publishes (a fusion still starting would miss the first seconds of fused states)
     nodes.append(("simulator", "simulator", {"scenario": scenario, "rate": rate, "start_delay": 1.0,

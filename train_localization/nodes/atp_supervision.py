@@ -16,8 +16,8 @@ Topics:
 Parameters (core/etcs/supervision.py PARAMS, read at start): ``end_of_authority`` (chainage
 [m]; NaN: none until one comes on the topic), ``orientation`` (+1/-1: the direction the
 train's front faces), ``emergency_deceleration`` and ``service_deceleration`` [m/s^2],
-``brake_build_up_time`` [s], ``warning_time`` and ``indication_time`` [s],
-``standstill_speed`` [m/s].
+``brake_build_up_time`` [s], ``traction_acceleration`` [m/s^2], ``warning_time`` and
+``indication_time`` [s], ``unknown_position_speed`` and ``standstill_speed`` [m/s].
 
 A report that claims a position (mode NOMINAL or DEGRADED) with a front end or speed that is
 not finite, safe front ends upside down, a negative doubt or v_ura, or a stamp not after the

@@ -26,12 +26,12 @@ from pathlib import Path
 
 from ..core import paths
 from ..core.bagio import read_bag, topic_counts
-from ..core.report import jsonable, recorded_changeover, recorded_stator
+from ..core.report import jsonable, recorded_changeover, recorded_etcs, recorded_stator
 from ..core.scenario import Scenario
 from ..core.scoring import StateSeries, score
 from ..core.offline import FUSED_TOPIC, TRUTH_TOPIC, scenario_from_bag
 from ..core.wayside.stator import KIND as STATOR_KIND
-from ..graph import NAMESPACE, demo_graph, line_graph, ros_args
+from ..graph import NAMESPACE, demo_graph, graph_options, line_graph, ros_args
 from . import domains
 
 
@@ -58,7 +58,7 @@ def run_graph(scenario_path: str, bag: Path, rate: float, log_dir: Path, timeout
     if bag.exists():
         bag.unlink()
     graph = demo_graph(str(paths.resolve(scenario_path)), list(scenario.sensors), str(bag), rate, exclude,
-                       controller=bool(scenario.control), stator=bool(scenario.track.items(STATOR_KIND)))
+                       **graph_options(scenario))
     return run_nodes(graph, "simulator", log_dir, timeout or (scenario.duration / max(rate, 1e-3) + 60.0))
 
 
@@ -199,6 +199,17 @@ def print_stator(st: dict) -> None:
           f"{st['thrust_loss_s']:.3f} s (from {st['startup_s']:.2f} s, when the first commands took effect)")
 
 
+def print_etcs(e: dict) -> None:
+    """The ETCS location and supervision of a one-train run (core/report.py recorded_etcs)."""
+    print(f"\n[etcs] {e['reports']} location reports ({e['claimed']} with a position), true front within the safe "
+          f"front ends: {e.get('inside', 0)} ({e.get('outside', 0)} outside); LRBGs {' '.join(e['lrbgs']) or '-'}; "
+          f"events {e['events'] or '-'}")
+    if e["commands"]:
+        print(f"[atp] {e['commands']} commands, highest status {e['max_status']}, trips {e['trips']}, brakes "
+              f"{e['brakes']}" + (f"; the true front came {e['eoa_margin']:.2f} m short of the end of authority "
+                                   f"{e['end_of_authority']:.1f} m" if "eoa_margin" in e else ""))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenario", default="config/scenario_demo.yaml")
@@ -228,6 +239,9 @@ def main(argv=None) -> int:
         if scenario.track.items(STATOR_KIND):
             summary["stator"] = jsonable(recorded_stator(bag, scenario, NAMESPACE))
             print_stator(summary["stator"])
+        if scenario.track.etcs or scenario.atp:
+            summary["etcs"] = jsonable(recorded_etcs(bag, scenario, NAMESPACE))
+            print_etcs(summary["etcs"])
     bad = {n: c for n, c in codes.items() if c not in (0,)}
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     if bad:

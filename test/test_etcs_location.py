@@ -243,3 +243,65 @@ def test_an_etcs_campaign_run_misses_its_silent_group_with_the_drawn_reaction_an
     assert e["events"]["missed_linked_group"] >= 1 and e["missed_but_read"] == 0
     assert e["events"]["outside_window"] == 0 and e["events"]["wrong_direction"] == 0
     assert e["ratio_subset041"]["median"] < 0.3 and e["ratio_fixed_rule"]["median"] < 1.0
+
+
+# ------------------------------------------------------------------------- node
+def test_the_node_reports_the_lrbg_and_publishes_its_events_and_refuses_what_it_cannot_use(ros_context, start_node):
+    """etcs_location on config/track_etcs.yaml: fused states at 50 m/s past BG000 and its two
+    balise fixes give reports with LRBG BG000 and an LRBG event; a NaN state and a fix of
+    another track are refused and counted."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from train_localization_msgs.msg import EtcsEvent, EtcsLocation, PositionFix as FixMsg, TrainState
+    from train_localization.nodes.common import LATCHED_QOS, STREAM_QOS
+    from conftest import spin_until
+
+    proc = start_node("etcs_location", "--ros-args", "-r", "__ns:=/train")
+    node = ros_context.create_node("probe_etcs_location", namespace="/train")
+    state_pub = node.create_publisher(TrainState, "localization/state", STREAM_QOS)
+    fix_pub = node.create_publisher(FixMsg, "sensors/eurobalise/position", STREAM_QOS)
+    reports, events, diags = [], [], []
+    node.create_subscription(EtcsLocation, "localization/etcs", reports.append, STREAM_QOS)
+    node.create_subscription(EtcsEvent, "localization/etcs_events", events.append, LATCHED_QOS)
+    node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+
+    def state(t, x, speed=SPEED):
+        m = TrainState(track_id="etcs_line", position=x, position_min=x - HALF, position_max=x + HALF, speed=speed,
+                       speed_stddev=0.05, confidence=0.999, mode=1)
+        m.header.stamp.sec, m.header.stamp.nanosec = int(t), int(round((t % 1) * 1e9))
+        return m
+
+    def fix(t, balise, position, track="etcs_line", direction=0):
+        m = FixMsg(sensor="eurobalise", unit_id="eurobalise", track_id=track, reference_id=balise, position=position,
+                   position_stddev=0.33, direction=direction)
+        m.header.stamp.sec, m.header.stamp.nanosec = int(t), int(round((t % 1) * 1e9))
+        return m
+
+    def own():
+        found = [{kv.key: kv.value for kv in st.values} for arr in diags for st in arr.status
+                 if "ETCS location" in st.name and ": input " not in st.name]
+        return found[-1] if found else {}
+    try:
+        assert spin_until(node, lambda: state_pub.get_subscription_count() > 0 and fix_pub.get_subscription_count() > 0
+                          and node.count_publishers("/train/localization/etcs") > 0, 30.0), proc.output()
+        spin_until(node, lambda: False, 0.5)
+        fix_pub.publish(fix(10.04, "BG000a", 502.0))
+        fix_pub.publish(fix(10.10, "BG000b", 505.0, direction=1))
+        fix_pub.publish(fix(10.2, "BG000a", 502.0, track="elsewhere"))
+        spin_until(node, lambda: False, 0.3)
+        for k in range(60):
+            t = 9.9 + 0.01 * k
+            state_pub.publish(state(t, SPEED * t))
+        state_pub.publish(state(10.6, math.nan))
+        assert spin_until(node, lambda: len(reports) >= 60 and events, 20.0), proc.output()
+        last = reports[-1]
+        assert last.nid_lrbg == "BG000" and last.q_dirlrbg == EtcsLocation.Q_DIRLRBG_NOMINAL
+        assert last.d_lrbg == pytest.approx(SPEED * 10.49 - 500.0) and last.q_locacc == 1.0
+        assert last.l_doubtover == pytest.approx(HALF) and last.max_safe_front_end == pytest.approx(SPEED * 10.49 + HALF)
+        assert reports[0].nid_lrbg == "" and math.isnan(reports[0].d_lrbg)
+        assert [(e.kind, e.nid_bg) for e in events] == [(EtcsEvent.KIND_LRBG, "BG000")]
+        assert spin_until(node, lambda: own().get("rejected/localization/state/implausible") == "1"
+                          and own().get("rejected/sensors/eurobalise/position/other_track") == "1", 20.0), own()
+        assert own()["nid_lrbg"] == "BG000" and own()["lrbg"] == "1" and own()["same_group"] == "1"
+        assert proc.interrupt() == 0 and "Traceback" not in proc.output()
+    finally:
+        node.destroy_node()

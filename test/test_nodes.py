@@ -24,6 +24,8 @@ NODE_ARGS = {
     "checkin_loop": ["-p", "track:=config/track_hsst.yaml"],
     "wayside_occupancy": [], "neutral_section_controller": [], "crosscheck": [],
     "stator_section_controller": [],   # its default track (config/track_maglev.yaml) has stator sections
+    "etcs_location": [],               # its default track (config/track_etcs.yaml) has ETCS data
+    "atp_supervision": [],
     "rig_loop_receiver": ["-p", "track:=config/track_rig.yaml"],
     "speed_controller": ["-p", "scenario:=config/scenario_rig.yaml"],
 }
@@ -973,7 +975,7 @@ def test_every_node_executable_prints_its_usage_on_help_and_starts_nothing(tmp_p
     from train_localization.tools.demo import executable
     from test_package import EXECUTABLES
     names = [*EXECUTABLES, "wayside_occupancy", "neutral_section_controller", "crosscheck", "association",
-             "stator_section_controller"]
+             "stator_section_controller", "etcs_location", "atp_supervision"]
 
     def run(exe):
         return exe, subprocess.run([executable(exe), "--help"], cwd=tmp_path, capture_output=True, text=True,

@@ -142,7 +142,7 @@ class EtcsLocationNode(Node):
         self._diagnose(report)
 
     def _diagnose(self, report: LocationReport) -> None:
-        self.diag.values.update({"lrbg": report.nid_lrbg or "none", "d_lrbg_m": f"{report.d_lrbg:.2f}",
+        self.diag.values.update({"nid_lrbg": report.nid_lrbg or "none", "d_lrbg_m": f"{report.d_lrbg:.2f}",
                                  "l_doubtover_m": f"{report.l_doubtover:.3f}",
                                  "l_doubtunder_m": f"{report.l_doubtunder:.3f}",
                                  "odometer_impaired": str(report.odometer_impaired)})

@@ -12,7 +12,7 @@ from train_localization.core import convert
 from train_localization.core.bagio import read_bag
 from train_localization.core.fusion import Mode
 from train_localization.core.offline import replay_bag, replay_line, scenario_from_bag
-from train_localization.core.report import evaluate, line_report, recorded_changeover, recorded_stator
+from train_localization.core.report import evaluate, line_report, recorded_changeover, recorded_etcs, recorded_stator
 from train_localization.core.scoring import StateSeries
 from train_localization.core.wayside import stator
 from train_localization.tools.make_bags import metric
@@ -149,3 +149,31 @@ def test_a_long_stator_bag_feeds_live_and_replayed_without_a_switching_under_the
     replayed_ons = [(c.stamp, c.section) for c in ctrl.commands if c.on]
     assert [s for _, s in live_ons] == [s for _, s in replayed_ons]
     assert np.allclose([t for t, _ in live_ons], [t for t, _ in replayed_ons], atol=0.3)
+
+
+def test_an_etcs_bag_stops_short_of_its_authority_live_and_locates_the_same_replayed(replayed):
+    """A bag with the ETCS location function and the ATP supervision (docs/etcs.md): the live
+    nodes' recorded reports keep the true front within their safe front ends, the supervision
+    braked, never tripped, and the train came to rest short of its end of authority; the
+    location function run on the offline replay's states and balise fixes keeps the truth
+    inside too and takes the same LRBGs."""
+    from train_localization.core.etcs import scoring as etcs_scoring
+    from train_localization.core.etcs.track_data import EtcsData
+    name, runs, _, line = replayed
+    bag = BAGS / f"{name}.mcap"
+    scenario = scenario_from_bag(bag)
+    if line is not None or not scenario.atp:
+        pytest.skip(f"{name}: no ATP supervision")
+    live = recorded_etcs(bag, scenario, "/train")
+    assert live["claimed"] > 10000 and live["outside"] == 0, live
+    assert live["trips"] == 0 and live["max_status"] == 3 and live["brakes"].get(1, 0) > 0, live
+    assert 0.0 < live["eoa_margin"] < 500.0, live
+    run = runs["train"]
+    o = scenario.orientation()
+    replay = etcs_scoring.run_location(EtcsData.from_track(scenario.track), {"orientation": o}, run.estimates,
+                                       [(m.stamp, m) for m in run.measurements])
+    truth = np.array([s.stamp for s in run.truth]), np.array([s.position for s in run.truth]), \
+        np.array([s.speed for s in run.truth])
+    scores = etcs_scoring.location_scores(replay, *truth, o)
+    assert scores["outside"] == 0 and scores["speed_inside_share"] == 1.0, scores
+    assert [e.nid_bg for e in replay.events if e.kind.name == "LRBG"] == live["lrbgs"] != []

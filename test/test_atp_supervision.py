@@ -235,7 +235,7 @@ def test_the_speed_controller_brakes_fully_while_commanded_and_then_resumes_its_
     ctrl.set_brake(Brake.SERVICE)
     assert ctrl.update(0.2, 4.0) == -1000.0 and ctrl.integral == 0.0
     assert ctrl.update(0.3, -2.0) == 1000.0                       # against the motion either way
-    assert ctrl.update(0.4, 0.1) == 0.0                         # below stop_speed: the stop rule holds it
+    assert ctrl.update(0.4, 0.1) == pytest.approx(-1000.0 / 3.0)   # below stop_speed: fading with the speed
     ctrl.set_brake(2)
     assert ctrl.update(0.5, 3.0) == -1000.0
     ctrl.set_brake(Brake.NONE)

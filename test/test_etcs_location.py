@@ -305,3 +305,33 @@ def test_the_node_reports_the_lrbg_and_publishes_its_events_and_refuses_what_it_
         assert proc.interrupt() == 0 and "Traceback" not in proc.output()
     finally:
         node.destroy_node()
+
+
+# ------------------------------------------------------------------------- closed loop
+def test_the_supervised_train_stops_short_of_its_authority_without_a_trip():
+    """config/scenario_etcs_stop.yaml in closed loop (core/etcs/supervised_run.py): the driver
+    never brakes for the EOA at 2200 m; the supervision's service brake (then the emergency
+    brake, when a 15 % slide widens v_ura) stops the train short of it, no trip, the truth
+    always within the safe front ends."""
+    from train_localization.core.etcs.supervised_run import supervised_stop
+    from train_localization.core.scenario import Scenario
+    from conftest import ROOT
+    res = supervised_stop(Scenario.from_yaml(ROOT / "config" / "scenario_etcs_stop.yaml"))
+    assert res.stopped and res.trips == 0 and res.max_status == 3
+    assert 0.0 < res.margin <= res.first_stop_margin < 300.0
+    assert res.min_truth_to_safe_front >= 0.0 and res.max_safe_front_overshoot <= 0.0
+    assert res.events.get("lrbg", 0) >= 2 and not res.events.get("missed_linked_group")
+
+
+def test_randomised_stops_draw_a_braking_the_supervision_does_not_overrate():
+    from train_localization.core.etcs.supervised_run import MASS, draw_stop
+    for seed in range(30):
+        d = draw_stop(seed)
+        sc_track = Track.from_dict(d["track"])
+        atp, dyn = d["atp"], d["dynamics"]
+        assert atp["service_deceleration"] <= dyn["lim_force"] / MASS                 # what the train really has
+        assert atp["brake_build_up_time"] > dyn["force_lag"]
+        assert 2000.0 <= atp["end_of_authority"] - d["initial"]["position"] <= 6000.0
+        assert atp["end_of_authority"] + 2000.0 < sc_track.length
+        silent = d["sensors"]["eurobalise_reader"].get("silent_balises", "")
+        assert all(b in EtcsData.from_track(sc_track).group_of_balise for b in silent.split(",") if b)

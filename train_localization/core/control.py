@@ -13,8 +13,9 @@ cleared; the bearings' static friction holds it). A state without a usable speed
 1-sigma above ``max_speed_stddev``) commands no thrust. The ATP supervision overrides it
 (``set_brake``, AtpCommand.BRAKE_*, core/etcs/supervision.py): while a service or emergency
 brake is commanded the thrust is full braking against the motion, ``-sign(speed) *
-force_limit`` (none below ``stop_speed``, where the stop rule holds the vehicle), and the
-integral is cleared; once released the PID resumes from its set-point.
+force_limit``, fading linearly with the speed below ``stop_speed`` (to rest without reversing
+the vehicle, never coasting), and the integral is cleared; once released the PID resumes from
+its set-point.
 
 ``closed_loop`` steps dynamics (core/dynamics.py), the scenario's sensor simulators and
 decoders, the fusion and the controller together in increments of the truth step: the sensor
@@ -121,7 +122,9 @@ class SpeedController:
             return 0.0
         if self.brake != Brake.NONE:   # ATP intervention: full braking against the motion, no integral
             self.integral = 0.0
-            self.command = 0.0 if abs(speed) < p["stop_speed"] else -math.copysign(self.force_limit, speed)
+            # below stop_speed the braking fades with the speed: it brings the vehicle to rest
+            # without reversing it (the drive's force could), and it does not coast
+            self.command = -self.force_limit * max(-1.0, min(1.0, speed / p["stop_speed"]))
             return self.command
         if target == 0.0 and abs(speed) < p["stop_speed"]:
             self.integral, self.command = 0.0, 0.0

@@ -27,8 +27,9 @@ def _line(r: dict) -> str:
         return f"seed {r['seed']}: ERROR {r['error']}"
     d = r["draw"]
     return (f"seed {r['seed']}: {d['top_speed_kmh']:.0f} km/h, EOA {d['eoa_distance']:.0f} m ahead, braking "
-            f"{d['deceleration']:.2f} m/s^2 (assumed {d['assumed_deceleration']:.2f}) -> stopped "
-            f"{r['margin']:.1f} m short, trips {r['trips']}, interventions {r['interventions']}, events {r['events']}")
+            f"{d['deceleration']:.2f} m/s^2 (assumed {d['assumed_deceleration']:.2f}) -> first at rest "
+            f"{r['first_stop_margin']:.1f} m short, closest {r['margin']:.1f} m short, trips {r['trips']}, "
+            f"brake onsets {r['interventions']}, events {r['events']}")
 
 
 def main(argv=None) -> int:
@@ -45,8 +46,8 @@ def main(argv=None) -> int:
     if args.scenario:
         from ..core.scenario import Scenario
         res = sr.supervised_stop(Scenario.from_yaml(args.scenario))
-        print(f"{args.scenario}: EOA {res.end_of_authority:.1f} m, the front came to {res.closest_front:.2f} m: "
-              f"{res.margin:.2f} m short; stopped {res.stopped}, trips {res.trips}, interventions "
+        print(f"{args.scenario}: EOA {res.end_of_authority:.1f} m, first at rest {res.first_stop_margin:.2f} m short, "
+              f"closest {res.margin:.2f} m short; trips {res.trips}, brake onsets "
               f"{res.interventions}, events {res.events}; truth - min safe front end >= "
               f"{res.min_truth_to_safe_front:.3f} m, truth - max safe front end <= {res.max_safe_front_overshoot:.3f} m")
         bad = res.margin < 0 or res.trips or res.min_truth_to_safe_front < 0 or res.max_safe_front_overshoot > 0

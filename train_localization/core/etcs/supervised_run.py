@@ -68,6 +68,7 @@ class StopResult:
     closest_front: float             # the true front's furthest point along the orientation [m]
     margin: float                    # EOA - closest_front along the orientation [m]: > 0 short of it
     stopped: bool                    # at rest (|v| < 0.05 m/s) at some time after the first intervention
+    first_stop_margin: float         # EOA - the true front where it first came to rest after a brake [m]; NaN if never
     trips: int
     interventions: int
     max_status: int
@@ -92,7 +93,9 @@ def supervised_stop(scenario, t_end: float | None = None) -> StopResult:
     truth_v = np.array([s.speed for s in loop.truth])
     closest = float(np.max(truth_x * orientation)) * orientation
     braked = [t for t, brake in loop.brakes if brake != Brake.NONE]
-    stopped = bool(braked) and bool(np.any((truth_t > braked[0]) & (np.abs(truth_v) < 0.05)))
+    at_rest = np.flatnonzero((truth_t > braked[0]) & (np.abs(truth_v) < 0.05)) if braked else np.array([], int)
+    stopped = bool(at_rest.size)
+    first_stop = (eoa - float(truth_x[at_rest[0]])) * orientation if stopped else math.nan
     reps = [r for r in sup.reports if r.has_position]
     gap_min, over_max = math.inf, -math.inf
     if reps:
@@ -106,7 +109,7 @@ def supervised_stop(scenario, t_end: float | None = None) -> StopResult:
     for e in sup.events:
         kinds[e.kind.name.lower()] = kinds.get(e.kind.name.lower(), 0) + 1
     stats = sup.supervision.stats
-    return StopResult(eoa, closest, (eoa - closest) * orientation, stopped,
+    return StopResult(eoa, closest, (eoa - closest) * orientation, stopped, first_stop,
                       int(stats.get("trips", 0)), int(stats.get("interventions", 0)),
                       max((int(d.status) for d in sup.decisions), default=int(Status.NORMAL)),
                       gap_min, over_max, kinds, sup, loop)
@@ -193,13 +196,19 @@ def draw_stop(seed: int) -> dict:
 
 
 def stop_summary(results: list[dict]) -> dict:
-    """Figures of randomised stops (``run_stop`` dicts): the margins short of the EOA (goal:
-    never negative), trips (goal 0), runs that did not stop, and the safe front ends' coverage."""
+    """Figures of randomised stops (``run_stop`` dicts): the closest approach to the EOA over
+    the run (``margin_m``, goal: never negative; the driver drives on after each release), where
+    the train first came to rest after a brake (``first_stop_margin_m``), trips (goal 0), runs
+    that did not stop, and the safe front ends' coverage."""
     ok = [r for r in results if "error" not in r]
     margins = np.array([r["margin"] for r in ok])
+    first = np.array([r["first_stop_margin"] for r in ok if r["stopped"]])
     return {"runs": len(results), "errors": [[r["seed"], r["error"]] for r in results if "error" in r],
             "margin_m": ({"min": float(margins.min()), "p5": float(np.percentile(margins, 5)),
                           "median": float(np.median(margins)), "max": float(margins.max())} if margins.size else None),
+            "first_stop_margin_m": ({"min": float(first.min()), "median": float(np.median(first)),
+                                     "p95": float(np.percentile(first, 95)), "max": float(first.max())}
+                                    if first.size else None),
             "overruns": sum(1 for r in ok if r["margin"] < 0.0),
             "trips": sum(r["trips"] for r in ok), "not_stopped": [r["seed"] for r in ok if not r["stopped"]],
             "safe_front_violations": sum(1 for r in ok if r["min_truth_to_safe_front"] < 0.0

@@ -227,18 +227,21 @@ def test_a_train_braking_when_commanded_stops_short_of_the_eoa_and_never_trips()
 
 
 def test_the_speed_controller_brakes_fully_while_commanded_and_then_resumes_its_pid():
+    """Under an ATP brake: no thrust and the friction brake's full demand, whatever the fused
+    state says (an unusable speed too); released, the PID from its set-point."""
     params, sps = control_config({"setpoints": [{"t": 0.0, "speed": 5.0}]})
     ctrl = SpeedController(params, sps, 1000.0)
     ctrl.update(0.0, 4.0)
     ctrl.update(0.1, 4.0)
-    assert ctrl.integral > 0.0
+    assert ctrl.integral > 0.0 and ctrl.brake_demand == 0.0
     ctrl.set_brake(Brake.SERVICE)
-    assert ctrl.update(0.2, 4.0) == -1000.0 and ctrl.integral == 0.0
-    assert ctrl.update(0.3, -2.0) == 1000.0                       # against the motion either way
-    assert ctrl.update(0.4, 0.1) == pytest.approx(-1000.0 / 3.0)   # below stop_speed: fading with the speed
+    assert ctrl.brake_demand == 1.0
+    assert ctrl.update(0.2, 4.0) == 0.0 and ctrl.integral == 0.0
+    assert ctrl.update(0.3, math.nan, speed_stddev=math.nan) == 0.0 and ctrl.brake_demand == 1.0
     ctrl.set_brake(2)
-    assert ctrl.update(0.5, 3.0) == -1000.0
+    assert ctrl.update(0.5, 3.0, speed_stddev=50.0) == 0.0 and ctrl.brake_demand == 1.0
     ctrl.set_brake(Brake.NONE)
+    assert ctrl.brake_demand == 0.0
     u = ctrl.update(0.6, 3.0)                                   # the PID from its set-point, integral from 0
     assert u == pytest.approx(params["kp"] * 2.0 + params["ki"] * 2.0 * 0.1)
     with pytest.raises(ValueError):
@@ -254,11 +257,36 @@ def test_the_closed_loop_obeys_a_supervisor_and_is_unchanged_without_a_brake():
     braked = closed_loop(sc, t_end=8.0, supervisor=lambda t, run: Brake.EMERGENCY if t >= 6.0 else Brake.NONE)
     before = [c for c in braked.commands if c[0] < 6.0]
     assert before == plain.commands[:len(before)]
-    limit = braked.controller.force_limit
     after = [(t, f) for t, _, f in braked.commands if t >= 6.0]
-    assert after and all(f in (-limit, 0.0, limit) for _, f in after)
-    assert after[0][1] == -limit                                 # the rig runs forwards at 6 s
+    assert after and all(f == 0.0 for _, f in after)             # no thrust, the friction brake
+    assert braked.dynamics.brake_command == braked.dynamics.brake_limit > 0.0
     assert braked.distance[-1] < plain.distance[-1]
+    speeds = [s.speed for s in braked.truth]
+    assert min(speeds) >= 0.0 and speeds[-1] < speeds[600]        # braked, never reversed
+
+
+def test_a_friction_brake_stops_the_vehicle_and_holds_it_without_reversing_it():
+    """core/dynamics.py: the brake opposes the motion, brings the vehicle to rest and holds it
+    against a thrust up to static friction + brake; with a brake of 0 the motion is as before."""
+    from train_localization.core.dynamics import Dynamics
+    from train_localization.core.track import Track
+    track = Track.from_dict({"track_id": "t", "length": 10000.0})
+    params = {"inertia": 4.0e5, "lim_radius": 1.0, "lim_force": 2.0e5, "lims": 1, "force_lag": 0.0,
+              "resistance_a": 4000.0, "resistance_b": 0.0, "resistance_c": 0.0, "substep": 0.01}
+    dyn = Dynamics(params, track, 100.0, 10.0)
+    dyn.set_brake(1.0)
+    for _ in range(3000):
+        dyn.step(0.01)
+    # 0.5 m/s^2 of brake and 0.01 of friction: at rest after 19.6 s and 98 m, held there
+    assert dyn.speed == 0.0 and dyn.distance == pytest.approx(100.0 + 10.0 ** 2 / (2 * 0.51), abs=0.2)
+    dyn.set_command(-1.5e5)                                      # pushing back: held by the brake
+    for _ in range(100):
+        dyn.step(0.01)
+    assert dyn.speed == 0.0
+    dyn.set_brake(0.0)
+    for _ in range(100):
+        dyn.step(0.01)
+    assert dyn.speed < 0.0                                       # released: the thrust moves it
 
 
 def _location_msg(t: float, front: float, v: float, lo: float | None = None, mode: int = 1):
@@ -349,19 +377,16 @@ def test_the_speed_controller_node_brakes_while_the_atp_commands_it(ros_context,
     from std_msgs.msg import Float64
     from diagnostic_msgs.msg import DiagnosticArray
     from train_localization_msgs.msg import AtpCommand, TrainState
-    from train_localization.core.dynamics import Dynamics
-    from train_localization.core.scenario import Scenario
     from train_localization.nodes.common import STREAM_QOS
 
-    sc = Scenario.from_yaml(ROOT / "config" / "scenario_rig.yaml")
-    limit = Dynamics(sc.dynamics, sc.track).force_limit
     proc = start_node("speed_controller", "--ros-args", "-r", "__ns:=/train", "-p",
                       f"scenario:={ROOT / 'config' / 'scenario_rig.yaml'}")
     node = ros_context.create_node("probe_speed_controller_atp", namespace="/train")
     atp_pub = node.create_publisher(AtpCommand, "atp/command", STREAM_QOS)
     state_pub = node.create_publisher(TrainState, "localization/state", STREAM_QOS)
-    traction, diags = [], []
+    traction, brakes, diags = [], [], []
     node.create_subscription(Float64, "control/traction", lambda m: traction.append(m.data), STREAM_QOS)
+    node.create_subscription(Float64, "control/brake", lambda m: brakes.append(m.data), STREAM_QOS)
     node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
 
     def accepted_commands() -> str | None:
@@ -381,13 +406,13 @@ def test_the_speed_controller_node_brakes_while_the_atp_commands_it(ros_context,
         atp_pub.publish(AtpCommand(brake=7))                   # refused: the brake stands
         assert spin_until(node, lambda: accepted_commands() == "1", 20.0), proc.output()
         state_pub.publish(state(5.0, 10.0))
-        assert spin_until(node, lambda: len(traction) >= 1, 20.0), proc.output()
-        assert traction[0] == -limit
+        assert spin_until(node, lambda: len(traction) >= 1 and len(brakes) >= 2, 20.0), proc.output()
+        assert traction[0] == 0.0 and brakes[:2] == [1.0, 1.0]
         atp_pub.publish(AtpCommand(brake=AtpCommand.BRAKE_NONE))
         assert spin_until(node, lambda: accepted_commands() == "2", 20.0), proc.output()
         state_pub.publish(state(5.1, 10.0))                    # set-point 55 km/h: the PID accelerates
         assert spin_until(node, lambda: len(traction) >= 2, 20.0), proc.output()
-        assert traction[1] > 0.0
+        assert traction[1] > 0.0 and brakes[-1] == 0.0
         assert _diag_values(diags, "speed_controller")["rejected/atp/command/brake"] == "1"
         assert proc.interrupt() == 0
     finally:

@@ -12,10 +12,10 @@ limit, and a stop rule (set-point 0 and the disc below ``stop_speed``: no thrust
 cleared; the bearings' static friction holds it). A state without a usable speed (NaN, or a
 1-sigma above ``max_speed_stddev``) commands no thrust. The ATP supervision overrides it
 (``set_brake``, AtpCommand.BRAKE_*, core/etcs/supervision.py): while a service or emergency
-brake is commanded the thrust is full braking against the motion, ``-sign(speed) *
-force_limit``, fading linearly with the speed below ``stop_speed`` (to rest without reversing
-the vehicle, never coasting), and the integral is cleared; once released the PID resumes from
-its set-point.
+brake is commanded, whatever the state's quality, the thrust is 0, the friction brake demand
+``brake_demand`` is full (1; core/dynamics.py ``set_brake``: dissipative, it stops the vehicle
+and holds it, never reverses it) and the integral is cleared; once released the PID resumes
+from its set-point.
 
 ``closed_loop`` steps dynamics (core/dynamics.py), the scenario's sensor simulators and
 decoders, the fusion and the controller together in increments of the truth step: the sensor
@@ -87,7 +87,7 @@ def control_config(control: dict) -> tuple[dict, tuple[SetPoint, ...]]:
 
 class SpeedController:
     """PID speed controller on the fused state; ``update`` returns the thrust command [N],
-    full braking while ``set_brake`` holds a brake (module doc)."""
+    no thrust and the friction brake's full demand while ``set_brake`` holds a brake (module doc)."""
 
     def __init__(self, params: dict, setpoints: tuple[SetPoint, ...], force_limit: float):
         self.params = params
@@ -97,11 +97,14 @@ class SpeedController:
         self.t_last: float | None = None
         self.command = 0.0
         self.brake = Brake.NONE  # commanded by the ATP supervision
+        self.brake_demand = 0.0  # friction brake demand 0..1 (core/dynamics.py set_brake)
 
     def set_brake(self, brake: int) -> None:
         """The ATP's brake command (Brake / AtpCommand.BRAKE_*: 0 none, 1 service, 2 emergency;
-        ValueError for another value), obeyed from the next ``update``."""
+        ValueError for another value): the friction brake demand at once, the thrust from the next
+        ``update``."""
         self.brake = Brake(int(brake))
+        self.brake_demand = 0.0 if self.brake == Brake.NONE else 1.0
 
     def setpoint(self, t: float) -> float:
         """Set-point speed at ``t`` [m/s] (the last one that has started; 0 before the first)."""
@@ -117,15 +120,12 @@ class SpeedController:
         dt = 0.0 if self.t_last is None or t <= self.t_last else t - self.t_last
         self.t_last = t
         target = self.setpoint(t)
+        if self.brake != Brake.NONE:   # ATP intervention: no thrust, the friction brake (set_brake), no integral
+            self.integral, self.command = 0.0, 0.0
+            return 0.0
         if not (math.isfinite(speed) and math.isfinite(speed_stddev)) or speed_stddev > p["max_speed_stddev"]:
             self.integral, self.command = 0.0, 0.0
             return 0.0
-        if self.brake != Brake.NONE:   # ATP intervention: full braking against the motion, no integral
-            self.integral = 0.0
-            # below stop_speed the braking fades with the speed: it brings the vehicle to rest
-            # without reversing it (the drive's force could), and it does not coast
-            self.command = -self.force_limit * max(-1.0, min(1.0, speed / p["stop_speed"]))
-            return self.command
         if target == 0.0 and abs(speed) < p["stop_speed"]:
             self.integral, self.command = 0.0, 0.0
             return 0.0
@@ -252,6 +252,7 @@ def closed_loop(scenario, t_end: float | None = None, fusion_rate: float = 200.0
         est = run.estimates[-1] if run.estimates else None
         if supervisor is not None:
             ctrl.set_brake(supervisor(t, run))
+            dyn.set_brake(ctrl.brake_demand)
             res.brakes.append((t, ctrl.brake))
         if est is None:
             force = 0.0

@@ -11,6 +11,11 @@ of inertia J becomes the equivalent mass m = J / r_loop^2 and the LIM thrust, ac
 F follows the command with a first-order lag ``force_lag`` and is limited to the LIMs'
 combined thrust (the LIMs drive and brake: a LIM reverses its travelling field). At a
 standstill the constant term a is static friction: the disc stays at rest while |F| <= a.
+
+A friction brake (``set_brake``: a demand 0..1 of ``brake_force``, following it with the same
+lag) is dissipative: a force B against the motion that brings the vehicle to rest and holds
+it there (with the static friction: at rest while |F| <= a + B), never reversing it. The ATP
+supervision's brake acts through it (core/control.py, core/etcs/supervision.py).
 The position is integrated as an unwrapped distance; ``state`` gives the chainage wrapped
 round a closed track.
 
@@ -43,6 +48,8 @@ DYNAMICS_PARAMS = {
     "resistance_c": Param(0.0065, "running resistance, quadratic term [N s^2/m^2] (assumption: windage of a "
                                   "1.2 m disc, both faces, turbulent moment coefficient 0.146 Re^-0.2, about "
                                   "5 N at 100 km/h)", (0.0, 1.0e3)),
+    "brake_force": Param(0.0, "force of the friction brake at full demand [N]; 0 = the drive's thrust limit "
+                              "(lim_force x lims at the loop)", (0.0, 1.0e7)),
     "substep": Param(0.001, "integration step [s]", (1.0e-5, 0.1)),
 }
 check_declared(DYNAMICS_PARAMS, "DYNAMICS_PARAMS")
@@ -65,6 +72,9 @@ class Dynamics:
         self.acceleration = 0.0
         self.force = 0.0                  # thrust acting [N]
         self.command = 0.0                # thrust commanded [N]
+        self.brake_limit = p["brake_force"] or self.force_limit   # friction brake at full demand [N]
+        self.brake = 0.0                  # friction brake acting [N], >= 0
+        self.brake_command = 0.0          # friction brake commanded [N]
         self.t = 0.0
 
     def resistance(self, speed: float) -> float:
@@ -81,6 +91,11 @@ class Dynamics:
         """Thrust command [N] along the track, limited to what the LIMs give."""
         self.command = max(-self.force_limit, min(self.force_limit, float(force))) if math.isfinite(force) else 0.0
 
+    def set_brake(self, demand: float) -> None:
+        """Friction brake demand in [0, 1] (clipped; NaN: full, the safe side) of ``brake_force``."""
+        demand = 1.0 if not math.isfinite(demand) else max(0.0, min(1.0, float(demand)))
+        self.brake_command = demand * self.brake_limit
+
     def step(self, dt: float) -> TruthState:
         """Advance by ``dt`` [s]; returns the new state (chainage wrapped on a closed track)."""
         p = self.params
@@ -90,15 +105,17 @@ class Dynamics:
         k = 1.0 - math.exp(-h / lag) if lag > 0 else 1.0
         for _ in range(n):
             self.force += k * (self.command - self.force)
+            self.brake += k * (self.brake_command - self.brake)
             v = self.speed
-            if v == 0.0 and abs(self.force) <= p["resistance_a"]:
-                acc = 0.0                                   # held by static friction
+            hold = p["resistance_a"] + self.brake           # static friction and the brake
+            if v == 0.0 and abs(self.force) <= hold:
+                acc = 0.0                                   # held at rest
             else:
                 direction = math.copysign(1.0, v) if v != 0.0 else math.copysign(1.0, self.force)
-                acc = (self.force - direction * self.resistance(v)) / self.mass
+                acc = (self.force - direction * (self.resistance(v) + self.brake)) / self.mass
             v_new = v + acc * h
-            if v != 0.0 and v_new * v < 0.0 and abs(self.force) <= p["resistance_a"]:
-                v_new = 0.0                                 # comes to rest: friction does not reverse it
+            if v != 0.0 and v_new * v < 0.0 and abs(self.force) <= hold:
+                v_new = 0.0                                 # comes to rest: friction and brakes do not reverse it
                 acc = -v / h
             self.distance += 0.5 * (v + v_new) * h
             self.speed, self.acceleration = v_new, acc

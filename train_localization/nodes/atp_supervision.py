@@ -7,9 +7,11 @@ Topics:
                                        service brake; none is counted)
              atp/end_of_authority      std_msgs/Float64, a new end of authority (chainage [m];
                                        reliable, volatile: the parameter gives the first one)
-  publishes  atp/command               AtpCommand (reliable) for every report, every event with
-                                       a reaction and every new authority: status, brake (held
-                                       until standstill), distance to the EOA, permitted speed
+  publishes  atp/command               AtpCommand (reliable) for every report that changes the
+                                       status or the brake and otherwise every ``command_period``
+                                       (0.1 s), every event with a reaction and every new
+                                       authority: status, brake (held until standstill), distance
+                                       to the EOA, permitted speed
              /diagnostics              OK (normal, indication, warning), WARN on intervention,
                                        ERROR on trip; the supervision's counters
 
@@ -17,7 +19,8 @@ Parameters (core/etcs/supervision.py PARAMS, read at start): ``end_of_authority`
 [m]; NaN: none until one comes on the topic), ``orientation`` (+1/-1: the direction the
 train's front faces), ``emergency_deceleration`` and ``service_deceleration`` [m/s^2],
 ``brake_build_up_time`` [s], ``traction_acceleration`` [m/s^2], ``warning_time`` and
-``indication_time`` [s], ``unknown_position_speed`` and ``standstill_speed`` [m/s].
+``indication_time`` [s], ``unknown_position_speed`` and ``standstill_speed`` [m/s];
+``command_period`` [s] (the node's: how often an unchanged command is repeated).
 
 A report that claims a position (mode NOMINAL or DEGRADED) with a front end or speed that is
 not finite, safe front ends upside down, a negative doubt or v_ura, or a stamp not after the
@@ -98,6 +101,10 @@ class AtpSupervisionNode(Node):
             self.sup = supervision.Supervision(params)
         except ValueError as exc:
             raise ConfigurationError(str(exc)) from None
+        self.command_period = declare(self, "command_period", 0.1, "atp/command is published on every change of "
+                                      "status or brake and otherwise at most this often [s]; 0 = for every report",
+                                      read_only=True, limits=(0.0, 10.0))
+        self._published: tuple | None = None     # (stamp [s], status, brake) of the last command
         self.mc = rclpy_classes()
         self.track_id = ""
         self._t_last: float | None = None
@@ -119,7 +126,12 @@ class AtpSupervisionNode(Node):
         self._t_last = report.t
         self.track_id = report.track_id
         self.diag.accept(REPORTS)
-        self.publish(self.sup.update(report))
+        d = self.sup.update(report)
+        last = self._published
+        if last is None or (d.status, d.brake) != last[1:] or not d.t - last[0] < self.command_period:
+            self.publish(d)
+        else:
+            self._diagnose(d)
 
     def on_event(self, msg) -> None:
         try:
@@ -149,6 +161,7 @@ class AtpSupervisionNode(Node):
             self._diagnose(decision)
 
     def publish(self, d: supervision.AtpDecision) -> None:
+        self._published = (d.t, d.status, d.brake)
         self.pub.publish(self._cmd_cls(header=self.mc.header(d.t), track_id=self.track_id, status=int(d.status),
                                        brake=int(d.brake), end_of_authority=d.end_of_authority,
                                        distance_to_eoa=d.distance_to_eoa, permitted_speed=d.permitted_speed,

@@ -25,8 +25,9 @@ subscribers of all its truth and raw topics together.
 
 A scenario with ``control`` (closed loop, core/control.py) has no profile: the simulator
 subscribes control/traction (std_msgs/Float64, thrust [N], from the speed_controller node)
-and integrates the vehicle's dynamics (core/dynamics.py) with the latest command at every
-truth step; a non-finite command is refused and counted (the last good one stays).
+and control/brake (std_msgs/Float64, friction brake demand 0..1) and integrates the vehicle's
+dynamics (core/dynamics.py) with the latest commands at every truth step; a non-finite
+command is refused and counted (the last good one stays).
 """
 from __future__ import annotations
 
@@ -67,6 +68,7 @@ class SimulatorNode(Node):
             self.dynamics = Dynamics(self.scenario.dynamics, self.scenario.track, self.scenario.start_position,
                                      self.scenario.start_speed)
             self.create_subscription(Float64, "control/traction", self.on_traction, STREAM_QOS)
+            self.create_subscription(Float64, "control/brake", self.on_brake, STREAM_QOS)
         self.mc = rclpy_classes()
         self.clock_pub = self.create_publisher(Clock, "/clock", CLOCK_QOS)
         from std_msgs.msg import String
@@ -166,6 +168,14 @@ class SimulatorNode(Node):
             return
         self.diag.accept("control/traction")
         self.dynamics.set_command(msg.data)
+
+    def on_brake(self, msg) -> None:
+        """Friction brake demand 0..1 of the speed controller (closed-loop scenarios; NaN is refused)."""
+        if not math.isfinite(msg.data):
+            self.diag.reject("control/brake", "nan", f"brake demand {msg.data}")
+            return
+        self.diag.accept("control/brake")
+        self.dynamics.set_brake(msg.data)
 
     def close(self):
         """Stop the publishing thread before the node goes away (no publish after destroy)."""

@@ -7,10 +7,12 @@ Parameters:
 Topics:
   subscribes localization/state   TrainState of the fusion (reliable, deep queue: every state)
              atp/command          AtpCommand of atp_supervision (reliable): while its brake is
-                                  service or emergency the thrust is full braking against the
-                                  motion and the integral is cleared; released, the PID resumes
-                                  (nobody publishing: no brake)
+                                  service or emergency the thrust is 0, the friction brake's
+                                  demand full and the integral cleared, whatever the state's
+                                  quality; released, the PID resumes (nobody publishing: no brake)
   publishes  control/traction     std_msgs/Float64, thrust command along the track [N]
+             control/brake        std_msgs/Float64, friction brake demand 0..1 (core/dynamics.py),
+                                  on every ATP command and every state
              control/setpoint     std_msgs/Float64, the set-point speed in force [m/s]
              /diagnostics         states and ATP commands taken and refused, the last command,
                                   the ATP brake in force
@@ -43,6 +45,7 @@ class SpeedControllerNode(Node):
         self.mc = rclpy_classes()
         self.traction_pub = self.create_publisher(Float64, "control/traction", STREAM_QOS)
         self.setpoint_pub = self.create_publisher(Float64, "control/setpoint", STREAM_QOS)
+        self.brake_pub = self.create_publisher(Float64, "control/brake", STREAM_QOS)
         self.diag = Diagnostics(self, "speed_controller")
         self._t_last: float | None = None
         self.create_subscription(self.mc.TrainState, "localization/state", self.on_state, STREAM_QOS)
@@ -57,6 +60,7 @@ class SpeedControllerNode(Node):
             self.diag.reject("atp/command", "brake", f"brake {msg.brake} is not one of AtpCommand.BRAKE_*")
             return
         self.diag.accept("atp/command")
+        self.brake_pub.publish(Float64(data=float(self.controller.brake_demand)))
         if self.diag.values.get("atp_brake") != self.controller.brake.name:
             self.get_logger().info(f"ATP brake {self.controller.brake.name.lower()}: {msg.reason}")
         self.diag.values["atp_brake"] = self.controller.brake.name
@@ -73,6 +77,7 @@ class SpeedControllerNode(Node):
         self.diag.accept("localization/state")
         force = self.controller.update(t, msg.speed, msg.acceleration, msg.speed_stddev)
         self.traction_pub.publish(Float64(data=float(force)))
+        self.brake_pub.publish(Float64(data=float(self.controller.brake_demand)))
         self.setpoint_pub.publish(Float64(data=float(self.controller.setpoint(t))))
         self.diag.values["command_N"] = f"{force:.2f}"
 

@@ -43,7 +43,7 @@ BAGS = {
     "mbahn": ("config/scenario_mbahn.yaml", 20.0, 1.0),
     "line_pair": ("config/scenario_line_pair.yaml", 40.0, 1.0),
     "rig": ("config/scenario_rig.yaml", 46.0, 1.0),
-    "etcs_stop": ("config/scenario_etcs_stop.yaml", 125.0, 1.0),
+    "etcs_stop": ("config/scenario_etcs_stop.yaml", 115.0, 1.0),
 }
 # A line's raw blocks (every train's wheel pulses, the wayside's axle counters) fill 5 MB in about
 # 30 s, before any train of the line scenarios has left its start. Their bags therefore take the

@@ -33,14 +33,15 @@ def graph_options(sc) -> dict:
 def demo_graph(scenario: str, sensors: list[str], bag: str, rate: float = 1.0,
                exclude: list[str] | None = None, record: bool = True,
                controller: bool = False, stator: bool = False, etcs: bool = False,
-               atp: dict | None = None) -> list[tuple[str, str, dict]]:
+               atp: dict | None = None, fusion_rate: float | None = None) -> list[tuple[str, str, dict]]:
     """Recorder (if ``record``), one sensor node per entry of ``sensors`` (node names),
     fusion, the speed controller (if ``controller``: a scenario with a ``control`` section,
     whose simulator drives the vehicle by its traction command), the stator section
     controller (if ``stator``: a track with long-stator sections, core/wayside/stator.py,
     fed from the fused state), the ETCS location function (if ``etcs``: a track with ETCS
     data, core/etcs), the ATP supervision (if ``atp``: its parameters), simulator
-    (``graph_options`` gives the flags of a scenario).
+    (``graph_options`` gives the flags of a scenario). ``fusion_rate``: the fusion's
+    publish_rate [Hz] (default: the node's, 200 Hz).
 
     ``exclude``: topics the recorder leaves out (default: only /rosout and
     /parameter_events; LEAN_EXCLUDE also drops what the fused state determines).
@@ -54,7 +55,10 @@ def demo_graph(scenario: str, sensors: list[str], bag: str, rate: float = 1.0,
             recorder["exclude"] = list(exclude)
         nodes.append(("recorder", "recorder", recorder))
     nodes += [(name, name, {"mode": "sim", "scenario": scenario, "use_sim_time": True}) for name in sensors]
-    nodes.append(("fusion", "fusion", {"scenario": scenario, "sensors": classes, "use_sim_time": True}))
+    fusion = {"scenario": scenario, "sensors": classes, "use_sim_time": True}
+    if fusion_rate is not None:
+        fusion["publish_rate"] = float(fusion_rate)
+    nodes.append(("fusion", "fusion", fusion))
     if controller:
         nodes.append(("speed_controller", "speed_controller", {"scenario": scenario, "use_sim_time": True}))
     if stator:

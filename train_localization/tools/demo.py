@@ -52,13 +52,14 @@ def executable(name: str) -> str:
 
 
 def run_graph(scenario_path: str, bag: Path, rate: float, log_dir: Path, timeout: float | None = None,
-              exclude: list[str] | None = None) -> dict:
-    """Start the demo graph, wait for the simulator to finish, stop everything; exit codes by node."""
+              exclude: list[str] | None = None, fusion_rate: float | None = None) -> dict:
+    """Start the demo graph, wait for the simulator to finish, stop everything; exit codes by node
+    (``fusion_rate``: the fusion's publish_rate [Hz], default the node's)."""
     scenario = Scenario.from_yaml(scenario_path)
     if bag.exists():
         bag.unlink()
     graph = demo_graph(str(paths.resolve(scenario_path)), list(scenario.sensors), str(bag), rate, exclude,
-                       **graph_options(scenario))
+                       fusion_rate=fusion_rate, **graph_options(scenario))
     return run_nodes(graph, "simulator", log_dir, timeout or (scenario.duration / max(rate, 1e-3) + 60.0))
 
 

@@ -45,6 +45,9 @@ BAGS = {
     "rig": ("config/scenario_rig.yaml", 46.0, 1.0),
     "etcs_stop": ("config/scenario_etcs_stop.yaml", 115.0, 1.0),
 }
+# the fusion's publish rate [Hz] of a bag where the default 200 Hz would take it over 5 MB: the
+# supervised stop's location reports follow every state
+FUSION_RATE = {"etcs_stop": 50.0}
 # A line's raw blocks (every train's wheel pulses, the wayside's axle counters) fill 5 MB in about
 # 30 s, before any train of the line scenarios has left its start. Their bags therefore take the
 # line in its running phase: each train starts at its line speed (train name -> initial state and
@@ -130,7 +133,8 @@ def main(argv=None) -> int:
                 trains = [t["name"] for t in data["trains"]]
                 codes = run_line_graph(str(scen), out, rate, Path(tmp) / "logs", exclude=lean_exclude(trains))
             else:
-                codes = run_graph(str(scen), out, rate, Path(tmp) / "logs", exclude=LEAN_EXCLUDE)
+                codes = run_graph(str(scen), out, rate, Path(tmp) / "logs", exclude=LEAN_EXCLUDE,
+                                  fusion_rate=FUSION_RATE.get(name))
             if any(codes.values()):
                 for log in (Path(tmp) / "logs").glob("*.log"):
                     print(log.name, log.read_text()[-2000:], file=sys.stderr)

@@ -418,3 +418,16 @@ def test_the_speed_controller_node_brakes_while_the_atp_commands_it(ros_context,
     finally:
         node.destroy_node()
 
+
+
+def test_location_reports_that_stop_while_the_train_moves_are_an_emergency_brake():
+    sup = _sup()
+    assert sup.check_stale(5.0) is None                          # no report yet: nothing to judge
+    sup.update(_report(1.0, 100.0, 0.0))
+    assert sup.check_stale(5.0) is None                          # last seen at rest with a position
+    sup.update(_report(2.0, 100.0, 20.0))
+    assert sup.check_stale(0.9) is None                          # within report_timeout (1 s)
+    d = sup.check_stale(1.2)
+    assert (d.status, d.brake) == (Status.INTERVENTION, Brake.EMERGENCY) and "no location report" in d.reason
+    assert d.t == pytest.approx(3.2) and sup.stats["intervention_stale"] == 1
+    assert sup.check_stale(2.0) is None                          # already braking: once

@@ -20,7 +20,9 @@ Parameters (core/etcs/supervision.py PARAMS, read at start): ``end_of_authority`
 train's front faces), ``emergency_deceleration`` and ``service_deceleration`` [m/s^2],
 ``brake_build_up_time`` [s], ``traction_acceleration`` [m/s^2], ``warning_time`` and
 ``indication_time`` [s], ``unknown_position_speed`` and ``standstill_speed`` [m/s];
-``command_period`` [s] (the node's: how often an unchanged command is repeated).
+``report_timeout`` [s] (location reports silent this long while the train last moved: emergency
+brake, checked every 0.1 s on the node clock); ``command_period`` [s] (the node's: how often an
+unchanged command is repeated).
 
 A report that claims a position (mode NOMINAL or DEGRADED) with a front end or speed that is
 not finite, safe front ends upside down, a negative doubt or v_ura, or a stamp not after the
@@ -40,7 +42,7 @@ from ..core.convert import stamp_to_sec
 from ..core.etcs import supervision
 from ..core.etcs.records import EventKind, LocationEvent, LocationReport, QDirLrbg, Reaction
 from ..core.signals import InputRejected
-from .common import STREAM_QOS, ConfigurationError, Diagnostics, declare, rclpy_classes, spin
+from .common import STREAM_QOS, ConfigurationError, Diagnostics, declare, now_sec, rclpy_classes, spin
 
 REPORTS, EVENTS, AUTHORITY, COMMAND = ("localization/etcs", "localization/etcs_events", "atp/end_of_authority",
                                        "atp/command")
@@ -113,6 +115,8 @@ class AtpSupervisionNode(Node):
         self.create_subscription(EtcsEvent, EVENTS, self.on_event, STREAM_QOS)
         self.create_subscription(Float64, AUTHORITY, self.on_authority, AUTHORITY_QOS)
         self.diag.set_status(0, "no location report yet")
+        self._received: float | None = None      # node clock at the last report [s]
+        self.create_timer(0.1, self.check_stale)
 
     def on_report(self, msg) -> None:
         try:
@@ -124,6 +128,7 @@ class AtpSupervisionNode(Node):
             self.diag.reject(REPORTS, "stamp_back", f"report at {report.t:.6f} s after {self._t_last:.6f} s")
             return
         self._t_last = report.t
+        self._received = now_sec(self)
         self.track_id = report.track_id
         self.diag.accept(REPORTS)
         d = self.sup.update(report)
@@ -132,6 +137,15 @@ class AtpSupervisionNode(Node):
             self.publish(d)
         else:
             self._diagnose(d)
+
+    def check_stale(self) -> None:
+        """Every 0.1 s: the emergency brake when the location reports have stopped (fail safe)."""
+        if self._received is None:
+            return
+        decision = self.sup.check_stale(now_sec(self) - self._received)
+        if decision is not None:
+            self.get_logger().error(decision.reason)
+            self.publish(decision)
 
     def on_event(self, msg) -> None:
         try:

@@ -13,8 +13,8 @@ core/etcs/location.py (``fix_latency``, ``history``) and of the odometer monitor
 (core/etcs/odometer.py). A track whose ETCS data are inconsistent stops the node with one line.
 
 /diagnostics: the LRBG, d_lrbg, the doubts and the counters; WARN while the odometer is
-impaired or after a missed linked group or a rejected group, ERROR after a wrong-direction
-passage; a state or fix that cannot be used (NaN, an interval upside down, another track) is
+impaired and for ALARM_HOLD (30 s) after a missed linked group or a rejected group, ERROR for as
+long after a wrong-direction passage; a state or fix that cannot be used (NaN, an interval upside down, another track) is
 counted as rejected and ignored.
 """
 from __future__ import annotations
@@ -34,6 +34,7 @@ from ..core.track import Track
 from .common import LATCHED_QOS, STREAM_QOS, ConfigurationError, Diagnostics, declare, rclpy_classes, spin
 
 FIX_TOPIC = "sensors/eurobalise/position"
+ALARM_HOLD = 30.0      # [s] of state time a linking or odometer alarm stays in the diagnostics
 REPORT_TOPIC = "localization/etcs"
 EVENT_TOPIC = "localization/etcs_events"
 
@@ -88,7 +89,7 @@ class EtcsLocationNode(Node):
         self.create_subscription(self.mc.TrainState, "localization/state", self.on_state, STREAM_QOS)
         self.create_subscription(self.mc.PositionFix, FIX_TOPIC, self.on_fix, STREAM_QOS)
         self._t_last = -math.inf
-        self._alarm = (0, "")
+        self._alarm = (0, "", -math.inf)   # (level, what, state time)
         self.diag.set_status(1, "no train state yet")
 
     def _configuration(self) -> tuple[Track, int]:
@@ -135,10 +136,12 @@ class EtcsLocationNode(Node):
             self.event_pub.publish(event_to_msg(event, self._event_cls, self.mc.header(event.t), self.track_id))
             log = self.get_logger().warning if event.kind not in (EventKind.LRBG,) else self.get_logger().info
             log(event.detail)
-            if event.kind == EventKind.WRONG_DIRECTION:
-                self._alarm = (2, event.detail)
-            elif event.kind in (EventKind.MISSED_LINKED_GROUP, EventKind.OUTSIDE_WINDOW, EventKind.ODOMETER_IMPAIRED):
-                self._alarm = max(self._alarm, (1, event.detail))
+            level = 2 if event.kind == EventKind.WRONG_DIRECTION else 1 if event.kind in (
+                EventKind.MISSED_LINKED_GROUP, EventKind.OUTSIDE_WINDOW, EventKind.ODOMETER_IMPAIRED) else 0
+            if level and (level >= self._alarm[0] or state.t - self._alarm[2] > ALARM_HOLD):
+                self._alarm = (level, event.detail, state.t)
+        if state.t - self._alarm[2] > ALARM_HOLD:
+            self._alarm = (0, "", -math.inf)
         self._diagnose(report)
 
     def _diagnose(self, report: LocationReport) -> None:
@@ -147,7 +150,7 @@ class EtcsLocationNode(Node):
                                  "l_doubtunder_m": f"{report.l_doubtunder:.3f}",
                                  "odometer_impaired": str(report.odometer_impaired)})
         self.diag.values.update({k: str(v) for k, v in self.tracker.stats.items()})
-        level, note = self._alarm
+        level, note, _ = self._alarm
         if report.odometer_impaired:
             level, note = max(level, 1), note or "odometer impaired: doubts at 5 m + 5 % at least"
         if not report.has_position:

@@ -31,6 +31,10 @@ acknowledgement and a new movement authority; ``set_authority`` stands for both)
 Linking reactions (``on_event``): a LocationEvent asking for TRAIN_TRIP trips the train,
 SERVICE_BRAKE commands the service brake until standstill, NONE does nothing (counted).
 
+Stale reports. ``check_stale(silence)``: no location report for ``report_timeout`` while the
+last one showed the train moving (or without a position) commands the emergency brake (fail
+safe); the node checks it every 0.1 s on its clock, from the last report's arrival.
+
 No position. A report without a claimed position (``has_position`` False: initialising or
 lost) leaves no end of authority to supervise: the train runs as in Staff Responsible
 (SUBSET-026 4.4.11), its speed ``|v_est| + v_ura`` supervised against
@@ -93,6 +97,8 @@ PARAMS = {
     "unknown_position_speed": Param(40.0 / 3.6, "speed supervised while the location report claims no position "
                                                 "(Staff Responsible, V_NVSTFF) [m/s]; above it the emergency brake",
                                     (0.0, 100.0)),
+    "report_timeout": Param(1.0, "location reports older than this while the train last moved: emergency brake "
+                                 "(fail safe) [s]", (0.05, 60.0)),
     "standstill_speed": Param(0.1, "below this |v_est| a commanded brake is released (standstill) [m/s]",
                               (0.001, 5.0)),
 }
@@ -189,7 +195,7 @@ class Supervision:
         self.last: AtpDecision | None = None
         self.stats = {"reports": 0, "events": 0, "events_without_reaction": 0, "authorities": 0,
                       "interventions": 0, "intervention_ebi": 0, "intervention_sbi": 0, "intervention_link": 0,
-                      "intervention_no_position": 0, "trips": 0, "trip_eoa": 0, "trip_link": 0,
+                      "intervention_no_position": 0, "intervention_stale": 0, "trips": 0, "trip_eoa": 0, "trip_link": 0,
                       "releases": 0, "trips_released": 0}
 
     # ------------------------------------------------------------------ inputs
@@ -210,6 +216,24 @@ class Supervision:
         else:
             self.stats["events_without_reaction"] += 1
         return self._decide(event.t, self.last_report)
+
+    def check_stale(self, silence: float) -> AtpDecision | None:
+        """``silence`` [s]: time since the last location report came (the node's clock). The
+        emergency brake (fail safe) when it exceeds ``report_timeout`` and the last report did
+        not show the train at a standstill with a position; the decision (stamped the last
+        report's time + silence), else None (nothing changes)."""
+        report = self.last_report
+        if report is None or not silence > self.params["report_timeout"]:
+            return None
+        at_rest = report.has_position and abs(report.v_est) < self.params["standstill_speed"]
+        if at_rest or self.brake == Brake.EMERGENCY:
+            return None
+        reason = (f"no location report for {silence:.2f} s (last at {report.t:.2f} s, moving): emergency "
+                  "brake (fail safe)")
+        self._intervene(Brake.EMERGENCY, reason, "stale")
+        self.last = AtpDecision(report.t + silence, Status.INTERVENTION, self.brake, self.end_of_authority, math.nan, math.nan,
+                                reason)
+        return self.last
 
     def set_authority(self, end_of_authority: float) -> AtpDecision:
         """A new end of authority (chainage [m], finite; ValueError otherwise); the decision

@@ -301,7 +301,7 @@ def _location_msg(t: float, front: float, v: float, lo: float | None = None, mod
 
 def test_the_node_converts_reports_and_refuses_one_it_cannot_use():
     from train_localization.core.signals import InputRejected
-    from train_localization.nodes.atp_supervision import report_from_msg
+    from train_localization.core.convert import etcs_report_from_msg as report_from_msg
     r = report_from_msg(_location_msg(12.5, 500.0, 20.0))
     assert r == LocationReport(12.5, "test", "BG1", 400.0, QDirLrbg.NOMINAL, 1.0, 2.0, 2.0, 500.0, 498.0, 502.0,
                                20.0, 0.5, False, (), 1)
@@ -312,7 +312,7 @@ def test_the_node_converts_reports_and_refuses_one_it_cannot_use():
     with pytest.raises(InputRejected, match="ahead of the max safe"):
         report_from_msg(_location_msg(13.0, 500.0, 20.0), orientation=-1)
     assert report_from_msg(_location_msg(13.0, math.nan, 0.0, mode=0)).has_position is False
-    from train_localization.nodes.atp_supervision import event_from_msg
+    from train_localization.core.convert import etcs_event_from_msg as event_from_msg
     from train_localization_msgs.msg import EtcsEvent
     ev = EtcsEvent(kind=EtcsEvent.KIND_OUTSIDE_WINDOW, nid_bg="BG8", reaction=EtcsEvent.REACTION_TRAIN_TRIP,
                    detail="read 30 m early")

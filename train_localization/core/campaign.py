@@ -857,15 +857,17 @@ def etcs_scores(sc: Scenario, estimates, delivered, arrivals, traj: Trajectory) 
     fixes, scored on its truth (core/etcs/scoring.py). A track without ETCS data is scored
     without linking, each group's Q_LOCACC the reader's location bound."""
     from .etcs import scoring as etcs_scoring
+    from .etcs.location import is_balise_fix
     from .etcs.track_data import EtcsData
-    from .sensors import eurobalise
-    sigma = (sc.sensors["eurobalise_reader"] or {}).get("location_sigma", eurobalise.PARAMS["location_sigma"].default)
-    data = EtcsData.from_track(sc.track, national_default=eurobalise.LOCATION_BOUND * float(sigma))
+    from .sensors import eurobalise, spec
+    from .sensors.base import sensor_params
+    sigma = sensor_params(spec("eurobalise_reader"), sc.sensors["eurobalise_reader"], sc.vehicle)["location_sigma"]
+    data = EtcsData.from_track(sc.track, national_default=eurobalise.LOCATION_BOUND * sigma)
     orientation = sc.orientation()
     run = etcs_scoring.run_location(data, {"orientation": orientation}, estimates, delivered)
     read: dict[str, list[float]] = {}
     for _, m in arrivals:
-        if getattr(m, "sensor", "") == "eurobalise" and m.reference_id in data.group_of_balise:
+        if is_balise_fix(m) and m.reference_id in data.group_of_balise:
             read.setdefault(data.group_of_balise[m.reference_id], []).append(m.stamp)
     return etcs_scoring.location_scores(run, traj.t, traj.position, traj.speed, orientation, read)
 

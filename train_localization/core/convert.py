@@ -19,6 +19,7 @@ import numpy as np
 
 from .measurements import (DistanceIncrement, PositionFix, SectionOccupancy, SectionState,
                            SpeedMeasurement)
+from .etcs.records import EventKind, LocationEvent, LocationReport, QDirLrbg, Reaction
 from .scenario import TruthState
 from .signals import InputRejected, RawBlock
 
@@ -167,3 +168,45 @@ def train_state_to_msg(mc: MsgClasses, stamp: float, track_id: str, position: fl
         position_min=position if position_min is None else position_min,
         position_max=position if position_max is None else position_max,
         confidence=confidence, mode=mode, sensors=list(sensors))
+
+
+# ---- ETCS location (core/etcs) ------------------------------------------------
+
+CLAIMED_MODES = (1, 2)   # TrainState.MODE_NOMINAL, MODE_DEGRADED
+
+
+def etcs_report_from_msg(msg, orientation: int = 1) -> LocationReport:
+    """The LocationReport of an EtcsLocation message; InputRejected (a ValueError: ``nan``,
+    ``implausible``) for a report that cannot be used."""
+    t = stamp_to_sec(msg.header.stamp)
+    claimed = msg.mode in CLAIMED_MODES
+    lo, est, hi = float(msg.min_safe_front_end), float(msg.estimated_front_end), float(msg.max_safe_front_end)
+    v, v_ura = float(msg.v_est), float(msg.v_ura)
+    if claimed:
+        if not all(math.isfinite(x) for x in (lo, est, hi)):
+            raise InputRejected("nan", f"front ends {lo} / {est} / {hi} m are not finite in a claimed position")
+        if orientation * (hi - lo) < 0.0:
+            raise InputRejected("implausible", f"min safe front end {lo:.3f} m is ahead of the max safe "
+                                               f"front end {hi:.3f} m")
+        if not (math.isfinite(v) and math.isfinite(v_ura)):
+            raise InputRejected("nan", f"speed {v} +- {v_ura} m/s is not finite in a claimed position")
+    if v_ura < 0.0 or msg.l_doubtover < 0.0 or msg.l_doubtunder < 0.0:
+        raise InputRejected("implausible", f"negative v_ura {v_ura} or doubts {msg.l_doubtover} / "
+                                           f"{msg.l_doubtunder}")
+    try:
+        q_dir = QDirLrbg(msg.q_dirlrbg)
+    except ValueError:
+        raise InputRejected("implausible", f"q_dirlrbg {msg.q_dirlrbg} is not one of Q_DIRLRBG_*") from None
+    return LocationReport(t, msg.track_id, msg.nid_lrbg, float(msg.d_lrbg), q_dir, float(msg.q_locacc),
+                          float(msg.l_doubtover), float(msg.l_doubtunder), est, lo, hi, v, v_ura,
+                          bool(msg.odometer_impaired), tuple(msg.previous_lrbgs), int(msg.mode))
+
+
+def etcs_event_from_msg(msg) -> LocationEvent:
+    """The LocationEvent of an EtcsEvent message (InputRejected ``unknown`` for an unknown kind
+    or reaction)."""
+    try:
+        kind, reaction = EventKind(msg.kind), Reaction(msg.reaction)
+    except ValueError:
+        raise InputRejected("unknown", f"kind {msg.kind} / reaction {msg.reaction} unknown") from None
+    return LocationEvent(stamp_to_sec(msg.header.stamp), kind, msg.nid_bg, reaction, msg.detail)

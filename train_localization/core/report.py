@@ -346,42 +346,39 @@ def recorded_stator(bag, scenario, namespace: str) -> dict:
 def recorded_etcs(bag, scenario, namespace: str) -> dict:
     """The ETCS location reports, events and ATP commands a one-train bag holds under
     ``namespace`` (the live etcs_location and atp_supervision nodes), scored on the recorded
-    truth: the true front within [min, max safe front end] of the reports that claim a
-    position, the LRBGs and events, the ATP's statuses and brakes, and the true front's closest
-    approach to the end of authority (``eoa_margin`` [m], > 0 short of it)."""
+    truth (core/etcs/scoring.py ``location_scores``: the true front within [min, max safe front
+    end] of the reports that claim a position), the LRBGs and the events that happened, the
+    ATP's statuses and brakes, and the true front's closest approach to the end of authority
+    (``eoa_margin`` [m], > 0 short of it)."""
     from .bagio import read_bag
-    from .convert import stamp_to_sec
+    from .convert import etcs_event_from_msg, etcs_report_from_msg, stamp_to_sec
     from .etcs.records import EventKind
+    from .etcs.scoring import LocationRun, location_scores
     ns = namespace.rstrip("/")
     topics = {f"{ns}/localization/etcs": "report", f"{ns}/localization/etcs_events": "event",
               f"{ns}/atp/command": "command", f"{ns}/ground_truth/state": "truth"}
     rows: dict[str, list] = {kind: [] for kind in topics.values()}
     for topic, _, _, msg in read_bag(bag, list(topics)):
         rows[topics[topic]].append((stamp_to_sec(msg.header.stamp), msg))
-    truth = np.array([(t, m.position) for t, m in rows["truth"]], dtype=float).reshape(-1, 2)
-    claimed = [(t, m) for t, m in rows["report"] if m.mode in (1, 2)]
-    out: dict = {"reports": len(rows["report"]), "claimed": len(claimed), "events": {}, "lrbgs": [],
+    o = scenario.orientation()
+    truth = np.array([(t, m.position, m.speed) for t, m in rows["truth"]], dtype=float).reshape(-1, 3)
+    run = LocationRun([etcs_report_from_msg(m, o) for _, m in rows["report"]],
+                      [etcs_event_from_msg(m) for _, m in rows["event"]])
+    scores = location_scores(run, truth[:, 0], truth[:, 1], truth[:, 2], o) if truth.size else {}
+    out: dict = {"reports": len(run.reports), "claimed": scores.get("claimed", 0),
+                 "events": {k: n for k, n in scores.get("events", {}).items() if n},
+                 "lrbgs": [e.nid_bg for e in run.events if e.kind == EventKind.LRBG],
                  "commands": len(rows["command"]), "max_status": max((int(m.status) for _, m in rows["command"]),
                                                                        default=0),
                  "brakes": {}, "trips": sum(1 for _, m in rows["command"] if m.status == 4)}
-    if claimed and truth.size:
-        t = np.array([tt for tt, _ in claimed])
-        front = np.interp(t, truth[:, 0], truth[:, 1])
-        lo = np.array([min(m.min_safe_front_end, m.max_safe_front_end) for _, m in claimed])
-        hi = np.array([max(m.min_safe_front_end, m.max_safe_front_end) for _, m in claimed])
-        inside = (front >= lo) & (front <= hi)
-        out.update(inside=int(inside.sum()), outside=int((~inside).sum()),
-                   doubt_m=float(np.median(0.5 * (hi - lo))))
-    for _, m in rows["event"]:
-        kind = EventKind(m.kind).name.lower()
-        out["events"][kind] = out["events"].get(kind, 0) + 1
-        if m.kind == EventKind.LRBG:
-            out["lrbgs"].append(m.nid_bg)
+    if "inside" in scores:
+        out.update(inside=scores["inside"], outside=scores["outside"])
+        if "doubt_m" in scores:
+            out["doubt_m"] = scores["doubt_m"]["median"]
     for _, m in rows["command"]:
         out["brakes"][int(m.brake)] = out["brakes"].get(int(m.brake), 0) + 1
     eoas = [m.end_of_authority for _, m in rows["command"] if np.isfinite(m.end_of_authority)]
     if eoas and truth.size:
-        o = scenario.orientation()
         out["end_of_authority"] = float(eoas[-1])
         out["eoa_margin"] = float(np.min((eoas[-1] - truth[:, 1]) * o))
         braked = [t for t, m in rows["command"] if m.brake]

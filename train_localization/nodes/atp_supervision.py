@@ -38,9 +38,9 @@ from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64
 
-from ..core.convert import stamp_to_sec
+from ..core.convert import etcs_event_from_msg, etcs_report_from_msg
 from ..core.etcs import supervision
-from ..core.etcs.records import EventKind, LocationEvent, LocationReport, QDirLrbg, Reaction
+from ..core.etcs.records import Reaction
 from ..core.signals import InputRejected
 from .common import STREAM_QOS, ConfigurationError, Diagnostics, declare, now_sec, rclpy_classes, spin
 
@@ -48,45 +48,7 @@ REPORTS, EVENTS, AUTHORITY, COMMAND = ("localization/etcs", "localization/etcs_e
                                        "atp/command")
 # a new authority: reliable (none lost), volatile (matches any reliable publisher)
 AUTHORITY_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE)
-CLAIMED_MODES = (1, 2)   # TrainState.MODE_NOMINAL, MODE_DEGRADED
 LEVEL = {supervision.Status.INTERVENTION: 1, supervision.Status.TRIP: 2}   # others: OK
-
-
-def report_from_msg(msg, orientation: int = 1) -> LocationReport:
-    """The LocationReport of an EtcsLocation message; InputRejected (a ValueError: ``nan``,
-    ``implausible``) for a report that cannot be used."""
-    t = stamp_to_sec(msg.header.stamp)
-    claimed = msg.mode in CLAIMED_MODES
-    lo, est, hi = float(msg.min_safe_front_end), float(msg.estimated_front_end), float(msg.max_safe_front_end)
-    v, v_ura = float(msg.v_est), float(msg.v_ura)
-    if claimed:
-        if not all(math.isfinite(x) for x in (lo, est, hi)):
-            raise InputRejected("nan", f"front ends {lo} / {est} / {hi} m are not finite in a claimed position")
-        if orientation * (hi - lo) < 0.0:
-            raise InputRejected("implausible", f"min safe front end {lo:.3f} m is ahead of the max safe "
-                                               f"front end {hi:.3f} m")
-        if not (math.isfinite(v) and math.isfinite(v_ura)):
-            raise InputRejected("nan", f"speed {v} +- {v_ura} m/s is not finite in a claimed position")
-    if v_ura < 0.0 or msg.l_doubtover < 0.0 or msg.l_doubtunder < 0.0:
-        raise InputRejected("implausible", f"negative v_ura {v_ura} or doubts {msg.l_doubtover} / "
-                                           f"{msg.l_doubtunder}")
-    try:
-        q_dir = QDirLrbg(msg.q_dirlrbg)
-    except ValueError:
-        raise InputRejected("implausible", f"q_dirlrbg {msg.q_dirlrbg} is not one of Q_DIRLRBG_*") from None
-    return LocationReport(t, msg.track_id, msg.nid_lrbg, float(msg.d_lrbg), q_dir, float(msg.q_locacc),
-                          float(msg.l_doubtover), float(msg.l_doubtunder), est, lo, hi, v, v_ura,
-                          bool(msg.odometer_impaired), tuple(msg.previous_lrbgs), int(msg.mode))
-
-
-def event_from_msg(msg) -> LocationEvent:
-    """The LocationEvent of an EtcsEvent message (InputRejected ``unknown`` for an unknown kind
-    or reaction)."""
-    try:
-        kind, reaction = EventKind(msg.kind), Reaction(msg.reaction)
-    except ValueError:
-        raise InputRejected("unknown", f"kind {msg.kind} / reaction {msg.reaction} unknown") from None
-    return LocationEvent(stamp_to_sec(msg.header.stamp), kind, msg.nid_bg, reaction, msg.detail)
 
 
 class AtpSupervisionNode(Node):
@@ -120,7 +82,7 @@ class AtpSupervisionNode(Node):
 
     def on_report(self, msg) -> None:
         try:
-            report = report_from_msg(msg, self.sup.orientation)
+            report = etcs_report_from_msg(msg, self.sup.orientation)
         except InputRejected as exc:
             self.diag.reject(REPORTS, exc.reason, exc.message)
             return
@@ -149,7 +111,7 @@ class AtpSupervisionNode(Node):
 
     def on_event(self, msg) -> None:
         try:
-            event = event_from_msg(msg)
+            event = etcs_event_from_msg(msg)
         except InputRejected as exc:
             self.diag.reject(EVENTS, exc.reason, exc.message)
             return

@@ -51,6 +51,7 @@ from .linking import Expectation, expect
 from .records import EventKind, LocationEvent, LocationReport, QDirLrbg, Reaction
 from .track_data import EtcsData
 
+READER = "eurobalise"      # sensor class of the Eurobalise reader's fixes
 PREVIOUS_LRBGS = 8          # LRBGs kept besides the current one (SUBSET-026 3.6.2.2.2: at least 7)
 MODE_NOMINAL, MODE_DEGRADED = 1, 2
 
@@ -63,6 +64,11 @@ PARAMS = {
     **odometer.PARAMS,
 }
 check_declared(PARAMS, "etcs location PARAMS")
+
+
+def is_balise_fix(m) -> bool:
+    """True for a PositionFix of the Eurobalise reader (what ``LocationTracker.on_fix`` takes)."""
+    return isinstance(m, PositionFix) and m.sensor == READER
 
 
 @dataclass(frozen=True)
@@ -153,12 +159,16 @@ class LocationTracker:
         lo, hi = min(s0.position_min, s1.position_min), max(s0.position_max, s1.position_max)
         return nearest, o0 + f * (o1 - o0), lo, hi
 
-    def _direction(self, fix: PositionFix, state: FusedState) -> int:
-        if fix.direction:
-            return 1 if fix.direction > 0 else -1
+    def _travel_direction(self, state: FusedState) -> int:
+        """+1 / -1 where the fused speed's sign is sure (|v| > v_ura), else 0."""
         if abs(state.speed) > self._v_ura(state):
             return 1 if state.speed > 0 else -1
         return 0
+
+    def _direction(self, fix: PositionFix, state: FusedState) -> int:
+        if fix.direction:
+            return 1 if fix.direction > 0 else -1
+        return self._travel_direction(state)
 
     def _event(self, t, kind, nid, reaction=Reaction.NONE, detail="") -> LocationEvent:
         return LocationEvent(float(t), EventKind(kind), nid, Reaction(reaction), detail)
@@ -235,23 +245,24 @@ class LocationTracker:
         self.expected = expect(self.data, self.data.groups[self.lrbg.nid_bg], after, direction, so_far,
                                self._front_offset)
 
+    def _retarget(self, direction: int) -> None:
+        """The train runs towards ``direction`` over the LRBG: the linking that way on from it."""
+        self.lrbg.direction = direction
+        self._missed_chain = (self.lrbg.nid_bg, 0.0)
+        self._expect(direction)
+
     def _check_window(self, state: FusedState) -> list[LocationEvent]:
         exp = self.expected
-        if self.lrbg is not None and exp is None and self.data.linked and state.claimed:
-            # a reversal: the linking the other way on
-            d = 1 if state.speed > self._v_ura(state) else -1 if state.speed < -self._v_ura(state) else 0
-            if d and d != self.lrbg.direction:
-                self.lrbg.direction = d
-                self._missed_chain = (self.lrbg.nid_bg, 0.0)
-                self._expect(d)
+        if self.lrbg is None or not state.claimed:
             return []
-        if exp is None or not state.claimed:
+        d = self._travel_direction(state)
+        if exp is None:
+            if self.data.linked and d and d != self.lrbg.direction:   # a reversal
+                self._retarget(d)
             return []
-        if state.speed * exp.direction < -self._v_ura(state):
+        if d == -exp.direction:
             # the train runs the other way: expect the group linked that way instead
-            self.lrbg.direction = -exp.direction
-            self._missed_chain = (self.lrbg.nid_bg, 0.0)
-            self._expect(-exp.direction)
+            self._retarget(d)
             return []
         if not exp.passed(state.position_min, state.position_max):
             self._closed_at = None

@@ -9,31 +9,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..measurements import PositionFix
-from .location import FusedState, LocationTracker
+from ..scoring import ENVELOPE_FIXED, ENVELOPE_RATE, speed_envelope
+from .location import FusedState, LocationTracker, is_balise_fix
 from .records import EventKind, LocationEvent, LocationReport
 from .track_data import EtcsData
-
-READER = "eurobalise"
-KMH = 1.0 / 3.6
 
 
 def subset041_position(d_lrbg: np.ndarray) -> np.ndarray:
     """SUBSET-041 5.3.1.1 odometry accuracy over a distance from the LRBG [m]: 5 m + 5 %."""
-    return 5.0 + 0.05 * np.abs(d_lrbg)
+    return ENVELOPE_FIXED + ENVELOPE_RATE * np.abs(d_lrbg)
 
 
 def fixed_rule(q_locacc: np.ndarray, d_lrbg: np.ndarray) -> np.ndarray:
     """The doubt of the open-source on-board units [m]: Q_LOCACC + 1 % of the distance from the LRBG."""
     return q_locacc + 0.01 * np.abs(d_lrbg)
-
-
-def subset041_speed(speed: np.ndarray) -> np.ndarray:
-    """SUBSET-041 5.3.1.2 speed accuracy [m/s]: +-2 km/h below 30 km/h, rising linearly to
-    +-12 km/h at 500 km/h (and held beyond)."""
-    kmh = np.abs(speed) / KMH
-    band = 2.0 + 10.0 * np.clip((kmh - 30.0) / (500.0 - 30.0), 0.0, 1.0)
-    return band * KMH
 
 
 @dataclass
@@ -49,7 +38,7 @@ def run_location(data: EtcsData, params: dict | None, estimates, arrivals) -> Lo
     (arrival time, measurement) pairs to a LocationTracker: a balise fix is given once the
     fusion has made a state at or after its arrival, as the node gets them."""
     tracker = LocationTracker(data, params)
-    fixes = [(t, m) for t, m in arrivals if isinstance(m, PositionFix) and m.sensor == READER]
+    fixes = [(t, m) for t, m in arrivals if is_balise_fix(m)]
     run = LocationRun(tracker=tracker)
     j = 0
     for est in estimates:
@@ -89,7 +78,7 @@ def location_scores(run: LocationRun, truth_t: np.ndarray, truth_front: np.ndarr
         speed_in = np.abs(speed - v_est) <= v_ura
         out.update({"inside": int(inside.sum()), "outside": int((~inside).sum()),
                     "inside_share": float(inside.mean()), "speed_inside_share": float(speed_in.mean()),
-                    "speed_within_subset041_share": float(np.mean(v_ura <= subset041_speed(speed)))})
+                    "speed_within_subset041_share": float(np.mean(v_ura <= speed_envelope(speed)))})
         with_lrbg = np.array([bool(r.nid_lrbg) for r in reps])
         if with_lrbg.any():
             d = np.array([r.d_lrbg for r in reps])[with_lrbg]

@@ -21,14 +21,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..measurements import PositionFix
-from .location import FusedState, LocationTracker
+from .location import FusedState, LocationTracker, is_balise_fix
 from .records import LocationEvent, LocationReport
 from .supervision import AtpDecision, Brake, Status, Supervision
 from .track_data import EtcsData
-
-READER = "eurobalise"
-
 
 class EtcsSupervisor:
     """closed_loop's supervisor: the location function and the supervision on the run so far."""
@@ -45,7 +41,7 @@ class EtcsSupervisor:
 
     def __call__(self, t: float, run) -> Brake:
         for m in run.measurements[self._measurements:]:
-            if isinstance(m, PositionFix) and m.sensor == READER:
+            if is_balise_fix(m):
                 self.tracker.on_fix(m)
         self._measurements = len(run.measurements)
         for est in run.estimates[self._estimates:]:

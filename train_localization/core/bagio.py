@@ -73,7 +73,9 @@ def typestore_classes() -> MsgClasses:
                       TrainState=make(p + "TrainState"), RawBlock=make(p + "RawBlock"),
                       PositionFix=make(p + "PositionFix"), SpeedMeasurement=make(p + "SpeedMeasurement"),
                       DistanceIncrement=make(p + "DistanceIncrement"), SectionState=make(p + "SectionState"),
-                      SectionOccupancy=make(p + "SectionOccupancy"), array=array)
+                      SectionOccupancy=make(p + "SectionOccupancy"), TrackHypothesis=make(p + "TrackHypothesis"),
+                      TrackHypotheses=make(p + "TrackHypotheses"), SwitchPositions=make(p + "SwitchPositions"),
+                      array=array)
 
 
 def ros2_typename(name: str) -> str:

@@ -21,7 +21,7 @@ from .measurements import (DistanceIncrement, PositionFix, SectionOccupancy, Sec
                            SpeedMeasurement)
 from .etcs.records import EventKind, LocationEvent, LocationReport, QDirLrbg, Reaction
 from .scenario import TruthState
-from .signals import InputRejected, RawBlock
+from .signals import InputRejected, RawBlock, require_short
 
 NS = 1_000_000_000
 
@@ -52,6 +52,9 @@ class MsgClasses:
     DistanceIncrement: Callable
     SectionState: Callable
     SectionOccupancy: Callable
+    TrackHypothesis: Callable
+    TrackHypotheses: Callable
+    SwitchPositions: Callable
     array: Callable[[np.ndarray, str], Any]
 
     def header(self, t: float, frame_id: str = ""):
@@ -84,7 +87,8 @@ def measurement_to_msg(m, mc: MsgClasses):
         return mc.PositionFix(header=h, sensor=m.sensor, unit_id=m.unit_id, track_id=m.track_id,
                               reference_id=m.reference_id, position=m.position,
                               position_stddev=m.position_stddev, direction=int(m.direction),
-                              residuals=mc.array(np.asarray(m.residuals, dtype=np.float64), "float64"))
+                              residuals=mc.array(np.asarray(m.residuals, dtype=np.float64), "float64"),
+                              lateral=m.lateral, lateral_stddev=m.lateral_stddev)
     if isinstance(m, SpeedMeasurement):
         return mc.SpeedMeasurement(header=h, sensor=m.sensor, unit_id=m.unit_id, speed=m.speed,
                                    speed_stddev=m.speed_stddev)
@@ -103,7 +107,9 @@ def measurement_to_msg(m, mc: MsgClasses):
 def position_fix_from_msg(msg) -> PositionFix:
     m = PositionFix(stamp_to_sec(msg.header.stamp), msg.sensor, msg.unit_id, msg.track_id,
                     msg.reference_id, float(msg.position), float(msg.position_stddev),
-                    int(msg.direction), tuple(float(r) for r in msg.residuals))
+                    int(msg.direction), tuple(float(r) for r in msg.residuals),
+                    # fields added with networks (docs/network.md): absent from older bags
+                    float(getattr(msg, "lateral", 0.0)), float(getattr(msg, "lateral_stddev", 0.0)))
     m.validate()
     return m
 
@@ -161,13 +167,43 @@ def truth_from_msg(msg) -> TruthState:
 def train_state_to_msg(mc: MsgClasses, stamp: float, track_id: str, position: float, speed: float,
                        acceleration: float, position_stddev: float = 0.0, speed_stddev: float = 0.0,
                        position_min: float | None = None, position_max: float | None = None,
-                       confidence: float = 1.0, mode: int = 1, sensors=()):
+                       confidence: float = 1.0, mode: int = 1, sensors=(), track_probability: float = 1.0):
     return mc.TrainState(
         header=mc.header(stamp, "map"), track_id=track_id, position=position, speed=speed,
         acceleration=acceleration, position_stddev=position_stddev, speed_stddev=speed_stddev,
         position_min=position if position_min is None else position_min,
         position_max=position if position_max is None else position_max,
-        confidence=confidence, mode=mode, sensors=list(sensors))
+        confidence=confidence, mode=mode, sensors=list(sensors), track_probability=track_probability)
+
+
+# ---- networks (core/network) --------------------------------------------------
+
+SWITCH_WAYS = ("B1", "B2", "")   # a reported switch position: a way, or "" unknown
+
+
+def track_hypotheses_to_msg(mc: MsgClasses, est, network_id: str):
+    """TrackHypotheses message of a core/network NetworkEstimate (most probable first)."""
+    return mc.TrackHypotheses(header=mc.header(est.stamp, "map"), network_id=network_id, hypotheses=[
+        mc.TrackHypothesis(track_id=h.track_id, position=h.position, speed=h.speed, position_min=h.position_min,
+                           position_max=h.position_max, probability=h.probability, path=list(h.path))
+        for h in est.hypotheses])
+
+
+def switch_positions_to_msg(mc: MsgClasses, stamp: float, positions: dict[str, str]):
+    return mc.SwitchPositions(header=mc.header(stamp), switch_ids=list(positions),
+                              positions=[positions[k] for k in positions])
+
+
+def switch_positions_from_msg(msg) -> dict[str, str]:
+    """switch -> reported way of a SwitchPositions message; InputRejected for a malformed one."""
+    ids, ways = list(msg.switch_ids), list(msg.positions)
+    if len(ids) != len(ways):
+        raise InputRejected("malformed", f"SwitchPositions with {len(ids)} switch ids and {len(ways)} positions")
+    bad = [w for w in ways if w not in SWITCH_WAYS]
+    if bad:
+        raise InputRejected("implausible", f"switch position {bad[0][:16]!r} is not B1, B2 or '' (unknown)")
+    require_short("SwitchPositions", **{f"switch_ids[{i}]": k for i, k in enumerate(ids)})
+    return dict(zip(ids, ways))
 
 
 # ---- ETCS location (core/etcs) ------------------------------------------------

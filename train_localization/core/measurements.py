@@ -47,6 +47,14 @@ class PositionFix:
     position_stddev: float
     direction: int = 0
     residuals: tuple[float, ...] = field(default=())
+    lateral: float = 0.0          # a 2-D fix: signed offset from track_id's alignment [m], + left
+    lateral_stddev: float = 0.0   # its 1-sigma [m]; 0: no lateral (track_id is the equipment's track)
+
+    @property
+    def is_map_fix(self) -> bool:
+        """A 2-D fix (DGPS) placed on the nearest track: it measures a point in the map, not which
+        track the train is on (track_id is only the nearest one)."""
+        return self.lateral_stddev > 0.0
 
     def validate(self) -> None:
         require_short("PositionFix", sensor=self.sensor, unit_id=self.unit_id, track_id=self.track_id,
@@ -60,6 +68,10 @@ class PositionFix:
         _require_range("PositionFix", "stamp", self.stamp, -MAX_STAMP, MAX_STAMP)
         _require_range("PositionFix", "position", self.position, -MAX_CHAINAGE, MAX_CHAINAGE)
         _require_range("PositionFix", "position_stddev", self.position_stddev, *STDDEV_RANGE)
+        if self.lateral_stddev != 0.0 or self.lateral != 0.0:
+            _require_finite("PositionFix", lateral=self.lateral, lateral_stddev=self.lateral_stddev)
+            _require_range("PositionFix", "lateral", self.lateral, -MAX_CHAINAGE, MAX_CHAINAGE)
+            _require_range("PositionFix", "lateral_stddev", self.lateral_stddev, *STDDEV_RANGE)
 
 
 @dataclass(frozen=True)

@@ -49,6 +49,8 @@ from .wayside.changeover import ABB_TOPICS, ChangeoverLoop
 SCENARIO_TOPIC = f"{NAMESPACE}/scenario"
 TRUTH_TOPIC = f"{NAMESPACE}/ground_truth/state"
 FUSED_TOPIC = f"{NAMESPACE}/localization/state"
+TRACKS_TOPIC = "localization/tracks"           # a train on a network: its track hypotheses
+INTERLOCKING_TOPIC = "interlocking/switches"   # ... and the switch positions reported for it
 
 
 LINE_SCENARIO_TOPIC = "/scenario"        # the scenario of a line's bag (every train and the wayside)
@@ -78,6 +80,26 @@ class RunResult:
 
 def _ns(t: float) -> int:
     return convert.sec_to_ns(t)
+
+
+def fusion_runner(scenario: Scenario, rate: float = 200.0) -> FusionRunner:
+    """The fusion of one train's scenario: a FusionRunner of its FusionConfig, or on a network
+    (core/network) one over the track hypotheses, with the interlocking's switch positions
+    (what the train's ``interlocking/switches`` topic carries)."""
+    if scenario.network is None:
+        return FusionRunner(fusion_config(scenario), rate)
+    from .network.config import network_fusion_config
+    from .network.hypotheses import HypothesisSet
+    cfg, net = network_fusion_config(scenario)
+    hypotheses = HypothesisSet(cfg, net, scenario.network)
+    hypotheses.set_switches(scenario.interlocking)
+    return FusionRunner(cfg, rate, hypotheses)
+
+
+def write_interlocking(writer: BagWriter, mc, scenario: Scenario, namespace: str) -> None:
+    """The interlocking's switch positions of a train on a network, at t = 0 (latched live)."""
+    if scenario.network is not None:
+        writer.write(f"{namespace}/{INTERLOCKING_TOPIC}", convert.switch_positions_to_msg(mc, 0.0, scenario.interlocking), 0)
 
 
 def sensor_pipelines(scenario: Scenario) -> list[SensorPipeline]:
@@ -165,7 +187,7 @@ def simulate_scenario(scenario: Scenario, bag: str | Path | None = None, fusion_
     mc = typestore_classes() if bag else None
     writer = BagWriter(bag) if bag else None
     pipes = sensor_pipelines(scenario)
-    runner = FusionRunner(fusion_config(scenario), fusion_rate)
+    runner = fusion_runner(scenario, fusion_rate)
     traj = scenario.trajectory()
     result = RunResult(runner=runner)
     track_id = scenario.track.track_id
@@ -174,6 +196,7 @@ def simulate_scenario(scenario: Scenario, bag: str | Path | None = None, fusion_
     out = _Output(runner, result, writer, mc, track_id)
     if writer:
         writer.write(SCENARIO_TOPIC, typestore_classes_string(scenario.to_yaml()), 0)
+        write_interlocking(writer, mc, scenario, NAMESPACE)
     try:
         for k in range(n):
             t = convert.canonical(k / scenario.truth_rate)
@@ -273,6 +296,10 @@ class _Output:
                 self.writer.write(f"{self.namespace}/localization/state",
                                   estimate_to_msg(self.mc, est, self.track_id, used, self.runner.filter.cfg.track),
                                   _ns(est.stamp))
+                network = getattr(self.runner.filter, "network", None)
+                if network is not None:
+                    self.writer.write(f"{self.namespace}/{TRACKS_TOPIC}",
+                                      convert.track_hypotheses_to_msg(self.mc, est, network.network_id), _ns(est.stamp))
 
 
 class _MessageDecoder:
@@ -479,7 +506,7 @@ def replay_bag(bag: str | Path, scenario: Scenario | None = None, out_bag: str |
                 spec = sensor_spec(node)
                 pipes[raw_topic(spec.sensor)] = SensorPipeline(
                     spec, params, scenario.track, scenario.vehicle, simulate=False)
-            runner = FusionRunner(fusion_config(scenario), fusion_rate)
+            runner = fusion_runner(scenario, fusion_rate)
             result = RunResult(runner=runner)
             track_id = scenario.track.track_id
             topics = list(pipes) + [TRUTH_TOPIC]
@@ -544,7 +571,7 @@ class _Line:
         self.writer, self.mc = writer, mc
         self.outs = {}
         for name, train in scenario.trains.items():
-            runner = FusionRunner(fusion_config(train), fusion_rate)
+            runner = fusion_runner(train, fusion_rate)
             self.outs[name] = _Output(runner, RunResult(runner=runner), writer, mc, train.track.track_id,
                                       train_namespace(train))
         associator = Associator.for_trains({n: o.result.estimates for n, o in self.outs.items()},
@@ -652,6 +679,8 @@ def simulate_line(scenario: Scenario, bag: str | Path | None = None, fusion_rate
     outs = {out.namespace: out for out in line.outs.values()}
     if writer:
         writer.write(LINE_SCENARIO_TOPIC, typestore_classes_string(scenario.to_yaml()), 0)
+        for name, train in scenario.trains.items():
+            write_interlocking(writer, mc, train, train_namespace(train))
     try:
         for k in range(sim.steps(t_end)):
             t, truths, blocks = sim.step(k)

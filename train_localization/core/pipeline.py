@@ -11,6 +11,7 @@ from collections import Counter
 from dataclasses import dataclass, replace
 
 from .measurements import Measurement
+from .network.labels import SectionLabels
 from .scenario import LineTruth, Scenario, TruthBuffer, TruthState, Vehicle
 from .sensors import spec as sensor_spec
 from .sensors.base import COMMON_PARAMS, SensorSpec, sensor_params
@@ -42,6 +43,8 @@ class SensorPipeline:
         self.params = sensor_params(spec, params, vehicle)
         self.track = track
         self.decoder = spec.decoder(self.params, track)
+        # a train on a network: its reference fixes restated on their equipment's sections
+        self.labels = SectionLabels(track) if getattr(track, "path", None) is not None else None
         self.sample_rate = float(self.params["sample_rate"] or spec.simulator.default_sample_rate)
         longest, most = float(self.params["max_block_duration"]), COMMON_PARAMS["max_block_duration"].limits[1]
         if not float(self.params["block_duration"]) <= longest <= most:
@@ -100,6 +103,8 @@ class SensorPipeline:
             if self.origin is None:
                 self.origin = float(math.floor(block.t0)) if abs(block.t0) >= REBASE_FROM else 0.0
             out = self.decoder.decode(replace(block, t0=block.t0 - self.origin) if self.origin else block)
+            if self.labels is not None:
+                out = [self.labels(m) for m in out]
         except InputRejected as exc:
             self.rejected[exc.reason] += 1
             raise

@@ -40,6 +40,7 @@ import numpy as np
 import yaml
 
 from . import paths
+from .network.model import is_network
 from .track import Track
 
 
@@ -111,6 +112,12 @@ class Scenario:
     line: bool = False          # described with ``trains:`` (even a single one): namespaces /<name>
     train_name: str = TRAIN     # the train this scenario drives (one-train scenarios and train views)
     rng_prefix: tuple = ()      # random streams of a line's train: prefixed by its name
+    # on a network (core/network, docs/network.md): the network, the train's route through it
+    # (a TrackPath; ``track`` is then its route line) and the switch positions the interlocking
+    # reports for it (switch -> "B1"/"B2", "" unknown)
+    network: object = field(default=None, repr=False, compare=False)
+    route: object = field(default=None, repr=False, compare=False)
+    interlocking: dict = field(default_factory=dict)
 
     def __post_init__(self):
         self.trains = {self.train_name: self}
@@ -193,15 +200,20 @@ class Scenario:
             raise ScenarioError("a scenario is a mapping of keys (name, track, duration, ...)")
         try:
             track_data = _track_data(data["track"], source)
-            track = Track.from_dict(track_data)
+            network = _network(track_data) if is_network(track_data) else None
+            track = None if network else Track.from_dict(track_data)
             common = dict(name=str(data.get("name", source.stem if source else "scenario")), track=track,
                           duration=float(data["duration"]), seed=int(data.get("seed", 0)),
                           truth_rate=float(data.get("truth_rate", 100.0)), source=source,
                           description={**data, "track": track_data})
             if "trains" not in data:
-                scenario = cls(**common, **_train_fields(data))
+                fields = _train_fields(data)
+                if network:
+                    fields.update(_route_fields(data, network, TRAIN, fields))
+                    common.pop("track")
+                scenario = cls(**common, **fields)
             else:
-                scenario = _line(cls, data, common)
+                scenario = _line(cls, data, common, network)
         except KeyError as exc:
             raise ScenarioError(f"scenario lacks the key {exc}") from None
         except (TypeError, AttributeError) as exc:
@@ -209,7 +221,7 @@ class Scenario:
         if scenario.duration <= 0:
             raise ScenarioError("scenario duration must be > 0 s")
         for train in scenario.trains.values():
-            if not 0 <= train.start_position <= track.length:
+            if not 0 <= train.start_position <= train.track.length:
                 what = f"train {train.train_name}: " if scenario.line else ""
                 raise ScenarioError(f"{what}initial position {train.start_position} m is off the track")
         if scenario.line:
@@ -241,9 +253,17 @@ class Scenario:
         return 1
 
     def extent(self) -> tuple[float, float]:
-        """(lowest, highest) chainage [m] the train covers at the start (front and length)."""
+        """(lowest, highest) chainage [m] the train covers at the start (front and length); on a
+        network, chainage of the first route section."""
         front, tail = self.start_position, self.start_position - self.orientation() * self.vehicle.length
+        if self.route is not None:
+            step = self.route.steps[0]
+            front, tail = step.chainage(front + self.route.begin), step.chainage(tail + self.route.begin)
         return min(front, tail), max(front, tail)
+
+    def start_section(self) -> str:
+        """The section the train starts on: its route's first on a network, else its track."""
+        return self.route.steps[0].section if self.route is not None else self.track.track_id
 
 
 def _track_data(track_ref, source: Path | None) -> dict:
@@ -281,13 +301,68 @@ def _train_fields(data: dict) -> dict:
                 control=control, dynamics=dict(data.get("dynamics", {}) or {}), atp=dict(data.get("atp", {}) or {}))
 
 
-def _line(cls, data: dict, common: dict) -> Scenario:
+def _network(track_data: dict):
+    """The Network of a track description with ``sections`` (ScenarioError in one line)."""
+    from .network import Network, NetworkError
+    try:
+        return Network.from_dict(track_data)
+    except NetworkError as exc:
+        raise ScenarioError(f"network: {exc}") from None
+
+
+# on-board sensors that work on a network (the equipment they need is of
+# core/network/path.py ROUTE_KINDS; a 2-D fix is projected onto the whole network)
+NETWORK_SENSORS = ("wheel_sensor", "doppler_radar", "eurobalise_reader", "tag_reader", "dgps_receiver")
+_ROUTE_KEYS = {"sections", "direction", "reported"}
+
+
+def _route_fields(data: dict, network, name: str, fields: dict) -> dict:
+    """A train's route through a network (``route:``): its TrackPath, route line (the
+    scenario's ``track``), start (``initial.position`` is the chainage on the first section)
+    and the switch positions the interlocking reports (the ways the route takes, unless
+    ``reported`` says otherwise: a wrong way, or "" for unknown)."""
+    from .network import NetworkError, route_path, route_track
+    what = f"train {name}: " if name != TRAIN else ""
+    route = data.get("route")
+    if not isinstance(route, dict) or "sections" not in route:
+        raise ScenarioError(f"{what}on a network a train needs 'route: {{sections: [<section>, ...]}}'")
+    unknown = set(route) - _ROUTE_KEYS
+    if unknown:
+        raise ScenarioError(f"{what}route: unknown keys {sorted(unknown)}; known: {sorted(_ROUTE_KEYS)}")
+    others = [s for s in fields["sensors"] if s not in NETWORK_SENSORS]
+    if others:
+        raise ScenarioError(f"{what}sensors {others} do not work on a network yet; those that do: "
+                            f"{', '.join(NETWORK_SENSORS)}")
+    try:
+        path = route_path(network, [str(x) for x in route["sections"] or []], int(route.get("direction", 1)))
+        track = route_track(path, f"{network.network_id}:{name}")
+    except NetworkError as exc:
+        raise ScenarioError(f"{what}{exc}") from None
+    switches = {n.node_id for n in network.switches()}
+    reported = {**path.ways(), **{str(k): str(v or "") for k, v in (route.get("reported") or {}).items()}}
+    for node, way in reported.items():
+        if node not in switches:
+            raise ScenarioError(f"{what}route: reported names {node!r}, which is no point switch of the network")
+        if way not in ("B1", "B2", ""):
+            raise ScenarioError(f"{what}route: reported way {way!r} of {node} must be B1, B2 or '' (unknown)")
+    first = path.steps[0]
+    chainage = fields["start_position"]
+    if not 0.0 <= chainage <= first.length:
+        raise ScenarioError(f"{what}initial position {chainage} m is off its first section {first.section} "
+                            f"(0..{first.length:g} m)")
+    return dict(network=network, route=path, track=track, interlocking=reported,
+                start_position=first.distance(chainage) - path.begin)
+
+
+def _line(cls, data: dict, common: dict, network=None) -> Scenario:
     """A scenario of several trains (``trains:`` list, ``wayside:`` equipment)."""
     entries = data["trains"]
     if not isinstance(entries, list) or not entries:
         raise ScenarioError("'trains' must be a non-empty list of trains")
     wayside_data = data.get("wayside", {}) or {}
     wayside = {name: dict(params or {}) for name, params in (wayside_data.get("sensors", {}) or {}).items()}
+    if network and (wayside or wayside_data.get("changeover")):
+        raise ScenarioError("wayside equipment on a network is not supported yet (trains' on-board sensors only)")
     trains = {}
     for k, entry in enumerate(entries):
         if not isinstance(entry, dict):
@@ -298,10 +373,16 @@ def _line(cls, data: dict, common: dict) -> Scenario:
                                 f"(its ROS namespace), not {WAYSIDE!r}")
         if name in trains:
             raise ScenarioError(f"train name {name!r} is used twice")
-        trains[name] = cls(**{**common, "name": f"{common['name']}/{name}"}, **_train_fields(entry),
-                           wayside=wayside, line=True, train_name=name, rng_prefix=(name,))
+        fields = _train_fields(entry)
+        train_common = {**common, "name": f"{common['name']}/{name}"}
+        if network:
+            fields.update(_route_fields(entry, network, name, fields))
+            train_common.pop("track")
+        trains[name] = cls(**train_common, **fields, wayside=wayside, line=True, train_name=name, rng_prefix=(name,))
     first = next(iter(trains.values()))
-    scenario = cls(**common, vehicle=first.vehicle, legs=[], sensors={}, fusion={}, wayside=wayside,
+    if network:   # the line's own track (what its wayside would see): the first train's route line
+        common = {**common, "track": first.track}
+    scenario = cls(**common, network=network, vehicle=first.vehicle, legs=[], sensors={}, fusion={}, wayside=wayside,
                    association=dict(data.get("association", {}) or {}),
                    changeover=dict(wayside_data.get("changeover", {}) or {}), line=True, train_name="")
     scenario.trains = trains
@@ -335,9 +416,9 @@ def _check_line(scenario: Scenario) -> None:
             raise ScenarioError(f"wayside: {exc}") from None
         if not any(tr.vehicle.pantographs for tr in scenario.trains.values()):
             raise ScenarioError("wayside: a changeover section needs trains with pantographs (vehicle: pantographs:)")
-    ordered = sorted(scenario.trains.values(), key=lambda tr: tr.extent())
+    ordered = sorted(scenario.trains.values(), key=lambda tr: (tr.start_section(), tr.extent()))
     for a, b in zip(ordered, ordered[1:]):
-        if b.extent()[0] < a.extent()[1]:
+        if a.start_section() == b.start_section() and b.extent()[0] < a.extent()[1]:
             raise ScenarioError(f"trains {a.train_name} and {b.train_name} overlap at the start "
                                 f"({a.extent()[0]:.1f}..{a.extent()[1]:.1f} m and "
                                 f"{b.extent()[0]:.1f}..{b.extent()[1]:.1f} m)")

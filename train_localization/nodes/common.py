@@ -60,7 +60,8 @@ def rclpy_classes() -> MsgClasses:
     return MsgClasses(Time=Time, Header=Header, TrainState=m.TrainState, RawBlock=m.RawBlock,
                       PositionFix=m.PositionFix, SpeedMeasurement=m.SpeedMeasurement,
                       DistanceIncrement=m.DistanceIncrement, SectionState=m.SectionState,
-                      SectionOccupancy=m.SectionOccupancy, array=array)
+                      SectionOccupancy=m.SectionOccupancy, TrackHypothesis=m.TrackHypothesis,
+                      TrackHypotheses=m.TrackHypotheses, SwitchPositions=m.SwitchPositions, array=array)
 
 
 MAX_ERROR_LENGTH = 256   # characters of the last refusal a node republishes on /diagnostics

@@ -35,8 +35,10 @@ class FusionRunner:
     ``counters()["clock"]``. A jump forward is only time passing: the states predicted to it.
     """
 
-    def __init__(self, config: FusionConfig, rate: float = 200.0):
-        self.filter = TrainFilter(config)
+    def __init__(self, config: FusionConfig, rate: float = 200.0, train_filter=None):
+        # ``train_filter``: another filter with TrainFilter's interface (on a network, the track
+        # hypotheses of core/network/hypotheses.py); by default a TrainFilter of ``config``
+        self.filter = train_filter if train_filter is not None else TrainFilter(config)
         self.admission = Admission(self.filter.cfg)
         self.clock: float | None = None   # [s]
         self.period = 1.0 / rate
@@ -136,11 +138,13 @@ def estimate_to_msg(mc, est: Estimate, track_id: str, sensors, track=None):
     position is published as the truth is, wrapped into [0, circumference) by ``Track.wrap``,
     and the interval moves with it: position_min <= position <= position_max still holds, so
     near the seam an end may lie below 0 or beyond the circumference (msg_defs TrainState.msg).
-    The filter itself runs on the unwrapped distance."""
+    The filter itself runs on the unwrapped distance. An estimate on a network (a
+    core/network NetworkEstimate) names its own track and that track's probability."""
+    track_id = getattr(est, "track_id", None) or track_id
     position, lo, hi = est.position, est.position_min, est.position_max
     if track is not None and track.closed and math.isfinite(position):
         laps = position - float(track.wrap(position))
         position, lo, hi = position - laps, lo - laps, hi - laps
     return convert.train_state_to_msg(mc, est.stamp, track_id, position, est.speed, est.acceleration,
                                       est.position_stddev, est.speed_stddev, lo, hi, est.confidence, est.mode,
-                                      sensors)
+                                      sensors, getattr(est, "track_probability", 1.0))

@@ -263,6 +263,8 @@ class ErrorModel:
                                          # from its resolved parameters: [m] of a fix, [m/s] of a speed and
                                          # of an increment's mean speed (its distance_stddev / duration too);
                                          # a message that claims less is refused (below_model)
+    map_fix_offset: float = 0.0          # a 2-D fix on a network gives its antenna's point: the antenna's
+                                         # distance behind the train front [m] (core/network/hypotheses.py)
     references: ReferenceTable | None = field(default=None, compare=False)
                                          # the track's references its fixes can name; None = not checked
 

@@ -237,6 +237,11 @@ class DgpsDecoder(Decoder):
         self._reach = p["structure_reach"] + (p["multipath_bound"] * p["structure_multipath_factor"]
                                               * p["multipath_sigma"]
                                               + 4.0 * p["white_sigma"] * p["structure_hdop_factor"])
+        # a train on a network (its route line carries the network): a fix is projected onto the
+        # whole network, not onto the route, and keeps its lateral offset (docs/network.md)
+        self._network = getattr(track, "network", None)
+        if self._network is not None:
+            self._section_spans = {sid: structures(sec) for sid, sec in self._network.sections.items()}
         self._had_fix = True
         self.stats = {key: 0 for key in ("epochs", "fixes", "no_fix", "outages", "autonomous", "weak_geometry",
                                          "off_track", "ambiguous", "under_structure")}
@@ -275,6 +280,11 @@ class DgpsDecoder(Decoder):
             if hdop > p["max_hdop"] or sats < p["min_satellites"]:
                 self.stats["weak_geometry"] += 1
                 continue
+            if self._network is not None:
+                fix = self._network_fix(float(t[i]), float(x), float(y), float(hdop))
+                if fix is not None:
+                    out.append(fix)
+                continue
             chain, lateral = self.track.project(x, y)
             s = float(chain[0])
             under, near = sky_zone(self._spans, np.array([s]), self._reach)
@@ -297,6 +307,25 @@ class DgpsDecoder(Decoder):
         return out
 
 
+    def _network_fix(self, t: float, x: float, y: float, hdop: float) -> PositionFix | None:
+        """The fix of an epoch on a network: the antenna's point on the nearest section, with its
+        lateral offset from it (a map fix: the track-selective fusion projects it onto each
+        hypothesis's path and adds the antenna offset along it). Withheld as on a line: further
+        than ``lateral_gate`` sigma from every section, or under a structure."""
+        p = self.params
+        section, s, lateral = self._network.project(x, y)
+        under, near = sky_zone(self._section_spans[section], np.array([s]), self._reach)
+        sigma = fix_sigma(p, hdop, bool(near[0]))
+        if not abs(lateral) <= p["lateral_gate"] * sigma:
+            self.stats["off_track"] += 1
+            return None
+        if under[0]:
+            self.stats["under_structure"] += 1
+            return None
+        self.stats["fixes"] += 1
+        return PositionFix(t, self.sensor, self.unit_id, section, self.unit_id, s, sigma, 0, (), lateral, sigma)
+
+
 def error_model(params: dict, track, vehicle) -> ErrorModel:
     """DGPS fixes for the fusion: the multipath and residual differential error is one fix
     bias, Gauss-Markov in the distance run (``multipath_length``) and in time
@@ -313,7 +342,8 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
     return ErrorModel(SENSOR, "position", fix_bias_sigma=mp, fix_bias_length=float(params["multipath_length"]),
                       fix_bias_tau=float(params["multipath_tau"]), reported_fix_bias=mp,
                       fix_white_sigma=max(params["white_sigma"] * params["structure_hdop_factor"], 1e-3),
-                      faults=("nlos", "outage"), min_stddev=fix_sigma(params, 0.0, False))
+                      faults=("nlos", "outage"), min_stddev=fix_sigma(params, 0.0, False),
+                      map_fix_offset=float(params["antenna_offset"]))
 
 
 SPEC = SensorSpec(

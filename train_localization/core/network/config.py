@@ -1,0 +1,84 @@
+"""Tuning of the track-selective fusion (core/network/hypotheses.py); every field is a
+parameter of the fusion node on a network (docs/network.md)."""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+from ..fusion.config import FusionConfig, _doc, fusion_config, sensor_models
+
+
+@dataclass(frozen=True)
+class NetworkConfig:
+    """Where the train starts, and how evidence makes and removes track hypotheses."""
+
+    start_section: str = _doc("", "section the train front stands on when the fusion starts (a start of mission "
+                                  "on a known track)")
+    start_direction: int = _doc(1, "direction of travel along start_section's chainage: +1 increasing, -1 "
+                                   "decreasing", limits=(-1, 1))
+    wrong_switch_probability: float = _doc(1.0e-3, "prior probability that a switch lies otherwise than the "
+                                                    "interlocking reports it (a detection fault): the reported way "
+                                                    "gets 1 minus it at a facing switch", limits=(1.0e-9, 0.5))
+    misread_probability: float = _doc(1.0e-3, "probability that a reference fix (balise, tag) names equipment "
+                                              "the train did not pass (fault mode 'misread')", limits=(1.0e-9, 0.5))
+    exclusion_references: int = _doc(2, "distinct references a hypothesis must fail to contain, within "
+                                        "exclusion_window, to be excluded (sensors with a 'misread' fault mode; "
+                                        "1 for the others)", limits=(1, 10))
+    exclusion_window: float = _doc(30.0, "time within which those references count together [s]",
+                                   limits=(0.1, 3600.0))
+    map_lateral_gate: float = _doc(4.0, "a 2-D fix further than this many of its lateral 1-sigma from a "
+                                        "hypothesis's path is off that path [1]", limits=(1.0, 100.0))
+    map_exclusion_fixes: int = _doc(5, "consecutive 2-D fixes of one receiver off a path (and on another) that "
+                                       "exclude it: one fix may be a non-line-of-sight outlier", limits=(1, 1000))
+    map_outlier_probability: float = _doc(0.01, "share of 2-D fixes whose lateral offset is an outlier, in the "
+                                                "likelihood that ranks the hypotheses", limits=(1.0e-6, 0.5))
+    map_reach: float = _doc(300.0, "a 2-D fix is projected onto the sections of a path within this distance "
+                                   "of where the hypothesis puts the receiver [m]", limits=(1.0, 1.0e5))
+    branch_margin: float = _doc(50.0, "a path is continued past a node once its interval's end comes this near "
+                                      "to it [m] (plus 1 s at the hypothesis's speed)", limits=(0.0, 1000.0))
+    max_hypotheses: int = _doc(16, "most hypotheses kept; beyond it the state is LOST (the interval can no "
+                                   "longer cover every path)", limits=(1, 256))
+
+    def __post_init__(self):
+        for f in dataclasses.fields(self):
+            limits, value = f.metadata.get("limits"), getattr(self, f.name)
+            if limits is not None and not limits[0] <= value <= limits[1]:
+                raise ValueError(f"{f.name} must be in {limits[0]:g} .. {limits[1]:g}, not {value}")
+        if self.start_direction not in (1, -1):
+            raise ValueError(f"start_direction must be +1 or -1, not {self.start_direction}")
+
+
+def network_fusion_config(scenario, **overrides) -> tuple[FusionConfig, NetworkConfig]:
+    """(FusionConfig, NetworkConfig) of one train of a network scenario (core/scenario.py).
+
+    The error models are those of its sensors on its route line (their tuning), with the
+    references their fixes may name gathered from every section of the network, each in its
+    section's chainage (a fix names a section: admission checks it there). The start is the
+    route's first section, its direction and the train's initial chainage on it, known to
+    ``initial_position_stddev`` (a start of mission on a known track). ``overrides`` and the
+    scenario's ``fusion:`` section may set any field of either."""
+    values = dict(scenario.fusion or {})
+    values.update(overrides)
+    net_fields = {f.name for f in dataclasses.fields(NetworkConfig)}
+    net_values = {k: values.pop(k) for k in list(values) if k in net_fields}
+    first = scenario.route.steps[0]
+    net_values.setdefault("start_section", first.section)
+    net_values.setdefault("start_direction", first.direction)
+    values.setdefault("initial_position", scenario.start_position + scenario.route.begin)
+    values.setdefault("initial_position_stddev", 1.0)
+    values.setdefault("track_id", "")
+    values.setdefault("track", None)
+    sensors = {**scenario.sensors, **scenario.wayside}
+    models = sensor_models(sensors, scenario.track, scenario.vehicle)
+    tables: dict[str, object] = {}    # sensor -> ReferenceTable of every section's references
+    for section in scenario.network.sections.values():
+        for name, model in sensor_models(sensors, section, scenario.vehicle).items():
+            if model.references is None:
+                continue
+            known = tables.get(name)
+            windows = {**(known.windows if known else {}), **model.references.windows}
+            tables[name] = dataclasses.replace(model.references, windows=windows)
+    models = {name: dataclasses.replace(m, references=tables.get(name)) if m.references is not None else m
+              for name, m in models.items()}
+    values.setdefault("sensors", models)
+    return fusion_config(None, **values), NetworkConfig(**net_values)

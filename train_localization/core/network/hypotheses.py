@@ -1,0 +1,335 @@
+"""Track-selective fusion: one hypothesis per feasible path through the switches passed
+(docs/network.md).
+
+Fault hypothesis covered. The along-track filter (core/fusion, TrainFilter) covers the
+train's place on the path it runs on; which path that is, is the new unknown. The train
+may have taken either way at every facing switch its interval has reached, whatever the
+interlocking reports (its report may be wrong: a detection fault). So every such way is
+a hypothesis, each with a TrainFilter of its own in the path distance of its path, and
+the published interval covers every hypothesis that is still plausible: while more than
+one track is, the state is DEGRADED, never NOMINAL on a track that is not proven.
+
+This is a multiple-hypothesis filter whose branches are pruned by evidence (the DLR
+track-selective filter of Heirich, 2016, keeps the topological hypothesis in particles;
+with a handful of switches in reach, exact enumeration is cheaper and has no sampling
+loss). Evidence, and what it is allowed to do:
+
+  ranking (probability)  the interlocking's reported way (prior 1 - wrong_switch_probability),
+                         the lateral offset of every 2-D fix from each path (a Gaussian of
+                         the fix's lateral 1-sigma with an outlier share), a reference fix
+                         that a path does not contain (misread_probability);
+  exclusion              only evidence that holds under the sensors' fault modes: references
+                         on another path from exclusion_references distinct references (one
+                         may be misread), or map_exclusion_fixes consecutive 2-D fixes
+                         further than map_lateral_gate sigma from the path while on another
+                         one (a non-line-of-sight outlier is one fix). The interlocking never
+                         excludes a way, and the last hypothesis is never excluded.
+
+A hypothesis's path grows past a node when its interval's end comes within
+``branch_margin`` (+ 1 s of travel) of it: from then on the interval covers every way.
+"""
+from __future__ import annotations
+
+import copy
+import math
+from collections import Counter
+from dataclasses import dataclass, field, replace
+
+from ..fusion.config import FusionConfig
+from ..fusion.filter import Estimate, TrainFilter
+from ..fusion.mode import Mode
+from ..measurements import PositionFix
+from ..signals import InputRejected
+from .config import NetworkConfig
+from .model import Network
+from .path import TrackPath
+
+LOG_FLOOR = -700.0   # log-weights are kept relative to the best, no lower than this
+
+
+@dataclass(frozen=True, slots=True)
+class TrackHypothesisState:
+    """One hypothesis at one time, on the section its estimate lies on."""
+
+    track_id: str
+    position: float        # front chainage on track_id [m]
+    speed: float           # [m/s] along track_id's chainage
+    position_min: float    # interval on track_id's chainage axis, continued along the path [m]
+    position_max: float
+    probability: float
+    path: tuple[str, ...]  # sections the interval spans, in the direction of travel
+    mode: int
+
+
+@dataclass(slots=True)
+class NetworkEstimate(Estimate):
+    """A TrainState on a network: position, speed and interval on ``track_id`` (the most
+    probable hypothesis's section), the interval covering every plausible hypothesis."""
+
+    track_id: str = ""
+    track_probability: float = 1.0
+    hypotheses: tuple = ()        # TrackHypothesisState, most probable first
+    path_position: float = math.nan   # the same, as path distances (shared origin) [m]
+    path_min: float = math.nan
+    path_max: float = math.nan
+
+
+@dataclass(eq=False)
+class Hypothesis:
+    """A path and the along-track filter of the train on it."""
+
+    path: TrackPath
+    filter: TrainFilter
+    log_weight: float = 0.0
+    misses: list = field(default_factory=list)      # (stamp, reference id) of fixes it does not contain
+    off_path: Counter = field(default_factory=Counter)   # receiver -> consecutive 2-D fixes off it
+    last: Estimate | None = None                    # its latest estimate
+
+
+class HypothesisSet:
+    """Stands in for TrainFilter inside a FusionRunner (core/fusion/runner.py): the same
+    ``cfg``, ``add``, ``estimate``, ``reset``, ``counters`` and ``hist``, over the set of
+    track hypotheses. ``cfg`` is what admission checks (fixes on a section, in its chainage);
+    each hypothesis's filter runs on ``inner`` (the same tuning, no references: its fixes are
+    path distances)."""
+
+    def __init__(self, cfg: FusionConfig, net: NetworkConfig, network: Network):
+        if net.start_section not in network.sections:
+            raise ValueError(f"start_section {net.start_section!r} is not a section of network "
+                             f"{network.network_id} ({', '.join(network.sections)})")
+        self.cfg = cfg
+        self.net = net
+        self.network = network
+        self.inner = copy.copy(cfg)
+        self.inner.models = {name: replace(m, references=None) for name, m in cfg.models.items()}
+        self.inner.track, self.inner.track_id = None, ""
+        self.models = cfg.models
+        self.timeouts = {s: m.timeout for s, m in cfg.models.items() if math.isfinite(m.timeout)}
+        self.switches: dict[str, str] = {}        # switch -> reported way (B1/B2), "" unknown
+        self.contradicted: dict[str, tuple[str, str]] = {}   # switch -> (reported, found)
+        self.events: Counter = Counter()
+        self.overflow = False
+        self.hyps: list[Hypothesis] = []
+        self.reset()
+
+    # ---- the TrainFilter interface ------------------------------------------------
+    @property
+    def hist(self):
+        return self.hyps[0].filter.hist
+
+    def reset(self, position: float | None = None, position_stddev: float = 1.0, speed: float = 0.0,
+              speed_stddev: float = 1.0, stamp: float | None = None) -> None:
+        """One hypothesis again, on the start section (position: path distance [m], which is
+        the start section's chainage along the direction of travel)."""
+        path = TrackPath.start(self.network, self.net.start_section, self.net.start_direction)
+        f = TrainFilter(self.inner)
+        f.reset(position, position_stddev, speed, speed_stddev, stamp)
+        self.hyps = [Hypothesis(path, f)]
+        self.overflow = False
+
+    def set_switches(self, positions: dict[str, str]) -> None:
+        """The interlocking's report: switch -> "B1"/"B2" ("" or absent: unknown)."""
+        self.switches.update(positions)
+
+    def add(self, m) -> None:
+        if isinstance(m, PositionFix):
+            if m.track_id not in self.network.sections:
+                raise InputRejected("wrong_track", f"fix on {m.track_id[:64]!r}, which is no section of network "
+                                                   f"{self.network.network_id}")
+            if m.is_map_fix:
+                self._map_fix(m)
+            else:
+                self._reference_fix(m)
+            return
+        first, *others = self.hyps
+        first.filter.add(m)          # raises for a duplicate or a late one: the same for every filter
+        for h in others:
+            h.filter.add(m)
+
+    def estimate(self, t: float) -> NetworkEstimate:
+        self._grow(t)
+        probs = self._probabilities()
+        order = sorted(range(len(self.hyps)), key=lambda i: -probs[i])
+        states = [self._state(self.hyps[i], probs[i]) for i in order]
+        top = self.hyps[order[0]]
+        est = top.last
+        known = [h.last for h in self.hyps if math.isfinite(h.last.position)]
+        if not math.isfinite(est.position) or not known:
+            return NetworkEstimate(**_fields(est), track_id=top.path.steps[-1].section,
+                                   track_probability=probs[order[0]], hypotheses=tuple(states))
+        lo = min(e.position_min for e in known)
+        hi = max(e.position_max for e in known)
+        modes = [e.mode for e in known]
+        mode = Mode.LOST if Mode.LOST in modes or self.overflow else max(modes)
+        if len({s.path for s in states}) > 1:
+            mode = max(mode, Mode.DEGRADED)
+        step = top.path.step_at(est.position)
+        a, b = step.chainage(lo), step.chainage(hi)
+        return NetworkEstimate(
+            t, step.chainage(est.position), est.speed * step.direction, est.acceleration * step.direction,
+            max(e.position_stddev for e in known), max(e.speed_stddev for e in known), min(a, b), max(a, b),
+            min(e.confidence for e in known), Mode(mode), est.scales, est.biases, track_id=step.section,
+            track_probability=probs[order[0]], hypotheses=tuple(states), path_position=est.position,
+            path_min=lo, path_max=hi)
+
+    def counters(self) -> dict[str, dict]:
+        out = self.hyps[0].filter.counters()
+        out["network"] = {**dict(self.events), "hypotheses": len(self.hyps)}
+        out["switches_contradicted"] = {k: f"reported {r}, found {f}" for k, (r, f) in self.contradicted.items()}
+        return out
+
+    # ---- evidence -------------------------------------------------------------------
+    def _reference_fix(self, m: PositionFix) -> None:
+        """A fix that names equipment on section m.track_id: a path without that section cannot
+        explain it."""
+        explained = []
+        for h in self.hyps:
+            near = h.last.position if h.last is not None and math.isfinite(h.last.position) else None
+            s = h.path.distance(m.track_id, m.position, near)
+            if s is not None:
+                explained.append((h, s))
+        if not explained:
+            self.events["unexplained_reference"] += 1
+            raise InputRejected("off_network_path", f"{m.sensor} fix of {m.reference_id[:64]!r} on section "
+                                                    f"{m.track_id}, which no track hypothesis contains")
+        if len(explained) < len(self.hyps):
+            hit = {id(h) for h, _ in explained}
+            needed = self.net.exclusion_references if "misread" in self.models[m.sensor].faults else 1
+            for h in [h for h in self.hyps if id(h) not in hit]:
+                h.log_weight += math.log(self.net.misread_probability)
+                h.misses = [(t, r) for t, r in h.misses if m.stamp - t <= self.net.exclusion_window]
+                h.misses.append((m.stamp, m.reference_id))
+                if len({r for _, r in h.misses}) >= needed:
+                    self._exclude(h, "reference")
+        for h, s in explained:
+            if h in self.hyps:
+                step = h.path.step_at(s)
+                h.filter.add(replace(m, track_id="", position=s, direction=m.direction * step.direction))
+
+    def _map_fix(self, m: PositionFix) -> None:
+        """A 2-D fix (its antenna's point): projected onto every path; its lateral offset ranks
+        the paths, and excludes one only after map_exclusion_fixes consecutive fixes off it."""
+        sec = self.network.section(m.track_id)
+        x0, y0, heading = sec.pose(m.position)
+        px, py = x0 - math.sin(heading) * m.lateral, y0 + math.cos(heading) * m.lateral
+        offset = self.models[m.sensor].map_fix_offset
+        sigma = m.lateral_stddev
+        gate = self.net.map_lateral_gate * sigma
+        eps = self.net.map_outlier_probability
+        placed = []
+        for h in self.hyps:
+            if h.last is not None and math.isfinite(h.last.position):
+                s_ant, lat = h.path.project(px, py, h.last.position - offset, self.net.map_reach)
+            else:
+                s_ant, lat = h.path.project(px, py, 0.5 * (h.path.begin + h.path.end), math.inf)
+            placed.append((h, s_ant + offset, lat))
+        on = [abs(lat) <= gate for _, _, lat in placed]
+        if not any(on):
+            self.events["map_fix_off_every_path"] += 1
+            raise InputRejected("off_network_path", f"{m.sensor} fix {min(abs(p[2]) for p in placed):.1f} m from "
+                                                    f"every track hypothesis's path (gate {gate:.1f} m)")
+        density = 1.0 / (math.sqrt(2.0 * math.pi) * sigma)
+        for (h, front, lat), near in zip(placed, on):
+            z = lat / sigma
+            h.log_weight += math.log((1.0 - eps) * density * math.exp(-0.5 * z * z) + eps / (2.0 * gate))
+            if near:
+                h.off_path[m.unit_id] = 0
+                h.filter.add(replace(m, track_id="", position=front, lateral=0.0, lateral_stddev=0.0))
+            else:
+                h.off_path[m.unit_id] += 1
+                if h.off_path[m.unit_id] >= self.net.map_exclusion_fixes:
+                    self._exclude(h, "map")
+
+    def _exclude(self, h: Hypothesis, reason: str) -> None:
+        if len(self.hyps) <= 1 or h not in self.hyps:
+            return
+        self.hyps.remove(h)
+        self.events[f"excluded_{reason}"] += 1
+        self._check_switches()
+
+    def _check_switches(self) -> None:
+        """A switch whose way every remaining hypothesis agrees on, against the interlocking."""
+        ways = [h.path.ways() for h in self.hyps]
+        for node, way in ways[0].items():
+            reported = self.switches.get(node, "")
+            if reported and way != reported and all(w.get(node) == way for w in ways[1:]) \
+                    and node not in self.contradicted:
+                self.contradicted[node] = (reported, way)
+                self.events["switch_contradicted"] += 1
+
+    # ---- growth ---------------------------------------------------------------------
+    def _grow(self, t: float) -> None:
+        """Every hypothesis's estimate at t; paths continued (and branched at facing switches)
+        where their interval's ends come near a node."""
+        work = list(self.hyps)
+        grown: list[Hypothesis] = []
+        while work:
+            h = work.pop()
+            est = h.last = h.filter.estimate(t)
+            if not (math.isfinite(est.position_min) and math.isfinite(est.position_max)):
+                grown.append(h)
+                continue
+            reach = self.net.branch_margin + abs(est.speed)
+            ends = [(est.position_max + reach > h.path.end, h.path.ahead, TrackPath.extended),
+                    (est.position_min - reach < h.path.begin, h.path.behind, TrackPath.prepended)]
+            children = None
+            for near_end, options, grow in ends:
+                if not near_end:
+                    continue
+                conts = options()
+                if len(conts) == 1:
+                    h.path = grow(h.path, conts[0])
+                    children = [h]
+                    break
+                if len(conts) > 1:
+                    children = [self._branch(h, grow(h.path, c), self._prior(c)) for c in conts]
+                    self.events["branches"] += 1
+                    break
+            if children is None:
+                grown.append(h)
+            else:
+                work.extend(children)
+        if len(grown) > self.net.max_hypotheses:
+            grown.sort(key=lambda h: -h.log_weight)
+            del grown[self.net.max_hypotheses:]
+            self.overflow = True
+            self.events["overflow"] += 1
+        self.hyps = grown
+
+    def _prior(self, c) -> float:
+        if c.way is None:
+            return 1.0
+        reported = self.switches.get(c.node, "")
+        if not reported:
+            return 0.5
+        p = self.net.wrong_switch_probability
+        return 1.0 - p if c.way == reported else p
+
+    def _branch(self, h: Hypothesis, path: TrackPath, prior: float) -> Hypothesis:
+        memo = {id(self.inner): self.inner, id(self.inner.models): self.inner.models}
+        return Hypothesis(path, copy.deepcopy(h.filter, memo), h.log_weight + math.log(prior), list(h.misses),
+                          Counter(h.off_path), h.last)
+
+    def _probabilities(self) -> list[float]:
+        best = max(h.log_weight for h in self.hyps)
+        for h in self.hyps:
+            h.log_weight = max(h.log_weight - best, LOG_FLOOR)
+        w = [math.exp(h.log_weight) for h in self.hyps]
+        total = sum(w)
+        return [x / total for x in w]
+
+    def _state(self, h: Hypothesis, probability: float) -> TrackHypothesisState:
+        e = h.last
+        if not math.isfinite(e.position):
+            step = h.path.steps[-1]
+            return TrackHypothesisState(step.section, math.nan, math.nan, -math.inf, math.inf, probability,
+                                        (step.section,), int(e.mode))
+        step = h.path.step_at(e.position)
+        a, b = step.chainage(e.position_min), step.chainage(e.position_max)
+        return TrackHypothesisState(step.section, step.chainage(e.position), e.speed * step.direction, min(a, b),
+                                    max(a, b), probability, tuple(h.path.sections(e.position_min, e.position_max)),
+                                    int(e.mode))
+
+
+def _fields(est: Estimate) -> dict:
+    return {name: getattr(est, name) for name in Estimate.__slots__}

@@ -396,3 +396,24 @@ def line_report(result) -> dict:
     if result.changeover is not None:
         out["changeover"] = changeover_check(result)
     return out
+
+
+def recorded_network(bag, scenario, namespace: str) -> dict:
+    """The states a train on a network published (localization/state and localization/tracks
+    under ``namespace``), scored on its recorded truth along its route
+    (core/network/scoring.py ``network_scores``: track selectivity, switch ways, states
+    NOMINAL on a wrong track, the truth inside the interval and inside its true hypothesis)."""
+    from .bagio import read_bag
+    from .convert import stamp_to_sec
+    from .network.scoring import network_scores, published_from_msgs
+    ns = namespace.rstrip("/")
+    topics = {f"{ns}/localization/state": "state", f"{ns}/localization/tracks": "tracks",
+              f"{ns}/ground_truth/state": "truth"}
+    rows: dict[str, list] = {kind: [] for kind in topics.values()}
+    for topic, _, _, msg in read_bag(bag, list(topics)):
+        rows[topics[topic]].append(msg)
+    truth = np.array([(stamp_to_sec(m.header.stamp), m.position) for m in rows["truth"]], dtype=float).reshape(-1, 2)
+    if not truth.size:
+        return {"states": len(rows["state"])}
+    return network_scores(scenario.route, truth[:, 0], truth[:, 1], published_from_msgs(rows["state"], rows["tracks"]))
+

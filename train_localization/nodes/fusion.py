@@ -54,7 +54,10 @@ from ..core.signals import InputRejected
 from ..core.track import Track
 from ..core.sensors import NODE_NAMES, sensor_classes, spec
 from ..core.sensors.base import ERROR_MODEL_LIMITS
-from .common import (STATE_QOS, STREAM_QOS, ConfigurationError, ManagedNode, declare, now_sec, rclpy_classes,
+from ..core.network.config import NetworkConfig, network_fusion_config
+from ..core.network.hypotheses import HypothesisSet
+from ..core.network.model import is_network
+from .common import (LATCHED_QOS, STATE_QOS, STREAM_QOS, ConfigurationError, ManagedNode, declare, now_sec, rclpy_classes,
                      spin)
 
 # every sensor class, in the registry's order (core/sensors/__init__.py)
@@ -126,10 +129,33 @@ def declare_fusion_config(node: Node, base: FusionConfig, track) -> FusionConfig
                 overrides[sensor] = changed
                 node.get_logger().info(f"error model of {sensor} overridden: "
                                        + ", ".join(f"{k}={v}" for k, v in sorted(changed.items())))
-        return FusionConfig(track_id=track.track_id, track=track, sensors=base.sensors, overrides=overrides,
-                            **values)
+        return FusionConfig(track_id=track.track_id if track is not None else "", track=track, sensors=base.sensors,
+                            overrides=overrides, **values)
     except ValueError as exc:
         raise ConfigurationError(f"fusion parameters: {exc}") from None
+
+
+def declare_network_config(node: Node, base: NetworkConfig) -> NetworkConfig:
+    """Declare every NetworkConfig field (the track-selective fusion, docs/network.md) as a
+    read-only parameter (default: ``base``, from the scenario's route) and build the config."""
+    from dataclasses import fields
+    values = {f.name: _from_ros(getattr(base, f.name), declare(
+        node, f.name, getattr(base, f.name), f.metadata.get("doc", ""), read_only=True, limits=f.metadata.get("limits")))
+        for f in fields(NetworkConfig)}
+    try:
+        return NetworkConfig(**values)
+    except ValueError as exc:
+        raise ConfigurationError(f"network parameters: {exc}") from None
+
+
+def is_network_file(path) -> bool:
+    """Whether a track YAML describes a network (core/network)."""
+    import yaml
+    try:
+        with open(path, encoding="utf-8") as fh:
+            return is_network(yaml.safe_load(fh))
+    except (OSError, yaml.YAMLError):
+        return False
 
 
 # diagnostic level per mode (diagnostic_msgs/DiagnosticStatus: 0 OK, 1 WARN, 2 ERROR): no position
@@ -221,11 +247,18 @@ class FusionNode(ManagedNode):
                                                          "sensors' own parameter files); their error models "
                                                          "configure the filter (default: the scenario's sensors, "
                                                          "else default parameters)", read_only=True)
-        base = fusion_config(scenario)
+        self.network = scenario.network if scenario else None
+        if self.network is None and not scenario and is_network_file(paths.resolve(track)):
+            raise ConfigurationError(f"track {track} is a network: the fusion takes it from a scenario whose trains "
+                                     "have routes through it (parameter scenario)")
+        if self.network is not None:
+            base, net_base = network_fusion_config(scenario)
+        else:
+            base = fusion_config(scenario)
         if params_file or not scenario:
             base = FusionConfig(**{**{f.name: getattr(base, f.name) for f in FusionConfig.tuning_fields()},
                                    "sensors": self._models(sensors, params_file), "overrides": base.overrides})
-        cfg = declare_fusion_config(self, base, self.track)
+        cfg = declare_fusion_config(self, base, None if self.network is not None else self.track)
         self.map_frame = declare(self, "map_frame", "map", "fixed frame (REP-105 map)", read_only=True)
         self.base_frame = declare(self, "base_frame", "base_link", "vehicle frame", read_only=True)
         self.odom_frame = declare(self, "odom_frame", "", "REP-105 odom frame of a source that publishes "
@@ -237,9 +270,15 @@ class FusionNode(ManagedNode):
                                        "shed/<topic>); the fastest device sends 200/s", read_only=True,
                                        limits=(1.0, 1.0e6)))
         self.shedder = InputShedder(max_input_rate)
-        self.runner = FusionRunner(cfg, float(self.get_parameter("publish_rate").value))
-        self.filter = self.runner.filter
         self.mc = rclpy_classes()
+        hypotheses = None
+        if self.network is not None:
+            net = declare_network_config(self, net_base)
+            hypotheses = HypothesisSet(cfg, net, self.network)
+            self.tracks_pub = self.create_lifecycle_publisher(self.mc.TrackHypotheses, "localization/tracks",
+                                                              STATE_QOS)
+        self.runner = FusionRunner(cfg, float(self.get_parameter("publish_rate").value), hypotheses)
+        self.filter = self.runner.filter
         self.sensors = sensors
         self._inputs: dict[str, list] = {}   # sensor -> [accepted since the last report, wall time, age]
         # event sensors (no timeout, references on the track) -> chainage [m] of their last accepted
@@ -273,6 +312,9 @@ class FusionNode(ManagedNode):
                     cls, topic, lambda msg, t=topic, p=parse: self.on_measurement(t, p, msg), STREAM_QOS))
         if self.odom_frame and self.tf_pub is not None:
             self._subs.append(self.create_subscription(self._tf_cls, "/tf", self.on_tf, 100))
+        if self.network is not None:
+            self._subs.append(self.create_subscription(self.mc.SwitchPositions, "interlocking/switches",
+                                                       self.on_switches, LATCHED_QOS))
         self._timer = self.create_timer(self.runner.period, self.on_timer)
         self._last_state_wall = time.monotonic()
         self.diag.set_status(1, "active, no state yet")
@@ -284,7 +326,7 @@ class FusionNode(ManagedNode):
         return super().on_deactivate(state)
 
     def on_cleanup(self, state) -> TransitionCallbackReturn:
-        for pub in (self.state_pub, self.odom_pub, self.tf_pub):
+        for pub in (self.state_pub, self.odom_pub, self.tf_pub, getattr(self, "tracks_pub", None)):
             if pub is not None:
                 self.destroy_lifecycle_publisher(pub)
         self.destroy_service(self._service)
@@ -353,6 +395,21 @@ class FusionNode(ManagedNode):
             # the states are the product, published from here at their rate
             self.on_timer()
 
+    def on_switches(self, msg) -> None:
+        """The interlocking's switch positions (a network): priors of the track hypotheses."""
+        topic = "interlocking/switches"
+        try:
+            positions = convert.switch_positions_from_msg(msg)
+            unknown = [k for k in positions if k not in {n.node_id for n in self.network.switches()}]
+            if unknown:
+                raise InputRejected("unknown_id", f"switch {unknown[0][:64]!r} is no point switch of network "
+                                                  f"{self.network.network_id}")
+        except InputRejected as exc:
+            self.diag.reject(topic, exc.reason, str(exc))
+            return
+        self.filter.set_switches(positions)
+        self.diag.accept(topic)
+
     def input_statuses(self) -> list:
         """One status per subscribed sensor (diagnostic_updater's frequency and timestamp
         checks): accepted messages per second since the last report, age of the last one
@@ -396,6 +453,8 @@ class FusionNode(ManagedNode):
         counter) that the train has passed, by its fused interval, since the sensor's last
         accepted fix (or since it was first located): each should have given one."""
         model, est = self.filter.models.get(sensor), self._last_est
+        if self.network is not None:   # references in their sections' chainages: not along one line
+            return []
         if model is None or model.references is None or est is None or not math.isfinite(est.position):
             return []
         since = self._fixed_at.setdefault(sensor, est.position)
@@ -442,11 +501,15 @@ class FusionNode(ManagedNode):
     def publish_state(self, est, used):
         self._last_state_wall = time.monotonic()
         self._last_est = est
-        msg = estimate_to_msg(self.mc, est, self.track.track_id, used, self.track)
+        on_network = self.network is not None
+        msg = estimate_to_msg(self.mc, est, self.track.track_id, used, None if on_network else self.track)
         self.state_pub.publish(msg)
+        if on_network:
+            self.tracks_pub.publish(convert.track_hypotheses_to_msg(self.mc, est, self.network.network_id))
         if not math.isfinite(est.position):
             return
-        x, y, yaw = self.track.pose(est.position)
+        track = self.network.section(est.track_id) if on_network else self.track
+        x, y, yaw = track.pose(est.position)
         odom = Odometry()
         odom.header.stamp = msg.header.stamp
         odom.header.frame_id = self.map_frame

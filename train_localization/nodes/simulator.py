@@ -14,6 +14,9 @@ Parameters:
 Topics: /clock (rosgraph_msgs/Clock), ground_truth/state (TrainState, stddevs 0,
 interval = position), scenario (std_msgs/String, transient-local: the scenario
 YAML with the track inlined, so that a recorded bag describes itself), /diagnostics.
+A train on a network (docs/network.md): its truth is the distance along its route (track_id
+``<network>:<train>``), and interlocking/switches (SwitchPositions, transient-local) gives
+the switch positions the interlocking reports for its route.
 
 A line (several trains, core/scenario.py): every train's truth on
 ``/<train>/ground_truth/state``, the scenario on ``/scenario``, and the simulated raw
@@ -38,7 +41,7 @@ import time
 from rosgraph_msgs.msg import Clock
 from rclpy.node import Node
 
-from ..core.convert import raw_block_to_msg, sec_to_ns, train_state_to_msg
+from ..core.convert import raw_block_to_msg, sec_to_ns, switch_positions_to_msg, train_state_to_msg
 from .common import (CLOCK_QOS, LATCHED_QOS, STREAM_QOS, ConfigurationError, Diagnostics, declare, rclpy_classes,
                      required_scenario, spin)
 
@@ -90,6 +93,15 @@ class SimulatorNode(Node):
             self.truth_pub = self.create_publisher(self.mc.TrainState, "ground_truth/state", STREAM_QOS)
             self.scenario_pub = self.create_publisher(String, "scenario", LATCHED_QOS)
         self.scenario_pub.publish(String(data=self.scenario.to_yaml()))
+        # trains on a network: the switch positions the interlocking reports for each (latched)
+        self.interlocking_pubs = []
+        for name, train in self.scenario.trains.items():
+            if train.network is not None:
+                ns = self.line.namespaces[name] if self.line is not None else ""
+                pub = self.create_publisher(self.mc.SwitchPositions, f"{ns}/interlocking/switches".lstrip("/"),
+                                            LATCHED_QOS)
+                pub.publish(switch_positions_to_msg(self.mc, 0.0, train.interlocking))
+                self.interlocking_pubs.append(pub)
         self.diag = Diagnostics(self, "simulator")
         # the simulator makes the time (/clock) and runs on the wall clock: its reports are
         # stamped in the simulated time like every other node's
@@ -156,8 +168,9 @@ class SimulatorNode(Node):
         """Truth step k of a line: every train's truth, then the raw blocks completed."""
         t, truths, blocks = self.line.step(k)
         for name, st in truths.items():
-            self.truth_pubs[name].publish(train_state_to_msg(self.mc, st.stamp, self.scenario.track.track_id,
-                                                             st.position, st.speed, st.acceleration))
+            track_id = self.scenario.trains[name].track.track_id   # on a network: the train's route
+            self.truth_pubs[name].publish(train_state_to_msg(self.mc, st.stamp, track_id, st.position, st.speed,
+                                                             st.acceleration))
         for ns, _, block in blocks:
             self.raw_pubs[f"{ns}/sensors/{block.sensor}/raw"].publish(raw_block_to_msg(block, self.mc))
 

@@ -26,7 +26,7 @@ from pathlib import Path
 
 from ..core import paths
 from ..core.bagio import read_bag, topic_counts
-from ..core.report import jsonable, recorded_changeover, recorded_etcs, recorded_stator
+from ..core.report import jsonable, recorded_changeover, recorded_etcs, recorded_network, recorded_stator
 from ..core.scenario import Scenario
 from ..core.scoring import StateSeries, score
 from ..core.offline import FUSED_TOPIC, TRUTH_TOPIC, scenario_from_bag
@@ -144,8 +144,10 @@ def _circumference(bag: Path) -> float | None:
         return None
 
 
-def summarise(bag: Path, namespace: str = NAMESPACE) -> dict:
-    """Messages per topic, and the fused state of the train in ``namespace`` scored against its truth."""
+def summarise(bag: Path, namespace: str = NAMESPACE, along_one_track: bool = True) -> dict:
+    """Messages per topic, and the fused state of the train in ``namespace`` scored against its
+    truth (``along_one_track``: both on one chainage; a train on a network is scored by
+    core/report.py recorded_network instead)."""
     truth_topic, fused_topic = (TRUTH_TOPIC, FUSED_TOPIC) if namespace == NAMESPACE else \
         (f"{namespace}/ground_truth/state", f"{namespace}/localization/state")
     truth, fused = [], []
@@ -156,7 +158,7 @@ def summarise(bag: Path, namespace: str = NAMESPACE) -> dict:
     if truth:
         t = StateSeries.from_msgs(truth)
         result["duration_s"] = float(t.t[-1] - t.t[0])
-        if fused:
+        if fused and along_one_track:
             result["score"] = score(t, StateSeries.from_msgs(fused), _circumference(bag))
             result["score"]["integrity"]["confidence"] = float(fused[-1].confidence)
     return result
@@ -180,6 +182,21 @@ def print_summary(s: dict) -> None:
                   f"(mean width {integ['mean_interval_width_m']:.2f} m)")
         print(f"  modes (0 init, 1 nominal, 2 degraded, 3 lost): {sc['modes']}")
     print(f"bag: {s['bag']}")
+
+
+def print_network(n: dict) -> None:
+    """A train's states on a network scored on its route (core/report.py recorded_network)."""
+    if not n.get("claimed"):
+        print("  no state with a position")
+        return
+    pe = n["position_error_m"]
+    print(f"  on the true track: {100 * n['on_true_track']:.2f} % of {n['claimed']} states; NOMINAL on a wrong "
+          f"track: {n['nominal_wrong_track']}; DEGRADED {100 * n['degraded_share']:.1f} %")
+    print(f"  truth inside the interval: {100 * n['inside']:.2f} %; inside its true hypothesis: "
+          f"{100 * n['true_hypothesis_inside']:.2f} %; position error RMS {pe['rms']:.3f} m, max {pe['max']:.3f} m")
+    sel = "n/a" if n["parallel_states"] == 0 else f"{100 * n['selectivity']:.2f} %"
+    print(f"  track selectivity on parallel track: {sel} ({n['parallel_states']} states); switch ways resolved "
+          f"within the clearance: {n['switch_ways_resolved']}/{n['switch_ways']}")
 
 
 def print_changeover(co: dict, source: str) -> None:
@@ -223,11 +240,14 @@ def main(argv=None) -> int:
     scenario = Scenario.from_yaml(args.scenario)
     if scenario.line:
         codes = run_line_graph(args.scenario, bag, args.rate, out / "logs")
-        summary = {name: summarise(bag, f"/{name}") for name in scenario.trains}
+        summary = {name: summarise(bag, f"/{name}", scenario.trains[name].network is None) for name in scenario.trains}
         for name, train_summary in summary.items():
             print(f"\n[demo] train {name}")
             print_summary({**train_summary, "messages": {t: n for t, n in train_summary["messages"].items()
                                                          if t.startswith(f"/{name}/")}})
+            if scenario.trains[name].network is not None:
+                train_summary["network"] = jsonable(recorded_network(bag, scenario.trains[name], f"/{name}"))
+                print_network(train_summary["network"])
         summary = {"trains": summary, "exit_codes": codes}
         if scenario.changeover:
             summary["changeover"] = jsonable(recorded_changeover(bag, scenario))

@@ -18,6 +18,9 @@ loss). Evidence, and what it is allowed to do:
                          the lateral offset of every 2-D fix from each path (a Gaussian of
                          the fix's lateral 1-sigma with an outlier share), a reference fix
                          that a path does not contain (misread_probability);
+  inconsistency          a fix that no hypothesis's path explains (a balise on a section none
+                         contains, a 2-D fix off every path) holds the state DEGRADED for
+                         exclusion_window: the set may have lost the train's track.
   exclusion              only evidence that holds under the sensors' fault modes: references
                          on another path from exclusion_references distinct references (one
                          may be misread), or map_exclusion_fixes consecutive 2-D fixes
@@ -70,6 +73,7 @@ class NetworkEstimate(Estimate):
     track_probability: float = 1.0
     hypotheses: tuple = ()        # TrackHypothesisState, most probable first
     path_position: float = math.nan   # the same, as path distances (shared origin) [m]
+    path_speed: float = math.nan      # [m/s] along the path (the direction of travel)
     path_min: float = math.nan
     path_max: float = math.nan
 
@@ -109,6 +113,7 @@ class HypothesisSet:
         self.contradicted: dict[str, tuple[str, str]] = {}   # switch -> (reported, found)
         self.events: Counter = Counter()
         self.overflow = False
+        self.unexplained_at = -math.inf   # [s] of the last fix that no hypothesis's path explains
         self.hyps: list[Hypothesis] = []
         self.reset()
 
@@ -126,6 +131,7 @@ class HypothesisSet:
         f.reset(position, position_stddev, speed, speed_stddev, stamp)
         self.hyps = [Hypothesis(path, f)]
         self.overflow = False
+        self.unexplained_at = -math.inf
 
     def set_switches(self, positions: dict[str, str]) -> None:
         """The interlocking's report: switch -> "B1"/"B2" ("" or absent: unknown)."""
@@ -161,7 +167,8 @@ class HypothesisSet:
         hi = max(e.position_max for e in known)
         modes = [e.mode for e in known]
         mode = Mode.LOST if Mode.LOST in modes or self.overflow else max(modes)
-        if len({s.path for s in states}) > 1:
+        if len({s.path for s in states}) > 1 or t - self.unexplained_at <= self.net.exclusion_window:
+            # several tracks plausible, or a fix lately that no path explains (a track not followed)
             mode = max(mode, Mode.DEGRADED)
         step = top.path.step_at(est.position)
         a, b = step.chainage(lo), step.chainage(hi)
@@ -170,7 +177,7 @@ class HypothesisSet:
             max(e.position_stddev for e in known), max(e.speed_stddev for e in known), min(a, b), max(a, b),
             min(e.confidence for e in known), Mode(mode), est.scales, est.biases, track_id=step.section,
             track_probability=probs[order[0]], hypotheses=tuple(states), path_position=est.position,
-            path_min=lo, path_max=hi)
+            path_speed=est.speed, path_min=lo, path_max=hi)
 
     def counters(self) -> dict[str, dict]:
         out = self.hyps[0].filter.counters()
@@ -190,6 +197,7 @@ class HypothesisSet:
                 explained.append((h, s))
         if not explained:
             self.events["unexplained_reference"] += 1
+            self.unexplained_at = max(self.unexplained_at, m.stamp)
             raise InputRejected("off_network_path", f"{m.sensor} fix of {m.reference_id[:64]!r} on section "
                                                     f"{m.track_id}, which no track hypothesis contains")
         if len(explained) < len(self.hyps):
@@ -226,6 +234,7 @@ class HypothesisSet:
         on = [abs(lat) <= gate for _, _, lat in placed]
         if not any(on):
             self.events["map_fix_off_every_path"] += 1
+            self.unexplained_at = max(self.unexplained_at, m.stamp)
             raise InputRejected("off_network_path", f"{m.sensor} fix {min(abs(p[2]) for p in placed):.1f} m from "
                                                     f"every track hypothesis's path (gate {gate:.1f} m)")
         density = 1.0 / (math.sqrt(2.0 * math.pi) * sigma)

@@ -122,7 +122,7 @@ def replay_graph(bag: str, scenario: str, sensors: list[str], out_bag: str, rate
 
 
 def line_graph(scenario: str, bag: str, rate: float = 1.0, record: bool = True,
-               exclude: list[str] | None = None) -> list[tuple[str, str, str, dict]]:
+               exclude: list[str] | None = None, fusion_rate: float | None = None) -> list[tuple[str, str, str, dict]]:
     """The graph of a line scenario (several trains), as (namespace, executable, node name,
     parameters): recorder (if ``record``) in /, per train its sensor nodes (ingest) and its
     fusion in /<train>, the wayside sensor nodes (ingest) and the association of their fixes
@@ -130,7 +130,8 @@ def line_graph(scenario: str, bag: str, rate: float = 1.0, record: bool = True,
     controller: ``wayside_occupancy``, ``neutral_section_controller``), and the simulator in
     /, which publishes every train's truth and the raw blocks of every device (the wayside
     ones see all trains; nodes/simulator.py). The sensor and fusion nodes take their train's
-    part of the scenario from their namespace (Scenario.for_namespace)."""
+    part of the scenario from their namespace (Scenario.for_namespace). ``fusion_rate``: the
+    fusions' publish_rate [Hz], default the node's."""
     from .core.scenario import WAYSIDE, Scenario
     from .core.sensors import spec
     line = Scenario.from_yaml(scenario)
@@ -144,7 +145,10 @@ def line_graph(scenario: str, bag: str, rate: float = 1.0, record: bool = True,
     for name, train in line.trains.items():
         nodes += [(f"/{name}", node, node, dict(ingest)) for node in train.sensors]
         classes = [spec(n).sensor for n in [*train.sensors, *line.wayside]]
-        nodes.append((f"/{name}", "fusion", "fusion", {"scenario": scenario, "sensors": classes, "use_sim_time": True}))
+        fusion = {"scenario": scenario, "sensors": classes, "use_sim_time": True}
+        if fusion_rate is not None:
+            fusion["publish_rate"] = float(fusion_rate)
+        nodes.append((f"/{name}", "fusion", "fusion", fusion))
     nodes += [(f"/{WAYSIDE}", node, node, dict(ingest)) for node in line.wayside]
     site = line.changeover_site()
     if site is not None:

@@ -48,11 +48,16 @@ def _stats(err) -> dict:
 
 
 def _columns(estimates):
-    """Arrays from Estimate objects or TrainState messages."""
+    """Arrays from Estimate objects or TrainState messages. An estimate on a network (core/network
+    NetworkEstimate) is taken in path distances, the coordinate its truth has along its route."""
     from .convert import stamp_to_sec
     rows = []
     for e in estimates:
         t = e.stamp if hasattr(e, "stamp") else stamp_to_sec(e.header.stamp)
+        if hasattr(e, "path_position"):
+            rows.append((t, e.path_position, e.path_speed, e.position_stddev, e.speed_stddev, e.path_min, e.path_max,
+                         e.mode))
+            continue
         rows.append((t, e.position, e.speed, e.position_stddev, e.speed_stddev, e.position_min, e.position_max,
                      e.mode))
     arr = np.array(rows, dtype=float).reshape(-1, 8)
@@ -390,6 +395,14 @@ def line_report(result) -> dict:
     """{"trains": train name -> evaluate() report, "association": association_check(),
     "changeover": changeover_check() (a line with a changeover section)}."""
     trains = {name: evaluate(run.truth, run.estimates, run.measurements)[0] for name, run in result.trains.items()}
+    scenario = getattr(result, "scenario", None)
+    for name, run in result.trains.items():
+        train = scenario.trains.get(name) if scenario is not None else None
+        if train is not None and train.network is not None:   # which track: core/network/scoring.py
+            from .network.scoring import PublishedState, network_scores
+            trains[name]["network"] = network_scores(
+                train.route, [s.stamp for s in run.truth], [s.position for s in run.truth],
+                [PublishedState.of_estimate(e) for e in run.estimates])
     out = {"trains": trains, "association": association_check(result),
            "wayside": {"blocks": result.blocks, "rejected": dict(result.rejected),
                        "measurements": len(result.wayside)}}

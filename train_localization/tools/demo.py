@@ -64,13 +64,14 @@ def run_graph(scenario_path: str, bag: Path, rate: float, log_dir: Path, timeout
 
 
 def run_line_graph(scenario_path: str, bag: Path, rate: float, log_dir: Path, timeout: float | None = None,
-                   exclude: list[str] | None = None) -> dict:
+                   exclude: list[str] | None = None, fusion_rate: float | None = None) -> dict:
     """Start the graph of a line scenario (graph.line_graph), wait for the simulator, stop
-    everything; exit codes by node (namespace/name). ``exclude``: topics the recorder leaves out."""
+    everything; exit codes by node (namespace/name). ``exclude``: topics the recorder leaves out;
+    ``fusion_rate``: the fusions' publish_rate [Hz], default the node's."""
     scenario = Scenario.from_yaml(scenario_path)
     if bag.exists():
         bag.unlink()
-    graph = line_graph(str(paths.resolve(scenario_path)), str(bag), rate, exclude=exclude)
+    graph = line_graph(str(paths.resolve(scenario_path)), str(bag), rate, exclude=exclude, fusion_rate=fusion_rate)
     return run_nodes(graph, "/simulator", log_dir, timeout or (scenario.duration / max(rate, 1e-3) + 60.0))
 
 

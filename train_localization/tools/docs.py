@@ -60,6 +60,15 @@ def fusion_params_markdown() -> str:
               f"`ErrorModel`) are nested parameters `<sensor>.<field>`: {names} (`faults` as a comma-separated "
               "string). Their defaults are the sensor's own model; a different value (a params file, `-p "
               "doppler.scale_sigma:=0.01`) overrides it and is logged at start-up."]
+    from ..core.network.config import NetworkConfig
+    net = NetworkConfig()
+    lines += ["", "On a network (a scenario whose track has `sections`, docs/network.md), also the track-selective "
+              "fusion's (core/network/config.py `NetworkConfig`; `start_section` and `start_direction` default to the "
+              "train's route):", "", "| parameter | default | meaning |", "|---|---|---|"]
+    for f in fields(NetworkConfig):
+        limits = f.metadata.get("limits")
+        doc = f.metadata.get("doc", "") + (f" [{limits[0]:g} .. {limits[1]:g}]" if limits else "")
+        lines.append(f"| `{f.name}` | {_value(getattr(net, f.name))} | {doc.replace('|', '/')} |")
     return "\n".join(lines) + "\n"
 
 

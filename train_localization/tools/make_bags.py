@@ -44,10 +44,11 @@ BAGS = {
     "line_pair": ("config/scenario_line_pair.yaml", 40.0, 1.0),
     "rig": ("config/scenario_rig.yaml", 46.0, 1.0),
     "etcs_stop": ("config/scenario_etcs_stop.yaml", 115.0, 1.0),
+    "throat": ("config/scenario_throat.yaml", 100.0, 1.0),
 }
 # the fusion's publish rate [Hz] of a bag where the default 200 Hz would take it over 5 MB: the
-# supervised stop's location reports follow every state
-FUSION_RATE = {"etcs_stop": 50.0}
+# supervised stop's location reports follow every state, the throat's track hypotheses too
+FUSION_RATE = {"etcs_stop": 50.0, "throat": 50.0}
 # A line's raw blocks (every train's wheel pulses, the wayside's axle counters) fill 5 MB in about
 # 30 s, before any train of the line scenarios has left its start. Their bags therefore take the
 # line in its running phase: each train starts at its line speed (train name -> initial state and
@@ -96,6 +97,13 @@ def thresholds(report: dict) -> dict:
         })
     if report["etcs_envelope"]["inside_fraction"] is not None:
         bounds["etcs_envelope.inside_fraction"] = {"min": report["etcs_envelope"]["inside_fraction"]}
+    net = report.get("network")
+    if net and net.get("claimed"):   # a train on a network: its track, never NOMINAL on a wrong one
+        bounds["network.nominal_wrong_track"] = {"max": 0}
+        bounds["network.true_hypothesis_inside"] = {"min": min(net["true_hypothesis_inside"], 0.999)}
+        bounds["network.switch_ways_resolved"] = {"min": net["switch_ways_resolved"]}
+        if net["parallel_states"]:
+            bounds["network.selectivity"] = {"min": min(net["selectivity"], 0.999)}
     return bounds
 
 
@@ -131,7 +139,8 @@ def main(argv=None) -> int:
             out = Path(tmp) / f"{name}.mcap"
             if "trains" in data:   # a line: every train's graph, the wayside, the simulator
                 trains = [t["name"] for t in data["trains"]]
-                codes = run_line_graph(str(scen), out, rate, Path(tmp) / "logs", exclude=lean_exclude(trains))
+                codes = run_line_graph(str(scen), out, rate, Path(tmp) / "logs", exclude=lean_exclude(trains),
+                                       fusion_rate=FUSION_RATE.get(name))
             else:
                 codes = run_graph(str(scen), out, rate, Path(tmp) / "logs", exclude=LEAN_EXCLUDE,
                                   fusion_rate=FUSION_RATE.get(name))

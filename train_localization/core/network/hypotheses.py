@@ -62,6 +62,7 @@ class TrackHypothesisState:
     probability: float
     path: tuple[str, ...]  # sections the interval spans, in the direction of travel
     mode: int
+    ways: tuple[tuple[str, str], ...] = ()   # (switch, way) of the facing switches on its path
 
 
 @dataclass(slots=True)
@@ -332,12 +333,12 @@ class HypothesisSet:
         if not math.isfinite(e.position):
             step = h.path.steps[-1]
             return TrackHypothesisState(step.section, math.nan, math.nan, -math.inf, math.inf, probability,
-                                        (step.section,), int(e.mode))
+                                        (step.section,), int(e.mode), tuple(h.path.ways().items()))
         step = h.path.step_at(e.position)
         a, b = step.chainage(e.position_min), step.chainage(e.position_max)
         return TrackHypothesisState(step.section, step.chainage(e.position), e.speed * step.direction, min(a, b),
                                     max(a, b), probability, tuple(h.path.sections(e.position_min, e.position_max)),
-                                    int(e.mode))
+                                    int(e.mode), tuple(h.path.ways().items()))
 
 
 def _fields(est: Estimate) -> dict:

@@ -12,7 +12,8 @@ from train_localization.core import convert
 from train_localization.core.bagio import read_bag
 from train_localization.core.fusion import Mode
 from train_localization.core.offline import replay_bag, replay_line, scenario_from_bag
-from train_localization.core.report import evaluate, line_report, recorded_changeover, recorded_etcs, recorded_stator
+from train_localization.core.report import (evaluate, line_report, recorded_changeover, recorded_etcs, recorded_network,
+                                          recorded_stator)
 from train_localization.core.scoring import StateSeries
 from train_localization.core.wayside import stator
 from train_localization.tools.make_bags import metric
@@ -177,3 +178,27 @@ def test_an_etcs_bag_stops_short_of_its_authority_live_and_locates_the_same_repl
     scores = etcs_scoring.location_scores(replay, *truth, o)
     assert scores["outside"] == 0 and scores["speed_inside_share"] == 1.0, scores
     assert [e.nid_bg for e in replay.events if e.kind.name == "LRBG"] == live["lrbgs"] != []
+
+
+def test_a_network_bag_names_each_trains_track_live_and_replayed(replayed):
+    """A bag of trains on a network (docs/network.md): the states the live fusions recorded
+    never claim a wrong track NOMINAL, keep the truth inside the interval and inside the true
+    track's hypothesis, and resolve every switch way within its clearance; the replayed
+    fusions reach the same tracks (the same switch ways, the same contradicted report)."""
+    name, runs, reports, line = replayed
+    bag = BAGS / f"{name}.mcap"
+    scenario = scenario_from_bag(bag)
+    networked = [n for n, tr in scenario.trains.items() if tr.network is not None]
+    if not networked:
+        pytest.skip(f"{name}: no train on a network")
+    for train in networked:
+        live = recorded_network(bag, scenario.trains[train], f"/{train}")
+        assert live["claimed"] > 3000 and live["nominal_wrong_track"] == 0, (train, live)
+        assert live["inside"] == 1.0 and live["true_hypothesis_inside"] >= 0.999, (train, live)
+        assert live["switch_ways"] >= 1 and live["switch_ways_resolved"] == live["switch_ways"], (train, live)
+        replayed_ways = [(w["switch"], w["resolved"]) for w in reports[train]["network"]["ways"]]
+        assert replayed_ways == [(w["switch"], w["resolved"]) for w in live["ways"]], train
+    contradicted = {tr: runs[tr].runner.counters()["switches_contradicted"] for tr in networked}
+    reported_wrong = {tr: {k: v for k, v in scenario.trains[tr].interlocking.items()
+                           if v and scenario.trains[tr].route.ways().get(k, v) != v} for tr in networked}
+    assert {tr: sorted(c) for tr, c in contradicted.items()} == {tr: sorted(w) for tr, w in reported_wrong.items()}

@@ -13,6 +13,13 @@ core/offline.py FusionRunner, the same code as the offline runs):
                          rejected measurements, mode, NIS; one status per sensor input (frequency,
                          age of the last message, WARN when silent beyond its timeout)
 Service: localization/set_position (train_localization_msgs/SetPosition).
+On a network (a scenario whose track has sections, docs/network.md): one filter per track
+hypothesis (core/network/hypotheses.py); localization/state names the most probable section,
+and the node also publishes
+  localization/tracks    TrackHypotheses (reliable, transient-local): every hypothesis
+and subscribes
+  interlocking/switches  SwitchPositions (latched): the interlocking's switch positions, a prior
+with the NetworkConfig fields (core/network/config.py) as further read-only parameters.
 
 Parameters:
   managed (bool, false)         true: a lifecycle manager drives configure/activate/deactivate/cleanup;

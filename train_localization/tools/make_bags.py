@@ -44,7 +44,7 @@ BAGS = {
     "line_pair": ("config/scenario_line_pair.yaml", 40.0, 1.0),
     "rig": ("config/scenario_rig.yaml", 46.0, 1.0),
     "etcs_stop": ("config/scenario_etcs_stop.yaml", 115.0, 1.0),
-    "throat": ("config/scenario_throat.yaml", 100.0, 1.0),
+    "throat": ("config/scenario_throat.yaml", 75.0, 1.0),   # both trains past their last switch
 }
 # the fusion's publish rate [Hz] of a bag where the default 200 Hz would take it over 5 MB: the
 # supervised stop's location reports follow every state, the throat's track hypotheses too

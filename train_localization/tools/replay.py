@@ -90,6 +90,11 @@ def line_main(bag: Path, scenario: Scenario, out: Path | None, report_dir: Path 
             line += (f"; position error RMS {pe['rms']:.4f} m, max {pe['max']:.4f} m; "
                      f"{100 * integ['inside_fraction']:.3f} % inside, mean width {integ['mean_interval_width_m']:.3f} m")
         print(line)
+        net = rep.get("network")
+        if net and net.get("claimed"):   # a train on a network: its track (docs/network.md)
+            print(f"    track: {100 * net['on_true_track']:.2f} % on the true track, {net['nominal_wrong_track']} NOMINAL "
+                  f"on a wrong one; selectivity {100 * net['selectivity']:.2f} % of {net['parallel_states']} states on "
+                  f"parallel track; switch ways resolved {net['switch_ways_resolved']}/{net['switch_ways']}")
     a = report["association"]
     print(f"  wayside fixes: {a['offered']} offered, {a['used']} used, {a['ambiguous']} ambiguous, "
           f"{a['unexplained']} unexplained, {a['wrong_train']} used by the wrong train")

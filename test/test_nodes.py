@@ -521,7 +521,7 @@ def test_fusion_takes_nested_per_sensor_parameters_from_a_params_file(ros_contex
 
 
 @pytest.mark.parametrize("exe", ["wheel_sensor", "eurobalise_reader"])
-def test_a_sensor_node_starts_from_its_example_params_file(exe, start_node, tmp_path):
+def test_a_sensor_node_starts_from_its_example_params_file(exe, start_node, tmp_path, ros_context):
     """config/params/<node>.yaml (every parameter at its default, NaN included) is read by
     ROS's own params-file parser, run as its header says and in the demo's namespace (its keys
     apply in any); the node then runs until interrupted. A value changed in a copy is applied
@@ -530,12 +530,20 @@ def test_a_sensor_node_starts_from_its_example_params_file(exe, start_node, tmp_
     text = (ROOT / "config" / "params" / f"{exe}.yaml").read_text()
     header = text.splitlines()[1]
     assert header == f"# ros2 run train_localization {exe} --ros-args --params-file config/params/{exe}.yaml"
+    probe = ros_context.create_node(f"probe_params_{exe}")
     for ns in ([], NS):
         proc = start_node(exe, "--ros-args", *ns, "--params-file", str(ROOT / "config" / "params" / f"{exe}.yaml"),
                           "-p", "mode:=ingest")
-        time.sleep(3.0)
+        # up once it is in the graph (a loaded host takes seconds to import; a fixed sleep
+        # interrupted some mid-import), then running on
+        deadline = time.monotonic() + 60.0
+        while exe not in [n for n, _ in probe.get_node_names_and_namespaces()] and time.monotonic() < deadline \
+                and proc.proc.poll() is None:
+            time.sleep(0.2)
+        time.sleep(1.0)
         assert proc.proc.poll() is None, proc.output()
         assert proc.interrupt() == 0, proc.output()
+    probe.destroy_node()
     bad = tmp_path / f"{exe}.yaml"
     bad.write_text(text.replace("    mode: sim ", "    mode: neither "))
     proc = start_node(exe, "--ros-args", "--params-file", str(bad))

@@ -412,9 +412,11 @@ def test_hard_conditions_are_drawn_last_and_as_stated(draws, monkeypatch):
     for f in ALL_FAMILIES:
         for d in draws[f]:
             tunnel = d["campaign"]["conditions"].get("tunnel_stop")
-            if tunnel:
+            if tunnel:   # on a network: in the chainage of the train's route line
+                equipment = Scenario.from_dict(copy.deepcopy(d)).track.equipment if "route" in d \
+                    else d["track"]["equipment"]
                 refs = [b["position"] for kind in ("eurobalise", "axle_counter_head")
-                        for b in d["track"]["equipment"].get(kind, [])]
+                        for b in equipment.get(kind, [])]
                 assert not any(tunnel["from_m"] <= x <= tunnel["to_m"] for x in refs)
                 t0 = float(d["sensors"]["doppler_radar"]["faults"].split("-")[0])
                 assert tunnel["restart_s"] <= t0 <= tunnel["restart_s"] + 3.0
@@ -439,3 +441,65 @@ def test_adversarial_fixes_are_injected_as_drawn():
     assert [m.reference_id for _, m in out if m.reference_id.startswith("ZZ")] == ["ZZEB3", "ZZEB4"]
     out = inject(fixes, {**attack, "kind": "offset", "offset": 2.0})
     assert len(out) == 10 and [m.position for _, m in out][3:6] == [299.4, 399.4, 500.0]
+
+
+# --------------------------------------------------------------------------- network
+def test_network_runs_are_drawn_through_station_throats(draws):
+    """The family ``network`` (core/network/draw.py): a drawn station throat whose every switch
+    has a clearance from its curve's geometry, a route that takes either way at the facing
+    switches, from rest on its first section, the train staying on it; parallel tracks 4-5 m
+    apart; each facing switch reported wrong or unknown in some of the runs."""
+    from train_localization.core.network.draw import CLEARANCE_LIMITS, s_curve, s_curve_clearance
+    runs = draws["network"]
+    for data in runs[:20]:
+        sc = Scenario.from_dict(copy.deepcopy(data))
+        assert sc.network is not None and sc.start_speed == 0.0
+        assert set(sc.sensors) == {"wheel_sensor", "doppler_radar", "eurobalise_reader", "dgps_receiver"}
+        assert sc.route.steps[0].section == data["route"]["sections"][0]
+        c = data["campaign"]["conditions"]
+        assert c["network"]["switches"] == len(sc.network.switches()) and 2 <= c["network"]["switches"] <= 5
+        assert all(CLEARANCE_LIMITS[0] <= n.clearance <= CLEARANCE_LIMITS[1] for n in sc.network.switches())
+        assert c["facing_switches"] == len(sc.route.ways()) >= 1
+        ids = [b["id"] for sec in sc.network.sections.values() for b in sec.items("eurobalise")]
+        assert len(ids) == len(set(ids))
+    ways = [w for d in runs for w in Scenario.from_dict(copy.deepcopy(d)).route.ways().values()]
+    assert 0.3 < ways.count("B1") / len(ways) < 0.7
+    wrong = sum(len(d["campaign"]["conditions"]["switches_reported_wrong"]) for d in runs)
+    unknown = sum(len(d["campaign"]["conditions"]["switches_reported_unknown"]) for d in runs)
+    assert 0.15 * len(ways) < wrong < 0.35 * len(ways) and 0.05 * len(ways) < unknown < 0.2 * len(ways)
+    for d in runs:
+        for node, way in d["route"].get("reported", {}).items():
+            assert way in ("", "B1", "B2")
+    elements = {e for d in runs for e in d["campaign"]["conditions"]["network"]["elements"]}
+    assert elements == {"crossover", "turnout", "rejoin", "junction"}
+    assert sum(d["campaign"]["conditions"]["network"]["reversed_sections"] > 0 for d in runs) > 100
+    # an S-curve moves a track by 2R(1 - cos theta); its clearance point is 3.5 m from the track it left
+    theta, extent, length = s_curve(4.5, 190.0)
+    assert 2 * 190.0 * (1 - math.cos(theta)) == pytest.approx(4.5) and length == pytest.approx(58.5386, abs=1e-3)
+    assert 20.0 < s_curve_clearance(4.5, 190.0) < length
+
+
+@pytest.fixture(scope="module")
+def network_run():
+    """A short network run that passes a facing switch the interlocking reports the wrong way."""
+    seed = next(s for s in range(200) if generate("network", s)["campaign"]["conditions"]["wrong_switches_reached"])
+    return run_one("network", seed, max_duration=NETWORK_SHORT)
+
+
+NETWORK_SHORT = 60.0
+
+
+def test_a_short_network_run_scores_its_track_selectivity_and_switch_ways(network_run):
+    r = network_run
+    assert "error" not in r, r.get("traceback")
+    net = r["network"]
+    assert net["claimed"] > 0 and net["nominal_wrong_track"] == 0
+    assert net["inside"] == 1.0 and r["scores"]["integrity"]["inside_fraction"] == 1.0
+    assert "etcs" not in r and "stator" not in r
+    s = campaign.summarise([r])
+    n = s["all"]["network"]
+    assert n["runs"] == 1 and n["nominal_wrong_track"] == 0 and n["switch_ways"] == net["switch_ways"]
+    assert n["wrong_reports"] and n["wrong_reports"][0][:2] == ["network", r["seed"]]
+    assert {"network_selectivity", "network_switch_ways", "network_none_nominal_wrong_track"} <= set(s["checks"])
+    text = tool.summary_table(s)
+    assert "network (1 runs" in text and "track selectivity" in text

@@ -24,6 +24,11 @@ Families (ranges: ``docs/campaign.md``):
   highspeed_maglev  Doppler + INPO (sections with gaps) + LRL groups + mm-wave
                     ranging, 200-500 km/h with a slowdown; NLOS, base-station outages
                     and a biased station in some runs, LRL misreads
+and, with --families, the later ones (``MORE_FAMILIES``), among them
+  network           wheel + Doppler + Eurobalise + DGPS on a train routed through a drawn
+                    station throat (core/network/draw.py), up to 100 km/h from rest; switches
+                    the interlocking reports the wrong way or not at all; scored also for
+                    track selectivity and switch ways (core/network/scoring.py)
 """
 from __future__ import annotations
 
@@ -34,7 +39,8 @@ import traceback
 import numpy as np
 
 from .fusion import fusion_config
-from .offline import delayed, fuse_arrivals, scenario_measurements, sensor_pipelines
+from .network.scoring import PublishedState, network_scores, path_series
+from .offline import delayed, fuse_arrivals, fusion_runner, scenario_measurements, sensor_pipelines
 from .report import jsonable
 from .scenario import Leg, Scenario, Trajectory
 from .scoring import StateSeries, passing_times, run_scores
@@ -46,7 +52,7 @@ from .sensors import wheel as _wheel
 
 FAMILIES = ("conventional", "urban_maglev", "highspeed_maglev")
 # families of the later sensor kinds (issue 11), run with --families
-MORE_FAMILIES = ("lzb", "utm", "mlx", "hsst", "mbahn", "etcs")
+MORE_FAMILIES = ("lzb", "utm", "mlx", "hsst", "mbahn", "etcs", "network")
 ALL_FAMILIES = FAMILIES + MORE_FAMILIES
 FUSION_RATE = 200.0   # published states per second (the fusion node's default)
 KMH = 1.0 / 3.6
@@ -544,6 +550,17 @@ def _urban_run(d: _Draw, top_kmh: tuple, vehicle_length: tuple, line_length: tup
     return duration, v0, legs, prof, traj, vehicle, length, start
 
 
+def _dgps(d: _Draw, duration: float) -> dict:
+    """DGPS receiver across its ranges (white noise, multipath), and in one run of five the
+    correction link lost for 5-40 s (autonomous fixes)."""
+    dgps = {"white_sigma": d.u(0.2, 0.8), "multipath_sigma": d.u(0.1, 0.6), "multipath_length": d.u(20.0, 100.0),
+            "multipath_tau": d.u(20.0, 120.0)}
+    if d.chance(0.2):
+        t0 = d.u(0.0, 0.8 * duration)
+        dgps["faults"] = f"{_g(t0, 5)}-{_g(t0 + d.u(5.0, 40.0), 5)}:nocorr"
+    return dgps
+
+
 def _utm(d: _Draw) -> tuple[dict, dict]:
     """A UTM-02 type urban maglev line (seed 002 section 2.1.2): Doppler, DGPS and transponder
     tags; buildings, bridges and tunnels over the line (no fix under them, more multipath near
@@ -568,11 +585,7 @@ def _utm(d: _Draw) -> tuple[dict, dict]:
              "alignment": _alignment(d, length, 300.0, 1500.0),
              "equipment": {"structure": kept, "transponder_tag": tags}}
     v_max = max([abs(v0)] + [abs(leg["speed"]) for leg in legs])
-    dgps = {"white_sigma": d.u(0.2, 0.8), "multipath_sigma": d.u(0.1, 0.6), "multipath_length": d.u(20.0, 100.0),
-            "multipath_tau": d.u(20.0, 120.0)}
-    if d.chance(0.2):
-        t0 = d.u(0.0, 0.8 * duration)
-        dgps["faults"] = f"{_g(t0, 5)}-{_g(t0 + d.u(5.0, 40.0), 5)}:nocorr"
+    dgps = _dgps(d, duration)
     tag = {"telegram_error_rate": d.logu(1e-4, 0.1), "install_sigma": d.u(0.02, 0.1),
            "coupling_sigma": d.u(0.02, 0.1), "max_speed": _g(max(42.0, 1.2 * v_max))}
     sensors = {"doppler_radar": _doppler(d, duration), "dgps_receiver": dgps, "tag_reader": tag}
@@ -692,6 +705,82 @@ def _mbahn(d: _Draw) -> tuple[dict, dict]:
     return scenario, conditions
 
 
+# per facing switch of the route: reported the other way by the interlocking (a detection fault),
+# else reported unknown; often enough that a campaign of tens of runs passes tens of them
+P_SWITCH_WRONG, P_SWITCH_UNKNOWN = 0.25, 0.15
+
+
+def _network(d: _Draw) -> tuple[dict, dict]:
+    """A conventional train through a drawn station throat (core/network/draw.py: crossovers
+    between parallel tracks 4-5 m apart, turnouts to further tracks, passing loops, junctions):
+    wheel, Doppler, Eurobalise and DGPS on board; a route through the network (either way at
+    each facing switch), a start of mission from rest on its first section, runs and stops
+    that stay on it; each facing switch of the route reported the other way by the
+    interlocking with probability P_SWITCH_WRONG (a detection fault), else unknown with
+    probability P_SWITCH_UNKNOWN."""
+    from .network import route_path
+    from .network.draw import draw_network, pick_route
+    duration, v0, legs, prof, traj = _service(
+        d, (60.0, 180.0), (30.0, 100.0), 0.0, (0.3, 1.0), 0.2, accel=(0.3, 1.0), decel=(0.5, 1.2),
+        jerk=(0.3, 1.0), dwell=(5.0, 30.0), hold=(5.0, 30.0), p_stop=0.4, reverse_speed=(1.0, 4.0),
+        speeds=(0.4, 1.0))
+    vehicle = _train(d)
+    reach = float(traj.position.max())
+    # room behind the start for the train and a reversal; every route runs on past the run's
+    # reach by 150 m and a crawl (core/hard_conditions.py) at up to 0.3 m/s for the whole run
+    start = _g(vehicle["length"] + max(0.0, -float(traj.position.min())) + d.u(30.0, 200.0), 8)
+    drawn = draw_network(d, "campaign_network", start, reach + 150.0 + 0.3 * duration, reach)
+    sections = pick_route(d, drawn.routes)
+    path = route_path(drawn.model, sections, drawn.start_direction)
+    reached = {st.node for st in path.steps if st.way and st.start - path.begin < start + reach}
+    wrong, unknown, reported = [], [], {}
+    for node, way in path.ways().items():
+        if d.chance(P_SWITCH_WRONG):
+            reported[node] = "B2" if way == "B1" else "B1"
+            wrong.append(node)
+        elif d.chance(P_SWITCH_UNKNOWN):
+            reported[node] = ""
+            unknown.append(node)
+    v_max = max(abs(leg["speed"]) for leg in legs)
+    wheel = _wheel_sensor(d, v_max, vehicle["wheel_diameter"])
+    sensors = {"wheel_sensor": wheel, "doppler_radar": _doppler(d, duration),
+               "eurobalise_reader": _reader(d, v_max, (0.1, 0.5)), "dgps_receiver": _dgps(d, duration)}
+    route = {"sections": sections, "direction": drawn.start_direction}
+    if reported:
+        route["reported"] = reported
+    scenario = {"duration": duration, "vehicle": vehicle, "initial": {"position": drawn.start_chainage, "speed": v0},
+                "profile": legs, "track": drawn.network, "route": route, "sensors": sensors}
+    on_route = [it for st in path.steps for it in drawn.model.section(st.section).items("eurobalise")]
+    conditions = {"duration": duration, "top_speed_kmh": _g(v_max * 3.6), "start_speed_kmh": _g(v0 * 3.6), **prof,
+                  "network": drawn.shape, "route": sections, "route_length": _g(path.end - path.begin),
+                  "start_m": start, "facing_switches": len(path.ways()), "facing_switches_reached": len(reached),
+                  "switches_reported_wrong": wrong, "switches_reported_unknown": unknown,
+                  "wrong_switches_reached": [n for n in wrong if n in reached],
+                  "balises_on_route": len(on_route), "dgps_faults": sensors["dgps_receiver"].get("faults", ""),
+                  **{k: wheel[k] for k in ("slip_rate", "slip_ratio_max", "slip_duration", "diameter_error")}}
+    return scenario, conditions
+
+
+def _route_hard_conditions(d: _Draw, family: str, body: dict, conditions: dict, coarse: Trajectory) -> dict | None:
+    """hard_conditions.draw for a train on a network: it sees the train's route line (its
+    chainage, its balises) in place of a track; the balises a tunnel stop takes off the route
+    line are taken off their sections."""
+    from .network import Network, route_path, route_track
+    route = body["route"]
+    path = route_path(Network.from_dict(body["track"]), route["sections"], route.get("direction", 1))
+    balises = [{"id": b["id"], "position": b["position"]} for b in route_track(path, "route").items("eurobalise")]
+    line = {"duration": body["duration"], "profile": body["profile"], "sensors": body["sensors"],
+            "initial": {**body["initial"], "position": path.steps[0].distance(body["initial"]["position"]) - path.begin},
+            "track": {"equipment": {"eurobalise": list(balises)}}}
+    attack = hard_conditions.draw(d, family, line, conditions, coarse)
+    gone = {b["id"] for b in balises} - {b["id"] for b in line["track"]["equipment"]["eurobalise"]}
+    for section in body["track"]["sections"] if gone else ():
+        items = section.get("equipment", {}).get("eurobalise")
+        if items:
+            section["equipment"]["eurobalise"] = [b for b in items if b["id"] not in gone]
+    return attack
+
+
 # long-stator families: the guideway is fed section by section (seed 000 section 2)
 STATOR_FAMILIES = ("highspeed_maglev", "mlx")
 STATOR_WIDTH = 5.0    # [m] interval width the drawn sections leave room for
@@ -741,7 +830,8 @@ def _tdoa_ranging(seed: int, body: dict, conditions: dict) -> None:
 
 
 _GENERATORS = {"conventional": _conventional, "urban_maglev": _urban, "highspeed_maglev": _highspeed_maglev,
-               "lzb": _lzb, "utm": _utm, "mlx": _mlx, "hsst": _hsst, "mbahn": _mbahn, "etcs": _etcs}
+               "lzb": _lzb, "utm": _utm, "mlx": _mlx, "hsst": _hsst, "mbahn": _mbahn, "etcs": _etcs,
+               "network": _network}
 
 def generate(family: str, seed: int, max_duration: float | None = None) -> dict:
     """The scenario dict of run (family, seed): ``Scenario.from_dict`` loads it.
@@ -760,8 +850,11 @@ def generate(family: str, seed: int, max_duration: float | None = None) -> dict:
     conditions["outages"] = len(delivery["outages"])
     scenario_seed = d.seed()
     # last, so that the rest of the run is drawn the same with or without them
-    attack = hard_conditions.draw(d, family, body, conditions,
-                                  _coarse(body["profile"], body["initial"]["speed"], body["duration"]))
+    coarse = _coarse(body["profile"], body["initial"]["speed"], body["duration"])
+    if "route" in body:   # a train on a network
+        attack = _route_hard_conditions(d, family, body, conditions, coarse)
+    else:
+        attack = hard_conditions.draw(d, family, body, conditions, coarse)
     if attack:
         delivery["adversarial"] = attack
     reader = body["sensors"].get("eurobalise_reader", {})
@@ -776,7 +869,8 @@ def generate(family: str, seed: int, max_duration: float | None = None) -> dict:
         conditions["stator_section_length"] = body["track"]["equipment"][stator.KIND][0]["end"]
     if max_duration is not None and max_duration < body["duration"]:
         body["duration"] = float(max_duration)
-    body["track"]["track_id"] = f"{body['track']['track_id']}_{seed}"
+    key = "network_id" if "route" in body else "track_id"
+    body["track"][key] = f"{body['track'][key]}_{seed}"
     return {"name": f"campaign_{family}_{seed}", "seed": scenario_seed, "truth_rate": 100.0, **body,
             "fusion": fusion_overrides(family, conditions),
             "campaign": {"family": family, "seed": int(seed), "conditions": conditions, "delivery": delivery}}
@@ -816,12 +910,18 @@ def run_scenario(data: dict, oracle: bool = False) -> dict:
     traj = sc.trajectory()
     arrivals = scenario_measurements(sc, pipes=pipes, trajectory=traj)
     delivered = deliver(arrivals, camp.get("delivery", {}))
-    config = fusion_config(sc)
-    runner, estimates, _, _ = fuse_arrivals(config, delivered, sc.duration, FUSION_RATE)
+    if sc.network is not None:   # the track-selective fusion over the train's track hypotheses
+        runner = fusion_runner(sc, FUSION_RATE)
+        config = runner.filter.cfg
+    else:
+        runner, config = None, fusion_config(sc)
+    runner, estimates, _, _ = fuse_arrivals(config, delivered, sc.duration, FUSION_RATE, runner=runner)
     truth = StateSeries.of_truth(traj.t, traj.position, traj.speed)
     refs = passing_times(traj.t, traj.position, reference_positions(sc)) if family in ("conventional", "lzb") else None
-    scores = run_scores(truth, StateSeries.from_estimates(estimates), 1.0 / FUSION_RATE, refs,
-                        confidence=config.confidence)
+    # on a network the along-track scores take path distances (the route's begin is 0): the
+    # published interval covers every plausible path, which all share the route's origin
+    fused = path_series(estimates) if sc.network is not None else StateSeries.from_estimates(estimates)
+    scores = run_scores(truth, fused, 1.0 / FUSION_RATE, refs, confidence=config.confidence)
     per_sensor: dict[str, dict] = {}
     for _, m in arrivals:
         per_sensor.setdefault(m.sensor, {"measurements": 0, "delivered": 0})["measurements"] += 1
@@ -839,6 +939,14 @@ def run_scenario(data: dict, oracle: bool = False) -> dict:
            "delivery": camp.get("delivery", {}), "sensor_params": data.get("sensors", {}), "scores": scores,
            "fusion": runner.filter.counters(), "fusion_rejected": dict(runner.rejected), "sensors": per_sensor,
            "devices": devices}
+    if sc.network is not None:
+        # track selectivity, switch ways and the network integrity on the true route; no ETCS
+        # location function or stator feeding on a network yet
+        out["network"] = network_scores(sc.route, traj.t, traj.position,
+                                        [PublishedState.of_estimate(e) for e in estimates])
+        # the availability oracle (core/oracle.py) is not run on a network: it fuses with a
+        # single-line FusionConfig (fusion_config), which a network's route line does not have
+        return out
     if "eurobalise_reader" in sc.sensors:
         out["etcs"] = etcs_scores(sc, estimates, delivered, arrivals, traj)
     layout = stator.Layout.from_track(sc.track)
@@ -980,6 +1088,9 @@ def _summary(results: list[dict]) -> dict:
     told = [r["availability"] for r in ok if "availability" in r]
     if told:
         out["availability"] = ratios(told)
+    on_network = [r for r in ok if r.get("network", {}).get("claimed")]
+    if on_network:
+        out["network"] = _network_summary(on_network)
     return out
 
 
@@ -1040,10 +1151,57 @@ def _etcs_summary(runs: list[dict]) -> dict:
             "silent_groups": sum(1 for r in runs if r["conditions"].get("silent_group"))}
 
 
+SELECTIVITY_TARGET, SWITCH_WAY_TARGET = 0.999, 0.995   # network runs (Heirich's measures)
+
+
+def _network_summary(runs: list[dict]) -> dict:
+    """The track-selective fusion over the runs on a network (core/network/scoring.py): track
+    selectivity over all states on parallel track (goal >= 99.9 %), the facing switches whose
+    way every state names from the clearance point on (goal >= 99.5 %), the states NOMINAL on
+    a wrong track (goal 0), the states without a hypothesis on the true route holding the truth,
+    the DEGRADED share, and per run whose interlocking reported a switch it reached the wrong
+    way: whether the fusion found the switch contradicted and named the true way in time."""
+    nets = [r["network"] for r in runs]
+    parallel = sum(n["parallel_states"] for n in nets)
+    correct = sum(round(n["selectivity"] * n["parallel_states"]) for n in nets if n["parallel_states"])
+    ways = sum(n["switch_ways"] for n in nets)
+    resolved = sum(n["switch_ways_resolved"] for n in nets)
+    claimed = sum(n["claimed"] for n in nets)
+    wrong_reports = []
+    for r in runs:
+        found = r["fusion"].get("switches_contradicted", {})
+        by_switch = {w["switch"]: w for w in r["network"]["ways"]}
+        for node in r["conditions"].get("wrong_switches_reached", []):
+            way = by_switch.get(node)
+            wrong_reports.append([r["family"], r["seed"], node, node in found,
+                                  None if way is None else way["resolved"]])
+    return {"runs": len(runs), "claimed": claimed, "parallel_states": parallel, "parallel_correct": correct,
+            "selectivity": correct / parallel if parallel else None,
+            "runs_selectivity_below_target": [[r["family"], r["seed"], r["network"]["selectivity"]] for r in runs
+                                              if r["network"]["parallel_states"]
+                                              and r["network"]["selectivity"] < SELECTIVITY_TARGET],
+            "switch_ways": ways, "switch_ways_resolved": resolved,
+            "switch_way_share": resolved / ways if ways else None,
+            "unresolved_ways": [[r["family"], r["seed"], w["switch"], w["way"], w["wrong_states"]]
+                                for r in runs for w in r["network"]["ways"] if not w["resolved"]],
+            "wrong_track_states": sum(n["wrong_track_states"] for n in nets),
+            "nominal_wrong_track": sum(n["nominal_wrong_track"] for n in nets),
+            "runs_nominal_wrong_track": [[r["family"], r["seed"], r["network"]["nominal_wrong_track"]]
+                                         for r in runs if r["network"]["nominal_wrong_track"]],
+            "true_hypothesis_outside": sum(n["true_hypothesis_outside"] for n in nets),
+            "runs_true_hypothesis_outside": [[r["family"], r["seed"], r["network"]["true_hypothesis_outside"]]
+                                             for r in runs if r["network"]["true_hypothesis_outside"]],
+            "degraded_share": sum(n["degraded_share"] * n["claimed"] for n in nets) / claimed if claimed else None,
+            # [family, seed, switch, found contradicted by the fusion, its way resolved (None: not scored)]
+            "wrong_reports": wrong_reports,
+            "wrong_reports_found": sum(1 for w in wrong_reports if w[3])}
+
+
 def summarise(results: list[dict]) -> dict:
     """Figures over all runs and per family (see ``_summary``) and the pass/fail of the targets:
     inside fraction over all states >= 99.9 %, every run >= 99.5 %, no excursion > 2 s, no error,
-    no state with the truth outside a NOMINAL interval."""
+    no state with the truth outside a NOMINAL interval; on a network (``_network_summary``) track
+    selectivity >= 99.9 %, switch ways resolved >= 99.5 %, no state NOMINAL on a wrong track."""
     families = sorted({r["family"] for r in results}, key=lambda f: ALL_FAMILIES.index(f) if f in ALL_FAMILIES else 99)
     out = {"all": _summary(results), "families": {f: _summary([r for r in results if r["family"] == f])
                                                   for f in families}}
@@ -1059,6 +1217,12 @@ def summarise(results: list[dict]) -> dict:
         out["checks"]["stator_none_switched_off_under_vehicle"] = a["stator"]["switched_off_under_vehicle"] == 0
     if "etcs" in a:
         out["checks"]["etcs_safe_front_ends"] = a["etcs"]["inside_share"] >= INSIDE_TARGET
+    if "network" in a:
+        n = a["network"]
+        out["checks"]["network_selectivity"] = n["selectivity"] is None or n["selectivity"] >= SELECTIVITY_TARGET
+        out["checks"]["network_switch_ways"] = n["switch_way_share"] is None or \
+            n["switch_way_share"] >= SWITCH_WAY_TARGET
+        out["checks"]["network_none_nominal_wrong_track"] = n["nominal_wrong_track"] == 0
     out["passed"] = all(out["checks"].values())
     return jsonable(out)
 

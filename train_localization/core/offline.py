@@ -147,14 +147,17 @@ def delayed(arrivals, delay: float, seed: int = 1):
     return [(t, m) for t, _, m in late]
 
 
-def fuse_arrivals(config: FusionConfig, arrivals, t_end: float, rate: float = 200.0, tick: float = 0.005):
+def fuse_arrivals(config: FusionConfig, arrivals, t_end: float, rate: float = 200.0, tick: float = 0.005,
+                  runner: FusionRunner | None = None):
     """Feed (arrival time, measurement) pairs to a FusionRunner, advancing its output grid every ``tick`` s.
 
     Everything that has arrived by a tick is added before the estimates up to that tick
-    are made, as the fusion node does in real time. Returns (runner, estimates, CPU
-    seconds in add, CPU seconds in advance).
+    are made, as the fusion node does in real time. ``runner``: the FusionRunner to feed (a
+    train on a network: ``fusion_runner``'s, over its track hypotheses); by default a new one
+    of ``config`` at ``rate``. Returns (runner, estimates, CPU seconds in add, CPU seconds in
+    advance).
     """
-    runner = FusionRunner(config, rate)
+    runner = FusionRunner(config, rate) if runner is None else runner
     estimates = []
     t_add = t_adv = 0.0
     j, n = 0, len(arrivals)

@@ -24,7 +24,9 @@ printed at the end. The exit code is 0 (a campaign is a measurement) unless
 any run < 99.5 %, any excursion lasts > 2 s, any run failed, or (the long-stator
 families, core/wayside/stator.py) a stator section switched off under a vehicle, or (runs with
 a Eurobalise reader, core/etcs) the true front is within the ETCS safe front ends in < 99.9 %
-of the location reports.
+of the location reports, or (the family ``network``, core/network) the track selectivity on
+parallel track is < 99.9 %, < 99.5 % of the facing switches' ways are resolved within their
+clearance, or a state is NOMINAL on a wrong track.
 """
 from __future__ import annotations
 
@@ -38,7 +40,8 @@ from pathlib import Path
 
 import yaml
 
-from ..core.campaign import ALL_FAMILIES, EXCURSION_LIMIT, FAMILIES, INSIDE_TARGET, RUN_TARGET, generate, jobs, run_one, summarise
+from ..core.campaign import (ALL_FAMILIES, EXCURSION_LIMIT, FAMILIES, INSIDE_TARGET, RUN_TARGET, SELECTIVITY_TARGET,
+                             SWITCH_WAY_TARGET, generate, jobs, run_one, summarise)
 
 
 def _family_seed(text: str) -> tuple[str, int]:
@@ -68,10 +71,14 @@ def one_line(i: int, n: int, r: dict) -> str:
     s = r["scores"]
     inside = s["integrity"]["inside_fraction"]
     err = s["position_error_m"]["max"]
+    net = r.get("network")
+    network = (f", selectivity {_pct(net.get('selectivity'))}, ways {net.get('switch_ways_resolved', 0)}/"
+               f"{net.get('switch_ways', 0)}, NOMINAL on a wrong track {net.get('nominal_wrong_track', 0)}"
+               if net else "")
     return (f"{head} inside {'-' if inside is None else f'{100 * inside:.3f} %'} of "
             f"{s['states_with_position']} states, longest excursion {s['excursions']['longest_s']:.3f} s, "
             f"max |error| {'-' if err is None else f'{err:.3f} m'}, mean width "
-            f"{s['integrity']['mean_interval_width_m'] or 0.0:.3f} m (cpu {r['cpu_s']:.1f} s)")
+            f"{s['integrity']['mean_interval_width_m'] or 0.0:.3f} m{network} (cpu {r['cpu_s']:.1f} s)")
 
 
 def execute(todo: list[tuple[str, int]], workers: int | None = None, scheduler: str | None = None,
@@ -273,6 +280,19 @@ def summary_table(summary: dict) -> str:
                          f"{ev.get('missed_linked_group', 0)} ({e['missed_but_read']} read), outside window "
                          f"{ev.get('outside_window', 0)}, wrong direction {ev.get('wrong_direction', 0)}, odometer "
                          f"impaired {ev.get('odometer_impaired', 0)}")
+    for name, s in rows:
+        n = s.get("network")
+        if n:
+            lines.append(f"{name}: network ({n['runs']} runs, {n['claimed']} states): track selectivity "
+                         f"{_pct(n['selectivity'])} of {n['parallel_states']} states on parallel track (goal "
+                         f">= {100 * SELECTIVITY_TARGET:.1f} %); switch ways resolved within the clearance "
+                         f"{n['switch_ways_resolved']}/{n['switch_ways']} ({_pct(n['switch_way_share'])}, goal >= "
+                         f"{100 * SWITCH_WAY_TARGET:.1f} %); NOMINAL on a wrong track {n['nominal_wrong_track']} "
+                         f"(goal 0), on a wrong track {n['wrong_track_states']}; no hypothesis on the true route "
+                         f"holding the truth {n['true_hypothesis_outside']}; DEGRADED {_pct(n['degraded_share'])}; "
+                         f"switches reported the wrong way {len(n['wrong_reports'])}, found "
+                         f"{n['wrong_reports_found']}, their way resolved "
+                         f"{sum(1 for w in n['wrong_reports'] if w[4])}")
     lines.append(f"targets: all states >= {100 * INSIDE_TARGET:.1f} % inside: {checks['inside_fraction']}; "
                  f"every run >= {100 * RUN_TARGET:.1f} %: {checks['every_run_above_99_5']}; "
                  f"no excursion > {EXCURSION_LIMIT:.0f} s: {checks['excursions_within_2_s']}; "
@@ -282,7 +302,11 @@ def summary_table(summary: dict) -> str:
                     f"{checks['stator_none_switched_off_under_vehicle']}"
                     if "stator_none_switched_off_under_vehicle" in checks else "")
                  + (f"; ETCS safe front ends >= {100 * INSIDE_TARGET:.1f} %: {checks['etcs_safe_front_ends']}"
-                    if "etcs_safe_front_ends" in checks else "") + " -> "
+                    if "etcs_safe_front_ends" in checks else "")
+                 + (f"; network: selectivity >= {100 * SELECTIVITY_TARGET:.1f} %: {checks['network_selectivity']}, "
+                    f"switch ways >= {100 * SWITCH_WAY_TARGET:.1f} %: {checks['network_switch_ways']}, none NOMINAL "
+                    f"on a wrong track: {checks['network_none_nominal_wrong_track']}"
+                    if "network_selectivity" in checks else "") + " -> "
                  f"{'PASSED' if summary['passed'] else 'FAILED'}")
     return "\n".join(lines)
 

@@ -296,3 +296,27 @@ def test_a_fix_on_a_section_no_hypothesis_contains_is_refused_and_counted(north_
     assert not runner.add(fix) and runner.rejected["off_network_path"] == 1
     assert not runner.add(replace(fix, track_id="T99")) and runner.rejected["wrong_track"] == 1
     assert math.isfinite(runner.advance(1.0)[-1][0].position)
+
+
+def test_a_train_running_against_the_sections_chainage_takes_their_balises():
+    """A route run backwards along every section (T6 -> T5 -> T4: track B against its chainage,
+    trailing through W3 and facing W2): the balise fixes restated on their sections lie on the
+    other side of the balise (front = balise - antenna offset), within their reference windows."""
+    data = {"name": "backwards", "duration": 105.0, "seed": 4, "track": throat_data(),
+            "route": {"sections": ["T6", "T5", "T4"], "direction": -1}, "initial": {"position": 900.0},
+            "vehicle": {"length": 120.0}, "profile": [{"speed": 20.0, "accel": 0.8, "hold": 100.0}],
+            "sensors": {"wheel_sensor": {}, "doppler_radar": {}, "eurobalise_reader": {}, "dgps_receiver": {}}}
+    sc = Scenario.from_dict(data)
+    assert sc.route.ways() == {"W2": "B1"} and [st.direction for st in sc.route.steps] == [-1, -1, -1]
+    run = simulate_scenario(sc, fusion_rate=50.0)
+    balises = [m for m in run.measurements if m.sensor == "eurobalise"]
+    assert {m.track_id for m in balises} == {"T6", "T5", "T4"}
+    net = sc.network
+    for m in balises:   # the front 2 m (the antenna offset) beyond the balise the way the train runs
+        assert m.position == pytest.approx(net.item_location("eurobalise", m.reference_id)[1]["position"] - 2.0,
+                                           abs=0.5)
+    assert run.runner.rejected.get("reference_mismatch", 0) == 0, run.runner.rejected
+    assert run.runner.counters()["accepted"]["eurobalise"] == len(balises)
+    scores = _scores(sc, run)
+    assert scores["nominal_wrong_track"] == 0 and scores["inside"] == 1.0
+    assert scores["switch_ways_resolved"] == scores["switch_ways"] == 1

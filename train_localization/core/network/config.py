@@ -6,6 +6,8 @@ import dataclasses
 from dataclasses import dataclass
 
 from ..fusion.config import FusionConfig, _doc, fusion_config, sensor_models
+from ..sensors.base import ReferenceWindow
+from ..track import Track, extent
 
 
 @dataclass(frozen=True)
@@ -16,7 +18,7 @@ class NetworkConfig:
                                   "on a known track)")
     start_direction: int = _doc(1, "direction of travel along start_section's chainage: +1 increasing, -1 "
                                    "decreasing", limits=(-1, 1))
-    wrong_switch_probability: float = _doc(1.0e-3, "prior probability that a switch lies otherwise than the "
+    wrong_switch_probability: float = _doc(1.0e-2, "prior probability that a switch lies otherwise than the "
                                                     "interlocking reports it (a detection fault): the reported way "
                                                     "gets 1 minus it at a facing switch", limits=(1.0e-9, 0.5))
     misread_probability: float = _doc(1.0e-3, "probability that a reference fix (balise, tag) names equipment "
@@ -48,6 +50,23 @@ class NetworkConfig:
             raise ValueError(f"start_direction must be +1 or -1, not {self.start_direction}")
 
 
+def mirror(section: Track) -> Track:
+    """The section described the other way round (chainage c -> length - c), its equipment
+    with it: what a train running against its chainage sees in its direction of travel."""
+    equipment = {}
+    for kind, items in section.equipment.items():
+        moved = []
+        for item in items:
+            start, end = extent(kind, item, default_end=item["position"])
+            copy = {k: v for k, v in item.items() if k not in ("start", "end", "length")}
+            copy["position"] = section.length - end
+            if end != start:
+                copy["end"] = section.length - start
+            moved.append(copy)
+        equipment[kind] = sorted(moved, key=lambda it: it["position"])
+    return Track(track_id=section.track_id, length=section.length, equipment=equipment)
+
+
 def network_fusion_config(scenario, **overrides) -> tuple[FusionConfig, NetworkConfig]:
     """(FusionConfig, NetworkConfig) of one train of a network scenario (core/scenario.py).
 
@@ -72,11 +91,19 @@ def network_fusion_config(scenario, **overrides) -> tuple[FusionConfig, NetworkC
     models = sensor_models(sensors, scenario.track, scenario.vehicle)
     tables: dict[str, object] = {}    # sensor -> ReferenceTable of every section's references
     for section in scenario.network.sections.values():
+        # a train may run along a section either way: the windows of both directions (the
+        # sensors place their fixes along increasing chainage; the mirrored section's windows
+        # are those of a train running against it)
+        mirrored = sensor_models(sensors, mirror(section), scenario.vehicle)
         for name, model in sensor_models(sensors, section, scenario.vehicle).items():
             if model.references is None:
                 continue
             known = tables.get(name)
-            windows = {**(known.windows if known else {}), **model.references.windows}
+            windows = dict(known.windows) if known else {}
+            back = mirrored[name].references.windows
+            for ref, w in model.references.windows.items():
+                b = back.get(ref, w)
+                windows[ref] = ReferenceWindow(min(w.lo, section.length - b.hi), max(w.hi, section.length - b.lo))
             tables[name] = dataclasses.replace(model.references, windows=windows)
     models = {name: dataclasses.replace(m, references=tables.get(name)) if m.references is not None else m
               for name, m in models.items()}

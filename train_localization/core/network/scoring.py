@@ -88,12 +88,14 @@ def _on_route(route: TrackPath, track_id: str, position: float, s_true: float) -
 
 def parallel_mask(route: TrackPath, s: np.ndarray, distance: float = PARALLEL_DISTANCE) -> np.ndarray:
     """Whether the true front at route distances ``s`` is on parallel track: another section
-    (not on the route within 200 m) passes within ``distance``, and the front is past the
-    clearance point of the last facing switch it passed."""
+    (not on the route within 200 m) passes within ``distance``, and the front is neither
+    past a facing switch's point short of its clearance point nor within VICINITY before it."""
     network = route.network
     grid = np.arange(math.floor(s.min()) if s.size else 0.0, (math.ceil(s.max()) if s.size else 0.0) + 1.0, 1.0)
     flags = np.zeros(grid.size, dtype=bool)
-    switch_zones = [(st.start, st.start + network.nodes[st.node].clearance) for st in route.steps if st.way]
+    # from VICINITY before a facing switch's point (an estimate a few metres ahead of the truth
+    # is already past it, on one of its ways) to its clearance point
+    switch_zones = [(st.start - VICINITY, st.start + network.nodes[st.node].clearance) for st in route.steps if st.way]
     for i, g in enumerate(grid):
         if any(a <= g < b for a, b in switch_zones):
             continue

@@ -320,3 +320,37 @@ def test_a_train_running_against_the_sections_chainage_takes_their_balises():
     scores = _scores(sc, run)
     assert scores["nominal_wrong_track"] == 0 and scores["inside"] == 1.0
     assert scores["switch_ways_resolved"] == scores["switch_ways"] == 1
+
+
+def _tunnel_over_w3(with_gyro: bool) -> dict:
+    """The south train of the throat under a tunnel over W3 (no DGPS from 200 m before it to
+    200 m after it) with W3 reported wrongly, and no balise on T7 before the tunnel's end."""
+    with open(resolve("config/scenario_throat.yaml"), encoding="utf-8") as fh:
+        data = yaml.safe_load(fh)
+    data["track"] = throat_data()
+    sections = {s["id"]: s for s in data["track"]["sections"]}
+    for sid, span in (("T5", (141.0, 341.69)), ("T6", (0.0, 200.0)), ("T7", (0.0, 200.0))):
+        sections[sid].setdefault("equipment", {})["structure"] = [{"id": f"TN_{sid}", "type": "tunnel",
+                                                                    "start": span[0], "end": span[1]}]
+    sections["T7"]["equipment"]["eurobalise"] = [{"id": "BG7a", "position": 400.0}, {"id": "BG7b", "position": 403.0}]
+    south = next(t for t in data["trains"] if t["name"] == "south")
+    if with_gyro:
+        south["sensors"]["gyro"] = {}
+    south["route"]["reported"] = {"W3": "B1"}
+    return {**data, "trains": [south], "duration": 75.0}
+
+
+@pytest.mark.parametrize("with_gyro", [False, True])
+def test_a_gyro_names_the_way_where_neither_balise_nor_dgps_sees_it(with_gyro):
+    """In a tunnel over W3 (reported B1, lying B2) no balise and no DGPS fix tells the ways
+    apart: without a gyro both stay plausible (DEGRADED) and the wrong report ranks first past
+    the clearance point; with one the turnout's curve (18 m/s on R 190 m: 0.095 rad/s) names
+    the true way before it. Neither is ever NOMINAL on the wrong track."""
+    sc = Scenario.from_dict(_tunnel_over_w3(with_gyro))
+    res = simulate_line(sc, fusion_rate=50.0)
+    south = res.trains["south"]
+    scores = _scores(sc.trains["south"], south)
+    assert scores["nominal_wrong_track"] == 0 and scores["true_hypothesis_inside"] == 1.0
+    assert scores["switch_ways_resolved"] == (1 if with_gyro else 0), scores["ways"]
+    if with_gyro:
+        assert south.runner.counters()["accepted"].get("gyro", 0) == 0   # not an along-track measurement

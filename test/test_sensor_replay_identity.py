@@ -91,7 +91,16 @@ RIG = {
     "profile": [{"speed": 20.0, "accel": 2.0, "hold": 30.0}],
     "sensors": {"rig_loop_receiver": {}},
 }
-SCENARIOS = [CONVENTIONAL, MAGLEV, LZB, TRACK_CIRCUIT, UTM, MLX, HSST, MBAHN, RIG]
+NETWORK = {   # a train on a network: fixes restated on sections, the DGPS on the whole network, a gyro
+    "name": "identity_network", "seed": 8, "duration": 30.0,
+    "track": yaml.safe_load((ROOT / "config" / "track_throat.yaml").read_text()),
+    "route": {"sections": ["T4", "T5", "T7"], "reported": {"W3": "B1"}},
+    "vehicle": {"length": 120.0, "axles": [2.5, 5.0, 117.5, 120.0]},
+    "initial": {"position": 650.0, "speed": 18.0},   # W2 and the balises of T5, then W3, ahead
+    "profile": [{"speed": 18.0, "hold": 30.0}],
+    "sensors": {"gyro": {}, "dgps_receiver": {}, "eurobalise_reader": {}, "doppler_radar": {}},
+}
+SCENARIOS = [CONVENTIONAL, MAGLEV, LZB, TRACK_CIRCUIT, UTM, MLX, HSST, MBAHN, RIG, NETWORK]
 
 
 def test_the_scenarios_cover_every_sensor():

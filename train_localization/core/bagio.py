@@ -75,7 +75,7 @@ def typestore_classes() -> MsgClasses:
                       DistanceIncrement=make(p + "DistanceIncrement"), SectionState=make(p + "SectionState"),
                       SectionOccupancy=make(p + "SectionOccupancy"), TrackHypothesis=make(p + "TrackHypothesis"),
                       TrackHypotheses=make(p + "TrackHypotheses"), SwitchPositions=make(p + "SwitchPositions"),
-                      array=array)
+                      YawRate=make(p + "YawRate"), array=array)
 
 
 def ros2_typename(name: str) -> str:

@@ -708,6 +708,7 @@ def _mbahn(d: _Draw) -> tuple[dict, dict]:
 # per facing switch of the route: reported the other way by the interlocking (a detection fault),
 # else reported unknown; often enough that a campaign of tens of runs passes tens of them
 P_SWITCH_WRONG, P_SWITCH_UNKNOWN = 0.25, 0.15
+P_GYRO = 0.75   # share of the network runs whose train has a yaw-rate gyro (the others: without, as before)
 
 
 def _network(d: _Draw) -> tuple[dict, dict]:
@@ -745,6 +746,9 @@ def _network(d: _Draw) -> tuple[dict, dict]:
     wheel = _wheel_sensor(d, v_max, vehicle["wheel_diameter"])
     sensors = {"wheel_sensor": wheel, "doppler_radar": _doppler(d, duration),
                "eurobalise_reader": _reader(d, v_max, (0.1, 0.5)), "dgps_receiver": _dgps(d, duration)}
+    if d.chance(P_GYRO):   # a yaw-rate gyro: MEMS grades from navigation to consumer
+        sensors["gyro"] = {"noise_density": d.logu(5.0e-5, 1.0e-3), "bias_sigma": d.logu(1.0e-4, 3.0e-3),
+                           "scale_sigma": d.u(0.002, 0.02)}
     route = {"sections": sections, "direction": drawn.start_direction}
     if reported:
         route["reported"] = reported
@@ -757,6 +761,7 @@ def _network(d: _Draw) -> tuple[dict, dict]:
                   "switches_reported_wrong": wrong, "switches_reported_unknown": unknown,
                   "wrong_switches_reached": [n for n in wrong if n in reached],
                   "balises_on_route": len(on_route), "dgps_faults": sensors["dgps_receiver"].get("faults", ""),
+                  "gyro": "gyro" in sensors,
                   **{k: wheel[k] for k in ("slip_rate", "slip_ratio_max", "slip_duration", "diameter_error")}}
     return scenario, conditions
 

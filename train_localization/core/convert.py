@@ -18,7 +18,7 @@ from typing import Any, Callable
 import numpy as np
 
 from .measurements import (DistanceIncrement, PositionFix, SectionOccupancy, SectionState,
-                           SpeedMeasurement)
+                           SpeedMeasurement, YawRate)
 from .etcs.records import EventKind, LocationEvent, LocationReport, QDirLrbg, Reaction
 from .scenario import TruthState
 from .signals import InputRejected, RawBlock, require_short
@@ -55,6 +55,7 @@ class MsgClasses:
     TrackHypothesis: Callable
     TrackHypotheses: Callable
     SwitchPositions: Callable
+    YawRate: Callable
     array: Callable[[np.ndarray, str], Any]
 
     def header(self, t: float, frame_id: str = ""):
@@ -96,6 +97,9 @@ def measurement_to_msg(m, mc: MsgClasses):
         return mc.DistanceIncrement(header=h, sensor=m.sensor, unit_id=m.unit_id, duration=m.duration,
                                     distance=m.distance, distance_stddev=m.distance_stddev,
                                     speed=m.speed, speed_stddev=m.speed_stddev)
+    if isinstance(m, YawRate):
+        return mc.YawRate(header=h, sensor=m.sensor, unit_id=m.unit_id, yaw_rate=m.yaw_rate,
+                          yaw_rate_stddev=m.yaw_rate_stddev)
     if isinstance(m, SectionOccupancy):
         return mc.SectionOccupancy(header=h, source=m.source, sections=[
             mc.SectionState(section_id=s.section_id, start=s.start, end=s.end, state=s.state,
@@ -129,6 +133,13 @@ def distance_from_msg(msg) -> DistanceIncrement:
     return m
 
 
+def yaw_rate_from_msg(msg) -> YawRate:
+    m = YawRate(stamp_to_sec(msg.header.stamp), msg.sensor, msg.unit_id, float(msg.yaw_rate),
+                float(msg.yaw_rate_stddev))
+    m.validate()
+    return m
+
+
 def occupancy_from_msg(msg) -> SectionOccupancy:
     m = SectionOccupancy(stamp_to_sec(msg.header.stamp), msg.source, tuple(
         SectionState(s.section_id, float(s.start), float(s.end), int(s.state), int(s.axle_count),
@@ -142,8 +153,9 @@ MEASUREMENT_TOPICS = {
     "position": ("PositionFix", position_fix_from_msg),
     "speed": ("SpeedMeasurement", speed_from_msg),
     "distance": ("DistanceIncrement", distance_from_msg),
+    "yaw_rate": ("YawRate", yaw_rate_from_msg),
 }
-SUFFIX_OF = {PositionFix: "position", SpeedMeasurement: "speed", DistanceIncrement: "distance"}
+SUFFIX_OF = {PositionFix: "position", SpeedMeasurement: "speed", DistanceIncrement: "distance", YawRate: "yaw_rate"}
 SECTIONS_TOPIC = "wayside/sections"
 
 

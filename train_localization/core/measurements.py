@@ -74,6 +74,29 @@ class PositionFix:
             _require_range("PositionFix", "lateral_stddev", self.lateral_stddev, *STDDEV_RANGE)
 
 
+MAX_YAW_RATE = 2.0            # [rad/s]: no rail or guideway vehicle turns faster (R = 10 m at 20 m/s)
+
+
+@dataclass(frozen=True)
+class YawRate:
+    """Turn rate of the vehicle body [rad/s] (+ left) with 1-sigma [rad/s], valid at ``stamp``."""
+
+    stamp: float
+    sensor: str
+    unit_id: str
+    yaw_rate: float
+    yaw_rate_stddev: float
+
+    def validate(self) -> None:
+        require_short("YawRate", sensor=self.sensor, unit_id=self.unit_id)
+        _require_finite("YawRate", stamp=self.stamp, yaw_rate=self.yaw_rate, yaw_rate_stddev=self.yaw_rate_stddev)
+        if self.yaw_rate_stddev <= 0.0:
+            raise InputRejected("stddev", f"YawRate stddev {self.yaw_rate_stddev} must be > 0")
+        _require_range("YawRate", "stamp", self.stamp, -MAX_STAMP, MAX_STAMP)
+        _require_range("YawRate", "yaw_rate", self.yaw_rate, -MAX_YAW_RATE, MAX_YAW_RATE)
+        _require_range("YawRate", "yaw_rate_stddev", self.yaw_rate_stddev, *STDDEV_RANGE)
+
+
 @dataclass(frozen=True)
 class SpeedMeasurement:
     """Signed speed [m/s] with 1-sigma [m/s], valid at ``stamp``."""
@@ -158,4 +181,4 @@ class SectionOccupancy:
         _require_range("SectionOccupancy", "stamp", self.stamp, -MAX_STAMP, MAX_STAMP)
 
 
-Measurement = PositionFix | SpeedMeasurement | DistanceIncrement | SectionOccupancy
+Measurement = PositionFix | SpeedMeasurement | DistanceIncrement | SectionOccupancy | YawRate

@@ -312,7 +312,7 @@ def _network(track_data: dict):
 
 # on-board sensors that work on a network (the equipment they need is of
 # core/network/path.py ROUTE_KINDS; a 2-D fix is projected onto the whole network)
-NETWORK_SENSORS = ("wheel_sensor", "doppler_radar", "eurobalise_reader", "tag_reader", "dgps_receiver")
+NETWORK_SENSORS = ("wheel_sensor", "doppler_radar", "eurobalise_reader", "tag_reader", "dgps_receiver", "gyro")
 _ROUTE_KEYS = {"sections", "direction", "reported"}
 
 

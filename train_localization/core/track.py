@@ -177,6 +177,19 @@ class Track:
                 float(np.interp(chainage, self._s, self._y)),
                 float(np.interp(chainage, self._s, self._h)))
 
+    def curvature(self, chainage):
+        """Curvature [1/m] (+ to the left of increasing chainage) of the alignment at chainages
+        (number or array): its segment's, 0 beyond the segments and off the track's ends."""
+        table = getattr(self, "_curvature_table", None)
+        if table is None:
+            ends = np.cumsum([seg[0] for seg in self.segments]) if self.segments else np.zeros(0)
+            table = self._curvature_table = (ends, np.array([seg[1] for seg in self.segments] + [0.0]))
+        ends, kappa = table
+        c = np.asarray(self.wrap(np.asarray(chainage, dtype=float)))
+        out = kappa[np.searchsorted(ends, c, side="right")]
+        out = np.where((c < 0.0) | (c > self.length), 0.0, out)
+        return out if out.ndim else float(out)
+
     def xy(self, chainage) -> tuple[np.ndarray, np.ndarray]:
         """Map coordinates (x [m], y [m]) of chainages (array), on the polyline ``pose`` uses."""
         s = self.wrap(np.asarray(chainage, dtype=float))

@@ -61,7 +61,8 @@ def rclpy_classes() -> MsgClasses:
                       PositionFix=m.PositionFix, SpeedMeasurement=m.SpeedMeasurement,
                       DistanceIncrement=m.DistanceIncrement, SectionState=m.SectionState,
                       SectionOccupancy=m.SectionOccupancy, TrackHypothesis=m.TrackHypothesis,
-                      TrackHypotheses=m.TrackHypotheses, SwitchPositions=m.SwitchPositions, array=array)
+                      TrackHypotheses=m.TrackHypotheses, SwitchPositions=m.SwitchPositions, YawRate=m.YawRate,
+                      array=array)
 
 
 MAX_ERROR_LENGTH = 256   # characters of the last refusal a node republishes on /diagnostics

@@ -28,12 +28,13 @@ from __future__ import annotations
 
 import math
 
-from ..measurements import MAX_CHAINAGE, MAX_SPEED, STDDEV_RANGE, DistanceIncrement, PositionFix, SpeedMeasurement
+from ..measurements import (MAX_CHAINAGE, MAX_SPEED, STDDEV_RANGE, DistanceIncrement, PositionFix, SpeedMeasurement,
+                            YawRate)
 from ..signals import InputRejected
 from .config import FusionConfig
 
 # the measurement type of each kind of sensor (ErrorModel.measures)
-KIND_OF = {"position": PositionFix, "speed": SpeedMeasurement, "distance": DistanceIncrement}
+KIND_OF = {"position": PositionFix, "speed": SpeedMeasurement, "distance": DistanceIncrement, "yaw_rate": YawRate}
 
 # a fix this far beyond the track's ends [m] (plus 5 of its sigma) cannot be of a train on it
 OFF_TRACK_MARGIN = 100.0

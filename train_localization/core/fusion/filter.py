@@ -35,7 +35,7 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from scipy.stats import chi2, norm
 
-from ..measurements import MAX_SPEED, PositionFix
+from ..measurements import MAX_SPEED, PositionFix, YawRate
 from ..sensors import faults as fault_modes
 from ..signals import InputRejected
 from .bookkeeping import Bookkeeping, MovedView, NisSum, incremented, is_coasting, speed_excluded, without_key
@@ -360,8 +360,14 @@ class TrainFilter:
 
         The measurement has passed admission (admission.py, run by FusionRunner.add); the
         history raises InputRejected for one already seen (``duplicate``) or one older than
-        the history or the last reset (``too_late``).
+        the history or the last reset (``too_late``). A turn rate (YawRate) tells which track,
+        not where along it: refused ``not_used`` (the track selection on a network takes it,
+        core/network/hypotheses.py).
         """
+        if isinstance(m, YawRate):
+            self.rejected["not_used"] = self.rejected.get("not_used", 0) + 1
+            raise InputRejected("not_used", f"{m.sensor}: a turn rate serves the track selection on a network; "
+                                            "along one track it is not used")
         try:
             self.hist.insert(m)
         except InputRejected as exc:

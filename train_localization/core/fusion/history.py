@@ -9,7 +9,7 @@ from __future__ import annotations
 import bisect
 import math
 
-from ..measurements import PositionFix, SpeedMeasurement
+from ..measurements import PositionFix, SpeedMeasurement, YawRate
 from ..signals import InputRejected
 
 
@@ -19,6 +19,8 @@ def order_key(m) -> tuple:
         body = (0, m.position, m.position_stddev)
     elif isinstance(m, SpeedMeasurement):
         body = (1, m.speed, m.speed_stddev)
+    elif isinstance(m, YawRate):
+        body = (3, m.yaw_rate, m.yaw_rate_stddev)
     else:
         body = (2, m.distance, m.duration)
     return (m.stamp, m.sensor, m.unit_id) + body

@@ -16,8 +16,10 @@ loss). Evidence, and what it is allowed to do:
 
   ranking (probability)  the interlocking's reported way (prior 1 - wrong_switch_probability),
                          the lateral offset of every 2-D fix from each path (a Gaussian of
-                         the fix's lateral 1-sigma with an outlier share), a reference fix
-                         that a path does not contain (misread_probability);
+                         the fix's lateral 1-sigma with an outlier share), a gyro's turn rate
+                         against each path's curvature times the speed (a turnout's curve
+                         against the straight way, in a tunnel too), a reference fix that a
+                         path does not contain (misread_probability);
   inconsistency          a fix that no hypothesis's path explains (a balise on a section none
                          contains, a 2-D fix off every path) holds the state DEGRADED for
                          exclusion_window: the set may have lost the train's track.
@@ -41,7 +43,7 @@ from dataclasses import dataclass, field, replace
 from ..fusion.config import FusionConfig
 from ..fusion.filter import Estimate, TrainFilter
 from ..fusion.mode import Mode
-from ..measurements import PositionFix
+from ..measurements import MAX_YAW_RATE, PositionFix, YawRate
 from ..signals import InputRejected
 from .config import NetworkConfig
 from .model import Network
@@ -139,6 +141,9 @@ class HypothesisSet:
         self.switches.update(positions)
 
     def add(self, m) -> None:
+        if isinstance(m, YawRate):
+            self._yaw_rate(m)
+            return
         if isinstance(m, PositionFix):
             if m.track_id not in self.network.sections:
                 raise InputRejected("wrong_track", f"fix on {m.track_id[:64]!r}, which is no section of network "
@@ -221,7 +226,7 @@ class HypothesisSet:
         sec = self.network.section(m.track_id)
         x0, y0, heading = sec.pose(m.position)
         px, py = x0 - math.sin(heading) * m.lateral, y0 + math.cos(heading) * m.lateral
-        offset = self.models[m.sensor].map_fix_offset
+        offset = self.models[m.sensor].sensor_offset
         sigma = m.lateral_stddev
         gate = self.net.map_lateral_gate * sigma
         eps = self.net.map_outlier_probability
@@ -249,6 +254,28 @@ class HypothesisSet:
                 h.off_path[m.unit_id] += 1
                 if h.off_path[m.unit_id] >= self.net.map_exclusion_fixes:
                     self._exclude(h, "map")
+
+    def _yaw_rate(self, m: YawRate) -> None:
+        """A turn rate: each hypothesis predicts v x kappa of its path where it puts the gyro
+        (kappa over the reach of its position's uncertainty); the residual ranks the paths. It
+        excludes none: a gyro's bias could mimic a gentle curve."""
+        model = self.models[m.sensor]
+        eps = self.net.map_outlier_probability
+        for h in self.hyps:
+            e = h.filter.estimate(m.stamp)   # where the hypothesis had the train then (it may be late)
+            if not (math.isfinite(e.position) and math.isfinite(e.speed)):
+                continue
+            s = e.position - model.sensor_offset
+            reach = 2.0 * e.position_stddev + abs(e.speed) * 0.1 + 1.0
+            k_lo, k_hi = h.path.curvature_range(s - reach, s + reach)
+            lo, hi = sorted((e.speed * k_lo, e.speed * k_hi))
+            residual = lo - m.yaw_rate if m.yaw_rate < lo else (m.yaw_rate - hi if m.yaw_rate > hi else 0.0)
+            kappa = max(abs(k_lo), abs(k_hi))
+            sigma = math.sqrt(m.yaw_rate_stddev ** 2 + (kappa * e.speed_stddev) ** 2
+                              + (model.reported_scale * max(abs(lo), abs(hi))) ** 2)
+            z = residual / sigma
+            h.log_weight += math.log((1.0 - eps) * math.exp(-0.5 * z * z) / (math.sqrt(2.0 * math.pi) * sigma)
+                                     + eps / (2.0 * MAX_YAW_RATE))
 
     def _exclude(self, h: Hypothesis, reason: str) -> None:
         if len(self.hyps) <= 1 or h not in self.hyps:

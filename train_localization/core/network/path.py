@@ -127,6 +127,15 @@ class TrackPath:
         """node -> way of the facing switches entered between path distances lo and hi."""
         return {st.node: st.way for st in self.steps if st.way is not None and lo <= st.start <= hi}
 
+    def curvature_range(self, lo: float, hi: float, step: float = 0.5) -> tuple[float, float]:
+        """(least, greatest) curvature [1/m] of the path between path distances lo and hi, in
+        its direction of travel (+ turning left; a section run backwards turns the other way)."""
+        values = []
+        for s in np.linspace(lo, hi, max(2, int(math.ceil((hi - lo) / step)) + 1)):
+            st = self.step_at(float(s))
+            values.append(st.direction * self.network.section(st.section).curvature(st.chainage(float(s))))
+        return min(values), max(values)
+
     def xy(self, s: float) -> tuple[float, float]:
         section, chainage = self.locate(s)
         x, y, _ = self.network.section(section).pose(chainage)

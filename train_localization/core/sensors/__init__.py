@@ -25,6 +25,7 @@ _MODULES = {
     "checkin_loop": "checkin",
     "pole_position": "pole_position",
     "rig_loop_receiver": "rig_loop",
+    "gyro": "gyro",
 }
 
 NODE_NAMES = tuple(_MODULES)

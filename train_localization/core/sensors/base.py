@@ -136,7 +136,7 @@ def sensor_params(spec: "SensorSpec", overrides: dict | None, vehicle: Vehicle) 
     return resolve_params(spec.params, params)
 
 
-MEASURES = ("speed", "distance", "position", "occupancy")
+MEASURES = ("speed", "distance", "position", "occupancy", "yaw_rate")
 
 # [m] least 1-sigma of a fix of a sensor that reads equipment from the track file: the millimetre
 # of the file's chainages (a guard for sensors whose error parameters may all be 0)
@@ -263,8 +263,9 @@ class ErrorModel:
                                          # from its resolved parameters: [m] of a fix, [m/s] of a speed and
                                          # of an increment's mean speed (its distance_stddev / duration too);
                                          # a message that claims less is refused (below_model)
-    map_fix_offset: float = 0.0          # a 2-D fix on a network gives its antenna's point: the antenna's
-                                         # distance behind the train front [m] (core/network/hypotheses.py)
+    sensor_offset: float = 0.0           # [m] of the sensor's own point behind the train front, where a
+                                         # network's hypotheses place what it measures: a 2-D fix's antenna,
+                                         # a gyro turning with the body (core/network/hypotheses.py)
     references: ReferenceTable | None = field(default=None, compare=False)
                                          # the track's references its fixes can name; None = not checked
 
@@ -297,6 +298,11 @@ class ErrorModel:
                                                     f"below its model's {self.min_stddev:.3g} m")
             if self.references is not None:
                 return self.references.refusal(m.reference_id, m.position, m.position_stddev)
+            return None
+        if self.measures == "yaw_rate":
+            if m.yaw_rate_stddev < floor:
+                return InputRejected("below_model", f"{self.sensor} yaw rate claims 1-sigma {m.yaw_rate_stddev:.3g} "
+                                                    f"rad/s, below its model's {self.min_stddev:.3g} rad/s")
             return None
         claimed = m.speed_stddev
         if self.measures == "distance":

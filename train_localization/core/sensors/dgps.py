@@ -343,7 +343,7 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
                       fix_bias_tau=float(params["multipath_tau"]), reported_fix_bias=mp,
                       fix_white_sigma=max(params["white_sigma"] * params["structure_hdop_factor"], 1e-3),
                       faults=("nlos", "outage"), min_stddev=fix_sigma(params, 0.0, False),
-                      map_fix_offset=float(params["antenna_offset"]))
+                      sensor_offset=float(params["antenna_offset"]))
 
 
 SPEC = SensorSpec(

@@ -38,7 +38,6 @@ import traceback
 
 import numpy as np
 
-from .fusion import fusion_config
 from .network.scoring import PublishedState, network_scores, path_series
 from .offline import delayed, fuse_arrivals, fusion_runner, scenario_measurements, sensor_pipelines
 from .report import jsonable
@@ -915,11 +914,8 @@ def run_scenario(data: dict, oracle: bool = False) -> dict:
     traj = sc.trajectory()
     arrivals = scenario_measurements(sc, pipes=pipes, trajectory=traj)
     delivered = deliver(arrivals, camp.get("delivery", {}))
-    if sc.network is not None:   # the track-selective fusion over the train's track hypotheses
-        runner = fusion_runner(sc, FUSION_RATE)
-        config = runner.filter.cfg
-    else:
-        runner, config = None, fusion_config(sc)
+    runner = fusion_runner(sc, FUSION_RATE)   # on a network: over the train's track hypotheses
+    config = runner.filter.cfg
     runner, estimates, _, _ = fuse_arrivals(config, delivered, sc.duration, FUSION_RATE, runner=runner)
     truth = StateSeries.of_truth(traj.t, traj.position, traj.speed)
     refs = passing_times(traj.t, traj.position, reference_positions(sc)) if family in ("conventional", "lzb") else None
@@ -1168,7 +1164,7 @@ def _network_summary(runs: list[dict]) -> dict:
     way: whether the fusion found the switch contradicted and named the true way in time."""
     nets = [r["network"] for r in runs]
     parallel = sum(n["parallel_states"] for n in nets)
-    correct = sum(round(n["selectivity"] * n["parallel_states"]) for n in nets if n["parallel_states"])
+    correct = sum(n["parallel_correct"] for n in nets)
     ways = sum(n["switch_ways"] for n in nets)
     resolved = sum(n["switch_ways_resolved"] for n in nets)
     claimed = sum(n["claimed"] for n in nets)

@@ -117,13 +117,7 @@ def declare_fusion_config(node: Node, base: FusionConfig, track) -> FusionConfig
     error-model fields as nested parameters ``<sensor>.<field>`` (default: the sensor's own
     model with ``base``'s overrides, e.g. a scenario's), and build the config. A value that
     differs from the sensor's own model is an override (logged)."""
-    values = {}
-    for f in FusionConfig.tuning_fields():
-        if f.name == "track_id":
-            continue
-        default = getattr(base, f.name)
-        values[f.name] = _from_ros(default, declare(node, f.name, _ros_value(default), f.metadata.get("doc", ""),
-                                                    read_only=True, limits=f.metadata.get("limits")))
+    values = declare_fields(node, [f for f in FusionConfig.tuning_fields() if f.name != "track_id"], base)
     overrides: dict = {}
     try:
         for sensor, own in base.sensors.items():
@@ -143,13 +137,20 @@ def declare_fusion_config(node: Node, base: FusionConfig, track) -> FusionConfig
         raise ConfigurationError(f"fusion parameters: {exc}") from None
 
 
+def declare_fields(node: Node, fields_, base) -> dict:
+    """Declare each of a config's ``fields_`` (described and bounded by ``_doc``) as a read-only
+    parameter, default its value in ``base``; field name -> the value set."""
+    return {f.name: _from_ros(getattr(base, f.name), declare(node, f.name, _ros_value(getattr(base, f.name)),
+                                                             f.metadata.get("doc", ""), read_only=True,
+                                                             limits=f.metadata.get("limits")))
+            for f in fields_}
+
+
 def declare_network_config(node: Node, base: NetworkConfig) -> NetworkConfig:
     """Declare every NetworkConfig field (the track-selective fusion, docs/network.md) as a
     read-only parameter (default: ``base``, from the scenario's route) and build the config."""
     from dataclasses import fields
-    values = {f.name: _from_ros(getattr(base, f.name), declare(
-        node, f.name, getattr(base, f.name), f.metadata.get("doc", ""), read_only=True, limits=f.metadata.get("limits")))
-        for f in fields(NetworkConfig)}
+    values = declare_fields(node, fields(NetworkConfig), base)
     try:
         return NetworkConfig(**values)
     except ValueError as exc:
@@ -279,7 +280,7 @@ class FusionNode(ManagedNode):
                                        limits=(1.0, 1.0e6)))
         self.shedder = InputShedder(max_input_rate)
         self.mc = rclpy_classes()
-        hypotheses = None
+        hypotheses = self.tracks_pub = None
         if self.network is not None:
             net = declare_network_config(self, net_base)
             hypotheses = HypothesisSet(cfg, net, self.network)
@@ -335,7 +336,7 @@ class FusionNode(ManagedNode):
         return super().on_deactivate(state)
 
     def on_cleanup(self, state) -> TransitionCallbackReturn:
-        for pub in (self.state_pub, self.odom_pub, self.tf_pub, getattr(self, "tracks_pub", None)):
+        for pub in (self.state_pub, self.odom_pub, self.tf_pub, self.tracks_pub):
             if pub is not None:
                 self.destroy_lifecycle_publisher(pub)
         self.destroy_service(self._service)

@@ -38,6 +38,16 @@ def sensor_params_markdown() -> str:
     return "\n".join(lines) + "\n"
 
 
+def _field_rows(fields_, base) -> list[str]:
+    """Table rows of a config's fields: name, default in ``base``, description with its limits."""
+    rows = []
+    for f in fields_:
+        limits = f.metadata.get("limits")
+        doc = f.metadata.get("doc", "") + (f" [{limits[0]:g} .. {limits[1]:g}]" if limits else "")
+        rows.append(f"| `{f.name}` | {_value(getattr(base, f.name))} | {doc.replace('|', '/')} |")
+    return rows
+
+
 def fusion_params_markdown() -> str:
     """Parameters of the fusion node beyond scenario/track/sensors/publish_rate/frames:
     every global tuning field of core.fusion.FusionConfig, then the per-sensor error-model
@@ -46,29 +56,18 @@ def fusion_params_markdown() -> str:
 
     from ..core.fusion import FusionConfig
     from ..core.sensors.base import ErrorModel
-    base = FusionConfig()
     lines = ["| parameter | default | meaning |", "|---|---|---|"]
-    for f in FusionConfig.tuning_fields():
-        if f.name == "track_id":
-            continue
-        value = getattr(base, f.name)
-        limits = f.metadata.get("limits")
-        doc = f.metadata.get("doc", "") + (f" [{limits[0]:g} .. {limits[1]:g}]" if limits else "")
-        lines.append(f"| `{f.name}` | {_value(value)} | {doc.replace('|', '/')} |")
+    lines += _field_rows([f for f in FusionConfig.tuning_fields() if f.name != "track_id"], FusionConfig())
     names = ", ".join(f"`{f.name}`" for f in fields(ErrorModel) if f.name not in ("sensor", "measures"))
     lines += ["", "Per configured sensor, the fields of its own error model (core/sensors/base.py "
               f"`ErrorModel`) are nested parameters `<sensor>.<field>`: {names} (`faults` as a comma-separated "
               "string). Their defaults are the sensor's own model; a different value (a params file, `-p "
               "doppler.scale_sigma:=0.01`) overrides it and is logged at start-up."]
     from ..core.network.config import NetworkConfig
-    net = NetworkConfig()
     lines += ["", "On a network (a scenario whose track has `sections`, docs/network.md), also the track-selective "
               "fusion's (core/network/config.py `NetworkConfig`; `start_section` and `start_direction` default to the "
               "train's route):", "", "| parameter | default | meaning |", "|---|---|---|"]
-    for f in fields(NetworkConfig):
-        limits = f.metadata.get("limits")
-        doc = f.metadata.get("doc", "") + (f" [{limits[0]:g} .. {limits[1]:g}]" if limits else "")
-        lines.append(f"| `{f.name}` | {_value(getattr(net, f.name))} | {doc.replace('|', '/')} |")
+    lines += _field_rows(fields(NetworkConfig), NetworkConfig())
     return "\n".join(lines) + "\n"
 
 

@@ -24,6 +24,15 @@ def _doc(default, text: str, factory: bool = False, limits: tuple | None = None)
 PROBABILITY = (1.0e-9, 1.0 - 1.0e-9)
 
 
+def check_limits(obj, fields_) -> None:
+    """ValueError naming the first of ``fields_`` (with a ``limits`` from ``_doc``) whose value in
+    ``obj`` lies outside its limits."""
+    for f in fields_:
+        value, limits = getattr(obj, f.name), f.metadata.get("limits")
+        if limits is not None and not limits[0] <= value <= limits[1]:
+            raise ValueError(f"{f.name} must be in {limits[0]:g} .. {limits[1]:g}, not {value}")
+
+
 def sensor_models(sensors: dict[str, dict] | list[str], track, vehicle) -> dict[str, ErrorModel]:
     """Error models (sensor class -> ErrorModel) of sensor nodes and their parameter overrides.
 
@@ -105,10 +114,7 @@ class FusionConfig:
     initial_position_stddev: float = _doc(0.01, "1-sigma of initial_position [m]", limits=(1.0e-4, 1.0e4))
 
     def __post_init__(self):
-        for f in self.tuning_fields():
-            value, limits = getattr(self, f.name), f.metadata.get("limits")
-            if limits is not None and not limits[0] <= value <= limits[1]:
-                raise ValueError(f"{f.name} must be in {limits[0]:g} .. {limits[1]:g}, not {value}")
+        check_limits(self, self.tuning_fields())
         if math.isinf(self.initial_position):
             raise ValueError(f"initial_position must be a chainage [m] or NaN (unknown), not {self.initial_position}")
         models = dict(self.sensors)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
-from ..fusion.config import FusionConfig, _doc, fusion_config, sensor_models
+from ..fusion.config import FusionConfig, _doc, check_limits, fusion_config, sensor_models
 from ..sensors.base import ReferenceWindow
 from ..track import Track, extent
 
@@ -42,10 +42,7 @@ class NetworkConfig:
                                    "longer cover every path)", limits=(1, 256))
 
     def __post_init__(self):
-        for f in dataclasses.fields(self):
-            limits, value = f.metadata.get("limits"), getattr(self, f.name)
-            if limits is not None and not limits[0] <= value <= limits[1]:
-                raise ValueError(f"{f.name} must be in {limits[0]:g} .. {limits[1]:g}, not {value}")
+        check_limits(self, dataclasses.fields(self))
         if self.start_direction not in (1, -1):
             raise ValueError(f"start_direction must be +1 or -1, not {self.start_direction}")
 

@@ -92,6 +92,11 @@ class Hypothesis:
     off_path: Counter = field(default_factory=Counter)   # receiver -> consecutive 2-D fixes off it
     last: Estimate | None = None                    # its latest estimate
 
+    @property
+    def where(self) -> float | None:
+        """Path distance [m] of its latest estimate, None before it claims one."""
+        return self.last.position if self.last is not None and math.isfinite(self.last.position) else None
+
 
 class HypothesisSet:
     """Stands in for TrainFilter inside a FusionRunner (core/fusion/runner.py): the same
@@ -197,8 +202,7 @@ class HypothesisSet:
         explain it."""
         explained = []
         for h in self.hyps:
-            near = h.last.position if h.last is not None and math.isfinite(h.last.position) else None
-            s = h.path.distance(m.track_id, m.position, near)
+            s = h.path.distance(m.track_id, m.position, h.where)
             if s is not None:
                 explained.append((h, s))
         if not explained:
@@ -229,11 +233,10 @@ class HypothesisSet:
         offset = self.models[m.sensor].sensor_offset
         sigma = m.lateral_stddev
         gate = self.net.map_lateral_gate * sigma
-        eps = self.net.map_outlier_probability
         placed = []
         for h in self.hyps:
-            if h.last is not None and math.isfinite(h.last.position):
-                s_ant, lat = h.path.project(px, py, h.last.position - offset, self.net.map_reach)
+            if h.where is not None:
+                s_ant, lat = h.path.project(px, py, h.where - offset, self.net.map_reach)
             else:
                 s_ant, lat = h.path.project(px, py, 0.5 * (h.path.begin + h.path.end), math.inf)
             placed.append((h, s_ant + offset, lat))
@@ -243,10 +246,8 @@ class HypothesisSet:
             self.unexplained_at = max(self.unexplained_at, m.stamp)
             raise InputRejected("off_network_path", f"{m.sensor} fix {min(abs(p[2]) for p in placed):.1f} m from "
                                                     f"every track hypothesis's path (gate {gate:.1f} m)")
-        density = 1.0 / (math.sqrt(2.0 * math.pi) * sigma)
         for (h, front, lat), near in zip(placed, on):
-            z = lat / sigma
-            h.log_weight += math.log((1.0 - eps) * density * math.exp(-0.5 * z * z) + eps / (2.0 * gate))
+            h.log_weight += robust_log_likelihood(lat, sigma, self.net.map_outlier_probability, 2.0 * gate)
             if near:
                 h.off_path[m.unit_id] = 0
                 h.filter.add(replace(m, track_id="", position=front, lateral=0.0, lateral_stddev=0.0))
@@ -273,9 +274,7 @@ class HypothesisSet:
             kappa = max(abs(k_lo), abs(k_hi))
             sigma = math.sqrt(m.yaw_rate_stddev ** 2 + (kappa * e.speed_stddev) ** 2
                               + (model.reported_scale * max(abs(lo), abs(hi))) ** 2)
-            z = residual / sigma
-            h.log_weight += math.log((1.0 - eps) * math.exp(-0.5 * z * z) / (math.sqrt(2.0 * math.pi) * sigma)
-                                     + eps / (2.0 * MAX_YAW_RATE))
+            h.log_weight += robust_log_likelihood(residual, sigma, eps, 2.0 * MAX_YAW_RATE)
 
     def _exclude(self, h: Hypothesis, reason: str) -> None:
         if len(self.hyps) <= 1 or h not in self.hyps:
@@ -366,6 +365,14 @@ class HypothesisSet:
         return TrackHypothesisState(step.section, step.chainage(e.position), e.speed * step.direction, min(a, b),
                                     max(a, b), probability, tuple(h.path.sections(e.position_min, e.position_max)),
                                     int(e.mode), tuple(h.path.ways().items()))
+
+
+def robust_log_likelihood(residual: float, sigma: float, outliers: float, span: float) -> float:
+    """log of a residual's density: a Gaussian of 1-sigma ``sigma`` with a share ``outliers``
+    spread uniformly over ``span`` (no single reading can drive a hypothesis's weight to 0)."""
+    z = residual / sigma
+    return math.log((1.0 - outliers) * math.exp(-0.5 * z * z) / (math.sqrt(2.0 * math.pi) * sigma)
+                    + outliers / span)
 
 
 def _fields(est: Estimate) -> dict:

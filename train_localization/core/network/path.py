@@ -123,10 +123,6 @@ class TrackPath:
         """node -> way (B1/B2) of every facing switch the path takes."""
         return {st.node: st.way for st in self.steps if st.way is not None}
 
-    def ways_between(self, lo: float, hi: float) -> dict[str, str]:
-        """node -> way of the facing switches entered between path distances lo and hi."""
-        return {st.node: st.way for st in self.steps if st.way is not None and lo <= st.start <= hi}
-
     def curvature_range(self, lo: float, hi: float, step: float = 0.5) -> tuple[float, float]:
         """(least, greatest) curvature [1/m] of the path between path distances lo and hi, in
         its direction of travel (+ turning left; a section run backwards turns the other way)."""
@@ -158,12 +154,6 @@ class TrackPath:
             if d < best[0]:
                 best = (d, s, lat * step.direction)
         return best[1], best[2]
-
-    def same_as(self, other: "TrackPath", lo: float, hi: float) -> bool:
-        """Whether two paths run through the same sections the same way between lo and hi."""
-        def span(p):
-            return [(st.section, st.direction, round(st.start, 6)) for st in p.steps if st.stop > lo and st.start < hi]
-        return span(self) == span(other)
 
 
 def _forward_way(network: Network, c: Continuation, into_section: str) -> str | None:
@@ -245,13 +235,3 @@ def route_track(path: TrackPath, track_id: str) -> Track:
     track.network = network     # the decoders of 2-D fixes project onto the whole network
     track.path = path
     return track
-
-
-def section_positions(path: TrackPath, s: np.ndarray) -> tuple[list[str], np.ndarray]:
-    """(section, chainage) of path distances (route chainage + path.begin)."""
-    secs, chains = [], np.empty(len(s))
-    for i, v in enumerate(s):
-        sec, c = path.locate(float(v))
-        secs.append(sec)
-        chains[i] = c
-    return secs, chains

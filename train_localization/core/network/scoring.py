@@ -81,6 +81,12 @@ def published_from_msgs(states, tracks) -> list[PublishedState]:
     return out
 
 
+def _covers(route: TrackPath, track_id: str, lo: float, hi: float, s_true: float) -> bool:
+    """Whether an interval [lo, hi] on ``track_id``'s axis holds the route distance s_true."""
+    a, b = route.distance(track_id, lo, s_true), route.distance(track_id, hi, s_true)
+    return min(a, b) <= s_true <= max(a, b)
+
+
 def _on_route(route: TrackPath, track_id: str, position: float, s_true: float) -> bool:
     d = route.distance(track_id, position, s_true)
     return d is not None and abs(d - s_true) <= NEAR_ROUTE
@@ -135,14 +141,9 @@ def network_scores(route: TrackPath, truth_t, truth_s, states: list[PublishedSta
     for i, (st, s) in enumerate(zip(claimed, s_true)):
         if correct[i]:
             error[i] = route.distance(st.track_id, st.position, s) - s
-            a = route.distance(st.track_id, st.position_min, s)
-            b = route.distance(st.track_id, st.position_max, s)
-            inside[i] = min(a, b) <= s <= max(a, b)
-        for h in st.hypotheses:
-            if _on_route(route, h.track_id, h.position, s):
-                a = route.distance(h.track_id, h.position_min, s)
-                b = route.distance(h.track_id, h.position_max, s)
-                hyp_inside[i] |= min(a, b) <= s <= max(a, b)
+            inside[i] = _covers(route, st.track_id, st.position_min, st.position_max, s)
+        hyp_inside[i] = any(_on_route(route, h.track_id, h.position, s)
+                            and _covers(route, h.track_id, h.position_min, h.position_max, s) for h in st.hypotheses)
     parallel = parallel_mask(route, s_true)
     ways = []
     for step in route.steps:
@@ -167,6 +168,7 @@ def network_scores(route: TrackPath, truth_t, truth_s, states: list[PublishedSta
         "true_hypothesis_inside": float(hyp_inside[listed].mean()) if listed.any() else math.nan,
         "true_hypothesis_outside": int((~hyp_inside & listed).sum()),
         "parallel_states": n_par,
+        "parallel_correct": int(correct[parallel].sum()),
         "selectivity": float(correct[parallel].mean()) if n_par else math.nan,
         "switch_ways": len(ways), "switch_ways_resolved": sum(w["resolved"] for w in ways),
         "ways": ways,

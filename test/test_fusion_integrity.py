@@ -55,14 +55,15 @@ def integrity(sc, result):
 
 
 def _without_fault_cover(monkeypatch):
-    """Filters built from here on lack the persistent-fault cover (core/fusion/impact.py), of the
-    relative sensors' scale faults and of the fixes' offsets: what the special cases below gave on
-    their own."""
+    """Filters built from here on lack the fault cover of core/fusion/impact.py (the relative
+    sensors' scale faults and unseen slips, the fixes' offsets): what the special cases below gave
+    on their own."""
     init = TrainFilter.__init__
 
     def uncovered(self, config=None):
         init(self, config)
         self._fault_bounds = {}
+        self._transient_bounds = {}
         self._offset_bounds = {}
     monkeypatch.setattr(TrainFilter, "__init__", uncovered)
 
@@ -1141,7 +1142,9 @@ def test_a_radar_fault_that_ends_while_the_radar_is_suspended_is_learnt_away():
     scores = result["scores"]
     assert scores["integrity"]["outside_count"] == 0 and scores["speed_interval"]["outside"] == 0
     assert scores["speed_band"]["violations"] < 100
-    assert scores["integrity"]["mean_interval_width_m"] < 26.0   # against the 72 m of the coasting
+    # against the 72 m of the coasting; the wheel carried the speed alone while the radar was out,
+    # and what a slip nobody saw could have put in meanwhile stays covered (core/fusion/impact.py)
+    assert scores["integrity"]["mean_interval_width_m"] < 50.0
 
 
 def test_a_lone_wheel_that_the_motion_model_cannot_follow_gives_the_speed():

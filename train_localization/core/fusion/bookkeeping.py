@@ -161,7 +161,7 @@ class Bookkeeping:
                  "alternative", "events", "unverified", "s_last_fix", "relative_alternatives", "suspended",
                  "candidate", "used_refs", "peer_speeds", "peer_run", "motion_views", "view_speeds",
                  "episode_views", "fault_windows", "subs", "fix_bias_nis", "lone_view", "scale_faults",
-                 "impacts", "odometer")
+                 "impacts", "odometer", "last_drive")
 
     def __init__(self):
         self.initialised = False
@@ -217,6 +217,9 @@ class Bookkeeping:
         # the filter's position moved by its own speed only, without the corrections of updates [m]:
         # how far the filter believes the train ran between two times (separation.py follows it)
         self.odometer = 0.0
+        # the last time [s] the train was driven or braked with at least ``slip_min_drive``: a wheel
+        # slips or slides only then, and an episode ends within its ``fault_duration_max``
+        self.last_drive = -math.inf
 
     def copy(self) -> "Bookkeeping":
         new = object.__new__(Bookkeeping)

@@ -111,11 +111,15 @@ class TrainFilter:
         # the state (impact.py)
         self._fault_bounds = {n: self._z * m.scale_fault_sigma for n, m in self.models.items()
                               if n in self._persistent and m.scale_fault_sigma > 0.0}
+        # relative sensors with a transient fault of bounded ratio (a wheel's slip or slide) -> that
+        # ratio: the interval covers what one its tests could not see put into the state (impact.py)
+        self._transient_bounds = {n: m.slip_ratio_max for n, m in self.models.items()
+                                  if m.relative and fault_modes.ADHESION & set(m.faults) and m.slip_ratio_max > 0.0}
         # position sensors whose runs of fixes may share an offset (faults.OFFSET) -> its bound in each
         # fix's own 1-sigma: the gate's radius (impact.py)
         self._offset_bounds = {n: math.sqrt(self._gates[n]) for n, m in self.models.items()
                                if m.measures == "position" and fault_modes.OFFSET & set(m.faults)}
-        self._fault_input: tuple | None = None   # (sensor, its fault per unit) of the reading being applied
+        self._fault_input: impact.FaultInput | None = None   # of the reading being applied
         self._est_cache: tuple = (None, None, None, None, None, None)
         self._last_update = (np.zeros(self.n), 0.0)   # (Kalman gain, innovation) of the last update
         self._eye = np.eye(self.n)
@@ -184,6 +188,8 @@ class TrainFilter:
                     t - aux.impacts.last_onset_of(self._fault_bounds) >= self.cfg.fault_onset_spacing):
                 aux.impacts = impact.started(aux.impacts, self._fault_bounds, t, self.n, self.cfg.fault_onsets,
                                              self._z)
+            if self._transient_bounds and aux.initialised and (aux.impacts is None or not aux.impacts.transient.any()):
+                aux.impacts = impact.with_transient(aux.impacts, self._transient_bounds, t, self.n)
             if aux.lone_view is not None:   # what a lone source's scale fault adds over the distance
                 lone = aux.lone_view
                 step = self._z * self.models[lone.sensor].scale_fault_sigma * abs(float(self.ekf.x[0, 0] - s0))
@@ -221,10 +227,12 @@ class TrainFilter:
         # what this reading's own scale fault would add (impact.py), and whether another speed source
         # in use checks it (then its own innovations test the fault too)
         if is_fix:   # a fix's own offset per unit is its 1-sigma; the dead reckoning checks it
-            self._fault_input = (cls, m.position_stddev, True) if cls in self._offset_bounds else None
+            self._fault_input = impact.FaultInput(cls, m.position_stddev if cls in self._offset_bounds else 0.0, True,
+                                                  independent=cls not in self.layout.fix)
         else:
-            self._fault_input = None if not self._fault_bounds else (
-                cls, m.distance if hasattr(m, "distance") else m.speed, bool(self._in_use(m.stamp, but=cls)))
+            self._fault_input = None if not (self._fault_bounds or self._transient_bounds) else impact.FaultInput(
+                cls, m.distance / m.duration if hasattr(m, "distance") else m.speed,   # in the measurement's units
+                bool(self._in_use(m.stamp, but=cls)), relative=True)
         if cls in self._offset_bounds and (aux.impacts is None or m.stamp - aux.impacts.last_onset_of((cls,))
                                            >= self.cfg.fault_onset_spacing):
             # a run of this sensor's fixes sharing an offset may begin with this one
@@ -297,6 +305,14 @@ class TrainFilter:
             return
         if is_fix and self.fixes.remembered(m, R):
             return
+        if abs(float(self.ekf.x[2, 0])) >= self.cfg.slip_min_drive:
+            aux.last_drive = m.stamp
+        if cls in self._transient_bounds and self._fault_input is not None:
+            share = self._unseen_share(cls, m.stamp, self._fault_input.per_unit, S)
+            self._fault_input = self._fault_input._replace(unseen=share)
+            if share >= 1.0 and aux.impacts is not None and not aux.impacts.reads_alone(cls):
+                aux.impacts = impact.episode_started(aux.impacts, cls, self._transient_bounds[cls], m.stamp,
+                                                     self.cfg.fault_onsets, self._z)
         x_before = self.ekf.x
         self._update(z, R, h, hx, PHt, S)
         if is_fix and nis > 1.0 and cls not in self.layout.fix:
@@ -337,6 +353,30 @@ class TrainFilter:
         aux, recent = self.aux, stamp - self.cfg.slip_reference_timeout
         return [s for s in aux.speed_sources if s != but and not speed_excluded(aux, s, stamp)
                 and aux.last_accepted.get(s, -math.inf) > recent]
+
+    def _unseen_share(self, cls: str, stamp: float, speed: float, S: float) -> float:
+        """The share [0, 1] of a transient fault of ``cls``'s bound (``slip_ratio_max`` x its reading's
+        ``speed`` [m/s]) that the slip tests let pass at this reading (S: its innovation variance
+        [m^2/s^2]). Another speed source in use checks it: up to the gate's radius of a fault that
+        lasts through the n readings of the accumulated test's window (``Episodes.windowed``),
+        where it shows at sqrt(n) times its size in one reading's 1-sigma. Another one excluded as
+        an undecided alternative reads beside it: the disagreement with its last reading (within
+        ``slip_reference_timeout`` s) and that gate's radius. Else nothing but the motion model
+        sees it, against which a slip that has begun is a speed: all of it. None where the train
+        has not been driven or braked (``slip_min_drive``) within the sensor's longest episode."""
+        bound = self._transient_bounds[cls] * abs(speed)
+        if bound <= 0.0 or stamp - self.aux.last_drive > self.models[cls].fault_duration_max:
+            return 0.0
+        if self._in_use(stamp, but=cls):
+            n = max(len(self.aux.slip_window.get(cls, ())), 1)
+            return min(1.0, math.sqrt(self._slip_gate * S / n) / bound)
+        recent = stamp - self.cfg.slip_reference_timeout
+        beside = [r for c, r in self.aux.view_speeds.items() if c != cls and c in self.aux.relative_alternatives
+                  and r.stamp > recent]
+        if beside:
+            return min(1.0, min(abs(abs(speed) - abs(r.speed)) + math.sqrt(self._slip_gate * (S + r.var))
+                                for r in beside) / bound)
+        return 1.0
 
     def _reference_ok(self, m) -> bool:
         """Another speed source is in use (``_in_use``)."""

@@ -341,7 +341,7 @@ class Fixes(Component):
             P[0, 0] = R + P[f_idx, f_idx]
         self.f.ekf.x, self.f.ekf.P = x, P
         aux.impacts = impact.position_set_from_fix(
-            aux.impacts, f_idx, (cls, m.position_stddev) if cls in self.f._offset_bounds else None)
+            aux.impacts, f_idx, impact.FaultInput(cls, m.position_stddev, True) if cls in self.f._offset_bounds else None)
         aux.accepted = incremented(aux.accepted, cls)
         aux.last_accepted = {**aux.last_accepted, cls: m.stamp}
         aux.last_fix_accepted = m.stamp

@@ -1,9 +1,10 @@
-"""Fault impact: the protection level of a persistent fault, by construction: a relative sensor's
-scale fault, or an offset shared by a run of a position sensor's fixes.
+"""Fault impact: the protection level of a fault, by construction: a relative sensor's scale fault,
+a wheel's slip that no other speed source sees, or an offset shared by a run of a position
+sensor's fixes.
 
 The filter is linear in the errors of what it takes in. A scale fault f of relative sensor j
-(a Doppler radar reading 7 % low) adds f x v to each of j's speeds (f x d to each of its
-distances), and the filter carries, whatever its policies decided to use or exclude, the
+(a Doppler radar reading 7 % low) adds f x v to each of j's speeds (a distance increment d over
+a time T is a speed d / T), and the filter carries, whatever its policies decided to use or exclude, the
 state error f x e with
 
     predict   e <- F e
@@ -36,6 +37,22 @@ fixes (``fault_onset_spacing`` s apart at most), and the dead reckoning and ever
 fixes test it: the jump at the run's first fix is its evidence, so a run the filter has absorbed
 stays covered by the size of that jump (within the bound), and a later clean fix, or another
 sensor's, shrinks it.
+
+A transient fault of a relative sensor (a wheel's slip or slide, ``transient`` rows) is the same
+linear algebra with a different input: its
+tests compare each reading with the filter's speed, and catch a fault of its bound (the sensor's
+``slip_ratio_max``) wherever that stands out of the reading's slip gate; a reading where it would
+not (the other speed sources silent or excluded, their last reading too old, the speed too low)
+is ``unseen``, and only unseen readings carry the fault (delta = v). e is then the filter's own
+sensitivity to what slips nobody could see have put into it, through every later predict,
+update and policy (a readmission at a large gain included), shrinking as fixes pull the filter.
+One row per episode: from the filter's first state, and again at each stretch the sensor reads
+alone (nothing but the motion model sees it), where a new slip of another size may begin; the
+one before ends there, its error left in the state. Only independent fixes (no fix-bias state:
+a DGPS bias can take up the very error a slip left, campaign run network:4262354916) test a
+row's size (the relative readings' share of it is what their own tests let pass), within
++-``slip_ratio_max``; at most
+``fault_onsets`` rows per sensor, the smallest cover dropped.
 """
 from __future__ import annotations
 
@@ -45,6 +62,19 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+
+
+class FaultInput(NamedTuple):
+    """What the reading being applied carries of the bank's faults (``updated``)."""
+
+    sensor: str          # its sensor
+    per_unit: float      # its own fault per unit fault: the speed of a relative reading, the 1-sigma of a fix
+    checked: bool        # another speed source in use checks it (a fix: always)
+    relative: bool = False  # a relative sensor's reading (else a fix)
+    independent: bool = False  # a fix whose error is its own (no fix-bias state, which could take up a
+                               # dead-reckoning error): it tests a transient fault's size
+    unseen: float = 0.0  # the share [0, 1] of its sensor's transient fault that its tests let pass
+                         # (1: nothing but the motion model sees it)
 
 
 class Impact(NamedTuple):
@@ -59,6 +89,7 @@ class Impact(NamedTuple):
     score: float         # sum g nu / S [1]
     active: bool = True  # the fault goes on (its sensor's readings carry it)
     offset: bool = False  # an offset of a run of fixes (per unit: one 1-sigma of each fix), else a scale
+    transient: bool = False  # a transient fault, carried by unseen readings, tested by fixes only
 
     def fault(self, bound: float, z: float) -> tuple[float, float]:
         """(mean, 1-sigma) [1] of the fault the data allows: the least-squares estimate within
@@ -88,13 +119,15 @@ class Bank:
     info: np.ndarray     # (k,)
     score: np.ndarray    # (k,)
     offset: np.ndarray   # (k,) bool: an offset of a run of fixes (Impact.offset)
+    transient: np.ndarray  # (k,) bool: a transient fault (Impact.transient)
+    alone: np.ndarray    # (k,) bool: a transient fault's sensor read last with nothing but the motion model to see it
 
     def __len__(self) -> int:
         return len(self.sensors)
 
     def __getitem__(self, k: int) -> Impact:   # a view of hypothesis k
         return Impact(self.sensors[k], float(self.onsets[k]), self.E[k], float(self.info[k]), float(self.score[k]),
-                      bool(self.active[k]), bool(self.offset[k]))
+                      bool(self.active[k]), bool(self.offset[k]), bool(self.transient[k]))
 
     def __iter__(self):
         return (self[k] for k in range(len(self)))
@@ -103,9 +136,13 @@ class Bank:
         """(k,) bool: the hypotheses of ``sensor``."""
         return np.array([s == sensor for s in self.sensors], dtype=bool)
 
+    def reads_alone(self, sensor: str) -> bool:
+        """Whether ``sensor``'s going-on transient-fault row saw it last read alone."""
+        return bool(np.any(self.of(sensor) & self.transient & self.active & self.alone))
+
     def last_onset_of(self, sensors) -> float:
-        """The newest onset [s] of the hypotheses of ``sensors`` (-inf: none)."""
-        own = [float(t) for s, t in zip(self.sensors, self.onsets) if s in sensors]
+        """The newest onset [s] of the persistent-fault hypotheses of ``sensors`` (-inf: none)."""
+        own = [float(t) for s, t, once in zip(self.sensors, self.onsets, self.transient) if s in sensors and not once]
         return max(own, default=-math.inf)
 
     def _replace(self, **changes) -> "Bank":
@@ -146,13 +183,15 @@ def _covers(bank: Bank, z: float) -> np.ndarray:
 def _rows(bank: Bank, keep) -> Bank:
     keep = list(keep)
     return Bank(tuple(bank.sensors[k] for k in keep), bank.onsets[keep], bank.active[keep], bank.bounds[keep],
-                bank.E[keep], bank.info[keep], bank.score[keep], bank.offset[keep])
+                bank.E[keep], bank.info[keep], bank.score[keep], bank.offset[keep], bank.transient[keep],
+                bank.alone[keep])
 
 
 def _joined(a: Bank, b: Bank) -> Bank:
     """The hypotheses of ``a`` followed by those of ``b``."""
     return Bank(a.sensors + b.sensors, *(np.concatenate([getattr(a, f), getattr(b, f)])
-                                         for f in ("onsets", "active", "bounds", "E", "info", "score", "offset")))
+                                         for f in ("onsets", "active", "bounds", "E", "info", "score", "offset",
+                                                   "transient", "alone")))
 
 
 def _keeps_none(transform):
@@ -172,21 +211,19 @@ def started(bank: Bank | None, bounds: dict[str, float], onset: float, n: int, m
     one is dropped: never one of the newest quarter of the active ones (a fault that began at a
     stop has put nothing in yet, and is the least tested once the train moves), else the one
     whose cover (|e_0| x the size not excluded) is smallest."""
-    if bank is None:
-        bank = Bank((), np.zeros(0), np.zeros(0, bool), np.zeros(0), np.zeros((0, n)), np.zeros(0), np.zeros(0),
-                    np.zeros(0, bool))
+    bank = _empty(n) if bank is None else bank
     for sensor, bound in bounds.items():
         covers = _covers(bank, z)
-        going_on = [k for k in range(len(bank)) if bank.sensors[k] == sensor and bank.active[k]]
+        going_on = [k for k in range(len(bank)) if bank.sensors[k] == sensor and bank.active[k]
+                    and not bank.transient[k]]
         if going_on:
             largest = max(going_on, key=covers.__getitem__)
             if covers[largest] > 0.0:   # the same error and test, ended here
                 ended = _rows(bank, [largest])
                 bank = _joined(bank, dataclasses.replace(ended, active=np.zeros(1, bool)))
-        bank = _joined(bank, Bank((sensor,), np.array([onset]), np.ones(1, bool), np.array([bound]), np.zeros((1, n)),
-                                  np.zeros(1), np.zeros(1), np.full(1, offset)))
+        bank = _joined(bank, _row(sensor, onset, bound, n, offset=offset))
         covers = _covers(bank, z)
-        own = [k for k in range(len(bank)) if bank.sensors[k] == sensor]
+        own = [k for k in range(len(bank)) if bank.sensors[k] == sensor and not bank.transient[k]]
         drop = set()
         while len(own) - len(drop) > max_onsets:
             left = [k for k in own if k not in drop]
@@ -197,6 +234,45 @@ def started(bank: Bank | None, bounds: dict[str, float], onset: float, n: int, m
     return bank
 
 
+def _empty(n: int) -> Bank:
+    """A bank without hypotheses, for states of dimension n."""
+    return Bank((), np.zeros(0), np.zeros(0, bool), np.zeros(0), np.zeros((0, n)), np.zeros(0), np.zeros(0),
+                np.zeros(0, bool), np.zeros(0, bool), np.zeros(0, bool))
+
+
+def _row(sensor: str, onset: float, bound: float, n: int, offset: bool = False, transient: bool = False) -> Bank:
+    """One new active hypothesis of ``sensor`` from ``onset`` [s], e = 0."""
+    return Bank((sensor,), np.array([onset]), np.ones(1, bool), np.array([bound]), np.zeros((1, n)), np.zeros(1),
+                np.zeros(1), np.full(1, offset), np.full(1, transient), np.zeros(1, bool))
+
+
+def with_transient(bank: Bank | None, bounds: dict[str, float], onset: float, n: int) -> Bank:
+    """``bank`` with a transient-fault hypothesis (``Impact.transient``) for each sensor of
+    ``bounds`` (sensor -> its ``slip_ratio_max``) that has none yet, from ``onset`` [s]."""
+    bank = _empty(n) if bank is None else bank
+    have = {s for s, once in zip(bank.sensors, bank.transient) if once}
+    for sensor, bound in bounds.items():
+        if sensor not in have:
+            bank = _joined(bank, _row(sensor, onset, bound, n, transient=True))
+    return bank
+
+
+def episode_started(bank: Bank, sensor: str, bound: float, onset: float, max_rows: int, z: float) -> Bank:
+    """``sensor`` reads alone from ``onset`` [s]: a new transient-fault episode may begin there, of
+    any size within ``bound``. Its going-on row ends (its error stays in the state, its test
+    goes on) and a new one starts; beyond ``max_rows`` rows of the sensor the one with the
+    smallest cover is dropped (never the new one)."""
+    mine = bank.of(sensor) & bank.transient
+    bank = bank._replace(active=np.where(mine, False, bank.active))
+    bank = _joined(bank, _row(sensor, onset, bound, bank.E.shape[1], transient=True)._replace(alone=np.ones(1, bool)))
+    rows = [k for k in range(len(bank)) if bank.sensors[k] == sensor and bank.transient[k]]
+    if len(rows) > max_rows:
+        covers = _covers(bank, z)
+        drop = min(rows[:-1], key=covers.__getitem__)
+        bank = _rows(bank, (k for k in range(len(bank)) if k != drop))
+    return bank
+
+
 @_keeps_none
 def predicted(bank: Bank, F: np.ndarray) -> Bank:
     """Each e moved by the transition F."""
@@ -204,20 +280,25 @@ def predicted(bank: Bank, F: np.ndarray) -> Bank:
 
 
 @_keeps_none
-def updated(bank: Bank, fault_input: tuple | None, h: np.ndarray, K: np.ndarray, nu: float, S: float) -> Bank:
+def updated(bank: Bank, fault_input: FaultInput | None, h: np.ndarray, K: np.ndarray, nu: float, S: float) -> Bank:
     """After a scalar update with row h, gain K (n,), innovation nu and its variance S, of a
-    reading whose own fault per unit is ``fault_input`` = (sensor, v or d, whether another speed
-    source in use checks it; for a fix of a sensor with an offset fault: its 1-sigma, True), None for
-    a reading that carries none."""
+    reading whose own fault per unit is ``fault_input`` (a fix of a sensor with an offset fault:
+    its 1-sigma, checked), None for a reading that carries none. A transient fault is carried by
+    its sensor's readings in their unseen share (whether the sensor read alone is kept:
+    ``episode_started``) and tested by independent fixes only."""
     g = -bank.E.dot(h)
-    tests = np.ones(len(bank), bool)
+    tests = ~bank.transient | (fault_input is not None and fault_input.independent)
+    alone = bank.alone
     if fault_input is not None:
-        own = bank.of(fault_input[0])
-        g = g + np.where(own & bank.active, fault_input[1], 0.0)
-        if not fault_input[2]:   # against the motion model alone a ramp passes: no test
-            tests = ~own
+        own = bank.of(fault_input.sensor)
+        delta = np.where(bank.transient, fault_input.per_unit * fault_input.unseen, fault_input.per_unit)
+        g = g + np.where(own & bank.active, delta, 0.0)
+        if not fault_input.checked:   # against the motion model alone a ramp passes: no test
+            tests = tests & ~own
+        if fault_input.relative:
+            alone = np.where(own & bank.transient, fault_input.unseen >= 1.0, alone)
     return bank._replace(E=bank.E + np.outer(g, K), info=bank.info + np.where(tests, g * g / S, 0.0),
-                         score=bank.score + np.where(tests, g * nu / S, 0.0))
+                         score=bank.score + np.where(tests, g * nu / S, 0.0), alone=alone)
 
 
 @_keeps_none
@@ -230,15 +311,15 @@ def states_set(bank: Bank, idx, value: float = 0.0) -> Bank:
 
 
 @_keeps_none
-def position_set_from_fix(bank: Bank, fix_bias_index: int | None, fault_input: tuple | None = None) -> Bank:
+def position_set_from_fix(bank: Bank, fix_bias_index: int | None, fault_input: FaultInput | None = None) -> Bank:
     """The position was taken from a fix alone (s = z - fix bias): its error per unit fault is
     minus that of the fix bias (0 without one), plus the fix's own offset per unit for the going-on
-    offset hypotheses of its sensor (``fault_input`` = (sensor, the fix's 1-sigma), as ``updated``)."""
+    offset hypotheses of its sensor (``fault_input``: the fix's 1-sigma, as ``updated``)."""
     E = bank.E.copy()
     E[:, 0] = -E[:, fix_bias_index] if fix_bias_index is not None else 0.0
     if fault_input is not None:
-        own = bank.of(fault_input[0]) & bank.active & bank.offset
-        E[own, 0] += fault_input[1]
+        own = bank.of(fault_input.sensor) & bank.active & bank.offset
+        E[own, 0] += fault_input.per_unit
     return bank._replace(E=E)
 
 
@@ -246,9 +327,11 @@ def position_set_from_fix(bank: Bank, fix_bias_index: int | None, fault_input: t
 def speed_set(bank: Bank, speed: float) -> Bank:
     """The speed was set from relative readings that may include the faulty sensor's: its error per
     unit scale fault is taken as the whole speed while the fault goes on (the fault's full share), 0
-    once it ended or for a fix offset (no fix in it); the acceleration's as 0."""
+    once it ended or for a fix offset (no fix in it), and 0 for an unseen slip: a policy sets the
+    speed from readings it compared (agreeing sources, the middle of disagreeing ones), whose
+    disagreement its own hypotheses cover; the acceleration's as 0."""
     E = bank.E.copy()
-    E[:, 1] = np.where(bank.active & ~bank.offset, abs(speed), 0.0)
+    E[:, 1] = np.where(bank.active & ~bank.offset & ~bank.transient, abs(speed), 0.0)
     E[:, 2] = 0.0
     return bank._replace(E=E)
 

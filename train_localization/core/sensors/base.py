@@ -212,7 +212,8 @@ ERROR_MODEL_LIMITS = {
     "fix_bias_tau": (0.0, math.inf), "fix_excess_length": (0.0, math.inf), "fix_excess_tau": (0.0, math.inf),
     "fix_white_sigma": (0.0, math.inf), "reported_scale": (0.0, 1.0),
     "reported_bias": (0.0, math.inf), "reported_fix_bias": (0.0, math.inf), "creep_coefficient": (0.0, 1.0),
-    "scale_fault_sigma": (0.0, 1.0), "fault_duration_max": (0.0, math.inf), "timeout": (0.0, math.inf),
+    "scale_fault_sigma": (0.0, 1.0), "fault_duration_max": (0.0, math.inf), "slip_ratio_max": (0.0, 1.0),
+    "timeout": (0.0, math.inf),
     "gate_probability": (0.5, 1.0), "stddev_factor": (1.0e-3, 1.0e3), "min_stddev": (0.0, math.inf),
 }
 
@@ -256,6 +257,9 @@ class ErrorModel:
                                          # what its scale may be off by once the fusion suspects one
     fault_duration_max: float = math.inf  # longest episode of its transient fault modes (slip, slide)
                                          # [s]; a disagreement that lasts longer is not one of them
+    slip_ratio_max: float = 0.0          # largest |slip ratio| of those episodes [1] (anti-slip and
+                                         # wheel-slide protection's limit): what an undetected one can
+                                         # put into a dead reckoning that uses the sensor
     timeout: float = math.inf            # longest silence while in use [s]; inf = sparse/event sensor
     gate_probability: float = math.nan   # chi-square gate of its measurements; NaN = the fusion's global one
     stddev_factor: float = 1.0           # factor on the white part of the reported stddev

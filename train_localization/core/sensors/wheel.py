@@ -110,7 +110,8 @@ PARAMS = {
                                   (0.0, 5.0)),
     "slip_ratio_min": Param(0.02, "smallest |slip ratio| of a random episode [fraction]", (0.0, 1.0)),
     "slip_ratio_max": Param(0.20, "largest |slip ratio| of a random episode [fraction] (wheel-slide "
-                                  "protection keeps slides below ~20 %)", (0.0, 1.0)),
+                                  "protection keeps slides below ~20 %); the fusion's bound of a slip that "
+                                  "no other speed source sees", (0.0, 1.0)),
     "slip_duration": Param(2.0, "mean length of a random episode [s] (exponential, 0.5 s .. "
                                 "slip_duration_max)", (0.0, 60.0)),
     "slip_duration_max": Param(10.0, "longest slip or slide episode [s]: anti-slip control and wheel-slide "
@@ -739,14 +740,17 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
     uniform within +-``diameter_tolerance`` (1-sigma tolerance/sqrt(3), which the decoder
     reports inside its stddev); creep under braking, and under traction on a driven axle;
     slip (driven axle) and slide episodes, which the decoder cannot see, none longer than
-    ``slip_duration_max`` or the longest forced episode."""
+    ``slip_duration_max`` or the longest forced episode, nor larger than ``slip_ratio_max`` or the
+    largest forced one."""
     scale = params["diameter_tolerance"] / math.sqrt(3.0)
     forced = np.asarray(params["slip_episodes"], dtype=float).reshape(-1, 3)
     longest = max(params["slip_duration_max"], float(forced[:, 1].max()) if forced.size else 0.0)
+    largest = max(params["slip_ratio_max"], float(np.abs(forced[:, 2]).max()) if forced.size else 0.0)
     return ErrorModel("wheel", "distance", scale_sigma=scale, reported_scale=scale,
                       creep_coefficient=params["creep_coefficient"], creep_in_traction=params["driven_axle"],
                       faults=("slip", "slide", "wear") if params["driven_axle"] else ("slide", "wear"),
-                      scale_fault_sigma=params["wear_fault_sigma"], fault_duration_max=longest, timeout=continuous_timeout(params),
+                      scale_fault_sigma=params["wear_fault_sigma"], fault_duration_max=longest,
+                      slip_ratio_max=largest, timeout=continuous_timeout(params),
                       min_stddev=SPEED_STDDEV_FLOOR)   # IncrementEstimator.make's floor of both stddevs
 
 

@@ -8,7 +8,7 @@ a time T is a speed d / T), and the filter carries, whatever its policies decide
 state error f x e with
 
     predict   e <- F e
-    update    e <- e + K g,   g = delta - h e   (delta: the reading's own fault, v or d for j's
+    update    e <- e + K g,   g = delta - h e   (delta: the reading's own fault, v for j's
                                                  readings, 0 for every other sensor's)
 
 g is also the mean of the update's innovation per unit fault, so the innovations test the
@@ -39,20 +39,17 @@ stays covered by the size of that jump (within the bound), and a later clean fix
 sensor's, shrinks it.
 
 A transient fault of a relative sensor (a wheel's slip or slide, ``transient`` rows) is the same
-linear algebra with a different input: its
-tests compare each reading with the filter's speed, and catch a fault of its bound (the sensor's
-``slip_ratio_max``) wherever that stands out of the reading's slip gate; a reading where it would
-not (the other speed sources silent or excluded, their last reading too old, the speed too low)
-is ``unseen``, and only unseen readings carry the fault (delta = v). e is then the filter's own
-sensitivity to what slips nobody could see have put into it, through every later predict,
-update and policy (a readmission at a large gain included), shrinking as fixes pull the filter.
-One row per episode: from the filter's first state, and again at each stretch the sensor reads
-alone (nothing but the motion model sees it), where a new slip of another size may begin; the
-one before ends there, its error left in the state. Only independent fixes (no fix-bias state:
-a DGPS bias can take up the very error a slip left, campaign run network:4262354916) test a
-row's size (the relative readings' share of it is what their own tests let pass), within
-+-``slip_ratio_max``; at most
-``fault_onsets`` rows per sensor, the smallest cover dropped.
+linear algebra with a different input. The other speed sources' tests catch a slip while one of
+them reads beside the wheel; each reading carries the share of a slip of the sensor's bound
+(``slip_ratio_max``) that they let pass there (``FaultInput.unseen``, ``TrainFilter._unseen_share``:
+all of it while nothing but the motion model sees the wheel), delta = that share x its speed. e is
+then the filter's own sensitivity to what slips nobody could see have put into it, through every
+later predict, update and policy (a readmission at a large gain included), shrinking as fixes
+pull the filter. One row per episode: from the filter's first state, and again at each stretch
+the sensor reads alone, where a new slip of another size may begin; the one before ends there,
+its error left in the state. Only independent fixes (no fix-bias state: a DGPS bias can take up
+the very error a slip left, campaign run network:4262354916) test a row's size, within
++-``slip_ratio_max``; at most ``fault_onsets`` rows per sensor, the smallest cover dropped.
 """
 from __future__ import annotations
 

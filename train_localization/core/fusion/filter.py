@@ -111,10 +111,12 @@ class TrainFilter:
         # the state (impact.py)
         self._fault_bounds = {n: self._z * m.scale_fault_sigma for n, m in self.models.items()
                               if n in self._persistent and m.scale_fault_sigma > 0.0}
-        # relative sensors with a transient fault of bounded ratio (a wheel's slip or slide) -> that
-        # ratio: the interval covers what one its tests could not see put into the state (impact.py)
+        # relative sensors with a transient fault of bounded ratio (a wheel's slip or slide) that no
+        # other sensor's own solution covers (separation.hypotheses: a contactless counter's does) ->
+        # that ratio: the interval covers what one its tests could not see put into the state (impact.py)
         self._transient_bounds = {n: m.slip_ratio_max for n, m in self.models.items()
-                                  if m.relative and fault_modes.ADHESION & set(m.faults) and m.slip_ratio_max > 0.0}
+                                  if m.relative and m.slip_ratio_max > 0.0 and any(
+                                      f"{n}/{mode}" not in self._hypotheses for mode in fault_modes.ADHESION & set(m.faults))}
         # position sensors whose runs of fixes may share an offset (faults.OFFSET) -> its bound in each
         # fix's own 1-sigma: the gate's radius (impact.py)
         self._offset_bounds = {n: math.sqrt(self._gates[n]) for n, m in self.models.items()

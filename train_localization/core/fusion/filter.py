@@ -190,8 +190,6 @@ class TrainFilter:
                     t - aux.impacts.last_onset_of(self._fault_bounds) >= self.cfg.fault_onset_spacing):
                 aux.impacts = impact.started(aux.impacts, self._fault_bounds, t, self.n, self.cfg.fault_onsets,
                                              self._z)
-            if self._transient_bounds and aux.initialised and (aux.impacts is None or not aux.impacts.transient.any()):
-                aux.impacts = impact.with_transient(aux.impacts, self._transient_bounds, t, self.n)
             if aux.lone_view is not None:   # what a lone source's scale fault adds over the distance
                 lone = aux.lone_view
                 step = self._z * self.models[lone.sensor].scale_fault_sigma * abs(float(self.ekf.x[0, 0] - s0))
@@ -309,12 +307,13 @@ class TrainFilter:
             return
         if abs(float(self.ekf.x[2, 0])) >= self.cfg.slip_min_drive:
             aux.last_drive = m.stamp
-        if cls in self._transient_bounds and self._fault_input is not None:
+        if cls in self._transient_bounds and aux.initialised:   # a relative reading: its fault input is set above
             share = self._unseen_share(cls, m.stamp, self._fault_input.per_unit, S)
             self._fault_input = self._fault_input._replace(unseen=share)
-            if share >= 1.0 and aux.impacts is not None and not aux.impacts.reads_alone(cls):
-                aux.impacts = impact.episode_started(aux.impacts, cls, self._transient_bounds[cls], m.stamp,
-                                                     self.cfg.fault_onsets, self._z)
+            alone = share >= 1.0
+            if aux.impacts is None or aux.impacts.episode_begins(cls, alone):
+                aux.impacts = impact.episode_started(aux.impacts, cls, self._transient_bounds[cls], m.stamp, alone,
+                                                     self.n, self.cfg.fault_onsets, self._z)
         x_before = self.ekf.x
         self._update(z, R, h, hx, PHt, S)
         if is_fix and nis > 1.0 and cls not in self.layout.fix:

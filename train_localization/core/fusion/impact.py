@@ -133,9 +133,12 @@ class Bank:
         """(k,) bool: the hypotheses of ``sensor``."""
         return np.array([s == sensor for s in self.sensors], dtype=bool)
 
-    def reads_alone(self, sensor: str) -> bool:
-        """Whether ``sensor``'s going-on transient-fault row saw it last read alone."""
-        return bool(np.any(self.of(sensor) & self.transient & self.active & self.alone))
+    def episode_begins(self, sensor: str, alone: bool) -> bool:
+        """Whether a reading of ``sensor``, ``alone`` (nothing but the motion model sees it) or
+        not, begins a transient-fault episode: it has no going-on row yet, or it reads alone
+        where it did not before."""
+        going_on = self.of(sensor) & self.transient & self.active
+        return not going_on.any() or (alone and not np.any(going_on & self.alone))
 
     def last_onset_of(self, sensors) -> float:
         """The newest onset [s] of the persistent-fault hypotheses of ``sensors`` (-inf: none)."""
@@ -243,25 +246,17 @@ def _row(sensor: str, onset: float, bound: float, n: int, offset: bool = False, 
                 np.zeros(1), np.full(1, offset), np.full(1, transient), np.zeros(1, bool))
 
 
-def with_transient(bank: Bank | None, bounds: dict[str, float], onset: float, n: int) -> Bank:
-    """``bank`` with a transient-fault hypothesis (``Impact.transient``) for each sensor of
-    ``bounds`` (sensor -> its ``slip_ratio_max``) that has none yet, from ``onset`` [s]."""
+def episode_started(bank: Bank | None, sensor: str, bound: float, onset: float, alone: bool, n: int,
+                    max_rows: int, z: float) -> Bank:
+    """A transient-fault episode of ``sensor`` may begin at ``onset`` [s] (``Bank.episode_begins``),
+    of any size within ``bound``: its going-on row, if any, ends (its error stays in the state, its
+    test goes on) and a new one starts, ``alone`` as the reading that begins it; beyond
+    ``max_rows`` rows of the sensor the one with the smallest cover is dropped (never the new one).
+    n: the state dimension."""
     bank = _empty(n) if bank is None else bank
-    have = {s for s, once in zip(bank.sensors, bank.transient) if once}
-    for sensor, bound in bounds.items():
-        if sensor not in have:
-            bank = _joined(bank, _row(sensor, onset, bound, n, transient=True))
-    return bank
-
-
-def episode_started(bank: Bank, sensor: str, bound: float, onset: float, max_rows: int, z: float) -> Bank:
-    """``sensor`` reads alone from ``onset`` [s]: a new transient-fault episode may begin there, of
-    any size within ``bound``. Its going-on row ends (its error stays in the state, its test
-    goes on) and a new one starts; beyond ``max_rows`` rows of the sensor the one with the
-    smallest cover is dropped (never the new one)."""
     mine = bank.of(sensor) & bank.transient
     bank = bank._replace(active=np.where(mine, False, bank.active))
-    bank = _joined(bank, _row(sensor, onset, bound, bank.E.shape[1], transient=True)._replace(alone=np.ones(1, bool)))
+    bank = _joined(bank, _row(sensor, onset, bound, n, transient=True)._replace(alone=np.full(1, alone)))
     rows = [k for k in range(len(bank)) if bank.sensors[k] == sensor and bank.transient[k]]
     if len(rows) > max_rows:
         covers = _covers(bank, z)
@@ -282,7 +277,7 @@ def updated(bank: Bank, fault_input: FaultInput | None, h: np.ndarray, K: np.nda
     reading whose own fault per unit is ``fault_input`` (a fix of a sensor with an offset fault:
     its 1-sigma, checked), None for a reading that carries none. A transient fault is carried by
     its sensor's readings in their unseen share (whether the sensor read alone is kept:
-    ``episode_started``) and tested by independent fixes only."""
+    ``Bank.episode_begins``) and tested by independent fixes only."""
     g = -bank.E.dot(h)
     tests = ~bank.transient | (fault_input is not None and fault_input.independent)
     alone = bank.alone

@@ -125,7 +125,12 @@ def test_a_route_through_sections_that_do_not_follow_is_refused(throat):
     (lambda d: d["trains"][0].pop("route"), "on a network a train needs 'route"),
     (lambda d: d["trains"][0]["sensors"].update(axle_counter={}), "do not work on a network yet"),
     (lambda d: d["trains"][0]["initial"].update(position=1200.0), "is off its first section T1"),
-    (lambda d: d.update(wayside={"sensors": {"axle_counter": {}}}), "wayside equipment on a network"),
+    (lambda d: d.update(wayside={"sensors": {"axle_counter": {}}, "changeover": {"sections": []}}),
+     "a changeover section on a network is not supported yet"),
+    (lambda d: d.update(wayside={"sensors": {"track_circuit_receiver": {}}}),
+     "no section of network throat carries track_circuit"),
+    (lambda d: d.update(wayside={"sensors": {"axle_counter": {"heads": "AC1,AC99"}}}), "AC99 on no section"),
+    (lambda d: d.update(wayside={"sensors": {"axle_counter": {"faults": "AC42@3:missed"}}}), "AC42 on no section"),
 ])
 def test_a_network_scenario_that_cannot_run_is_refused_in_one_line(change, message):
     with open(resolve("config/scenario_throat.yaml"), encoding="utf-8") as fh:

@@ -555,13 +555,15 @@ class LineResult:
 def wayside_pipelines(scenario: Scenario, simulate: bool = True) -> dict[str, SensorPipeline]:
     """Raw topic -> SensorPipeline of each wayside sensor of a line, simulating ones seeing every train."""
     fleet = {name: tr.vehicle for name, tr in scenario.trains.items()} if simulate else None
+    routes = {name: tr.route for name, tr in scenario.trains.items()}
     wayside = scenario.for_namespace(WAYSIDE_NAMESPACE)
     pipes = {}
     for node, params in wayside.sensors.items():
         spec = sensor_spec(node)
         unit = (params or {}).get("unit_id") or spec.sensor
         pipes[raw_topic(spec.sensor, WAYSIDE_NAMESPACE)] = SensorPipeline(
-            spec, params, wayside.track, wayside.vehicle, wayside.rng(node, unit), simulate=simulate, fleet=fleet)
+            spec, params, wayside.track, wayside.vehicle, wayside.rng(node, unit), simulate=simulate, fleet=fleet,
+            network=scenario.network, routes=routes)
     return pipes
 
 
@@ -578,7 +580,8 @@ class _Line:
             self.outs[name] = _Output(runner, RunResult(runner=runner), writer, mc, train.track.track_id,
                                       train_namespace(train))
         associator = Associator.for_trains({n: o.result.estimates for n, o in self.outs.items()},
-                                           {n: o.track_id for n, o in self.outs.items()}, scenario.association)
+                                           {n: o.track_id for n, o in self.outs.items()}, scenario.association,
+                                           scenario.network)
         site = scenario.changeover_site()
         self.result = LineResult(trains={n: o.result for n, o in self.outs.items()}, associator=associator,
                                  changeover=ChangeoverLoop(site) if site else None, scenario=scenario)

@@ -34,17 +34,24 @@ class SensorPipeline:
     configuration, not by what a publisher sends.
 
     ``fleet`` (train name -> vehicle): a wayside device on a line, fed with every train's
-    truth (``on_truth(state, train)``, scenario.LineTruth).
+    truth (``on_truth(state, train)``, scenario.LineTruth). ``network``: a wayside device on a
+    network (core/network/wayside.py), its equipment on every section; simulated, each train's
+    axles placed by its route (``routes``: train name -> TrackPath, the trains of ``fleet``).
     """
 
     def __init__(self, spec: SensorSpec, params: dict | None, track: Track, vehicle: Vehicle,
-                 rng=None, simulate: bool = True, fleet: dict[str, Vehicle] | None = None):
+                 rng=None, simulate: bool = True, fleet: dict[str, Vehicle] | None = None,
+                 network=None, routes: dict | None = None):
         self.spec = spec
         self.params = sensor_params(spec, params, vehicle)
         self.track = track
-        self.decoder = spec.decoder(self.params, track)
+        if network is not None:
+            from .network.wayside import SectionDecoders
+            self.decoder = SectionDecoders(spec, self.params, network)
+        else:
+            self.decoder = spec.decoder(self.params, track)
         # a train on a network: its reference fixes restated on their equipment's sections
-        self.labels = SectionLabels(track) if getattr(track, "path", None) is not None else None
+        self.labels = SectionLabels(track) if getattr(track, "path", None) is not None and network is None else None
         self.sample_rate = float(self.params["sample_rate"] or spec.simulator.default_sample_rate)
         longest, most = float(self.params["max_block_duration"]), COMMON_PARAMS["max_block_duration"].limits[1]
         if not float(self.params["block_duration"]) <= longest <= most:
@@ -52,7 +59,14 @@ class SensorPipeline:
                              f"({self.params['block_duration']} s) .. {most:g} s")
         self.max_block_samples = math.ceil(longest * self.sample_rate)
         fleet_args = [list(fleet.values())] if fleet else []
-        self.simulator = spec.simulator(self.params, track, vehicle, rng, *fleet_args) if simulate else None
+        if not simulate:
+            self.simulator = None
+        elif network is not None:
+            from .network.wayside import SectionSimulators
+            self.simulator = SectionSimulators(spec, self.params, network, vehicle, rng, *fleet_args,
+                                               [routes[name] for name in fleet])
+        else:
+            self.simulator = spec.simulator(self.params, track, vehicle, rng, *fleet_args)
         self.truth = LineTruth(fleet) if fleet else TruthBuffer()
         self.guard = BlockSequenceGuard(spec.decoder.channels or None)
         self.origin: float | None = None   # [s] of the decoder's times (REBASE_FROM)

@@ -253,8 +253,13 @@ def association_check(result) -> dict:
     unexplained (core/association.py), and against the truth: a used fix counts as
     ``wrong_train`` when another train's true front was nearer to it (direction alike)
     than the front of the train it went to; ``error_over_sigma_max`` is the largest
-    |fix - true front of its train| / fix 1-sigma of the used fixes."""
+    |fix - true front of its train| / fix 1-sigma of the used fixes. On a network a fix names
+    a section: it is compared in each train's route distance, and a train whose route does not
+    run along that section is not near it."""
     assoc = result.associator
+    scenario = result.scenario
+    routes = ({name: tr.route for name, tr in scenario.trains.items()}
+              if scenario is not None and scenario.network is not None else None)
     fronts = {}
     for name, run in result.trains.items():
         arr = np.array([(s.stamp, s.position, s.speed) for s in run.truth]).reshape(-1, 3)
@@ -269,9 +274,16 @@ def association_check(result) -> dict:
             if not arr.size:
                 continue
             v = float(np.interp(m.stamp, arr[:, 0], arr[:, 2]))
-            if m.direction and abs(v) > 0.1 and (v > 0) != (m.direction > 0):
+            position, direction = m.position, m.direction
+            if routes is not None:
+                step = next((st for st in routes[name].steps if st.section == m.track_id), None)
+                if step is None:
+                    continue
+                position = step.distance(m.position) - routes[name].begin
+                direction = m.direction * step.direction
+            if direction and abs(v) > 0.1 and (v > 0) != (direction > 0):
                 continue
-            dist[name] = abs(float(np.interp(m.stamp, arr[:, 0], arr[:, 1])) - m.position)
+            dist[name] = abs(float(np.interp(m.stamp, arr[:, 0], arr[:, 1])) - position)
         if dist and min(dist, key=dist.get) != d.train:
             wrong += 1
         if d.train in dist:

@@ -143,7 +143,7 @@ class Scenario:
             return Scenario(name=f"{self.name}/{WAYSIDE}", track=self.track, vehicle=self.wayside_vehicle(), legs=[],
                             duration=self.duration, seed=self.seed, truth_rate=self.truth_rate,
                             sensors=dict(self.wayside), source=self.source, description=self.description,
-                            line=True, train_name=WAYSIDE, rng_prefix=(WAYSIDE,))
+                            line=True, train_name=WAYSIDE, rng_prefix=(WAYSIDE,), network=self.network)
         if name not in self.trains:
             raise ScenarioError(f"namespace {namespace!r} names no train of scenario {self.name} (trains: "
                                 f"{', '.join(self.trains)}) and is not /{WAYSIDE}")
@@ -361,8 +361,8 @@ def _line(cls, data: dict, common: dict, network=None) -> Scenario:
         raise ScenarioError("'trains' must be a non-empty list of trains")
     wayside_data = data.get("wayside", {}) or {}
     wayside = {name: dict(params or {}) for name, params in (wayside_data.get("sensors", {}) or {}).items()}
-    if network and (wayside or wayside_data.get("changeover")):
-        raise ScenarioError("wayside equipment on a network is not supported yet (trains' on-board sensors only)")
+    if network and wayside_data.get("changeover"):
+        raise ScenarioError("a changeover section on a network is not supported yet")
     trains = {}
     for k, entry in enumerate(entries):
         if not isinstance(entry, dict):
@@ -399,6 +399,13 @@ def _check_line(scenario: Scenario) -> None:
             raise ScenarioError(f"wayside: {exc.args[0]}") from None
         if not sp.simulator.sees_all_trains:
             raise ScenarioError(f"wayside: {node} is on-board equipment (list it under a train's sensors)")
+        if scenario.network is not None:
+            from .network import NetworkError
+            from .network.wayside import section_params
+            try:
+                section_params(sp, scenario.wayside[node] or {}, scenario.network)
+            except NetworkError as exc:
+                raise ScenarioError(f"wayside: {exc}") from None
     for train in scenario.trains.values():
         for node in train.sensors:
             try:

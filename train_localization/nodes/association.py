@@ -2,10 +2,12 @@
 
 Runs in ``/wayside`` on a line scenario (several trains). Subscribes the position fixes
 of the scenario's wayside sensors (``sensors/<sensor>/position``, relative: in /wayside)
-and every train's fused state (``/<train>/localization/state``); a fix that exactly one
-train's fused state explains is published on ``/<train>/sensors/<sensor>/position``, where
-that train's fusion takes it. Ambiguous and unexplained fixes are used by no train and
-counted (``/diagnostics``: associated/<outcome>, associated/<sensor>/<outcome>).
+and every train's fused state (``/<train>/localization/state``; on a network also its track
+hypotheses, ``/<train>/localization/tracks``, paired with the state of the same stamp); a
+fix that exactly one train's fused state explains is published on
+``/<train>/sensors/<sensor>/position``, where that train's fusion takes it. Ambiguous and
+unexplained fixes are used by no train and counted (``/diagnostics``:
+associated/<outcome>, associated/<sensor>/<outcome>).
 
 Parameters:
   scenario (string, required)   the line scenario YAML (trains, their tracks, wayside sensors)
@@ -18,10 +20,13 @@ Parameters:
 """
 from __future__ import annotations
 
+import dataclasses
+
 from rclpy.node import Node
 
 from ..core import convert
 from ..core.association import Associator, FusedState
+from ..core.network.hypotheses import TrackHypothesisState
 from ..core.scenario import ScenarioError
 from ..core.sensors import spec as sensor_spec
 from ..core.signals import InputRejected
@@ -45,7 +50,9 @@ class AssociationNode(Node):
         self.future_tolerance = declare_future_tolerance(self, "a train's fused state")
         self.mc = rclpy_classes()
         self.states = {name: [] for name in line.trains}
-        self.assoc = Associator(self.states, {n: tr.track.track_id for n, tr in line.trains.items()}, gate, min_speed)
+        self.assoc = Associator(self.states, {n: tr.track.track_id for n, tr in line.trains.items()}, gate, min_speed,
+                                line.network)
+        self.tracks: dict[str, dict[float, tuple]] = {name: {} for name in line.trains}   # stamp -> hypotheses
         self.diag = Diagnostics(self, "association of wayside fixes")
         self.diag.set_status(0, "running")
         self._subs = []
@@ -53,6 +60,10 @@ class AssociationNode(Node):
             self._subs.append(self.create_subscription(
                 self.mc.TrainState, f"/{name}/localization/state",
                 lambda msg, name=name: self.on_state(name, msg), STREAM_QOS))
+            if line.network is not None:
+                self._subs.append(self.create_subscription(
+                    self.mc.TrackHypotheses, f"/{name}/localization/tracks",
+                    lambda msg, name=name: self.on_tracks(name, msg), STREAM_QOS))
         self.pubs = {}
         for node in line.wayside:
             sp = sensor_spec(node)
@@ -64,10 +75,30 @@ class AssociationNode(Node):
                 self.pubs[name, sp.sensor] = self.create_publisher(
                     self.mc.PositionFix, f"/{name}/sensors/{sp.sensor}/position", STREAM_QOS)
 
+    def on_tracks(self, train: str, msg) -> None:
+        """A train's track hypotheses: joined to its state of the same stamp (now or when it comes)."""
+        stamp = convert.stamp_to_sec(msg.header.stamp)
+        hypotheses = tuple(TrackHypothesisState(h.track_id, float(h.position), float(h.speed), float(h.position_min),
+                                                float(h.position_max), float(h.probability), tuple(h.path), 0)
+                           for h in msg.hypotheses)
+        states = self.states[train]
+        for k in range(len(states) - 1, max(-1, len(states) - 50), -1):
+            if states[k].stamp == stamp:
+                states[k] = dataclasses.replace(states[k], hypotheses=hypotheses)
+                return
+            if states[k].stamp < stamp:
+                break
+        pending = self.tracks[train]
+        pending[stamp] = hypotheses
+        while len(pending) > 50:   # hypotheses whose state never came
+            del pending[min(pending)]
+
     def on_state(self, train: str, msg) -> None:
         states = self.states[train]
-        state = FusedState(convert.stamp_to_sec(msg.header.stamp), float(msg.position), float(msg.position_min),
-                           float(msg.position_max), float(msg.speed), float(msg.speed_stddev), int(msg.mode))
+        stamp = convert.stamp_to_sec(msg.header.stamp)
+        state = FusedState(stamp, float(msg.position), float(msg.position_min),
+                           float(msg.position_max), float(msg.speed), float(msg.speed_stddev), int(msg.mode),
+                           self.tracks[train].pop(stamp, ()))
         try:
             refuse_future(state.stamp, now_sec(self), self.future_tolerance, "fused state")
         except InputRejected as exc:

@@ -93,7 +93,9 @@ class SensorNode(ManagedNode):
         if mode == "sim" and rng is None:
             import numpy as np
             rng = np.random.default_rng(0)
-        self.pipe = SensorPipeline(self.spec, overrides, track, vehicle, rng, simulate=(mode == "sim"))
+        # a wayside device of a network: its equipment on every section (core/network/wayside.py)
+        network = scenario.network if scenario is not None and self.spec.simulator.sees_all_trains else None
+        self.pipe = SensorPipeline(self.spec, overrides, track, vehicle, rng, simulate=(mode == "sim"), network=network)
         self.mc = rclpy_classes()
         self.diag.name = f"{node_name}: {self.spec.sensor} {unit} ({mode})"
         base = f"sensors/{self.spec.sensor}"

@@ -119,6 +119,36 @@ class TrackPath:
         """Sections the path distances lo .. hi span, in the path's order."""
         return [st.section for st in self.steps if st.stop > lo and st.start < hi] or [self.step_at(lo).section]
 
+    @classmethod
+    def through(cls, network: Network, sections: tuple[str, ...] | list[str]) -> "TrackPath | None":
+        """The path along ``sections`` (each joined to the one before at a node, as a published
+        hypothesis's ``path`` lists them), path distance 0 where it enters the first; None if
+        they do not join so. A single section is run along its chainage."""
+        for direction in (1, -1):
+            path: TrackPath | None = cls.start(network, sections[0], direction)
+            for nxt in sections[1:]:
+                c = next((c for c in path.ahead() if c.section == nxt), None)
+                if c is None:
+                    path = None
+                    break
+                path = path.extended(c)
+            if path is not None:
+                return path
+        return None
+
+    def reaching(self, section: str) -> "TrackPath | None":
+        """The path itself if it contains ``section``, else continued by one section at either
+        end to reach it; None if it does not join the path's ends."""
+        if any(st.section == section for st in self.steps):
+            return self
+        for c in self.ahead():
+            if c.section == section:
+                return self.extended(c)
+        for c in self.behind():
+            if c.section == section:
+                return self.prepended(c)
+        return None
+
     def ways(self) -> dict[str, str]:
         """node -> way (B1/B2) of every facing switch the path takes."""
         return {st.node: st.way for st in self.steps if st.way is not None}
@@ -188,6 +218,8 @@ def route_path(network: Network, sections: list[str], first_direction: int = 1) 
 # equipment kinds a route line carries (a sensor that needs another kind is not yet
 # supported on a network: core/scenario.py refuses it in one line)
 ROUTE_KINDS = ("eurobalise", "transponder_tag", "structure")
+# equipment that wayside devices see (core/network/wayside.py), no on-board sensor: not on route lines
+WAYSIDE_ONLY_KINDS = ("axle_counter_head", "track_circuit")
 
 
 def route_track(path: TrackPath, track_id: str) -> Track:
@@ -195,7 +227,8 @@ def route_track(path: TrackPath, track_id: str) -> Track:
     path's begin, the sections' alignments end to end, and the equipment of ROUTE_KINDS on
     them at their path distance, each item keeping its ``section`` and ``section_position``
     (its chainage there) and getting ``section_direction`` (+1 if the route runs along the
-    section's chainage). The simulator and the on-board sensors of a train run on it."""
+    section's chainage). The simulator and the on-board sensors of a train run on it; the
+    wayside equipment (WAYSIDE_ONLY_KINDS) is not on it."""
     network = path.network
     first = path.steps[0]
     sec0 = network.section(first.section)
@@ -212,9 +245,11 @@ def route_track(path: TrackPath, track_id: str) -> Track:
             segs.append((sec.length - covered, 0.0))
         segments += segs if step.direction > 0 else [(ln, -k) for ln, k in reversed(segs)]
         for kind, items in sec.equipment.items():
+            if kind in WAYSIDE_ONLY_KINDS:
+                continue
             if kind not in ROUTE_KINDS:
                 raise NetworkError(f"section {sec.track_id}: equipment kind {kind!r} is not supported on a network "
-                                   f"route yet (supported: {', '.join(ROUTE_KINDS)})")
+                                   f"yet (supported: {', '.join(ROUTE_KINDS + WAYSIDE_ONLY_KINDS)})")
             for item in items:
                 moved = {k: v for k, v in item.items() if k not in ("start", "end", "length")}
                 moved.update(section=step.section, section_position=float(item["position"]),

@@ -344,6 +344,9 @@ def continuous_timeout(params: dict) -> float:
     return max(1.0, 20.0 * float(params.get("block_duration", 0.05)))
 
 
+OFF_RAILS = -1.0e7   # [m] chainage of an axle that is not on a wayside device's rails (beyond any equipment)
+
+
 class Simulator(ABC):
     """Simulates one device: raw blocks of consecutive, gap-free intervals.
 
@@ -373,6 +376,9 @@ class Simulator(ABC):
         if fleet and not self.sees_all_trains:
             raise ValueError(f"{self.sensor} is on-board equipment: it sees only its own train")
         self.fleet = list(fleet) if fleet else [vehicle]   # the vehicles seen, in the truth's column order
+        # on a network (core/network/wayside.py): per train, where its route runs along this
+        # device's section (a Placement: route-line chainage -> section chainage), or None
+        self.placements: list | None = None
         self._orients: list[int | None] | None = None
         self.unit_id = params.get("unit_id") or self.sensor
         self.sample_rate = float(params.get("sample_rate") or self.default_sample_rate)
@@ -422,11 +428,16 @@ class Simulator(ABC):
     def axle_chainages(self, position: np.ndarray) -> list[np.ndarray]:
         """Chainages [m] of every seen train's axles, one (n, axles) array per train: axle k at
         front - o x offset_k, o the train's orientation (``orientations``; +1 before it is
-        known). ``position``: (n,) for one train or (n, trains)."""
+        known). ``position``: (n,) for one train or (n, trains). On a network each train's
+        axles are placed on the device's section by ``placements``."""
         orients = self._orients or [int(np.sign(self.params.get("orientation", 0))) or None] * len(self.fleet)
         pos = position if position.ndim == 2 else position[:, None]
-        return [pos[:, j:j + 1] - (orients[j] or 1) * np.asarray(vehicle.axles, float)[None, :]
-                for j, vehicle in enumerate(self.fleet)]
+        axles = [pos[:, j:j + 1] - (orients[j] or 1) * np.asarray(vehicle.axles, float)[None, :]
+                 for j, vehicle in enumerate(self.fleet)]
+        if self.placements is None:
+            return axles
+        return [place(x) if place is not None else np.full_like(x, OFF_RAILS)
+                for x, place in zip(axles, self.placements)]
 
     def _quantise(self, data: np.ndarray) -> np.ndarray:
         lsb = np.array([self.adc_lsb.get(u, 0.0) for u in self.units])

@@ -1,0 +1,195 @@
+"""Wayside equipment on a network (core/network/wayside.py) and the association of its fixes
+with the trains' track hypotheses (core/association.py); docs/network.md."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import yaml
+
+from train_localization.core.association import AMBIGUOUS, UNEXPLAINED, USED, Associator, FusedState
+from train_localization.core.measurements import PositionFix, SectionOccupancy
+from train_localization.core.network import Network, NetworkError, route_path
+from train_localization.core.network.hypotheses import TrackHypothesisState
+from train_localization.core.network.wayside import Placement, SectionDecoders, SectionSimulators, section_params
+from train_localization.core.offline import replay_line, simulate_line
+from train_localization.core.paths import resolve
+from train_localization.core.report import line_report
+from train_localization.core.scenario import LineTruth, Scenario, TruthState, Vehicle
+from train_localization.core.sensors import spec
+from train_localization.core.sensors.base import OFF_RAILS, sensor_params
+from train_localization.core.signals import InputRejected
+
+SCENARIO = "config/scenario_throat_wayside.yaml"
+AXLES = (2.5, 5.0, 27.5, 30.0, 90.0, 92.5, 115.0, 117.5)
+
+
+@pytest.fixture(scope="module")
+def throat():
+    return Network.from_yaml(resolve("config/track_throat.yaml"))
+
+
+# ---- equipment on sections -------------------------------------------------------------------
+
+def test_a_route_places_a_trains_axles_on_a_section_only_where_it_runs_along_it(throat):
+    forward = route_path(throat, ["T1", "T3", "T5"])
+    on_t3 = Placement.of(forward, "T3")
+    x = np.array([999.0, 1010.0, 1058.0, 1070.0])   # route-line chainage: T1 ends at 1000 m
+    assert np.allclose(on_t3(x), [OFF_RAILS, 10.0, 58.0, OFF_RAILS], atol=0.6)
+    assert Placement.of(forward, "T6") is None
+    backward = route_path(throat, ["T5", "T3", "T1"], first_direction=-1)
+    on_t1 = Placement.of(backward, "T1")
+    start = backward.steps[2].start - backward.begin
+    assert on_t1(np.array([start + 10.0]))[0] == pytest.approx(990.0)   # against T1's chainage
+
+
+def test_a_devices_parameters_are_narrowed_to_each_sections_own_equipment(throat):
+    ac = spec("axle_counter")
+    per = section_params(ac, {"heads": "AC1,AC5,AC6", "faults": "AC5@10:missed;AC1@3:extra"}, throat)
+    assert list(per) == ["T1", "T5"]
+    assert per["T5"]["heads"] == "AC5,AC6" and per["T5"]["faults"] == "AC5@10:missed"
+    assert per["T1"]["faults"] == "AC1@3:extra"
+    data = yaml.safe_load(open(resolve("config/track_throat.yaml"), encoding="utf-8"))
+    data["sections"][1]["equipment"]["axle_counter_head"].append({"id": "AC1", "position": 900.0})
+    with pytest.raises(NetworkError, match="'AC1' is on sections T1 and T2") as err:
+        section_params(ac, {}, Network.from_dict(data))
+    assert "\n" not in str(err.value)
+
+
+def _device(throat, routes):
+    ac = spec("axle_counter")
+    params = sensor_params(ac, {"front_first": True}, Vehicle(axles=AXLES))
+    fleet = [Vehicle(axles=AXLES) for _ in routes]
+    sim = SectionSimulators(ac, params, throat, fleet[0], np.random.default_rng(3), fleet, routes)
+    return sim, SectionDecoders(ac, params, throat), params
+
+
+def test_the_heads_of_every_section_see_a_train_only_on_its_route(throat):
+    north = route_path(throat, ["T1", "T3", "T5", "T6"])
+    sim, dec, _ = _device(throat, [north])
+    assert dec.expected == sim.channels and len(sim.channels) == 2 * 10
+    truth = LineTruth({"north": Vehicle(axles=AXLES)})
+    fixes, reports = [], []
+    for k in range(0, 9001):          # 12 m/s from route-line chainage 850 m for 90 s
+        t = k / 100.0
+        truth.add("north", TruthState(t, 850.0 + 12.0 * t, 12.0, 0.0))
+        for block in sim.simulate(truth):
+            for m in dec.decode(block):
+                (fixes if isinstance(m, PositionFix) else reports).append(m)
+    passed = [(f.track_id, f.reference_id) for f in fixes]
+    # T1's head, T5's two and T6's first: never track A's (T2) or track C's (T7)
+    assert passed == [("T1", "AC1"), ("T5", "AC5"), ("T5", "AC6"), ("T6", "AC7")]
+    for f in fixes:
+        step = next(st for st in north.steps if st.section == f.track_id)
+        t_front = (step.distance(f.position) - north.begin - 850.0) / 12.0
+        assert abs(t_front - f.stamp) * 12.0 < 5 * f.position_stddev + 0.05, f
+    # one report lists every section of the device
+    assert {s.section_id for s in reports[-1].sections} == {"AC2-AC3", "AC5-AC6", "AC7-AC8", "AC9-AC10"}
+    assert {(type(r).__name__, r.source) for r in reports} == {("SectionOccupancy", "axle_counter")}
+
+
+def test_a_block_one_sections_columns_refuse_changes_no_sections_decoder(throat):
+    north = route_path(throat, ["T1", "T2"])
+    sim, dec, _ = _device(throat, [north])
+    truth = LineTruth({"north": Vehicle(axles=AXLES)})
+    truth.add("north", TruthState(0.0, 0.0, 0.0, 0.0))
+    truth.add("north", TruthState(0.2, 0.0, 0.0, 0.0))
+    block = sim.simulate(truth)[0]
+    bad = block.data.copy()
+    bad[:, -1] = 5.0                        # T7's last head: implausible damping
+    from dataclasses import replace
+    before = [p.count.copy() for p in dec.parts]
+    with pytest.raises(InputRejected) as err:
+        dec.decode(replace(block, data=bad))
+    assert err.value.reason == "implausible"
+    assert all(p._last_report is None for p in dec.parts)     # no section's decoder took the block
+    assert all((p.count == b).all() for p, b in zip(dec.parts, before))
+    with pytest.raises(InputRejected) as err:
+        dec.decode(replace(block, channels=block.channels[:-1] + ("AC99.b",)))
+    assert err.value.reason == "unknown_id"
+    assert len(dec.decode(block)) == 1                         # the first report, of every section
+
+
+# ---- association with track hypotheses ---------------------------------------------------------
+
+def _state(stamp, hyps, speed_stddev=0.1):
+    return FusedState(stamp, hyps[0].position, min(h.position_min for h in hyps),
+                      max(h.position_max for h in hyps), hyps[0].speed, speed_stddev, 2, tuple(hyps))
+
+
+def _hyp(track, position, half, speed, path):
+    return TrackHypothesisState(track, position, speed, position - half, position + half, 0.5, tuple(path), 2)
+
+
+def test_a_fix_goes_to_the_train_one_of_whose_hypotheses_explains_it_on_its_section(throat):
+    # "a" may be on the crossover or on track A past W1; "b" runs on track B ahead of W2
+    a = [_state(t, [_hyp("T3", 20.0 + 10 * t, 5.0, 10.0, ["T3"]), _hyp("T2", 20.0 + 10 * t, 5.0, 10.0, ["T2"])])
+         for t in (1.0, 1.1)]
+    b = [_state(t, [_hyp("T4", 700.0 + 10 * t, 3.0, 10.0, ["T4"])]) for t in (1.0, 1.1)]
+    assoc = Associator({"a": a, "b": b}, {"a": "throat:a", "b": "throat:b"}, network=throat)
+    fix = lambda track, pos, direction=1: PositionFix(1.05, "axle_counter", "ac", track, "X", pos, 0.05, direction)
+    assert assoc.associate(fix("T2", 30.0)) == "a"          # a's second hypothesis
+    assert assoc.associate(fix("T3", 31.0)) == "a"          # its first
+    assert assoc.associate(fix("T4", 710.0)) == "b"
+    assert assoc.associate(fix("T6", 30.0)) is None         # a section no hypothesis reaches
+    assert assoc.associate(fix("T2", 30.0, -1)) is None     # the other direction
+    # the crossover's far end is 58.5 m; a's interval on T3 ends at 35.5 m: T5 lies beyond it
+    assert assoc.associate(fix("T5", 10.0)) is None
+    # b's interval reaches T4's end (T5 follows through W2): a fix on T5 just past it is b's
+    b_near = [_state(t, [_hyp("T4", 795.0 + 10 * t, 8.0, 10.0, ["T4"])]) for t in (1.0, 1.1)]
+    assoc2 = Associator({"a": a, "b": b_near}, {}, network=throat)
+    assert assoc2.associate(PositionFix(1.05, "axle_counter", "ac", "T5", "X", 2.0, 0.05, 1)) == "b"
+    # a hypothesis of each train covering the same place: ambiguous, used by neither
+    both = [_state(t, [_hyp("T2", 20.0 + 10 * t, 5.0, 10.0, ["T2"])]) for t in (1.0, 1.1)]
+    assoc3 = Associator({"a": a, "c": both}, {}, network=throat)
+    assert assoc3.associate(fix("T2", 30.0)) is None
+    assert assoc3.counts == {AMBIGUOUS: 1}
+    assert assoc.counts == {USED: 3, UNEXPLAINED: 3}
+
+
+# ---- the scenario, offline and replayed --------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def wayside_run(tmp_path_factory):
+    bag = tmp_path_factory.mktemp("wayside") / "throat_wayside.mcap"
+    sc = Scenario.from_yaml(SCENARIO)
+    return sc, simulate_line(sc, bag=bag, fusion_rate=50.0), bag
+
+
+def test_every_head_fix_reaches_the_train_that_passed_it(wayside_run):
+    sc, res, _ = wayside_run
+    report = line_report(res)
+    a = report["association"]
+    assert a["offered"] == a["used"] == 7 and a["wrong_train"] == 0
+    assert a["delivered"] == {"north": 3, "south": 4}
+    assert a["error_over_sigma_max"] < 3.0
+    for name, train in report["trains"].items():
+        net = train["network"]
+        assert net["nominal_wrong_track"] == 0 and net["inside"] == 1.0, name
+        assert net["true_hypothesis_outside"] == 0, name
+    assert report["trains"]["north"]["network"]["switch_ways_resolved"] == 2
+    counters = res.trains["south"].runner.counters()
+    assert counters["switches_contradicted"] == {"W3": "reported B1, found B2"}
+
+
+def test_a_head_beyond_a_switch_finds_the_way_sooner_than_the_balises(wayside_run):
+    sc, res, _ = wayside_run
+    with open(resolve(SCENARIO), encoding="utf-8") as fh:
+        data = yaml.safe_load(fh)
+    data.pop("wayside")
+    data["track"] = resolve(data["track"])
+    alone = simulate_line(Scenario.from_dict(data), fusion_rate=50.0)
+    wrong = lambda run: sum(1 for e in run.estimates if e.track_id == "T6")
+    with_heads, without = wrong(res.trains["south"]), wrong(alone.trains["south"])
+    # the reported (wrong) way leads until evidence excludes it: the head AC9 45 m past W3
+    # excludes it about 100 m before the balise group BG7 at 140 m does
+    assert 0 < with_heads and with_heads + 250 < without
+    assert all(e.mode == 2 for e in res.trains["south"].estimates if e.track_id == "T6")
+
+
+def test_the_recorded_bag_replays_to_the_same_associations(wayside_run):
+    sc, res, bag = wayside_run
+    again = replay_line(bag, fusion_rate=50.0)
+    decisions = lambda r: [(d.fix.reference_id, d.fix.stamp, d.train) for d in r.associator.decisions]
+    assert decisions(again) == decisions(res)
+    for name in res.trains:
+        assert [e.position for e in again.trains[name].estimates] == [e.position for e in res.trains[name].estimates]

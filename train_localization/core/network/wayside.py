@@ -1,0 +1,191 @@
+"""Wayside train detection on a network: one device's equipment on several sections
+(docs/network.md, "Wayside equipment").
+
+An axle-counter head or a track circuit works on the rails of its own section, in that
+section's chainage (core/sensors/axle_counter.py, track_circuit.py; seed 004 sections 2.1,
+2.2). A wayside device of a network is the equipment of its kind on every section that
+carries some: per section, the sensor's own simulator and decoder run on that section as
+on a single line, side by side in one raw block (the channels of the sections in the
+network's order). Nothing of the decoding is new: a fix names the section of its head or
+circuit boundary, in that section's chainage; the device's occupancy report lists the
+sections of every section it monitors.
+
+A train's axles lie on a section's rails where its route runs along that section
+(``Placement``); elsewhere they are off those rails, and no head or circuit of the section
+sees them. Which train a fix belongs to is the association's question
+(core/association.py): the device does not know.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..measurements import SectionOccupancy
+from ..scenario import Vehicle
+from ..signals import InputRejected, RawBlock
+from ..sensors.base import OFF_RAILS, Decoder, SensorSpec, Simulator
+from .model import Network, NetworkError
+from .path import TrackPath
+
+# sensor class -> (equipment kind it monitors, the parameter that restricts a device to some of it)
+WAYSIDE_KINDS = {"axle_counter": ("axle_counter_head", "heads"), "track_circuit": ("track_circuit", "circuits")}
+
+
+@dataclass(frozen=True)
+class Placement:
+    """Where one train's route runs along one section: route-line chainage [m] (path distance
+    less the route's begin, what the train's ground truth gives) -> the section's chainage."""
+
+    origin: float       # path distance of route-line chainage 0 [m]
+    start: float        # path distance where the route enters the section [m]
+    stop: float         # ... and leaves it [m]
+    direction: int      # +1: the route runs along the section's chainage
+    length: float       # the section's length [m]
+
+    @classmethod
+    def of(cls, route: TrackPath, section: str) -> "Placement | None":
+        """The placement of ``route`` on ``section``; None if the route does not run along it."""
+        for step in route.steps:
+            if step.section == section:
+                return cls(route.begin, step.start, step.stop, step.direction, step.length)
+        return None
+
+    def __call__(self, chainage: np.ndarray) -> np.ndarray:
+        """Section chainages of route-line chainages [m]; OFF_RAILS where not on the section."""
+        s = chainage + self.origin
+        on = (s >= self.start) & (s <= self.stop)
+        along = s - self.start if self.direction > 0 else self.length - (s - self.start)
+        return np.where(on, along, OFF_RAILS)
+
+
+def _kind(spec: SensorSpec) -> tuple[str, str]:
+    try:
+        return WAYSIDE_KINDS[spec.sensor]
+    except KeyError:
+        raise NetworkError(f"{spec.node} does not work on a network as wayside equipment (those that do: "
+                           f"{', '.join(WAYSIDE_KINDS)})") from None
+
+
+def section_params(spec: SensorSpec, params: dict, network: Network) -> dict[str, dict]:
+    """Section id -> the device's parameters on that section, for every section (in the
+    network's order) that carries equipment of the device's kind; the restriction parameter
+    (``heads``, ``circuits``) and the injected faults (``ID@...``) narrowed to the section's
+    own ids. One-line NetworkError for an id used on two sections, or a restriction or fault
+    naming an id on none."""
+    kind, restrict = _kind(spec)
+    ids = {sid: [str(it["id"]) for it in sec.items(kind)] for sid, sec in network.sections.items() if sec.items(kind)}
+    owner: dict[str, str] = {}
+    for sid, names in ids.items():
+        for name in names:
+            if name in owner:
+                raise NetworkError(f"{kind} id {name!r} is on sections {owner[name]} and {sid}: ids of one "
+                                   f"device must be unique in the network")
+            owner[name] = sid
+    if not ids:
+        raise NetworkError(f"no section of network {network.network_id} carries {kind}: {spec.node} needs some")
+    wanted = [h.strip() for h in str(params.get(restrict, "")).split(",") if h.strip()]
+    faults = [f.strip() for f in str(params.get("faults", "")).split(";") if f.strip()]
+    named = wanted + [f.split("@", 1)[0].strip() for f in faults]
+    missing = sorted({n for n in named if n not in owner})
+    if missing:
+        raise NetworkError(f"{spec.node}: {', '.join(missing)} on no section of network {network.network_id}")
+    out = {}
+    for sid, names in ids.items():
+        mine = [w for w in wanted if owner[w] == sid]
+        if wanted and not mine:
+            continue
+        out[sid] = {**params, restrict: ",".join(mine),
+                    "faults": ";".join(f for f in faults if owner[f.split("@", 1)[0].strip()] == sid)}
+    return out
+
+
+class SectionSimulators(Simulator):
+    """A wayside device of a network, simulated: the sensor's simulator on each section that
+    carries its equipment, every train's axles placed on the section by its route."""
+
+    sees_all_trains = True
+
+    def __init__(self, spec: SensorSpec, params: dict, network: Network, vehicle: Vehicle,
+                 rng: np.random.Generator, fleet: list[Vehicle], routes: list[TrackPath]):
+        per_section = section_params(spec, params, network)
+        first = network.section(next(iter(per_section)))
+        self.sensor = spec.sensor
+        self.default_sample_rate = spec.simulator.default_sample_rate
+        self.adc_lsb = spec.simulator.adc_lsb
+        super().__init__(params, first, vehicle, rng, fleet)
+        self.parts: list[Simulator] = []
+        for (sid, p), child in zip(per_section.items(), rng.spawn(len(per_section))):
+            sim = spec.simulator(p, network.section(sid), vehicle, child, fleet)
+            sim.placements = [Placement.of(route, sid) for route in routes]
+            self.parts.append(sim)
+        self.channels = tuple(c for part in self.parts for c in part.channels)
+        self.units = tuple(u for part in self.parts for u in part.units)
+
+    def samples(self, times, position, speed, acceleration):
+        return np.concatenate([part.samples(times, position, speed, acceleration) for part in self.parts], axis=1)
+
+
+class SectionDecoders(Decoder):
+    """A wayside device of a network, decoded: the sensor's decoder on each section that
+    carries its equipment, each on its own columns of the block. Its fixes pass as the
+    section's decoder makes them; its occupancy reports are merged into one of every section,
+    at each stamp a section's decoder reports."""
+
+    caches = ("_offsets",)
+
+    def __init__(self, spec: SensorSpec, params: dict, network: Network):
+        per_section = section_params(spec, params, network)
+        self.sensor = spec.sensor
+        super().__init__(params, network.section(next(iter(per_section))))
+        self.parts: list[Decoder] = [spec.decoder(p, network.section(sid)) for sid, p in per_section.items()]
+        self.columns: list[slice] = []
+        start = 0
+        for part in self.parts:
+            self.columns.append(slice(start, start + len(part.expected)))
+            start += len(part.expected)
+        self.expected = tuple(c for part in self.parts for c in part.expected)
+        self._latest: list[tuple | None] = [None] * len(self.parts)   # each part's last reported sections
+        self.stats = self._totals()
+
+    def _totals(self) -> dict:
+        totals: dict[str, float] = {}
+        for part in self.parts:
+            for k, v in part.stats.items():
+                totals[k] = totals.get(k, 0) + v
+        return totals
+
+    def _split(self, block: RawBlock) -> list[RawBlock]:
+        if block.channels != self.expected:
+            known = set(self.expected)
+            for name in block.channels:
+                if name not in known:
+                    raise InputRejected("unknown_id", f"channel {name!r} is not equipment of this {self.sensor}")
+            raise InputRejected("channels", f"channels {block.channels} differ from {self.expected}")
+        subs = [replace(block, channels=block.channels[c], units=block.units[c], data=block.data[:, c])
+                for c in self.columns]
+        for part, sub in zip(self.parts, subs):
+            part._check(sub)    # every part's checks before any part's state changes
+        return subs
+
+    def decode(self, block: RawBlock):
+        subs = self._split(block)
+        fixes, reports = [], []
+        for k, (part, sub) in enumerate(zip(self.parts, subs)):
+            for m in part.decode(sub):
+                (reports if isinstance(m, SectionOccupancy) else fixes).append((m.stamp, k, m))
+        self.stats = self._totals()
+        out = [m for _, _, m in fixes]
+        reports.sort(key=lambda r: (r[0], r[1]))
+        for i, (stamp, k, m) in enumerate(reports):
+            self._latest[k] = m.sections
+            if i + 1 < len(reports) and reports[i + 1][0] == stamp:
+                continue     # one report per stamp, of every section
+            if all(s is not None for s in self._latest):
+                out.append(SectionOccupancy(stamp, self.unit_id, tuple(s for part in self._latest for s in part)))
+        out.sort(key=lambda m: m.stamp)
+        return out
+
+    def occupancy(self, stamp: float) -> SectionOccupancy:
+        return SectionOccupancy(float(stamp), self.unit_id,
+                                tuple(s for part in self.parts for s in part.occupancy(stamp).sections))

@@ -193,3 +193,35 @@ def test_the_recorded_bag_replays_to_the_same_associations(wayside_run):
     assert decisions(again) == decisions(res)
     for name in res.trains:
         assert [e.position for e in again.trains[name].estimates] == [e.position for e in res.trains[name].estimates]
+
+
+def test_track_circuits_of_a_section_hand_over_on_that_section_only(throat):
+    data = yaml.safe_load(open(resolve("config/track_throat.yaml"), encoding="utf-8"))
+    for sec in data["sections"]:
+        if sec["id"] in ("T2", "T6"):
+            sec["equipment"]["track_circuit"] = [
+                {"id": f"{sec['id']}a", "start": 10.0, "end": 200.0, "system": "TI21"},
+                {"id": f"{sec['id']}b", "start": 200.0, "end": 400.0, "system": "TI21"}]
+    net = Network.from_dict(data)
+    tc = spec("track_circuit_receiver")
+    params = sensor_params(tc, {"front_first": True}, Vehicle(axles=AXLES))
+    north = route_path(net, ["T1", "T3", "T5", "T6"])
+    sim = SectionSimulators(tc, params, net, Vehicle(axles=AXLES), np.random.default_rng(1), [Vehicle(axles=AXLES)],
+                            [north])
+    dec = SectionDecoders(tc, params, net)
+    truth = LineTruth({"north": Vehicle(axles=AXLES)})
+    out, occupied = [], set()
+    for k in range(0, 5001):          # 12 m/s from route-line chainage 850 m for 100 s
+        t = k / 50.0
+        truth.add("north", TruthState(t, 850.0 + 12.0 * t, 12.0, 0.0))
+        for block in sim.simulate(truth):
+            for m in dec.decode(block):
+                out.append(m)
+                if isinstance(m, SectionOccupancy):
+                    occupied |= {s.section_id for s in m.sections if s.state != 0}
+    fixes = [m for m in out if isinstance(m, PositionFix)]
+    assert [(f.track_id, f.reference_id, f.direction) for f in fixes] == [("T6", "T6a/T6b", 1)]
+    step = north.steps[3]
+    t_front = (step.distance(fixes[0].position) - north.begin - 850.0) / 12.0
+    assert abs(t_front - fixes[0].stamp) * 12.0 < 3.3 * fixes[0].position_stddev
+    assert occupied == {"T6a", "T6b"}                # track A's circuits never saw the train

@@ -104,10 +104,18 @@ def figures(scenario: Scenario, result) -> dict:
     truth = np.array([(s.stamp, s.position, s.speed) for s in result.truth])
     est = result.estimates
     t = np.array([e.stamp for e in est])
-    pos = np.array([e.position for e in est])
-    lo = np.array([e.position_min for e in est])
-    hi = np.array([e.position_max for e in est])
-    spd = np.array([e.speed for e in est])
+    if scenario.network is not None:
+        # on a network: the states in path distances, as the truth runs along the route line
+        # (core/network/scoring.py path_series; the route line's chainage 0 is the route's begin)
+        from ..core.network.scoring import path_series
+        series = path_series(est)
+        begin = scenario.route.begin
+        pos, lo, hi, spd = series.position - begin, series.position_min - begin, series.position_max - begin, series.speed
+    else:
+        pos = np.array([e.position for e in est])
+        lo = np.array([e.position_min for e in est])
+        hi = np.array([e.position_max for e in est])
+        spd = np.array([e.speed for e in est])
     mode = np.array([e.mode for e in est])
     sd_v = np.array([e.speed_stddev for e in est])
     keep = (t >= truth[0, 0]) & (t <= truth[-1, 0])

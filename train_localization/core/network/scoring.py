@@ -123,10 +123,14 @@ def parallel_mask(route: TrackPath, s: np.ndarray, distance: float = PARALLEL_DI
 def network_scores(route: TrackPath, truth_t, truth_s, states: list[PublishedState],
                    vicinity: float = VICINITY) -> dict:
     """Track selectivity, switch ways and the network integrity of a train's ``states`` on
-    its true ``route`` (truth: times [s] and route distances [m], path distance - route.begin)."""
+    its true ``route`` (truth: times [s] and route distances [m], path distance - route.begin).
+    Only states within the truth's time span are scored: a live run's recorded truth may end
+    before its fusion's last states, and no truth is known there."""
     truth_t = np.asarray(truth_t, dtype=float)
     truth_s = np.asarray(truth_s, dtype=float) + route.begin
-    claimed = [st for st in states if st.mode != Mode.INITIALISING and math.isfinite(st.position)]
+    span = (truth_t[0], truth_t[-1]) if truth_t.size else (math.inf, -math.inf)
+    claimed = [st for st in states if st.mode != Mode.INITIALISING and math.isfinite(st.position)
+               and span[0] <= st.t <= span[1]]
     if not claimed:
         return {"states": len(states), "claimed": 0}
     t = np.array([st.t for st in claimed])

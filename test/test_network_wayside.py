@@ -53,6 +53,14 @@ def test_a_devices_parameters_are_narrowed_to_each_sections_own_equipment(throat
     with pytest.raises(NetworkError, match="'AC1' is on sections T1 and T2") as err:
         section_params(ac, {}, Network.from_dict(data))
     assert "\n" not in str(err.value)
+    data["sections"][1]["equipment"]["axle_counter_head"] = [{"id": f"M{k}", "position": 200.0 + 30.0 * k}
+                                                             for k in range(24)]
+    many = Network.from_dict(data)                # 10 - 2 + 24 = 32 heads: 64 channels, one block's most
+    assert len(section_params(ac, {}, many)) == 6
+    data["sections"][1]["equipment"]["axle_counter_head"].append({"id": "M24", "position": 1000.0})
+    with pytest.raises(NetworkError, match="33 axle_counter_head give 66 raw channels.*at most 32 with 'heads'"):
+        section_params(ac, {}, Network.from_dict(data))
+    assert len(section_params(ac, {"heads": "M1,M2"}, Network.from_dict(data))) == 1
 
 
 def _device(throat, routes):
@@ -225,3 +233,29 @@ def test_track_circuits_of_a_section_hand_over_on_that_section_only(throat):
     t_front = (step.distance(fixes[0].position) - north.begin - 850.0) / 12.0
     assert abs(t_front - fixes[0].stamp) * 12.0 < 3.3 * fixes[0].position_stddev
     assert occupied == {"T6a", "T6b"}                # track A's circuits never saw the train
+
+
+# ---- randomised runs (core/network/line_campaign.py) ----------------------------------------
+
+def test_drawn_runs_place_heads_past_every_clearance_point_and_trains_behind_each_other():
+    from train_localization.core.network.line_campaign import HEAD_BEYOND, generate
+    for seed in range(6):
+        data = generate(seed)
+        assert data == generate(seed)                     # from its seed alone
+        net = Network.from_dict(data["track"])
+        heads = {h["id"]: (sid, h["position"]) for sid, sec in net.sections.items()
+                 for h in sec.items("axle_counter_head")}
+        assert len(heads) == data["campaign"]["conditions"]["heads"] >= 3
+        for node in net.switches():
+            for port in ("B1", "B2"):
+                end = node.ports[port]
+                length = net.section(end.section).length
+                want = node.clearance + HEAD_BEYOND
+                if want + 1.0 < length:
+                    at = want if end.end == "begin" else length - want
+                    assert any(s == end.section and abs(x - at) < 1e-3 for s, x in heads.values()), (seed, node)
+        sc = Scenario.from_dict(data)
+        fronts = [tr.start_position for tr in sc.trains.values()]
+        lengths = [tr.vehicle.length for tr in sc.trains.values()]
+        for k in range(1, len(fronts)):                   # each behind the one ahead, not overlapping
+            assert fronts[k] < fronts[k - 1] - lengths[k - 1]

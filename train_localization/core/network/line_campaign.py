@@ -9,7 +9,9 @@ A run (``generate``, from its seed alone):
   heads      axle-counter heads on every section (``place_heads``): HEAD_BEYOND m past the
              clearance point on each leg a switch's B port leaves by (the fouling point an
              interlocking's switch section ends at), HEAD_BEFORE m before each switch on the
-             leg its A port joins, and along the rest of each section every 250-600 m
+             leg its A port joins, and along the rest of each section every 250-600 m; none
+             where the trains stand at the start (the counter starts CLEAR); one device of at
+             most MAX_HEADS heads (a raw block's channels), those on the routes first
   trains     2-3 conventional trains (campaign.py ``_train``) standing one behind the other
              on the start section, 20-150 m apart; each starts from rest 5-40 s after the one
              ahead, with an acceleration and top speed no higher than its (close following
@@ -38,6 +40,7 @@ import traceback
 from ..campaign import (P_GYRO, P_SWITCH_UNKNOWN, P_SWITCH_WRONG, _doppler, _Draw, _dgps, _g, _reader, _train,
                         _wheel_sensor)
 from ..report import jsonable
+from ..signals import MAX_CHANNELS
 from .draw import draw_network, pick_route
 from .model import Network
 from .path import route_path
@@ -49,10 +52,14 @@ HEAD_CLEARANCE = 30.0   # [m] a head keeps from another and from a section's end
 TRAINS = (2, 3)
 P_DGPS, P_MISCOUNT = 0.5, 1.0 / 3.0
 INSIDE_TARGET = 0.999
+MAX_HEADS = MAX_CHANNELS // 2   # heads of one device: two channels each in one raw block
 
 
-def place_heads(d: _Draw, net: Network) -> dict[str, list[dict]]:
-    """Section id -> its heads ({id, position [m]}), ids H1, H2, ... in the order placed."""
+def place_heads(d: _Draw, net: Network, clear: tuple[str, float, int]) -> dict[str, list[dict]]:
+    """Section id -> its heads ({id, position [m]}), ids H1, H2, ... in the network's order of
+    sections and along each. ``clear``: (section, chainage [m], direction of travel): no head
+    on that section behind the chainage + HEAD_CLEARANCE, where the trains stand when the
+    counter starts CLEAR (a counter cannot know the axles standing in its sections)."""
     marks: dict[str, list[float]] = {sid: [] for sid in net.sections}
     for node in net.switches():
         for port, end in node.ports.items():
@@ -67,6 +74,8 @@ def place_heads(d: _Draw, net: Network) -> dict[str, list[dict]]:
             if all(abs(x - m) >= HEAD_CLEARANCE for m in marks[sid]):
                 marks[sid].append(x)
             x += d.u(*HEAD_SPACING)
+    section, chainage, direction = clear
+    marks[section] = [x for x in marks[section] if (x - chainage) * direction > HEAD_CLEARANCE]
     heads, n = {}, 0
     for sid in net.sections:
         for x in sorted(marks[sid]):
@@ -89,7 +98,7 @@ def generate(seed: int) -> dict:
     start = _g(rear + d.u(30.0, 100.0), 8)
     reach = v_top * duration
     drawn = draw_network(d, f"line_{seed}", start, reach + 300.0, reach)
-    heads = place_heads(d, drawn.model)
+    heads = place_heads(d, drawn.model, (drawn.start_section, drawn.start_chainage, drawn.start_direction))
     for entry in drawn.network["sections"]:
         if entry["id"] in heads:
             entry.setdefault("equipment", {})["axle_counter_head"] = heads[entry["id"]]
@@ -131,13 +140,19 @@ def generate(seed: int) -> dict:
         for tr in trains:
             tr["sensors"]["dgps_receiver"] = dict(dgps)
     counter = {"front_first": True, "noise_sigma": d.u(0.01, 0.04), "spike_rate": d.u(0.0, 0.02)}
+    travelled = list(dict.fromkeys(sid for r in routes for sid in r))
+    listed = [h["id"] for sid in travelled for h in heads.get(sid, [])]
+    device = [h["id"] for items in heads.values() for h in items]
+    if len(device) > MAX_HEADS:   # one device: the heads of the routes, along them
+        device = listed[:MAX_HEADS]
+        counter["heads"] = ",".join(device)
     miscount = ""
-    on_route = [h["id"] for sid in routes[0] for h in heads.get(sid, [])]
+    on_route = [h for sid in routes[0] for h in (x["id"] for x in heads.get(sid, [])) if h in device]
     if on_route and d.chance(P_MISCOUNT):
         head = on_route[d.int(0, len(on_route) - 1)]
         miscount = f"{head}@{_g(d.u(0.0, 0.8) * duration, 5)}:{'missed' if d.chance(0.5) else 'extra'}"
         counter["faults"] = miscount
-    conditions = {"trains": n_trains, "gaps_m": gaps, "top_speed_kmh": _g(v_top * 3.6), "network": drawn.shape,
+    conditions = {"trains": n_trains, "device_heads": len(device), "gaps_m": gaps, "top_speed_kmh": _g(v_top * 3.6), "network": drawn.shape,
                   "routes": routes, "heads": sum(len(h) for h in heads.values()), "dgps": "dgps_receiver" in
                   trains[0]["sensors"], "miscount": miscount,
                   "reported": {tr["name"]: tr["route"].get("reported", {}) for tr in trains}}

@@ -23,13 +23,14 @@ import numpy as np
 
 from ..measurements import SectionOccupancy
 from ..scenario import Vehicle
-from ..signals import InputRejected, RawBlock
+from ..signals import MAX_CHANNELS, InputRejected, RawBlock
 from ..sensors.base import OFF_RAILS, Decoder, SensorSpec, Simulator
 from .model import Network, NetworkError
 from .path import TrackPath
 
-# sensor class -> (equipment kind it monitors, the parameter that restricts a device to some of it)
-WAYSIDE_KINDS = {"axle_counter": ("axle_counter_head", "heads"), "track_circuit": ("track_circuit", "circuits")}
+# sensor class -> (equipment kind it monitors, the parameter that restricts a device to some of
+# it, raw channels per piece of equipment: a head's two systems, a circuit's receiver level)
+WAYSIDE_KINDS = {"axle_counter": ("axle_counter_head", "heads", 2), "track_circuit": ("track_circuit", "circuits", 1)}
 
 
 @dataclass(frozen=True)
@@ -59,7 +60,7 @@ class Placement:
         return np.where(on, along, OFF_RAILS)
 
 
-def _kind(spec: SensorSpec) -> tuple[str, str]:
+def _kind(spec: SensorSpec) -> tuple[str, str, int]:
     try:
         return WAYSIDE_KINDS[spec.sensor]
     except KeyError:
@@ -71,9 +72,9 @@ def section_params(spec: SensorSpec, params: dict, network: Network) -> dict[str
     """Section id -> the device's parameters on that section, for every section (in the
     network's order) that carries equipment of the device's kind; the restriction parameter
     (``heads``, ``circuits``) and the injected faults (``ID@...``) narrowed to the section's
-    own ids. One-line NetworkError for an id used on two sections, or a restriction or fault
-    naming an id on none."""
-    kind, restrict = _kind(spec)
+    own ids. One-line NetworkError for an id used on two sections, a restriction or fault
+    naming an id on none, or more equipment than one raw block has channels for."""
+    kind, restrict, per_item = _kind(spec)
     ids = {sid: [str(it["id"]) for it in sec.items(kind)] for sid, sec in network.sections.items() if sec.items(kind)}
     owner: dict[str, str] = {}
     for sid, names in ids.items():
@@ -90,6 +91,11 @@ def section_params(spec: SensorSpec, params: dict, network: Network) -> dict[str
     missing = sorted({n for n in named if n not in owner})
     if missing:
         raise NetworkError(f"{spec.node}: {', '.join(missing)} on no section of network {network.network_id}")
+    used = len(wanted) if wanted else len(owner)
+    if used * per_item > MAX_CHANNELS:
+        raise NetworkError(f"{spec.node}: {used} {kind} give {used * per_item} raw channels, more than one block "
+                           f"carries ({MAX_CHANNELS}): restrict the device to at most {MAX_CHANNELS // per_item} with "
+                           f"'{restrict}'")
     out = {}
     for sid, names in ids.items():
         mine = [w for w in wanted if owner[w] == sid]

@@ -152,6 +152,12 @@ def test_a_fix_goes_to_the_train_one_of_whose_hypotheses_explains_it_on_its_sect
     assert assoc3.associate(fix("T2", 30.0)) is None
     assert assoc3.counts == {AMBIGUOUS: 1}
     assert assoc.counts == {USED: 3, UNEXPLAINED: 3}
+    # a hypothesis naming sections the network does not have, or a path without its own
+    # section (a malformed message): it explains nothing, and nothing raises
+    odd = [_state(t, [_hyp("T2", 30.0, 5.0, 10.0, ["T9"]), _hyp("T2", 30.0, 5.0, 10.0, ["T6"])]) for t in (1.0, 1.1)]
+    assert Associator({"odd": odd}, {}, network=throat).associate(fix("T2", 30.0)) is None
+    from train_localization.core.network import TrackPath
+    assert TrackPath.through(throat, ("T1", "T9")) is None and TrackPath.through(throat, ("T1", "T6")) is None
 
 
 # ---- the scenario, offline and replayed --------------------------------------------------------

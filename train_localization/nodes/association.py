@@ -26,6 +26,7 @@ from rclpy.node import Node
 
 from ..core import convert
 from ..core.association import Associator, FusedState
+from ..core.network.config import MAX_HYPOTHESES
 from ..core.network.hypotheses import TrackHypothesisState
 from ..core.scenario import ScenarioError
 from ..core.sensors import spec as sensor_spec
@@ -76,8 +77,20 @@ class AssociationNode(Node):
                     self.mc.PositionFix, f"/{name}/sensors/{sp.sensor}/position", STREAM_QOS)
 
     def on_tracks(self, train: str, msg) -> None:
-        """A train's track hypotheses: joined to its state of the same stamp (now or when it comes)."""
+        """A train's track hypotheses: joined to its state of the same stamp (now or when it comes).
+        Refused (counted): more than MAX_HYPOTHESES, or a section the network does not have."""
         stamp = convert.stamp_to_sec(msg.header.stamp)
+        sections = self.assoc.network.sections
+        if len(msg.hypotheses) > MAX_HYPOTHESES:
+            self.diag.reject(f"/{train}/localization/tracks", "too_large",
+                             f"{len(msg.hypotheses)} hypotheses (at most {MAX_HYPOTHESES})")
+            return
+        unknown = [sid for h in msg.hypotheses for sid in (h.track_id, *h.path) if sid not in sections]
+        if unknown:
+            self.diag.reject(f"/{train}/localization/tracks", "unknown_id",
+                             f"section {unknown[0][:64]!r} is not in network {self.assoc.network.network_id}")
+            return
+        self.diag.accept(f"/{train}/localization/tracks")
         hypotheses = tuple(TrackHypothesisState(h.track_id, float(h.position), float(h.speed), float(h.position_min),
                                                 float(h.position_max), float(h.probability), tuple(h.path), 0)
                            for h in msg.hypotheses)

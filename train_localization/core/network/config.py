@@ -10,6 +10,9 @@ from ..sensors.base import ReferenceWindow
 from ..track import Track, extent
 
 
+MAX_HYPOTHESES = 256   # the most a fusion may keep (max_hypotheses), and a TrackHypotheses message may list
+
+
 @dataclass(frozen=True)
 class NetworkConfig:
     """Where the train starts, and how evidence makes and removes track hypotheses."""
@@ -39,7 +42,7 @@ class NetworkConfig:
     branch_margin: float = _doc(50.0, "a path is continued past a node once its interval's end comes this near "
                                       "to it [m] (plus 1 s at the hypothesis's speed)", limits=(0.0, 1000.0))
     max_hypotheses: int = _doc(16, "most hypotheses kept; beyond it the state is LOST (the interval can no "
-                                   "longer cover every path)", limits=(1, 256))
+                                   "longer cover every path)", limits=(1, MAX_HYPOTHESES))
 
     def __post_init__(self):
         check_limits(self, dataclasses.fields(self))

@@ -123,7 +123,10 @@ class TrackPath:
     def through(cls, network: Network, sections: tuple[str, ...] | list[str]) -> "TrackPath | None":
         """The path along ``sections`` (each joined to the one before at a node, as a published
         hypothesis's ``path`` lists them), path distance 0 where it enters the first; None if
-        they do not join so. A single section is run along its chainage."""
+        they do not join so or one is no section of the network. A single section is run along
+        its chainage."""
+        if not sections or any(sid not in network.sections for sid in sections):
+            return None
         for direction in (1, -1):
             path: TrackPath | None = cls.start(network, sections[0], direction)
             for nxt in sections[1:]:

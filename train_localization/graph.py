@@ -113,8 +113,12 @@ def replay_graph(bag: str, scenario: str, sensors: list[str], out_bag: str, rate
                 # seconds were played before it was up on a loaded machine)
                 "wait_for_subscribers": len(classes) + (len(played) if record else 0),
                 "wait_for_clock_subscribers": len(classes) + 1 + int(record),
-                # the fusion has /clock from its creation, its inputs once set up (its state publisher)
-                "wait_for_publishers": [f"{namespace.rstrip('/')}/localization/state"]}
+                # the fusion has /clock from its creation, its inputs once set up (its state publisher,
+                # its subscriptions to the sensor nodes' measurements: without them, on a loaded machine
+                # the first seconds' measurements could go to nobody)
+                "wait_for_publishers": [f"{namespace.rstrip('/')}/localization/state"],
+                "wait_for_subscribed": [f"{namespace.rstrip('/')}/sensors/{spec(n).sensor}/{kind}" for n in sensors
+                                        for kind in spec(n).outputs if kind != "sections"]}
     if namespace.rstrip("/") != NAMESPACE:
         replayer["remap"] = [f"{t}:={namespace.rstrip('/')}{t[len(NAMESPACE):]}" for t in played]
     nodes.append(("replayer", "replayer", replayer))

@@ -21,6 +21,9 @@ Parameters:
                              that listens to no played topic (the fusion: its
                              localization/state) has /clock from its creation, but
                              listens to its inputs only once it is set up
+  wait_for_subscribed (string[], [])  ... and a subscriber on each of these topics (the
+                             fusion's inputs, which the sensor nodes publish from the
+                             played raw blocks)
 A truncated bag (its recorder killed) is played up to its last complete chunk, with a
 warning.
 """
@@ -63,6 +66,8 @@ class ReplayerNode(Node):
                                           "matched /clock subscribers to wait for (nodes with use_sim_time)"))
         self.wait_for_publishers = [str(t) for t in declare(
             self, "wait_for_publishers", [""], "topics that must have a publisher before playing") if t]
+        self.wait_for_subscribed = [str(t) for t in declare(
+            self, "wait_for_subscribed", [""], "topics that must have a subscriber before playing") if t]
         self.pubs = {}
         self.published = 0
         self.finished = False
@@ -107,7 +112,8 @@ class ReplayerNode(Node):
         deadline = time.monotonic() + 60.0
         while ((sum(p.get_subscription_count() for p in self.pubs.values()) < self.wait_for
                 or (self.clock_pub is not None and self.clock_pub.get_subscription_count() < self.wait_for_clock)
-                or any(self.count_publishers(t) < 1 for t in self.wait_for_publishers))
+                or any(self.count_publishers(t) < 1 for t in self.wait_for_publishers)
+                or any(self.count_subscribers(t) < 1 for t in self.wait_for_subscribed))
                and time.monotonic() < deadline and not self._stop.is_set()):
             self._stop.wait(0.05)
         self._stop.wait(0.5)  # let subscribers match

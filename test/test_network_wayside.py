@@ -265,3 +265,79 @@ def test_drawn_runs_place_heads_past_every_clearance_point_and_trains_behind_eac
         lengths = [tr.vehicle.length for tr in sc.trains.values()]
         for k in range(1, len(fronts)):                   # each behind the one ahead, not overlapping
             assert fronts[k] < fronts[k - 1] - lengths[k - 1]
+
+
+# ---- the association node on a network (live) ---------------------------------------------------
+
+def test_the_association_node_routes_a_head_fix_by_the_trains_track_hypotheses(ros_context, tmp_path):
+    """The node pairs each train's TrainState with its TrackHypotheses of the same stamp (in
+    either order) and sends a fix to the train one of whose hypotheses explains it on the fix's
+    section; a TrackHypotheses message naming a section the network lacks is refused and counted."""
+    import os
+    import subprocess
+    import sys
+    from conftest import spin_until
+    from diagnostic_msgs.msg import DiagnosticArray
+    from train_localization.core import convert
+    from train_localization.core.fusion import MODE_NOMINAL
+    from train_localization.nodes.common import STREAM_QOS, rclpy_classes
+    log = open(tmp_path / "association.log", "w")
+    assoc = subprocess.Popen([sys.executable, "-c", "from train_localization.nodes.association import main; main()",
+                              "--ros-args", "-r", "__ns:=/wayside", "-p", f"scenario:={resolve(SCENARIO)}"],
+                             stdout=log, stderr=subprocess.STDOUT, start_new_session=True, env=dict(os.environ))
+    mc = rclpy_classes()
+    node = ros_context.create_node("network_association_probe")
+    routed: dict[str, list] = {"north": [], "south": []}
+    status: dict[str, str] = {}
+    try:
+        states = {n: node.create_publisher(mc.TrainState, f"/{n}/localization/state", STREAM_QOS) for n in routed}
+        tracks = {n: node.create_publisher(mc.TrackHypotheses, f"/{n}/localization/tracks", STREAM_QOS)
+                  for n in routed}
+        fixes = node.create_publisher(mc.PositionFix, "/wayside/sensors/axle_counter/position", STREAM_QOS)
+        for name in routed:
+            node.create_subscription(mc.PositionFix, f"/{name}/sensors/axle_counter/position",
+                                     lambda msg, name=name: routed[name].append(msg.reference_id), STREAM_QOS)
+        node.create_subscription(DiagnosticArray, "/diagnostics", lambda msg: status.update(
+            {kv.key: kv.value for st in msg.status if "association" in st.name for kv in st.values}), 10)
+        ready = [*(lambda p=p: p.get_subscription_count() >= 1 for p in [*states.values(), *tracks.values(), fixes]),
+                 *(lambda n=n: node.count_publishers(f"/{n}/sensors/axle_counter/position") >= 1 for n in routed)]
+        assert spin_until(node, lambda: all(f() for f in ready), timeout=60.0), \
+            (tmp_path / "association.log").read_text()
+        # north: on the crossover T3 or on track A past W1; south: on track B (T5) near W3
+        where = {"north": [_hyp("T3", 20.0, 4.0, 12.0, ["T3"]), _hyp("T2", 20.0, 4.0, 12.0, ["T2"])],
+                 "south": [_hyp("T5", 300.0, 4.0, 15.0, ["T5"])]}
+        for k in range(5):
+            t = 10.0 + 0.1 * k
+            for name, hyps in where.items():
+                moved = [TrackHypothesisState(h.track_id, h.position + h.speed * (t - 10.0), h.speed,
+                                              h.position_min + h.speed * (t - 10.0),
+                                              h.position_max + h.speed * (t - 10.0), h.probability, h.path, 2)
+                         for h in hyps]
+                est = type("E", (), {"stamp": t, "hypotheses": moved})
+                state = convert.train_state_to_msg(mc, t, moved[0].track_id, moved[0].position, moved[0].speed, 0.0,
+                                                   1.0, 0.1, moved[0].position_min, moved[0].position_max, 0.999,
+                                                   MODE_NOMINAL, [])
+                if k % 2:   # either order
+                    tracks[name].publish(convert.track_hypotheses_to_msg(mc, est, "throat"))
+                    states[name].publish(state)
+                else:
+                    states[name].publish(state)
+                    tracks[name].publish(convert.track_hypotheses_to_msg(mc, est, "throat"))
+        bad = type("E", (), {"stamp": 10.45, "hypotheses": [_hyp("T99", 1.0, 1.0, 1.0, ["T99"])]})
+        tracks["south"].publish(convert.track_hypotheses_to_msg(mc, bad, "throat"))
+        spin_until(node, lambda: False, timeout=0.5)
+        sent = [PositionFix(10.2, "axle_counter", "axle_counter", "T2", "AC2", 22.4, 0.05, 1),    # north's T2
+                PositionFix(10.2, "axle_counter", "axle_counter", "T5", "AC6", 303.0, 0.05, 1),   # south
+                PositionFix(10.2, "axle_counter", "axle_counter", "T6", "AC7", 22.0, 0.05, 1)]    # nobody's
+        for f in sent:
+            fixes.publish(convert.measurement_to_msg(f, mc))
+        done = spin_until(node, lambda: routed["north"] and routed["south"]
+                          and status.get("associated/unexplained") == "1"
+                          and "unknown_id" in str(status), timeout=30.0)
+        assert done, (routed, status, (tmp_path / "association.log").read_text()[-2000:])
+        assert routed == {"north": ["AC2"], "south": ["AC6"]}
+    finally:
+        node.destroy_node()
+        assoc.terminate()
+        assoc.wait(timeout=10)
+        log.close()

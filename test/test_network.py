@@ -126,12 +126,13 @@ def test_a_route_through_sections_that_do_not_follow_is_refused(throat):
     (lambda d: d["trains"][0]["sensors"].update(axle_counter={}), "axle_counter: wayside equipment, it sees every"),
     (lambda d: d["trains"][0]["sensors"].update(inpo_receiver={}), "['inpo_receiver'] do not work on a network yet"),
     (lambda d: d["trains"][0]["initial"].update(position=1200.0), "is off its first section T1"),
-    (lambda d: d.update(wayside={"sensors": {"axle_counter": {}}, "changeover": {"sections": []}}),
+    (lambda d: d.update(wayside={"sensors": {"axle_counter": {"front_first": True}}, "changeover": {"sections": []}}),
      "a changeover section on a network is not supported yet"),
-    (lambda d: d.update(wayside={"sensors": {"track_circuit_receiver": {}}}),
+    (lambda d: d.update(wayside={"sensors": {"track_circuit_receiver": {"front_first": True}}}),
      "no section of network throat carries track_circuit"),
     (lambda d: d.update(wayside={"sensors": {"axle_counter": {"heads": "AC1,AC99"}}}), "AC99 on no section"),
     (lambda d: d.update(wayside={"sensors": {"axle_counter": {"faults": "AC42@3:missed"}}}), "AC42 on no section"),
+    (lambda d: d.update(wayside={"sensors": {"axle_counter": {}}}), "axle_counter on a network needs front_first"),
 ])
 def test_a_network_scenario_that_cannot_run_is_refused_in_one_line(change, message):
     with open(resolve("config/scenario_throat.yaml"), encoding="utf-8") as fh:

@@ -10,7 +10,8 @@ from train_localization.core.association import AMBIGUOUS, UNEXPLAINED, USED, As
 from train_localization.core.measurements import PositionFix, SectionOccupancy
 from train_localization.core.network import Network, NetworkError, route_path
 from train_localization.core.network.hypotheses import TrackHypothesisState
-from train_localization.core.network.wayside import Placement, SectionDecoders, SectionSimulators, section_params
+from train_localization.core.network.wayside import (Placement, SectionDecoders, SectionSimulators, network_areas,
+                                                     network_decoder, section_params)
 from train_localization.core.offline import replay_line, simulate_line
 from train_localization.core.paths import resolve
 from train_localization.core.report import line_report
@@ -68,7 +69,7 @@ def _device(throat, routes):
     params = sensor_params(ac, {"front_first": True}, Vehicle(axles=AXLES))
     fleet = [Vehicle(axles=AXLES) for _ in routes]
     sim = SectionSimulators(ac, params, throat, fleet[0], np.random.default_rng(3), fleet, routes)
-    return sim, SectionDecoders(ac, params, throat), params
+    return sim, network_decoder(ac, params, throat), params
 
 
 def test_the_heads_of_every_section_see_a_train_only_on_its_route(throat):
@@ -84,14 +85,18 @@ def test_the_heads_of_every_section_see_a_train_only_on_its_route(throat):
             for m in dec.decode(block):
                 (fixes if isinstance(m, PositionFix) else reports).append(m)
     passed = [(f.track_id, f.reference_id) for f in fixes]
-    # T1's head, T5's two and T6's first: never track A's (T2) or track C's (T7)
+    # T1's head, T5's two and T6's first: never track A's (T2) or track C's (T7); each into an
+    # empty area (AC5 into T5's, AC6 into the area of switch W3)
     assert passed == [("T1", "AC1"), ("T5", "AC5"), ("T5", "AC6"), ("T6", "AC7")]
     for f in fixes:
         step = next(st for st in north.steps if st.section == f.track_id)
         t_front = (step.distance(f.position) - north.begin - 850.0) / 12.0
         assert abs(t_front - f.stamp) * 12.0 < 5 * f.position_stddev + 0.05, f
-    # one report lists every section of the device
-    assert {s.section_id for s in reports[-1].sections} == {"AC2-AC3", "AC5-AC6", "AC7-AC8", "AC9-AC10"}
+    # one report lists every area of the device: those of switches W1 + W2 (the crossover) and
+    # W3 bounded by the heads on their legs
+    last = {s.section_id: s.state for s in reports[-1].sections}
+    assert set(last) == {"AC1-AC2-AC4-AC5", "AC2-AC3", "AC5-AC6", "AC6-AC7-AC9", "AC7-AC8", "AC9-AC10"}
+    assert [k for k, v in last.items() if v != 0] == ["AC7-AC8"]       # where the train is at the end
     assert {(type(r).__name__, r.source) for r in reports} == {("SectionOccupancy", "axle_counter")}
 
 
@@ -105,16 +110,33 @@ def test_a_block_one_sections_columns_refuse_changes_no_sections_decoder(throat)
     bad = block.data.copy()
     bad[:, -1] = 5.0                        # T7's last head: implausible damping
     from dataclasses import replace
-    before = [p.count.copy() for p in dec.parts]
     with pytest.raises(InputRejected) as err:
         dec.decode(replace(block, data=bad))
-    assert err.value.reason == "implausible"
-    assert all(p._last_report is None for p in dec.parts)     # no section's decoder took the block
-    assert all((p.count == b).all() for p, b in zip(dec.parts, before))
+    assert err.value.reason == "implausible" and dec._last_report is None and not dec.count.any()
     with pytest.raises(InputRejected) as err:
         dec.decode(replace(block, channels=block.channels[:-1] + ("AC99.b",)))
     assert err.value.reason == "unknown_id"
-    assert len(dec.decode(block)) == 1                         # the first report, of every section
+    assert len(dec.decode(block)) == 1                         # the first report, of every area
+    # a device of one decoder per section (track circuits): every section's checks first
+    data = yaml.safe_load(open(resolve("config/track_throat.yaml"), encoding="utf-8"))
+    for sec in data["sections"]:
+        if sec["id"] in ("T2", "T6"):
+            sec["equipment"]["track_circuit"] = [{"id": f"{sec['id']}a", "start": 10.0, "end": 200.0,
+                                                  "system": "TI21"}]
+    net = Network.from_dict(data)
+    tc = spec("track_circuit_receiver")
+    params = sensor_params(tc, {"front_first": True}, Vehicle(axles=AXLES))
+    sim = SectionSimulators(tc, params, net, Vehicle(axles=AXLES), np.random.default_rng(1), [Vehicle(axles=AXLES)],
+                            [north])
+    dec = network_decoder(tc, params, net)
+    assert isinstance(dec, SectionDecoders)
+    block = sim.simulate(truth)[0]
+    bad = block.data.copy()
+    bad[:, -1] = 50.0                       # T6's receiver: beyond its range
+    with pytest.raises(InputRejected) as err:
+        dec.decode(replace(block, data=bad))
+    assert err.value.reason == "implausible" and all(p._last_report is None for p in dec.parts)
+    assert len(dec.decode(block)) == 1
 
 
 # ---- association with track hypotheses ---------------------------------------------------------
@@ -173,8 +195,8 @@ def test_every_head_fix_reaches_the_train_that_passed_it(wayside_run):
     sc, res, _ = wayside_run
     report = line_report(res)
     a = report["association"]
-    assert a["offered"] == a["used"] == 7 and a["wrong_train"] == 0
-    assert a["delivered"] == {"north": 3, "south": 4}
+    assert a["offered"] == a["used"] == 8 and a["wrong_train"] == 0
+    assert a["delivered"] == {"north": 4, "south": 4}     # AC5 and AC6 of T5 for both trains
     assert a["error_over_sigma_max"] < 3.0
     for name, train in report["trains"].items():
         net = train["network"]

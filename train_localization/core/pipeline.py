@@ -46,8 +46,8 @@ class SensorPipeline:
         self.params = sensor_params(spec, params, vehicle)
         self.track = track
         if network is not None:
-            from .network.wayside import SectionDecoders
-            self.decoder = SectionDecoders(spec, self.params, network)
+            from .network.wayside import network_decoder
+            self.decoder = network_decoder(spec, self.params, network)
         else:
             self.decoder = spec.decoder(self.params, track)
         # a train on a network: its reference fixes restated on their equipment's sections

@@ -409,9 +409,9 @@ def _check_line(scenario: Scenario) -> None:
             raise ScenarioError(f"wayside: {node} is on-board equipment (list it under a train's sensors)")
         if scenario.network is not None:
             from .network import NetworkError
-            from .network.wayside import section_params
+            from .network.wayside import check_device
             try:
-                section_params(sp, scenario.wayside[node] or {}, scenario.network)
+                check_device(sp, scenario.wayside[node] or {}, scenario.network)
             except NetworkError as exc:
                 raise ScenarioError(f"wayside: {exc}") from None
     for train in scenario.trains.values():

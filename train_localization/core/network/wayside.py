@@ -4,19 +4,19 @@
 An axle-counter head or a track circuit works on the rails of its own section, in that
 section's chainage (core/sensors/axle_counter.py, track_circuit.py; seed 004 sections 2.1,
 2.2). A wayside device of a network is the equipment of its kind on every section that
-carries some: per section, the sensor's own simulator and decoder run on that section as
-on a single line, side by side in one raw block (the channels of the sections in the
-network's order). Nothing of the decoding is new: a fix names the section of its head or
-circuit boundary, in that section's chainage; the device's occupancy report lists the
-sections of every section it monitors.
-
-A train's axles lie on a section's rails where its route runs along that section
-(``Placement``); elsewhere they are off those rails, and no head or circuit of the section
-sees them. Which train a fix belongs to is the association's question
-(core/association.py): the device does not know.
+carries some. Simulated, each section's part is the sensor's own simulator on that section,
+side by side in one raw block (the sections' channels in the network's order), every train's
+axles placed on the section by its route (``Placement``; elsewhere they are off its rails).
+Decoded, an axle counter is one counter over the network (``NetworkAxleCounter``): its heads'
+passages and fixes are the single-line decoder's, and the areas it counts run across the
+nodes, so a switch's area is bounded by the heads on its legs, as an interlocking's switch
+section is; a track circuit's receivers decode per section (``SectionDecoders``). A fix names
+the section of its head or circuit boundary, in that section's chainage. Which train it
+belongs to is the association's question (core/association.py): the device does not know.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -24,8 +24,9 @@ import numpy as np
 from ..measurements import SectionOccupancy
 from ..scenario import Vehicle
 from ..signals import MAX_CHANNELS, InputRejected, RawBlock
+from ..sensors.axle_counter import AxleCounterDecoder, Areas, device_heads
 from ..sensors.base import OFF_RAILS, Decoder, SensorSpec, Simulator
-from .model import Network, NetworkError
+from .model import Network, NetworkError, SectionEnd
 from .path import TrackPath
 
 # sensor class -> (equipment kind it monitors, the parameter that restricts a device to some of
@@ -130,6 +131,97 @@ class SectionSimulators(Simulator):
 
     def samples(self, times, position, speed, acceleration):
         return np.concatenate([part.samples(times, position, speed, acceleration) for part in self.parts], axis=1)
+
+
+class NetworkAxleCounter(AxleCounterDecoder):
+    """A network's axle counter, decoded as one device: the heads of every section (the raw
+    block's channels in the order SectionSimulators gives them) and the areas they bound over
+    the network (``network_areas``): an area runs across the nodes, so a switch's area is
+    bounded by the heads on its legs, as an interlocking's switch section is. Each head's
+    passages, first-axle identification and fixes are the single-line decoder's, on its own
+    section's chainage; a fix names the head's section."""
+
+    def __init__(self, params: dict, network: Network, per_section: dict[str, dict]):
+        self.network, self.per_section = network, per_section
+        super().__init__(params, network.section(next(iter(per_section))))
+
+    def layout(self, track, params):
+        return network_areas(self.network, self.per_section)
+
+
+def network_areas(network: Network, per_section: dict[str, dict]) -> tuple[list[dict], Areas, list[str]]:
+    """(heads, Areas, each head's section) of an axle counter over a network: each section's
+    heads (``device_heads`` of its parameters, ``per_section``) cut it into pieces; the pieces
+    that meet at a node are one area, and an area that reaches an end of the network (a buffer
+    stop, the boundary of what is described) is not monitored. A monitored area is named by its
+    bounding heads' ids in the order of the heads (on a single section: ``<id>-<id>``, as on a
+    line)."""
+    heads, tracks, first = [], [], {}
+    for sid, params in per_section.items():
+        first[sid] = len(heads)
+        items = device_heads(network.section(sid), params)
+        heads += items
+        tracks += [sid] * len(items)
+    count = {sid: len(device_heads(network.section(sid), p)) for sid, p in per_section.items()}
+    pieces = {(sid, j): None for sid in network.sections for j in range(count.get(sid, 0) + 1)}
+    parent = {piece: piece for piece in pieces}
+
+    def root(x):
+        while parent[x] != x:
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        return x
+
+    def piece(end) -> tuple[str, int]:
+        return (end.section, 0 if end.end == "begin" else count.get(end.section, 0))
+
+    for node in network.nodes.values():
+        ends = [piece(e) for e in node.ports.values()]
+        for other in ends[1:]:
+            parent[root(other)] = root(ends[0])
+    roots = sorted({root(x) for x in pieces}, key=lambda r: min(k for k, x in enumerate(pieces) if root(x) == r))
+    area = {r: k for k, r in enumerate(roots)}
+    open_ends = {root(piece(SectionEnd(sid, end))) for sid in network.sections for end in ("begin", "end")
+                 if network.joint(SectionEnd(sid, end)) is None}
+    left = [area[root((tracks[h], h - first[tracks[h]]))] for h in range(len(heads))]
+    right = [area[root((tracks[h], h - first[tracks[h]] + 1))] for h in range(len(heads))]
+    bounding: dict[int, list[int]] = {}
+    for h, (a, b) in enumerate(zip(left, right)):
+        bounding.setdefault(a, []).append(h)
+        bounding.setdefault(b, []).append(h)
+    sections = []
+    for r in roots:
+        a = area[r]
+        if r in open_ends or a not in bounding:
+            continue
+        hs = sorted(set(bounding[a]))
+        name = "-".join(str(heads[h]["id"]) for h in hs)
+        one = len(hs) == 2 and tracks[hs[0]] == tracks[hs[1]] and right[hs[0]] == a == left[hs[1]]
+        start, end = ((float(heads[hs[0]]["position"]), float(heads[hs[1]]["position"])) if one
+                      else (math.nan, math.nan))
+        sections.append((a, name, start, end))
+    sections.sort(key=lambda x: min(bounding[x[0]]))
+    return heads, Areas(tuple(left), tuple(right), tuple(sections), len(roots)), tracks
+
+
+def check_device(spec: SensorSpec, params: dict, network: Network) -> None:
+    """One-line NetworkError for a wayside device that cannot run on ``network``
+    (``section_params``), or one that would take a passage's direction along a section for
+    its train's orientation: sections run either way, so on a network every train passes
+    front first (``front_first``)."""
+    section_params(spec, params, network)
+    if not params.get("front_first", False):
+        raise NetworkError(f"{spec.node} on a network needs front_first: true (its sections run either way: the "
+                           f"direction of a passage along one says nothing of a train's orientation)")
+
+
+def network_decoder(spec: SensorSpec, params: dict, network: Network) -> Decoder:
+    """The decoder of a wayside device on a network: an axle counter counts over the network's
+    areas (NetworkAxleCounter); a track circuit's receivers decode per section (SectionDecoders)."""
+    check_device(spec, params, network)
+    if spec.sensor == "axle_counter":
+        return NetworkAxleCounter(params, network, section_params(spec, params, network))
+    return SectionDecoders(spec, params, network)
 
 
 class SectionDecoders(Decoder):

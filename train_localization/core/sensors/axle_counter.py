@@ -66,7 +66,8 @@ Decoder:
     sensor_spacing / lag;
   * counting: an axle at head k moving + leaves region k and enters region k+1
     (region 0 / H = the unmonitored outer areas); each section keeps axles_in,
-    axles_out and count = in - out;
+    axles_out and count = in - out (``Areas``: the regions on either side of each head; on a
+    network they run across the nodes, core/network/wayside.py);
   * state per section: CLEAR (count 0), OCCUPIED (count > 0), DISTURBED, which is
     latched until ``reset_section(section_id)``. A section becomes DISTURBED when
       (A) its count goes negative (more axles out than in), or
@@ -105,6 +106,7 @@ Decoder:
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -164,7 +166,7 @@ PARAMS = {
 }
 
 
-def _heads(track: Track, params: dict) -> list[dict]:
+def device_heads(track: Track, params: dict) -> list[dict]:
     items = track.items(HEAD_KIND)
     wanted = [h.strip() for h in str(params.get("heads", "")).split(",") if h.strip()]
     if wanted:
@@ -187,6 +189,39 @@ def channel_layout(heads: list[dict]) -> tuple[tuple[str, ...], tuple[str, ...]]
 
 def section_ids(heads: list[dict]) -> list[str]:
     return [str(heads[k].get("section", f"{heads[k]['id']}-{heads[k + 1]['id']}")) for k in range(len(heads) - 1)]
+
+
+@dataclass(frozen=True)
+class Areas:
+    """The areas the heads bound, which the counter counts axles in and out of (seed 004
+    section 2.2). Area ``left[h]`` lies on the decreasing-chainage side of head h (along its
+    own track), ``right[h]`` on the other; ``sections``: (area, section id, start, end [m]) of
+    every monitored area, in report order (start, end: its bounding heads' chainages; NaN for an
+    area over several tracks); every other area is unmonitored (beyond the outermost heads)."""
+
+    left: tuple[int, ...]
+    right: tuple[int, ...]
+    sections: tuple[tuple[int, str, float, float], ...]
+    count: int
+
+    @classmethod
+    def line(cls, heads: list[dict]) -> "Areas":
+        """Along one track: area k between heads k - 1 and k, areas 0 and H unmonitored."""
+        nh = len(heads)
+        return cls(tuple(range(nh)), tuple(range(1, nh + 1)),
+                   tuple((k + 1, sid, float(heads[k]["position"]), float(heads[k + 1]["position"]))
+                         for k, sid in enumerate(section_ids(heads))), nh + 1)
+
+    def monitored(self) -> frozenset[int]:
+        return frozenset(a for a, *_ in self.sections)
+
+    def across(self) -> list[list[tuple[int, int]]]:
+        """Per area: (head, the area on its other side) of every head bounding it."""
+        out: list[list[tuple[int, int]]] = [[] for _ in range(self.count)]
+        for h, (a, b) in enumerate(zip(self.left, self.right)):
+            out[a].append((h, b))
+            out[b].append((h, a))
+        return out
 
 
 def _parse_faults(text: str, head_ids: list[str]) -> list[tuple[int, float, str]]:
@@ -217,7 +252,7 @@ class AxleCounterSimulator(Simulator):
     def __init__(self, *args):
         super().__init__(*args)
         p = self.params
-        self.heads = _heads(self.track, p)
+        self.heads = device_heads(self.track, p)
         self.channels, self.units = channel_layout(self.heads)
         nh = len(self.heads)
         # the real heads lie where the survey (track file) says, within head_position_sigma
@@ -370,19 +405,21 @@ class AxleCounterDecoder(Decoder):
         p = params
         if p["threshold_off"] >= p["threshold_on"]:
             raise ValueError("threshold_off must be below threshold_on")
-        self.heads = _heads(track, p)
+        self.heads, self.areas, self.head_tracks = self.layout(track, p)
         self.expected, _ = channel_layout(self.heads)
         self.head_ids = [h["id"] for h in self.heads]
         self.head_pos = np.array([h["position"] for h in self.heads], float)
-        self.section_ids = section_ids(self.heads)
+        self.section_ids = [sid for _, sid, _, _ in self.areas.sections]
+        self._monitored = self.areas.monitored()
+        self._across = self.areas.across()
         nh = len(self.heads)
-        nreg = nh + 1
+        nreg = self.areas.count
         self.count = np.zeros(nreg, dtype=np.int64)
         self.axles_in = np.zeros(nreg, dtype=np.int64)
         self.axles_out = np.zeros(nreg, dtype=np.int64)
         self.disturbed = np.zeros(nreg, dtype=bool)
         if p["start_disturbed"]:
-            self.disturbed[1:nh] = True
+            self.disturbed[list(self._monitored)] = True
         self.last_event: list[tuple[str, int] | None] = [None] * nreg
         self.orient = int(np.sign(p["orientation"])) or None
         self._state = np.zeros(2 * nh, dtype=bool)
@@ -398,6 +435,13 @@ class AxleCounterDecoder(Decoder):
         self.stats.update(axles=0, rejected_sequences=0, fixes=0, front_identified_shifted=0, front_inflated=0,
                           front_unidentified=0)
 
+    def layout(self, track: Track, params: dict) -> tuple[list[dict], Areas, list[str]]:
+        """(heads, the areas they bound, the track id of each head) of the device: the heads of
+        one track (``device_heads``) and the areas between them (a network's device:
+        core/network/wayside.py)."""
+        heads = device_heads(track, params)
+        return heads, Areas.line(heads), [track.track_id] * len(heads)
+
     # -- public API -------------------------------------------------------------------
     def reset_section(self, section_id: str) -> None:
         """Reset a section (operator command): count zeroed, CLEAR, disturbance cleared.
@@ -407,23 +451,21 @@ class AxleCounterDecoder(Decoder):
         """
         if section_id not in self.section_ids:
             raise KeyError(f"unknown section {section_id!r}; known: {', '.join(self.section_ids)}")
-        r = self.section_ids.index(section_id) + 1
+        r = self.areas.sections[self.section_ids.index(section_id)][0]
         self.count[r] = self.axles_in[r] = self.axles_out[r] = 0
         self.disturbed[r] = False
         self.last_event[r] = None
         self._force_report = True
 
     def section_states(self) -> tuple[int, ...]:
-        nh = len(self.heads)
         return tuple(DISTURBED if self.disturbed[r] else OCCUPIED if self.count[r] > 0 else CLEAR
-                     for r in range(1, nh))
+                     for r, *_ in self.areas.sections)
 
     def occupancy(self, stamp: float) -> SectionOccupancy:
         states = self.section_states()
-        sections = tuple(
-            SectionState(sid, float(self.head_pos[k]), float(self.head_pos[k + 1]), states[k],
-                         int(self.count[k + 1]), int(self.axles_in[k + 1]), int(self.axles_out[k + 1]))
-            for k, sid in enumerate(self.section_ids))
+        sections = tuple(SectionState(sid, start, end, state, int(self.count[r]), int(self.axles_in[r]),
+                                      int(self.axles_out[r]))
+                         for (r, sid, start, end), state in zip(self.areas.sections, states))
         return SectionOccupancy(float(stamp), self.unit_id, sections)
 
     # -- decoding ---------------------------------------------------------------------
@@ -563,8 +605,8 @@ class AxleCounterDecoder(Decoder):
 
     def _count(self, hi: int, d: int, t_c: float, speed: float):
         p = self.params
-        nh = len(self.heads)
-        src, dst = (hi, hi + 1) if d > 0 else (hi + 1, hi)
+        left, right = self.areas.left[hi], self.areas.right[hi]
+        src, dst = (left, right) if d > 0 else (right, left)
         into_empty = self.count[dst] == 0 and not self.disturbed[dst]
         self.stats["axles"] += 1
         self.count[src] -= 1
@@ -573,15 +615,14 @@ class AxleCounterDecoder(Decoder):
         self.axles_in[dst] += 1
         self.last_event[src] = ("out", hi)
         self.last_event[dst] = ("in", hi)
-        outer = (0, nh)
-        if src in outer:
+        if src not in self._monitored:
             self.count[src] = max(self.count[src], 0)  # unmonitored area: only what it received is known
         else:
             if self.count[src] < 0:
                 self.disturbed[src] = True                      # rule A
             elif self.count[src] == 0:
-                for q, head in ((src - 1, src - 1), (src + 1, src)):  # rule B
-                    if 0 < q < nh and not self.disturbed[q] and self.count[q] > 0 \
+                for head, q in self._across[src]:               # rule B
+                    if q in self._monitored and not self.disturbed[q] and self.count[q] > 0 \
                             and self.last_event[q] == ("out", head):
                         self.disturbed[q] = True
         out = []
@@ -707,7 +748,7 @@ class AxleCounterDecoder(Decoder):
         timing = min(speed, p["max_speed"]) * 0.25 / self._fs
         sigma = fix_sigma(p, timing, slow, (spread * (1.0 + GAP_REL) + GAP_ABS) / COVER if spread > 0.0 else 0.0)
         self.stats["fixes"] += 1
-        return PositionFix(float(t_c), self.sensor, self.unit_id, self.track.track_id, self.head_ids[hi],
+        return PositionFix(float(t_c), self.sensor, self.unit_id, self.head_tracks[hi], self.head_ids[hi],
                            float(self.head_pos[hi] + o * offset), sigma, int(d))
 
 
@@ -742,12 +783,12 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
     in the decoder's stddev); fault modes: a miscount (missed or extra axle), an offset of a run of fixes (a
     head off its surveyed place). Floor: ``fix_sigma``
     without the decoder's terms, max(hypot(head_position_sigma, axle_offset_sigma), 1 mm).
-    References: the device's heads (``_heads``, as the decoder), window the head's chainage +
+    References: the device's heads (``device_heads``, as the decoder), window the head's chainage +
     o x d over every (o, d) of ``front_offsets``; an empty table if the track has none."""
     references = None
     if track is not None:
         try:
-            heads = _heads(track, params)
+            heads = device_heads(track, params)
         except TrackError:
             heads = []     # the decoder refuses to run on it: no fix is honest
         offs = [o * d for o, d in front_offsets(params)]

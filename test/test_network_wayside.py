@@ -89,7 +89,7 @@ def test_the_heads_of_every_section_see_a_train_only_on_its_route(throat):
     # empty area (AC5 into T5's, AC6 into the area of switch W3)
     assert passed == [("T1", "AC1"), ("T5", "AC5"), ("T5", "AC6"), ("T6", "AC7")]
     for f in fixes:
-        step = next(st for st in north.steps if st.section == f.track_id)
+        step = north.step_on(f.track_id)
         t_front = (step.distance(f.position) - north.begin - 850.0) / 12.0
         assert abs(t_front - f.stamp) * 12.0 < 5 * f.position_stddev + 0.05, f
     # one report lists every area of the device: those of switches W1 + W2 (the crossover) and
@@ -244,7 +244,7 @@ def test_track_circuits_of_a_section_hand_over_on_that_section_only(throat):
     north = route_path(net, ["T1", "T3", "T5", "T6"])
     sim = SectionSimulators(tc, params, net, Vehicle(axles=AXLES), np.random.default_rng(1), [Vehicle(axles=AXLES)],
                             [north])
-    dec = SectionDecoders(tc, params, net)
+    dec = network_decoder(tc, params, net)
     truth = LineTruth({"north": Vehicle(axles=AXLES)})
     out, occupied = [], set()
     for k in range(0, 5001):          # 12 m/s from route-line chainage 850 m for 100 s

@@ -173,10 +173,10 @@ class Associator:
             self._paths[key] = TrackPath.through(self.network, key) if key else None
         path = self._paths[key]
         path = path.reaching(fix.track_id) if path is not None else None
-        axis = next((st for st in path.steps if st.section == h.track_id), None) if path is not None else None
+        axis = path.step_on(h.track_id) if path is not None else None
         if axis is None:
             return None     # no path through those sections, or one without the hypothesis's own
-        there = next(st for st in path.steps if st.section == fix.track_id)
+        there = path.step_on(fix.track_id)
         return axis.chainage(there.distance(fix.position)), axis.direction * there.direction
 
     def associate(self, fix: PositionFix) -> str | None:

@@ -276,7 +276,7 @@ def association_check(result) -> dict:
             v = float(np.interp(m.stamp, arr[:, 0], arr[:, 2]))
             position, direction = m.position, m.direction
             if routes is not None:
-                step = next((st for st in routes[name].steps if st.section == m.track_id), None)
+                step = routes[name].step_on(m.track_id)
                 if step is None:
                     continue
                 position = step.distance(m.position) - routes[name].begin

@@ -329,15 +329,15 @@ def _route_fields(data: dict, network, name: str, fields: dict) -> dict:
     unknown = set(route) - _ROUTE_KEYS
     if unknown:
         raise ScenarioError(f"{what}route: unknown keys {sorted(unknown)}; known: {sorted(_ROUTE_KEYS)}")
-    from .network.wayside import WAYSIDE_KINDS
-    from .sensors import NODE_NAMES, spec as sensor_spec
-    on_sections = [n for n in NODE_NAMES if sensor_spec(n).sensor in WAYSIDE_KINDS]   # wayside on a network
     others = [s for s in fields["sensors"] if s not in NETWORK_SENSORS]
-    wayside = [s for s in others if s in on_sections]
-    if wayside:
-        raise ScenarioError(f"{what}{', '.join(wayside)}: wayside equipment, it sees every train (list it under "
-                            f"wayside: sensors:)")
     if others:
+        from .network.wayside import WAYSIDE_KINDS
+        from .sensors import NODE_NAMES, spec as sensor_spec
+        on_sections = [n for n in NODE_NAMES if sensor_spec(n).sensor in WAYSIDE_KINDS]   # wayside on a network
+        wayside = [s for s in others if s in on_sections]
+        if wayside:
+            raise ScenarioError(f"{what}{', '.join(wayside)}: wayside equipment, it sees every train (list it under "
+                                f"wayside: sensors:)")
         raise ScenarioError(f"{what}sensors {others} do not work on a network yet; those that do: "
                             f"{', '.join(NETWORK_SENSORS)} on board, {', '.join(on_sections)} as wayside "
                             f"equipment")

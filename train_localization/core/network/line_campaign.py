@@ -152,9 +152,9 @@ def generate(seed: int) -> dict:
         head = on_route[d.int(0, len(on_route) - 1)]
         miscount = f"{head}@{_g(d.u(0.0, 0.8) * duration, 5)}:{'missed' if d.chance(0.5) else 'extra'}"
         counter["faults"] = miscount
-    conditions = {"trains": n_trains, "device_heads": len(device), "gaps_m": gaps, "top_speed_kmh": _g(v_top * 3.6), "network": drawn.shape,
-                  "routes": routes, "heads": sum(len(h) for h in heads.values()), "dgps": "dgps_receiver" in
-                  trains[0]["sensors"], "miscount": miscount,
+    conditions = {"trains": n_trains, "device_heads": len(device), "gaps_m": gaps, "top_speed_kmh": _g(v_top * 3.6),
+                  "network": drawn.shape, "routes": routes, "heads": sum(len(h) for h in heads.values()),
+                  "dgps": "dgps_receiver" in trains[0]["sensors"], "miscount": miscount,
                   "reported": {tr["name"]: tr["route"].get("reported", {}) for tr in trains}}
     return {"name": f"network_line_{seed}", "seed": d.seed(), "duration": duration, "truth_rate": 100.0,
             "track": drawn.network, "trains": trains, "wayside": {"sensors": {"axle_counter": counter}},
@@ -211,9 +211,11 @@ def summarise(results: list[dict]) -> dict:
     out = {
         "runs": len(results), "errors": [[r["seed"], r["error"]] for r in results if "error" in r],
         "trains": len(trains), "association": assoc,
-        "runs_wrong_train": [[r["seed"], r["association"]["wrong_train"]] for r in ok if r["association"]["wrong_train"]],
+        "runs_wrong_train": [[r["seed"], r["association"]["wrong_train"]] for r in ok
+                             if r["association"]["wrong_train"]],
         "nominal_wrong_track": sum(t["nominal_wrong_track"] for _, _, t in trains),
-        "trains_nominal_wrong_track": [[s, n, t["nominal_wrong_track"]] for s, n, t in trains if t["nominal_wrong_track"]],
+        "trains_nominal_wrong_track": [[s, n, t["nominal_wrong_track"]] for s, n, t in trains
+                                       if t["nominal_wrong_track"]],
         "inside_fraction": inside / on_track if on_track else None,
         "worst_train": [worst[0], worst[1], worst[2]["inside"]] if worst else None,
         "true_hypothesis_outside": sum(t["true_hypothesis_outside"] for _, _, t in trains),

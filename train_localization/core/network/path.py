@@ -104,6 +104,10 @@ class TrackPath:
         step = self.step_at(s)
         return step.section, step.chainage(s)
 
+    def step_on(self, section: str) -> PathStep | None:
+        """The (first) step of the path along ``section``; None if the path does not contain it."""
+        return next((st for st in self.steps if st.section == section), None)
+
     def distance(self, section: str, chainage: float, near: float | None = None) -> float | None:
         """Path distance of a place on ``section`` (the occurrence nearest ``near``), None if
         the path does not contain the section."""
@@ -142,7 +146,7 @@ class TrackPath:
     def reaching(self, section: str) -> "TrackPath | None":
         """The path itself if it contains ``section``, else continued by one section at either
         end to reach it; None if it does not join the path's ends."""
-        if any(st.section == section for st in self.steps):
+        if self.step_on(section) is not None:
             return self
         for c in self.ahead():
             if c.section == section:

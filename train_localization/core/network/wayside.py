@@ -48,10 +48,8 @@ class Placement:
     @classmethod
     def of(cls, route: TrackPath, section: str) -> "Placement | None":
         """The placement of ``route`` on ``section``; None if the route does not run along it."""
-        for step in route.steps:
-            if step.section == section:
-                return cls(route.begin, step.start, step.stop, step.direction, step.length)
-        return None
+        step = route.step_on(section)
+        return cls(route.begin, step.start, step.stop, step.direction, step.length) if step is not None else None
 
     def __call__(self, chainage: np.ndarray) -> np.ndarray:
         """Section chainages of route-line chainages [m]; OFF_RAILS where not on the section."""
@@ -156,14 +154,14 @@ def network_areas(network: Network, per_section: dict[str, dict]) -> tuple[list[
     stop, the boundary of what is described) is not monitored. A monitored area is named by its
     bounding heads' ids in the order of the heads (on a single section: ``<id>-<id>``, as on a
     line)."""
-    heads, tracks, first = [], [], {}
+    heads, tracks, first, count = [], [], {}, {}
     for sid, params in per_section.items():
         first[sid] = len(heads)
         items = device_heads(network.section(sid), params)
+        count[sid] = len(items)
         heads += items
         tracks += [sid] * len(items)
-    count = {sid: len(device_heads(network.section(sid), p)) for sid, p in per_section.items()}
-    pieces = {(sid, j): None for sid in network.sections for j in range(count.get(sid, 0) + 1)}
+    pieces = [(sid, j) for sid in network.sections for j in range(count.get(sid, 0) + 1)]
     parent = {piece: piece for piece in pieces}
 
     def root(x):
@@ -179,7 +177,7 @@ def network_areas(network: Network, per_section: dict[str, dict]) -> tuple[list[
         ends = [piece(e) for e in node.ports.values()]
         for other in ends[1:]:
             parent[root(other)] = root(ends[0])
-    roots = sorted({root(x) for x in pieces}, key=lambda r: min(k for k, x in enumerate(pieces) if root(x) == r))
+    roots = list(dict.fromkeys(root(x) for x in pieces))   # in the order of their first piece
     area = {r: k for k, r in enumerate(roots)}
     open_ends = {root(piece(SectionEnd(sid, end))) for sid in network.sections for end in ("begin", "end")
                  if network.joint(SectionEnd(sid, end)) is None}
@@ -204,24 +202,25 @@ def network_areas(network: Network, per_section: dict[str, dict]) -> tuple[list[
     return heads, Areas(tuple(left), tuple(right), tuple(sections), len(roots)), tracks
 
 
-def check_device(spec: SensorSpec, params: dict, network: Network) -> None:
-    """One-line NetworkError for a wayside device that cannot run on ``network``
-    (``section_params``), or one that would take a passage's direction along a section for
-    its train's orientation: sections run either way, so on a network every train passes
-    front first (``front_first``)."""
-    section_params(spec, params, network)
+def check_device(spec: SensorSpec, params: dict, network: Network) -> dict[str, dict]:
+    """The device's ``section_params``; one-line NetworkError for a wayside device that cannot
+    run on ``network`` (``section_params``), or one that would take a passage's direction along
+    a section for its train's orientation: sections run either way, so on a network every
+    train passes front first (``front_first``)."""
+    per_section = section_params(spec, params, network)
     if not params.get("front_first", False):
         raise NetworkError(f"{spec.node} on a network needs front_first: true (its sections run either way: the "
                            f"direction of a passage along one says nothing of a train's orientation)")
+    return per_section
 
 
 def network_decoder(spec: SensorSpec, params: dict, network: Network) -> Decoder:
     """The decoder of a wayside device on a network: an axle counter counts over the network's
     areas (NetworkAxleCounter); a track circuit's receivers decode per section (SectionDecoders)."""
-    check_device(spec, params, network)
+    per_section = check_device(spec, params, network)
     if spec.sensor == "axle_counter":
-        return NetworkAxleCounter(params, network, section_params(spec, params, network))
-    return SectionDecoders(spec, params, network)
+        return NetworkAxleCounter(params, network, per_section)
+    return SectionDecoders(spec, params, network, per_section)
 
 
 class SectionDecoders(Decoder):
@@ -232,8 +231,7 @@ class SectionDecoders(Decoder):
 
     caches = ("_offsets",)
 
-    def __init__(self, spec: SensorSpec, params: dict, network: Network):
-        per_section = section_params(spec, params, network)
+    def __init__(self, spec: SensorSpec, params: dict, network: Network, per_section: dict[str, dict]):
         self.sensor = spec.sensor
         super().__init__(params, network.section(next(iter(per_section))))
         self.parts: list[Decoder] = [spec.decoder(p, network.section(sid)) for sid, p in per_section.items()]
@@ -283,7 +281,3 @@ class SectionDecoders(Decoder):
                 out.append(SectionOccupancy(stamp, self.unit_id, tuple(s for part in self._latest for s in part)))
         out.sort(key=lambda m: m.stamp)
         return out
-
-    def occupancy(self, stamp: float) -> SectionOccupancy:
-        return SectionOccupancy(float(stamp), self.unit_id,
-                                tuple(s for part in self.parts for s in part.occupancy(stamp).sections))

@@ -24,6 +24,7 @@ class EventKind(IntEnum):
     UNKNOWN_GROUP = 5
     ODOMETER_IMPAIRED = 6
     ODOMETER_RESTORED = 7
+    REFERENCE_REJECTED = 8
 
 
 class QDirLrbg(IntEnum):

@@ -113,8 +113,14 @@ def test_a_trip_is_latched_until_a_standstill_after_a_new_authority():
     assert (d.status, d.brake) == (Status.TRIP, Brake.EMERGENCY) and "beyond" in d.reason
     d = sup.update(_report(2.0, EOA + 4.0, 0.0))              # stopped: still tripped, same authority
     assert (d.status, d.brake) == (Status.TRIP, Brake.EMERGENCY)
+    assert sup.set_authority(EOA + 500.0).status == Status.TRIP   # one report at rest: no confirmed standstill
+    sup = _sup()
+    sup.update(_report(1.0, EOA + 2.5, 5.0))
+    sup.update(_report(2.0, EOA + 4.0, 0.0))
+    d = sup.update(_report(3.0, EOA + 4.0, 0.0))              # standstill confirmed (1 s): still tripped
+    assert (d.status, d.brake) == (Status.TRIP, Brake.EMERGENCY)
     assert sup.set_authority(EOA).status == Status.TRIP       # the same authority again is no new one
-    d = sup.set_authority(EOA + 500.0)                        # at a standstill: released
+    d = sup.set_authority(EOA + 500.0)                        # at a confirmed standstill: released
     assert (d.status, d.brake) == (Status.NORMAL, Brake.NONE), d
     assert sup.stats["trips"] == 1 and sup.stats["trips_released"] == 1
     with pytest.raises(ValueError, match="end of authority"):
@@ -130,7 +136,9 @@ def test_linking_reactions_trip_brake_or_are_only_counted():
     d = sup.on_event(LocationEvent(1.2, EventKind.OUTSIDE_WINDOW, "BG8", Reaction.SERVICE_BRAKE, "read 30 m early"))
     assert (d.status, d.brake) == (Status.INTERVENTION, Brake.SERVICE) and "BG8" in d.reason
     d = sup.update(_report(2.0, 1020.0, 19.0))                 # far from the EOA: held until standstill
-    assert (d.status, d.brake) == (Status.INTERVENTION, Brake.SERVICE) and "held until standstill" in d.reason
+    assert (d.status, d.brake) == (Status.INTERVENTION, Brake.SERVICE) and "held until a confirmed standstill" in d.reason
+    d = sup.update(_report(29.0, 1200.0, 0.05))
+    assert d.brake == Brake.SERVICE and "confirmed standstill" in d.reason   # one report at rest releases nothing
     d = sup.update(_report(30.0, 1200.0, 0.05))
     assert (d.status, d.brake) == (Status.NORMAL, Brake.NONE)
     sup.update(_report(40.0, 1300.0, 15.0))
@@ -151,9 +159,10 @@ def test_no_position_is_staff_responsible_above_its_speed_an_emergency_brake_and
     assert math.isnan(d.distance_to_eoa)
     d = sup.update(_report(9.0, math.nan, 0.0, mode=3))        # stopped, still lost: the brake is held
     assert d.brake == Brake.EMERGENCY and "no usable position at a standstill" in d.reason
-    d = sup.update(_report(10.0, 1010.0, 0.0))                 # a position again, at rest: released
+    assert sup.update(_report(10.0, 1010.0, 0.0)).brake == Brake.EMERGENCY   # a position again, at rest
+    d = sup.update(_report(11.0, 1010.0, 0.0))                 # ... for 1 s: released
     assert (d.status, d.brake) == (Status.NORMAL, Brake.NONE)
-    d = sup.update(_report(11.0, 1010.0, math.nan))            # a claimed position without a speed
+    d = sup.update(_report(12.0, 1010.0, math.nan))            # a claimed position without a speed
     assert d.brake == Brake.EMERGENCY
     assert sup.stats["intervention_no_position"] == 2 and sup.stats["releases"] == 1
 
@@ -166,14 +175,16 @@ def test_a_brake_is_held_until_standstill_whatever_the_curves_say_after():
     assert (d.status, d.brake) == (Status.INTERVENTION, Brake.SERVICE) and "held" in d.reason
     d = sup.update(_report(2.0, EOA - 380.0, 0.2))             # slow, not yet at rest (0.1 m/s)
     assert d.brake == Brake.SERVICE
-    d = sup.update(_report(3.0, EOA - 380.0, -0.09))
+    assert sup.update(_report(3.0, EOA - 380.0, -0.09)).brake == Brake.SERVICE
+    d = sup.update(_report(4.0, EOA - 380.0, -0.09))
     assert (d.status, d.brake) == (Status.NORMAL, Brake.NONE)
     sup = _sup()
     assert sup.update(_report(1.0, EOA - 2.0 - 300.0, 20.0)).brake == Brake.EMERGENCY   # EBI (331 m)
     assert sup.update(_report(2.0, EOA - 2.0 - 290.0, 20.0)).brake == Brake.EMERGENCY
     sup.set_authority(EOA + 5000.0)
     assert sup.update(_report(3.0, EOA - 280.0, 1.0)).brake == Brake.EMERGENCY
-    assert sup.update(_report(5.0, EOA - 279.0, 0.0)).brake == Brake.NONE
+    assert sup.update(_report(5.0, EOA - 279.0, 0.0)).brake == Brake.EMERGENCY
+    assert sup.update(_report(6.0, EOA - 279.0, 0.0)).brake == Brake.NONE
     # stopped within the SBI distance of the EOA (at v = v_ura): the service brake stays
     sup = _sup()
     d = sup.update(_report(1.0, EOA - 2.97, 0.0))                # 0.97 m: between EBI 0.93, SBI 1.0 m
@@ -344,10 +355,12 @@ def test_the_node_commands_brakes_from_the_reports_and_counts_a_refused_one(ros_
         assert spin_until(node, lambda: pub.get_subscription_count() > 0
                           and node.count_publishers("/train/atp/command") > 0, 30.0), proc.output()
         spin_until(node, lambda: False, 0.5)                  # both directions matched
+        # stamps far enough apart that each front is within kinematic reach of the one before
         for m in [_location_msg(10.0, 300.0, 20.0),           # 698 m to the EOA: normal
                   _location_msg(11.0, 400.0, 20.0, lo=math.nan),   # refused: nan
-                  _location_msg(12.0, 560.0, 20.0),           # 438 m < SBI 451 m: service brake
-                  _location_msg(13.0, 1003.0, 20.0)]:         # min safe front end 1001 m: trip
+                  _location_msg(23.0, 560.0, 20.0),           # 438 m < SBI 451 m: service brake
+                  _location_msg(33.0, 1003.0, 20.0),          # min safe front end 1001 m: trip
+                  _location_msg(33.1, 3000.0, 0.0)]:          # refused: motion (2 km in 0.1 s, at rest)
             pub.publish(m)
         assert spin_until(node, lambda: len(commands) >= 3, 20.0), proc.output()
         assert [(c.status, c.brake) for c in commands] == [
@@ -355,12 +368,13 @@ def test_the_node_commands_brakes_from_the_reports_and_counts_a_refused_one(ros_
             (AtpCommand.STATUS_INTERVENTION, AtpCommand.BRAKE_SERVICE),
             (AtpCommand.STATUS_TRIP, AtpCommand.BRAKE_EMERGENCY)]
         assert commands[1].distance_to_eoa == pytest.approx(438.0) and commands[1].end_of_authority == 1000.0
-        assert commands[2].header.stamp.sec == 13 and commands[0].track_id == "test"
+        assert commands[2].header.stamp.sec == 33 and commands[0].track_id == "test"
 
         def counted():
             st = own_status()
             values = {kv.key: kv.value for kv in st.values} if st else {}
-            return values.get("rejected/localization/etcs/nan") == "1" and values.get("trips") == "1"
+            return values.get("rejected/localization/etcs/nan") == "1" and values.get("trips") == "1" \
+                and values.get("rejected/localization/etcs/motion") == "1"
         assert spin_until(node, counted, 20.0), proc.output()
         st = own_status()
         values = {kv.key: kv.value for kv in st.values}
@@ -420,14 +434,36 @@ def test_the_speed_controller_node_brakes_while_the_atp_commands_it(ros_context,
 
 
 
-def test_location_reports_that_stop_while_the_train_moves_are_an_emergency_brake():
+def test_location_reports_that_stop_are_an_emergency_brake_whatever_the_last_one_said():
+    """A stale report stream is "position unknown": the emergency brake, also when the last
+    report claimed a standstill (the last thing a failing node or an attacker sent)."""
     sup = _sup()
     assert sup.check_stale(5.0) is None                          # no report yet: nothing to judge
-    sup.update(_report(1.0, 100.0, 0.0))
-    assert sup.check_stale(5.0) is None                          # last seen at rest with a position
     sup.update(_report(2.0, 100.0, 20.0))
     assert sup.check_stale(0.9) is None                          # within report_timeout (1 s)
     d = sup.check_stale(1.2)
-    assert (d.status, d.brake) == (Status.INTERVENTION, Brake.EMERGENCY) and "no location report" in d.reason
+    assert (d.status, d.brake) == (Status.INTERVENTION, Brake.EMERGENCY) and "position unknown" in d.reason
     assert d.t == pytest.approx(3.2) and sup.stats["intervention_stale"] == 1
     assert sup.check_stale(2.0) is None                          # already braking: once
+    at_rest = _sup()
+    at_rest.update(_report(1.0, 100.0, 0.0))
+    assert at_rest.check_stale(1.2).brake == Brake.EMERGENCY     # last seen at rest: braked all the same
+    assert at_rest.update(_report(3.0, 100.0, 0.0)).brake == Brake.EMERGENCY   # held until a confirmed standstill
+    assert at_rest.update(_report(4.0, 100.0, 0.0)).brake == Brake.NONE
+
+
+def test_one_report_of_a_standstill_during_a_brake_releases_nothing():
+    """A report with v_est 0 between two real ones while the train brakes from 20 m/s: the
+    supervision keeps the brake (no confirmed standstill); the admission refuses it outright
+    (motion: 0 m/s is out of reach 0.1 s after 20 m/s)."""
+    from train_localization.core.etcs.admission import SupervisionAdmission
+    sup, guard = _sup(), SupervisionAdmission({}, 1, 1.0)
+    for t, front, v in ((1.0, EOA - 300.0, 20.0), (1.1, EOA - 298.0, 19.9)):
+        assert guard.report(_report(t, front, v), t) is None
+        assert sup.update(_report(t, front, v)).brake == Brake.EMERGENCY
+    spoof = _report(1.15, EOA - 297.0, 0.0)
+    refusal = guard.report(spoof, 1.15)
+    assert refusal is not None and refusal.reason == "motion" and guard.reports.refused == {"motion": 1}
+    assert sup.update(spoof).brake == Brake.EMERGENCY            # even if it got through: one report
+    assert sup.update(_report(1.2, EOA - 296.0, 19.8)).brake == Brake.EMERGENCY
+    assert sup.stats["releases"] == 0

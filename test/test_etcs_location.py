@@ -299,7 +299,7 @@ def test_the_node_reports_the_lrbg_and_publishes_its_events_and_refuses_what_it_
         assert last.l_doubtover == pytest.approx(HALF) and last.max_safe_front_end == pytest.approx(SPEED * 10.49 + HALF)
         assert reports[0].nid_lrbg == "" and math.isnan(reports[0].d_lrbg)
         assert [(e.kind, e.nid_bg) for e in events] == [(EtcsEvent.KIND_LRBG, "BG000")]
-        assert spin_until(node, lambda: own().get("rejected/localization/state/implausible") == "1"
+        assert spin_until(node, lambda: own().get("rejected/localization/state/nan") == "1"
                           and own().get("rejected/sensors/eurobalise/position/other_track") == "1", 20.0), own()
         assert own()["nid_lrbg"] == "BG000" and own()["lrbg"] == "1" and own()["same_group"] == "1"
         assert proc.interrupt() == 0 and "Traceback" not in proc.output()

@@ -19,15 +19,23 @@ Parameters (core/etcs/supervision.py PARAMS, read at start): ``end_of_authority`
 [m]; NaN: none until one comes on the topic), ``orientation`` (+1/-1: the direction the
 train's front faces), ``emergency_deceleration`` and ``service_deceleration`` [m/s^2],
 ``brake_build_up_time`` [s], ``traction_acceleration`` [m/s^2], ``warning_time`` and
-``indication_time`` [s], ``unknown_position_speed`` and ``standstill_speed`` [m/s];
-``report_timeout`` [s] (location reports silent this long while the train last moved: emergency
-brake, checked every 0.1 s on the node clock); ``command_period`` [s] (the node's: how often an
-unchanged command is repeated).
+``indication_time`` [s], ``unknown_position_speed`` and ``standstill_speed`` [m/s],
+``standstill_confirmation`` [s] (a brake is released only after this long at a standstill in
+every admitted report); ``report_timeout`` [s] (no admitted location report this long: position
+unknown, emergency brake whatever the last report said; checked every 0.1 s on the node clock);
+``command_period`` [s] (the node's: how often an unchanged command is repeated); the admission's
+``future_tolerance`` [s], ``max_acceleration`` [m/s^2], ``plausibility_margin`` [m],
+``speed_margin`` [m/s] (core/etcs/admission.py).
 
-A report that claims a position (mode NOMINAL or DEGRADED) with a front end or speed that is
-not finite, safe front ends upside down, a negative doubt or v_ura, or a stamp not after the
-last one, an event with an unknown kind or reaction, and a non-finite end of authority are
-refused and counted (rejected/<topic>/<reason>); the last command stands.
+Admission (docs/reliability.md): a report stamped ahead of the node clock (future), not after
+the last admitted one (stamp_back, duplicate), that claims a position with a front end or speed
+that is not finite (nan) or beyond any train, safe front ends upside down or a negative doubt or
+v_ura (implausible), too many previous LRBGs (too_large), or whose safe front ends or speed the
+last admitted report rules out (motion: a standstill claimed in the middle of a brake from
+speed); an event stamped ahead or with an unknown kind or reaction; a non-finite end of
+authority: each refused and counted (rejected/<topic>/<reason>), the last command stands, and a
+report stream refused or silent past ``report_timeout`` brakes. The end of authority carries no
+stamp or source: it must come from a trusted interface (docs/reliability.md).
 """
 from __future__ import annotations
 
@@ -39,7 +47,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64
 
 from ..core.convert import etcs_event_from_msg, etcs_report_from_msg
-from ..core.etcs import supervision
+from ..core.etcs import admission, supervision
 from ..core.etcs.records import Reaction
 from ..core.signals import InputRejected
 from .common import STREAM_QOS, ConfigurationError, Diagnostics, declare, now_sec, rclpy_classes, spin
@@ -69,15 +77,16 @@ class AtpSupervisionNode(Node):
                                       "status or brake and otherwise at most this often [s]; 0 = for every report",
                                       read_only=True, limits=(0.0, 10.0))
         self._published: tuple | None = None     # (stamp [s], status, brake) of the last command
+        guard = {name: declare(self, name, p.default, p.description, read_only=True, limits=p.limits)
+                 for name, p in admission.PARAMS.items() if name not in ("input_timeout", "max_input_rate")}
+        self.inputs = admission.SupervisionAdmission(guard, self.sup.orientation, params["report_timeout"])
         self.mc = rclpy_classes()
         self.track_id = ""
-        self._t_last: float | None = None
         self.pub = self.create_publisher(AtpCommand, COMMAND, STREAM_QOS)
         self.create_subscription(EtcsLocation, REPORTS, self.on_report, STREAM_QOS)
         self.create_subscription(EtcsEvent, EVENTS, self.on_event, STREAM_QOS)
         self.create_subscription(Float64, AUTHORITY, self.on_authority, AUTHORITY_QOS)
         self.diag.set_status(0, "no location report yet")
-        self._received: float | None = None      # node clock at the last report [s]
         self.create_timer(0.1, self.check_stale)
 
     def on_report(self, msg) -> None:
@@ -86,11 +95,10 @@ class AtpSupervisionNode(Node):
         except InputRejected as exc:
             self.diag.reject(REPORTS, exc.reason, exc.message)
             return
-        if self._t_last is not None and report.t <= self._t_last:
-            self.diag.reject(REPORTS, "stamp_back", f"report at {report.t:.6f} s after {self._t_last:.6f} s")
+        refusal = self.inputs.report(report, now_sec(self))
+        if refusal is not None:
+            self.diag.reject(REPORTS, refusal.reason, refusal.message)
             return
-        self._t_last = report.t
-        self._received = now_sec(self)
         self.track_id = report.track_id
         self.diag.accept(REPORTS)
         d = self.sup.update(report)
@@ -102,9 +110,9 @@ class AtpSupervisionNode(Node):
 
     def check_stale(self) -> None:
         """Every 0.1 s: the emergency brake when the location reports have stopped (fail safe)."""
-        if self._received is None:
+        if not self.inputs.reports.admitted:
             return
-        decision = self.sup.check_stale(now_sec(self) - self._received)
+        decision = self.sup.check_stale(self.inputs.reports.silence(now_sec(self)))
         if decision is not None:
             self.get_logger().error(decision.reason)
             self.publish(decision)
@@ -114,6 +122,10 @@ class AtpSupervisionNode(Node):
             event = etcs_event_from_msg(msg)
         except InputRejected as exc:
             self.diag.reject(EVENTS, exc.reason, exc.message)
+            return
+        refusal = self.inputs.event(event, now_sec(self))
+        if refusal is not None:
+            self.diag.reject(EVENTS, refusal.reason, refusal.message)
             return
         self.diag.accept(EVENTS)
         decision = self.sup.on_event(event)

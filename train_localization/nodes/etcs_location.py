@@ -12,46 +12,53 @@ train's orientation) or ``track`` (track YAML) with ``orientation``; the PARAMS 
 core/etcs/location.py (``fix_latency``, ``history``) and of the odometer monitoring
 (core/etcs/odometer.py). A track whose ETCS data are inconsistent stops the node with one line.
 
+Admission (core/etcs/admission.py, docs/reliability.md): a state or fix stamped more than
+``future_tolerance`` ahead of the node clock (future), not after the last admitted one
+(stamp_back, duplicate), with a value that is not finite (nan) or beyond any train
+(implausible), an id too long (too_long), a fix of another track (other_track), a state whose
+interval or speed the last admitted state rules out (motion: ``max_acceleration``,
+``plausibility_margin``, ``speed_margin``) is refused, counted by reason and never reaches the
+location function; beyond ``max_input_rate`` messages per second per input they are shed
+(``shed/<topic>``). No event kind and no input can stop the node.
+
 /diagnostics: the LRBG, d_lrbg, the doubts and the counters; WARN while the odometer is
-impaired and for ALARM_HOLD (30 s) after a missed linked group or a rejected group, ERROR for as
-long after a wrong-direction passage; a state or fix that cannot be used (NaN, an interval upside down, another track) is
-counted as rejected and ignored.
+impaired and for ALARM_HOLD (30 s) after a missed linked group, a rejected group or a group
+refused as misplaced (REFERENCE_REJECTED), ERROR for as long after a wrong-direction passage
+and while the fused states are stale (nothing admitted for ``input_timeout``: no report is
+made, the ATP's report time-out brakes).
 """
 from __future__ import annotations
 
 import math
 import sys
+import time
 
 from rclpy.node import Node
 
 from ..core import convert, paths
-from ..core.etcs import location
+from ..core.etcs import admission, location
 from ..core.etcs.records import EventKind, LocationEvent, LocationReport
 from ..core.etcs.track_data import EtcsData
 from ..core.scenario import Scenario
 from ..core.signals import InputRejected
 from ..core.track import Track
-from .common import LATCHED_QOS, STREAM_QOS, ConfigurationError, Diagnostics, declare, rclpy_classes, spin
+from .common import LATCHED_QOS, STREAM_QOS, ConfigurationError, Diagnostics, declare, now_sec, rclpy_classes, spin
 
 FIX_TOPIC = "sensors/eurobalise/position"
 ALARM_HOLD = 30.0      # [s] of state time a linking or odometer alarm stays in the diagnostics
 REPORT_TOPIC = "localization/etcs"
 EVENT_TOPIC = "localization/etcs_events"
+STATE_TOPIC = "localization/state"
+# events that are a linking or odometer alarm (WARN for ALARM_HOLD), and the one that is an ERROR
+ALARMS = (EventKind.MISSED_LINKED_GROUP, EventKind.OUTSIDE_WINDOW, EventKind.ODOMETER_IMPAIRED,
+          EventKind.REFERENCE_REJECTED, EventKind.NOT_LINKED, EventKind.UNKNOWN_GROUP)
 
 
 def state_from_msg(msg) -> location.FusedState:
-    """The location function's view of a TrainState message; ValueError if it cannot be used."""
-    state = location.FusedState(convert.stamp_to_sec(msg.header.stamp), float(msg.position), float(msg.position_min),
-                                float(msg.position_max), float(msg.speed), float(msg.speed_stddev),
-                                float(msg.confidence), int(msg.mode))
-    if not math.isfinite(state.t):
-        raise ValueError(f"stamp {state.t} is not finite")
-    if state.claimed:
-        values = (state.position, state.position_min, state.position_max, state.speed, state.speed_stddev)
-        if not all(map(math.isfinite, values)) or not state.position_min <= state.position <= state.position_max:
-            raise ValueError(f"position {state.position} in [{state.position_min}, {state.position_max}], speed "
-                             f"{state.speed} +- {state.speed_stddev} cannot be used")
-    return state
+    """The location function's view of a TrainState message (checked by the admission)."""
+    return location.FusedState(convert.stamp_to_sec(msg.header.stamp), float(msg.position), float(msg.position_min),
+                               float(msg.position_max), float(msg.speed), float(msg.speed_stddev),
+                               float(msg.confidence), int(msg.mode))
 
 
 def report_to_msg(report: LocationReport, cls, header):
@@ -77,20 +84,24 @@ class EtcsLocationNode(Node):
         track, orientation = self._configuration()
         params = {name: declare(self, name, p.default, p.description, read_only=True, limits=p.limits)
                   for name, p in location.PARAMS.items() if name != "orientation"}
+        guard = {name: declare(self, name, p.default, p.description, read_only=True, limits=p.limits)
+                 for name, p in admission.PARAMS.items()}
         try:
             data = EtcsData.from_track(track)
         except ValueError as exc:
             raise ConfigurationError(str(exc)) from None
         self.tracker = location.LocationTracker(data, {**params, "orientation": orientation})
         self.track_id = track.track_id
+        self.inputs = admission.LocationAdmission(guard, self.track_id)
         self.mc = rclpy_classes()
         self.report_pub = self.create_publisher(EtcsLocation, REPORT_TOPIC, STREAM_QOS)
         self.event_pub = self.create_publisher(EtcsEvent, EVENT_TOPIC, LATCHED_QOS)
-        self.create_subscription(self.mc.TrainState, "localization/state", self.on_state, STREAM_QOS)
+        self.create_subscription(self.mc.TrainState, STATE_TOPIC, self.on_state, STREAM_QOS)
         self.create_subscription(self.mc.PositionFix, FIX_TOPIC, self.on_fix, STREAM_QOS)
-        self._t_last = -math.inf
         self._alarm = (0, "", -math.inf)   # (level, what, state time)
+        self._report: LocationReport | None = None
         self.diag.set_status(1, "no train state yet")
+        self.diag.extra(self._health)
 
     def _configuration(self) -> tuple[Track, int]:
         scenario_path = declare(self, "scenario", "", "scenario YAML (track with ETCS data, the train)",
@@ -107,42 +118,64 @@ class EtcsLocationNode(Node):
         return own.track, own.orientation()
 
     def on_fix(self, msg) -> None:
+        if self.inputs.shed(FIX_TOPIC, time.monotonic()):
+            return
         try:
             fix = convert.position_fix_from_msg(msg)
         except (InputRejected, ValueError) as exc:
-            self.diag.reject(FIX_TOPIC, "implausible", str(exc))
+            reason = exc.reason if isinstance(exc, InputRejected) else "implausible"
+            self.diag.reject(FIX_TOPIC, reason, str(exc))
             return
-        if fix.track_id != self.track_id:
-            self.diag.reject(FIX_TOPIC, "other_track", f"fix on track {fix.track_id!r}, this is {self.track_id!r}")
+        refusal = self.inputs.fix(fix, now_sec(self))
+        if refusal is not None:
+            self.diag.reject(FIX_TOPIC, refusal.reason, refusal.message)
             return
         self.diag.accept(FIX_TOPIC)
         self.tracker.on_fix(fix)
 
     def on_state(self, msg) -> None:
-        try:
-            state = state_from_msg(msg)
-        except ValueError as exc:
-            self.diag.reject("localization/state", "implausible", str(exc))
+        if self.inputs.shed(STATE_TOPIC, time.monotonic()):
             return
-        if state.t <= self._t_last:
-            self.diag.reject("localization/state", "stamp_back", f"state at {state.t:.6f} s after {self._t_last:.6f} s")
+        state = state_from_msg(msg)
+        refusal = self.inputs.state(state, now_sec(self))
+        if refusal is not None:
+            self.diag.reject(STATE_TOPIC, refusal.reason, refusal.message)
             return
-        self._t_last = state.t
-        self.diag.accept("localization/state")
+        self.diag.accept(STATE_TOPIC)
         report, events = self.tracker.on_state(state)
-        header = self.mc.header(state.t)
-        self.report_pub.publish(report_to_msg(report, self._report_cls, header))
+        self._report = report
+        self.report_pub.publish(report_to_msg(report, self._report_cls, self.mc.header(state.t)))
         for event in events:
-            self.event_pub.publish(event_to_msg(event, self._event_cls, self.mc.header(event.t), self.track_id))
-            log = self.get_logger().warning if event.kind not in (EventKind.LRBG,) else self.get_logger().info
-            log(event.detail)
-            level = 2 if event.kind == EventKind.WRONG_DIRECTION else 1 if event.kind in (
-                EventKind.MISSED_LINKED_GROUP, EventKind.OUTSIDE_WINDOW, EventKind.ODOMETER_IMPAIRED) else 0
-            if level and (level >= self._alarm[0] or state.t - self._alarm[2] > ALARM_HOLD):
-                self._alarm = (level, event.detail, state.t)
+            self._on_event(event, state.t)
         if state.t - self._alarm[2] > ALARM_HOLD:
             self._alarm = (0, "", -math.inf)
         self._diagnose(report)
+
+    def _on_event(self, event: LocationEvent, t: float) -> None:
+        """Publish, log (one call per severity: rclpy fixes a call site's severity) and hold an alarm."""
+        self.event_pub.publish(event_to_msg(event, self._event_cls, self.mc.header(event.t), self.track_id))
+        if event.kind in (EventKind.LRBG, EventKind.ODOMETER_RESTORED):
+            self.get_logger().info(event.detail)
+        elif event.kind == EventKind.WRONG_DIRECTION:
+            self.get_logger().error(event.detail)
+        else:
+            self.get_logger().warning(event.detail)
+        level = 2 if event.kind == EventKind.WRONG_DIRECTION else 1 if event.kind in ALARMS else 0
+        if level and (level >= self._alarm[0] or t - self._alarm[2] > ALARM_HOLD):
+            self._alarm = (level, event.detail, t)
+
+    def _health(self) -> list:
+        """Every diagnostics period: the state stream's time-out (ERROR while stale) and the shed counts."""
+        now = now_sec(self)
+        self.inputs.states.waiting_since(now)
+        self.diag.values.update({f"shed/{k}": str(v) for k, v in self.inputs.shedder.shed.items()})
+        if self.inputs.states.stale(now):
+            silence = self.inputs.states.silence(now)
+            self.diag.set_status(2, f"fused states stale: none admitted for {silence:.1f} s "
+                                    f"(input_timeout {self.inputs.states.stream.limits.timeout:g} s): no report")
+        elif self._report is not None:
+            self._diagnose(self._report)
+        return []
 
     def _diagnose(self, report: LocationReport) -> None:
         self.diag.values.update({"nid_lrbg": report.nid_lrbg or "none", "d_lrbg_m": f"{report.d_lrbg:.2f}",

@@ -26,6 +26,13 @@ LRBG (event LRBG) when
     group in the direction of travel (the event says "unlinked"); or
   * it is the group the linking expects and was read inside its expectation window
     (core/etcs/linking.py) in the link's direction.
+A group that the linking does not announce (the first, after a reset, on a line without
+linking) is placed before it is taken: its read must lie within the fused interval at the read
+(the first claimed one after it, widened by how far the train can have gone since, when the
+fusion claimed no position at the read) plus the group's Q_LOCACC plus ``reference_sigmas`` of
+the read's 1-sigma, and name a balise at most ``max_reader_offset`` from the front it gives (the
+LRBG's own offset, once there is one); otherwise it is refused (REFERENCE_REJECTED): one
+spoofed read naming a group kilometres away never becomes the LRBG.
 Otherwise it is not taken: a group outside its window (OUTSIDE_WINDOW), passed against its
 link (WRONG_DIRECTION, reaction train trip), a group the linking does not announce
 (NOT_LINKED), a balise the ETCS data do not know (UNKNOWN_GROUP). A read of the LRBG's own
@@ -42,9 +49,9 @@ from bisect import bisect_left
 from collections import deque
 from dataclasses import dataclass
 
-from scipy.special import ndtri
-
 from ..measurements import PositionFix
+from ..safety.plausibility import PARAMS as MOTION_PARAMS
+from ..safety.plausibility import speed_bound
 from ..sensors.base import Param, check_declared, resolve_params
 from . import odometer
 from .linking import Expectation, expect
@@ -54,6 +61,8 @@ from .track_data import EtcsData
 READER = "eurobalise"      # sensor class of the Eurobalise reader's fixes
 PREVIOUS_LRBGS = 8          # LRBGs kept besides the current one (SUBSET-026 3.6.2.2.2: at least 7)
 MODE_NOMINAL, MODE_DEGRADED = 1, 2
+# [m/s^2] placing a read back from a later state: any train's acceleration (the plausibility's)
+REACH_ACCELERATION = MOTION_PARAMS["max_acceleration"].default
 
 PARAMS = {
     "orientation": Param(1, "direction the train's front faces: +1 increasing chainage, -1 decreasing", (-1, 1)),
@@ -61,6 +70,12 @@ PARAMS = {
                               "missed this long after its window closed", (0.0, 30.0)),
     "history": Param(30.0, "fused states kept to place late balise fixes [s]; an older fix is refused",
                      (1.0, 600.0)),
+    "max_reader_offset": Param(50.0, "largest distance between a balise read and the front it gives (the "
+                                     "reader antenna's place on the train) [m]: a read naming a group further "
+                                     "from its front is refused (REFERENCE_REJECTED)", (0.0, 1000.0)),
+    "reference_sigmas": Param(5.0, "a group not announced by the linking is taken as the LRBG only if its read "
+                                   "lies within the fused interval plus its Q_LOCACC plus this many of the "
+                                   "read's 1-sigma [1]", (0.0, 100.0)),
     **odometer.PARAMS,
 }
 check_declared(PARAMS, "etcs location PARAMS")
@@ -120,7 +135,8 @@ class LocationTracker:
         self._odometer = 0.0
         self._pending: list[PositionFix] = []
         self.stats = {"fixes": 0, "lrbg": 0, "outside_window": 0, "missed": 0, "wrong_direction": 0,
-                      "not_linked": 0, "unknown_group": 0, "same_group": 0, "too_old": 0, "direction_unknown": 0}
+                      "not_linked": 0, "unknown_group": 0, "same_group": 0, "too_old": 0, "direction_unknown": 0,
+                      "reference_rejected": 0}
 
     # ----------------------------------------------------------------------- inputs
     def on_fix(self, fix: PositionFix) -> None:
@@ -139,8 +155,14 @@ class LocationTracker:
         events: list[LocationEvent] = []
         due = sorted((f for f in self._pending if f.stamp <= state.t), key=lambda f: f.stamp)
         self._pending = [f for f in self._pending if f.stamp > state.t]
+        waiting = []
         for fix in due:
-            events += self._take(fix)
+            taken = self._take(fix)
+            if taken is None:
+                waiting.append(fix)
+            else:
+                events += taken
+        self._pending += waiting
         events += self._check_window(state)
         return self._report(state), events
 
@@ -173,7 +195,9 @@ class LocationTracker:
     def _event(self, t, kind, nid, reaction=Reaction.NONE, detail="") -> LocationEvent:
         return LocationEvent(float(t), EventKind(kind), nid, Reaction(reaction), detail)
 
-    def _take(self, fix: PositionFix) -> list[LocationEvent]:
+    def _take(self, fix: PositionFix) -> list[LocationEvent] | None:
+        """The events of a due fix; None to keep it waiting (an unannounced group, no claimed
+        state yet to place it against)."""
         nid = self.data.group_of_balise.get(fix.reference_id)
         if nid is None:
             self.stats["unknown_group"] += 1
@@ -208,9 +232,51 @@ class LocationTracker:
             self.stats["not_linked"] += 1
             return [self._event(fix.stamp, EventKind.NOT_LINKED, nid, Reaction.NONE,
                                 f"group {nid} read while the linking expects {exp.nid_bg}: ignored")]
+        placed = self._placed(fix, nid)
+        if placed is None:
+            return None
+        if placed:
+            self.stats["reference_rejected"] += 1
+            return [self._event(fix.stamp, EventKind.REFERENCE_REJECTED, nid, Reaction.NONE, placed)]
         if direction == 0:
             self.stats["direction_unknown"] += 1
         return self._new_lrbg(fix, nid, direction, reading, None, "unlinked")
+
+    def _placed(self, fix: PositionFix, nid: str) -> str | None:
+        """Why the read ``fix`` of unannounced group ``nid`` cannot be where the location places
+        the train ("" if it can; None: no claimed state yet to tell, keep it waiting)."""
+        offset = fix.position - self._balise_chainage(fix.reference_id)
+        if self.lrbg is not None:
+            tolerance = self.params["reference_sigmas"] * fix.position_stddev + 1.0
+            if abs(offset - self._front_offset) > tolerance:
+                return (f"group {nid} read {offset:.2f} m from the front it gives, the LRBG's reads "
+                        f"{self._front_offset:.2f} m: refused")
+        elif abs(offset) > self.params["max_reader_offset"]:
+            return (f"group {nid} read {offset:.2f} m from the front it gives (max_reader_offset "
+                    f"{self.params['max_reader_offset']:g} m): refused")
+        interval = self._claimed_interval(fix.stamp)
+        if interval is None:
+            return None
+        lo, hi = interval
+        margin = self.data.groups[nid].q_locacc + self.params["reference_sigmas"] * fix.position_stddev
+        if not lo - margin <= fix.position <= hi + margin:
+            return (f"group {nid} read with the front at {fix.position:.2f} m, the fused interval is "
+                    f"[{lo:.2f}, {hi:.2f}] m (+- {margin:.2f} m): refused")
+        return ""
+
+    def _claimed_interval(self, t: float) -> tuple[float, float] | None:
+        """The front's interval [m] at ``t`` [s]: the claimed states around it, or the first
+        claimed one after it widened by the reach back to ``t``; None if none claims yet."""
+        around = [s for s, _ in self._states if abs(s.t - t) <= 0.5]
+        claimed = [s for s in around if s.claimed]
+        if claimed and len(claimed) == len(around):
+            return min(s.position_min for s in claimed), max(s.position_max for s in claimed)
+        later = next((s for s, _ in self._states if s.t >= t and s.claimed), None)
+        if later is None:
+            return None
+        dt = later.t - t
+        reach = (abs(later.speed) + self._v_ura(later)) * dt + 0.5 * REACH_ACCELERATION * dt * dt
+        return later.position_min - reach, later.position_max + reach
 
     def _balise_chainage(self, balise: str) -> float:
         group = self.data.groups[self.data.group_of_balise[balise]]
@@ -282,8 +348,7 @@ class LocationTracker:
     # ----------------------------------------------------------------------- report
     @staticmethod
     def _v_ura(state: FusedState) -> float:
-        conf = min(max(state.confidence, 0.5), 1.0 - 1e-15)
-        return float(ndtri(0.5 * (1.0 + conf))) * state.speed_stddev
+        return speed_bound(state.confidence, state.speed_stddev)
 
     def _report(self, state: FusedState) -> LocationReport:
         o = self.orientation

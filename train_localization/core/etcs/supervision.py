@@ -31,9 +31,11 @@ acknowledgement and a new movement authority; ``set_authority`` stands for both)
 Linking reactions (``on_event``): a LocationEvent asking for TRAIN_TRIP trips the train,
 SERVICE_BRAKE commands the service brake until standstill, NONE does nothing (counted).
 
-Stale reports. ``check_stale(silence)``: no location report for ``report_timeout`` while the
-last one showed the train moving (or without a position) commands the emergency brake (fail
-safe); the node checks it every 0.1 s on its clock, from the last report's arrival.
+Stale reports. ``check_stale(silence)``: no *admitted* location report (core/etcs/admission.py:
+refused and silent alike) for ``report_timeout`` is "position unknown": the emergency brake
+(fail safe), whatever speed the last report said -- a report claiming a standstill may be the
+last thing an attacker or a failing node sent. The node checks it every 0.1 s on its clock,
+from the last admission.
 
 No position. A report without a claimed position (``has_position`` False: initialising or
 lost) leaves no end of authority to supervise: the train runs as in Staff Responsible
@@ -43,12 +45,14 @@ cannot be used (NaN), the emergency brake (fail safe), with the reason. At a sta
 decision is held as it was (no brake applied, none released) until a report with a position
 comes.
 
-Holding. A commanded brake is held, whatever the curves say after, until the standstill:
-``|v_est| < standstill_speed`` in a report with a position (v_ura is left out: a train at
-rest may keep a speed uncertainty above standstill_speed and would never be released); the
-emergency brake likewise (always until standstill), a trip until its release above. At a
-standstill the curves are evaluated afresh: a train stopped within the SBI distance of its
-EOA keeps its brake.
+Holding. A commanded brake is held, whatever the curves say after, until the standstill is
+**confirmed**: ``|v_est| < standstill_speed`` in every admitted report with a position for at
+least ``standstill_confirmation`` [s] (v_ura is left out: a train at rest may keep a speed
+uncertainty above standstill_speed and would never be released); one report, or a run of
+them shorter than that, releases nothing (SUBSET-026 3.13: an intervention is revoked at the
+standstill, never by one report). The emergency brake likewise (always until standstill), a
+trip until its release above (also at a confirmed standstill). At a standstill the curves are
+evaluated afresh: a train stopped within the SBI distance of its EOA keeps its brake.
 """
 from __future__ import annotations
 
@@ -101,6 +105,8 @@ PARAMS = {
                                  "(fail safe) [s]", (0.05, 60.0)),
     "standstill_speed": Param(0.1, "below this |v_est| a commanded brake is released (standstill) [m/s]",
                               (0.001, 5.0)),
+    "standstill_confirmation": Param(1.0, "a brake or trip is released only after every admitted report with a "
+                                          "position showed the standstill for this long [s]", (0.0, 60.0)),
 }
 check_declared(PARAMS, "atp_supervision")
 
@@ -191,6 +197,7 @@ class Supervision:
         self.brake_reason = ""
         self.trip_reason = ""            # "" unless tripped (latched)
         self._new_authority = False      # a changed EOA since the trip
+        self._standstill_since: float | None = None   # first report of the current run at a standstill [s]
         self.last_report: LocationReport | None = None
         self.last: AtpDecision | None = None
         self.stats = {"reports": 0, "events": 0, "events_without_reaction": 0, "authorities": 0,
@@ -225,11 +232,11 @@ class Supervision:
         report = self.last_report
         if report is None or not silence > self.params["report_timeout"]:
             return None
-        at_rest = report.has_position and abs(report.v_est) < self.params["standstill_speed"]
-        if at_rest or self.brake == Brake.EMERGENCY:
+        self._standstill_since = None
+        if self.brake == Brake.EMERGENCY:
             return None
-        reason = (f"no location report for {silence:.2f} s (last at {report.t:.2f} s, moving): emergency "
-                  "brake (fail safe)")
+        reason = (f"no admitted location report for {silence:.2f} s (last at {report.t:.2f} s): position "
+                  "unknown, emergency brake (fail safe)")
         self._intervene(Brake.EMERGENCY, reason, "stale")
         self.last = AtpDecision(report.t + silence, Status.INTERVENTION, self.brake, self.end_of_authority, math.nan, math.nan,
                                 reason)
@@ -273,8 +280,9 @@ class Supervision:
                   and math.isfinite(report.v_ura) and report.v_ura >= 0.0)
         standstill = speed < p["standstill_speed"]          # False for NaN: moving
         status, distance, allowed = Status.NORMAL, math.nan, math.nan
+        confirmed = self._confirm_standstill(t, usable and standstill, report)
         if usable:
-            if standstill:                                  # releases first: the curves decide afresh
+            if confirmed:                                   # releases first: the curves decide afresh
                 if self.trip_reason and self._new_authority:
                     self.trip_reason, self._new_authority = "", False
                     self.stats["trips_released"] += 1
@@ -302,11 +310,24 @@ class Supervision:
         elif self.brake != Brake.NONE:
             if reason != self.brake_reason:                 # commanded before, not (as much) now
                 held = "held: no usable position at a standstill" if standstill and not usable \
-                    else "held until standstill"
+                    else "held until a confirmed standstill"
                 reason = f"{self.brake_reason}; {held}"
             status = Status.INTERVENTION
         self.last = AtpDecision(t, status, self.brake, eoa, distance, allowed, reason)
         return self.last
+
+    def _confirm_standstill(self, t: float, at_rest: bool, report: LocationReport | None) -> bool:
+        """True once reports with a position have shown the standstill for ``standstill_confirmation``
+        [s] without a break (only a new report moves it: events and authorities do not)."""
+        if report is None or report is not self.last_report or t != report.t:
+            return self._standstill_since is not None and report is not None and \
+                report.t - self._standstill_since >= self.params["standstill_confirmation"]
+        if not at_rest:
+            self._standstill_since = None
+            return False
+        if self._standstill_since is None:
+            self._standstill_since = t
+        return t - self._standstill_since >= self.params["standstill_confirmation"]
 
     def _supervise(self, report: LocationReport) -> tuple[str, Status, float, float]:
         """(reason, status, distance to the EOA [m], permitted speed [m/s]) of a usable report;

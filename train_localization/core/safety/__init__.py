@@ -7,4 +7,5 @@ admits, and how it tells a stream that has gone stale.
                    the time-out after which a stream is stale
   plausibility.py  MotionGate: a state (or report) whose interval or speed the last admitted one
                    rules out over the elapsed time is refused
+  state_stream.py  StateStream: the two in order for a stream of states
 """

@@ -22,6 +22,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from scipy.special import ndtri
+
 from ..measurements import MAX_SPEED
 from ..sensors.base import Param
 from ..signals import InputRejected
@@ -33,6 +35,13 @@ PARAMS = {
                                       "admitted one allows before it is refused (motion) [m]", (0.0, 1.0e4)),
     "speed_margin": Param(1.0, "likewise for the speed interval [m/s]", (0.0, 100.0)),
 }
+
+
+def speed_bound(confidence: float, speed_stddev: float) -> float:
+    """The speed's bound [m/s] at a state's ``confidence``: its two-sided normal quantile times
+    ``speed_stddev`` [m/s] (the confidence taken in 0.5 .. 1 - 1e-15; ETCS's v_ura)."""
+    conf = min(max(confidence, 0.5), 1.0 - 1e-15)
+    return float(ndtri(0.5 * (1.0 + conf))) * speed_stddev
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,127 @@
+"""What the ETCS consumers admit (docs/reliability.md): the etcs_location's fused states and
+balise fixes, the atp_supervision's location reports and events, through the shared admission
+of core/safety. The nodes and the offline closed loop (supervised_run.py) use the same classes,
+so the randomised campaign exercises the checks the live nodes run.
+
+Fused states and location reports: the stream's checks (stamps against the consumer's clock
+and the last admitted one, non-finite values, sizes) and the kinematic plausibility (a state or
+report whose interval or speed the last admitted one rules out: ``motion``). Balise fixes:
+the stream's checks and load shedding (``max_input_rate`` per topic, as the fusion's inputs:
+``shed``), so a flood of reads cannot delay the reports. Events are not ordered (a missed group's
+event is stamped at its window's closing) and only checked for time, values and sizes: an event
+can only ask for a brake, so an inserted one costs availability, never safety.
+"""
+from __future__ import annotations
+
+import math
+
+from ..fusion.shedding import InputShedder
+from ..measurements import MAX_CHAINAGE, MAX_SPEED, PositionFix
+from ..safety import admission, plausibility
+from ..safety.admission import StreamAdmission, StreamLimits
+from ..safety.plausibility import Motion, MotionGate, speed_bound
+from ..safety.state_stream import StateStream
+from ..sensors.base import Param, check_declared, resolve_params
+from ..signals import InputRejected
+from .location import PREVIOUS_LRBGS, FusedState
+from .records import LocationEvent, LocationReport
+
+PARAMS = {
+    **admission.PARAMS,
+    **plausibility.PARAMS,
+    "max_input_rate": Param(1000.0, "messages per second one input takes on average; beyond it they are shed "
+                                    "(counted, never parsed) [1/s]", (1.0, 1.0e6)),
+}
+check_declared(PARAMS, "etcs admission PARAMS")
+CHAINAGE = (-MAX_CHAINAGE, MAX_CHAINAGE)
+
+
+def admission_params(overrides: dict | None = None) -> dict:
+    """PARAMS at their defaults updated by ``overrides`` (ValueError in one line); other keys of
+    ``overrides`` are ignored."""
+    return resolve_params(PARAMS, {k: v for k, v in (overrides or {}).items() if k in PARAMS})
+
+
+def _gate(p: dict) -> MotionGate:
+    return MotionGate.from_params(p)
+
+
+class LocationAdmission:
+    """The etcs_location's inputs: ``state(s, now)`` and ``fix(f, now)`` return None (admitted)
+    or the refusal; ``now``: the node's clock [s] (0/None: none yet); ``host_now``: the clock
+    shedding counts on (the host's monotonic clock live, the consumer clock offline)."""
+
+    def __init__(self, params: dict | None = None, track_id: str = ""):
+        p = self.params = admission_params(params)
+        self.track_id = track_id
+        self.states = StateStream("localization/state", admission.limits_from(p), _gate(p))
+        self.fixes = StreamAdmission("sensors/eurobalise/position", admission.limits_from(p))
+        self.shedder = InputShedder(float(p["max_input_rate"]))
+
+    def shed(self, topic: str, host_now: float) -> bool:
+        """True when a message of ``topic`` is to be shed (counted in ``shedder.shed``)."""
+        return not self.shedder.admit(topic, host_now)
+
+    def state(self, s: FusedState, now: float | None) -> InputRejected | None:
+        values = {"position": s.position, "position_min": s.position_min, "position_max": s.position_max,
+                  "speed": s.speed, "speed_stddev": s.speed_stddev} if s.claimed else {}
+        refusal = self._claims(s) if s.claimed else None
+        if refusal is not None:
+            return self.states.stream.refuse(refusal)
+        motion = Motion.of(s.t, s.claimed, s.position_min, s.position_max, s.speed,
+                           speed_bound(s.confidence, s.speed_stddev) if s.claimed else 0.0)
+        return self.states.admit(motion, now, values=values)
+
+    @staticmethod
+    def _claims(s: FusedState) -> InputRejected | None:
+        """A claimed state's numbers that no train has (NaN first: admission checks it)."""
+        values = (s.position, s.position_min, s.position_max, s.speed, s.speed_stddev)
+        if not all(map(math.isfinite, values)):
+            return InputRejected("nan", f"position {s.position} in [{s.position_min}, {s.position_max}], speed "
+                                        f"{s.speed} +- {s.speed_stddev}")
+        if not s.position_min <= s.position <= s.position_max:
+            return InputRejected("implausible", f"position {s.position:.3f} m outside its interval "
+                                                f"[{s.position_min:.3f}, {s.position_max:.3f}] m")
+        if not (CHAINAGE[0] <= s.position_min and s.position_max <= CHAINAGE[1] and abs(s.speed) <= MAX_SPEED
+                and 0.0 <= s.speed_stddev <= MAX_SPEED):
+            return InputRejected("implausible", f"interval [{s.position_min:g}, {s.position_max:g}] m or speed "
+                                                f"{s.speed:g} +- {s.speed_stddev:g} m/s beyond any train")
+        return None
+
+    def fix(self, f: PositionFix, now: float | None) -> InputRejected | None:
+        if f.track_id != self.track_id:
+            return self.fixes.refuse(InputRejected("other_track", f"fix on track {f.track_id[:64]!r}, this is "
+                                                                  f"{self.track_id!r}"))
+        return self.fixes.admit(f.stamp, now, values={"position": f.position, "position_stddev": f.position_stddev},
+                                ids={"reference_id": f.reference_id, "sensor": f.sensor, "unit_id": f.unit_id},
+                                limits={"position": CHAINAGE})
+
+
+class SupervisionAdmission:
+    """The atp_supervision's inputs: ``report(r, now)`` and ``event(e, now)`` return None
+    (admitted) or the refusal; ``orientation``: the train's (+1 / -1: v_est runs along it).
+    The report stream's time-out is the supervision's ``report_timeout``."""
+
+    def __init__(self, params: dict | None, orientation: int, report_timeout: float):
+        p = self.params = admission_params(params)
+        self.orientation = 1 if orientation >= 0 else -1
+        limits = StreamLimits(float(p["future_tolerance"]), float(report_timeout), PREVIOUS_LRBGS)
+        self.reports = StateStream("localization/etcs", limits, _gate(p))
+        self.events = StreamAdmission("localization/etcs_events",
+                                      StreamLimits(float(p["future_tolerance"]), float(report_timeout), ordered=False))
+
+    def report(self, r: LocationReport, now: float | None) -> InputRejected | None:
+        o = self.orientation
+        claimed = r.has_position
+        values = {"min_safe_front_end": r.min_safe_front_end, "max_safe_front_end": r.max_safe_front_end,
+                  "v_est": r.v_est, "v_ura": r.v_ura} if claimed else {}
+        motion = Motion.of(r.t, claimed, r.min_safe_front_end, r.max_safe_front_end, o * r.v_est,
+                           r.v_ura if claimed else 0.0)
+        return self.reports.admit(motion, now, values=values, ids={"nid_lrbg": r.nid_lrbg, "track_id": r.track_id},
+                                  sizes={"previous_lrbgs": len(r.previous_lrbgs)},
+                                  limits={"min_safe_front_end": CHAINAGE, "max_safe_front_end": CHAINAGE,
+                                          "v_est": (-MAX_SPEED, MAX_SPEED), "v_ura": (0.0, MAX_SPEED)}
+                                  if claimed else None)
+
+    def event(self, e: LocationEvent, now: float | None) -> InputRejected | None:
+        return self.events.admit(e.t, now, ids={"nid_bg": e.nid_bg})

@@ -26,7 +26,7 @@ def _report(t: float, front: float, v: float, half: float = 2.0, v_ura: float = 
 def _sup(**overrides) -> Supervision:
     """A supervision to EOA; the train of these tests does not accelerate during the brake
     build-up (traction_acceleration 0) unless told."""
-    return Supervision({"end_of_authority": EOA, "traction_acceleration": 0.0, **overrides})
+    return Supervision({"end_of_authority": EOA, "traction_acceleration": 0.0, "start_braked": False, **overrides})
 
 
 def _diag_values(msgs, name_part):
@@ -73,7 +73,8 @@ def test_the_curves_are_the_constant_deceleration_formulas():
     for o in (1, -1):
         eoa = o * EOA
         for margin, brake in ((-0.01, Brake.EMERGENCY), (0.01, Brake.SERVICE)):
-            sup = Supervision({"end_of_authority": eoa, "orientation": o, "traction_acceleration": 0.0})
+            sup = Supervision({"end_of_authority": eoa, "orientation": o, "traction_acceleration": 0.0,
+                              "start_braked": False})
             d = sup.update(_report(1.0, eoa - o * (c.ebi + margin + 2.0), o * 20.0, orientation=o))
             assert (d.status, d.brake) == (Status.INTERVENTION, brake), d
             assert d.distance_to_eoa == pytest.approx(c.ebi + margin)
@@ -205,7 +206,7 @@ def test_the_curves_allow_for_the_acceleration_during_the_brake_build_up():
     at_rest = atp.curves(0.0, p).sbi
     assert at_rest == pytest.approx(0.25 * 1.5 ** 2 + 0.75 ** 2 / 1.0)
     assert atp.permitted_speed(0.5 * at_rest, p) == 0.0
-    sup = Supervision({"end_of_authority": EOA})
+    sup = Supervision({"end_of_authority": EOA, "start_braked": False})
     between = 0.5 * (atp.curves(0.0, p).ebi + at_rest)
     assert sup.update(_report(1.0, EOA - 2.0 - between, 0.0, v_ura=0.0)).brake == Brake.SERVICE
 
@@ -340,7 +341,8 @@ def test_the_node_commands_brakes_from_the_reports_and_counts_a_refused_one(ros_
     from train_localization_msgs.msg import AtpCommand, EtcsLocation
     from train_localization.nodes.common import STREAM_QOS
 
-    proc = start_node("atp_supervision", "--ros-args", "-r", "__ns:=/train", "-p", "end_of_authority:=1000.0")
+    proc = start_node("atp_supervision", "--ros-args", "-r", "__ns:=/train", "-p", "end_of_authority:=1000.0",
+                      "-p", "start_braked:=false")
     node = ros_context.create_node("probe_atp_supervision", namespace="/train")
     pub = node.create_publisher(EtcsLocation, "localization/etcs", STREAM_QOS)
     commands, diags = [], []
@@ -450,6 +452,21 @@ def test_location_reports_that_stop_are_an_emergency_brake_whatever_the_last_one
     assert at_rest.check_stale(1.2).brake == Brake.EMERGENCY     # last seen at rest: braked all the same
     assert at_rest.update(_report(3.0, 100.0, 0.0)).brake == Brake.EMERGENCY   # held until a confirmed standstill
     assert at_rest.update(_report(4.0, 100.0, 0.0)).brake == Brake.NONE
+
+
+def test_a_supervision_starts_braked_and_releases_at_a_confirmed_standstill_with_or_without_a_position():
+    """start_braked (default): a supervision (re)started while the train moves keeps the
+    emergency brake until the standstill is confirmed; at the start of a mission, initialising
+    reports at rest release it after standstill_confirmation."""
+    sup = Supervision({"end_of_authority": EOA})
+    assert sup.update(_report(1.0, 100.0, 15.0)).brake == Brake.EMERGENCY     # restarted while moving
+    assert sup.update(_report(5.0, 150.0, 0.0)).brake == Brake.EMERGENCY
+    assert sup.update(_report(6.0, 150.0, 0.0)).brake == Brake.NONE
+    fresh = Supervision({"end_of_authority": EOA})
+    assert fresh.update(_report(0.0, math.nan, 0.0, mode=0)).brake == Brake.EMERGENCY
+    assert fresh.update(_report(0.5, math.nan, 0.0, mode=0)).brake == Brake.EMERGENCY
+    d = fresh.update(_report(1.0, math.nan, 0.0, mode=0))
+    assert (d.brake, fresh.stats["interventions"]) == (Brake.NONE, 0)
 
 
 def test_one_report_of_a_standstill_during_a_brake_releases_nothing():

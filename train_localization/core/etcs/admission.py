@@ -6,7 +6,9 @@ so the randomised campaign exercises the checks the live nodes run.
 Fused states and location reports: the stream's checks (stamps against the consumer's clock
 and the last admitted one, non-finite values, sizes) and the kinematic plausibility (a state or
 report whose interval or speed the last admitted one rules out: ``motion``). Balise fixes:
-the stream's checks and load shedding (``max_input_rate`` per topic, as the fusion's inputs:
+the stream's checks but their order (a fix comes up to the reader's latency after its stamp, so
+one spoofed fix stamped now must not make the real ones late; the location function sorts them
+and refuses one older than its history), and load shedding (``max_input_rate`` per topic, as the fusion's inputs:
 ``shed``), so a flood of reads cannot delay the reports. Events are not ordered (a missed group's
 event is stamped at its window's closing) and only checked for time, values and sizes: an event
 can only ask for a brake, so an inserted one costs availability, never safety.
@@ -55,7 +57,9 @@ class LocationAdmission:
         p = self.params = admission_params(params)
         self.track_id = track_id
         self.states = StateStream("localization/state", admission.limits_from(p), _gate(p))
-        self.fixes = StreamAdmission("sensors/eurobalise/position", admission.limits_from(p))
+        # fixes arrive up to the reader's latency after their stamp, in any order with a spoofed
+        # one stamped now: not ordered (the location function sorts them and refuses a too old one)
+        self.fixes = StreamAdmission("sensors/eurobalise/position", admission.limits_from(p, ordered=False))
         self.shedder = InputShedder(float(p["max_input_rate"]))
 
     def shed(self, topic: str, host_now: float) -> bool:

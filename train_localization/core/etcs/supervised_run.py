@@ -13,48 +13,172 @@ short of it), the trips and the interventions.
 (the PID) never brakes for the end of authority, so the supervision must stop the train,
 over drawn speeds, EOA places, braking capability, Q_LOCACC, wheel slides in the braking,
 radar faults and missed balise groups.
+
+The supervisor admits what it takes as the nodes do (core/etcs/admission.py, the consumer's
+clock being the loop's time): fused states and balise fixes for the location function, reports
+and events for the supervision, whose report time-out brakes. With ``attacks`` (``draw_attacks``)
+it is also handed what an attacker on the same DDS domain would publish (``Attack``): one
+state stamped far ahead at a standstill, a report of a standstill in the middle of a brake, a
+fix naming a group kilometres away, a flood of unknown balise ids; silent linked groups are the
+reader's own fault. Each is refused and counted, or answered by the safe reaction.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..measurements import PositionFix
+from .admission import LocationAdmission, SupervisionAdmission
 from .location import FusedState, LocationTracker, is_balise_fix
 from .records import LocationEvent, LocationReport
 from .supervision import AtpDecision, Brake, Status, Supervision
 from .track_data import EtcsData
 
-class EtcsSupervisor:
-    """closed_loop's supervisor: the location function and the supervision on the run so far."""
+# what an attacker on the DDS domain publishes in the randomised stops (``Attack.kind``)
+ATTACKS = ("state_ahead", "standstill_report", "far_group", "unknown_flood", "silent_linked")
+FIX_TOPIC, STATE_TOPIC = "sensors/eurobalise/position", "localization/state"
 
-    def __init__(self, data: EtcsData, location_params: dict | None, atp_params: dict | None):
+
+@dataclass(frozen=True)
+class Attack:
+    """One attack of a run: ``kind`` (ATTACKS) from ``t`` [s]; ``ahead`` [s] a spoofed state's
+    stamp ahead of the clock; ``group`` the far group a spoofed fix names, ``consistent`` its
+    position at that group (else at the train); ``rate`` [1/s] and ``duration`` [s] of a flood."""
+    kind: str
+    t: float
+    ahead: float = 0.0
+    group: str = ""
+    consistent: bool = False
+    rate: float = 0.0
+    duration: float = 0.0
+
+
+class EtcsSupervisor:
+    """closed_loop's supervisor: the location function and the supervision on the run so far,
+    each behind its admission, with ``attacks`` injected where an attacker would publish."""
+
+    def __init__(self, data: EtcsData, location_params: dict | None, atp_params: dict | None,
+                 attacks: tuple[Attack, ...] = ()):
         self.tracker = LocationTracker(data, location_params)
         self.supervision = Supervision(atp_params)
+        self.location_inputs = LocationAdmission(atp_params, data.track_id)
+        self.atp_inputs = SupervisionAdmission(atp_params, self.supervision.orientation,
+                                               self.supervision.params["report_timeout"])
+        self.attacks = {a.kind: a for a in attacks}
+        self.attacked: dict[str, int] = {}      # kind -> spoofed messages handed in
         self.reports: list[LocationReport] = []
         self.events: list[LocationEvent] = []
         self.decisions: list[AtpDecision] = []
         self._estimates = 0
         self._measurements = 0
         self._brake = Brake.NONE
+        self._braking_since: float | None = None
+        self._flood_sent = 0
 
     def __call__(self, t: float, run) -> Brake:
         for m in run.measurements[self._measurements:]:
             if is_balise_fix(m):
-                self.tracker.on_fix(m)
+                self._fix(m, t)
         self._measurements = len(run.measurements)
+        for fix in self._spoofed_fixes(t, run):
+            self._fix(fix, t)
         for est in run.estimates[self._estimates:]:
-            report, events = self.tracker.on_state(FusedState.from_estimate(est))
-            self.reports.append(report)
-            for event in events:
-                self.events.append(event)
-                self.supervision.on_event(event)
-            decision = self.supervision.update(report)
-            self.decisions.append(decision)
-            self._brake = decision.brake
+            self._state(FusedState.from_estimate(est), t)
         self._estimates = len(run.estimates)
+        spoof = self._spoofed_state(t, run)
+        if spoof is not None:
+            self._state(spoof, t)
+        if self.atp_inputs.reports.admitted:
+            stale = self.supervision.check_stale(self.atp_inputs.reports.silence(t))
+            if stale is not None:
+                self.decisions.append(stale)
+                self._brake = stale.brake
+        if self._brake != Brake.NONE and self._braking_since is None:
+            self._braking_since = t
         return self._brake
+
+    # ------------------------------------------------------------------ the chain, admitted
+    def _fix(self, fix: PositionFix, t: float) -> None:
+        if self.location_inputs.shed(FIX_TOPIC, t) or self.location_inputs.fix(fix, t) is not None:
+            return
+        self.tracker.on_fix(fix)
+
+    def _state(self, state: FusedState, t: float) -> None:
+        if self.location_inputs.shed(STATE_TOPIC, t) or self.location_inputs.state(state, t) is not None:
+            return
+        report, events = self.tracker.on_state(state)
+        for event in events:
+            self.events.append(event)
+            if self.atp_inputs.event(event, t) is None:
+                self._decide(self.supervision.on_event(event))
+        self._report(report, t)
+        standstill = self._spoofed_report(report)
+        if standstill is not None:
+            self._report(standstill, t)
+
+    def _report(self, report: LocationReport, t: float) -> None:
+        self.reports.append(report)
+        if self.atp_inputs.report(report, t) is None:
+            self._decide(self.supervision.update(report))
+
+    def _decide(self, decision: AtpDecision) -> None:
+        self.decisions.append(decision)
+        self._brake = decision.brake
+
+    # ------------------------------------------------------------------ the attacker
+    def _count(self, kind: str, n: int = 1) -> None:
+        self.attacked[kind] = self.attacked.get(kind, 0) + n
+
+    def _spoofed_state(self, t: float, run) -> FusedState | None:
+        """One state stamped ``ahead`` of the clock at a standstill, at the attack's time."""
+        a = self.attacks.get("state_ahead")
+        if a is None or self.attacked.get(a.kind) or t < a.t or not run.estimates:
+            return None
+        self._count(a.kind)
+        est = run.estimates[-1]
+        return FusedState(t + a.ahead, est.position, est.position_min, est.position_max, 0.0, 0.001,
+                          est.confidence, 1)
+
+    def _spoofed_report(self, report: LocationReport) -> LocationReport | None:
+        """A report of a standstill just after a real one, 0.5 s into the first brake."""
+        a = self.attacks.get("standstill_report")
+        if a is None or self.attacked.get(a.kind) or self._braking_since is None \
+                or report.t < self._braking_since + 0.5 or not report.has_position:
+            return None
+        self._count(a.kind)
+        return replace(report, t=report.t + 1e-4, v_est=0.0, v_ura=0.0)
+
+    def _spoofed_fixes(self, t: float, run) -> list[PositionFix]:
+        out = []
+        far = self.attacks.get("far_group")
+        if far is not None and not self.attacked.get(far.kind) and t >= far.t:
+            group = self.tracker.data.groups[far.group]
+            est = run.estimates[-1] if run.estimates else None
+            at_train = est.position if est is not None else group.positions[0]
+            position = group.positions[0] + 2.0 if far.consistent else at_train
+            out.append(PositionFix(t, "eurobalise", "attacker", self.tracker.data.track_id, group.balises[0],
+                                   position, 0.5, 0))
+            self._count(far.kind)
+        flood = self.attacks.get("unknown_flood")
+        if flood is not None and flood.t <= t < flood.t + flood.duration:
+            due = int((t - flood.t) * flood.rate) - self._flood_sent
+            out += [PositionFix(flood.t + (self._flood_sent + k) / flood.rate, "eurobalise", "attacker",
+                                self.tracker.data.track_id, f"XX{self._flood_sent + k}", 1000.0, 0.5, 0)
+                    for k in range(max(0, due))]
+            self._flood_sent += max(0, due)
+            self._count(flood.kind, max(0, due))
+        return out
+
+    def refused(self) -> dict[str, int]:
+        """Refusals of every admitted stream by ``<stream>/<reason>``, and the shed messages."""
+        out = {}
+        for stream in (self.location_inputs.states.stream, self.location_inputs.fixes, self.atp_inputs.reports.stream,
+                       self.atp_inputs.events):
+            out.update({f"{stream.name}/{k}": v for k, v in stream.refused.items()})
+        out.update({f"shed/{k}": v for k, v in self.location_inputs.shedder.shed.items()})
+        return out
 
 
 @dataclass
@@ -71,17 +195,21 @@ class StopResult:
     min_truth_to_safe_front: float   # least (truth - min safe front end) along the orientation [m]: >= 0 safe
     max_safe_front_overshoot: float  # largest (truth - max safe front end) [m]: <= 0 safe
     events: dict = field(default_factory=dict)
+    releases_while_moving: int = 0   # brake releases while the true speed was above 0.1 m/s
+    refused: dict = field(default_factory=dict)    # <stream>/<reason> -> messages refused or shed
+    attacked: dict = field(default_factory=dict)   # attack kind -> spoofed messages handed in
     supervisor: EtcsSupervisor | None = None
     loop: object = None
 
 
-def supervised_stop(scenario, t_end: float | None = None) -> StopResult:
-    """Run a scenario with ``control`` and ``atp`` in closed loop under the ETCS supervision."""
+def supervised_stop(scenario, t_end: float | None = None, attacks: tuple[Attack, ...] = ()) -> StopResult:
+    """Run a scenario with ``control`` and ``atp`` in closed loop under the ETCS supervision,
+    with ``attacks`` injected."""
     from ..control import closed_loop
     orientation = scenario.orientation()
     atp = {"orientation": orientation, **scenario.atp}
     data = EtcsData.from_track(scenario.track)
-    sup = EtcsSupervisor(data, {"orientation": orientation}, atp)
+    sup = EtcsSupervisor(data, {"orientation": orientation}, atp, attacks)
     loop = closed_loop(scenario, t_end, supervisor=sup)
     eoa = float(atp["end_of_authority"])
     truth_t = np.array([s.stamp for s in loop.truth])
@@ -105,10 +233,13 @@ def supervised_stop(scenario, t_end: float | None = None) -> StopResult:
     for e in sup.events:
         kinds[e.kind.name.lower()] = kinds.get(e.kind.name.lower(), 0) + 1
     stats = sup.supervision.stats
+    brakes = [brake for _, brake in loop.brakes]
+    released = sum(1 for k in range(1, len(brakes)) if brakes[k - 1] != Brake.NONE and brakes[k] == Brake.NONE
+                   and abs(truth_v[k]) > 0.1)
     return StopResult(eoa, closest, (eoa - closest) * orientation, stopped, first_stop,
                       int(stats.get("trips", 0)), int(stats.get("interventions", 0)),
                       max((int(d.status) for d in sup.decisions), default=int(Status.NORMAL)),
-                      gap_min, over_max, kinds, sup, loop)
+                      gap_min, over_max, kinds, released, sup.refused(), dict(sup.attacked), sup, loop)
 
 
 # ----------------------------------------------------------------------------- randomised stops
@@ -191,6 +322,47 @@ def draw_stop(seed: int) -> dict:
                      "balise_spacing": spacing, **faults}}
 
 
+def draw_attacks(seed: int, data: dict) -> tuple[Attack, ...]:
+    """The attacks of randomised stop ``seed`` (``draw_stop``'s scenario dict ``data``, whose
+    reader may be given silent groups): each kind of ATTACKS with probability 1/2, at least one;
+    drawn from a generator of their own, so the run's line, train and faults are those without."""
+    rng = np.random.default_rng([seed, 48])
+    d = data["draw"]
+    v_top = d["top_speed_kmh"] * KMH
+    t_brake = (d["eoa_distance"] - v_top ** 2 / (2.0 * d["assumed_deceleration"])) / v_top
+    kinds = [k for k in ATTACKS if rng.random() < 0.5] or [ATTACKS[int(rng.integers(0, len(ATTACKS)))]]
+    groups = sorted({b["group"] for b in data["track"]["equipment"]["eurobalise"]})
+    start = data["initial"]["position"]
+    out = []
+    for kind in kinds:
+        if kind == "state_ahead":
+            out.append(Attack(kind, float(rng.uniform(5.0, max(6.0, t_brake))), ahead=float(10 ** rng.uniform(0.5, 6.0))))
+        elif kind == "standstill_report":
+            out.append(Attack(kind, 0.0))
+        elif kind == "far_group":
+            far = [g for g, b in ((b["group"], b) for b in data["track"]["equipment"]["eurobalise"])
+                   if abs(b["position"] - start) > 5000.0] or groups[-1:]
+            out.append(Attack(kind, float(rng.choice([0.5, rng.uniform(10.0, max(11.0, t_brake))])),
+                              group=str(far[int(rng.integers(0, len(far)))]), consistent=bool(rng.random() < 0.5)))
+        elif kind == "unknown_flood":
+            out.append(Attack(kind, float(rng.uniform(5.0, max(6.0, t_brake))), rate=float(rng.uniform(700.0, 5000.0)),
+                              duration=5.0))
+        else:       # two linked groups on the way, silent one after the other
+            eoa = data["atp"]["end_of_authority"]
+            way = [g for g in groups if start + 50.0 < _group_position(data, g) < eoa - 50.0]
+            if len(way) >= 2:
+                k = int(rng.integers(0, len(way) - 1))
+                silent = ",".join(f"{g}{s}" for g in way[k:k + 2] for s in "ab")
+                reader = data["sensors"]["eurobalise_reader"]
+                reader["silent_balises"] = ",".join(filter(None, (reader.get("silent_balises", ""), silent)))
+                out.append(Attack(kind, 0.0, group=",".join(way[k:k + 2])))
+    return tuple(out)
+
+
+def _group_position(data: dict, group: str) -> float:
+    return min(b["position"] for b in data["track"]["equipment"]["eurobalise"] if b["group"] == group)
+
+
 def stop_summary(results: list[dict]) -> dict:
     """Figures of randomised stops (``run_stop`` dicts): the closest approach to the EOA over
     the run (``margin_m``, goal: never negative; the driver drives on after each release), where
@@ -210,18 +382,30 @@ def stop_summary(results: list[dict]) -> dict:
             "safe_front_violations": sum(1 for r in ok if r["min_truth_to_safe_front"] < 0.0
                                          or r["max_safe_front_overshoot"] > 0.0),
             "interventions": sum(r["interventions"] for r in ok),
-            "missed_linked_groups": sum(r["events"].get("missed_linked_group", 0) for r in ok)}
+            "missed_linked_groups": sum(r["events"].get("missed_linked_group", 0) for r in ok),
+            "releases_while_moving": sum(r["releases_while_moving"] for r in ok),
+            "attacks": _tally(r["attacked"] for r in ok),
+            "refused": _tally(r["refused"] for r in ok)}
 
 
-def run_stop(seed: int) -> dict:
-    """Draw, run and score randomised stop ``seed``: a JSON-serialisable dict (an error entry
-    if the run fails)."""
+def _tally(dicts) -> dict:
+    total: dict = {}
+    for d in dicts:
+        for k, v in d.items():
+            total[k] = total.get(k, 0) + v
+    return dict(sorted(total.items()))
+
+
+def run_stop(seed: int, attacks: bool = False) -> dict:
+    """Draw, run and score randomised stop ``seed`` (with drawn ``attacks``): a JSON-serialisable
+    dict (an error entry if the run fails)."""
     import traceback
     from ..scenario import Scenario
     data = draw_stop(seed)
-    out = {"seed": int(seed), "draw": data["draw"]}
+    drawn = draw_attacks(seed, data) if attacks else ()
+    out = {"seed": int(seed), "draw": data["draw"], "attacks": [a.__dict__ for a in drawn]}
     try:
-        res = supervised_stop(Scenario.from_dict({k: v for k, v in data.items() if k != "draw"}))
+        res = supervised_stop(Scenario.from_dict({k: v for k, v in data.items() if k != "draw"}), attacks=drawn)
     except Exception as exc:     # a failing run is a result, not the end of the others
         return {**out, "error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc()}
     out.update({k: v for k, v in res.__dict__.items() if k not in ("supervisor", "loop")})

@@ -45,6 +45,11 @@ cannot be used (NaN), the emergency brake (fail safe), with the reason. At a sta
 decision is held as it was (no brake applied, none released) until a report with a position
 comes.
 
+Start-up. With ``start_braked`` (default) the supervision starts with the emergency brake,
+released at a standstill confirmed as below, with or without a position (a train at the start
+of its mission has none yet): a supervision restarted by its launch comes back braking, never
+having forgotten a brake or a trip it held.
+
 Holding. A commanded brake is held, whatever the curves say after, until the standstill is
 **confirmed**: ``|v_est| < standstill_speed`` in every admitted report with a position for at
 least ``standstill_confirmation`` [s] (v_ura is left out: a train at rest may keep a speed
@@ -105,6 +110,9 @@ PARAMS = {
                                  "(fail safe) [s]", (0.05, 60.0)),
     "standstill_speed": Param(0.1, "below this |v_est| a commanded brake is released (standstill) [m/s]",
                               (0.001, 5.0)),
+    "start_braked": Param(True, "start (and restart) with the emergency brake, released at a standstill confirmed "
+                                "over standstill_confirmation, with or without a position: a supervision that "
+                                "restarts forgets no brake or trip it held"),
     "standstill_confirmation": Param(1.0, "a brake or trip is released only after every admitted report with a "
                                           "position showed the standstill for this long [s]", (0.0, 60.0)),
 }
@@ -166,6 +174,32 @@ def permitted_speed(distance: float, params: dict) -> float:
     return max(0.0, w - a_t * t_bs)
 
 
+START_REASON = "start-up: emergency brake until a confirmed standstill"
+
+
+class StandstillClock:
+    """Confirms a standstill: ``update(t, at_rest, fresh)`` is True once every new report
+    (``fresh``; an event or an authority moves nothing) has been ``at_rest`` for ``confirmation``
+    [s] without a break; ``break_off()`` starts it afresh (a stale stream)."""
+
+    def __init__(self, confirmation: float):
+        self.confirmation = confirmation
+        self.since: float | None = None     # the first report of the current run at rest [s]
+        self.last = -math.inf               # the last report's time [s]
+
+    def update(self, t: float, at_rest: bool, fresh: bool) -> bool:
+        if fresh:
+            self.last = t
+            if not at_rest:
+                self.since = None
+            elif self.since is None:
+                self.since = t
+        return self.since is not None and self.last - self.since >= self.confirmation
+
+    def break_off(self) -> None:
+        self.since = None
+
+
 @dataclass(frozen=True)
 class AtpDecision:
     """What the supervision commands (AtpCommand): at ``t`` [s], the status, the brake (held
@@ -197,13 +231,16 @@ class Supervision:
         self.brake_reason = ""
         self.trip_reason = ""            # "" unless tripped (latched)
         self._new_authority = False      # a changed EOA since the trip
-        self._standstill_since: float | None = None   # first report of the current run at a standstill [s]
+        self._standstill = StandstillClock(p["standstill_confirmation"])   # reports with a position
+        self._start_standstill = StandstillClock(p["standstill_confirmation"])   # any report (start-up)
         self.last_report: LocationReport | None = None
         self.last: AtpDecision | None = None
         self.stats = {"reports": 0, "events": 0, "events_without_reaction": 0, "authorities": 0,
                       "interventions": 0, "intervention_ebi": 0, "intervention_sbi": 0, "intervention_link": 0,
                       "intervention_no_position": 0, "intervention_stale": 0, "trips": 0, "trip_eoa": 0, "trip_link": 0,
                       "releases": 0, "trips_released": 0}
+        if p["start_braked"]:
+            self.brake, self.brake_reason = Brake.EMERGENCY, START_REASON
 
     # ------------------------------------------------------------------ inputs
     def update(self, report: LocationReport) -> AtpDecision:
@@ -232,7 +269,8 @@ class Supervision:
         report = self.last_report
         if report is None or not silence > self.params["report_timeout"]:
             return None
-        self._standstill_since = None
+        self._standstill.break_off()
+        self._start_standstill.break_off()
         if self.brake == Brake.EMERGENCY:
             return None
         reason = (f"no admitted location report for {silence:.2f} s (last at {report.t:.2f} s): position "
@@ -280,7 +318,11 @@ class Supervision:
                   and math.isfinite(report.v_ura) and report.v_ura >= 0.0)
         standstill = speed < p["standstill_speed"]          # False for NaN: moving
         status, distance, allowed = Status.NORMAL, math.nan, math.nan
-        confirmed = self._confirm_standstill(t, usable and standstill, report)
+        fresh = report is not None and report is self.last_report and t == report.t   # a new report
+        confirmed = self._standstill.update(t, usable and standstill, fresh)
+        at_start = self._start_standstill.update(t, report is not None and standstill, fresh)
+        if self.brake_reason == START_REASON and at_start:
+            self.brake, self.brake_reason = Brake.NONE, ""
         if usable:
             if confirmed:                                   # releases first: the curves decide afresh
                 if self.trip_reason and self._new_authority:
@@ -315,19 +357,6 @@ class Supervision:
             status = Status.INTERVENTION
         self.last = AtpDecision(t, status, self.brake, eoa, distance, allowed, reason)
         return self.last
-
-    def _confirm_standstill(self, t: float, at_rest: bool, report: LocationReport | None) -> bool:
-        """True once reports with a position have shown the standstill for ``standstill_confirmation``
-        [s] without a break (only a new report moves it: events and authorities do not)."""
-        if report is None or report is not self.last_report or t != report.t:
-            return self._standstill_since is not None and report is not None and \
-                report.t - self._standstill_since >= self.params["standstill_confirmation"]
-        if not at_rest:
-            self._standstill_since = None
-            return False
-        if self._standstill_since is None:
-            self._standstill_since = t
-        return t - self._standstill_since >= self.params["standstill_confirmation"]
 
     def _supervise(self, report: LocationReport) -> tuple[str, Status, float, float]:
         """(reason, status, distance to the EOA [m], permitted speed [m/s]) of a usable report;

@@ -20,18 +20,36 @@ switched on by the other inverter while the train still draws from the current o
 
 An inverter feeds at most one section at a time; sections must not overlap.
 
-Controller (``StatorController``, the ``stator_section_controller`` node's core). Every
-``period`` it takes each train's latest state and forms the span the train can occupy until
-a command decided now has taken effect: from the min safe rear end to the max safe front end
-(the interval's ends, the vehicle's length behind the front), each moved by the speed
-interval's extreme over h = age of the state + ``command_latency`` + ``switch_time`` +
-``period``, and ``margin`` beyond. The sections the spans overlap must be fed; others are
-switched off. So the next section is fed before the max safe front end can reach it, and the
-last one is switched off only after the min safe rear end has left it. A section whose
+Controller (``StatorController``, the ``stator_section_controller`` node's core). Each
+train's states are admitted first (``admit``; below). Every ``period`` the controller forms,
+for every state of the train admitted within ``max_state_age`` (not only the latest), the
+span the train can occupy until a command decided now has taken effect: where that state
+allows the front to be now (its interval moved over its age by its speed interval and
+``max_acceleration``, as the plausibility gate's reach, core/safety/plausibility.py), then
+each end moved outwards only by the extreme of the speed interval (widened by
+``max_acceleration`` over the age) over h = ``command_latency`` + ``switch_time`` + ``period``
+(the span is never narrowed by the motion during h), from the min safe rear end (the vehicle's length behind the front) to the max
+safe front end, and ``margin`` beyond. The sections the union of these spans overlaps must be
+fed; others are switched off. So the next section is fed before the max safe front end can
+reach it, the last one is switched off only after the min safe rear end has left it, and a
+section stays fed while any admitted state may place the vehicle on it. A section whose
 inverter still feeds another needed section waits (``inverter_busy``; the inverter is free
-once that section's switch has opened). A train without a claimed position (initialising,
-lost) or whose state is older than ``max_state_age`` holds: what it needed stays fed,
-nothing is switched on for it.
+once that section's switch has opened). A train with no claimed position admitted within
+``max_state_age`` (initialising, lost, silent) or whose stream is stale (nothing admitted for
+``input_timeout``, refused and silent alike) holds: what it needed when last seen stays fed,
+nothing is switched on or off for it.
+
+Admission (``TrainStates``: core/safety's StateStream, EN 50159's threats as in
+core/safety/admission.py): a state whose stamp is not finite or whose claimed interval or
+speed is NaN (``nan``); an interval reaching more than ``track_margin`` beyond the track's
+ends, wider than ``max_interval_width``, upside down, a speed beyond MAX_SPEED or a speed
+1-sigma beyond it (``implausible``); a stamp more than ``future_tolerance`` ahead of the
+consumer's clock (``future``), equal to (``duplicate``) or before (``stamp_back``) the last
+admitted one; a claimed state out of kinematic reach of the last admitted one (``motion``,
+core/safety/plausibility.py): each is refused, counted and changes nothing. Only an admitted
+state moves the stream on, so spoofed states (another position, a standstill, an interval of
+the whole line) are refused against the real stream and never replace it. A state that claims
+no position is admitted on its stamp alone and is no reference.
 
 Evaluation (``evaluate``) on the true motion: thrust lost (part of the vehicle over an
 unfed section), switchings under the vehicle (a switch that closes or opens while the
@@ -42,12 +60,16 @@ follows a thrust loss), and an inverter feeding two sections. The motion is the 
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.special import ndtri
 
+from ..measurements import MAX_SPEED
+from ..safety import admission, plausibility, state_stream
 from ..sensors.base import Param, check_declared, resolve_params
+from ..signals import InputRejected
 from ..track import Track, TrackError, extent
 
 KIND = "stator_section"
@@ -65,9 +87,18 @@ PARAMS = {
     "margin": Param(2.0, "distance added beyond each end of a train's span [m]", (0.0, 1000.0)),
     "speed_confidence": Param(0.999, "probability of the speed interval speed +- k speed_stddev used to "
                                      "move the span over the horizon [1]", (0.5, 0.999999)),
-    "max_state_age": Param(0.5, "a state older than this holds its train: nothing switched for it [s]",
-                           (0.01, 60.0)),
+    "max_state_age": Param(0.5, "the spans of every state of a train admitted within this age are fed (their "
+                                "union); with no claimed state that young the train holds: nothing switched for "
+                                "it [s]", (0.01, 60.0)),
+    "track_margin": Param(1000.0, "a claimed interval reaching further than this beyond the track's ends is "
+                                  "refused (implausible) [m]", (0.0, 1.0e6)),
+    "max_interval_width": Param(2000.0, "a claimed interval wider than this is refused (implausible): no "
+                                        "inverters could feed it, and it would let any state through the "
+                                        "kinematic gate [m]", (1.0, 1.0e6)),
+    **admission.PARAMS,
+    **plausibility.PARAMS,
 }
+MAX_WINDOW = 1000     # admitted states kept per train (a flood of plausible states cannot grow it)
 check_declared(PARAMS, "stator_section_controller")
 
 
@@ -193,52 +224,145 @@ class Command:
     on: bool
 
 
-class StatorController:
-    """See the module doc. ``update(now, states)`` with train name -> latest TrainView returns
-    the commands decided now."""
+class TrainStates:
+    """The admitted states of one train: its core/safety StateStream (the stream's checks, then
+    the kinematic gate) and the claimed states admitted within ``max_state_age`` (``window``, at
+    most MAX_WINDOW)."""
 
-    def __init__(self, layout: Layout, vehicles: dict[str, Vehicle], overrides: dict | None = None):
+    def __init__(self, name: str, params: dict, k_speed: float, extent: tuple[float, float]):
+        self.params, self.k_speed = params, k_speed
+        self.stream = state_stream.StateStream(name, admission.limits_from(params),
+                                               plausibility.MotionGate.from_params(params))
+        m = params["track_margin"]
+        self.limits = {"position_min": (extent[0] - m, extent[1] + m), "position_max": (extent[0] - m, extent[1] + m),
+                       "interval_width": (0.0, params["max_interval_width"]), "speed": (-MAX_SPEED, MAX_SPEED),
+                       "speed_stddev": (0.0, MAX_SPEED)}
+        self.window: deque[TrainView] = deque(maxlen=MAX_WINDOW)
+
+    def admit(self, view: TrainView, now: float | None) -> InputRejected | None:
+        """Admit ``view`` at the consumer's clock ``now`` [s] (None or 0: none yet; the state's
+        own stamp stands for it, so nothing is compared with a clock): None, or the refusal
+        (counted in ``stream.refused``)."""
+        if view.claimed:
+            checks = {"values": {"position_min": view.position_min, "position_max": view.position_max,
+                                 "interval_width": view.position_max - view.position_min, "speed": view.speed,
+                                 "speed_stddev": view.speed_stddev}, "limits": self.limits}
+        else:                    # no claim: its interval and speed mean nothing (a LOST state's is infinite)
+            checks = {}
+        motion = plausibility.Motion.of(view.stamp, view.claimed, view.position_min, view.position_max, view.speed,
+                                        self.k_speed * view.speed_stddev)
+        refused = self.stream.admit(motion, now or view.stamp, **checks)
+        if refused is None and view.claimed:
+            self.window.append(view)
+        return refused
+
+    def young(self, now: float) -> list[TrainView]:
+        """The claimed states admitted that are at most ``max_state_age`` old at ``now`` [s]
+        (older ones are dropped)."""
+        while self.window and now - self.window[0].stamp > self.params["max_state_age"]:
+            self.window.popleft()
+        return list(self.window)
+
+
+class StatorController:
+    """See the module doc. ``admit(name, view, now)`` takes a train's state through its
+    admission; ``update(now)`` returns the commands decided now from the admitted states.
+    ``extent``: the track's chainages (lo, hi) [m] an interval may reach ``track_margin``
+    beyond (default: the layout's)."""
+
+    def __init__(self, layout: Layout, vehicles: dict[str, Vehicle], overrides: dict | None = None,
+                 extent: tuple[float, float] | None = None):
         self.layout = layout
         self.vehicles = dict(vehicles)
         self.params = p = controller_params(overrides)
         self.k_speed = float(ndtri(0.5 * (1.0 + p["speed_confidence"])))
         self.delay = p["command_latency"] + p["switch_time"]
+        if extent is None:
+            extent = (float(layout.starts[0]), float(layout.ends[-1])) if len(layout) else (-math.inf, math.inf)
+        self.trains = {name: TrainStates(name, p, self.k_speed, extent) for name in self.vehicles}
         self.fed: set[int] = set()                  # sections commanded on (indices)
         self.released: dict[str, float] = {}        # inverter -> when its last switch-off takes effect [s]
         self.inverter_of = [s.inverter for s in layout.sections]
         self.held: dict[str, set[int]] = {}         # train -> sections it needed when it was last seen
+        self.stale: set[str] = set()                # trains whose stream is stale (at the last update)
         self.commands: list[Command] = []
-        self.counters = {"decisions": 0, "switch_on": 0, "switch_off": 0, "inverter_busy": 0, "held": 0}
+        self.counters = {"decisions": 0, "switch_on": 0, "switch_off": 0, "inverter_busy": 0, "held": 0,
+                         "stale": 0}
+
+    def admit(self, name: str, view: TrainView, now: float | None) -> InputRejected | None:
+        """Train ``name``'s state through its admission (TrainStates.admit): None, or the refusal."""
+        return self.trains[name].admit(view, now)
+
+    def latest_stamp(self) -> float | None:
+        """The newest stamp admitted of any train [s] (None before any)."""
+        stamps = [tr.stream.stream.last_stamp for tr in self.trains.values() if tr.stream.stream.last_stamp is not None]
+        return max(stamps) if stamps else None
+
+    def spans(self, views, vehicle: Vehicle, now: float) -> tuple[np.ndarray, np.ndarray]:
+        """Chainages (lo, hi) [m] the train can occupy, by each of ``views``, until a command
+        decided at ``now`` has taken effect: where the state allows the front to be now (its
+        reach over its age: plausibility's, with ``max_acceleration`` and MAX_SPEED), moved by
+        the speed interval's extreme over command_latency + switch_time + period away from the
+        train only, the vehicle behind the front, ``margin`` beyond."""
+        p = self.params
+        a = p["max_acceleration"]
+        t = np.array([view.stamp for view in views], float)
+        lo = np.array([view.position_min for view in views], float)
+        hi = np.array([view.position_max for view in views], float)
+        speed = np.array([view.speed for view in views], float)
+        bound = self.k_speed * np.array([view.speed_stddev for view in views], float)
+        age = np.maximum(now - t, 0.0)
+        grow = 0.5 * a * age * age
+        front_lo = np.maximum(lo + (speed - bound) * age - grow, lo - MAX_SPEED * age)
+        front_hi = np.minimum(hi + (speed + bound) * age + grow, hi + MAX_SPEED * age)
+        h = self.delay + p["period"]
+        front_lo = front_lo + np.minimum(speed - bound - a * age, 0.0) * h
+        front_hi = front_hi + np.maximum(speed + bound + a * age, 0.0) * h
+        if vehicle.orientation > 0:
+            front_lo = front_lo - vehicle.length
+        else:
+            front_hi = front_hi + vehicle.length
+        return front_lo - p["margin"], front_hi + p["margin"]
 
     def span(self, view: TrainView, vehicle: Vehicle, now: float) -> tuple[float, float]:
-        """Chainages [m] the train can occupy until a command decided at ``now`` has taken effect."""
-        h = max(now - view.stamp, 0.0) + self.delay + self.params["period"]
-        v_lo = view.speed - self.k_speed * view.speed_stddev
-        v_hi = view.speed + self.k_speed * view.speed_stddev
-        if vehicle.orientation > 0:
-            lo, hi = view.position_min - vehicle.length, view.position_max
-        else:
-            lo, hi = view.position_min, view.position_max + vehicle.length
-        m = self.params["margin"]
-        return lo + min(v_lo, 0.0) * h - m, hi + max(v_hi, 0.0) * h + m
+        """The span (spans) of one state [m]."""
+        lo, hi = self.spans([view], vehicle, now)
+        return float(lo[0]), float(hi[0])
 
-    def needed(self, now: float, states: dict[str, TrainView]) -> set[int]:
-        """Sections that must be fed: those the trains' spans overlap, and what a holding train
+    def sections_of(self, views, vehicle: Vehicle, now: float) -> set[int]:
+        """Indices of the sections the union of the states' spans overlaps."""
+        lo, hi = self.spans(views, vehicle, now)
+        first = np.searchsorted(self.layout.ends, lo, side="right")
+        last = np.maximum(np.searchsorted(self.layout.starts, hi, side="left"), first)
+        out: set[int] = set()
+        for f, g in set(zip(first.tolist(), last.tolist())):
+            out.update(range(f, g))
+        return out
+
+    def needed(self, now: float) -> set[int]:
+        """Sections that must be fed: those the union of each train's admitted states' spans
+        overlaps, and what a holding train (stale, or no claimed state within max_state_age)
         needed when last seen."""
         need: set[int] = set()
+        self.stale = set()
         for name, vehicle in self.vehicles.items():
-            view = states.get(name)
-            fresh = view is not None and now - view.stamp <= self.params["max_state_age"]
-            if fresh and view.claimed and math.isfinite(view.position_min) and math.isfinite(view.position_max):
-                self.held[name] = set(self.layout.overlapping(*self.span(view, vehicle, now)))
+            train = self.trains[name]
+            if train.stream.admitted and train.stream.stale(now):
+                self.stale.add(name)
+                self.counters["stale"] += 1
+                views = []
+            else:
+                views = train.young(now)
+            if views:
+                self.held[name] = self.sections_of(views, vehicle, now)
             elif name in self.held:
                 self.counters["held"] += 1
             need |= self.held.get(name, set())
         return need
 
-    def update(self, now: float, states: dict[str, TrainView]) -> list[Command]:
+    def update(self, now: float) -> list[Command]:
         self.counters["decisions"] += 1
-        need = self.needed(now, states)
+        need = self.needed(now)
         out = [self._switch(now, k, False) for k in sorted(self.fed - need)]
         busy = {self.inverter_of[k] for k in self.fed}
         for k in sorted(need - self.fed):
@@ -264,24 +388,36 @@ class StatorController:
         """Ids of the sections commanded on, by chainage."""
         return [self.layout.sections[k].section_id for k in sorted(self.fed)]
 
+    def refused(self) -> dict[str, int]:
+        """Refusals by reason over every train's stream."""
+        out: dict[str, int] = {}
+        for train in self.trains.values():
+            for reason, n in train.stream.refused.items():
+                out[reason] = out.get(reason, 0) + n
+        return out
+
 
 def run_controller(layout: Layout, vehicle: Vehicle, series, overrides: dict | None = None,
-                   name: str = "train") -> StatorController:
+                   name: str = "train", extent: tuple[float, float] | None = None) -> StatorController:
     """The controller stepped every ``period`` over one train's fused states (a
-    scoring.StateSeries: t, position_min/max, speed, speed_stddev, mode), each decision with
-    the latest state stamped at or before it."""
-    ctrl = StatorController(layout, {name: vehicle}, overrides)
+    scoring.StateSeries: t, position_min/max, speed, speed_stddev, mode): before each decision
+    every state stamped at or before it is admitted (at the decision's time), as the node
+    admits each state that arrives."""
+    ctrl = StatorController(layout, {name: vehicle}, overrides, extent)
     t = np.asarray(series.t, float)
     if not t.size:
         return ctrl
-    claimed = np.isin(np.asarray(series.mode), (1, 2))
-    lo, hi = np.asarray(series.position_min, float), np.asarray(series.position_max, float)
-    v, sv = np.asarray(series.speed, float), np.asarray(series.speed_stddev, float)
+    claimed = np.isin(np.asarray(series.mode), (1, 2)).tolist()
+    lo, hi = np.asarray(series.position_min, float).tolist(), np.asarray(series.position_max, float).tolist()
+    v, sv = np.asarray(series.speed, float).tolist(), np.asarray(series.speed_stddev, float).tolist()
+    stamps = t.tolist()
     period = ctrl.params["period"]
+    j = 0
     for now in np.arange(t[0], t[-1] + 1e-9, period).tolist():
-        i = int(np.searchsorted(t, now + 1e-9, side="right")) - 1
-        view = TrainView(float(t[i]), bool(claimed[i]), float(lo[i]), float(hi[i]), float(v[i]), float(sv[i]))
-        ctrl.update(now, {name: view})
+        while j < len(stamps) and stamps[j] <= now + 1e-9:
+            ctrl.admit(name, TrainView(stamps[j], claimed[j], lo[j], hi[j], v[j], sv[j]), now)
+            j += 1
+        ctrl.update(now)
     return ctrl
 
 

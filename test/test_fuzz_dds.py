@@ -22,7 +22,8 @@ def test_fuzz_command_rejects_every_malformed_kind_and_keeps_the_nodes_alive(tmp
     killed the fusion, one /clock message 1e6 s ahead stopped its states for good, a truth state
     stamped + 1000 s made a sensor node in simulator mode burst 20,000 blocks and refuse every
     real state after it, another train's state stamped + 1e6 s blinded the line's association
-    (``stamp_back`` for every real one), and a flood of 4,400 messages/s stopped the states."""
+    (``stamp_back`` for every real one), and a flood of 4,400 messages/s stopped the states; the
+    ETCS chain's attacks (issue 48) are described in fuzz_attacks.py's module doc."""
     report = tmp_path / "fuzz.json"
     domain = int(os.environ["ROS_DOMAIN_ID"])   # the run's own domain (conftest)
     code = fuzz.main(["--nodes", ",".join(NODES), "--messages", str(MESSAGES), "--seed", "3",
@@ -81,3 +82,12 @@ def test_fuzz_command_rejects_every_malformed_kind_and_keeps_the_nodes_alive(tmp
     assert list(attacks) == list(fuzz_attacks.ATTACKS)
     assert all(a["passed"] and set(a["exit_codes"].values()) == {0} for a in attacks.values()), attacks
     assert "shed" in attacks["flood"]["detail"] and "refused" in attacks["set_position"]["detail"]
+    # the ETCS chain (etcs_location, atp_supervision): a standstill stamped +50 s / +1e6 s blinded
+    # both to every real state, one report at v_est 0 released a held brake, one fix naming a
+    # group 10 km away became the LRBG, a flood of unknown ids cut the reports to 3.8/s
+    assert "refused as future 2 (expected 2), as motion 1" in attacks["etcs_state_ahead"]["detail"]
+    assert "0 releases after it" in attacks["etcs_standstill_report"]["detail"]
+    assert "emergency brake in" in attacks["etcs_standstill_report"]["detail"]
+    assert "(8, 'BG010')" in attacks["etcs_far_group"]["detail"]
+    assert "BG010" not in attacks["etcs_far_group"]["detail"].split("LRBGs reported")[1]
+    assert "shed" in attacks["etcs_unknown_flood"]["detail"]

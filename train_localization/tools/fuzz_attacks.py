@@ -468,8 +468,11 @@ def attack_etcs_unknown_flood(bench: Bench) -> tuple[bool, str]:
     pub = bench.node.create_publisher(TrainState, "localization/state", STREAM_QOS)
     fix_pub = bench.node.create_publisher(PositionFix, "sensors/eurobalise/position", STREAM_QOS)
     arrivals: list[float] = []
-    rsub = bench.node.create_subscription(EtcsLocation, "localization/etcs",
-                                          lambda m: arrivals.append(time.monotonic()), STREAM_QOS)
+    late: list[float] = []           # [s] from a report's stamp to its arrival
+    rsub = bench.node.create_subscription(
+        EtcsLocation, "localization/etcs",
+        lambda m: (arrivals.append(time.monotonic()), late.append(time.time() - stamp_to_sec(m.header.stamp))),
+        STREAM_QOS)
     if not _up(bench, [pub, fix_pub], [rsub]):
         return False, "etcs_location did not come up"
     train = _Train(1200.0)
@@ -477,7 +480,7 @@ def attack_etcs_unknown_flood(bench: Bench) -> tuple[bool, str]:
     fix = PositionFix(sensor="eurobalise", unit_id="eurobalise", track_id=ETCS_TRACK, position_stddev=0.33)
     period = 1.0 / ETCS_RATE
     t0 = next_state = time.monotonic()
-    sent = 0
+    sent = states = 0
     while time.monotonic() - t0 < FLOOD_SECONDS:
         for _ in range(50):
             t = time.time()
@@ -487,6 +490,7 @@ def attack_etcs_unknown_flood(bench: Bench) -> tuple[bool, str]:
             sent += 1
         if time.monotonic() >= next_state:
             pub.publish(train.state(time.time()))
+            states += 1
             next_state += period
         bench.executor.spin_once(timeout_sec=0.0)
     t1 = time.monotonic()
@@ -497,8 +501,10 @@ def attack_etcs_unknown_flood(bench: Bench) -> tuple[bool, str]:
         bench.spin_until(lambda: _count(bench.values(loc), key) > 0, 3.0)
     shed = _count(bench.values(loc), key)
     during = sum(t0 + 0.5 <= s <= t1 for s in arrivals) / (t1 - t0 - 0.5)
-    detail = (f"{rate:.0f} unknown fixes/s for {t1 - t0:.1f} s: {during:.1f} reports/s during the flood (states at "
-              f"{ETCS_RATE:g} Hz), {shed} shed, "
+    n_during = sum(t0 <= s <= t1 for s in arrivals)
+    worst = max((d for s, d in zip(arrivals, late) if t0 <= s), default=math.nan)
+    detail = (f"{rate:.0f} unknown fixes/s for {t1 - t0:.1f} s: {during:.1f} reports/s during the flood ({states} states "
+              f"sent, {n_during} reports came, up to {worst:.2f} s late), {shed} shed, "
               f"{_count(bench.values(loc), 'accepted/sensors/eurobalise/position')} taken")
     if bench.dead():
         return False, "etcs_location died: " + detail

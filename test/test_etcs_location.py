@@ -24,6 +24,10 @@ STEP = 0.01         # between fused states [s]
 
 
 def _track(linking="auto", q=1.0, national=None, groups=12, spacing=1000.0, extra_etcs=None, **balise) -> Track:
+    return Track.from_dict(_track_dict(linking, q, national, groups, spacing, extra_etcs, **balise))
+
+
+def _track_dict(linking="auto", q=1.0, national=None, groups=12, spacing=1000.0, extra_etcs=None, **balise) -> dict:
     etcs = {"linking": linking, "link_reaction": "service_brake", **(extra_etcs or {})}
     if national is not None:
         etcs["q_nvlocacc"] = national
@@ -34,8 +38,8 @@ def _track(linking="auto", q=1.0, national=None, groups=12, spacing=1000.0, extr
     second = {**entry, "start": 503.0, "end": 503.0 + spacing * (groups - 1), "id": "BG{n:03d}b"}
     if q is not None:
         entry["q_locacc"] = second["q_locacc"] = q
-    return Track.from_dict({"track_id": "etcs_test", "length": 500.0 + spacing * groups,
-                            "equipment": {"eurobalise": [entry, second]}, "etcs": etcs})
+    return {"track_id": "etcs_test", "length": 500.0 + spacing * groups, "equipment": {"eurobalise": [entry, second]},
+            "etcs": etcs}
 
 
 class Run:
@@ -335,3 +339,85 @@ def test_randomised_stops_draw_a_braking_the_supervision_does_not_overrate():
         assert atp["end_of_authority"] + 2000.0 < sc_track.length
         silent = d["sensors"]["eurobalise_reader"].get("silent_balises", "")
         assert all(b in EtcsData.from_track(sc_track).group_of_balise for b in silent.split(",") if b)
+
+
+def _every_kind_run(track: Track, step: float = 0.05):
+    """Fixes and fused states on ``track`` (``_track()``) whose events are every EventKind: a read
+    naming BG010 before the first group (REFERENCE_REJECTED), BG000 (LRBG), a fused speed 10 %
+    high until 40 s (ODOMETER_IMPAIRED, then RESTORED), an unknown balise, BG003 passed against
+    its link (WRONG_DIRECTION, then MISSED_LINKED_GROUP), BG007 read 20 m late (OUTSIDE_WINDOW),
+    BG009 read while BG008 is expected (NOT_LINKED)."""
+    fixes = []
+    for it in track.items("eurobalise"):
+        bid = it["id"]
+        if bid == "BG003a":
+            continue
+        late = 20.0 if bid.startswith("BG007") else 0.0
+        direction = -1 if bid == "BG003b" else 1 if bid.endswith("b") else 0
+        fixes.append(PositionFix((it["position"] + ANTENNA + late) / SPEED, "eurobalise", "r", track.track_id, bid,
+                                 it["position"] + ANTENNA, 0.33, direction))
+    fixes += [PositionFix(5.0, "eurobalise", "r", track.track_id, "BG010a", 250.0, 0.33, 0),
+              PositionFix(51.0, "eurobalise", "r", track.track_id, "XX1", 2550.0, 0.33, 0),
+              PositionFix(150.5, "eurobalise", "r", track.track_id, "BG009a", 9502.0, 0.33, 0)]
+    states = [FusedState(float(t), SPEED * t, SPEED * t - HALF, SPEED * t + HALF, SPEED * (1.1 if t < 40.0 else 1.0),
+                         0.05, CONF, 1) for t in np.arange(0.0, 235.0, step)]
+    return fixes, states
+
+
+def test_every_event_kind_is_published_by_the_live_node_and_none_stops_it(ros_context, start_node, tmp_path):
+    """The run of ``_every_kind_run`` offline gives every EventKind; driven over DDS through a
+    live etcs_location (fixes first, pending until the states pass their stamps) it publishes
+    the same events in the same order, and the node keeps running (an event logged at another
+    severity than the one before killed it: rclpy fixes a call site's severity)."""
+    import yaml
+    from train_localization_msgs.msg import EtcsEvent, EtcsLocation, PositionFix as FixMsg, TrainState
+    from train_localization.nodes.common import LATCHED_QOS, STREAM_QOS
+    from conftest import spin_until
+
+    track = _track()
+    fixes, states = _every_kind_run(track)
+    tracker = LocationTracker(EtcsData.from_track(track), {"orientation": 1})
+    for f in fixes:
+        tracker.on_fix(f)
+    expected = [(int(e.kind), e.nid_bg) for s in states for e in tracker.on_state(s)[1]]
+    assert {k for k, _ in expected} == {int(k) for k in EventKind}, expected
+
+    path = tmp_path / "track.yaml"
+    path.write_text(yaml.safe_dump(_track_dict()))
+    proc = start_node("etcs_location", "--ros-args", "-r", "__ns:=/kinds", "-p", f"track:={path}",
+                      "-p", "max_input_rate:=1000000.0")
+    node = ros_context.create_node("probe_etcs_kinds", namespace="/kinds")
+    state_pub = node.create_publisher(TrainState, "localization/state", STREAM_QOS)
+    fix_pub = node.create_publisher(FixMsg, "sensors/eurobalise/position", STREAM_QOS)
+    reports, events = [], []
+    node.create_subscription(EtcsLocation, "localization/etcs", reports.append, STREAM_QOS)
+    node.create_subscription(EtcsEvent, "localization/etcs_events", events.append, LATCHED_QOS)
+
+    def stamp(m, t):
+        m.header.stamp.sec, m.header.stamp.nanosec = int(t), int(round((t % 1) * 1e9))
+        return m
+    try:
+        assert spin_until(node, lambda: state_pub.get_subscription_count() > 0 and fix_pub.get_subscription_count() > 0
+                          and node.count_publishers("/kinds/localization/etcs_events") > 0, 30.0), proc.output()
+        spin_until(node, lambda: False, 0.5)
+        for f in fixes:
+            fix_pub.publish(stamp(FixMsg(sensor=f.sensor, unit_id=f.unit_id, track_id=f.track_id,
+                                         reference_id=f.reference_id, position=f.position,
+                                         position_stddev=f.position_stddev, direction=f.direction), f.stamp))
+        spin_until(node, lambda: False, 0.5)
+        for k, s in enumerate(states):
+            state_pub.publish(stamp(TrainState(track_id=track.track_id, position=s.position,
+                                               position_min=s.position_min, position_max=s.position_max,
+                                               speed=s.speed, speed_stddev=s.speed_stddev, confidence=s.confidence,
+                                               mode=s.mode), s.t))
+            if k % 200 == 199:
+                spin_until(node, lambda: len(reports) > k - 200, 10.0)
+        last = round(states[-1].t * 1e9)
+        assert spin_until(node, lambda: reports and reports[-1].header.stamp.sec * 10 ** 9
+                          + reports[-1].header.stamp.nanosec == last and len(events) >= len(expected), 30.0), \
+            (len(reports), len(events), proc.output())
+        assert [(e.kind, e.nid_bg) for e in events] == expected
+        assert proc.proc.poll() is None
+        assert proc.interrupt() == 0 and "Traceback" not in proc.output()
+    finally:
+        node.destroy_node()

@@ -216,7 +216,8 @@ def supervised_stop(scenario, t_end: float | None = None, attacks: tuple[Attack,
     truth_x = np.array(loop.distance)
     truth_v = np.array([s.speed for s in loop.truth])
     closest = float(np.max(truth_x * orientation)) * orientation
-    braked = [t for t, brake in loop.brakes if brake != Brake.NONE]
+    started = next((k for k, (_, brake) in enumerate(loop.brakes) if brake == Brake.NONE), len(loop.brakes))
+    braked = [t for t, brake in loop.brakes[started:] if brake != Brake.NONE]   # after the start-up brake
     at_rest = np.flatnonzero((truth_t > braked[0]) & (np.abs(truth_v) < 0.05)) if braked else np.array([], int)
     stopped = bool(at_rest.size)
     first_stop = (eoa - float(truth_x[at_rest[0]])) * orientation if stopped else math.nan

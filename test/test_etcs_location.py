@@ -385,7 +385,7 @@ def test_every_event_kind_is_published_by_the_live_node_and_none_stops_it(ros_co
     path = tmp_path / "track.yaml"
     path.write_text(yaml.safe_dump(_track_dict()))
     proc = start_node("etcs_location", "--ros-args", "-r", "__ns:=/kinds", "-p", f"track:={path}",
-                      "-p", "max_input_rate:=1000000.0")
+                      "-p", "max_input_rate:=1000000.0", "-p", "max_fix_rate:=1000000.0")
     node = ros_context.create_node("probe_etcs_kinds", namespace="/kinds")
     state_pub = node.create_publisher(TrainState, "localization/state", STREAM_QOS)
     fix_pub = node.create_publisher(FixMsg, "sensors/eurobalise/position", STREAM_QOS)

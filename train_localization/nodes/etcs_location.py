@@ -18,8 +18,8 @@ Admission (core/etcs/admission.py, docs/reliability.md): a state or fix stamped 
 (implausible), an id too long (too_long), a fix of another track (other_track), a state whose
 interval or speed the last admitted state rules out (motion: ``max_acceleration``,
 ``plausibility_margin``, ``speed_margin``) is refused, counted by reason and never reaches the
-location function; beyond ``max_input_rate`` messages per second per input they are shed
-(``shed/<topic>``). No event kind and no input can stop the node.
+location function; beyond ``max_input_rate`` states or ``max_fix_rate`` fixes per second they
+are shed (``shed/<topic>``), fixes before they are deserialised. No event kind and no input can stop the node.
 
 /diagnostics: the LRBG, d_lrbg, the doubts and the counters; WARN while the odometer is
 impaired and for ALARM_HOLD (30 s) after a missed linked group, a rejected group or a group
@@ -34,6 +34,8 @@ import sys
 import time
 
 from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
 
 from ..core import convert, paths
 from ..core.etcs import admission, location
@@ -49,6 +51,9 @@ ALARM_HOLD = 30.0      # [s] of state time a linking or odometer alarm stays in 
 REPORT_TOPIC = "localization/etcs"
 EVENT_TOPIC = "localization/etcs_events"
 STATE_TOPIC = "localization/state"
+# balise fixes: reliable, but a short queue: under a flood DDS drops what the node has not taken
+# rather than queueing thousands ahead of the fused states (a reader gives ~12 fixes/s at most)
+FIX_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=32, reliability=ReliabilityPolicy.RELIABLE)
 # events that are a linking or odometer alarm (WARN for ALARM_HOLD), and the one that is an ERROR
 ALARMS = (EventKind.MISSED_LINKED_GROUP, EventKind.OUTSIDE_WINDOW, EventKind.ODOMETER_IMPAIRED,
           EventKind.REFERENCE_REJECTED, EventKind.NOT_LINKED, EventKind.UNKNOWN_GROUP)
@@ -97,7 +102,8 @@ class EtcsLocationNode(Node):
         self.report_pub = self.create_publisher(EtcsLocation, REPORT_TOPIC, STREAM_QOS)
         self.event_pub = self.create_publisher(EtcsEvent, EVENT_TOPIC, LATCHED_QOS)
         self.create_subscription(self.mc.TrainState, STATE_TOPIC, self.on_state, STREAM_QOS)
-        self.create_subscription(self.mc.PositionFix, FIX_TOPIC, self.on_fix, STREAM_QOS)
+        # raw: a fix beyond max_fix_rate is shed before it is deserialised (a flood costs little)
+        self.create_subscription(self.mc.PositionFix, FIX_TOPIC, self.on_fix_bytes, FIX_QOS, raw=True)
         self._alarm = (0, "", -math.inf)   # (level, what, state time)
         self._report: LocationReport | None = None
         self.diag.set_status(1, "no train state yet")
@@ -117,9 +123,12 @@ class EtcsLocationNode(Node):
         own = Scenario.from_yaml(scenario_path).for_namespace(self.get_namespace())
         return own.track, own.orientation()
 
-    def on_fix(self, msg) -> None:
+    def on_fix_bytes(self, data: bytes) -> None:
         if self.inputs.shed(FIX_TOPIC, time.monotonic()):
             return
+        self.on_fix(deserialize_message(data, self.mc.PositionFix))
+
+    def on_fix(self, msg) -> None:
         try:
             fix = convert.position_fix_from_msg(msg)
         except (InputRejected, ValueError) as exc:
@@ -158,6 +167,8 @@ class EtcsLocationNode(Node):
             self.get_logger().info(event.detail)
         elif event.kind == EventKind.WRONG_DIRECTION:
             self.get_logger().error(event.detail)
+        elif event.kind in (EventKind.UNKNOWN_GROUP, EventKind.NOT_LINKED, EventKind.REFERENCE_REJECTED):
+            self.get_logger().warning(event.detail, throttle_duration_sec=1.0)   # may come in floods
         else:
             self.get_logger().warning(event.detail)
         level = 2 if event.kind == EventKind.WRONG_DIRECTION else 1 if event.kind in ALARMS else 0
@@ -168,7 +179,7 @@ class EtcsLocationNode(Node):
         """Every diagnostics period: the state stream's time-out (ERROR while stale) and the shed counts."""
         now = now_sec(self)
         self.inputs.states.waiting_since(now)
-        self.diag.values.update({f"shed/{k}": str(v) for k, v in self.inputs.shedder.shed.items()})
+        self.diag.values.update({f"shed/{k}": str(v) for k, v in self.inputs.shed_counts.items()})
         if self.inputs.states.stale(now):
             silence = self.inputs.states.silence(now)
             self.diag.set_status(2, f"fused states stale: none admitted for {silence:.1f} s "

@@ -31,8 +31,12 @@ from .records import LocationEvent, LocationReport
 PARAMS = {
     **admission.PARAMS,
     **plausibility.PARAMS,
-    "max_input_rate": Param(1000.0, "messages per second one input takes on average; beyond it they are shed "
-                                    "(counted, never parsed) [1/s]", (1.0, 1.0e6)),
+    "max_input_rate": Param(1000.0, "fused states or reports per second taken on average; beyond it they are "
+                                    "shed (counted) [1/s]", (1.0, 1.0e6)),
+    "max_fix_rate": Param(100.0, "balise fixes per second taken on average, bursts of a quarter of a second's "
+                                 "worth (a group of up to 8 balises reads within milliseconds; at 500 km/h and a "
+                                 "group every 100 m a reader gives about 12 a second); beyond it they are shed "
+                                 "before they are parsed (counted) [1/s]", (1.0, 1.0e6)),
 }
 check_declared(PARAMS, "etcs admission PARAMS")
 CHAINAGE = (-MAX_CHAINAGE, MAX_CHAINAGE)
@@ -61,10 +65,17 @@ class LocationAdmission:
         # one stamped now: not ordered (the location function sorts them and refuses a too old one)
         self.fixes = StreamAdmission("sensors/eurobalise/position", admission.limits_from(p, ordered=False))
         self.shedder = InputShedder(float(p["max_input_rate"]))
+        self.fix_shedder = InputShedder(float(p["max_fix_rate"]))
 
     def shed(self, topic: str, host_now: float) -> bool:
-        """True when a message of ``topic`` is to be shed (counted in ``shedder.shed``)."""
-        return not self.shedder.admit(topic, host_now)
+        """True when a message of ``topic`` is to be shed (counted in ``shed_counts``)."""
+        shedder = self.fix_shedder if topic == self.fixes.name else self.shedder
+        return not shedder.admit(topic, host_now)
+
+    @property
+    def shed_counts(self) -> dict[str, int]:
+        """Messages shed by topic."""
+        return {**self.shedder.shed, **self.fix_shedder.shed}
 
     def state(self, s: FusedState, now: float | None) -> InputRejected | None:
         values = {"position": s.position, "position_min": s.position_min, "position_max": s.position_max,

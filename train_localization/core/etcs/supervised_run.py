@@ -177,7 +177,7 @@ class EtcsSupervisor:
         for stream in (self.location_inputs.states.stream, self.location_inputs.fixes, self.atp_inputs.reports.stream,
                        self.atp_inputs.events):
             out.update({f"{stream.name}/{k}": v for k, v in stream.refused.items()})
-        out.update({f"shed/{k}": v for k, v in self.location_inputs.shedder.shed.items()})
+        out.update({f"shed/{k}": v for k, v in self.location_inputs.shed_counts.items()})
         return out
 
 

@@ -52,7 +52,7 @@ having forgotten a brake or a trip it held.
 
 Holding. A commanded brake is held, whatever the curves say after, until the standstill is
 **confirmed**: ``|v_est| < standstill_speed`` in every admitted report with a position for at
-least ``standstill_confirmation`` [s] (v_ura is left out: a train at rest may keep a speed
+least ``standstill_confirmation`` [s] since the brake was commanded (v_ura is left out: a train at rest may keep a speed
 uncertainty above standstill_speed and would never be released); one report, or a run of
 them shorter than that, releases nothing (SUBSET-026 3.13: an intervention is revoked at the
 standstill, never by one report). The emergency brake likewise (always until standstill), a
@@ -300,6 +300,7 @@ class Supervision:
         if brake > self.brake:
             self.stats["interventions"] += 1
             self.stats[f"intervention_{kind}"] += 1
+            self._standstill.break_off()            # the standstill is confirmed from the brake on
         if brake >= self.brake:
             self.brake, self.brake_reason = brake, reason
 
@@ -309,6 +310,7 @@ class Supervision:
             self.stats[f"trip_{kind}"] += 1
             self.trip_reason = reason
             self._new_authority = False
+            self._standstill.break_off()
         self.brake, self.brake_reason = Brake.EMERGENCY, reason
 
     def _decide(self, t: float, report: LocationReport | None) -> AtpDecision:

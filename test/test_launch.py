@@ -133,3 +133,23 @@ def test_the_simulated_graphs_run_on_the_drivers_clock(launch_file):
         built = nodes(scenario=str(ROOT / scenario))
         assert built and all(_params(n).get("use_sim_time") is True for n in built
                              if n.kwargs["executable"] != "simulator"), name
+
+
+SAFETY_NODES = {"etcs_location", "atp_supervision", "speed_controller", "stator_section_controller",
+                "wayside_occupancy", "neutral_section_controller", "crosscheck", "association", "fusion"}
+
+
+@pytest.mark.parametrize("name, scenario, expected", [
+    ("demo.launch.py", "config/scenario_etcs_stop.yaml", {"etcs_location", "atp_supervision", "speed_controller"}),
+    ("line.launch.py", "config/scenario_line_changeover.yaml", {"wayside_occupancy", "neutral_section_controller"}),
+    ("demo.launch.py", "config/scenario_maglev_500.yaml", {"stator_section_controller"})])
+def test_every_safety_node_is_respawned_and_none_with_respawn_false(launch_file, name, scenario, expected):
+    """Every consumer of the fused state is restarted like the fusion (and comes back in its
+    safe state: the ATP braked until a confirmed standstill, the location without an LRBG);
+    ``respawn:=false`` turns it off for all."""
+    _, nodes = launch_file(name)
+    built = nodes(scenario=str(ROOT / scenario))
+    safety = [n for n in built if n.kwargs["executable"] in SAFETY_NODES]
+    assert expected | {"fusion"} <= {n.kwargs["executable"] for n in safety}, [n.kwargs["executable"] for n in built]
+    assert all(n.kwargs["respawn"] is True and n.kwargs["respawn_delay"] > 0 for n in safety)
+    assert not any(n.kwargs["respawn"] for n in nodes(scenario=str(ROOT / scenario), respawn="false"))

@@ -20,6 +20,7 @@ import numpy as np
 from .measurements import (DistanceIncrement, PositionFix, SectionOccupancy, SectionState,
                            SpeedMeasurement, YawRate)
 from .etcs.records import EventKind, LocationEvent, LocationReport, QDirLrbg, Reaction
+from .safety.admission import MAX_ITEMS
 from .scenario import TruthState
 from .signals import InputRejected, RawBlock, require_short
 
@@ -206,8 +207,13 @@ def switch_positions_to_msg(mc: MsgClasses, stamp: float, positions: dict[str, s
                               positions=[positions[k] for k in positions])
 
 
-def switch_positions_from_msg(msg) -> dict[str, str]:
-    """switch -> reported way of a SwitchPositions message; InputRejected for a malformed one."""
+def switch_positions_from_msg(msg, max_switches: int = MAX_ITEMS) -> dict[str, str]:
+    """switch -> reported way of a SwitchPositions message; InputRejected for a malformed one,
+    and ``too_large`` (before anything is read) for more entries than ``max_switches`` (give
+    the network's number of point switches; default MAX_ITEMS)."""
+    n = max(len(msg.switch_ids), len(msg.positions))
+    if n > max_switches:
+        raise InputRejected("too_large", f"SwitchPositions of {n} entries (at most {max_switches})")
     ids, ways = list(msg.switch_ids), list(msg.positions)
     if len(ids) != len(ways):
         raise InputRejected("malformed", f"SwitchPositions with {len(ids)} switch ids and {len(ways)} positions")

@@ -15,24 +15,24 @@ Parameters:
                                 scenario's ``association:``, else 3.29)
   min_speed (double)            [m/s] fused speed below which it gives no direction
   history (double, 10.0)        [s] of fused states kept per train
-  future_tolerance (double, 2.0) [s]: a fused state stamped further ahead of the node clock is
-                                refused (``future``): one far ahead would make every later one old
+  future_tolerance, input_timeout, max_acceleration, plausibility_margin, speed_margin: the
+                                admission of each train's fused states and track hypotheses
+                                (core/state_admission.py, core/association.py TrainInputs;
+                                docs/nodes.md): refused by reason, counted in /diagnostics
+                                (rejected//<train>/localization/state/<reason>); a train whose
+                                stream is stale explains every fix after its last state
 """
 from __future__ import annotations
-
-import dataclasses
 
 from rclpy.node import Node
 
 from ..core import convert
-from ..core.association import Associator, FusedState
-from ..core.network.config import MAX_HYPOTHESES
-from ..core.network.hypotheses import TrackHypothesisState
+from ..core.association import Associator, FusedState, TrainInputs
 from ..core.scenario import ScenarioError
 from ..core.sensors import spec as sensor_spec
 from ..core.signals import InputRejected
-from .common import (STREAM_QOS, Diagnostics, declare, declare_future_tolerance, now_sec, rclpy_classes,
-                     refuse_future, required_scenario, spin)
+from ..core.state_admission import PARAMS as ADMISSION_PARAMS
+from .common import STREAM_QOS, Diagnostics, declare, declare_params, now_sec, rclpy_classes, required_scenario, spin
 
 
 class AssociationNode(Node):
@@ -46,14 +46,16 @@ class AssociationNode(Node):
                              read_only=True, limits=(1.0, 10.0)))
         min_speed = float(declare(self, "min_speed", defaults.min_speed, "fused speed below which it gives no "
                                   "direction [m/s]", read_only=True, limits=(0.0, 10.0)))
-        self.history = float(declare(self, "history", 10.0, "fused states kept per train [s]", read_only=True,
-                                     limits=(0.1, 3600.0)))
-        self.future_tolerance = declare_future_tolerance(self, "a train's fused state")
+        history = float(declare(self, "history", 10.0, "fused states kept per train [s]", read_only=True,
+                                limits=(0.1, 3600.0)))
+        params = declare_params(self, ADMISSION_PARAMS)
         self.mc = rclpy_classes()
-        self.states = {name: [] for name in line.trains}
-        self.assoc = Associator(self.states, {n: tr.track.track_id for n, tr in line.trains.items()}, gate, min_speed,
-                                line.network)
-        self.tracks: dict[str, dict[float, tuple]] = {name: {} for name in line.trains}   # stamp -> hypotheses
+        self.inputs = {name: TrainInputs(name, params, history, line.network, tr.track.circumference)
+                       for name, tr in line.trains.items()}
+        for inputs in self.inputs.values():
+            inputs.state_stream.waiting_since(now_sec(self))
+        self.assoc = Associator({n: i.states for n, i in self.inputs.items()},
+                                {n: tr.track.track_id for n, tr in line.trains.items()}, gate, min_speed, line.network)
         self.diag = Diagnostics(self, "association of wayside fixes")
         self.diag.set_status(0, "running")
         self._subs = []
@@ -77,54 +79,19 @@ class AssociationNode(Node):
                     self.mc.PositionFix, f"/{name}/sensors/{sp.sensor}/position", STREAM_QOS)
 
     def on_tracks(self, train: str, msg) -> None:
-        """A train's track hypotheses: joined to its state of the same stamp (now or when it comes).
-        Refused (counted): more than MAX_HYPOTHESES, or a section the network does not have."""
-        stamp = convert.stamp_to_sec(msg.header.stamp)
-        sections = self.assoc.network.sections
-        if len(msg.hypotheses) > MAX_HYPOTHESES:
-            self.diag.reject(f"/{train}/localization/tracks", "too_large",
-                             f"{len(msg.hypotheses)} hypotheses (at most {MAX_HYPOTHESES})")
-            return
-        unknown = [sid for h in msg.hypotheses for sid in (h.track_id, *h.path) if sid not in sections]
-        if unknown:
-            self.diag.reject(f"/{train}/localization/tracks", "unknown_id",
-                             f"section {unknown[0][:64]!r} is not in network {self.assoc.network.network_id}")
-            return
-        self.diag.accept(f"/{train}/localization/tracks")
-        hypotheses = tuple(TrackHypothesisState(h.track_id, float(h.position), float(h.speed), float(h.position_min),
-                                                float(h.position_max), float(h.probability), tuple(h.path), 0)
-                           for h in msg.hypotheses)
-        states = self.states[train]
-        for k in range(len(states) - 1, max(-1, len(states) - 50), -1):
-            if states[k].stamp == stamp:
-                states[k] = dataclasses.replace(states[k], hypotheses=hypotheses)
-                return
-            if states[k].stamp < stamp:
-                break
-        pending = self.tracks[train]
-        pending[stamp] = hypotheses
-        while len(pending) > 50:   # hypotheses whose state never came
-            del pending[min(pending)]
+        """A train's track hypotheses: joined to its state of the same stamp (now or when it comes)."""
+        self._count(f"/{train}/localization/tracks", self.inputs[train].tracks(
+            convert.stamp_to_sec(msg.header.stamp), msg.network_id, msg.hypotheses, now_sec(self)))
 
     def on_state(self, train: str, msg) -> None:
-        states = self.states[train]
-        stamp = convert.stamp_to_sec(msg.header.stamp)
-        state = FusedState(stamp, float(msg.position), float(msg.position_min),
-                           float(msg.position_max), float(msg.speed), float(msg.speed_stddev), int(msg.mode),
-                           self.tracks[train].pop(stamp, ()))
-        try:
-            refuse_future(state.stamp, now_sec(self), self.future_tolerance, "fused state")
-        except InputRejected as exc:
-            self.diag.reject(f"/{train}/localization/state", exc.reason, str(exc))
-            return
-        if states and state.stamp <= states[-1].stamp:
-            self.diag.reject(f"/{train}/localization/state", "stamp_back", "fused state not newer than the last")
-            return
-        states.append(state)
-        self.diag.accept(f"/{train}/localization/state")
-        if state.stamp - states[0].stamp > 2 * self.history:
-            cut = next(i for i, s in enumerate(states) if s.stamp >= state.stamp - self.history)
-            del states[:cut]
+        self._count(f"/{train}/localization/state", self.inputs[train].state(
+            FusedState.from_msg(msg), now_sec(self), {"sensors": len(msg.sensors)}))
+
+    def _count(self, stream: str, refusal: InputRejected | None) -> None:
+        if refusal is None:
+            self.diag.accept(stream)
+        else:
+            self.diag.reject(stream, refusal.reason, str(refusal))
 
     def on_fix(self, msg) -> None:
         try:
@@ -136,7 +103,12 @@ class AssociationNode(Node):
             self.diag.reject("fixes", exc.reason, str(exc))
             return
         self.diag.accept("fixes")
-        train = self.assoc.associate(fix)
+        now = now_sec(self)
+        stale = sorted(n for n, i in self.inputs.items() if i.stale(now))
+        self.diag.values["stale_trains"] = ", ".join(stale)
+        self.diag.set_status(1 if stale else 0, f"stale: {', '.join(stale)} (may be anywhere after their last state)"
+                             if stale else "running")
+        train = self.assoc.associate(fix, set(stale))
         outcome = self.assoc.decisions[-1].outcome
         self.diag.values[f"associated/{outcome}"] = str(self.assoc.counts[outcome])
         self.diag.values[f"associated/{fix.sensor}/{outcome}"] = str(self.assoc.by_sensor[fix.sensor, outcome])

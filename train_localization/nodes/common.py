@@ -183,6 +183,13 @@ def declare(node: Node, name: str, default, description: str = "", read_only: bo
     return value
 
 
+def declare_params(node: Node, params: dict) -> dict:
+    """Every core Param of ``params`` declared read-only with its description and range;
+    name -> value."""
+    return {name: declare(node, name, p.default, p.description, read_only=True, limits=p.limits)
+            for name, p in params.items()}
+
+
 def _double_parameters(node: Node) -> set:
     """The node's double parameters (declared from a float default, dynamically typed so that
     ``-p rate:=2`` is taken): an integer set at run time is stored as the double it means (a

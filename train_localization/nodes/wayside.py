@@ -23,8 +23,15 @@ Parameters: ``sections`` (strings "SECTION:CIRCUIT:AXLE_SECTION", default seed 0
 S1:TC1:S1, S2:TC2:S2), ``tc_source`` / ``ac_source`` (the systems' unit ids), the PARAMS of
 occupancy.py, neutral_section.py (controller), crosscheck.py (cross-check; ``train_id``),
 ``rate`` (evaluation timer [Hz], 20). The timer uses the node clock: run with
-``use_sim_time`` when the detection runs on simulated time. A report that is not a
-SectionOccupancy of a known source is counted and ignored.
+``use_sim_time`` when the detection runs on simulated time. A report of another source is
+counted and ignored (``accepted/sections/other_source``).
+
+Every input is admitted in core first (docs/reliability.md, docs/nodes.md): each system's
+reports by occupancy.admit_report (``future``, ``stamp_back``, ``nan``, ``implausible``,
+``too_long``, ``too_large``), the cross-check's fused states by core/state_admission.py (and
+``motion``); each refusal is counted in /diagnostics (``rejected/<stream>/<reason>``). A stream
+with nothing admitted for its time-out is stale: its sections are never CLEAR (a silent system;
+the controller then holds the neutral section dead, both ABBs open), the cross-check warns.
 """
 from __future__ import annotations
 
@@ -34,20 +41,16 @@ import sys
 from rclpy.node import Node
 
 from ..core import convert
-from ..core.measurements import SectionOccupancy
+from ..core.association import FusedState
 from ..core.signals import InputRejected
 from ..core.wayside import crosscheck as cc
 from ..core.wayside.changeover import ABB_TOPICS, COMBINED_TOPIC
 from ..core.wayside import neutral_section as ns
 from ..core.wayside import occupancy as oc
-from .common import LATCHED_QOS, STATE_QOS, ConfigurationError, Diagnostics, declare, now_sec, rclpy_classes, spin
+from .common import (LATCHED_QOS, STATE_QOS, ConfigurationError, Diagnostics, declare, declare_params, now_sec,
+                     rclpy_classes, spin)
 
 LEVEL = {"ok": 0, "warn": 1, "error": 2}
-
-
-def _declare_params(node: Node, params: dict) -> dict:
-    return {name: declare(node, name, p.default, p.description, read_only=True, limits=p.limits)
-            for name, p in params.items()}
 
 
 def _section_map(node: Node) -> oc.SectionMap:
@@ -69,27 +72,32 @@ class _Voting:
 
     def _setup_voting(self):
         self.mc = rclpy_classes()
-        self.combined = oc.CombinedOccupancy(_section_map(self), _declare_params(self, oc.PARAMS))
+        self.combined = oc.CombinedOccupancy(_section_map(self), declare_params(self, oc.PARAMS))
         self.create_subscription(self.mc.SectionOccupancy, convert.SECTIONS_TOPIC, self.on_sections, LATCHED_QOS)
 
     def on_sections(self, msg) -> None:
         try:
             occ = convert.occupancy_from_msg(msg)
-            occ.validate()
         except InputRejected as exc:
             self.diag.reject("sections", exc.reason, str(exc))
             return
-        if self.combined.update(occ):
+        if self.combined.update(occ, now_sec(self)):
             self.diag.accept("sections")
             self.latest = max(getattr(self, "latest", -math.inf), occ.stamp)
             self.evaluate()
+        elif self.combined.refusal is not None:
+            self.diag.reject("sections", self.combined.refusal.reason, str(self.combined.refusal))
         else:
             self.diag.accept("sections/other_source")
 
     def now(self) -> float:
-        """Node clock, or the latest report's stamp while no clock runs."""
-        t = now_sec(self)
-        return t if t > 0.0 else getattr(self, "latest", 0.0)
+        return _clock(self)
+
+
+def _clock(node: Node) -> float:
+    """Node clock, or the latest admitted stamp while no clock runs."""
+    t = now_sec(node)
+    return t if t > 0.0 else getattr(node, "latest", 0.0)
 
 
 class WaysideOccupancyNode(_Voting, Node):
@@ -135,7 +143,7 @@ class ChangeoverControllerNode(_Voting, Node):
         self._setup_voting()
         from std_msgs.msg import Bool
         self._bool = Bool
-        self.ctrl = ns.ChangeoverController(_declare_params(self, ns.PARAMS))
+        self.ctrl = ns.ChangeoverController(declare_params(self, ns.PARAMS))
         self.pubs = {sw: self.create_publisher(Bool, topic, LATCHED_QOS) for sw, topic in ABB_TOPICS.items()}
         for sw, closed in self.ctrl.abb.items():
             self.pubs[sw].publish(Bool(data=closed))
@@ -162,10 +170,9 @@ class CrossCheckNode(Node):
         Node.__init__(self, "crosscheck", **kw)
         self.diag = Diagnostics(self, "on-board / wayside cross-check")
         self.mc = rclpy_classes()
-        self.train = declare(self, "train_id", "train", "name of the train in the flags", read_only=True)
-        self.check = cc.CrossCheck(_declare_params(self, cc.PARAMS))
-        self.claim: cc.Claim | None = None
-        self.occ: SectionOccupancy | None = None
+        train = declare(self, "train_id", "train", "name of the train in the flags", read_only=True)
+        self.inputs = cc.CrossCheckInputs(train, declare_params(self, cc.PARAMS))
+        self.inputs.waiting_since(now_sec(self))
         self.create_subscription(self.mc.TrainState, "localization/state", self.on_state, STATE_QOS)
         self.create_subscription(self.mc.SectionOccupancy, COMBINED_TOPIC, self.on_combined, LATCHED_QOS)
         rate = declare(self, "rate", 4.0, "evaluation rate [Hz]", read_only=True, limits=(0.1, 1000.0))
@@ -173,32 +180,29 @@ class CrossCheckNode(Node):
         self.diag.set_status(1, "waiting for the fused state and the combined occupancy")
 
     def on_state(self, msg) -> None:
-        lo, hi = float(msg.position_min), float(msg.position_max)
-        valid = msg.mode in (1, 2) and math.isfinite(lo) and math.isfinite(hi) and lo <= hi
-        p = self.check.params
-        self.claim = cc.Claim(self.train, convert.stamp_to_sec(msg.header.stamp), lo, hi, p["train_length"],
-                              int(p["orientation"]) or 1, float(msg.speed) if math.isfinite(msg.speed) else 0.0,
-                              valid)
-        self.diag.accept("localization/state")
+        self._count("localization/state", self.inputs.state(FusedState.from_msg(msg), now_sec(self),
+                                                            {"sensors": len(msg.sensors)}), msg.header.stamp)
 
     def on_combined(self, msg) -> None:
         try:
-            self.occ = convert.occupancy_from_msg(msg)
-            self.occ.validate()
+            refusal = self.inputs.occupancy(convert.occupancy_from_msg(msg), now_sec(self))
         except InputRejected as exc:
-            self.diag.reject("wayside/combined", exc.reason, str(exc))
-            self.occ = None
+            refusal = exc
+        self._count("wayside/combined", refusal, msg.header.stamp)
+
+    def _count(self, stream: str, refusal: InputRejected | None, stamp) -> None:
+        if refusal is not None:
+            self.diag.reject(stream, refusal.reason, str(refusal))
             return
-        self.diag.accept("wayside/combined")
+        self.diag.accept(stream)
+        self.latest = max(getattr(self, "latest", -math.inf), convert.stamp_to_sec(stamp))
 
     def evaluate(self) -> None:
-        if self.claim is None or self.occ is None:
-            return
-        t = now_sec(self)
-        flags = self.check.update(t if t > 0.0 else max(self.claim.stamp, self.occ.stamp), [self.claim], self.occ)
-        self.diag.values["flags"] = str(len(self.check.records))
-        if flags:
-            self.diag.set_status(1, "; ".join(f.text() for f in flags))
+        flags, stale = self.inputs.evaluate(_clock(self))
+        self.diag.values["flags"] = str(len(self.inputs.check.records))
+        self.diag.values["stale"] = "; ".join(stale)
+        if flags or stale:
+            self.diag.set_status(1, "; ".join(stale + [f.text() for f in flags]))
         else:
             self.diag.set_status(0, "fused position agrees with the wayside occupancy")
 

@@ -16,6 +16,16 @@ interval is shorter than the train, and may cover [front_min - L, front_max]. Tw
 
 The wayside lags the train by its delays: the margin grows by |speed| x ``lag``. A flag
 is raised once its condition has held for ``persist`` seconds and cleared when it stops.
+
+The ``crosscheck`` node admits its two inputs first (``CrossCheckInputs``, docs/reliability.md):
+the train's fused states through core/state_admission.py (stamps, values, sizes, kinematic
+plausibility: a spoofed state far from the train is refused ``motion``) and the combined
+occupancy as occupancy.py's systems (``admit_report``). A stream with nothing admitted for
+its time-out (``input_timeout`` for the states, ``occupancy_timeout`` for the occupancy, which
+comes on every change and every second) is stale, never OK: a WARN that says so. A stale
+train claims what its last admitted state still allows now (its interval moved on by the
+speed interval and ``max_acceleration``, as the plausibility gate's reach: the surely covered
+body shrinks, the possible one grows); a stale occupancy is not compared with.
 """
 from __future__ import annotations
 
@@ -23,7 +33,11 @@ import math
 from dataclasses import dataclass, field
 
 from ..measurements import CLEAR, OCCUPIED, SectionOccupancy
+from ..safety.admission import StreamAdmission, StreamLimits
 from ..sensors.base import Param, check_declared, resolve_params
+from ..signals import InputRejected
+from ..state_admission import CLAIMED_MODES, PARAMS as STATE_PARAMS, FusedStateStream
+from .occupancy import PARAMS as OCCUPANCY_PARAMS, admit_report
 
 PARAMS = {
     "margin": Param(30.0, "overlap with a section that is not a contradiction [m]: half a tuned zone (12 m) of "
@@ -33,6 +47,10 @@ PARAMS = {
     "persist": Param(2.0, "how long a condition must hold before it is flagged [s] (assumption)", (0.0, 600.0)),
     "train_length": Param(200.0, "length of the train [m] (vehicle data)", (1.0, 5000.0)),
     "orientation": Param(1, "+1: the train front faces increasing chainage, -1: decreasing [1]", (-1, 1)),
+    **STATE_PARAMS,
+    "occupancy_timeout": Param(2.5, "the combined occupancy with nothing admitted for this long is stale [s] "
+                                    "(published on every change and every second)", (0.01, 600.0)),
+    "max_sections": OCCUPANCY_PARAMS["max_sections"],
 }
 check_declared(PARAMS, "crosscheck")
 
@@ -127,3 +145,58 @@ class CrossCheck:
                 if flag is not None:
                     flag.end = now
         return list(self.active.values())
+
+
+class CrossCheckInputs:
+    """The ``crosscheck`` node's core (module doc): ``state(s, now, sizes)`` one of the train's
+    fused states (core/association.py FusedState), ``occupancy(occ, now)`` a combined
+    occupancy, each None (admitted) or the refusal, counted; ``evaluate(now)`` -> (the active
+    flags, what is stale). ``now``: the node's clock [s]."""
+
+    def __init__(self, train: str, params: dict | None = None):
+        p = resolve_params(PARAMS, params)
+        self.train, self.check = train, CrossCheck(p)
+        self.states = FusedStateStream("localization/state", p)
+        self.combined = StreamAdmission("wayside/combined", StreamLimits(
+            float(p["future_tolerance"]), float(p["occupancy_timeout"]), int(p["max_sections"])))
+        self.claim: Claim | None = None
+        self.occ: SectionOccupancy | None = None
+
+    def waiting_since(self, now: float) -> None:
+        self.states.waiting_since(now)
+        if now > 0.0:
+            self.combined.waiting_since(now)
+
+    def state(self, s, now: float | None, sizes: dict[str, int] | None = None) -> InputRejected | None:
+        refusal = self.states.admit(s, now, sizes)
+        if refusal is None:
+            claimed = s.mode in CLAIMED_MODES
+            self.claim = self._claim(s.stamp, s.position_min, s.position_max, s.speed if claimed else 0.0, claimed)
+        return refusal
+
+    def occupancy(self, occ: SectionOccupancy, now: float | None) -> InputRejected | None:
+        refusal = admit_report(self.combined, occ, now)
+        if refusal is None:
+            self.occ = occ
+        return refusal
+
+    def evaluate(self, now: float) -> tuple[list[Flag], list[str]]:
+        stale, claim = [], self.claim
+        if claim is None or self.states.stale(now):
+            stale.append(f"no fused state of train {self.train} admitted {_for(self.states.stream, now)}")
+            r = self.states.reach(now) if claim is not None and claim.valid else None
+            claim = (self._claim(now, -math.inf, math.inf, 0.0, False) if r is None
+                     else self._claim(now, r.lo, r.hi, max(abs(r.v_lo), abs(r.v_hi)), True))
+        occ = self.occ
+        if occ is None or now > 0.0 and self.combined.stale(now):
+            stale.append(f"no combined occupancy admitted {_for(self.combined, now)}")
+            occ = SectionOccupancy(now, "combined", ())
+        return self.check.update(now, [claim], occ), stale
+
+    def _claim(self, stamp: float, lo: float, hi: float, speed: float, valid: bool) -> Claim:
+        p = self.check.params
+        return Claim(self.train, stamp, lo, hi, p["train_length"], int(p["orientation"]) or 1, speed, valid)
+
+
+def _for(stream: StreamAdmission, now: float) -> str:
+    return f"for {stream.silence(now):.1f} s" if stream.admitted else "yet"

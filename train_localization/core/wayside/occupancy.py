@@ -19,6 +19,18 @@ later, after its pick-up delay), a contradiction once it lasts longer than
 ``disagree_tolerance``. (d) = degraded: one system alone decides. A system whose last
 report is older than ``input_timeout`` counts as silent.
 
+Each system's reports are a stream admitted through core/safety (``admit_report``,
+docs/reliability.md): refused, counted by reason and changing nothing, are a report stamped
+more than ``future_tolerance`` ahead of the consumer's clock (``future``) or before the
+system's last admitted one (``stamp_back``: a replayed old report), a stamp or section end
+that is not finite (``nan``), a section state that is none of CLEAR, OCCUPIED, DISTURBED
+(``implausible``), an id longer than 64 characters (``too_long``) and more than
+``max_sections`` sections (``too_large``). A report of the same stamp as the last is taken (a
+decoder reports every change, and several may fall on one sample). A system is silent when
+nothing of it was admitted for ``input_timeout`` of the consumer's clock, or its last admitted
+report is that old: refused reports keep nobody alive, and a silent system's sections are
+never CLEAR (the table above).
+
 Disagreements are recorded (section, which system said what, from when to when) for the
 diagnostics.
 """
@@ -28,7 +40,10 @@ import math
 from dataclasses import dataclass, field
 
 from ..measurements import CLEAR, DISTURBED, OCCUPIED, SectionOccupancy, SectionState
+from ..safety import admission
+from ..safety.admission import MAX_ITEMS, StreamAdmission, StreamLimits
 from ..sensors.base import Param, check_declared, resolve_params
+from ..signals import InputRejected
 
 SILENT = -1        # a system with no report within the timeout
 STATE_NAMES = {CLEAR: "CLEAR", OCCUPIED: "OCCUPIED", DISTURBED: "DISTURBED", SILENT: "SILENT"}
@@ -40,8 +55,32 @@ PARAMS = {
                                      "30 km/h (assumption: with margin)", (0.0, 600.0)),
     "input_timeout": Param(2.5, "a system whose last SectionOccupancy is older than this is silent [s] "
                                 "(both report every 1 s without changes)", (0.01, 600.0)),
+    "future_tolerance": admission.PARAMS["future_tolerance"],
+    "max_sections": Param(MAX_ITEMS, "a report listing more sections than this is refused (too_large) [1]",
+                          (1, 100000)),
 }
 check_declared(PARAMS, "wayside_occupancy")
+
+
+def admit_report(stream: StreamAdmission, occ: SectionOccupancy, now: float | None) -> InputRejected | None:
+    """Admit one SectionOccupancy of a stream (module doc): None or the refusal, counted in
+    ``stream``. ``now``: the consumer's clock [s]; None or 0: none (offline), the report
+    arrives at its stamp."""
+    clock = now if now and now > 0.0 else None
+    try:
+        bad = next((s for s in occ.sections if s.state not in (CLEAR, OCCUPIED, DISTURBED)), None)
+        if bad is not None:
+            raise InputRejected("implausible", f"{stream.name}: section {bad.section_id[:64]!r} in state {bad.state}")
+        listed = occ.sections[:stream.limits.max_items]     # more: too_large, and nothing else read
+        stream.check(occ.stamp, clock, values={f"sections[{k}].{end}": x for k, s in enumerate(listed)
+                                               for end, x in (("start", s.start), ("end", s.end))},
+                     ids={"source": occ.source, **{f"sections[{k}]": s.section_id for k, s in enumerate(listed)}},
+                     sizes={"sections": len(occ.sections)})
+    except InputRejected as exc:
+        if exc.reason != "duplicate":    # the same instant again: a further change of it
+            return stream.refuse(exc)
+    stream.accept(occ.stamp, clock if clock is not None else occ.stamp)
+    return None
 
 
 def vote(tc: int, ac: int) -> tuple[int, bool, bool]:
@@ -119,14 +158,20 @@ class CombinedOccupancy:
     def __post_init__(self):
         self._tc: dict[str, SectionState] = {}
         self._ac: dict[str, SectionState] = {}
-        self._seen = {self.sections.tc_source: -math.inf, self.sections.ac_source: -math.inf}
+        p = self.params
+        limits = StreamLimits(float(p["future_tolerance"]), float(p["input_timeout"]), int(p["max_sections"]))
+        self.streams = {src: StreamAdmission(src, limits) for src in (self.sections.tc_source, self.sections.ac_source)}
+        self.refusal: InputRejected | None = None   # why the last report was refused
         self._since: dict[str, float] = {}          # section -> start of the running disagreement
         self.records: list[Disagreement] = []
         self._open: dict[str, Disagreement] = {}
         self.ignored = 0                            # reports of other sources
 
-    def update(self, occ: SectionOccupancy) -> bool:
-        """Take one report of either system; False for a source that is not ours."""
+    def update(self, occ: SectionOccupancy, now: float | None = None) -> bool:
+        """Take one report of either system, arrived at the consumer's clock ``now`` [s] (None:
+        at its stamp); False for a source that is not ours or a refused report (``refusal``
+        says why; counted in ``streams[source].refused``)."""
+        self.refusal = None
         if occ.source == self.sections.tc_source:
             store = self._tc
         elif occ.source == self.sections.ac_source:
@@ -134,14 +179,21 @@ class CombinedOccupancy:
         else:
             self.ignored += 1
             return False
+        self.refusal = admit_report(self.streams[occ.source], occ, now)
+        if self.refusal is not None:
+            return False
         for s in occ.sections:
             store[s.section_id] = s
-        self._seen[occ.source] = max(self._seen[occ.source], occ.stamp)
         return True
+
+    def silent(self, source: str, now: float) -> bool:
+        """Nothing of ``source`` admitted for ``input_timeout`` [s], or its last report that old."""
+        stream = self.streams[source]
+        return stream.last_stamp is None or stream.stale(now) or now - stream.last_stamp > stream.limits.timeout
 
     def _state(self, store: dict, sid: str, source: str, now: float) -> tuple[int, SectionState | None]:
         s = store.get(sid)
-        if s is None or now - self._seen[source] > self.params["input_timeout"]:
+        if s is None or self.silent(source, now):
             return SILENT, s
         return s.state, s
 

@@ -101,3 +101,91 @@ def test_a_discovery_range_set_but_empty_is_taken_as_unset():
     assert domains.discovery_range({"ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET"}) == "SUBNET"
     launch = (ROOT / "train_localization" / "launch_common.py").read_text()
     assert 'SetEnvironmentVariable("ROS_AUTOMATIC_DISCOVERY_RANGE", discovery_range(os.environ))' in launch
+
+
+def _children(pid: int) -> set[int]:
+    """The processes whose parent is ``pid`` (from /proc)."""
+    import os
+    out = set()
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat", encoding="utf-8") as fh:
+                    stat = fh.read()
+            except OSError:
+                continue
+            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+                out.add(int(entry))
+    return out
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` exists and is not a zombie."""
+    try:
+        with open(f"/proc/{pid}/stat", encoding="utf-8") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def _held(domain: int) -> bool:
+    """Whether some run holds ``domain``'s lease (its lock cannot be taken; released at once
+    when it can)."""
+    import fcntl
+    from train_localization.tools import domains
+    with open(domains.LOCK_DIR / f"{domain}.lock", "a") as fh:
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            return True
+        fcntl.flock(fh, fcntl.LOCK_UN)
+        return False
+
+
+def test_ctrl_c_stops_every_node_and_the_lease_outlives_them(tmp_path):
+    """Issue 48: Ctrl-C of tl_demo left every node it had started running (each in a session of
+    its own, the terminal's SIGINT reaches none) and freed their domain. SIGINT to tl_demo
+    while its graph runs: it stops every node, holds the domain while any of them lives,
+    exits 130, and no node survives it."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    data = yaml.safe_load((ROOT / "config" / "scenario_demo.yaml").read_text())
+    data["duration"] = 120.0
+    data["track"] = str(ROOT / "config" / "track_conventional.yaml")
+    scenario = tmp_path / "scenario_long.yaml"
+    scenario.write_text(yaml.safe_dump(data))
+    from train_localization.graph import demo_graph, graph_options
+    sc = Scenario.from_yaml(scenario)
+    expected = len(demo_graph(str(scenario), list(sc.sensors), str(tmp_path / "b.mcap"), 1.0, None,
+                              **graph_options(sc)))
+    env = {k: v for k, v in os.environ.items() if k not in ("ROS_DOMAIN_ID", "TL_DOMAIN_FROM_ENV")}
+    proc = subprocess.Popen([sys.executable, "-m", "train_localization.tools.demo", "--scenario", str(scenario),
+                             "--rate", "1", "--out", str(tmp_path / "out")], cwd=ROOT, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + 60.0
+        while len(_children(proc.pid)) < expected and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.2)
+        nodes = _children(proc.pid)
+        assert len(nodes) == expected, (nodes, proc.poll())
+        with open(f"/proc/{min(nodes)}/environ", "rb") as fh:
+            domain = int(dict(kv.split(b"=", 1) for kv in fh.read().split(b"\0") if b"=" in kv)[b"ROS_DOMAIN_ID"])
+        time.sleep(3.0)   # the graph at work
+        assert _held(domain) and all(_alive(p) for p in nodes)
+        proc.send_signal(signal.SIGINT)
+        while proc.poll() is None:
+            if any(_alive(p) for p in nodes):
+                assert _held(domain), "the domain was freed while a node still ran"
+            time.sleep(0.05)
+        output = proc.stdout.read()
+        assert proc.returncode == 130, output
+        assert "interrupted: every node it started has stopped" in output, output
+        assert not [p for p in nodes if _alive(p)], output
+        assert not _held(domain), output
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()

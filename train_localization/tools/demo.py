@@ -21,7 +21,9 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 from ..core import paths
@@ -106,34 +108,80 @@ def run_nodes(graph: list, driver: str, log_dir: Path, timeout: float) -> dict:
     recorder last); exit codes by node. DDS on loopback and a domain of its own unless
     TL_DOMAIN_FROM_ENV=1. Entries (executable, name, parameters) run in /train and are keyed
     by name; (namespace, executable, name, parameters) run in their namespace and are keyed
-    by namespace/name."""
+    by namespace/name.
+
+    Ctrl-C (or SIGTERM) stops every node started the same way before KeyboardInterrupt goes
+    on (each runs in a session of its own: the terminal's SIGINT reaches only this process); a
+    second one kills those left. The domain's lease is released once the last node has exited,
+    and each node holds its lock too: the kernel keeps it while one of them lives, however this
+    process ends (tools/domains.py)."""
     held = domains.lease(10, 99) if os.environ.get("TL_DOMAIN_FROM_ENV") != "1" else None
     env = domains.node_env(held.domain if held is not None else None)
     log_dir.mkdir(parents=True, exist_ok=True)
-    procs = {}
-    for entry in graph:
-        namespace, exe, name, params = entry if len(entry) == 4 else (None, *entry)
-        key = name if namespace is None else f"{namespace.rstrip('/')}/{name}"
-        if exe == "recorder":
-            Path(params["output"]).parent.mkdir(parents=True, exist_ok=True)
-        log = open(log_dir / f"{key.strip('/').replace('/', '_')}.log", "w")
-        procs[key] = (subprocess.Popen(_command(exe) + ros_args(name, params, namespace or NAMESPACE), env=env,
-                                       stdout=log, stderr=subprocess.STDOUT, start_new_session=True), log)
-    try:
-        procs[driver][0].wait(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        print(f"[demo] {driver} did not finish within {timeout:.0f} s", file=sys.stderr)
-    time.sleep(1.0)
-    codes = {}
+    procs: dict[str, tuple[subprocess.Popen, object]] = {}
+    with _sigterm_interrupts():
+        try:
+            for entry in graph:
+                namespace, exe, name, params = entry if len(entry) == 4 else (None, *entry)
+                key = name if namespace is None else f"{namespace.rstrip('/')}/{name}"
+                if exe == "recorder":
+                    Path(params["output"]).parent.mkdir(parents=True, exist_ok=True)
+                log = open(log_dir / f"{key.strip('/').replace('/', '_')}.log", "w")
+                procs[key] = (subprocess.Popen(_command(exe) + ros_args(name, params, namespace or NAMESPACE),
+                                               env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
+                                               pass_fds=(held.handle.fileno(),) if held is not None else ()), log)
+            try:
+                procs[driver][0].wait(timeout=timeout)
+            except subprocess.TimeoutExpired:
+                print(f"[demo] {driver} did not finish within {timeout:.0f} s", file=sys.stderr)
+            time.sleep(1.0)
+        finally:
+            try:
+                codes = stop_nodes(procs, driver)
+            finally:
+                if held is not None:
+                    held.release()
+    return codes
+
+
+def stop_nodes(procs: dict, driver: str) -> dict:
+    """Stop the started nodes (key -> (process, log)) with SIGINT one after the other, the
+    ``driver`` and the recorder last; a Ctrl-C meanwhile kills those left. Returns (exit codes
+    by node) or raises only once every one has exited; their logs closed."""
     recorder = next((n for n in procs if n.rsplit("/", 1)[-1] == "recorder"), None)
     order = [n for n in procs if n not in (driver, recorder)] + [n for n in (recorder, driver) if n in procs]
-    for name in order:
-        proc, log = procs[name]
-        codes[name] = stop(proc)
-        log.close()
-    if held is not None:
-        held.release()
+    codes = {}
+    try:
+        for name in order:
+            codes[name] = stop(procs[name][0])
+    except KeyboardInterrupt:
+        for name in order:
+            proc = procs[name][0]
+            if proc.poll() is None:
+                proc.kill()
+            codes[name] = proc.wait()
+        raise
+    finally:
+        for _, log in procs.values():
+            log.close()
     return codes
+
+
+@contextmanager
+def _sigterm_interrupts():
+    """SIGTERM raises KeyboardInterrupt meanwhile, as Ctrl-C does (in the main thread only, where
+    Python delivers signals)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def _interrupt(signum, frame):
+        raise KeyboardInterrupt(f"signal {signum}")
+    previous = signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _circumference(bag: Path) -> float | None:
@@ -239,6 +287,15 @@ def main(argv=None) -> int:
     bag = out / (Path(args.scenario).stem + ".mcap")
     print(f"[demo] scenario {args.scenario} at {args.rate}x real time; logs in {out / 'logs'}")
     scenario = Scenario.from_yaml(args.scenario)
+    try:
+        return _run(args, scenario, out, bag)
+    except KeyboardInterrupt:
+        print(f"[demo] interrupted: every node it started has stopped (logs in {out / 'logs'})", file=sys.stderr)
+        return 130
+
+
+def _run(args, scenario: Scenario, out: Path, bag: Path) -> int:
+    """Run the graph of ``scenario``, print and write its summary; the exit code."""
     if scenario.line:
         codes = run_line_graph(args.scenario, bag, args.rate, out / "logs")
         summary = {name: summarise(bag, f"/{name}", scenario.trains[name].network is None) for name in scenario.trains}

@@ -5,8 +5,10 @@ A random pick alone lets two runs on one host share a domain (two pytest workers
 a demo graph did, and each recorded the other's messages). A lease is an exclusive ``flock`` on
 a per-domain file in the temporary directory: every run of this project on the host skips a
 domain another one holds, and the kernel drops the lock when the holder exits, however it
-exits. Programs that are not this project do not take the locks; the ranges below keep clear
-of ROS 2's default domain 0.
+exits. A run that starts node processes passes them the lock (tl_demo: ``pass_fds``): it is
+held then until the last of them has exited too, even if the run itself is killed. Programs
+that are not this project do not take the locks; the ranges below keep clear of ROS 2's
+default domain 0.
 """
 from __future__ import annotations
 
@@ -54,7 +56,7 @@ def _try_lock(domain: int) -> IO | None:
     """The open, exclusively locked lock file of ``domain``, or None when another run holds it
     (or the file cannot be opened by this user)."""
     try:
-        handle = open(LOCK_DIR / f"{domain}.lock", "a")   # close-on-exec: children do not hold it
+        handle = open(LOCK_DIR / f"{domain}.lock", "a")   # close-on-exec: a child holds it only if passed it
     except OSError:
         return None
     try:

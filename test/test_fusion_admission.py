@@ -65,6 +65,58 @@ def test_every_reason_is_refused_and_counted():
     assert math.isfinite(e.position) and e.mode != MODE_LOST
 
 
+def _wheel_runs(t0: float, t1: float, extra) -> tuple[FusionRunner, list]:
+    """The demo's fusion fed its own measurements up to ``t1`` [s], and after each wheel increment
+    from ``t0`` on the messages ``extra(increment)`` too; (the runner, its states at 50 Hz)."""
+    r = FusionRunner(fusion_config(demo()), 50.0)
+    states = []
+    for arrival, m in demo_arrivals(90.0):
+        if arrival > t1:
+            break
+        states += r.advance(arrival)
+        r.add(m)
+        if arrival >= t0 and isinstance(m, DistanceIncrement):
+            for echo in extra(m):
+                r.add(echo)
+    states += r.advance(t1)
+    return r, [e for e, _ in states]
+
+
+def test_an_increment_echoed_within_its_span_is_refused_and_counted():
+    """Issue 48: the wheel's increments echoed with a stamp 1 ms later were all taken, their
+    distance counted twice. Each echo (of the same unit, overlapping the span taken) is refused
+    as ``overlap``; the states are those without the echoes, bit for bit. An exact repetition
+    stays a ``duplicate``; another unit's increment over the same span is no echo."""
+    plain, states = _wheel_runs(20.0, 40.0, lambda m: [])
+    echoed, with_echoes = _wheel_runs(20.0, 40.0, lambda m: [m, replace(m, stamp=m.stamp + 1e-3),
+                                                              replace(m, stamp=m.stamp - 0.5 * m.duration)])
+    n = sum(1 for a, m in demo_arrivals(90.0) if 20.0 <= a <= 40.0 and isinstance(m, DistanceIncrement))
+    assert n > 100
+    assert echoed.rejected == {**plain.rejected, "overlap": 2 * n, "duplicate": n}
+    assert echoed.counters()["accepted"] == plain.counters()["accepted"]
+    assert [(e.stamp, e.position, e.speed, e.position_min, e.position_max, e.mode) for e in with_echoes] == \
+        [(e.stamp, e.position, e.speed, e.position_min, e.position_max, e.mode) for e in states]
+    assert "overlaps the one taken over" in str(echoed.last_error) and "\n" not in str(echoed.last_error)
+    last = next(m for a, m in reversed(demo_arrivals(90.0)) if a <= 40.0 and isinstance(m, DistanceIncrement))
+    assert echoed.add(replace(last, unit_id="wheel_2", stamp=last.stamp + 1e-3))
+
+
+def test_a_late_increment_that_fits_its_gap_is_taken_and_one_over_its_neighbours_refused():
+    """Increments of one unit arrive out of order (a late one, inserted at its stamp): the one
+    that fills the gap between its neighbours is taken, touching both; one reaching over a
+    neighbour is refused; increments that share only their ends are no overlap."""
+    arrivals = [m for a, m in demo_arrivals(90.0) if 20.0 < a <= 21.0 and isinstance(m, DistanceIncrement)]
+    a, gap, b = arrivals[3:6]
+    assert a.stamp == pytest.approx(gap.stamp - gap.duration) and gap.stamp == pytest.approx(b.stamp - b.duration)
+    r = runner_at(20.0)
+    for m in arrivals[:4] + arrivals[5:]:
+        assert r.add(m)
+    assert not r.add(replace(gap, stamp=gap.stamp + 0.5 * b.duration)) and r.last_error.reason == "overlap"
+    assert not r.add(replace(gap, duration=gap.duration + 0.5 * a.duration)) and r.last_error.reason == "overlap"
+    assert r.add(gap)
+    assert r.rejected.get("overlap") == 2
+
+
 def test_a_far_future_stamp_is_refused_in_the_offline_runner():
     """Issue: a DistanceIncrement stamped + 1e9 s made the next advance raise OverflowError."""
     sc = Scenario.from_yaml(paths.resolve("config/scenario_faults.yaml"))

@@ -417,6 +417,20 @@ def _fusion_pool():
     return scenario, sorted(pool, key=lambda m: m.stamp)
 
 
+def _chain(msg, ended: dict) -> None:
+    """A valid increment re-stamped with the wall clock: its span shortened so that it begins
+    where its unit's previous one ended (``ended``: (sensor, unit) -> stamp [s], updated), its
+    distance and 1-sigma with it (the same mean speed); overlapping spans of one unit are
+    refused (``overlap``, core/fusion/history.py)."""
+    t = _stamp(msg)
+    previous = ended.get((msg.sensor, msg.unit_id))
+    if previous is not None and t - previous < msg.duration:
+        share = max(t - previous, 2.0e-6) / msg.duration
+        msg.duration, msg.distance, msg.distance_stddev = (msg.duration * share, msg.distance * share,
+                                                           msg.distance_stddev * share)
+    ended[(msg.sensor, msg.unit_id)] = t
+
+
 def fusion_plan(n: int, seed: int) -> Plan:
     """The messages for the fusion (the demo scenario's sensors): decoded measurements
     stamped with the wall clock when sent, and malformed ones of FUSION_KINDS."""
@@ -441,10 +455,14 @@ def fusion_plan(n: int, seed: int) -> Plan:
     stddev = {"position": "position_stddev", "speed": "speed_stddev", "distance": "distance_stddev"}
     foreign = {s: next(c for c in classes if c != s) for s in classes}
 
+    ended: dict[tuple[str, str], float] = {}   # (sensor, unit) -> stamp [s] of its last valid increment
+
     def good(m):
         def build(now):
             msg = convert.measurement_to_msg(m, mc)
             _set_stamp(msg, stamps.next(now))
+            if isinstance(m, DistanceIncrement):
+                _chain(msg, ended)
             last[by_type[type(m)]] = last["any"] = (by_type[type(m)], msg)
             return msg
         return Item("good", convert.measurement_topic(m), build, ACCEPTED)

@@ -21,6 +21,9 @@ reason                    refused
 ``reference_mismatch``    a fix that lies elsewhere than the reference it names
 ``future``                stamped further ahead of the runner's clock than ``history``
 ``duplicate``             (the filter's history) a measurement already taken
+``overlap``               (the filter's history) a distance increment whose span (stamp -
+                          duration .. stamp) overlaps one taken from the same sensor and unit:
+                          an echo or a repetition, whose distance would count twice
 ``too_late``              (the filter's history) older than ``history`` or the last reset
 ========================  ====================================================================
 """

@@ -9,8 +9,12 @@ from __future__ import annotations
 import bisect
 import math
 
-from ..measurements import PositionFix, SpeedMeasurement, YawRate
+from ..measurements import MAX_DURATION, DistanceIncrement, PositionFix, SpeedMeasurement, YawRate
 from ..signals import InputRejected
+
+# [s] two increments of one unit may share at their ends: their stamps are whole nanoseconds,
+# and a stamp of the wall clock (1.8e9 s) resolves 0.24 us in a double
+OVERLAP_TOLERANCE = 1.0e-5
 
 
 def order_key(m) -> tuple:
@@ -44,9 +48,12 @@ class History:
         # it: it is taken again, or not)
         self.excluded: dict[tuple, tuple] = {}
         self.rollbacks = 0                  # insertions before a measurement stamped later
+        # (sensor, unit) -> (ends, starts) [s] of the distance increments taken, by end; kept
+        # while a later one may still reach back to them (span + MAX_DURATION)
+        self.spans: dict[tuple[str, str], tuple[list[float], list[float]]] = {}
 
     def insert(self, m) -> None:
-        """Insert at its stamp; raises InputRejected ``too_late`` / ``duplicate``."""
+        """Insert at its stamp; raises InputRejected ``too_late`` / ``duplicate`` / ``overlap``."""
         key = order_key(m)
         newest = self.stamps[-1] if self.stamps else None
         if newest is not None and m.stamp < newest - self.span:
@@ -58,12 +65,33 @@ class History:
         i = bisect.bisect_left(self.keys, key)
         if i < len(self.keys) and self.keys[i] == key:
             raise InputRejected("duplicate", f"{m.sensor} measurement at {m.stamp:.6f} s seen before")
+        if isinstance(m, DistanceIncrement):
+            self._take_span(m)
         if i < len(self.keys):
             self.rollbacks += 1
         self.keys.insert(i, key)
         self.stamps.insert(i, m.stamp)
         self.meas.insert(i, m)
         self.rewind(i)
+
+    def _take_span(self, m: DistanceIncrement) -> None:
+        """Record the span [stamp - duration, stamp] of a distance increment; raises InputRejected
+        ``overlap`` for one whose span overlaps an increment taken from the same unit (an echo or
+        a repetition of it: its distance would be counted twice)."""
+        ends, starts = self.spans.setdefault((m.sensor, m.unit_id), ([], []))
+        start, end = m.stamp - m.duration, m.stamp
+        j = bisect.bisect_right(ends, end)
+        for k in (j - 1, j):   # the taken spans do not overlap: only the neighbours can
+            if 0 <= k < len(ends) and min(end, ends[k]) - max(start, starts[k]) > OVERLAP_TOLERANCE:
+                raise InputRejected("overlap", f"{m.sensor} increment {start:.6f} .. {end:.6f} s of unit "
+                                               f"{m.unit_id[:64]!r} overlaps the one taken over {starts[k]:.6f} .. "
+                                               f"{ends[k]:.6f} s")
+        ends.insert(j, end)
+        starts.insert(j, start)
+        horizon = (self.stamps[-1] if self.stamps else end) - self.span - MAX_DURATION
+        if len(ends) > 64 and ends[63] < horizon:   # forgotten in batches, as the measurements
+            cut = bisect.bisect_left(ends, horizon)
+            del ends[:cut], starts[:cut]
 
     def rewind(self, i: int) -> int:
         """Forget the states from index i on (they are re-applied), and the exclusions decided

@@ -13,7 +13,10 @@ core/offline.py FusionRunner, the same code as the offline runs):
                          LOST; WARN also once input was rejected), counts of accepted, gated and
                          rejected measurements, mode, NIS; one status per sensor input (frequency,
                          age of the last message, WARN when silent beyond its timeout)
-Service: localization/set_position (train_localization_msgs/SetPosition).
+Service: localization/set_position (train_localization_msgs/SetPosition): on a network with a
+section_id the position is a chainage on that section, without one a distance along the route
+(the reply names the section and chainage used); ambiguous or unplaceable input is refused in
+one line (core/network/hypotheses.py operator_start).
 On a network (a scenario whose track has sections, docs/network.md): one filter per track
 hypothesis (core/network/hypotheses.py); localization/state names the most probable section,
 and the node also publishes
@@ -257,6 +260,7 @@ class FusionNode(ManagedNode):
                                                          "configure the filter (default: the scenario's sensors, "
                                                          "else default parameters)", read_only=True)
         self.network = scenario.network if scenario else None
+        self.route = scenario.route if scenario else None   # on a network: the train's route (a TrackPath)
         if self.network is None and not scenario and is_network_file(paths.resolve(track)):
             raise ConfigurationError(f"track {track} is a network: the fusion takes it from a scenario whose trains "
                                      "have routes through it (parameter scenario)")
@@ -378,8 +382,10 @@ class FusionNode(ManagedNode):
         return sensor_models({by_class[c]: given.get(by_class[c], {}) for c in classes}, self.track, Vehicle())
 
     def on_measurement(self, topic, parse, msg):
-        if not self.shedder.admit(topic, time.monotonic()):
-            return   # a flood: shed before any work, counted (input_statuses reports it)
+        wall = time.monotonic()
+        if not self.shedder.admit(topic, wall):
+            self._outputs_when_late(wall)   # a flood: shed before any work, counted (input_statuses reports it)
+            return
         try:
             m = parse(msg)
             sensor = topic.split("/")[1]
@@ -388,21 +394,38 @@ class FusionNode(ManagedNode):
                                                     f"of {sensor!r}")
         except InputRejected as exc:
             self.diag.reject(topic, exc.reason, str(exc))
+            self._outputs_when_late(wall)
             return
         now = now_sec(self)
         if not self.runner.add(m, now):
             exc = self.runner.last_error
             self.diag.reject(topic, exc.reason, str(exc))
+            self._outputs_when_late(wall, now)
             return
         self.diag.accept(topic)
         seen = self._inputs.setdefault(m.sensor, [0, None, None])
         seen[0] += 1
-        seen[1], seen[2] = time.monotonic(), now - m.stamp
+        seen[1], seen[2] = wall, now - m.stamp
         if hasattr(m, "reference_id"):
             self._fixed_at[m.sensor] = m.position
-        if self._timer is not None and self.runner.due(now - 2.0 * self.runner.period):
-            # the timer is late behind a stream of input (the executor serves the input first):
-            # the states are the product, published from here at their rate
+        self._outputs_when_late(wall, now)
+
+    def _outputs_when_late(self, wall: float, now: float | None = None) -> None:
+        """The outputs are the product, whatever the input does: when the executor serves a stream
+        of input (taken, refused or shed alike) before the timers, the states due more than two
+        periods ago and the 1 Hz diagnostics are published from here. ``wall``: the monotonic
+        clock [s]; ``now``: the node clock [s] if read already (a taken message: checked at
+        every one; a refused or shed one: only once no state came for two periods of wall time,
+        the check that costs least)."""
+        self.diag.publish_if_due(wall)
+        if self._timer is None:
+            return
+        late = 2.0 * self.runner.period
+        if now is None:
+            if wall - self._last_state_wall < late:
+                return
+            now = now_sec(self)
+        if self.runner.due(now - late):
             self.on_timer()
 
     def on_switches(self, msg) -> None:
@@ -475,16 +498,28 @@ class FusionNode(ManagedNode):
         if request.reset:
             self.filter.reset(stamp=t)
             response.success, response.message = True, "filter reset: INITIALISING"
-        else:
-            try:
-                self.runner.admission.check_set_position(request.position, request.position_stddev, request.speed,
-                                                         request.speed_stddev)
-            except InputRejected as exc:
-                response.success, response.message = False, f"refused: {exc}"
-                self.get_logger().warn(response.message)
-                return response
-            self.filter.reset(request.position, request.position_stddev, request.speed, request.speed_stddev, t)
-            response.success, response.message = True, f"position set to {request.position:.3f} m"
+            self.get_logger().info(response.message)
+            return response
+        try:
+            self.runner.admission.check_set_position(request.position, request.position_stddev, request.speed,
+                                                     request.speed_stddev)
+            if self.network is None:
+                if request.section_id and request.section_id != self.track.track_id:
+                    raise InputRejected("wrong_track", f"section_id {request.section_id[:64]!r} is not this "
+                                                       f"fusion's track {self.track.track_id!r}")
+                self.filter.reset(request.position, request.position_stddev, request.speed, request.speed_stddev, t)
+                response.message = f"position set to {request.position:.3f} m"
+            else:
+                start = self.filter.operator_start(request.position, request.section_id, self.route)
+                # with a section, the speed is along its chainage (as TrainState's); else along the route
+                speed = request.speed * start.direction if request.section_id else request.speed
+                self.filter.reset(start.position, request.position_stddev, speed, request.speed_stddev, t, start)
+                response.message = f"position set to {start.describe()}"
+        except InputRejected as exc:
+            response.success, response.message = False, f"refused: {exc}"
+            self.get_logger().warn(response.message)
+            return response
+        response.success = True
         self.get_logger().info(response.message)
         return response
 

@@ -16,10 +16,17 @@ given), plus every parameter of the sensor kind (docs/nodes.md and core/sensors/
 them with units and sources), and ``managed`` (a lifecycle node: see SensorNode). Bad
 raw blocks or truth states are rejected with a diagnostic and counted; the node keeps
 running.
+
+A truth state (sim) stamped further than ``future_tolerance`` ahead of the node's time is
+refused (``future``): on /clock (use_sim_time) the node clock; on the wall clock, whose time
+the simulated truth is not in, the truth's own time: the last truth state taken advanced by
+the wall time since (or the wall clock, for truth stamped in it). Taken, a truth state far
+ahead would make the device simulate every block up to it at once.
 """
 from __future__ import annotations
 
 import sys
+import time
 
 from rclpy.lifecycle import TransitionCallbackReturn
 
@@ -88,6 +95,8 @@ class SensorNode(ManagedNode):
                 continue  # empty lists have no ROS parameter type; keep the default
             overrides[name] = declare(self, name, default, p.description, read_only=True, limits=p.limits)
         self.future_tolerance = declare_future_tolerance(self, "a raw block (its last sample) or a truth state")
+        self.sim_time = bool(self.get_parameter("use_sim_time").value)
+        self._truth_taken: tuple[float, float] | None = None   # (stamp, monotonic clock) [s] of the last truth
         unit = overrides.get("unit_id") or self.spec.sensor
         rng = scenario.rng(self.spec.node, unit) if scenario else None
         if mode == "sim" and rng is None:
@@ -113,6 +122,7 @@ class SensorNode(ManagedNode):
                 self.pubs[f"{base}/{kind}"] = self.create_lifecycle_publisher(cls, f"{base}/{kind}", STREAM_QOS)
 
     def on_activate(self, state) -> TransitionCallbackReturn:
+        self._truth_taken = None   # the truth went on while inactive: its time is learnt again
         if self.mode == "sim":
             self._subs.append(self.create_subscription(self.mc.TrainState, "ground_truth/state", self.on_truth,
                                                        STREAM_QOS))
@@ -138,15 +148,31 @@ class SensorNode(ManagedNode):
     def on_truth(self, msg):
         try:
             truth = convert.truth_from_msg(msg)
-            refuse_future(truth.stamp, now_sec(self), self.future_tolerance, "truth state")
+            now, clock = self._truth_clock()
+            refuse_future(truth.stamp, now, self.future_tolerance, "truth state", clock)
             blocks = self.pipe.on_truth(truth)
         except InputRejected as exc:
             self.diag.reject("ground_truth/state", exc.reason, str(exc))
             return
+        self._truth_taken = (truth.stamp, time.monotonic())
         self.diag.accept("ground_truth/state")
         for block in blocks:
             self.raw_pub.publish(convert.raw_block_to_msg(block, self.mc))
             self._decode(block)
+
+    def _truth_clock(self) -> tuple[float, str]:
+        """(time [s], its name) a truth state's stamp is checked against: the node clock on
+        /clock; on the wall clock the last truth state taken advanced by the wall time since,
+        when that is earlier (the truth's own time, which a simulator's truth is stamped in)."""
+        now = now_sec(self)
+        if self.sim_time or self._truth_taken is None:
+            return now, "the node clock"
+        stamp, taken_at = self._truth_taken
+        simulated = stamp + (time.monotonic() - taken_at)
+        if simulated >= now:
+            return now, "the node clock"
+        return simulated, (f"the truth's own time (the last truth state taken, at {stamp:.3f} s, and the wall "
+                           "time since: the node runs on the wall clock)")
 
     def on_raw(self, msg):
         try:

@@ -25,7 +25,9 @@ def sensor_params_markdown() -> str:
     lines = ["Common to every sensor node: `mode` (`\"sim\"` | `\"ingest\"`), `scenario` (YAML: track, "
              "vehicle, seed, overrides), `track` (YAML, when no scenario), `future_tolerance` (double, "
              f"default {FUTURE_TOLERANCE} s, 0.001 .. 3600: a raw block (ingest) or a truth state (sim) stamped further "
-             "ahead of the node clock is refused as `future`), and:", "",
+             "ahead of the node clock is refused as `future`; on the wall clock, a truth state further ahead of the "
+             "truth's own time, the last one taken plus the wall time since: a simulator's truth is not in the wall "
+             "clock's time), and:", "",
              "| parameter | default | meaning |", "|---|---|---|"]
     lines += [f"| `{n}` | {_value(p.default)} | {p.meaning} |" for n, p in COMMON_PARAMS.items()]
     for node in NODE_NAMES:

@@ -81,6 +81,25 @@ class NetworkEstimate(Estimate):
     path_max: float = math.nan
 
 
+@dataclass(frozen=True)
+class OperatorStart:
+    """Where an operator's set_position puts the train on a network: the front on ``section`` at
+    ``chainage`` [m], running along the section's chainage (``direction`` +1) or against it
+    (-1); ``origin`` the path distance where its path enters the section [m] (the route's, so
+    that ``position``, the path distance [m], is a route distance)."""
+
+    section: str
+    chainage: float
+    direction: int
+    origin: float
+    position: float
+
+    def describe(self) -> str:
+        """One line: the section, the chainage and the direction."""
+        return (f"section {self.section}, chainage {self.chainage:.3f} m, running "
+                f"{'along' if self.direction > 0 else 'against'} its chainage (route distance {self.position:.3f} m)")
+
+
 @dataclass(eq=False)
 class Hypothesis:
     """A path and the along-track filter of the train on it."""
@@ -131,15 +150,58 @@ class HypothesisSet:
         return self.hyps[0].filter.hist
 
     def reset(self, position: float | None = None, position_stddev: float = 1.0, speed: float = 0.0,
-              speed_stddev: float = 1.0, stamp: float | None = None) -> None:
+              speed_stddev: float = 1.0, stamp: float | None = None, start: OperatorStart | None = None) -> None:
         """One hypothesis again, on the start section (position: path distance [m], which is
-        the start section's chainage along the direction of travel)."""
-        path = TrackPath.start(self.network, self.net.start_section, self.net.start_direction)
+        the start section's chainage along the direction of travel), or on ``start``'s section
+        (an operator's, ``operator_start``: position is then its path distance)."""
+        if start is None:
+            path = TrackPath.start(self.network, self.net.start_section, self.net.start_direction)
+        else:
+            path = TrackPath.start(self.network, start.section, start.direction, start.origin)
         f = TrainFilter(self.inner)
         f.reset(position, position_stddev, speed, speed_stddev, stamp)
         self.hyps = [Hypothesis(path, f)]
         self.overflow = False
         self.unexplained_at = -math.inf
+
+    def operator_start(self, position: float, section: str = "", route: TrackPath | None = None) -> OperatorStart:
+        """Where an operator's ``position`` [m] puts the train: with ``section``, a chainage on it,
+        which the train's ``route`` must run along once, or else the track hypotheses (all in
+        one direction); without, a distance along the route (by default the path from
+        start_section). Raises InputRejected in one line: a section of no such path
+        (``off_route``), one the route passes twice or the hypotheses run both ways
+        (``ambiguous``), a chainage off the section or a distance off the route (``off_track``)."""
+        route = route if route is not None else TrackPath.start(self.network, self.net.start_section,
+                                                                self.net.start_direction)
+        if not section:
+            if not route.begin <= position <= route.end:
+                raise InputRejected("off_track", f"route distance {position:.3f} m is off the route "
+                                                 f"({route.begin:.3f} .. {route.end:.3f} m along "
+                                                 f"{', '.join(st.section for st in route.steps)})")
+            step = route.step_at(position)
+            return OperatorStart(step.section, step.chainage(position), step.direction, step.start, position)
+        if section not in self.network.sections:
+            raise InputRejected("wrong_track", f"section {section[:64]!r} is no section of network "
+                                               f"{self.network.network_id}")
+        length = self.network.section(section).length
+        if not 0.0 <= position <= length:
+            raise InputRejected("off_track", f"chainage {position:.3f} m is off section {section} "
+                                             f"(0 .. {length:.3f} m)")
+        steps = [st for st in route.steps if st.section == section]
+        if len(steps) > 1:
+            raise InputRejected("ambiguous", f"the route passes section {section} {len(steps)} times: give the "
+                                             "route distance (an empty section_id) instead")
+        if not steps:
+            steps = [st for h in self.hyps for st in h.path.steps if st.section == section]
+            if not steps:
+                known = dict.fromkeys(st.section for h in self.hyps for st in h.path.steps)
+                raise InputRejected("off_route", f"section {section} is neither on the train's route "
+                                                 f"({', '.join(st.section for st in route.steps)}) nor on a track "
+                                                 f"hypothesis ({', '.join(known)})")
+            if len({st.direction for st in steps}) > 1:
+                raise InputRejected("ambiguous", f"the track hypotheses run along section {section} both ways")
+        step = steps[0]
+        return OperatorStart(section, position, step.direction, step.start, step.distance(position))
 
     def set_switches(self, positions: dict[str, str]) -> None:
         """The interlocking's report: switch -> "B1"/"B2" ("" or absent: unknown)."""

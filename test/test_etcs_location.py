@@ -421,3 +421,30 @@ def test_every_event_kind_is_published_by_the_live_node_and_none_stops_it(ros_co
         assert proc.interrupt() == 0 and "Traceback" not in proc.output()
     finally:
         node.destroy_node()
+
+
+def test_a_supervised_stop_under_every_attack_refuses_each_and_neither_overruns_nor_releases_while_moving():
+    """One randomised stop (seed 0: 2.2 km to the EOA at 87 km/h) with one attack of each kind handed to the
+    chain where the nodes would receive it (core/etcs/attacks.py): the standstill stamped 50 s
+    ahead refused as future, the standstill report in the brake refused as motion, the far group
+    refused as misplaced (REFERENCE_REJECTED), the flood of unknown ids shed beyond
+    max_fix_rate, the spoofed states to the stator controller refused with nothing switched off
+    under the vehicle; the train stops short of its EOA without a trip or a release while moving."""
+    from train_localization.core.etcs import supervised_run as sr
+    from train_localization.core.etcs.attacks import Attack
+    from train_localization.core.scenario import Scenario
+    data = sr.draw_stop(0)
+    attacks = (Attack("state_ahead", 20.0, ahead=50.0), Attack("standstill_report", 0.0),
+               Attack("far_group", 0.5, group="BG003"), Attack("unknown_flood", 30.0, rate=2000.0, duration=2.0),
+               Attack("stator_spoof", 25.0, offset=5000.0, rate=1000.0, duration=2.0))
+    res = sr.supervised_stop(Scenario.from_dict({k: v for k, v in data.items() if k != "draw"}), attacks=attacks)
+    assert res.margin > 0.0 and res.trips == 0 and res.releases_while_moving == 0
+    assert res.min_truth_to_safe_front >= 0.0 and res.max_safe_front_overshoot <= 0.0
+    assert res.attacked == {"state_ahead": 1, "standstill_report": 1, "far_group": 1, "unknown_flood": 4000}
+    assert res.refused["localization/state/future"] == 1 and res.refused["localization/etcs/motion"] == 1
+    assert res.events["reference_rejected"] == 1 and "BG003" not in [e.nid_bg for e in res.supervisor.events
+                                                                        if e.kind == EventKind.LRBG]
+    assert 0 < res.refused["shed/sensors/eurobalise/position"] < 4000
+    clean, attacked = res.stator["clean"], res.stator["attacked"]
+    assert attacked["switched_off_under_vehicle"] == clean["switched_off_under_vehicle"] == 0
+    assert attacked["thrust_loss_s"] == clean["thrust_loss_s"] and sum(attacked["refused"].values()) == 2000

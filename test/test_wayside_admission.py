@@ -1,6 +1,6 @@
 """What the wayside consumers of the fused state admit (docs/reliability.md, issue 48): the
 association's fused states and track hypotheses (core/association.py TrainInputs over
-core/state_admission.py), switch positions (core/convert.py), the section-occupancy streams of
+core/safety/fused_state.py), switch positions (core/convert.py), the section-occupancy streams of
 the voting and the changeover controller (core/wayside/occupancy.py) and the cross-check's
 inputs (core/wayside/crosscheck.py); each refusal counted by reason, each stale stream answered
 by the node's safe reaction. At the end the association node over DDS."""

@@ -30,7 +30,7 @@ train on a track none of its hypotheses runs along does not explain it, whatever
 chainages.
 
 What the node admits of each train (``TrainInputs``, docs/reliability.md): its fused states
-through core/state_admission.py (stamps, values, sizes and the kinematic plausibility: a state
+through core/safety/fused_state.py (stamps, values, sizes and the kinematic plausibility: a state
 out of reach of the train's last admitted one is refused ``motion``), and on a network its
 track hypotheses: stamps as a stream of their own, at most MAX_HYPOTHESES hypotheses, a path
 of at most the network's section count and MAX_PATH_SECTIONS, MAX_PATH_ENTRIES sections in one
@@ -56,7 +56,7 @@ from .network.path import TrackPath
 from .safety import admission
 from .safety.admission import StreamAdmission
 from .signals import InputRejected
-from .state_admission import FusedStateStream, stream_params
+from .safety.fused_state import FusedStateStream, stream_params
 
 USED, AMBIGUOUS, UNEXPLAINED = "used", "ambiguous", "unexplained"
 # A hypothesis's path lists the sections its interval spans: 1 to 3 on a claimed state, every
@@ -254,7 +254,7 @@ class TrainInputs:
     message's (anything with a TrackHypothesis's fields); each returns None (admitted) or the
     refusal, counted in ``refused()``. ``states``: the admitted states, in stamp order, with
     their hypotheses joined by stamp (the list an Associator reads; changed in place).
-    ``params``: core/state_admission.py PARAMS; ``history`` [s]: states kept."""
+    ``params``: core/safety/fused_state.py PARAMS; ``history`` [s]: states kept."""
 
     def __init__(self, name: str, params: dict | None = None, history: float = 10.0, network=None,
                  circumference: float | None = None):

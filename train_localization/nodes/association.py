@@ -17,7 +17,7 @@ Parameters:
   history (double, 10.0)        [s] of fused states kept per train
   future_tolerance, input_timeout, max_acceleration, plausibility_margin, speed_margin: the
                                 admission of each train's fused states and track hypotheses
-                                (core/state_admission.py, core/association.py TrainInputs;
+                                (core/safety/fused_state.py, core/association.py TrainInputs;
                                 docs/nodes.md): refused by reason, counted in /diagnostics
                                 (rejected//<train>/localization/state/<reason>); a train whose
                                 stream is stale explains every fix after its last state
@@ -31,7 +31,7 @@ from ..core.association import Associator, FusedState, TrainInputs
 from ..core.scenario import ScenarioError
 from ..core.sensors import spec as sensor_spec
 from ..core.signals import InputRejected
-from ..core.state_admission import PARAMS as ADMISSION_PARAMS
+from ..core.safety.fused_state import PARAMS as ADMISSION_PARAMS
 from .common import STREAM_QOS, Diagnostics, declare, declare_params, now_sec, rclpy_classes, required_scenario, spin
 
 

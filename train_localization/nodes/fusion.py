@@ -432,7 +432,7 @@ class FusionNode(ManagedNode):
         """The interlocking's switch positions (a network): priors of the track hypotheses."""
         topic = "interlocking/switches"
         try:
-            positions = convert.switch_positions_from_msg(msg)
+            positions = convert.switch_positions_from_msg(msg, len(self.network.switches()))
             unknown = [k for k in positions if k not in {n.node_id for n in self.network.switches()}]
             if unknown:
                 raise InputRejected("unknown_id", f"switch {unknown[0][:64]!r} is no point switch of network "

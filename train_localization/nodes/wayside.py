@@ -28,7 +28,7 @@ counted and ignored (``accepted/sections/other_source``).
 
 Every input is admitted in core first (docs/reliability.md, docs/nodes.md): each system's
 reports by occupancy.admit_report (``future``, ``stamp_back``, ``nan``, ``implausible``,
-``too_long``, ``too_large``), the cross-check's fused states by core/state_admission.py (and
+``too_long``, ``too_large``), the cross-check's fused states by core/safety/fused_state.py (and
 ``motion``); each refusal is counted in /diagnostics (``rejected/<stream>/<reason>``). A stream
 with nothing admitted for its time-out is stale: its sections are never CLEAR (a silent system;
 the controller then holds the neutral section dead, both ABBs open), the cross-check warns.

@@ -31,28 +31,13 @@ import numpy as np
 
 from ..measurements import PositionFix
 from .admission import LocationAdmission, SupervisionAdmission
+from .attacks import Attack, draw_attacks, stator_under_attack
 from .location import FusedState, LocationTracker, is_balise_fix
 from .records import LocationEvent, LocationReport
 from .supervision import AtpDecision, Brake, Status, Supervision
 from .track_data import EtcsData
 
-# what an attacker on the DDS domain publishes in the randomised stops (``Attack.kind``)
-ATTACKS = ("state_ahead", "standstill_report", "far_group", "unknown_flood", "silent_linked")
 FIX_TOPIC, STATE_TOPIC = "sensors/eurobalise/position", "localization/state"
-
-
-@dataclass(frozen=True)
-class Attack:
-    """One attack of a run: ``kind`` (ATTACKS) from ``t`` [s]; ``ahead`` [s] a spoofed state's
-    stamp ahead of the clock; ``group`` the far group a spoofed fix names, ``consistent`` its
-    position at that group (else at the train); ``rate`` [1/s] and ``duration`` [s] of a flood."""
-    kind: str
-    t: float
-    ahead: float = 0.0
-    group: str = ""
-    consistent: bool = False
-    rate: float = 0.0
-    duration: float = 0.0
 
 
 class EtcsSupervisor:
@@ -156,14 +141,16 @@ class EtcsSupervisor:
         if far is not None and not self.attacked.get(far.kind) and t >= far.t:
             group = self.tracker.data.groups[far.group]
             est = run.estimates[-1] if run.estimates else None
-            at_train = est.position if est is not None else group.positions[0]
+            first = min(g.reference for g in self.tracker.data.groups.values())   # where the train starts
+            at_train = est.position if est is not None and est.mode in (1, 2) else first
             position = group.positions[0] + 2.0 if far.consistent else at_train
             out.append(PositionFix(t, "eurobalise", "attacker", self.tracker.data.track_id, group.balises[0],
                                    position, 0.5, 0))
             self._count(far.kind)
         flood = self.attacks.get("unknown_flood")
-        if flood is not None and flood.t <= t < flood.t + flood.duration:
-            due = int((t - flood.t) * flood.rate) - self._flood_sent
+        total = int(flood.rate * flood.duration) if flood is not None else 0
+        if flood is not None and flood.t <= t and self._flood_sent < total:
+            due = min(total, int((t - flood.t) * flood.rate)) - self._flood_sent
             out += [PositionFix(flood.t + (self._flood_sent + k) / flood.rate, "eurobalise", "attacker",
                                 self.tracker.data.track_id, f"XX{self._flood_sent + k}", 1000.0, 0.5, 0)
                     for k in range(max(0, due))]
@@ -197,6 +184,7 @@ class StopResult:
     events: dict = field(default_factory=dict)
     releases_while_moving: int = 0   # brake releases while the true speed was above 0.1 m/s
     refused: dict = field(default_factory=dict)    # <stream>/<reason> -> messages refused or shed
+    stator: dict = field(default_factory=dict)     # attacks.stator_under_attack's, with a stator_spoof
     attacked: dict = field(default_factory=dict)   # attack kind -> spoofed messages handed in
     supervisor: EtcsSupervisor | None = None
     loop: object = None
@@ -240,7 +228,10 @@ def supervised_stop(scenario, t_end: float | None = None, attacks: tuple[Attack,
     return StopResult(eoa, closest, (eoa - closest) * orientation, stopped, first_stop,
                       int(stats.get("trips", 0)), int(stats.get("interventions", 0)),
                       max((int(d.status) for d in sup.decisions), default=int(Status.NORMAL)),
-                      gap_min, over_max, kinds, released, sup.refused(), dict(sup.attacked), sup, loop)
+                      gap_min, over_max, kinds, releases_while_moving=released, refused=sup.refused(),
+                      attacked=dict(sup.attacked), supervisor=sup, loop=loop,
+                      stator=stator_under_attack(loop, orientation, sup.attacks["stator_spoof"])
+                      if "stator_spoof" in sup.attacks else {})
 
 
 # ----------------------------------------------------------------------------- randomised stops
@@ -323,47 +314,6 @@ def draw_stop(seed: int) -> dict:
                      "balise_spacing": spacing, **faults}}
 
 
-def draw_attacks(seed: int, data: dict) -> tuple[Attack, ...]:
-    """The attacks of randomised stop ``seed`` (``draw_stop``'s scenario dict ``data``, whose
-    reader may be given silent groups): each kind of ATTACKS with probability 1/2, at least one;
-    drawn from a generator of their own, so the run's line, train and faults are those without."""
-    rng = np.random.default_rng([seed, 48])
-    d = data["draw"]
-    v_top = d["top_speed_kmh"] * KMH
-    t_brake = (d["eoa_distance"] - v_top ** 2 / (2.0 * d["assumed_deceleration"])) / v_top
-    kinds = [k for k in ATTACKS if rng.random() < 0.5] or [ATTACKS[int(rng.integers(0, len(ATTACKS)))]]
-    groups = sorted({b["group"] for b in data["track"]["equipment"]["eurobalise"]})
-    start = data["initial"]["position"]
-    out = []
-    for kind in kinds:
-        if kind == "state_ahead":
-            out.append(Attack(kind, float(rng.uniform(5.0, max(6.0, t_brake))), ahead=float(10 ** rng.uniform(0.5, 6.0))))
-        elif kind == "standstill_report":
-            out.append(Attack(kind, 0.0))
-        elif kind == "far_group":
-            far = [g for g, b in ((b["group"], b) for b in data["track"]["equipment"]["eurobalise"])
-                   if abs(b["position"] - start) > 5000.0] or groups[-1:]
-            out.append(Attack(kind, float(rng.choice([0.5, rng.uniform(10.0, max(11.0, t_brake))])),
-                              group=str(far[int(rng.integers(0, len(far)))]), consistent=bool(rng.random() < 0.5)))
-        elif kind == "unknown_flood":
-            out.append(Attack(kind, float(rng.uniform(5.0, max(6.0, t_brake))), rate=float(rng.uniform(700.0, 5000.0)),
-                              duration=5.0))
-        else:       # two linked groups on the way, silent one after the other
-            eoa = data["atp"]["end_of_authority"]
-            way = [g for g in groups if start + 50.0 < _group_position(data, g) < eoa - 50.0]
-            if len(way) >= 2:
-                k = int(rng.integers(0, len(way) - 1))
-                silent = ",".join(f"{g}{s}" for g in way[k:k + 2] for s in "ab")
-                reader = data["sensors"]["eurobalise_reader"]
-                reader["silent_balises"] = ",".join(filter(None, (reader.get("silent_balises", ""), silent)))
-                out.append(Attack(kind, 0.0, group=",".join(way[k:k + 2])))
-    return tuple(out)
-
-
-def _group_position(data: dict, group: str) -> float:
-    return min(b["position"] for b in data["track"]["equipment"]["eurobalise"] if b["group"] == group)
-
-
 def stop_summary(results: list[dict]) -> dict:
     """Figures of randomised stops (``run_stop`` dicts): the closest approach to the EOA over
     the run (``margin_m``, goal: never negative; the driver drives on after each release), where
@@ -386,7 +336,21 @@ def stop_summary(results: list[dict]) -> dict:
             "missed_linked_groups": sum(r["events"].get("missed_linked_group", 0) for r in ok),
             "releases_while_moving": sum(r["releases_while_moving"] for r in ok),
             "attacks": _tally(r["attacked"] for r in ok),
-            "refused": _tally(r["refused"] for r in ok)}
+            "refused": _tally(r["refused"] for r in ok),
+            "stator": _stator_summary([r["stator"] for r in ok if r.get("stator")])}
+
+
+def _stator_summary(runs: list[dict]) -> dict | None:
+    """The stator attacks: runs, sections switched off under the vehicle and the thrust lost [s]
+    with the attack and without it, what was refused."""
+    if not runs:
+        return None
+    return {"runs": len(runs),
+            "switched_off_under_vehicle": {k: sum(r[k]["switched_off_under_vehicle"] for r in runs)
+                                           for k in ("clean", "attacked")},
+            "thrust_loss_s": {k: sum(r[k]["thrust_loss_s"] for r in runs) for k in ("clean", "attacked")},
+            "max_extra_thrust_loss_s": max(r["attacked"]["thrust_loss_s"] - r["clean"]["thrust_loss_s"] for r in runs),
+            "refused": _tally(r["attacked"]["refused"] for r in runs)}
 
 
 def _tally(dicts) -> dict:

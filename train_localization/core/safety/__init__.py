@@ -8,4 +8,6 @@ admits, and how it tells a stream that has gone stale.
   plausibility.py  MotionGate: a state (or report) whose interval or speed the last admitted one
                    rules out over the elapsed time is refused
   state_stream.py  StateStream: the two in order for a stream of states
+  fused_state.py   FusedStateStream: a train's TrainState stream as the wayside consumers admit
+                   it (on a network, a new section placed on the last one's axis)
 """

@@ -30,13 +30,13 @@ consumer's clock (refused and silent alike): the consumer then reacts as if it h
 """
 from __future__ import annotations
 
-from .measurements import MAX_CHAINAGE, MAX_SPEED
-from .network.model import THROUGH, SectionEnd
-from .safety import admission, plausibility
-from .safety.admission import MAX_ITEMS, StreamAdmission
-from .safety.plausibility import Motion, MotionGate, Reach, speed_bound
-from .sensors.base import resolve_params
-from .signals import InputRejected
+from ..measurements import MAX_CHAINAGE, MAX_SPEED
+from ..network.model import THROUGH, SectionEnd
+from ..sensors.base import resolve_params
+from ..signals import InputRejected
+from . import admission, plausibility
+from .admission import MAX_ITEMS, StreamAdmission
+from .plausibility import Motion, MotionGate, Reach, speed_bound
 
 PARAMS = {**admission.PARAMS, **plausibility.PARAMS}
 CLAIMED_MODES = (1, 2)     # TrainState MODE_NOMINAL, MODE_DEGRADED: a position is claimed

@@ -18,7 +18,7 @@ The wayside lags the train by its delays: the margin grows by |speed| x ``lag``.
 is raised once its condition has held for ``persist`` seconds and cleared when it stops.
 
 The ``crosscheck`` node admits its two inputs first (``CrossCheckInputs``, docs/reliability.md):
-the train's fused states through core/state_admission.py (stamps, values, sizes, kinematic
+the train's fused states through core/safety/fused_state.py (stamps, values, sizes, kinematic
 plausibility: a spoofed state far from the train is refused ``motion``) and the combined
 occupancy as occupancy.py's systems (``admit_report``). A stream with nothing admitted for
 its time-out (``input_timeout`` for the states, ``occupancy_timeout`` for the occupancy, which
@@ -36,7 +36,7 @@ from ..measurements import CLEAR, OCCUPIED, SectionOccupancy
 from ..safety.admission import StreamAdmission, StreamLimits
 from ..sensors.base import Param, check_declared, resolve_params
 from ..signals import InputRejected
-from ..state_admission import CLAIMED_MODES, PARAMS as STATE_PARAMS, FusedStateStream
+from ..safety.fused_state import CLAIMED_MODES, PARAMS as STATE_PARAMS, FusedStateStream
 from .occupancy import PARAMS as OCCUPANCY_PARAMS, admit_report
 
 PARAMS = {

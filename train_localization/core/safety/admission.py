@@ -117,7 +117,7 @@ class StreamAdmission:
         self.admitted += 1
         if self.last_stamp is None or stamp > self.last_stamp:
             self.last_stamp = stamp
-        self.admitted_at = now
+        self.admitted_at = now if now else stamp    # no clock yet: the stamp stands for it
 
     def refuse(self, exc: InputRejected) -> InputRejected:
         """Count a refusal (the stream's own or the consumer's further checks); returns it."""

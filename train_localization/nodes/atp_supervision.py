@@ -50,7 +50,7 @@ from ..core.convert import etcs_event_from_msg, etcs_report_from_msg
 from ..core.etcs import admission, supervision
 from ..core.etcs.records import Reaction
 from ..core.signals import InputRejected
-from .common import STREAM_QOS, ConfigurationError, Diagnostics, declare, now_sec, rclpy_classes, spin
+from .common import STREAM_QOS, ConfigurationError, Diagnostics, declare, declare_params, now_sec, rclpy_classes, spin
 
 REPORTS, EVENTS, AUTHORITY, COMMAND = ("localization/etcs", "localization/etcs_events", "atp/end_of_authority",
                                        "atp/command")
@@ -77,8 +77,9 @@ class AtpSupervisionNode(Node):
                                       "status or brake and otherwise at most this often [s]; 0 = for every report",
                                       read_only=True, limits=(0.0, 10.0))
         self._published: tuple | None = None     # (stamp [s], status, brake) of the last command
-        guard = {name: declare(self, name, p.default, p.description, read_only=True, limits=p.limits)
-                 for name, p in admission.PARAMS.items() if name not in ("input_timeout", "max_input_rate")}
+        # the report stream's time-out is report_timeout; nothing is shed (reports come at the state rate)
+        guard = declare_params(self, {name: p for name, p in admission.PARAMS.items()
+                                      if name not in ("input_timeout", "max_input_rate", "max_fix_rate")})
         self.inputs = admission.SupervisionAdmission(guard, self.sup.orientation, params["report_timeout"])
         self.mc = rclpy_classes()
         self.track_id = ""

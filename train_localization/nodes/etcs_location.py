@@ -44,7 +44,8 @@ from ..core.etcs.track_data import EtcsData
 from ..core.scenario import Scenario
 from ..core.signals import InputRejected
 from ..core.track import Track
-from .common import LATCHED_QOS, STREAM_QOS, ConfigurationError, Diagnostics, declare, now_sec, rclpy_classes, spin
+from .common import (LATCHED_QOS, STREAM_QOS, ConfigurationError, Diagnostics, declare, declare_params, now_sec,
+                     rclpy_classes, spin)
 
 FIX_TOPIC = "sensors/eurobalise/position"
 ALARM_HOLD = 30.0      # [s] of state time a linking or odometer alarm stays in the diagnostics
@@ -89,8 +90,7 @@ class EtcsLocationNode(Node):
         track, orientation = self._configuration()
         params = {name: declare(self, name, p.default, p.description, read_only=True, limits=p.limits)
                   for name, p in location.PARAMS.items() if name != "orientation"}
-        guard = {name: declare(self, name, p.default, p.description, read_only=True, limits=p.limits)
-                 for name, p in admission.PARAMS.items()}
+        guard = declare_params(self, admission.PARAMS)
         try:
             data = EtcsData.from_track(track)
         except ValueError as exc:

@@ -44,7 +44,8 @@ from ..core.safety.admission import StreamAdmission, StreamLimits
 from ..core.safety.plausibility import Motion, MotionGate, speed_bound
 from ..core.safety.state_stream import StateStream
 from ..core.signals import InputRejected
-from .common import STREAM_QOS, ConfigurationError, Diagnostics, declare, now_sec, rclpy_classes, required_scenario, spin
+from .common import (STREAM_QOS, ConfigurationError, Diagnostics, declare, declare_params, now_sec, rclpy_classes,
+                     required_scenario, spin)
 
 STATE, COMMAND = "localization/state", "atp/command"
 WATCHDOG_PERIOD = 0.1     # [s] of the node clock
@@ -63,8 +64,7 @@ class SpeedControllerNode(Node):
                                         "command (default: the scenario has an 'atp' section)", read_only=True))
         atp_timeout = float(declare(self, "atp_timeout", 1.0, "ATP commands older than this are stale: acted on "
                                     "as an emergency brake when require_atp [s]", read_only=True, limits=(0.01, 60.0)))
-        guard = {name: declare(self, name, p.default, p.description, read_only=True, limits=p.limits)
-                 for name, p in {**admission.PARAMS, **plausibility.PARAMS}.items()}
+        guard = declare_params(self, {**admission.PARAMS, **plausibility.PARAMS})
         self.states = StateStream(STATE, admission.limits_from(guard), MotionGate.from_params(guard))
         self.commands = StreamAdmission(COMMAND, StreamLimits(guard["future_tolerance"], atp_timeout, ordered=False))
         self.mc = rclpy_classes()

@@ -75,7 +75,7 @@ def main(argv=None) -> int:
         (out / "runs.json").write_text(json.dumps(results, indent=1, default=float))
         (out / "summary.json").write_text(json.dumps(summary, indent=1))
     bad = summary["overruns"] or summary["trips"] or summary["errors"] or summary["safe_front_violations"] \
-        or summary["releases_while_moving"]
+        or summary["releases_while_moving"] or summary["far_groups_taken"]
     return 1 if args.check and bad else 0
 
 

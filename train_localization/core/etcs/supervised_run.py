@@ -33,7 +33,7 @@ from ..measurements import PositionFix
 from .admission import LocationAdmission, SupervisionAdmission
 from .attacks import Attack, draw_attacks, stator_under_attack
 from .location import FusedState, LocationTracker, is_balise_fix
-from .records import LocationEvent, LocationReport
+from .records import EventKind, LocationEvent, LocationReport
 from .supervision import AtpDecision, Brake, Status, Supervision
 from .track_data import EtcsData
 
@@ -122,9 +122,16 @@ class EtcsSupervisor:
         if a is None or self.attacked.get(a.kind) or t < a.t or not run.estimates:
             return None
         self._count(a.kind)
-        est = run.estimates[-1]
-        return FusedState(t + a.ahead, est.position, est.position_min, est.position_max, 0.0, 0.001,
-                          est.confidence, 1)
+        x = self._train_position(run)
+        return FusedState(t + a.ahead, x, x - 1.0, x + 1.0, 0.0, 0.001, 0.999, 1)
+
+    def _train_position(self, run) -> float:
+        """Where an attacker who reads the published states places the train [m]: the last claimed
+        state's position, before any the line's first group (the train starts just behind it)."""
+        est = run.estimates[-1] if run.estimates else None
+        if est is not None and est.mode in (1, 2):
+            return est.position
+        return min(g.reference for g in self.tracker.data.groups.values())
 
     def _spoofed_report(self, report: LocationReport) -> LocationReport | None:
         """A report of a standstill just after a real one, 0.5 s into the first brake."""
@@ -140,10 +147,7 @@ class EtcsSupervisor:
         far = self.attacks.get("far_group")
         if far is not None and not self.attacked.get(far.kind) and t >= far.t:
             group = self.tracker.data.groups[far.group]
-            est = run.estimates[-1] if run.estimates else None
-            first = min(g.reference for g in self.tracker.data.groups.values())   # where the train starts
-            at_train = est.position if est is not None and est.mode in (1, 2) else first
-            position = group.positions[0] + 2.0 if far.consistent else at_train
+            position = group.positions[0] + 2.0 if far.consistent else self._train_position(run)
             out.append(PositionFix(t, "eurobalise", "attacker", self.tracker.data.track_id, group.balises[0],
                                    position, 0.5, 0))
             self._count(far.kind)
@@ -185,6 +189,7 @@ class StopResult:
     releases_while_moving: int = 0   # brake releases while the true speed was above 0.1 m/s
     refused: dict = field(default_factory=dict)    # <stream>/<reason> -> messages refused or shed
     stator: dict = field(default_factory=dict)     # attacks.stator_under_attack's, with a stator_spoof
+    lrbgs: list = field(default_factory=list)      # the groups that became the LRBG, in order
     attacked: dict = field(default_factory=dict)   # attack kind -> spoofed messages handed in
     supervisor: EtcsSupervisor | None = None
     loop: object = None
@@ -230,6 +235,7 @@ def supervised_stop(scenario, t_end: float | None = None, attacks: tuple[Attack,
                       max((int(d.status) for d in sup.decisions), default=int(Status.NORMAL)),
                       gap_min, over_max, kinds, releases_while_moving=released, refused=sup.refused(),
                       attacked=dict(sup.attacked), supervisor=sup, loop=loop,
+                      lrbgs=[e.nid_bg for e in sup.events if e.kind == EventKind.LRBG],
                       stator=stator_under_attack(loop, orientation, sup.attacks["stator_spoof"])
                       if "stator_spoof" in sup.attacks else {})
 
@@ -335,6 +341,8 @@ def stop_summary(results: list[dict]) -> dict:
             "interventions": sum(r["interventions"] for r in ok),
             "missed_linked_groups": sum(r["events"].get("missed_linked_group", 0) for r in ok),
             "releases_while_moving": sum(r["releases_while_moving"] for r in ok),
+            "far_groups_taken": sum(1 for r in ok for a in r.get("attacks", ()) if a["kind"] == "far_group"
+                                    and a["group"] in r["lrbgs"]),
             "attacks": _tally(r["attacked"] for r in ok),
             "refused": _tally(r["refused"] for r in ok),
             "stator": _stator_summary([r["stator"] for r in ok if r.get("stator")])}

@@ -127,17 +127,17 @@ def test_campaign_draws_resolve(family):
         _resolve_all(generate(family, seed))
 
 
-class _Extreme(campaign._Draw):
+class _Extreme(campaign.Draw):
     """The campaign's draws at one end of every range: ``hi`` the upper, else the lower
     (uniform, log-uniform and integer draws; every chance taken, or none)."""
 
     hi = False
 
     def u(self, lo, hi):
-        return campaign._g(hi if self.hi else lo)
+        return campaign.rounded(hi if self.hi else lo)
 
     def logu(self, lo, hi):
-        return campaign._g(hi if self.hi else lo)
+        return campaign.rounded(hi if self.hi else lo)
 
     def chance(self, p):
         return self.hi
@@ -152,7 +152,7 @@ def test_campaign_draws_at_the_ends_of_their_ranges_resolve(family, end, monkeyp
     """Every sensor parameter the campaign draws, at either end of its range (the wheel's top
     speed, the longest train's last axle, +-tolerance of the diameter error) is within limits."""
     monkeypatch.setattr(_Extreme, "hi", end == "hi")
-    monkeypatch.setattr(campaign, "_Draw", _Extreme)
+    monkeypatch.setattr(campaign, "Draw", _Extreme)
     data = generate(family, 0)
     _resolve_all(data)
     if family == "conventional" and end == "hi":

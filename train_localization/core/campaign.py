@@ -76,22 +76,22 @@ def jobs(n_runs: int, families=FAMILIES, base: int = 0) -> list[tuple[str, int]]
 
 
 # ----------------------------------------------------------------------------- drawing
-def _g(x: float, digits: int = 6) -> float:
+def rounded(x: float, digits: int = 6) -> float:
     """A float with ``digits`` significant digits (readable YAML; the rounded value is what runs)."""
     return float(f"{float(x):.{digits}g}")
 
 
-class _Draw:
+class Draw:
     """The run's random stream with the shapes of draw the generators use."""
 
     def __init__(self, seed: int):
         self.rng = np.random.default_rng(seed)
 
     def u(self, lo: float, hi: float) -> float:
-        return _g(self.rng.uniform(lo, hi))
+        return rounded(self.rng.uniform(lo, hi))
 
     def logu(self, lo: float, hi: float) -> float:
-        return _g(math.exp(self.rng.uniform(math.log(lo), math.log(hi))))
+        return rounded(math.exp(self.rng.uniform(math.log(lo), math.log(hi))))
 
     def chance(self, p: float) -> bool:
         return bool(self.rng.random() < p)
@@ -114,7 +114,7 @@ def _leg_time(v0: float, leg: dict) -> float:
     return t + 2.0 * leg["accel"] / leg["jerk"] + leg["hold"]
 
 
-def _stop_and_go_profile(d: _Draw, duration: float, v_top: float, v0: float, accel: tuple, decel: tuple,
+def _stop_and_go_profile(d: Draw, duration: float, v_top: float, v0: float, accel: tuple, decel: tuple,
                          jerk: tuple, dwell: tuple, hold: tuple, p_stop: float, reversal: bool,
                          reverse_speed: tuple, speeds: tuple = (0.4, 1.0)) -> tuple[list[dict], dict]:
     """Legs until ``duration`` is spent: runs at ``v_top`` times U(``speeds``) (the first at
@@ -130,13 +130,13 @@ def _stop_and_go_profile(d: _Draw, duration: float, v_top: float, v0: float, acc
         leg = {"accel": d.u(*accel), "decel": d.u(*decel), "jerk": d.u(*jerk)}
         if v == 0.0 and reversal and rev is None and stops > 0:
             rev = -d.u(*reverse_speed)
-            new = [{**leg, "speed": _g(rev), "hold": d.u(3.0, 15.0)},
+            new = [{**leg, "speed": rounded(rev), "hold": d.u(3.0, 15.0)},
                    {**leg, "speed": 0.0, "hold": d.u(*dwell)}]
         elif v != 0.0 and not first and (d.chance(p_stop) or reversal and rev is None and runs >= reverse_after):
             new = [{**leg, "speed": 0.0, "hold": d.u(*dwell)}]
             stops += 1
         else:
-            target = v_top if first else _g(v_top * d.u(*speeds))
+            target = v_top if first else rounded(v_top * d.u(*speeds))
             new = [{**leg, "speed": target, "hold": d.u(*hold)}]
             first = False
             runs += 1
@@ -144,7 +144,7 @@ def _stop_and_go_profile(d: _Draw, duration: float, v_top: float, v0: float, acc
             t += _leg_time(v, n)
             v = n["speed"]
             legs.append(n)
-    return legs, {"stops": stops, "reversal_speed_kmh": _g(rev * 3.6) if rev is not None else None}
+    return legs, {"stops": stops, "reversal_speed_kmh": rounded(rev * 3.6) if rev is not None else None}
 
 
 def _coarse(legs: list[dict], v0: float, duration: float) -> Trajectory:
@@ -152,7 +152,7 @@ def _coarse(legs: list[dict], v0: float, duration: float) -> Trajectory:
     return Trajectory.from_legs([Leg(**leg) for leg in legs], 0.0, v0, duration, 0.05)
 
 
-def _service(d: _Draw, duration: tuple, top_kmh: tuple, p_moving: float, start_fraction: tuple,
+def _service(d: Draw, duration: tuple, top_kmh: tuple, p_moving: float, start_fraction: tuple,
              p_reversal: float, **profile) -> tuple:
     """A family's run: its duration [s] drawn from ``duration``, a top speed from ``top_kmh``
     [km/h], a start at ``start_fraction`` of it with probability ``p_moving`` (else from rest),
@@ -161,9 +161,9 @@ def _service(d: _Draw, duration: tuple, top_kmh: tuple, p_moving: float, start_f
     arguments). Returns (duration, start speed [m/s], legs, profile summary, coarse trajectory)."""
     duration = d.u(*duration)
     v_top = d.u(*top_kmh) * KMH
-    v0 = _g(v_top * d.u(*start_fraction)) if d.chance(p_moving) else 0.0
+    v0 = rounded(v_top * d.u(*start_fraction)) if d.chance(p_moving) else 0.0
     reversal = d.chance(p_reversal) if p_reversal else False
-    legs, prof = _stop_and_go_profile(d, duration, _g(v_top), v0, reversal=reversal, **profile)
+    legs, prof = _stop_and_go_profile(d, duration, rounded(v_top), v0, reversal=reversal, **profile)
     return duration, v0, legs, prof, _coarse(legs, v0, duration)
 
 
@@ -173,7 +173,7 @@ def _service(d: _Draw, duration: tuple, top_kmh: tuple, p_moving: float, start_f
 MAX_HEADING_RANGE = 0.9 * math.pi
 
 
-def _alignment(d: _Draw, length: float, min_radius: float, max_radius: float) -> list[dict]:
+def _alignment(d: Draw, length: float, min_radius: float, max_radius: float) -> list[dict]:
     """Straights and curves of 300-4000 m, half of them curves of radius ``min_radius`` ..
     ``max_radius`` [m] either way. A curve turns the line only as far as MAX_HEADING_RANGE
     allows; the rest of its drawn length is straight (a 4 km curve of R = 400 m would turn it
@@ -181,11 +181,11 @@ def _alignment(d: _Draw, length: float, min_radius: float, max_radius: float) ->
     out, s, heading, lo, hi = [], 0.0, 0.0, 0.0, 0.0
     while s < length:
         seg = min(d.u(300.0, 4000.0), length - s)
-        curvature = 0.0 if d.chance(0.5) else _g((1 if d.chance(0.5) else -1) / d.u(min_radius, max_radius))
+        curvature = 0.0 if d.chance(0.5) else rounded((1 if d.chance(0.5) else -1) / d.u(min_radius, max_radius))
         s += seg
         if curvature:
             room = lo + MAX_HEADING_RANGE - heading if curvature > 0 else heading - (hi - MAX_HEADING_RANGE)
-            arc = _g(min(seg, max(room, 0.0) / abs(curvature)))
+            arc = rounded(min(seg, max(room, 0.0) / abs(curvature)))
             if arc >= 1.0:
                 out.append({"length": arc, "curvature": curvature})
                 heading += curvature * arc
@@ -193,28 +193,28 @@ def _alignment(d: _Draw, length: float, min_radius: float, max_radius: float) ->
                 seg -= arc
             if seg < 1.0:
                 continue
-        out.append({"length": _g(seg), "curvature": 0.0})
+        out.append({"length": rounded(seg), "curvature": 0.0})
     return out
 
 
-def _spaced(d: _Draw, start: float, end: float, spacing: float, jitter: float) -> list[float]:
+def _spaced(d: Draw, start: float, end: float, spacing: float, jitter: float) -> list[float]:
     """Positions from ``start`` to ``end`` with gaps spacing x U(1 - jitter, 1 + jitter)."""
     out, s = [], start
     while s <= end:
-        out.append(_g(s, 8))
+        out.append(rounded(s, 8))
         s += spacing * d.u(1.0 - jitter, 1.0 + jitter)
     return out
 
 
-def _place(d: _Draw, traj: Trajectory, rear: float, length: float, margin: float) -> tuple[float, float]:
+def _place(d: Draw, traj: Trajectory, rear: float, length: float, margin: float) -> tuple[float, float]:
     """(track length, start chainage) so that the whole run, train body included, stays on the track;
     the drawn ``length`` grows if the run needs more."""
     lo, hi = float(traj.position.min()) - rear - margin, float(traj.position.max()) + margin
-    length = max(length, _g(hi - lo + 2 * margin, 4))
-    return length, _g(d.u(-lo, length - hi), 8)
+    length = max(length, rounded(hi - lo + 2 * margin, 4))
+    return length, rounded(d.u(-lo, length - hi), 8)
 
 
-def _doppler(d: _Draw, duration: float) -> dict:
+def draw_doppler(d: Draw, duration: float) -> dict:
     """Doppler radar across its datasheet ranges (1 % class ground-speed radars): a mounting
     angle off by up to 2 tolerances, and in one run of six a scale fault of 2-8 % lasting
     5-40 s (water film, snow, a loosened mount), in half of them growing over up to 20 s
@@ -224,9 +224,10 @@ def _doppler(d: _Draw, duration: float) -> dict:
          "mount_angle_error": d.u(-0.4, 0.4)}
     if d.chance(1.0 / 6.0):
         t0 = d.u(0.1, 0.8) * duration
-        p["faults"] = f"{_g(t0, 4)}-{_g(t0 + d.u(5.0, 40.0), 4)}:{d.u(0.02, 0.08) * (1 if d.chance(0.5) else -1)}"
+        p["faults"] = (f"{rounded(t0, 4)}-{rounded(t0 + d.u(5.0, 40.0), 4)}:"
+                       f"{d.u(0.02, 0.08) * (1 if d.chance(0.5) else -1)}")
         if d.chance(0.5):
-            p["faults"] += f":{_g(d.u(1.0, 20.0), 3)}"
+            p["faults"] += f":{rounded(d.u(1.0, 20.0), 3)}"
     return p
 
 
@@ -236,7 +237,7 @@ def _balise_rate(v_top: float) -> float:
     return float(min(5000.0, max(1000.0, 500.0 * math.ceil(60.0 * v_top / 500.0))))
 
 
-def _reader(d: _Draw, v_top: float, location: tuple) -> dict:
+def draw_reader(d: Draw, v_top: float, location: tuple) -> dict:
     return {"sample_rate": _balise_rate(v_top), "telegram_error_rate": d.logu(1e-4, 0.2),
             "location_sigma": d.u(*location), "field_sigma": d.u(0.01, 0.08)}
 
@@ -250,14 +251,14 @@ def wheel_sample_rate(max_speed: float, diameter: float, tolerance: float) -> fl
     return 500.0 * math.ceil(max_speed / per_hz / 500.0 + 1e-9)
 
 
-def _delivery(d: _Draw, duration: float, sensors: list[str]) -> dict:
+def _delivery(d: Draw, duration: float, sensors: list[str]) -> dict:
     """Late/reordered delivery (each measurement U(0, max_delay) s late; a quarter of the runs
     in order) and link outages (all measurements of one sensor class lost for a while)."""
     max_delay = 0.0 if d.chance(0.25) else d.u(0.02, 0.5)
     outages = []
     for _ in range(d.int(0, 2)):
         t0 = d.u(0.0, duration)
-        outages.append({"sensor": sensors[d.int(0, len(sensors) - 1)], "t0": t0, "t1": _g(t0 + d.u(0.3, 5.0))})
+        outages.append({"sensor": sensors[d.int(0, len(sensors) - 1)], "t0": t0, "t1": rounded(t0 + d.u(0.3, 5.0))})
     return {"max_delay": max_delay, "seed": d.seed(), "outages": outages}
 
 
@@ -267,36 +268,37 @@ def _times_at(traj: Trajectory, x: float) -> np.ndarray:
     return traj.t[1:][np.diff(side) != 0]
 
 
-def _train(d: _Draw) -> dict:
+def draw_train(d: Draw) -> dict:
     """A conventional train: cars of two bogies with two axles each, its wheel diameter."""
     cars = d.int(2, 8)
     car_len = d.u(18.0, 27.0)
     axles = []
     for c in range(cars):
         for bogie in (c * car_len + 2.5, (c + 1) * car_len - 5.0):
-            axles += [_g(bogie), _g(bogie + 2.5)]
-    return {"type": "conventional", "length": _g(cars * car_len), "wheel_diameter": d.u(0.84, 0.96), "axles": axles}
+            axles += [rounded(bogie), rounded(bogie + 2.5)]
+    return {"type": "conventional", "length": rounded(cars * car_len), "wheel_diameter": d.u(0.84, 0.96),
+            "axles": axles}
 
 
-def _balises(d: _Draw, length: float, spacing: float) -> list[dict]:
+def _balises(d: Draw, length: float, spacing: float) -> list[dict]:
     """Balise locations along the track, single balises or groups of two."""
     group_share = d.u(0.0, 1.0)
     balises = []
     for n, x in enumerate(_spaced(d, d.u(50.0, spacing), length - 20.0, spacing, 0.25)):
         if d.chance(group_share):
             balises += [{"id": f"BG{n:03d}a", "position": x, "group": f"BG{n:03d}"},
-                        {"id": f"BG{n:03d}b", "position": _g(x + 3.0, 8), "group": f"BG{n:03d}"}]
+                        {"id": f"BG{n:03d}b", "position": rounded(x + 3.0, 8), "group": f"BG{n:03d}"}]
         else:
             balises.append({"id": f"EB{n:03d}", "position": x})
     return balises
 
 
-def _wheel_sensor(d: _Draw, v_max: float, wheel_d: float) -> dict:
+def draw_wheel_sensor(d: Draw, v_max: float, wheel_d: float) -> dict:
     """Wheel pulse generator across its ranges: diameter error within its tolerance, creep, a
     driven axle or not, poor adhesion (slip/slide rate, ratio up to 25 %, length), glitches."""
     tolerance = d.u(0.002, 0.012)
-    wheel = {"max_speed": _g(1.05 * v_max), "diameter_tolerance": tolerance,
-             "diameter_error": _g(tolerance * d.u(-1.0, 1.0)), "creep_coefficient": d.u(0.001, 0.004),
+    wheel = {"max_speed": rounded(1.05 * v_max), "diameter_tolerance": tolerance,
+             "diameter_error": rounded(tolerance * d.u(-1.0, 1.0)), "creep_coefficient": d.u(0.001, 0.004),
              "driven_axle": d.chance(0.7), "slip_rate": d.logu(0.005, 0.2),
              "slip_accel_threshold": d.u(0.3, 0.9), "slip_ratio_min": d.u(0.01, 0.04),
              "slip_ratio_max": d.u(0.05, 0.25), "slip_duration": d.u(0.5, 5.0), "glitch_rate": d.logu(0.001, 0.1)}
@@ -304,11 +306,11 @@ def _wheel_sensor(d: _Draw, v_max: float, wheel_d: float) -> dict:
     return wheel
 
 
-def _conventional(d: _Draw) -> tuple[dict, dict]:
+def _conventional(d: Draw) -> tuple[dict, dict]:
     duration, v0, legs, prof, traj = _service(
         d, (100.0, 200.0), (40.0, 300.0), 0.4, (0.3, 1.0), 0.45, accel=(0.3, 1.0), decel=(0.5, 1.2),
         jerk=(0.3, 1.0), dwell=(5.0, 30.0), hold=(5.0, 40.0), p_stop=0.4, reverse_speed=(1.5, 6.0))
-    vehicle = _train(d)
+    vehicle = draw_train(d)
     axles, wheel_d = vehicle["axles"], vehicle["wheel_diameter"]
     length, start = _place(d, traj, vehicle["length"], d.u(8000.0, 40000.0), 300.0)
     # wayside: balise locations (single balises or groups of two), axle-counter heads
@@ -329,13 +331,13 @@ def _conventional(d: _Draw) -> tuple[dict, dict]:
     passed = [h for h in heads if lo <= h["position"] <= hi] or \
         [min(heads, key=lambda h: abs(h["position"] - start))]
     v_max = max([abs(v0)] + [abs(leg["speed"]) for leg in legs])
-    wheel = _wheel_sensor(d, v_max, wheel_d)
+    wheel = draw_wheel_sensor(d, v_max, wheel_d)
     faults = []
     if d.chance(0.25):   # a missed axle at a head shortly before the train passes it
         head = passed[d.int(0, len(passed) - 1)]
         when = _times_at(traj, head["position"] - start)
         t_miss = float(when[0]) - d.u(1.0, 20.0) if when.size else d.u(0.0, duration)
-        faults.append(f"{head['id']}@{_g(max(t_miss, 0.0), 5)}:missed")
+        faults.append(f"{head['id']}@{rounded(max(t_miss, 0.0), 5)}:missed")
     if d.chance(0.1):    # a spurious axle (EMI, a track machine) at any of the unit's heads
         head = passed[d.int(0, len(passed) - 1)]
         faults.append(f"{head['id']}@{d.u(0.0, duration):.5g}:{'extra' if d.chance(0.5) else 'extra-'}")
@@ -343,11 +345,11 @@ def _conventional(d: _Draw) -> tuple[dict, dict]:
             "first_axle_offset": axles[0], "last_axle_offset": axles[-1] if d.chance(0.5) else 0.0,
             "noise_sigma": d.u(0.01, 0.04), "spike_rate": d.logu(0.001, 0.1),
             "head_position_sigma": d.u(0.01, 0.05), "faults": ";".join(faults)}
-    sensors = {"wheel_sensor": wheel, "doppler_radar": _doppler(d, duration),
-               "eurobalise_reader": _reader(d, v_max, (0.1, 0.5)), "axle_counter": axle}
+    sensors = {"wheel_sensor": wheel, "doppler_radar": draw_doppler(d, duration),
+               "eurobalise_reader": draw_reader(d, v_max, (0.1, 0.5)), "axle_counter": axle}
     scenario = {"duration": duration, "vehicle": vehicle, "initial": {"position": start, "speed": v0},
                 "profile": legs, "track": track, "sensors": sensors}
-    conditions = {"duration": duration, "top_speed_kmh": _g(v_max * 3.6), "start_speed_kmh": _g(v0 * 3.6),
+    conditions = {"duration": duration, "top_speed_kmh": rounded(v_max * 3.6), "start_speed_kmh": rounded(v0 * 3.6),
                   **prof, "track_length": length, "balise_spacing": balise_spacing, "head_spacing": head_spacing,
                   "heads_listed": len(passed), "axles": len(axles), "wheel_sample_rate": wheel["sample_rate"],
                   **{k: wheel[k] for k in ("slip_rate", "slip_ratio_max", "slip_duration", "slip_accel_threshold",
@@ -356,7 +358,7 @@ def _conventional(d: _Draw) -> tuple[dict, dict]:
     return scenario, conditions
 
 
-def _etcs(d: _Draw) -> tuple[dict, dict]:
+def _etcs(d: Draw) -> tuple[dict, dict]:
     """A conventional run (``_conventional``) on a line with ETCS data (core/etcs/track_data.py):
     every balise location a group of two 3 m apart, Q_LOCACC of 1-5 m per group (the reader's
     location error bounded by it), linking both ways with a drawn Q_LINKREACTION, and in a third
@@ -369,7 +371,7 @@ def _etcs(d: _Draw) -> tuple[dict, dict]:
     for n, (_, x) in enumerate(groups):
         q = (1.0, 1.0, 2.0, 3.0, 5.0)[d.int(0, 4)]
         balises += [{"id": f"BG{n:03d}a", "position": x, "group": f"BG{n:03d}", "q_locacc": q},
-                    {"id": f"BG{n:03d}b", "position": _g(x + 3.0, 8), "group": f"BG{n:03d}", "q_locacc": q}]
+                    {"id": f"BG{n:03d}b", "position": rounded(x + 3.0, 8), "group": f"BG{n:03d}", "q_locacc": q}]
     track["equipment"]["eurobalise"] = [b for b in balises if b["position"] <= track["length"]]
     reaction = ("service_brake", "train_trip", "none")[d.int(0, 2)]
     track["etcs"] = {"linking": "auto", "link_reaction": reaction}
@@ -386,28 +388,28 @@ def _etcs(d: _Draw) -> tuple[dict, dict]:
     return scenario, conditions
 
 
-def _tags(d: _Draw, length: float) -> tuple[float, list[dict]]:
+def _tags(d: Draw, length: float) -> tuple[float, list[dict]]:
     """(spacing [m], transponder tags or balises about that far apart along the line)."""
     spacing = d.u(50.0, 300.0)
     return spacing, [{"id": f"TG{n:03d}", "position": x}
                      for n, x in enumerate(_spaced(d, d.u(10.0, spacing), length - 10.0, spacing, 0.1))]
 
 
-def _belt(d: _Draw, front: np.ndarray, length: float, max_gaps: int) -> list[dict]:
+def _belt(d: Draw, front: np.ndarray, length: float, max_gaps: int) -> list[dict]:
     """Pattern-belt sections over the line, interrupted at up to ``max_gaps`` switches within
     the run's extent (``front``: the train front's chainages [m]); each section's period off
     by up to 6e-4 (FRP belt, thermal expansion)."""
-    gaps = sorted(_g(d.u(float(front.min()), float(front.max()) + 1.0), 8) for _ in range(d.int(0, max_gaps)))
+    gaps = sorted(rounded(d.u(float(front.min()), float(front.max()) + 1.0), 8) for _ in range(d.int(0, max_gaps)))
     belt, s0 = [], 0.0
     for g in gaps + [length]:
         if g - s0 > 20.0:
-            belt.append({"id": f"PB{len(belt):02d}", "position": _g(s0, 8), "end": _g(g, 8),
-                         "period": _g(0.6 * (1.0 + d.u(-6e-4, 6e-4)), 8)})
+            belt.append({"id": f"PB{len(belt):02d}", "position": rounded(s0, 8), "end": rounded(g, 8),
+                         "period": rounded(0.6 * (1.0 + d.u(-6e-4, 6e-4)), 8)})
             s0 = g + d.u(10.0, 40.0) if g < length else g
     return belt
 
 
-def _urban(d: _Draw) -> tuple[dict, dict]:
+def _urban(d: Draw) -> tuple[dict, dict]:
     duration, v0, legs, prof, traj = _service(
         d, (60.0, 120.0), (40.0, 100.0), 0.3, (0.3, 1.0), 0.3, accel=(0.8, 1.3), decel=(0.8, 1.3),
         jerk=(0.5, 1.2), dwell=(5.0, 20.0), hold=(0.0, 10.0), p_stop=0.8, reverse_speed=(1.0, 4.0),
@@ -422,29 +424,29 @@ def _urban(d: _Draw) -> tuple[dict, dict]:
     v_max = max([abs(v0)] + [abs(leg["speed"]) for leg in legs])
     sensors = {"pattern_belt": {"noise": d.u(0.01, 0.03), "gap_sigma": d.u(0.001, 0.003),
                                 "gain_mismatch": d.u(0.01, 0.05)},
-               "doppler_radar": _doppler(d, duration), "eurobalise_reader": _reader(d, v_max, (0.05, 0.3))}
+               "doppler_radar": draw_doppler(d, duration), "eurobalise_reader": draw_reader(d, v_max, (0.05, 0.3))}
     scenario = {"duration": duration, "vehicle": vehicle, "initial": {"position": start, "speed": v0},
                 "profile": legs, "track": track, "sensors": sensors}
-    conditions = {"duration": duration, "top_speed_kmh": _g(v_max * 3.6), "start_speed_kmh": _g(v0 * 3.6),
+    conditions = {"duration": duration, "top_speed_kmh": rounded(v_max * 3.6), "start_speed_kmh": rounded(v0 * 3.6),
                   **prof, "track_length": length, "tag_spacing": tag_spacing, "belt_gaps": len(belt) - 1,
                   "telegram_error_rate": sensors["eurobalise_reader"]["telegram_error_rate"]}
     return scenario, conditions
 
 
-def _highspeed_maglev(d: _Draw) -> tuple[dict, dict]:
+def _highspeed_maglev(d: Draw) -> tuple[dict, dict]:
     duration = d.u(40.0, 80.0)
     v0 = d.u(200.0, 500.0) * KMH
     cruise, decel = d.u(5.0, 20.0), d.u(0.5, 1.0)
     # a slowdown of 50-150 km/h (not below 150 km/h) that ends within the run
     drop = min(d.u(50.0, 150.0) * KMH, 0.6 * decel * (duration - cruise))
-    v_slow = _g(max(v0 - drop, 150.0 * KMH))
+    v_slow = rounded(max(v0 - drop, 150.0 * KMH))
     leg = {"jerk": d.u(0.3, 0.8)}
-    legs = [{**leg, "speed": _g(v0), "accel": 0.5, "decel": 0.8, "hold": cruise},
+    legs = [{**leg, "speed": rounded(v0), "accel": 0.5, "decel": 0.8, "hold": cruise},
             {**leg, "speed": v_slow, "accel": 0.5, "decel": decel, "hold": d.u(2.0, 10.0)},
-            {**leg, "speed": _g(max(v_slow, v0 * d.u(0.85, 1.0))), "accel": d.u(0.3, 0.8), "decel": 0.8,
+            {**leg, "speed": rounded(max(v_slow, v0 * d.u(0.85, 1.0))), "accel": d.u(0.3, 0.8), "decel": 0.8,
              "hold": 200.0}]
     vehicle = {"type": "maglev", "length": d.u(50.0, 130.0), "axles": []}
-    traj = _coarse(legs, _g(v0), duration)
+    traj = _coarse(legs, rounded(v0), duration)
     length, start = _place(d, traj, vehicle["length"], d.u(8000.0, 20000.0), 300.0)
     # INPO: blocks of adjacent sections, gaps without INPO between the blocks
     sections, gap_lengths, s = [], [], d.u(0.0, 1500.0)
@@ -452,14 +454,14 @@ def _highspeed_maglev(d: _Draw) -> tuple[dict, dict]:
         block_end = min(s + d.u(1500.0, 6000.0), length)
         while s < block_end - 100.0:
             end = min(s + d.u(1000.0, 3000.0), block_end)
-            sections.append({"id": f"INPO{len(sections):02d}", "position": _g(s, 8), "end": _g(end, 8)})
+            sections.append({"id": f"INPO{len(sections):02d}", "position": rounded(s, 8), "end": rounded(end, 8)})
             s = end
         gap = d.u(200.0, 2000.0)
         gap_lengths.append(gap)
         s = block_end + gap
     lrl_spacing = d.u(300.0, 1000.0)
     station_spacing = d.u(300.0, 800.0)
-    stations = [{"id": f"MW{n:03d}", "position": x, "offset": _g((1 if d.chance(0.5) else -1) * d.u(2.0, 10.0)),
+    stations = [{"id": f"MW{n:03d}", "position": x, "offset": rounded((1 if d.chance(0.5) else -1) * d.u(2.0, 10.0)),
                  "height": d.u(4.0, 8.0)}
                 for n, x in enumerate(_spaced(d, d.u(0.0, station_spacing), length, station_spacing, 0.1))]
     track = {"track_id": "campaign_maglev", "length": length, "alignment": _alignment(d, length, 4000.0, 20000.0),
@@ -472,7 +474,7 @@ def _highspeed_maglev(d: _Draw) -> tuple[dict, dict]:
     pos = np.array([st["position"] for st in stations])
     if d.chance(0.3):    # base-station outage: a block of consecutive stations around the train
         t0 = d.u(0.0, 0.8 * duration)
-        t1 = _g(t0 + d.u(2.0, 10.0))
+        t1 = rounded(t0 + d.u(2.0, 10.0))
         k = int(np.argmin(np.abs(pos - np.interp(t0, traj.t, front))))
         n = d.int(2, 4)
         first = min(max(k - n // 2, 0), len(stations) - n)
@@ -481,7 +483,7 @@ def _highspeed_maglev(d: _Draw) -> tuple[dict, dict]:
         outage = {"stations": ids, "t0": t0, "t1": t1}
     if d.chance(0.3):    # one station ranging with a bias (antenna-delay fault, a reflector)
         t0 = d.u(0.0, 0.8 * duration)
-        t1 = _g(t0 + d.u(2.0, 15.0))
+        t1 = rounded(t0 + d.u(2.0, 15.0))
         k = int(np.argmin(np.abs(pos - np.interp(t0, traj.t, front) - d.u(-300.0, 600.0))))
         bias = d.u(1.0, 4.0)
         faults.append(f"{stations[k]['id']}@{t0}-{t1}:{bias}")
@@ -489,19 +491,19 @@ def _highspeed_maglev(d: _Draw) -> tuple[dict, dict]:
     mmwave = {"nlos_rate": d.logu(0.01, 0.5), "nlos_bias_mean": d.u(0.3, 2.0), "dropout_prob": d.logu(0.005, 0.1),
               "cal_sigma": d.u(0.01, 0.05), "faults": ";".join(faults)}
     lrl = {"misread_probability": d.logu(1e-4, 0.05), "n_sensors": d.int(2, 4)}
-    sensors = {"doppler_radar": _doppler(d, duration), "inpo_receiver": {}, "lrl_scanner": lrl, "mmwave_ranging": mmwave}
-    scenario = {"duration": duration, "vehicle": vehicle, "initial": {"position": start, "speed": _g(v0)},
+    sensors = {"doppler_radar": draw_doppler(d, duration), "inpo_receiver": {}, "lrl_scanner": lrl, "mmwave_ranging": mmwave}
+    scenario = {"duration": duration, "vehicle": vehicle, "initial": {"position": start, "speed": rounded(v0)},
                 "profile": legs, "track": track, "sensors": sensors}
     covered = sum(sec["end"] - sec["position"] for sec in sections) / length
-    conditions = {"duration": duration, "top_speed_kmh": _g(v0 * 3.6), "slow_speed_kmh": _g(v_slow * 3.6),
-                  "track_length": length, "inpo_coverage": _g(covered, 3),
+    conditions = {"duration": duration, "top_speed_kmh": rounded(v0 * 3.6), "slow_speed_kmh": rounded(v_slow * 3.6),
+                  "track_length": length, "inpo_coverage": rounded(covered, 3),
                   "inpo_gap_max": max(gap_lengths) if gap_lengths else 0.0, "lrl_spacing": lrl_spacing,
                   "station_spacing": station_spacing, "station_outage": outage, "biased_station": biased,
                   "nlos_rate": mmwave["nlos_rate"], "misread_probability": lrl["misread_probability"]}
     return scenario, conditions
 
 
-def _lzb(d: _Draw) -> tuple[dict, dict]:
+def _lzb(d: Draw) -> tuple[dict, dict]:
     """A conventional high-speed line under LZB (seed 000 section 3.1): wheel, Doppler, balise
     groups and the cable loops (crossings every 100 m, loops up to 12.7 km, a short first loop
     at the start of the LZB area), runs at 160-300 km/h with stops; missed crossings, telegram
@@ -510,13 +512,13 @@ def _lzb(d: _Draw) -> tuple[dict, dict]:
         d, (100.0, 220.0), (160.0, 300.0), 0.5, (0.5, 1.0), 0.15, accel=(0.3, 0.9), decel=(0.5, 1.1),
         jerk=(0.3, 1.0), dwell=(5.0, 20.0), hold=(10.0, 60.0), p_stop=0.3, reverse_speed=(1.5, 5.0),
         speeds=(0.5, 1.0))
-    vehicle = _train(d)
+    vehicle = draw_train(d)
     length, start = _place(d, traj, vehicle["length"], d.u(10000.0, 40000.0), 300.0)
     loops, x = [], 0.0
     first = d.u(300.0, 1500.0)
     while x < length:
         end = min(x + (first if not loops else d.u(4000.0, 12700.0)), length)
-        loops.append({"id": f"L{len(loops) + 1:02d}", "number": len(loops) + 1, "position": _g(x, 8), "end": _g(end, 8)})
+        loops.append({"id": f"L{len(loops) + 1:02d}", "number": len(loops) + 1, "position": rounded(x, 8), "end": rounded(end, 8)})
         x = end
     balise_spacing = d.u(1000.0, 4000.0)
     track = {"track_id": "campaign_lzb", "length": length, "alignment": _alignment(d, length, 4000.0, 20000.0),
@@ -524,18 +526,18 @@ def _lzb(d: _Draw) -> tuple[dict, dict]:
     v_max = max([abs(v0)] + [abs(leg["speed"]) for leg in legs])
     lzb = {"miss_probability": d.logu(1e-3, 0.05), "crossing_sigma": d.u(0.05, 0.2), "survey_sigma": d.u(0.02, 0.1),
            "noise": d.u(0.005, 0.03), "level_sigma": d.u(0.05, 0.2), "telegram_error_rate": d.logu(1e-3, 0.1)}
-    sensors = {"wheel_sensor": _wheel_sensor(d, v_max, vehicle["wheel_diameter"]), "doppler_radar": _doppler(d, duration),
-               "eurobalise_reader": _reader(d, v_max, (0.1, 0.5)), "lzb_receiver": lzb}
+    sensors = {"wheel_sensor": draw_wheel_sensor(d, v_max, vehicle["wheel_diameter"]), "doppler_radar": draw_doppler(d, duration),
+               "eurobalise_reader": draw_reader(d, v_max, (0.1, 0.5)), "lzb_receiver": lzb}
     scenario = {"duration": duration, "vehicle": vehicle, "initial": {"position": start, "speed": v0},
                 "profile": legs, "track": track, "sensors": sensors}
-    conditions = {"duration": duration, "top_speed_kmh": _g(v_max * 3.6), "start_speed_kmh": _g(v0 * 3.6),
+    conditions = {"duration": duration, "top_speed_kmh": rounded(v_max * 3.6), "start_speed_kmh": rounded(v0 * 3.6),
                   **prof, "track_length": length, "loops": len(loops), "balise_spacing": balise_spacing,
                   "miss_probability": lzb["miss_probability"],
                   **{k: sensors["wheel_sensor"][k] for k in ("slip_rate", "slip_ratio_max", "slip_duration")}}
     return scenario, conditions
 
 
-def _urban_run(d: _Draw, top_kmh: tuple, vehicle_length: tuple, line_length: tuple, margin: float) -> tuple:
+def _urban_run(d: Draw, top_kmh: tuple, vehicle_length: tuple, line_length: tuple, margin: float) -> tuple:
     """An urban line's run (60-150 s with stops, sometimes a reversal) of a maglev_urban vehicle
     whose length [m] is drawn from ``vehicle_length``, placed on a line drawn from
     ``line_length`` [m] at least ``margin`` [m] from its ends: (duration, start speed, legs,
@@ -549,18 +551,18 @@ def _urban_run(d: _Draw, top_kmh: tuple, vehicle_length: tuple, line_length: tup
     return duration, v0, legs, prof, traj, vehicle, length, start
 
 
-def _dgps(d: _Draw, duration: float) -> dict:
+def draw_dgps(d: Draw, duration: float) -> dict:
     """DGPS receiver across its ranges (white noise, multipath), and in one run of five the
     correction link lost for 5-40 s (autonomous fixes)."""
     dgps = {"white_sigma": d.u(0.2, 0.8), "multipath_sigma": d.u(0.1, 0.6), "multipath_length": d.u(20.0, 100.0),
             "multipath_tau": d.u(20.0, 120.0)}
     if d.chance(0.2):
         t0 = d.u(0.0, 0.8 * duration)
-        dgps["faults"] = f"{_g(t0, 5)}-{_g(t0 + d.u(5.0, 40.0), 5)}:nocorr"
+        dgps["faults"] = f"{rounded(t0, 5)}-{rounded(t0 + d.u(5.0, 40.0), 5)}:nocorr"
     return dgps
 
 
-def _utm(d: _Draw) -> tuple[dict, dict]:
+def _utm(d: Draw) -> tuple[dict, dict]:
     """A UTM-02 type urban maglev line (seed 002 section 2.1.2): Doppler, DGPS and transponder
     tags; buildings, bridges and tunnels over the line (no fix under them, more multipath near
     them), a lost correction link in one run of five, tag misreads and installation errors."""
@@ -572,8 +574,8 @@ def _utm(d: _Draw) -> tuple[dict, dict]:
         kind = ("building", "bridge", "tunnel")[d.int(0, 2)]
         extent = d.u(*{"building": (40.0, 150.0), "bridge": (10.0, 30.0), "tunnel": (100.0, 800.0)}[kind])
         x0 = d.u(float(front.min()) - 100.0, float(front.max()))
-        structures.append({"id": f"ST{n}", "type": kind, "start": _g(max(x0, 0.0), 8),
-                           "end": _g(min(x0 + extent, length), 8)})
+        structures.append({"id": f"ST{n}", "type": kind, "start": rounded(max(x0, 0.0), 8),
+                           "end": rounded(min(x0 + extent, length), 8)})
     structures.sort(key=lambda st: st["start"])
     kept = []   # structures do not overlap
     for st in structures:
@@ -584,20 +586,20 @@ def _utm(d: _Draw) -> tuple[dict, dict]:
              "alignment": _alignment(d, length, 300.0, 1500.0),
              "equipment": {"structure": kept, "transponder_tag": tags}}
     v_max = max([abs(v0)] + [abs(leg["speed"]) for leg in legs])
-    dgps = _dgps(d, duration)
+    dgps = draw_dgps(d, duration)
     tag = {"telegram_error_rate": d.logu(1e-4, 0.1), "install_sigma": d.u(0.02, 0.1),
-           "coupling_sigma": d.u(0.02, 0.1), "max_speed": _g(max(42.0, 1.2 * v_max))}
-    sensors = {"doppler_radar": _doppler(d, duration), "dgps_receiver": dgps, "tag_reader": tag}
+           "coupling_sigma": d.u(0.02, 0.1), "max_speed": rounded(max(42.0, 1.2 * v_max))}
+    sensors = {"doppler_radar": draw_doppler(d, duration), "dgps_receiver": dgps, "tag_reader": tag}
     scenario = {"duration": duration, "vehicle": vehicle, "initial": {"position": start, "speed": v0},
                 "profile": legs, "track": track, "sensors": sensors}
-    conditions = {"duration": duration, "top_speed_kmh": _g(v_max * 3.6), "start_speed_kmh": _g(v0 * 3.6),
+    conditions = {"duration": duration, "top_speed_kmh": rounded(v_max * 3.6), "start_speed_kmh": rounded(v0 * 3.6),
                   **prof, "track_length": length, "structures": [st["type"] for st in kept],
                   "tag_spacing": tag_spacing, "dgps_faults": dgps.get("faults", ""),
                   "telegram_error_rate": tag["telegram_error_rate"]}
     return scenario, conditions
 
 
-def _mlx(d: _Draw) -> tuple[dict, dict]:
+def _mlx(d: Draw) -> tuple[dict, dict]:
     """An MLX-type superconducting maglev (seed 002 section 2.2.2): wheels at low speed (slips),
     the EMF observer of the LSM drive above its minimum speed, the wayside coil counter and
     mm-wave ranging (NLOS, a biased or silent station); from a standstill or at speed, up to
@@ -610,7 +612,7 @@ def _mlx(d: _Draw) -> tuple[dict, dict]:
     vehicle = {"type": "maglev", "length": d.u(50.0, 130.0), "wheel_diameter": wheel_d, "axles": []}
     length, start = _place(d, traj, vehicle["length"], d.u(8000.0, 30000.0), 300.0)
     station_spacing = d.u(300.0, 800.0)
-    stations = [{"id": f"MW{n:03d}", "position": x, "offset": _g((1 if d.chance(0.5) else -1) * d.u(2.0, 10.0)),
+    stations = [{"id": f"MW{n:03d}", "position": x, "offset": rounded((1 if d.chance(0.5) else -1) * d.u(2.0, 10.0)),
                  "height": d.u(4.0, 8.0)}
                 for n, x in enumerate(_spaced(d, d.u(0.0, station_spacing), length, station_spacing, 0.1))]
     track = {"track_id": "campaign_mlx", "length": length, "alignment": _alignment(d, length, 4000.0, 20000.0),
@@ -622,11 +624,11 @@ def _mlx(d: _Draw) -> tuple[dict, dict]:
         t0 = d.u(0.0, 0.8 * duration)
         k = int(np.argmin(np.abs(np.array([st["position"] for st in stations])
                                  - np.interp(t0, traj.t, traj.position + start))))
-        faults.append(f"{stations[k]['id']}@{t0}-{_g(t0 + d.u(2.0, 15.0))}:{d.u(1.0, 4.0)}")
-    wheel = _wheel_sensor(d, v_max, wheel_d)
+        faults.append(f"{stations[k]['id']}@{t0}-{rounded(t0 + d.u(2.0, 15.0))}:{d.u(1.0, 4.0)}")
+    wheel = draw_wheel_sensor(d, v_max, wheel_d)
     sensors = {"wheel_sensor": wheel,
                "coil_counter": {"gap_sigma": d.u(0.001, 0.005), "noise": d.u(0.005, 0.03),
-                                "gain_sigma": d.u(0.01, 0.05), "max_speed": _g(max(150.0, 1.1 * v_max))},
+                                "gain_sigma": d.u(0.01, 0.05), "max_speed": rounded(max(150.0, 1.1 * v_max))},
                "emf_observer": {"resistance_tolerance": d.u(0.02, 0.1), "inductance_tolerance": d.u(0.01, 0.05),
                                 "voltage_noise": d.u(10.0, 40.0), "harmonic5": d.u(0.0, 0.05)},
                "mmwave_ranging": {"nlos_rate": d.logu(0.01, 0.3), "nlos_bias_mean": d.u(0.3, 2.0),
@@ -634,14 +636,14 @@ def _mlx(d: _Draw) -> tuple[dict, dict]:
                                   "faults": ";".join(faults)}}
     scenario = {"duration": duration, "vehicle": vehicle, "initial": {"position": start, "speed": v0},
                 "profile": legs, "track": track, "sensors": sensors}
-    conditions = {"duration": duration, "top_speed_kmh": _g(v_max * 3.6), "start_speed_kmh": _g(v0 * 3.6),
+    conditions = {"duration": duration, "top_speed_kmh": rounded(v_max * 3.6), "start_speed_kmh": rounded(v0 * 3.6),
                   **prof, "track_length": length, "station_spacing": station_spacing,
                   "nlos_rate": sensors["mmwave_ranging"]["nlos_rate"], "station_faults": ";".join(faults),
                   **{k: wheel[k] for k in ("slip_rate", "slip_ratio_max", "slip_duration")}}
     return scenario, conditions
 
 
-def _hsst(d: _Draw) -> tuple[dict, dict]:
+def _hsst(d: Draw) -> tuple[dict, dict]:
     """An HSST-type urban maglev line (seed 000 section 2.2.1, seed 002 section 2.1.1): the
     pattern belt on board (interrupted at switches) and the wayside check-in / check-out block
     loops as the only absolute references (a fix of the train front at each block boundary);
@@ -652,7 +654,7 @@ def _hsst(d: _Draw) -> tuple[dict, dict]:
     front = traj.position + start
     block_length = d.u(150.0, 500.0)
     edges = np.arange(0.0, length - 1.0, block_length)
-    blocks = [{"id": f"B{n:03d}", "start": _g(x, 8), "end": _g(min(x + block_length, length), 8)}
+    blocks = [{"id": f"B{n:03d}", "start": rounded(x, 8), "end": rounded(min(x + block_length, length), 8)}
               for n, x in enumerate(edges)]
     belt = _belt(d, front, length, 2)
     track = {"track_id": "campaign_hsst", "length": length, "origin": {"x": 0.0, "y": 0.0, "heading": 1.5708},
@@ -661,26 +663,27 @@ def _hsst(d: _Draw) -> tuple[dict, dict]:
     v_max = max([abs(v0)] + [abs(leg["speed"]) for leg in legs])
     faults = []
     if d.chance(0.1):
-        faults.append(f"rear@{_g(d.u(0.2, 0.8) * duration, 5)}:tx_failed")
+        faults.append(f"rear@{rounded(d.u(0.2, 0.8) * duration, 5)}:tx_failed")
     for _ in range(d.int(0, 2)):
         t0 = d.u(0.0, duration)
-        faults.append(f"{blocks[d.int(0, len(blocks) - 1)]['id']}@{_g(t0, 5)}-{_g(t0 + d.u(0.05, 2.0), 5)}:noise_burst")
+        faults.append(f"{blocks[d.int(0, len(blocks) - 1)]['id']}@{rounded(t0, 5)}-"
+                      f"{rounded(t0 + d.u(0.05, 2.0), 5)}:noise_burst")
     checkin = {"height_sigma": d.u(0.005, 0.04), "offset_sigma": d.u(0.005, 0.05), "boundary_sigma": d.u(0.02, 0.1),
                "adjust_sigma": d.u(0.01, 0.06), "noise_sigma": d.u(0.01, 0.05), "loop_attenuation": d.u(1.0, 3.0),
-               "max_train_length": _g(max(100.0, 2.0 * vehicle["length"])),
-               "max_speed": _g(max(30.0, 1.1 * v_max)), "faults": ";".join(faults)}
+               "max_train_length": rounded(max(100.0, 2.0 * vehicle["length"])),
+               "max_speed": rounded(max(30.0, 1.1 * v_max)), "faults": ";".join(faults)}
     sensors = {"pattern_belt": {"noise": d.u(0.01, 0.03), "gap_sigma": d.u(0.001, 0.003),
                                 "gain_mismatch": d.u(0.01, 0.05)},
                "checkin_loop": checkin}
     scenario = {"duration": duration, "vehicle": vehicle, "initial": {"position": start, "speed": v0},
                 "profile": legs, "track": track, "sensors": sensors}
-    conditions = {"duration": duration, "top_speed_kmh": _g(v_max * 3.6), "start_speed_kmh": _g(v0 * 3.6),
+    conditions = {"duration": duration, "top_speed_kmh": rounded(v_max * 3.6), "start_speed_kmh": rounded(v0 * 3.6),
                   **prof, "track_length": length, "block_length": block_length, "belt_gaps": len(belt) - 1,
                   "checkin_faults": checkin["faults"]}
     return scenario, conditions
 
 
-def _mbahn(d: _Draw) -> tuple[dict, dict]:
+def _mbahn(d: Draw) -> tuple[dict, dict]:
     """An M-Bahn-type long-stator line (seed 000 section 2.1.3): the pole-position transmitter's
     signal in the stator gives distance and speed, transponder tags the absolute position;
     pole pitch scale, oscillator offset, winding harmonics, drive residual and noise, tag
@@ -692,13 +695,13 @@ def _mbahn(d: _Draw) -> tuple[dict, dict]:
              "alignment": _alignment(d, length, 300.0, 1500.0), "equipment": {"transponder_tag": tags}}
     v_max = max([abs(v0)] + [abs(leg["speed"]) for leg in legs])
     pole = {"oscillator_ppm": d.u(0.0, 100.0), "harmonic5": d.u(0.0, 0.05), "drive_residual": d.u(0.1, 0.8),
-            "noise": d.u(0.01, 0.05), "pitch_scale_sigma": d.u(5e-5, 3e-4), "top_speed": _g(max(22.2, v_max))}
+            "noise": d.u(0.01, 0.05), "pitch_scale_sigma": d.u(5e-5, 3e-4), "top_speed": rounded(max(22.2, v_max))}
     tag = {"telegram_error_rate": d.logu(1e-4, 0.1), "install_sigma": d.u(0.02, 0.1),
-           "coupling_sigma": d.u(0.02, 0.1), "max_speed": _g(max(42.0, 1.2 * v_max))}
+           "coupling_sigma": d.u(0.02, 0.1), "max_speed": rounded(max(42.0, 1.2 * v_max))}
     sensors = {"pole_position": pole, "tag_reader": tag}
     scenario = {"duration": duration, "vehicle": vehicle, "initial": {"position": start, "speed": v0},
                 "profile": legs, "track": track, "sensors": sensors}
-    conditions = {"duration": duration, "top_speed_kmh": _g(v_max * 3.6), "start_speed_kmh": _g(v0 * 3.6),
+    conditions = {"duration": duration, "top_speed_kmh": rounded(v_max * 3.6), "start_speed_kmh": rounded(v0 * 3.6),
                   **prof, "track_length": length, "tag_spacing": tag_spacing,
                   "telegram_error_rate": tag["telegram_error_rate"], "pole_noise": pole["noise"]}
     return scenario, conditions
@@ -710,7 +713,7 @@ P_SWITCH_WRONG, P_SWITCH_UNKNOWN = 0.25, 0.15
 P_GYRO = 0.75   # share of the network runs whose train has a yaw-rate gyro (the others: without, as before)
 
 
-def _network(d: _Draw) -> tuple[dict, dict]:
+def _network(d: Draw) -> tuple[dict, dict]:
     """A conventional train through a drawn station throat (core/network/draw.py: crossovers
     between parallel tracks 4-5 m apart, turnouts to further tracks, passing loops, junctions):
     wheel, Doppler, Eurobalise and DGPS on board; a route through the network (either way at
@@ -724,11 +727,11 @@ def _network(d: _Draw) -> tuple[dict, dict]:
         d, (60.0, 180.0), (30.0, 100.0), 0.0, (0.3, 1.0), 0.2, accel=(0.3, 1.0), decel=(0.5, 1.2),
         jerk=(0.3, 1.0), dwell=(5.0, 30.0), hold=(5.0, 30.0), p_stop=0.4, reverse_speed=(1.0, 4.0),
         speeds=(0.4, 1.0))
-    vehicle = _train(d)
+    vehicle = draw_train(d)
     reach = float(traj.position.max())
     # room behind the start for the train and a reversal; every route runs on past the run's
     # reach by 150 m and a crawl (core/hard_conditions.py) at up to 0.3 m/s for the whole run
-    start = _g(vehicle["length"] + max(0.0, -float(traj.position.min())) + d.u(30.0, 200.0), 8)
+    start = rounded(vehicle["length"] + max(0.0, -float(traj.position.min())) + d.u(30.0, 200.0), 8)
     drawn = draw_network(d, "campaign_network", start, reach + 150.0 + 0.3 * duration, reach)
     sections = pick_route(d, drawn.routes)
     path = route_path(drawn.model, sections, drawn.start_direction)
@@ -742,9 +745,9 @@ def _network(d: _Draw) -> tuple[dict, dict]:
             reported[node] = ""
             unknown.append(node)
     v_max = max(abs(leg["speed"]) for leg in legs)
-    wheel = _wheel_sensor(d, v_max, vehicle["wheel_diameter"])
-    sensors = {"wheel_sensor": wheel, "doppler_radar": _doppler(d, duration),
-               "eurobalise_reader": _reader(d, v_max, (0.1, 0.5)), "dgps_receiver": _dgps(d, duration)}
+    wheel = draw_wheel_sensor(d, v_max, vehicle["wheel_diameter"])
+    sensors = {"wheel_sensor": wheel, "doppler_radar": draw_doppler(d, duration),
+               "eurobalise_reader": draw_reader(d, v_max, (0.1, 0.5)), "dgps_receiver": draw_dgps(d, duration)}
     if d.chance(P_GYRO):   # a yaw-rate gyro: MEMS grades from navigation to consumer
         sensors["gyro"] = {"noise_density": d.logu(5.0e-5, 1.0e-3), "bias_sigma": d.logu(1.0e-4, 3.0e-3),
                            "scale_sigma": d.u(0.002, 0.02)}
@@ -754,8 +757,8 @@ def _network(d: _Draw) -> tuple[dict, dict]:
     scenario = {"duration": duration, "vehicle": vehicle, "initial": {"position": drawn.start_chainage, "speed": v0},
                 "profile": legs, "track": drawn.network, "route": route, "sensors": sensors}
     on_route = [it for st in path.steps for it in drawn.model.section(st.section).items("eurobalise")]
-    conditions = {"duration": duration, "top_speed_kmh": _g(v_max * 3.6), "start_speed_kmh": _g(v0 * 3.6), **prof,
-                  "network": drawn.shape, "route": sections, "route_length": _g(path.end - path.begin),
+    conditions = {"duration": duration, "top_speed_kmh": rounded(v_max * 3.6), "start_speed_kmh": rounded(v0 * 3.6),
+                  **prof, "network": drawn.shape, "route": sections, "route_length": rounded(path.end - path.begin),
                   "start_m": start, "facing_switches": len(path.ways()), "facing_switches_reached": len(reached),
                   "switches_reported_wrong": wrong, "switches_reported_unknown": unknown,
                   "wrong_switches_reached": [n for n in wrong if n in reached],
@@ -765,7 +768,7 @@ def _network(d: _Draw) -> tuple[dict, dict]:
     return scenario, conditions
 
 
-def _route_hard_conditions(d: _Draw, family: str, body: dict, conditions: dict, coarse: Trajectory) -> dict | None:
+def _route_hard_conditions(d: Draw, family: str, body: dict, conditions: dict, coarse: Trajectory) -> dict | None:
     """hard_conditions.draw for a train on a network: it sees the train's route line (its
     chainage, its balises) in place of a track; the balises a tunnel stop takes off the route
     line are taken off their sections."""
@@ -799,7 +802,7 @@ def _stator_sections(family: str, seed: int, body: dict, v_max: float, max_delay
     rng = np.random.default_rng([seed, 5000, ALL_FAMILIES.index(family)])
     least = stator.min_section_length(stator.controller_params(), body["vehicle"]["length"],
                                       v_max, STATOR_WIDTH, max_delay + 2.0 / FUSION_RATE)
-    return stator.lay_sections(0.0, body["track"]["length"], _g(least * rng.uniform(1.0, 1.5)))
+    return stator.lay_sections(0.0, body["track"]["length"], rounded(least * rng.uniform(1.0, 1.5)))
 
 
 TDOA_SHARE = 0.5          # share of the mlx runs whose radio positions by time differences
@@ -818,15 +821,16 @@ def _tdoa_ranging(seed: int, body: dict, conditions: dict) -> None:
         return
     twr = body["sensors"].pop("mmwave_ranging")
     tdoa = {k: twr[k] for k in ("nlos_rate", "nlos_bias_mean", "dropout_prob", "faults")}
-    tdoa.update(sync_sigma=_g(rng.uniform(0.1, 1.0)), clock_drift=_g(rng.uniform(0.5, 10.0)),
-                max_range=_g(2.6 * conditions["station_spacing"] + 100.0))
+    tdoa.update(sync_sigma=rounded(rng.uniform(0.1, 1.0)), clock_drift=rounded(rng.uniform(0.5, 10.0)),
+                max_range=rounded(2.6 * conditions["station_spacing"] + 100.0))
     if rng.random() < 1.0 / 3.0:
         stations = body["track"]["equipment"]["mmwave_station"]
         t0 = float(rng.uniform(0.0, 0.8 * body["duration"]))
         traj = _coarse(body["profile"], body["initial"]["speed"], body["duration"])
         front = float(np.interp(t0, traj.t, traj.position)) + body["initial"]["position"]
         k = int(np.argmin([abs(st["position"] - front) for st in stations]))
-        fault = f"{stations[k]['id']}@{_g(t0)}-{_g(t0 + rng.uniform(2.0, 15.0))}:sync={_g(rng.uniform(0.5, 5.0))}"
+        fault = (f"{stations[k]['id']}@{rounded(t0)}-{rounded(t0 + rng.uniform(2.0, 15.0))}:"
+                 f"sync={rounded(rng.uniform(0.5, 5.0))}")
         tdoa["faults"] = ";".join(filter(None, [tdoa["faults"], fault]))
         conditions["sync_fault"] = fault
     body["sensors"]["mmwave_tdoa"] = tdoa
@@ -844,7 +848,7 @@ def generate(family: str, seed: int, max_duration: float | None = None) -> dict:
     """
     if family not in _GENERATORS:
         raise ValueError(f"unknown family {family!r}; known: {', '.join(ALL_FAMILIES)}")
-    d = _Draw(seed)
+    d = Draw(seed)
     body, conditions = _GENERATORS[family](d)
     if family == "mlx":
         _tdoa_ranging(seed, body, conditions)

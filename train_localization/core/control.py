@@ -223,7 +223,7 @@ def closed_loop(scenario, t_end: float | None = None, fusion_rate: float = 200.0
     from .convert import canonical
     from .dynamics import Dynamics
     from .fusion import FusionRunner, fusion_config
-    from .offline import RunResult, _Output, sensor_pipelines
+    from .offline import RunResult, FusionFeed, sensor_pipelines
 
     if not scenario.control:
         raise ValueError(f"scenario {scenario.name} has no 'control' section")
@@ -233,7 +233,7 @@ def closed_loop(scenario, t_end: float | None = None, fusion_rate: float = 200.0
     pipes = sensor_pipelines(scenario)
     runner = FusionRunner(fusion_config(scenario), fusion_rate)
     run = RunResult(runner=runner)
-    out = _Output(runner, run, None, None, scenario.track.track_id)
+    out = FusionFeed(runner, run, None, None, scenario.track.track_id)
     res = ClosedLoopResult(setpoints=setpoints, dynamics=dyn, controller=ctrl, runner=runner)
     rig_pipes = [p for p in pipes if p.spec.sensor == "rig_loop"]
     t_end = scenario.duration if t_end is None else t_end

@@ -196,7 +196,7 @@ def simulate_scenario(scenario: Scenario, bag: str | Path | None = None, fusion_
     track_id = scenario.track.track_id
     t_end = scenario.duration if t_end is None else t_end
     n = int(round(t_end * scenario.truth_rate)) + 1
-    out = _Output(runner, result, writer, mc, track_id)
+    out = FusionFeed(runner, result, writer, mc, track_id)
     if writer:
         writer.write(SCENARIO_TOPIC, typestore_classes_string(scenario.to_yaml()), 0)
         write_interlocking(writer, mc, scenario, NAMESPACE)
@@ -243,7 +243,7 @@ def _recorded_scenario(reader) -> Scenario:
                      f"explicitly")
 
 
-class _Output:
+class FusionFeed:
     """Takes decoded measurements, feeds the fusion, collects and writes both.
 
     The measurements decoded since the last grid step are held and given to the
@@ -439,7 +439,7 @@ def can_fork() -> bool:
     return "fork" in multiprocessing.get_all_start_methods()
 
 
-def _fuse(items, out: _Output, bar) -> None:
+def _fuse(items, out: FusionFeed, bar) -> None:
     """Feed decoded (topic, log time [ns], item) triples, in log-time order, to the fusion."""
     result, writer = out.result, out.writer
     t_prev = None
@@ -525,7 +525,7 @@ def replay_bag(bag: str | Path, scenario: Scenario | None = None, out_bag: str |
                 items = ((topic, t_ns, decoder(topic, typename, data))
                          for topic, typename, t_ns, data in reader.cdr(topics))
             writer = BagWriter(out_bag) if out_bag else None
-            _fuse(items, _Output(runner, result, writer, mc, track_id), bar if not parallel else None)
+            _fuse(items, FusionFeed(runner, result, writer, mc, track_id), bar if not parallel else None)
     finally:
         if items is not None:
             items.close()   # parallel: ends the worker processes
@@ -568,7 +568,7 @@ def wayside_pipelines(scenario: Scenario, simulate: bool = True) -> dict[str, Se
 
 
 class _Line:
-    """The fusion side of a line run: every train's _Output, the wayside measurements and
+    """The fusion side of a line run: every train's FusionFeed, the wayside measurements and
     their association. Wayside fixes are associated with the fused states published
     before the truth step at which they are decoded, as an association node would."""
 
@@ -577,8 +577,8 @@ class _Line:
         self.outs = {}
         for name, train in scenario.trains.items():
             runner = fusion_runner(train, fusion_rate)
-            self.outs[name] = _Output(runner, RunResult(runner=runner), writer, mc, train.track.track_id,
-                                      train_namespace(train))
+            self.outs[name] = FusionFeed(runner, RunResult(runner=runner), writer, mc, train.track.track_id,
+                                         train_namespace(train))
         associator = Associator.for_trains({n: o.result.estimates for n, o in self.outs.items()},
                                            {n: o.track_id for n, o in self.outs.items()}, scenario.association,
                                            scenario.network)

@@ -14,7 +14,7 @@ from ..sensors import NODE_NAMES, spec as sensor_spec
 from ..sensors.base import ErrorModel, sensor_params
 
 
-def _doc(default, text: str, factory: bool = False, limits: tuple | None = None):
+def doc_field(default, text: str, factory: bool = False, limits: tuple | None = None):
     """A field with its description and, for a number, its inclusive (lo, hi) limits."""
     if factory:
         return field(default_factory=default, metadata={"doc": text})
@@ -25,7 +25,7 @@ PROBABILITY = (1.0e-9, 1.0 - 1.0e-9)
 
 
 def check_limits(obj, fields_) -> None:
-    """ValueError naming the first of ``fields_`` (with a ``limits`` from ``_doc``) whose value in
+    """ValueError naming the first of ``fields_`` (with a ``limits`` from ``doc_field``) whose value in
     ``obj`` lies outside its limits."""
     for f in fields_:
         value, limits = getattr(obj, f.name), f.metadata.get("limits")
@@ -58,60 +58,61 @@ def default_models() -> dict[str, ErrorModel]:
 class FusionConfig:
     """Global tuning of the filter; every field but ``sensors`` is a fusion node parameter."""
 
-    track_id: str = _doc("", "track id of the published states")
-    sensors: dict = _doc(default_models, "sensor class -> ErrorModel of the configured sensors "
-                                         "(built from their parameters, not a node parameter)", True)
-    overrides: dict = _doc(dict, "sensor class -> {error-model field: value}: replaces what the sensor's "
-                                 "own model says (core/sensors/base.py ErrorModel)", True)
-    track: object = _doc(None, "the track (core/track.py Track) whose ends bound the fixes taken (admission.py); "
-                               "None: not checked (not a node parameter)")
-    jerk_psd: float = _doc(0.1, "white-jerk spectral density of the motion model [m^2/s^5] (jerk-limited "
-                                "profiles, 0.5 m/s^3)", limits=(0.0, 100.0))
-    scale_psd: float = _doc(1e-9, "random-walk spectral density of the constant scale states [1/s]", limits=(0.0, 1.0e-3))
-    bias_psd: float = _doc(0.0, "random-walk spectral density of the bias states [m^2/s^3]", limits=(0.0, 1.0))
-    initial_speed_stddev: float = _doc(100.0, "prior 1-sigma of the speed [m/s] (unknown at start-up)", limits=(0.01, 1000.0))
-    initial_accel_stddev: float = _doc(1.0, "prior 1-sigma of the acceleration [m/s^2]", limits=(0.01, 10.0))
-    gate_probability: float = _doc(0.9999, "chi-square gate (1 dof) of every measurement (a sensor's error "
-                                           "model may set its own)", limits=PROBABILITY)
-    slip_gate_probability: float = _doc(0.999, "chi-square quantile above which a slip sensor's increment, or "
-                                               "its disagreement accumulated over slip_window, starts or "
-                                               "extends a slip/slide episode", limits=PROBABILITY)
-    slip_window: float = _doc(1.0, "window of the accumulated slip test [s]: a slip too small to show in one "
-                                   "increment (low speed, slow onset) shows in the sum; the increments of the "
-                                   "window are then excluded retroactively", limits=(0.05, 30.0))
-    slip_min_drive: float = _doc(0.2, "|acceleration| [m/s^2] below which a wheel transmits too little "
-                                      "traction or braking force to slip or slide (running resistance): a "
-                                      "disagreement then is as likely the other speed sources' fault", limits=(0.0, 5.0))
-    slip_holdoff: float = _doc(0.5, "a slip sensor stays excluded this long after its last disagreement [s]", limits=(0.0, 30.0))
-    slip_reference_timeout: float = _doc(1.0, "a disagreement is taken as a slip or slide (not as ambiguous) "
-                                              "only if another speed source was accepted within this time [s]", limits=(0.0, 30.0))
-    plausible_sigmas: float = _doc(4.0, "an error state (scale, bias) estimated beyond this many of its prior "
-                                        "1-sigma (and significantly so: beyond the slip gate of its own "
-                                        "variance) is implausible: the filter absorbed a fault; the relative "
-                                        "sensors' error states are re-learnt and the interval widened", limits=(1.0, 100.0))
-    consistency_fixes: int = _doc(5, "number of recent accepted absolute fixes whose mean NIS is monitored "
-                                     "(those of sensors without a fix-bias state together: independent "
-                                     "references; a sensor with one on its own)", limits=(2, 100))
-    consistency_probability: float = _doc(0.99, "chi-square quantile of that mean NIS above which the filter "
-                                                "is inconsistent: its covariance is scaled by the mean NIS "
-                                                "and the mode is DEGRADED until a fix agrees again", limits=PROBABILITY)
-    fault_onset_spacing: float = _doc(5.0, "a persistent fault of a relative sensor (a radar's scale fault) is "
-                                           "followed from onsets this far apart [s] (core/fusion/impact.py): the "
-                                           "interval covers what it put into the state since each",
-                                      limits=(0.05, 3600.0))
-    fault_onsets: int = _doc(8, "fault hypotheses followed per sensor with a persistent fault (the latest "
-                                "onsets, and older ones, going on or ended, whose effect is the largest)",
-                             limits=(2, 100))
-    branch_timeout: float = _doc(120.0, "longest time an unexplained (gated) fix is kept as an alternative "
-                                        "hypothesis [s]", limits=(0.0, 3600.0))
-    history: float = _doc(2.0, "how late a measurement may be [s]", limits=(0.01, 60.0))
-    confidence: float = _doc(0.999, "probability of [position_min, position_max]", limits=(0.5, 1.0 - 1.0e-9))
-    lost_stddev: float = _doc(100.0, "position 1-sigma above which the mode is LOST [m]", limits=(0.01, 1.0e6))
-    initial_position: float = _doc(math.nan, "chainage [m] where the train stands when the fusion starts, if "
-                                             "known (a stabling mark; the seed 003 rig's reference mark): the "
-                                             "filter starts there at rest instead of waiting for absolute fixes; "
-                                             "NaN: unknown")
-    initial_position_stddev: float = _doc(0.01, "1-sigma of initial_position [m]", limits=(1.0e-4, 1.0e4))
+    track_id: str = doc_field("", "track id of the published states")
+    sensors: dict = doc_field(default_models, "sensor class -> ErrorModel of the configured sensors "
+                                              "(built from their parameters, not a node parameter)", True)
+    overrides: dict = doc_field(dict, "sensor class -> {error-model field: value}: replaces what the sensor's "
+                                      "own model says (core/sensors/base.py ErrorModel)", True)
+    track: object = doc_field(None, "the track (core/track.py Track) whose ends bound the fixes taken (admission.py); "
+                                    "None: not checked (not a node parameter)")
+    jerk_psd: float = doc_field(0.1, "white-jerk spectral density of the motion model [m^2/s^5] (jerk-limited "
+                                     "profiles, 0.5 m/s^3)", limits=(0.0, 100.0))
+    scale_psd: float = doc_field(1e-9, "random-walk spectral density of the constant scale states [1/s]", limits=(0.0, 1.0e-3))
+    bias_psd: float = doc_field(0.0, "random-walk spectral density of the bias states [m^2/s^3]", limits=(0.0, 1.0))
+    initial_speed_stddev: float = doc_field(100.0, "prior 1-sigma of the speed [m/s] (unknown at start-up)", limits=(0.01, 1000.0))
+    initial_accel_stddev: float = doc_field(1.0, "prior 1-sigma of the acceleration [m/s^2]", limits=(0.01, 10.0))
+    gate_probability: float = doc_field(0.9999, "chi-square gate (1 dof) of every measurement (a sensor's error "
+                                                "model may set its own)", limits=PROBABILITY)
+    slip_gate_probability: float = doc_field(0.999, "chi-square quantile above which a slip sensor's increment, or "
+                                                    "its disagreement accumulated over slip_window, starts or "
+                                                    "extends a slip/slide episode", limits=PROBABILITY)
+    slip_window: float = doc_field(1.0, "window of the accumulated slip test [s]: a slip too small to show in one "
+                                        "increment (low speed, slow onset) shows in the sum; the increments of the "
+                                        "window are then excluded retroactively", limits=(0.05, 30.0))
+    slip_min_drive: float = doc_field(0.2, "|acceleration| [m/s^2] below which a wheel transmits too little "
+                                           "traction or braking force to slip or slide (running resistance): a "
+                                           "disagreement then is as likely the other speed sources' fault", limits=(0.0, 5.0))
+    slip_holdoff: float = doc_field(0.5, "a slip sensor stays excluded this long after its last disagreement [s]", limits=(0.0, 30.0))
+    slip_reference_timeout: float = doc_field(1.0, "a disagreement is taken as a slip or slide (not as ambiguous) "
+                                                   "only if another speed source was accepted within this time [s]", limits=(0.0, 30.0))
+    plausible_sigmas: float = doc_field(4.0, "an error state (scale, bias) estimated beyond this many of its prior "
+                                             "1-sigma (and significantly so: beyond the slip gate of its own "
+                                             "variance) is implausible: the filter absorbed a fault; the relative "
+                                             "sensors' error states are re-learnt and the interval widened", limits=(1.0, 100.0))
+    consistency_fixes: int = doc_field(5, "number of recent accepted absolute fixes whose mean NIS is monitored "
+                                          "(those of sensors without a fix-bias state together: independent "
+                                          "references; a sensor with one on its own)", limits=(2, 100))
+    consistency_probability: float = doc_field(0.99, "chi-square quantile of that mean NIS above which the filter "
+                                                     "is inconsistent: its covariance is scaled by the mean NIS "
+                                                     "and the mode is DEGRADED until a fix agrees again",
+                                                     limits=PROBABILITY)
+    fault_onset_spacing: float = doc_field(5.0, "a persistent fault of a relative sensor (a radar's scale fault) is "
+                                                "followed from onsets this far apart [s] (core/fusion/impact.py): the "
+                                                "interval covers what it put into the state since each",
+                                           limits=(0.05, 3600.0))
+    fault_onsets: int = doc_field(8, "fault hypotheses followed per sensor with a persistent fault (the latest "
+                                     "onsets, and older ones, going on or ended, whose effect is the largest)",
+                                  limits=(2, 100))
+    branch_timeout: float = doc_field(120.0, "longest time an unexplained (gated) fix is kept as an alternative "
+                                             "hypothesis [s]", limits=(0.0, 3600.0))
+    history: float = doc_field(2.0, "how late a measurement may be [s]", limits=(0.01, 60.0))
+    confidence: float = doc_field(0.999, "probability of [position_min, position_max]", limits=(0.5, 1.0 - 1.0e-9))
+    lost_stddev: float = doc_field(100.0, "position 1-sigma above which the mode is LOST [m]", limits=(0.01, 1.0e6))
+    initial_position: float = doc_field(math.nan, "chainage [m] where the train stands when the fusion starts, if "
+                                                  "known (a stabling mark; the seed 003 rig's reference mark): the "
+                                                  "filter starts there at rest instead of waiting for absolute fixes; "
+                                                  "NaN: unknown")
+    initial_position_stddev: float = doc_field(0.01, "1-sigma of initial_position [m]", limits=(1.0e-4, 1.0e4))
 
     def __post_init__(self):
         check_limits(self, self.tuning_fields())

@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
-from ..fusion.config import FusionConfig, _doc, check_limits, fusion_config, sensor_models
+from ..fusion.config import FusionConfig, doc_field, check_limits, fusion_config, sensor_models
 from ..sensors.base import ReferenceWindow
 from ..track import Track, extent
 
@@ -17,32 +17,33 @@ MAX_HYPOTHESES = 256   # the most a fusion may keep (max_hypotheses), and a Trac
 class NetworkConfig:
     """Where the train starts, and how evidence makes and removes track hypotheses."""
 
-    start_section: str = _doc("", "section the train front stands on when the fusion starts (a start of mission "
-                                  "on a known track)")
-    start_direction: int = _doc(1, "direction of travel along start_section's chainage: +1 increasing, -1 "
-                                   "decreasing", limits=(-1, 1))
-    wrong_switch_probability: float = _doc(1.0e-2, "prior probability that a switch lies otherwise than the "
+    start_section: str = doc_field("", "section the train front stands on when the fusion starts (a start of mission "
+                                       "on a known track)")
+    start_direction: int = doc_field(1, "direction of travel along start_section's chainage: +1 increasing, -1 "
+                                        "decreasing", limits=(-1, 1))
+    wrong_switch_probability: float = doc_field(1.0e-2, "prior probability that a switch lies otherwise than the "
                                                     "interlocking reports it (a detection fault): the reported way "
                                                     "gets 1 minus it at a facing switch", limits=(1.0e-9, 0.5))
-    misread_probability: float = _doc(1.0e-3, "probability that a reference fix (balise, tag) names equipment "
-                                              "the train did not pass (fault mode 'misread')", limits=(1.0e-9, 0.5))
-    exclusion_references: int = _doc(2, "distinct references a hypothesis must fail to contain, within "
-                                        "exclusion_window, to be excluded (sensors with a 'misread' fault mode; "
-                                        "1 for the others)", limits=(1, 10))
-    exclusion_window: float = _doc(30.0, "time within which those references count together [s]",
-                                   limits=(0.1, 3600.0))
-    map_lateral_gate: float = _doc(4.0, "a 2-D fix further than this many of its lateral 1-sigma from a "
-                                        "hypothesis's path is off that path [1]", limits=(1.0, 100.0))
-    map_exclusion_fixes: int = _doc(5, "consecutive 2-D fixes of one receiver off a path (and on another) that "
-                                       "exclude it: one fix may be a non-line-of-sight outlier", limits=(1, 1000))
-    map_outlier_probability: float = _doc(0.01, "share of 2-D fixes whose lateral offset is an outlier, in the "
-                                                "likelihood that ranks the hypotheses", limits=(1.0e-6, 0.5))
-    map_reach: float = _doc(300.0, "a 2-D fix is projected onto the sections of a path within this distance "
-                                   "of where the hypothesis puts the receiver [m]", limits=(1.0, 1.0e5))
-    branch_margin: float = _doc(50.0, "a path is continued past a node once its interval's end comes this near "
-                                      "to it [m] (plus 1 s at the hypothesis's speed)", limits=(0.0, 1000.0))
-    max_hypotheses: int = _doc(16, "most hypotheses kept; beyond it the state is LOST (the interval can no "
-                                   "longer cover every path)", limits=(1, MAX_HYPOTHESES))
+    misread_probability: float = doc_field(1.0e-3, "probability that a reference fix (balise, tag) names equipment "
+                                                   "the train did not pass (fault mode 'misread')",
+                                                   limits=(1.0e-9, 0.5))
+    exclusion_references: int = doc_field(2, "distinct references a hypothesis must fail to contain, within "
+                                             "exclusion_window, to be excluded (sensors with a 'misread' fault mode; "
+                                             "1 for the others)", limits=(1, 10))
+    exclusion_window: float = doc_field(30.0, "time within which those references count together [s]",
+                                        limits=(0.1, 3600.0))
+    map_lateral_gate: float = doc_field(4.0, "a 2-D fix further than this many of its lateral 1-sigma from a "
+                                             "hypothesis's path is off that path [1]", limits=(1.0, 100.0))
+    map_exclusion_fixes: int = doc_field(5, "consecutive 2-D fixes of one receiver off a path (and on another) that "
+                                            "exclude it: one fix may be a non-line-of-sight outlier", limits=(1, 1000))
+    map_outlier_probability: float = doc_field(0.01, "share of 2-D fixes whose lateral offset is an outlier, in the "
+                                                     "likelihood that ranks the hypotheses", limits=(1.0e-6, 0.5))
+    map_reach: float = doc_field(300.0, "a 2-D fix is projected onto the sections of a path within this distance "
+                                        "of where the hypothesis puts the receiver [m]", limits=(1.0, 1.0e5))
+    branch_margin: float = doc_field(50.0, "a path is continued past a node once its interval's end comes this near "
+                                           "to it [m] (plus 1 s at the hypothesis's speed)", limits=(0.0, 1000.0))
+    max_hypotheses: int = doc_field(16, "most hypotheses kept; beyond it the state is LOST (the interval can no "
+                                        "longer cover every path)", limits=(1, MAX_HYPOTHESES))
 
     def __post_init__(self):
         check_limits(self, dataclasses.fields(self))

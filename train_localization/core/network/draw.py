@@ -30,7 +30,7 @@ along +x, then turns it to a random heading and states it in the YAML form of mo
 
 Every route runs from the start track's first section (where the train stands) in +x to
 an end of the network: each is at least ``ahead`` metres long from the start. The random
-draws come from the campaign's ``_Draw`` (``d``: ``u``, ``chance``, ``int``).
+draws come from the campaign's ``Draw`` (``d``: ``u``, ``chance``, ``int``).
 """
 from __future__ import annotations
 

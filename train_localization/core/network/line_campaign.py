@@ -12,7 +12,7 @@ A run (``generate``, from its seed alone):
              leg its A port joins, and along the rest of each section every 250-600 m; none
              where the trains stand at the start (the counter starts CLEAR); one device of at
              most MAX_HEADS heads (a raw block's channels), those on the routes first
-  trains     2-3 conventional trains (campaign.py ``_train``) standing one behind the other
+  trains     2-3 conventional trains (campaign.py ``draw_train``) standing one behind the other
              on the start section, 20-150 m apart; each starts from rest 5-40 s after the one
              ahead, with an acceleration and top speed no higher than its (close following
              over the same heads, never catching up), and takes a drawn route of its own
@@ -37,8 +37,8 @@ from __future__ import annotations
 import time
 import traceback
 
-from ..campaign import (P_GYRO, P_SWITCH_UNKNOWN, P_SWITCH_WRONG, _doppler, _Draw, _dgps, _g, _reader, _train,
-                        _wheel_sensor)
+from ..campaign import (P_GYRO, P_SWITCH_UNKNOWN, P_SWITCH_WRONG, Draw, draw_dgps, draw_doppler, draw_reader,
+                        draw_train, draw_wheel_sensor, rounded)
 from ..report import jsonable
 from ..signals import MAX_CHANNELS
 from .draw import draw_network, pick_route
@@ -55,7 +55,7 @@ INSIDE_TARGET = 0.999
 MAX_HEADS = MAX_CHANNELS // 2   # heads of one device: two channels each in one raw block
 
 
-def place_heads(d: _Draw, net: Network, clear: tuple[str, float, int]) -> dict[str, list[dict]]:
+def place_heads(d: Draw, net: Network, clear: tuple[str, float, int]) -> dict[str, list[dict]]:
     """Section id -> its heads ({id, position [m]}), ids H1, H2, ... in the network's order of
     sections and along each. ``clear``: (section, chainage [m], direction of travel): no head
     on that section behind the chainage + HEAD_CLEARANCE, where the trains stand when the
@@ -80,22 +80,22 @@ def place_heads(d: _Draw, net: Network, clear: tuple[str, float, int]) -> dict[s
     for sid in net.sections:
         for x in sorted(marks[sid]):
             n += 1
-            heads.setdefault(sid, []).append({"id": f"H{n}", "position": _g(x, 8)})
+            heads.setdefault(sid, []).append({"id": f"H{n}", "position": rounded(x, 8)})
     return heads
 
 
 def generate(seed: int) -> dict:
     """The scenario dict of run ``seed`` (``Scenario.from_dict`` loads it) with its drawn
     conditions under ``campaign``."""
-    d = _Draw(seed)
+    d = Draw(seed)
     n_trains = d.int(*TRAINS)
-    vehicles = [_train(d) for _ in range(n_trains)]
+    vehicles = [draw_train(d) for _ in range(n_trains)]
     gaps = [d.u(20.0, 150.0) for _ in range(n_trains - 1)]
     duration = d.u(70.0, 120.0)
     v_top = d.u(30.0, 80.0) / 3.6
     accel, decel = d.u(0.4, 1.0), d.u(0.6, 1.2)
     rear = sum(v["length"] for v in vehicles) + sum(gaps)
-    start = _g(rear + d.u(30.0, 100.0), 8)
+    start = rounded(rear + d.u(30.0, 100.0), 8)
     reach = v_top * duration
     drawn = draw_network(d, f"line_{seed}", start, reach + 300.0, reach)
     heads = place_heads(d, drawn.model, (drawn.start_section, drawn.start_chainage, drawn.start_direction))
@@ -119,8 +119,8 @@ def generate(seed: int) -> dict:
                 reported[node] = "B2" if way == "B1" else "B1"
             elif d.chance(P_SWITCH_UNKNOWN):
                 reported[node] = ""
-        sensors = {"wheel_sensor": _wheel_sensor(d, v_top, vehicle["wheel_diameter"]),
-                   "doppler_radar": _doppler(d, duration), "eurobalise_reader": _reader(d, v_top, (0.1, 0.5))}
+        sensors = {"wheel_sensor": draw_wheel_sensor(d, v_top, vehicle["wheel_diameter"]),
+                   "doppler_radar": draw_doppler(d, duration), "eurobalise_reader": draw_reader(d, v_top, (0.1, 0.5))}
         if d.chance(P_GYRO):
             sensors["gyro"] = {"noise_density": d.logu(5.0e-5, 1.0e-3), "bias_sigma": d.logu(1.0e-4, 3.0e-3),
                                "scale_sigma": d.u(0.002, 0.02)}
@@ -129,14 +129,14 @@ def generate(seed: int) -> dict:
         route = {"sections": sections, "direction": drawn.start_direction}
         if reported:
             route["reported"] = reported
-        trains.append({"name": f"t{k + 1}", "vehicle": vehicle, "initial": {"position": _g(chainage, 8), "speed": 0.0},
-                       "route": route, "sensors": sensors,
-                       "profile": [{"speed": 0.0, "hold": _g(wait)},
-                                   {"speed": _g(v), "accel": _g(a), "hold": _g(hold)},
+        trains.append({"name": f"t{k + 1}", "vehicle": vehicle,
+                       "initial": {"position": rounded(chainage, 8), "speed": 0.0}, "route": route, "sensors": sensors,
+                       "profile": [{"speed": 0.0, "hold": rounded(wait)},
+                                   {"speed": rounded(v), "accel": rounded(a), "hold": rounded(hold)},
                                    {"speed": 0.0, "decel": decel}]})
         routes.append(sections)
     if d.chance(P_DGPS):
-        dgps = _dgps(d, duration)
+        dgps = draw_dgps(d, duration)
         for tr in trains:
             tr["sensors"]["dgps_receiver"] = dict(dgps)
     counter = {"front_first": True, "noise_sigma": d.u(0.01, 0.04), "spike_rate": d.u(0.0, 0.02)}
@@ -150,9 +150,10 @@ def generate(seed: int) -> dict:
     on_route = [h for sid in routes[0] for h in (x["id"] for x in heads.get(sid, [])) if h in device]
     if on_route and d.chance(P_MISCOUNT):
         head = on_route[d.int(0, len(on_route) - 1)]
-        miscount = f"{head}@{_g(d.u(0.0, 0.8) * duration, 5)}:{'missed' if d.chance(0.5) else 'extra'}"
+        miscount = f"{head}@{rounded(d.u(0.0, 0.8) * duration, 5)}:{'missed' if d.chance(0.5) else 'extra'}"
         counter["faults"] = miscount
-    conditions = {"trains": n_trains, "device_heads": len(device), "gaps_m": gaps, "top_speed_kmh": _g(v_top * 3.6),
+    conditions = {"trains": n_trains, "device_heads": len(device), "gaps_m": gaps,
+                  "top_speed_kmh": rounded(v_top * 3.6),
                   "network": drawn.shape, "routes": routes, "heads": sum(len(h) for h in heads.values()),
                   "dgps": "dgps_receiver" in trains[0]["sensors"], "miscount": miscount,
                   "reported": {tr["name"]: tr["route"].get("reported", {}) for tr in trains}}

@@ -84,7 +84,7 @@ from scipy.signal import lfilter
 from ..signals import InputRejected, RawBlock
 from ..track import Track, TrackError, extent
 from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator, continuous_timeout, gauss_markov
-from .wheel import (_QUAD_INDEX, SPEED_STDDEV_FLOOR, CycleCounter, IncrementEstimator, increment_or_reject,
+from .wheel import (QUAD_INDEX, SPEED_STDDEV_FLOOR, CycleCounter, IncrementEstimator, increment_or_reject,
                     restart_after_gap)
 
 KIND = "null_flux_coils"
@@ -335,7 +335,7 @@ class CoilCounterDecoder(Decoder):
         self._env_last = env[-1].copy()
         lost = env.max(axis=1) < p["loss_threshold"]
         known = (y >= 0).all(axis=1)
-        state = np.where(known, _QUAD_INDEX[np.clip(2 * y[:, 0] + y[:, 1], 0, 3)], -1)
+        state = np.where(known, QUAD_INDEX[np.clip(2 * y[:, 0] + y[:, 1], 0, 3)], -1)
         n_lost = int(np.count_nonzero(lost))
         if n_lost:
             state[lost] = -1

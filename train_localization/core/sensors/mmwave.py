@@ -208,7 +208,7 @@ PARAMS = {
 }
 
 
-def _stations(track: Track, params: dict):
+def base_stations(track: Track, params: dict):
     """(ids, chainage, perpendicular distance, code) arrays of the track's base stations."""
     items = track.items(STATION_KIND)
     ids, pos, perp, codes = [], [], [], []
@@ -227,7 +227,7 @@ def _stations(track: Track, params: dict):
     return ids, np.asarray(pos, float), np.asarray(perp, float), np.asarray(codes, np.int64)
 
 
-def _parse_faults(text: str) -> list[tuple[str, float, float, float | None]]:
+def parse_range_faults(text: str) -> list[tuple[str, float, float, float | None]]:
     """'ID@T0-T1:BIAS' / 'ID@T0-T1:drop' items -> (id, t0, t1, bias or None for drop)."""
     faults = []
     for item in filter(None, (s.strip() for s in str(text).split(";"))):
@@ -303,7 +303,7 @@ class MmWaveSimulator(Simulator):
 
     def __init__(self, *args):
         super().__init__(*args)
-        self.ids, self.pos, self.perp, self.codes = _stations(self.track, self.params)
+        self.ids, self.pos, self.perp, self.codes = base_stations(self.track, self.params)
         n = len(self.ids)
         self.cal = self._station_bias(n)
         self.nlos_left = np.zeros(n)
@@ -319,7 +319,7 @@ class MmWaveSimulator(Simulator):
         """Constant range bias [m] of each of the n stations: the antenna-delay calibration."""
         return self.rng.normal(0.0, self.params["cal_sigma"], n)
 
-    _parse_faults = staticmethod(_parse_faults)
+    _parse_faults = staticmethod(parse_range_faults)
 
     def samples(self, times, position, speed, acceleration):
         p = self.params
@@ -429,7 +429,7 @@ class _Subsets:
         self.gate = np.array([gate_dof(int(k) - 1) for k in size])
 
 
-def _picker(order: list[int]):
+def item_picker(order: list[int]):
     """Function list -> tuple of its items at the positions ``order`` (not empty)."""
     if len(order) == 1:
         j = order[0]
@@ -638,7 +638,7 @@ class MmWaveDecoder(SolutionSeparation, Decoder):
 
     def __init__(self, params: dict, track: Track):
         super().__init__(params, track)
-        self.ids, self.pos, self.perp, self.codes = _stations(track, params)
+        self.ids, self.pos, self.perp, self.codes = base_stations(track, params)
         self._code_index = {int(c): k for k, c in enumerate(self.codes)}
         self._lut = np.full(int(self.codes.max()) + 1 if len(self.codes) else 1, -1, dtype=np.int64)
         for c, k in self._code_index.items():
@@ -827,7 +827,7 @@ class MmWaveDecoder(SolutionSeparation, Decoder):
         rej = [j for j in range(N_SLOTS) if (code[j] & 3) == 1]
         ids = self.ids
         ref = ",".join([ids[code[j] >> 2] for j in order] + ["!" + ids[code[j] >> 2] for j in rej])
-        return ref, _picker(order + rej)
+        return ref, item_picker(order + rej)
 
     # -- one fix per block ----------------------------------------------------------------
     def _decode_block(self, times, r, pat, sig2, valid):
@@ -1230,7 +1230,7 @@ def station_references(track, params: dict) -> tuple[float, ReferenceTable | Non
     the radio hears it (station_window); None without a track)."""
     if track is None:
         return math.inf, None
-    ids, pos, _, _ = _stations(track, params)
+    ids, pos, _, _ = base_stations(track, params)
     positions = np.sort(pos)
     spacing = float(positions[-1] - positions[0]) / (len(positions) - 1) if len(positions) > 1 else math.inf
     windows = {}

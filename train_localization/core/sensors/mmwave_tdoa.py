@@ -131,7 +131,7 @@ from ..signals import InputRejected, RawBlock
 from ..track import Track
 from .base import Decoder, ErrorModel, Param, SensorSpec
 from .mmwave import (C_AIR, MIN_RANGE_VAR, PARAMS as TWR_PARAMS, MmWaveSimulator, SolutionSeparation,
-                     _parse_faults, _picker, _stations, _Subsets, handover, range_sigma, station_references)
+                     base_stations, handover, item_picker, parse_range_faults, range_sigma, station_references)
 
 SLOTS = 6                # stations received at once (correlator channels of the receiver)
 TICK = 2.0 ** -20        # coarse counter step of the receiver's timestamps [s] (~0.95 us)
@@ -181,7 +181,7 @@ CHANNELS, UNITS = channel_names()
 
 
 def _split_faults(text: str):
-    """(range faults 'ID@T0-T1:BIAS|drop' as mmwave's _parse_faults, timing faults (id, t0, t1,
+    """(range faults 'ID@T0-T1:BIAS|drop' as mmwave's parse_range_faults, timing faults (id, t0, t1,
     kind, value) of the forms sync=, jump=, drift=)."""
     plain, timing = [], []
     for item in filter(None, (s.strip() for s in str(text).split(";"))):
@@ -200,7 +200,7 @@ def _split_faults(text: str):
             timing.append((sid.strip(), t0, t1, kind, value))
         else:
             plain.append(item)
-    return _parse_faults(";".join(plain)), timing
+    return parse_range_faults(";".join(plain)), timing
 
 
 def sync_sigma_m(p: dict) -> float:
@@ -303,7 +303,7 @@ class MmWaveTdoaDecoder(SolutionSeparation, Decoder):
 
     def __init__(self, params: dict, track: Track):
         super().__init__(params, track)
-        self.ids, self.pos, self.perp, self.codes = _stations(track, params)
+        self.ids, self.pos, self.perp, self.codes = base_stations(track, params)
         self._lut = np.full(int(self.codes.max()) + 1 if len(self.codes) else 1, -1, dtype=np.int64)
         self._lut[self.codes] = np.arange(len(self.codes))
         self._perp2 = self.perp * self.perp
@@ -403,7 +403,7 @@ class MmWaveTdoaDecoder(SolutionSeparation, Decoder):
         rej = sorted((j for j in range(SLOTS) if (code[j] & 3) == 1), key=lambda j: self.pos[code[j] >> 2])
         ids = self.ids
         ref = ",".join([ids[code[j] >> 2] for j in order] + ["!" + ids[code[j] >> 2] for j in rej])
-        return ref, _picker(order + rej)
+        return ref, item_picker(order + rej)
 
     def _solve(self, idx, phase, snr, valid, period):
         """x (n,), ok (n,), used slots (SLOTS, n), residuals (SLOTS, n) and the published

@@ -140,7 +140,7 @@ tolerance the narrowest state is 0.178 pulse, which lasts 100 us = one sample at
 _OTHER = 1 << 40
 
 # (A, B) -> position in the forward sequence 00 -> 10 -> 11 -> 01; code = 2A + B
-_QUAD_INDEX = np.array([0, 3, 1, 2], dtype=np.int64)
+QUAD_INDEX = np.array([0, 3, 1, 2], dtype=np.int64)
 _CODE_WEIGHTS = np.array([2.0, 1.0], dtype=np.float32)  # (A, B) levels -> code
 
 
@@ -727,7 +727,7 @@ class WheelDecoder(Decoder):
                                 f"(first {block.data[np.flatnonzero(bad)[0]].tolist()})")
         fs = block.sample_rate
         restart_after_gap(self, block)
-        q = _QUAD_INDEX[(ab @ _CODE_WEIGHTS).astype(np.intp)]
+        q = QUAD_INDEX[(ab @ _CODE_WEIGHTS).astype(np.intp)]
         res = self.counter.feed(block.t0 + self.sample_offsets(len(ab), fs), q, sample_period=1.0 / fs, all_valid=True)
         self.stats["edges"] += res.transitions
         self.stats["illegal_transitions"] += res.illegal

@@ -24,7 +24,7 @@ from collections import Counter
 
 import numpy as np
 
-from .passage import TYPES, Run, RunResult, TrainSpec, _window
+from .passage import TYPES, Run, RunResult, TrainSpec, near_section_window
 from .catenary import Layout
 
 KMH = 1.0 / 3.6
@@ -81,7 +81,7 @@ def inject(run: Run, kind: str, rng: np.random.Generator) -> str:
     layout = Layout.from_params(run.layout)
     k = int(rng.integers(0, len(run.trains)))
     train = run.trains[k]
-    w0, w1 = _window(train, layout)
+    w0, w1 = near_section_window(train, layout)
     if kind == "poor_shunt":
         train.poor_shunt = True
         text = f"poor shunt: train {train.name}"

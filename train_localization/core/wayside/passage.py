@@ -185,7 +185,7 @@ def _front(train: TrainSpec, layout: Layout, times: np.ndarray) -> np.ndarray:
     return entry + train.direction * train.distance(times - train.entry_time)
 
 
-def _window(train: TrainSpec, layout: Layout) -> tuple[float, float]:
+def near_section_window(train: TrainSpec, layout: Layout) -> tuple[float, float]:
     """Times [s] the train is near the section: front 150 m before the entry counting point
     until its rear is 150 m past the far one."""
     span = layout.ac[2] - layout.ac[0]
@@ -198,7 +198,7 @@ def simulate(run: Run) -> RunResult:
     rng = np.random.default_rng(run.seed)
     seeds = rng.integers(0, 2 ** 32, size=3 + len(run.trains))
     trains = run.trains
-    windows = [_window(t, layout) for t in trains]
+    windows = [near_section_window(t, layout) for t in trains]
     t_start = math.floor((min(w[0] for w in windows) - 1.0) / BLOCK) * BLOCK
     t_end = max(w[1] for w in windows) + 8.0
 

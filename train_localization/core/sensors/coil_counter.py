@@ -150,13 +150,6 @@ def coil_rows(track: Track, default_pitch: float) -> np.ndarray:
     return arr
 
 
-def nominal_coils(track: Track, default_pitch: float) -> np.ndarray:
-    """Nominal chainages of every coil centre [m], sorted (row start + k x pitch up to its end)."""
-    parts = [start + pitch * np.arange(int(math.floor((end - start) / pitch + 1e-9)) + 1)
-             for start, end, pitch in coil_rows(track, default_pitch)]
-    return np.concatenate(parts) if parts else np.empty(0)
-
-
 def row_profile(pitch: float, gap: float, n: int = 400) -> tuple[np.ndarray, np.ndarray]:
     """(u [m], output / E0) over one pitch of an endless row, u from a coil centre."""
     u = (np.arange(n) / n - 0.5) * pitch

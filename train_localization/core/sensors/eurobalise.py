@@ -115,10 +115,6 @@ TABLE1 = {
 # Telegram lengths [bit] (seed 001 section 1 and Table 1): the standard (long) telegram, read
 # up to 300 km/h, and the short one that 300-500 km/h needs
 TELEGRAM_BITS = {"long": 1023, "short": 341}
-# Seed 001 Tables 2-4 (speed [km/h] -> reading distance [mm], M [nH], H_min [mA/m]).
-TABLE2_MM = {100: 5.19, 200: 30.38, 300: 55.58, 400: 80.77, 500: 106.0, 600: 131.2}
-TABLE3_NH = {100: 3.0712, 200: 2.9722, 300: 2.7536, 400: 2.4577, 500: 2.1299, 600: 1.8079}
-TABLE4_MAPM = {100: 2.182, 200: 2.112, 300: 1.957, 400: 1.746, 500: 1.514, 600: 1.285}
 
 PARAMS = {
     "antenna_offset": Param(2.0, "distance of the antenna centre behind the train front [m] "

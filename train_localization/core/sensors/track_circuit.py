@@ -135,7 +135,6 @@ SENSOR = "track_circuit"
 
 # seed 004 section 3.1 and Table 1: UM71C carriers [Hz] by track, (F1, F2) used alternately
 UM71C_CARRIERS = {"T1": (2040.0, 2760.0), "T2": (2400.0, 3120.0)}
-UM71C_DETECTION_SIGNAL = 25.68   # [Hz] FM modulation of every UM71C carrier (seed 004 section 3.1)
 UM71C_LENGTH = 1500.0            # [m] nominal circuit length (seed 004 section 3.1)
 # seed 004 section 4.2: compensating capacitors every 60 m at 2040/2400 Hz, 80 m at 2760/3120 Hz
 CAPACITOR_SPACING = {2040.0: 60.0, 2400.0: 60.0, 2760.0: 80.0, 3120.0: 80.0}

@@ -19,7 +19,7 @@ _tl_stamp_inputs() {
       scripts/compat_msgs/tf2_msgs/msg/* 2>/dev/null) | sha256sum | cut -d' ' -f1
 }
 
-# --- Known defect of the PyPI ROS wheels (DESIGN.md section 3) -------------------
+# --- Known defect of the PyPI ROS wheels -------------------
 # Their exported CMake files hard-code the wheel build machine's paths
 #   /opt/python/cp311-cp311/include/python3.11
 #   /opt/python/cp311-cp311/lib/python3.11/site-packages/numpy/_core/include
@@ -74,7 +74,7 @@ COLCON_CURRENT_PREFIX="$_tl_ws/install" . "$_tl_ws/install/local_setup.sh"
 [ "$_tl_nounset" = 1 ] && set -u
 unset _tl_nounset
 export RMW_IMPLEMENTATION="${RMW_IMPLEMENTATION:-rmw_fastrtps_cpp}"
-# DDS stays on this machine (DESIGN.md section 3) unless the user overrides it.
+# DDS stays on this machine (docs/integration.md) unless the user overrides it.
 export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
 # A fixed default so that several shells see each other; the demo and the tests
 # choose their own per-run domain.

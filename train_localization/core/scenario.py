@@ -500,7 +500,7 @@ class Trajectory:
 class TruthBuffer:
     """Recent ground-truth states; samples the motion at arbitrary times in between.
 
-    Sensor simulators run on ``ground_truth/state`` messages (DESIGN.md section 5);
+    Sensor simulators run on ``ground_truth/state`` messages (docs/nodes.md, simulator);
     between two states the acceleration of the earlier one is held, which is exact
     for the piecewise-constant acceleration of the simulator at its state rate.
     """

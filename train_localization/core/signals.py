@@ -4,7 +4,7 @@ A block holds ``n_samples x n_channels`` samples taken at a fixed sample rate fr
 one device, starting at ``t0``. Simulated devices produce blocks, device drivers and
 bags deliver them (train_localization_msgs/RawBlock), and every decoder consumes
 them, so simulated, recorded and ingested data go through the same code
-(DESIGN.md section 4: raw signals travel in blocks).
+(raw signals travel in blocks: docs/nodes.md).
 
 Samples are stored as float32, like the message: a simulated block is rounded to
 float32 when it is made, so decoding it live or after a bag round trip is identical.

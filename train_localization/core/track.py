@@ -1,7 +1,7 @@
 """Track description: chainage, 2-D alignment and wayside equipment (config/*.yaml).
 
 Chainage runs from 0 to ``length`` [m] in the track's reference direction
-(DESIGN.md section 4). A ``closed: true`` track is a loop (the rotating disc of seed 003):
+(README.md). A ``closed: true`` track is a loop (the rotating disc of seed 003):
 chainage ``length`` is chainage 0 again; ``wrap`` and ``difference`` take positions that run
 on past the end (an unwrapped distance, as the fusion integrates it) back onto the loop. The alignment is a chain of segments of constant curvature
 (straight: 0, arc: 1/R [1/m], sign = to the left) starting at ``origin``; it is used

@@ -1,6 +1,6 @@
 """What every node shares: start-up and shutdown, QoS, diagnostics, parameters.
 
-QoS (DESIGN.md section 4): measurement and raw streams are published RELIABLE with a
+QoS (docs/integration.md): measurement and raw streams are published RELIABLE with a
 deep history so that a recorder gets every message; our own subscribers use the
 same profile. A subscriber that prefers the sensor-data profile (best effort) is
 compatible with these publishers. State and occupancy topics that a late joiner
@@ -354,7 +354,7 @@ def spin(node_factory, args=None, usage: str | None = None) -> int:
     code = 0
     try:
         node = node_factory()
-        executor = EventsExecutor()  # about 2x the throughput of SingleThreadedExecutor (DESIGN.md section 3)
+        executor = EventsExecutor()  # about 2x the throughput of SingleThreadedExecutor
         executor.add_node(node)
         while not stop["flag"] and not getattr(node, "finished", False) and rclpy.ok():
             executor.spin_once(timeout_sec=0.05)

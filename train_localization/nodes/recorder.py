@@ -1,6 +1,6 @@
 """Recorder node: writes topics to one MCAP file (ros2msg schemas, CDR as received).
 
-Subscriptions are raw (serialized bytes, no deserialisation, DESIGN.md section 3),
+Subscriptions are raw (serialized bytes, no deserialisation, docs/nodes.md, recorder),
 so the bytes in the bag are exactly those published. Topics are discovered
 periodically; a topic is recorded from the moment it is discovered.
 

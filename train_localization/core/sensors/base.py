@@ -10,7 +10,7 @@ them the same way.
 Error model: every sensor module declares ``error_model(params, track, vehicle)``
 returning an ``ErrorModel``: what the fusion must know of the sensor's errors,
 computed from the same resolved parameters that the simulator and the decoder use
-(DESIGN.md section 7). Nothing else copies a sensor's noise figures.
+(docs/fusion.md). Nothing else copies a sensor's noise figures.
 
 Parameters: every sensor module declares ``PARAMS``, a dict name -> Param(default,
 description, limits). The description carries the unit and where the default comes from
@@ -224,7 +224,7 @@ NAN_MEANS_DEFAULT = ("gate_probability", "fix_excess_length", "fix_excess_tau")
 
 @dataclass(frozen=True)
 class ErrorModel:
-    """The errors of one sensor as the fusion models them (DESIGN.md section 7).
+    """The errors of one sensor as the fusion models them (docs/fusion.md).
 
     A decoder reports each measurement's 1-sigma including its slowly varying
     errors as if they were white; the ``reported_*`` parts are the ones the fusion

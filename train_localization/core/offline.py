@@ -8,7 +8,7 @@ the same estimates from the same measurement sequence.
 fusion, and can write a bag with the same topics as the live graph.
 ``replay_bag`` feeds a bag's raw topics through the decoders (ingest mode) and the
 fusion as fast as the CPU allows and can write a new bag with the recomputed
-outputs (offline replay, DESIGN.md section 1).
+outputs (offline replay, docs/replay.md).
 
 A line (several trains, ``Scenario.line``): ``simulate_line`` and ``replay_line`` run
 every train's on-board sensors and fusion, the wayside sensors, which see all trains,

@@ -141,7 +141,7 @@ def declare_fusion_config(node: Node, base: FusionConfig, track) -> FusionConfig
 
 
 def declare_fields(node: Node, fields_, base) -> dict:
-    """Declare each of a config's ``fields_`` (described and bounded by ``_doc``) as a read-only
+    """Declare each of a config's ``fields_`` (described and bounded by ``doc_field``) as a read-only
     parameter, default its value in ``base``; field name -> the value set."""
     return {f.name: _from_ros(getattr(base, f.name), declare(node, f.name, _ros_value(getattr(base, f.name)),
                                                              f.metadata.get("doc", ""), read_only=True,

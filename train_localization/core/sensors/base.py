@@ -87,7 +87,7 @@ def check_declared(params: dict[str, "Param"], owner: str) -> None:
 COMMON_PARAMS = {
     "unit_id": Param("", "device instance name; empty = the sensor name"),
     "sample_rate": Param(0.0, "raw sample rate [Hz]; 0 = the sensor's default", (0.0, 1.0e8)),
-    "block_duration": Param(0.05, "length of one raw block [s] (DESIGN.md section 4)", (1.0e-3, 10.0)),
+    "block_duration": Param(0.05, "length of one raw block [s] (raw signals travel in blocks: docs/nodes.md)", (1.0e-3, 10.0)),
     "max_block_duration": Param(1.0, "longest raw block decoded [s], at least block_duration; a longer one is "
                                      "refused (too_large): it bounds the decoding time and memory per block",
                                 (1.0e-3, 60.0)),

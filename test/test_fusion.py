@@ -294,12 +294,12 @@ def test_late_and_shuffled_delivery_gives_the_in_order_estimates(recorded, name)
 def test_the_benchmark_runs_the_maglev_sensors_in_order_and_shuffled(recorded):
     """The fusion benchmark's two streams of the maglev scenario's measurements (in order, and
     delayed up to 0.2 s) give the 200 Hz grid of states; its speed is a benchmark figure
-    (``python -m train_localization.tools.bench fusion``), not a timed test (shared hosts)."""
+    (``python -m train_localization.tools.bench fusion``), not a test (shared hosts)."""
     sc, arrivals, t_end = recorded["scenario_maglev_500"]
     cfg = fusion_config(sc)
     for stream in (arrivals, bench_fusion.delayed(arrivals, 0.2, seed=1)):
-        runner, est, t_add, t_adv = bench_fusion.run(cfg, stream, t_end + 0.21)
-        assert len(est) >= 200 * t_end and t_add > 0.0 and t_adv > 0.0
+        _, est, _, _ = bench_fusion.run(cfg, stream, t_end + 0.21)
+        assert len(est) >= 200 * t_end
 
 
 def test_estimate_of_a_past_time_ignores_later_measurements():

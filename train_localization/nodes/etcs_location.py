@@ -39,6 +39,7 @@ from rclpy.serialization import deserialize_message
 
 from ..core import convert, paths
 from ..core.etcs import admission, location
+from ..core.etcs.admission import FIX_TOPIC, STATE_TOPIC
 from ..core.etcs.records import EventKind, LocationEvent, LocationReport
 from ..core.etcs.track_data import EtcsData
 from ..core.scenario import Scenario
@@ -47,11 +48,9 @@ from ..core.track import Track
 from .common import (LATCHED_QOS, STREAM_QOS, ConfigurationError, Diagnostics, declare, declare_params, now_sec,
                      rclpy_classes, spin)
 
-FIX_TOPIC = "sensors/eurobalise/position"
 ALARM_HOLD = 30.0      # [s] of state time a linking or odometer alarm stays in the diagnostics
 REPORT_TOPIC = "localization/etcs"
 EVENT_TOPIC = "localization/etcs_events"
-STATE_TOPIC = "localization/state"
 # balise fixes: reliable, but a short queue: under a flood DDS drops what the node has not taken
 # rather than queueing thousands ahead of the fused states (a reader gives ~12 fixes/s at most)
 FIX_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=32, reliability=ReliabilityPolicy.RELIABLE)

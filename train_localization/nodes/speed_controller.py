@@ -124,7 +124,6 @@ class SpeedControllerNode(Node):
         """No traction on stale states; the brake on a stale ATP (require_atp)."""
         now = now_sec(self)
         if self.require_atp and self.commands.stale(now) and self.controller.brake != Brake.EMERGENCY:
-            self.commands.waiting_since(now)
             self._brake(Brake.EMERGENCY, f"no ATP command for {self.commands.silence(now):.1f} s (fail safe)")
         if self.states.admitted and self.states.stale(now) and self.controller.command != 0.0:
             self.controller.integral, self.controller.command = 0.0, 0.0

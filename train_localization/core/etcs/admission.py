@@ -15,14 +15,12 @@ can only ask for a brake, so an inserted one costs availability, never safety.
 """
 from __future__ import annotations
 
-import math
-
 from ..fusion.shedding import InputShedder
-from ..measurements import MAX_CHAINAGE, MAX_SPEED, PositionFix
+from ..measurements import PositionFix
 from ..safety import admission, plausibility
 from ..safety.admission import StreamAdmission, StreamLimits
 from ..safety.plausibility import Motion, MotionGate, speed_bound
-from ..safety.state_stream import StateStream
+from ..safety.state_stream import CHAINAGE, SPEED, StateStream, claim_checks
 from ..sensors.base import Param, check_declared, resolve_params
 from ..signals import InputRejected
 from .location import PREVIOUS_LRBGS, FusedState
@@ -39,17 +37,13 @@ PARAMS = {
                                  "before they are parsed (counted) [1/s]", (1.0, 1.0e6)),
 }
 check_declared(PARAMS, "etcs admission PARAMS")
-CHAINAGE = (-MAX_CHAINAGE, MAX_CHAINAGE)
+STATE_TOPIC, FIX_TOPIC = "localization/state", "sensors/eurobalise/position"   # the location's inputs
 
 
 def admission_params(overrides: dict | None = None) -> dict:
     """PARAMS at their defaults updated by ``overrides`` (ValueError in one line); other keys of
     ``overrides`` are ignored."""
     return resolve_params(PARAMS, {k: v for k, v in (overrides or {}).items() if k in PARAMS})
-
-
-def _gate(p: dict) -> MotionGate:
-    return MotionGate.from_params(p)
 
 
 class LocationAdmission:
@@ -60,10 +54,10 @@ class LocationAdmission:
     def __init__(self, params: dict | None = None, track_id: str = ""):
         p = self.params = admission_params(params)
         self.track_id = track_id
-        self.states = StateStream("localization/state", admission.limits_from(p), _gate(p))
+        self.states = StateStream(STATE_TOPIC, admission.limits_from(p), MotionGate.from_params(p))
         # fixes arrive up to the reader's latency after their stamp, in any order with a spoofed
         # one stamped now: not ordered (the location function sorts them and refuses a too old one)
-        self.fixes = StreamAdmission("sensors/eurobalise/position", admission.limits_from(p, ordered=False))
+        self.fixes = StreamAdmission(FIX_TOPIC, admission.limits_from(p, ordered=False))
         self.shedder = InputShedder(float(p["max_input_rate"]))
         self.fix_shedder = InputShedder(float(p["max_fix_rate"]))
 
@@ -78,30 +72,13 @@ class LocationAdmission:
         return {**self.shedder.shed, **self.fix_shedder.shed}
 
     def state(self, s: FusedState, now: float | None) -> InputRejected | None:
-        values = {"position": s.position, "position_min": s.position_min, "position_max": s.position_max,
-                  "speed": s.speed, "speed_stddev": s.speed_stddev} if s.claimed else {}
-        refusal = self._claims(s) if s.claimed else None
-        if refusal is not None:
-            return self.states.stream.refuse(refusal)
+        checks = {}
+        if s.claimed:       # its numbers those of a train, its position inside its interval
+            checks = claim_checks(s)
+            checks["limits"]["position"] = (s.position_min, s.position_max)
         motion = Motion.of(s.t, s.claimed, s.position_min, s.position_max, s.speed,
                            speed_bound(s.confidence, s.speed_stddev) if s.claimed else 0.0)
-        return self.states.admit(motion, now, values=values)
-
-    @staticmethod
-    def _claims(s: FusedState) -> InputRejected | None:
-        """A claimed state's numbers that no train has (NaN first: admission checks it)."""
-        values = (s.position, s.position_min, s.position_max, s.speed, s.speed_stddev)
-        if not all(map(math.isfinite, values)):
-            return InputRejected("nan", f"position {s.position} in [{s.position_min}, {s.position_max}], speed "
-                                        f"{s.speed} +- {s.speed_stddev}")
-        if not s.position_min <= s.position <= s.position_max:
-            return InputRejected("implausible", f"position {s.position:.3f} m outside its interval "
-                                                f"[{s.position_min:.3f}, {s.position_max:.3f}] m")
-        if not (CHAINAGE[0] <= s.position_min and s.position_max <= CHAINAGE[1] and abs(s.speed) <= MAX_SPEED
-                and 0.0 <= s.speed_stddev <= MAX_SPEED):
-            return InputRejected("implausible", f"interval [{s.position_min:g}, {s.position_max:g}] m or speed "
-                                                f"{s.speed:g} +- {s.speed_stddev:g} m/s beyond any train")
-        return None
+        return self.states.admit(motion, now, **checks)
 
     def fix(self, f: PositionFix, now: float | None) -> InputRejected | None:
         if f.track_id != self.track_id:
@@ -121,7 +98,7 @@ class SupervisionAdmission:
         p = self.params = admission_params(params)
         self.orientation = 1 if orientation >= 0 else -1
         limits = StreamLimits(float(p["future_tolerance"]), float(report_timeout), PREVIOUS_LRBGS)
-        self.reports = StateStream("localization/etcs", limits, _gate(p))
+        self.reports = StateStream("localization/etcs", limits, MotionGate.from_params(p))
         self.events = StreamAdmission("localization/etcs_events",
                                       StreamLimits(float(p["future_tolerance"]), float(report_timeout), ordered=False))
 
@@ -135,7 +112,7 @@ class SupervisionAdmission:
         return self.reports.admit(motion, now, values=values, ids={"nid_lrbg": r.nid_lrbg, "track_id": r.track_id},
                                   sizes={"previous_lrbgs": len(r.previous_lrbgs)},
                                   limits={"min_safe_front_end": CHAINAGE, "max_safe_front_end": CHAINAGE,
-                                          "v_est": (-MAX_SPEED, MAX_SPEED), "v_ura": (0.0, MAX_SPEED)}
+                                          "v_est": SPEED, "v_ura": (0.0, SPEED[1])}
                                   if claimed else None)
 
     def event(self, e: LocationEvent, now: float | None) -> InputRejected | None:

@@ -30,14 +30,12 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..measurements import PositionFix
-from .admission import LocationAdmission, SupervisionAdmission
+from .admission import FIX_TOPIC, STATE_TOPIC, LocationAdmission, SupervisionAdmission
 from .attacks import Attack, draw_attacks, stator_under_attack
 from .location import FusedState, LocationTracker, is_balise_fix
 from .records import EventKind, LocationEvent, LocationReport
-from .supervision import AtpDecision, Brake, Status, Supervision
+from .supervision import START_REASON, AtpDecision, Brake, Status, Supervision
 from .track_data import EtcsData
-
-FIX_TOPIC, STATE_TOPIC = "sensors/eurobalise/position", "localization/state"
 
 
 class EtcsSupervisor:
@@ -59,8 +57,7 @@ class EtcsSupervisor:
         self._estimates = 0
         self._measurements = 0
         self._brake = Brake.NONE
-        self._braking_since: float | None = None
-        self._flood_sent = 0
+        self._braking_since: float | None = None   # the first brake after the start-up one [s]
 
     def __call__(self, t: float, run) -> Brake:
         for m in run.measurements[self._measurements:]:
@@ -80,7 +77,8 @@ class EtcsSupervisor:
             if stale is not None:
                 self.decisions.append(stale)
                 self._brake = stale.brake
-        if self._brake != Brake.NONE and self._braking_since is None:
+        if self._braking_since is None and self._brake != Brake.NONE \
+                and self.supervision.brake_reason != START_REASON:
             self._braking_since = t
         return self._brake
 
@@ -152,14 +150,12 @@ class EtcsSupervisor:
                                    position, 0.5, 0))
             self._count(far.kind)
         flood = self.attacks.get("unknown_flood")
-        total = int(flood.rate * flood.duration) if flood is not None else 0
-        if flood is not None and flood.t <= t and self._flood_sent < total:
-            due = min(total, int((t - flood.t) * flood.rate)) - self._flood_sent
-            out += [PositionFix(flood.t + (self._flood_sent + k) / flood.rate, "eurobalise", "attacker",
-                                self.tracker.data.track_id, f"XX{self._flood_sent + k}", 1000.0, 0.5, 0)
-                    for k in range(max(0, due))]
-            self._flood_sent += max(0, due)
-            self._count(flood.kind, max(0, due))
+        sent = self.attacked.get("unknown_flood", 0)
+        if flood is not None and flood.t <= t and sent < int(flood.rate * flood.duration):
+            due = max(0, min(int(flood.rate * flood.duration), int((t - flood.t) * flood.rate)) - sent)
+            out += [PositionFix(flood.t + (sent + k) / flood.rate, "eurobalise", "attacker",
+                                self.tracker.data.track_id, f"XX{sent + k}", 1000.0, 0.5, 0) for k in range(due)]
+            self._count(flood.kind, due)
         return out
 
     def refused(self) -> dict[str, int]:

@@ -52,8 +52,8 @@ having forgotten a brake or a trip it held.
 
 Holding. A commanded brake is held, whatever the curves say after, until the standstill is
 **confirmed**: ``|v_est| < standstill_speed`` in every admitted report with a position for at
-least ``standstill_confirmation`` [s] since the brake was commanded (v_ura is left out: a train at rest may keep a speed
-uncertainty above standstill_speed and would never be released); one report, or a run of
+least ``standstill_confirmation`` [s] since the brake was commanded (v_ura is left out: a
+train at rest may keep a speed uncertainty above standstill_speed and would never be released); one report, or a run of
 them shorter than that, releases nothing (SUBSET-026 3.13: an intervention is revoked at the
 standstill, never by one report). The emergency brake likewise (always until standstill), a
 trip until its release above (also at a confirmed standstill). At a standstill the curves are
@@ -247,7 +247,7 @@ class Supervision:
         """The decision for a new location report."""
         self.stats["reports"] += 1
         self.last_report = report
-        return self._decide(report.t, report)
+        return self._decide(report.t, report, fresh=True)
 
     def on_event(self, event: LocationEvent) -> AtpDecision:
         """Apply a linking event's reaction; the decision with the latest report."""
@@ -313,14 +313,15 @@ class Supervision:
             self._standstill.break_off()
         self.brake, self.brake_reason = Brake.EMERGENCY, reason
 
-    def _decide(self, t: float, report: LocationReport | None) -> AtpDecision:
+    def _decide(self, t: float, report: LocationReport | None, fresh: bool = False) -> AtpDecision:
+        """The decision at ``t`` [s] with the latest ``report``; ``fresh``: ``report`` is new (only
+        a new report moves the standstill's confirmation, not an event or an authority)."""
         p, eoa = self.params, self.end_of_authority
         speed = abs(report.v_est) if report is not None else math.nan
         usable = (report is not None and report.has_position and math.isfinite(report.v_est)
                   and math.isfinite(report.v_ura) and report.v_ura >= 0.0)
         standstill = speed < p["standstill_speed"]          # False for NaN: moving
         status, distance, allowed = Status.NORMAL, math.nan, math.nan
-        fresh = report is not None and report is self.last_report and t == report.t   # a new report
         confirmed = self._standstill.update(t, usable and standstill, fresh)
         at_start = self._start_standstill.update(t, report is not None and standstill, fresh)
         if self.brake_reason == START_REASON and at_start:

@@ -30,18 +30,17 @@ consumer's clock (refused and silent alike): the consumer then reacts as if it h
 """
 from __future__ import annotations
 
-from ..measurements import MAX_CHAINAGE, MAX_SPEED
 from ..network.model import THROUGH, SectionEnd
 from ..sensors.base import resolve_params
 from ..signals import InputRejected
 from . import admission, plausibility
 from .admission import MAX_ITEMS, StreamAdmission
 from .plausibility import Motion, MotionGate, Reach, speed_bound
+from .state_stream import claim_checks
 
 PARAMS = {**admission.PARAMS, **plausibility.PARAMS}
 CLAIMED_MODES = (1, 2)     # TrainState MODE_NOMINAL, MODE_DEGRADED: a position is claimed
 MAX_PATHS = 256            # placements of sections a network search tries (on the reference's axis)
-SPEED, CHAINAGE = (-MAX_SPEED, MAX_SPEED), (-MAX_CHAINAGE, MAX_CHAINAGE)
 
 
 def stream_params(params: dict | None) -> dict:
@@ -68,16 +67,12 @@ class FusedStateStream:
 
     def admit(self, s, now: float | None, sizes: dict[str, int] | None = None) -> InputRejected | None:
         claimed = s.mode in CLAIMED_MODES
-        values = {"speed": s.speed, "speed_stddev": s.speed_stddev, "position": s.position,
-                  "position_min": s.position_min, "position_max": s.position_max} if claimed else {}
-        limits = {"speed": SPEED, "speed_stddev": (0.0, MAX_SPEED), "position_min": CHAINAGE,
-                  "position_max": CHAINAGE} if claimed else {}
+        checks = claim_checks(s) if claimed else {}
         clock = now if now and now > 0.0 else None
         own = Motion.of(s.stamp, claimed, s.position_min, s.position_max, s.speed,
                         speed_bound(s.confidence, s.speed_stddev) if claimed else 0.0)
         try:
-            self.stream.check(s.stamp, clock, values=values, limits=limits, ids={"track_id": s.track_id},
-                              sizes=sizes)
+            self.stream.check(s.stamp, clock, ids={"track_id": s.track_id}, sizes=sizes, **checks)
             if claimed and s.position_min > s.position_max:
                 raise InputRejected("implausible", f"{self.stream.name}: interval [{s.position_min:.3f}, "
                                                    f"{s.position_max:.3f}] m upside down")

@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
 from scipy.special import ndtri
 
 from ..measurements import MAX_SPEED
@@ -42,6 +43,14 @@ def speed_bound(confidence: float, speed_stddev: float) -> float:
     ``speed_stddev`` [m/s] (the confidence taken in 0.5 .. 1 - 1e-15; ETCS's v_ura)."""
     conf = min(max(confidence, 0.5), 1.0 - 1e-15)
     return float(ndtri(0.5 * (1.0 + conf))) * speed_stddev
+
+
+def reach_bounds(lo, hi, v_lo, v_hi, dt, a: float, v_max: float = MAX_SPEED):
+    """(lo, hi) [m] the front can reach ``dt`` [s] after it was in [``lo``, ``hi``] [m] with a
+    speed in [``v_lo``, ``v_hi``] [m/s]: the speed interval over dt, plus a dt^2 / 2 either way
+    (``a`` [m/s^2]), never faster than ``v_max`` [m/s] (the module doc). Floats or numpy arrays."""
+    grow = 0.5 * a * dt * dt
+    return (np.maximum(lo + dt * v_lo - grow, lo - v_max * dt), np.minimum(hi + dt * v_hi + grow, hi + v_max * dt))
 
 
 @dataclass(frozen=True)
@@ -96,10 +105,8 @@ class MotionGate:
         if m is None:
             return None
         dt = max(0.0, t - m.t)
-        grow = 0.5 * self.a * dt * dt
-        lo = max(m.lo + dt * m.v_lo - grow, m.lo - self.v_max * dt)
-        hi = min(m.hi + dt * m.v_hi + grow, m.hi + self.v_max * dt)
-        return Reach(t, lo, hi, m.v_lo - self.a * dt, m.v_hi + self.a * dt)
+        lo, hi = reach_bounds(m.lo, m.hi, m.v_lo, m.v_hi, dt, self.a, self.v_max)
+        return Reach(t, float(lo), float(hi), m.v_lo - self.a * dt, m.v_hi + self.a * dt)
 
     def check(self, motion: Motion) -> None:
         r = self.reach(motion.t) if motion.claimed else None

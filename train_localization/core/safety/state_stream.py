@@ -3,9 +3,23 @@ checks (admission.py) and then the kinematic plausibility (plausibility.py), in 
 that a refused state moves neither the stream's order nor the motion reference."""
 from __future__ import annotations
 
+from ..measurements import MAX_CHAINAGE, MAX_SPEED
 from ..signals import InputRejected
 from .admission import StreamAdmission, StreamLimits
 from .plausibility import Motion, MotionGate
+
+CHAINAGE, SPEED = (-MAX_CHAINAGE, MAX_CHAINAGE), (-MAX_SPEED, MAX_SPEED)   # any train's [m], [m/s]
+
+
+def claim_checks(s) -> dict:
+    """StreamAdmission.check's keyword checks of a state ``s`` that claims a position (attributes
+    ``position``, ``position_min``, ``position_max`` [m], ``speed``, ``speed_stddev`` [m/s]):
+    every number finite (``nan``), the interval and the speed within any train's
+    (``implausible``)."""
+    return {"values": {"position": s.position, "position_min": s.position_min, "position_max": s.position_max,
+                       "speed": s.speed, "speed_stddev": s.speed_stddev},
+            "limits": {"position_min": CHAINAGE, "position_max": CHAINAGE, "speed": SPEED,
+                       "speed_stddev": (0.0, MAX_SPEED)}}
 
 
 class StateStream:

@@ -235,7 +235,7 @@ class TrainStates:
                                                plausibility.MotionGate.from_params(params))
         m = params["track_margin"]
         self.limits = {"position_min": (extent[0] - m, extent[1] + m), "position_max": (extent[0] - m, extent[1] + m),
-                       "interval_width": (0.0, params["max_interval_width"]), "speed": (-MAX_SPEED, MAX_SPEED),
+                       "interval_width": (0.0, params["max_interval_width"]), "speed": state_stream.SPEED,
                        "speed_stddev": (0.0, MAX_SPEED)}
         self.window: deque[TrainView] = deque(maxlen=MAX_WINDOW)
 
@@ -312,9 +312,7 @@ class StatorController:
         speed = np.array([view.speed for view in views], float)
         bound = self.k_speed * np.array([view.speed_stddev for view in views], float)
         age = np.maximum(now - t, 0.0)
-        grow = 0.5 * a * age * age
-        front_lo = np.maximum(lo + (speed - bound) * age - grow, lo - MAX_SPEED * age)
-        front_hi = np.minimum(hi + (speed + bound) * age + grow, hi + MAX_SPEED * age)
+        front_lo, front_hi = plausibility.reach_bounds(lo, hi, speed - bound, speed + bound, age, a)
         h = self.delay + p["period"]
         front_lo = front_lo + np.minimum(speed - bound - a * age, 0.0) * h
         front_hi = front_hi + np.maximum(speed + bound + a * age, 0.0) * h

@@ -432,8 +432,9 @@ class FusionNode(ManagedNode):
         """The interlocking's switch positions (a network): priors of the track hypotheses."""
         topic = "interlocking/switches"
         try:
-            positions = convert.switch_positions_from_msg(msg, len(self.network.switches()))
-            unknown = [k for k in positions if k not in {n.node_id for n in self.network.switches()}]
+            switches = {n.node_id for n in self.network.switches()}
+            positions = convert.switch_positions_from_msg(msg, len(switches))
+            unknown = [k for k in positions if k not in switches]
             if unknown:
                 raise InputRejected("unknown_id", f"switch {unknown[0][:64]!r} is no point switch of network "
                                                   f"{self.network.network_id}")

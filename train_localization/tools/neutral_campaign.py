@@ -1,7 +1,8 @@
 """tl_neutral: randomised passages through the neutral-section changeover (seed 004
 sections 4.1-4.2, Fig. 5-6).
 
-  tl_neutral --passages 200 --seed 0 [--faults] [--controller staged|seed] [--jobs N] [--out FILE]
+  tl_neutral --passages 200 --seed 0 [--faults] [--controller staged|seed] [--layout seed|blocks]
+             [--jobs N] [--out FILE]
 
 Draws the runs (core/wayside/changeover_campaign.py: speeds 30-330 km/h, both directions,
 headways down to close following, detector noise; ``--faults``: one injected fault in half
@@ -12,8 +13,10 @@ and the dead time per passage (min / median / p95 / max) against the time the tr
 to cross the neutral section, and writes the summary as JSON (default
 out/neutral_campaign.json). Exit code 0 (a campaign is a measurement) unless ``--check``:
 then 1 when a nominal run has a short circuit or an air-section switching. ``--controller
-seed`` runs the same passages with seed 004 section 4.1's switching moments taken literally
-(core/wayside/neutral_section.py SeedMomentsController) instead of ours, for comparison.
+seed`` runs the same passages with seed 004 section 4.1's switching moments per running
+direction (core/wayside/neutral_section.py SeedMomentsController) instead of the staged
+one. ``--layout blocks`` lays the two track circuits over the whole 800 m blocks instead of
+seed 004 section 4.2's 400 m next to the middle (catenary.Layout; docs/changeover.md).
 """
 from __future__ import annotations
 
@@ -24,7 +27,7 @@ import sys
 import time
 from pathlib import Path
 
-from ..core.wayside.changeover_campaign import generate, summarise
+from ..core.wayside.changeover_campaign import LAYOUTS, generate, summarise
 from ..core.wayside.neutral_section import CONTROLLERS
 from ..core.wayside.passage import simulate
 
@@ -71,7 +74,11 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0, help="campaign seed (0)")
     ap.add_argument("--faults", action="store_true", help="inject one fault in half of the runs")
     ap.add_argument("--controller", choices=sorted(CONTROLLERS), default="staged",
-                    help="staged: ours (default); seed: seed 004 section 4.1's switching moments, for comparison")
+                    help="staged (default): at the last axle, both systems agreeing; seed: seed 004 section "
+                         "4.1's moments per running direction")
+    ap.add_argument("--layout", choices=sorted(LAYOUTS), default="seed",
+                    help="seed (default): 400 m track circuits next to the middle counting point (seed 004 "
+                         "section 4.2); blocks: track circuits over the whole 800 m blocks")
     ap.add_argument("--jobs", type=int, default=1, help="worker processes (1)")
     ap.add_argument("--out", default="out/neutral_campaign.json", help="JSON summary (out/neutral_campaign.json)")
     ap.add_argument("--check", action="store_true", help="exit 1 on a short circuit or air-section switching in a "
@@ -80,7 +87,7 @@ def main(argv=None) -> int:
     if args.passages < 1 or args.jobs < 1:
         ap.error("--passages and --jobs must be >= 1")
     runs = [dataclasses.replace(run, controller_kind=args.controller)
-            for run in generate(args.passages, args.seed, args.faults)]
+            for run in generate(args.passages, args.seed, args.faults, args.layout)]
     t0 = time.monotonic()
     if args.jobs > 1:
         from multiprocessing import get_context
@@ -89,7 +96,8 @@ def main(argv=None) -> int:
     else:
         results = [simulate(run) for run in runs]
     summary = summarise(runs, results)
-    summary.update(seed=args.seed, faults=args.faults, controller=args.controller, wall_s=time.monotonic() - t0)
+    summary.update(seed=args.seed, faults=args.faults, controller=args.controller, layout=args.layout,
+                   wall_s=time.monotonic() - t0)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(summary, indent=1))

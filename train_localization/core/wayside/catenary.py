@@ -29,17 +29,22 @@ import numpy as np
 
 from ..sensors.base import Param, check_declared, resolve_params
 
+MIN_NEUTRAL = 800.0        # [m] seed 004 section 4.2: the neutral section at least 800 m
 A, B, N = 0, 1, 2          # conductors: feeding section A, feeding section B, neutral section
 ABB1, ABB2 = "ABB-1", "ABB-2"
 
 PARAMS = {
     "neutral_length": Param(1000.0, "length of the neutral section between the air sections [m] (seed 004 "
-                                    "section 4.1: about 1 km; section 4.2: at least 800 m)", (100.0, 10000.0)),
+                                    "section 4.1: about 1 km; section 4.2: at least 800 m)", (MIN_NEUTRAL, 10000.0)),
     "air_length": Param(50.0, "length of an air section, where the contact wires of both neighbouring sections "
                               "overlap [m] (assumption: one span of about 50 m)", (1.0, 500.0)),
-    "approach": Param(250.0, "distance from the outer counting point / track-circuit boundary to the air "
-                             "section [m] (seed 004 section 4.2: a block of at least 800 m including the air "
-                             "section: 250 + 50 + half of 1000 m)", (0.0, 5000.0)),
+    "approach": Param(250.0, "distance from the outer counting point to the air section [m] (seed 004 section "
+                             "4.2: a block of at least 800 m including the air section: 250 + 50 + half of "
+                             "1000 m)", (0.0, 5000.0)),
+    "track_circuit_length": Param(400.0, "length of each track circuit, from the middle counting point outwards "
+                                         "[m] (seed 004 section 4.2: AF track circuits of about 400 m, inside the "
+                                         "neutral section; at most the block: the 'blocks' variant lays them over "
+                                         "the whole block, 800 m)", (50.0, 5000.0)),
     "lead": Param(1000.0, "track before the first and after the last counting point [m] (where the "
                           "trains start and end)", (100.0, 10000.0)),
     "supply_frequency": Param(60.0, "frequency of the traction supply [Hz] (Korean 25 kV AC: 60 Hz; "
@@ -51,13 +56,41 @@ check_declared(PARAMS, "catenary")
 @dataclass(frozen=True)
 class Layout:
     """Chainages [m] of a changeover section: counting points AC0 < AC1 < AC2 (AC1 in the
-    middle of the neutral section), the air sections air1 = (a1, b1), air2 = (a2, b2)."""
+    middle of the neutral section), the air sections air1 = (a1, b1), air2 = (a2, b2), the
+    track circuits tc1 = (AC1 - L, AC1) and tc2 = (AC1, AC1 + L) (L = ``track_circuit_length``).
+
+    Seed 004 section 4.2: axle-counter blocks AC0..AC1 and AC1..AC2 of at least 800 m with
+    the air section in them, AF track circuits of about 400 m, a neutral section of at least
+    800 m: the 400 m circuits lie in the neutral section next to AC1, and only the axle
+    counter sees a train in the outer part of a block (occupancy.py: no contradiction there)."""
 
     ac: tuple[float, float, float]
     air1: tuple[float, float]
     air2: tuple[float, float]
     length: float                       # track length [m]
     params: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def __post_init__(self):
+        x0, x1, x2 = self.ac
+        neutral = self.air2[0] - self.air1[1]
+        if neutral < MIN_NEUTRAL - 1e-6:
+            raise ValueError(f"a neutral section of {neutral:g} m: seed 004 section 4.2 asks for at least "
+                             f"{MIN_NEUTRAL:g} m")
+        tc = self.params.get("track_circuit_length", PARAMS["track_circuit_length"].default)
+        if tc > min(x1 - x0, x2 - x1) + 1e-6:
+            raise ValueError(f"track circuits of {tc:g} m do not fit the blocks {x1 - x0:g} / {x2 - x1:g} m")
+
+    @property
+    def tc1(self) -> tuple[float, float]:
+        """Track circuit TC1 on the A side, ending at AC1 [m]."""
+        x1 = self.ac[1]
+        return x1 - self.params.get("track_circuit_length", PARAMS["track_circuit_length"].default), x1
+
+    @property
+    def tc2(self) -> tuple[float, float]:
+        """Track circuit TC2 on the B side, starting at AC1 [m]."""
+        x1 = self.ac[1]
+        return x1, x1 + self.params.get("track_circuit_length", PARAMS["track_circuit_length"].default)
 
     @classmethod
     def from_params(cls, overrides: dict | None = None) -> "Layout":
@@ -106,11 +139,13 @@ class Layout:
 
     def track_dict(self, tc_params: dict | None = None) -> dict:
         """The detection of seed 004 Fig. 6 as track equipment: two UM71C track circuits
-        TC1 = AC0..AC1, TC2 = AC1..AC2 and three axle-counter heads (sections S1, S2)."""
+        TC1, TC2 either side of AC1 (``tc1``, ``tc2``) and three axle-counter heads (sections
+        S1 = AC0..AC1, S2 = AC1..AC2)."""
         x0, x1, x2 = self.ac
+        (s1, e1), (s2, e2) = self.tc1, self.tc2
         return {"track_id": "changeover", "length": self.length, "equipment": {
-            "track_circuit": [{"id": "TC1", "start": x0, "end": x1, "system": "UM71C", "line": "T1"},
-                              {"id": "TC2", "start": x1, "end": x2, "system": "UM71C", "line": "T1"}],
+            "track_circuit": [{"id": "TC1", "start": s1, "end": e1, "system": "UM71C", "line": "T1"},
+                              {"id": "TC2", "start": s2, "end": e2, "system": "UM71C", "line": "T1"}],
             "axle_counter_head": [{"id": "AC0", "position": x0, "section": "S1"},
                                   {"id": "AC1", "position": x1, "section": "S2"},
                                   {"id": "AC2", "position": x2}]}}

@@ -32,10 +32,16 @@ SPEED_RANGE = (30.0, 330.0)          # [km/h]
 FAULT_KINDS = ("poor_shunt", "tc_stuck", "ac_disturbed")
 
 
-def generate(passages: int, seed: int, faults: bool = False) -> list[Run]:
-    """Runs holding ``passages`` trains in all, drawn from ``seed``."""
+# the layouts tl_neutral can run (catenary.PARAMS overrides): seed 004 section 4.2's 400 m track
+# circuits next to the middle counting point (the default), or circuits over the whole 800 m blocks
+LAYOUTS = {"seed": {}, "blocks": {"track_circuit_length": 800.0}}
+
+
+def generate(passages: int, seed: int, faults: bool = False, layout: str = "seed") -> list[Run]:
+    """Runs holding ``passages`` trains in all, drawn from ``seed``, on ``layout`` (LAYOUTS)."""
     rng = np.random.default_rng([seed, 4004])
-    layout = Layout.from_params({})
+    overrides = dict(LAYOUTS[layout])
+    layout = Layout.from_params(overrides)
     span = layout.ac[2] - layout.ac[0]
     runs: list[Run] = []
     left = passages
@@ -65,7 +71,7 @@ def generate(passages: int, seed: int, faults: bool = False) -> list[Run]:
                                   speed=float(v0), final_speed=v1, accel=float(rng.uniform(0.2, 0.5)))
             trains.append(t)
             t_free = t.time_at(span + t.length)       # rear past the far counting point
-        run = Run(trains, seed=int(rng.integers(0, 2 ** 31)),
+        run = Run(trains, seed=int(rng.integers(0, 2 ** 31)), layout=dict(overrides),
                   track_circuit={"ballast_resistance": float(rng.uniform(2.0, 20.0)),
                                  "noise_sigma": float(rng.uniform(0.01, 0.04))},
                   axle_counter={"noise_sigma": float(rng.uniform(0.01, 0.04)),

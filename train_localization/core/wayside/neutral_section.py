@@ -235,20 +235,61 @@ class ChangeoverController:
 
 
 class SeedMomentsController(ChangeoverController):
-    """Seed 004 section 4.1's switching moments taken literally, for comparison (tl_neutral
-    ``--controller seed``): with no train in the changeover section (S1 and S2 clear) the
-    neutral is fed from A; as soon as a train is in it (either section occupied) ABB-1 opens
-    and ABB-2 closes, B feeds; when it has left (both clear) back to A. In both directions.
-    The same detection, safe state and timing as ChangeoverController; what differs is the
-    moment of each switching: it does not wait for the train's pantographs to be clear of the
-    air section between A and the neutral (docs/changeover.md, "The seed's moments")."""
+    """Seed 004 section 4.1's switching moments, per running direction (tl_neutral
+    ``--controller seed``). The seed switches "in the running direction, from one phase to
+    the other": with no train in the sectioning track circuit the neutral is fed from the
+    phase behind the train, when a train enters it the phase ahead feeds, when it has left,
+    back. Section 4.2 lays one circuit per running direction (Fig. 6); a train's sectioning
+    circuit is the one it enters second (S2 for A -> B, S1 for B -> A), so it switches at
+    the middle counting point, once the front is there:
+
+      A -> B (enters S1):  fed from A; S2 occupied: B (ABB-1 opens, ABB-2 closes after the
+                           gap); S1 clear, then S2 clear: back to A.
+      B -> A (enters S2):  B feeds at once (the train is an approach distance before air
+                           section 2); S1 occupied: A; S2 clear, then S1 clear: idle (A).
+
+    Safe only where every raised pantograph is past the first air section when the front
+    reaches the middle: less than half the neutral section behind the front
+    (docs/changeover.md, "The seed's moments"). The same detection, safe state, gap and hold
+    for a following train as ChangeoverController."""
 
     def _step(self, now: float, w: CombinedSection, e: CombinedSection) -> None:
-        if self.mode == "IDLE" and (w.state == OCCUPIED or e.state == OCCUPIED):
-            self._go(now, "SEED_IN", "B", "a train in the changeover section: neutral to B (seed 004 section 4.1)")
-        elif self.mode == "SEED_IN" and w.state == CLEAR and e.state == CLEAR:
-            self._go(now, "IDLE", "A", "the train has left the changeover section: neutral back to A")
+        m = self.mode
+        if m == "IDLE":
+            if w.state == OCCUPIED and e.state == OCCUPIED:
+                self._enter_safe(now, f"{self.west} and {self.east} occupied at once with no train entering")
+            elif w.state == OCCUPIED:
+                self._go(now, "AB_IN", "A", f"train entered {self.west} (A -> B)")
+            elif e.state == OCCUPIED:
+                self._go(now, "BA_IN", "B", f"train entered {self.east} (B -> A): neutral to B")
+            return
+        way, stage = m.split("_", 1)
+        first, second = (w, e) if way == "AB" else (e, w)
+        behind, ahead = ("A", "B") if way == "AB" else ("B", "A")
+        name = second.section_id
+        if stage == "IN":
+            if second.state == OCCUPIED:
+                self._go(now, f"{way}_SWITCHED", ahead, f"front entered {name}, its sectioning circuit: neutral "
+                                                        f"to {ahead} (seed 004 section 4.1)")
+            elif first.state == CLEAR:
+                self._go(now, "IDLE", "A", f"{first.section_id} clear again (train backed out)")
+        elif stage == "SWITCHED":
+            if first.state == CLEAR:
+                self._go(now, f"{way}_OUT", None, f"{first.section_id} clear in both systems")
+            elif second.state == CLEAR:
+                self._go(now, f"{way}_IN", behind, f"{name} clear again (train backed): neutral to {behind}")
+        elif stage == "OUT":
+            if first.state == OCCUPIED:
+                self._hold(now, f"{way}_HOLD", f"following train entered {first.section_id} while the neutral is "
+                                               f"fed from {ahead} for the leader")
+            elif second.state == CLEAR:
+                self._go(now, "IDLE", "A", f"train left {name}: neutral to A")
+        elif stage == "HOLD" and second.state == CLEAR:
+            if first.state == OCCUPIED:
+                self._go(now, f"{way}_IN", behind, f"leader cleared {name}: neutral to {behind}")
+            else:
+                self._go(now, "IDLE", "A", f"leader cleared {name}")
 
 
-# the controllers tl_neutral can run: ours (the default) and the seed's moments
+# the controllers tl_neutral can run: ours (the default) and the seed's moments per direction
 CONTROLLERS = {"staged": ChangeoverController, "seed": SeedMomentsController}

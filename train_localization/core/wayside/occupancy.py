@@ -2,8 +2,11 @@
 section (seed 004 section 4.2: "track circuits as the basis, axle counters in parallel";
 section 5: a duplicated detection with axle counters at the block boundaries).
 
-Each combined section pairs one track circuit with one axle-counter section over the same
-extent (Fig. 6: TC1 / TC2 and the sections between the three counting points). The two
+Each combined section pairs one track circuit with one axle-counter section (Fig. 6: TC1 /
+TC2 and the sections between the three counting points). The circuit may cover only part
+of the axle section (seed 004 section 4.2: AF circuits of about 400 m in blocks of at least
+800 m; catenary.Layout): then the axle counter alone sees a train in the rest, and "track
+circuit CLEAR, axle counter OCCUPIED" there is no disagreement (``PARTIAL``). The two
 systems' states are voted (``vote``):
 
     track circuit \\ axle counter   CLEAR      OCCUPIED     DISTURBED / silent
@@ -46,6 +49,7 @@ from ..sensors.base import Param, check_declared, resolve_params
 from ..signals import InputRejected
 
 SILENT = -1        # a system with no report within the timeout
+PARTIAL = 50.0     # [m] a track circuit this much shorter than its axle section covers part of it
 STATE_NAMES = {CLEAR: "CLEAR", OCCUPIED: "OCCUPIED", DISTURBED: "DISTURBED", SILENT: "SILENT"}
 
 PARAMS = {
@@ -207,6 +211,8 @@ class CombinedOccupancy:
             tc, s_tc = self._state(self._tc, tc_id, self.sections.tc_source, now)
             ac, s_ac = self._state(self._ac, ac_id, self.sections.ac_source, now)
             state, dis, degraded = vote(tc, ac)
+            if dis and (tc, ac) == (CLEAR, OCCUPIED) and _partial(s_tc, s_ac):
+                dis = False          # the train is where only the axle counter sees it
             if dis:
                 since = self._since.setdefault(sid, now)
                 rec = self._open.get(sid)
@@ -228,6 +234,11 @@ class CombinedOccupancy:
                                        dis and now - since > self.params["disagree_tolerance"], degraded,
                                        s_ac.axle_count if s_ac is not None else 0))
         return out
+
+
+def _partial(tc: SectionState | None, ac: SectionState | None) -> bool:
+    """The track circuit covers only part of the axle section (shorter by more than PARTIAL)."""
+    return tc is not None and ac is not None and (tc.end - tc.start) < (ac.end - ac.start) - PARTIAL
 
 
 def to_occupancy(stamp: float, sections: list[CombinedSection], source: str = "combined") -> SectionOccupancy:

@@ -21,7 +21,7 @@ from .measurements import (DistanceIncrement, PositionFix, SectionOccupancy, Sec
                            SpeedMeasurement, YawRate)
 from .etcs.records import EventKind, LocationEvent, LocationReport, QDirLrbg, Reaction
 from .safety.admission import MAX_ITEMS
-from .scenario import TruthState
+from .truth import TruthState
 from .signals import InputRejected, RawBlock, require_short
 
 NS = 1_000_000_000

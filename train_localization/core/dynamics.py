@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 
-from .scenario import TruthState
+from .truth import TruthState
 from .sensors.base import Param, check_declared, resolve_params
 from .track import Track
 

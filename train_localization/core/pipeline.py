@@ -12,7 +12,9 @@ from dataclasses import dataclass, replace
 
 from .measurements import Measurement
 from .network.labels import SectionLabels
-from .scenario import LineTruth, Scenario, TruthBuffer, TruthState, Vehicle
+from .scenario import Scenario
+from .truth import LineTruth, TruthBuffer, TruthState
+from .vehicle import Vehicle
 from .sensors import spec as sensor_spec
 from .sensors.base import COMMON_PARAMS, SensorSpec, sensor_params
 from .signals import BlockSequenceGuard, InputRejected, RawBlock

@@ -31,7 +31,6 @@ the simulator node integrating the controller's traction command, not from ``tra
 from __future__ import annotations
 
 import hashlib
-import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,8 +39,22 @@ import numpy as np
 import yaml
 
 from . import paths
-from .network.model import is_network
+from .control import control_config
+from .dynamics import DYNAMICS_PARAMS
+from .etcs.supervision import supervision_params
+from .network.model import Network, NetworkError, is_network
+from .network.path import route_path, route_track
+from .network.wayside import WAYSIDE_KINDS, check_device
+from .sensors import NODE_NAMES, spec as sensor_spec
+from .sensors.base import resolve_params
 from .track import Track
+from .truth import Leg, LineTruth, Trajectory, TruthBuffer, TruthState
+from .vehicle import Vehicle
+from .wayside.changeover import ChangeoverError, Site
+
+# the data of a scenario kept in their own modules (the subsystems use them without the scenario)
+__all__ = ["Leg", "LineTruth", "NETWORK_SENSORS", "Scenario", "ScenarioError", "TRAIN", "Trajectory", "TruthBuffer",
+           "TruthState", "Vehicle", "WAYSIDE"]
 
 
 class ScenarioError(ValueError):
@@ -51,39 +64,6 @@ class ScenarioError(ValueError):
 TRAIN = "train"          # the name (and namespace) of the train of a one-train scenario
 WAYSIDE = "wayside"      # the namespace of the wayside equipment of a line
 _NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")   # a train name is a ROS namespace token
-
-
-@dataclass(frozen=True)
-class TruthState:
-    """True kinematic state of the train front at ``stamp`` [s]."""
-
-    stamp: float
-    position: float      # chainage [m]
-    speed: float         # [m/s]
-    acceleration: float  # [m/s^2]
-
-
-@dataclass(frozen=True)
-class Leg:
-    speed: float
-    accel: float = 0.8
-    decel: float = 1.0
-    jerk: float = 0.5
-    hold: float = 0.0
-
-
-@dataclass
-class Vehicle:
-    """Vehicle type, length [m] and axle offsets behind the front [m] (none for maglev); the
-    raised pantographs' offsets behind the front [m] and whether a roof bus joins them (the
-    catenary of a changeover section, core/wayside/catenary.py)."""
-
-    kind: str = "conventional"
-    length: float = 200.0
-    axles: tuple[float, ...] = ()
-    wheel_diameter: float = 0.92  # nominal [m]
-    pantographs: tuple[float, ...] = ()
-    roof_bus: bool = False
 
 
 @dataclass
@@ -153,7 +133,6 @@ class Scenario:
         """The line's changeover section (core/wayside/changeover.py Site), or None."""
         if not self.changeover:
             return None
-        from .wayside.changeover import Site
         return Site.from_config(self.changeover, self.track)
 
     def wayside_vehicle(self) -> Vehicle:
@@ -228,16 +207,12 @@ class Scenario:
             _check_line(scenario)
         for train in scenario.trains.values():
             if train.control:
-                from .control import control_config
-                from .dynamics import DYNAMICS_PARAMS
-                from .sensors.base import resolve_params
                 try:
                     control_config(train.control)
                     resolve_params(DYNAMICS_PARAMS, train.dynamics)
                 except ValueError as exc:
                     raise ScenarioError(f"scenario {scenario.name}: {exc}") from None
             if train.atp:
-                from .etcs.supervision import supervision_params
                 try:
                     supervision_params(train.atp)
                 except ValueError as exc:
@@ -303,7 +278,6 @@ def _train_fields(data: dict) -> dict:
 
 def _network(track_data: dict):
     """The Network of a track description with ``sections`` (ScenarioError in one line)."""
-    from .network import Network, NetworkError
     try:
         return Network.from_dict(track_data)
     except NetworkError as exc:
@@ -321,7 +295,6 @@ def _route_fields(data: dict, network, name: str, fields: dict) -> dict:
     scenario's ``track``), start (``initial.position`` is the chainage on the first section)
     and the switch positions the interlocking reports (the ways the route takes, unless
     ``reported`` says otherwise: a wrong way, or "" for unknown)."""
-    from .network import NetworkError, route_path, route_track
     what = f"train {name}: " if name != TRAIN else ""
     route = data.get("route")
     if not isinstance(route, dict) or "sections" not in route:
@@ -331,8 +304,6 @@ def _route_fields(data: dict, network, name: str, fields: dict) -> dict:
         raise ScenarioError(f"{what}route: unknown keys {sorted(unknown)}; known: {sorted(_ROUTE_KEYS)}")
     others = [s for s in fields["sensors"] if s not in NETWORK_SENSORS]
     if others:
-        from .network.wayside import WAYSIDE_KINDS
-        from .sensors import NODE_NAMES, spec as sensor_spec
         on_sections = [n for n in NODE_NAMES if sensor_spec(n).sensor in WAYSIDE_KINDS]   # wayside on a network
         wayside = [s for s in others if s in on_sections]
         if wayside:
@@ -399,7 +370,6 @@ def _line(cls, data: dict, common: dict, network=None) -> Scenario:
 
 def _check_line(scenario: Scenario) -> None:
     """Sensors where they belong, and no two trains on the same metres at the start."""
-    from .sensors import spec as sensor_spec
     for node in scenario.wayside:
         try:
             sp = sensor_spec(node)
@@ -408,8 +378,6 @@ def _check_line(scenario: Scenario) -> None:
         if not sp.simulator.sees_all_trains:
             raise ScenarioError(f"wayside: {node} is on-board equipment (list it under a train's sensors)")
         if scenario.network is not None:
-            from .network import NetworkError
-            from .network.wayside import check_device
             try:
                 check_device(sp, scenario.wayside[node] or {}, scenario.network)
             except NetworkError as exc:
@@ -424,7 +392,6 @@ def _check_line(scenario: Scenario) -> None:
                 raise ScenarioError(f"train {train.train_name}: {node} is wayside equipment: on a line it "
                                     f"sees every train (list it under wayside: sensors:)")
     if scenario.changeover:
-        from .wayside.changeover import ChangeoverError
         try:
             scenario.changeover_site()
         except ChangeoverError as exc:
@@ -437,137 +404,3 @@ def _check_line(scenario: Scenario) -> None:
             raise ScenarioError(f"trains {a.train_name} and {b.train_name} overlap at the start "
                                 f"({a.extent()[0]:.1f}..{a.extent()[1]:.1f} m and "
                                 f"{b.extent()[0]:.1f}..{b.extent()[1]:.1f} m)")
-
-
-class Trajectory:
-    """Ground-truth motion sampled every ``dt`` [s]: arrays t, position, speed, acceleration.
-
-    ``position`` is the distance run from the track's origin; on a closed track (``period`` its
-    length [m]) ``state_at`` gives the chainage wrapped round it."""
-
-    period: float | None = None
-
-    def __init__(self, t, position, speed, acceleration):
-        self.t, self.position, self.speed, self.acceleration = t, position, speed, acceleration
-
-    @classmethod
-    def from_legs(cls, legs, s0, v0, duration, dt):
-        n = int(round(duration / dt)) + 1
-        t = np.arange(n) * dt
-        s = np.empty(n)
-        v = np.empty(n)
-        a = np.empty(n)
-        s[0], v[0], a[0] = s0, v0, 0.0
-        leg_idx, hold_left, reached = 0, None, False
-        for k in range(1, n):
-            acc = a[k - 1]
-            if leg_idx < len(legs):
-                leg = legs[leg_idx]
-                err = leg.speed - v[k - 1]
-                if not reached:
-                    speeding_up = (err > 0) == (v[k - 1] >= 0) and abs(v[k - 1]) > 1e-9 or abs(v[k - 1]) <= 1e-9
-                    limit = leg.accel if speeding_up else leg.decel
-                    # accelerate with limited jerk; start easing off early enough
-                    # that the acceleration is back to ~0 when the target is reached
-                    a_target = math.copysign(limit, err)
-                    ease = acc * acc / (2.0 * leg.jerk)
-                    if abs(err) <= ease + abs(acc) * dt:
-                        a_target = 0.0
-                    acc += float(np.clip(a_target - acc, -leg.jerk * dt, leg.jerk * dt))
-                    if abs(err) < 1e-3 or (abs(err) < abs(acc) * dt * 2 and a_target == 0.0):
-                        reached, hold_left, acc = True, leg.hold, 0.0
-                if reached:
-                    acc = float(np.clip((leg.speed - v[k - 1]) / dt, -leg.jerk * dt, leg.jerk * dt))
-                    hold_left -= dt
-                    if hold_left <= 0:
-                        leg_idx, reached = leg_idx + 1, False
-            else:
-                acc = float(np.clip(-acc, -0.5 * dt, 0.5 * dt)) + acc
-            a[k] = acc
-            v[k] = v[k - 1] + acc * dt
-            s[k] = s[k - 1] + 0.5 * (v[k - 1] + v[k]) * dt
-        return cls(t, s, v, a)
-
-    def state_at(self, stamp: float) -> TruthState:
-        position = float(np.interp(stamp, self.t, self.position))
-        if self.period:
-            position %= self.period
-        return TruthState(float(stamp), position,
-                          float(np.interp(stamp, self.t, self.speed)),
-                          float(np.interp(stamp, self.t, self.acceleration)))
-
-
-class TruthBuffer:
-    """Recent ground-truth states; samples the motion at arbitrary times in between.
-
-    Sensor simulators run on ``ground_truth/state`` messages (docs/nodes.md, simulator);
-    between two states the acceleration of the earlier one is held, which is exact
-    for the piecewise-constant acceleration of the simulator at its state rate.
-    """
-
-    def __init__(self, horizon: float = 10.0):
-        self.horizon = horizon
-        self._t: list[float] = []
-        self._s: list[float] = []
-        self._v: list[float] = []
-        self._a: list[float] = []
-
-    def add(self, state: TruthState) -> None:
-        """Append a state; states must come in increasing time (others are ignored)."""
-        if self._t and state.stamp <= self._t[-1]:
-            return
-        self._t.append(state.stamp)
-        self._s.append(state.position)
-        self._v.append(state.speed)
-        self._a.append(state.acceleration)
-        if self._t[-1] - self._t[0] > 2 * self.horizon:
-            cut = int(np.searchsorted(self._t, self._t[-1] - self.horizon))
-            del self._t[:cut], self._s[:cut], self._v[:cut], self._a[:cut]
-
-    @property
-    def latest(self) -> float | None:
-        """Stamp of the newest state [s], None before the first."""
-        return self._t[-1] if self._t else None
-
-    @property
-    def earliest(self) -> float | None:
-        return self._t[0] if self._t else None
-
-    def sample(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(position, speed, acceleration) arrays at ``times`` [s]."""
-        t = np.asarray(self._t)
-        idx = np.clip(np.searchsorted(t, times, side="right") - 1, 0, len(t) - 1)
-        dt = np.asarray(times) - t[idx]
-        s0, v0, a0 = np.asarray(self._s)[idx], np.asarray(self._v)[idx], np.asarray(self._a)[idx]
-        return s0 + v0 * dt + 0.5 * a0 * dt * dt, v0 + a0 * dt, a0
-
-
-class LineTruth:
-    """The ground truth of every train of a line, as a wayside device sees it.
-
-    One TruthBuffer per train (in the scenario's order); ``sample`` gives arrays of shape
-    (times, trains). The blocks of a wayside simulator are complete once every train's
-    truth covers them (``latest`` is the oldest train's newest stamp).
-    """
-
-    def __init__(self, vehicles: dict[str, Vehicle], horizon: float = 10.0):
-        self.vehicles = dict(vehicles)
-        self.buffers = {name: TruthBuffer(horizon) for name in self.vehicles}
-
-    def add(self, train: str, state: TruthState) -> None:
-        self.buffers[train].add(state)
-
-    @property
-    def latest(self) -> float | None:
-        stamps = [b.latest for b in self.buffers.values()]
-        return None if None in stamps else min(stamps)
-
-    @property
-    def earliest(self) -> float | None:
-        stamps = [b.earliest for b in self.buffers.values()]
-        return None if None in stamps else max(stamps)
-
-    def sample(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(position, speed, acceleration) arrays of shape (len(times), trains)."""
-        cols = [b.sample(times) for b in self.buffers.values()]
-        return tuple(np.stack([c[i] for c in cols], axis=1) for i in range(3))

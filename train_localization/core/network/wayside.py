@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..measurements import SectionOccupancy
-from ..scenario import Vehicle
+from ..vehicle import Vehicle
 from ..signals import MAX_CHANNELS, InputRejected, RawBlock
 from ..sensors.axle_counter import AxleCounterDecoder, Areas, device_heads
 from ..sensors.base import OFF_RAILS, Decoder, SensorSpec, Simulator

@@ -30,7 +30,8 @@ import numpy as np
 from scipy.signal import lfilter
 
 from ..measurements import Measurement
-from ..scenario import TruthBuffer, Vehicle
+from ..truth import TruthBuffer
+from ..vehicle import Vehicle
 from ..signals import InputRejected, RawBlock
 from ..track import Track
 from .faults import FAULT_MODES

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..measurements import SectionOccupancy
-from ..scenario import Vehicle
+from ..vehicle import Vehicle
 from ..sensors import axle_counter as acm
 from ..sensors import track_circuit as tcm
 from ..sensors.base import resolve_params

@@ -32,22 +32,31 @@ from ..core.scenario import ScenarioError
 from ..core.sensors import spec as sensor_spec
 from ..core.signals import InputRejected
 from ..core.safety.fused_state import PARAMS as ADMISSION_PARAMS
-from .common import STREAM_QOS, Diagnostics, declare, declare_params, now_sec, rclpy_classes, required_scenario, spin
+from ..core.sensors.base import Param
+from .common import (STREAM_QOS, Diagnostics, declare_param, declare_params, now_sec, rclpy_classes, required_scenario,
+                     spin)
+
+# the node's parameters (tools/docs.py writes them into config/params/association.yaml)
+PARAMS = {
+    "scenario": Param("", "line scenario YAML"),
+    "gate": Param(Associator.gate, "gate of the fused interval and the fix [sigma]", (1.0, 10.0)),
+    "min_speed": Param(Associator.min_speed, "fused speed below which it gives no direction [m/s]", (0.0, 10.0)),
+    "history": Param(10.0, "fused states kept per train [s]", (0.1, 3600.0)),
+    **ADMISSION_PARAMS,
+}
+SCENARIO_DEFAULTS = ("gate", "min_speed")   # their default is the scenario's association: section
 
 
 class AssociationNode(Node):
     def __init__(self):
         super().__init__("association")
-        line = required_scenario(self, "line scenario YAML", "a line scenario YAML file")
+        line = required_scenario(self, PARAMS, "a line scenario YAML file")
         if not line.line:
             raise ScenarioError(f"scenario {line.name} has one train: nothing to associate")
         defaults = Associator.for_trains({}, {}, line.association)
-        gate = float(declare(self, "gate", defaults.gate, "gate of the fused interval and the fix [sigma]",
-                             read_only=True, limits=(1.0, 10.0)))
-        min_speed = float(declare(self, "min_speed", defaults.min_speed, "fused speed below which it gives no "
-                                  "direction [m/s]", read_only=True, limits=(0.0, 10.0)))
-        history = float(declare(self, "history", 10.0, "fused states kept per train [s]", read_only=True,
-                                limits=(0.1, 3600.0)))
+        gate = float(declare_param(self, PARAMS, "gate", defaults.gate))
+        min_speed = float(declare_param(self, PARAMS, "min_speed", defaults.min_speed))
+        history = float(declare_param(self, PARAMS, "history"))
         params = declare_params(self, ADMISSION_PARAMS)
         self.mc = rclpy_classes()
         self.inputs = {name: TrainInputs(name, params, history, line.network, tr.track.circumference)

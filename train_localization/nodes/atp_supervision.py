@@ -50,13 +50,23 @@ from ..core.convert import etcs_event_from_msg, etcs_report_from_msg
 from ..core.etcs import admission, supervision
 from ..core.etcs.records import Reaction
 from ..core.signals import InputRejected
-from .common import STREAM_QOS, ConfigurationError, Diagnostics, declare, declare_params, now_sec, rclpy_classes, spin
+from ..core.sensors.base import Param
+from .common import (STREAM_QOS, ConfigurationError, Diagnostics, declare_param, declare_params, now_sec, rclpy_classes,
+                     spin)
 
 REPORTS, EVENTS, AUTHORITY, COMMAND = ("localization/etcs", "localization/etcs_events", "atp/end_of_authority",
                                        "atp/command")
 # a new authority: reliable (none lost), volatile (matches any reliable publisher)
 AUTHORITY_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE)
 LEVEL = {supervision.Status.INTERVENTION: 1, supervision.Status.TRIP: 2}   # others: OK
+# the report stream's time-out is report_timeout; nothing is shed (reports come at the state rate)
+GUARD_PARAMS = {name: p for name, p in admission.PARAMS.items()
+                if name not in ("input_timeout", "max_input_rate", "max_fix_rate")}
+# the node's parameters (tools/docs.py writes them into config/params/atp_supervision.yaml)
+PARAMS = {**supervision.PARAMS,
+          "command_period": Param(0.1, "atp/command is published on every change of status or brake and otherwise "
+                                       "at most this often [s]; 0 = for every report", (0.0, 10.0)),
+          **GUARD_PARAMS}
 
 
 class AtpSupervisionNode(Node):
@@ -67,19 +77,15 @@ class AtpSupervisionNode(Node):
         from train_localization_msgs.msg import AtpCommand, EtcsEvent, EtcsLocation
         self._cmd_cls = AtpCommand
         self.diag = Diagnostics(self, "ATP supervision to the end of authority")
-        params = {name: declare(self, name, p.default, p.description, read_only=True, limits=p.limits)
-                  for name, p in supervision.PARAMS.items()}
+        params = declare_params(self, supervision.PARAMS)
         try:
             self.sup = supervision.Supervision(params)
         except ValueError as exc:
             raise ConfigurationError(str(exc)) from None
-        self.command_period = declare(self, "command_period", 0.1, "atp/command is published on every change of "
-                                      "status or brake and otherwise at most this often [s]; 0 = for every report",
-                                      read_only=True, limits=(0.0, 10.0))
+        self.command_period = declare_param(self, PARAMS, "command_period")
         self._published: tuple | None = None     # (stamp [s], status, brake) of the last command
         # the report stream's time-out is report_timeout; nothing is shed (reports come at the state rate)
-        guard = declare_params(self, {name: p for name, p in admission.PARAMS.items()
-                                      if name not in ("input_timeout", "max_input_rate", "max_fix_rate")})
+        guard = declare_params(self, GUARD_PARAMS)
         self.inputs = admission.SupervisionAdmission(guard, self.sup.orientation, params["report_timeout"])
         self.mc = rclpy_classes()
         self.track_id = ""

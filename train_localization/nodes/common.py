@@ -207,11 +207,23 @@ def declare(node: Node, name: str, default, description: str = "", read_only: bo
     return value
 
 
-def declare_params(node: Node, params: dict) -> dict:
-    """Every core Param of ``params`` declared read-only with its description and range;
-    name -> value."""
-    return {name: declare(node, name, p.default, p.description, read_only=True, limits=p.limits)
+def declare_params(node: Node, params: dict, read_only: bool = True) -> dict:
+    """Every core Param of ``params`` declared (read-only unless told) with its description and
+    range; name -> value."""
+    return {name: declare(node, name, p.default, p.description, read_only=read_only, limits=p.limits)
             for name, p in params.items()}
+
+
+_TABLE_DEFAULT = object()
+
+
+def declare_param(node: Node, params: dict, name: str, default=_TABLE_DEFAULT, read_only: bool = True):
+    """Parameter ``name`` of a node's table ``params`` (name -> core Param: the node's parameters,
+    which tools/docs.py writes into its example params file) declared and its value returned;
+    ``default``: a run-time default in place of the table's (e.g. the scenario's)."""
+    p = params[name]
+    return declare(node, name, p.default if default is _TABLE_DEFAULT else default, p.description,
+                   read_only=read_only, limits=p.limits)
 
 
 def _double_parameters(node: Node) -> set:
@@ -280,11 +292,11 @@ class ManagedNode(LifecycleNode):
 
 
 
-def required_scenario(node: Node, description: str, needed: str):
-    """The scenario of the read-only parameter ``scenario`` (its ``description``); a node
-    that cannot run without one stops in one line naming what it ``needed``."""
+def required_scenario(node: Node, params: dict, needed: str):
+    """The scenario of the read-only parameter ``scenario`` (of the node's table ``params``); a
+    node that cannot run without one stops in one line naming what it ``needed``."""
     from ..core.scenario import Scenario
-    path = declare(node, "scenario", "", description, read_only=True)
+    path = declare_param(node, params, "scenario")
     if not path:
         raise ConfigurationError(f"parameter 'scenario' is required ({needed})")
     return Scenario.from_yaml(path)

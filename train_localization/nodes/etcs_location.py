@@ -45,7 +45,8 @@ from ..core.etcs.track_data import EtcsData
 from ..core.scenario import Scenario
 from ..core.signals import InputRejected
 from ..core.track import Track
-from .common import (LATCHED_QOS, STREAM_QOS, ConfigurationError, Diagnostics, declare, declare_params, now_sec,
+from ..core.sensors.base import Param
+from .common import (LATCHED_QOS, STREAM_QOS, ConfigurationError, Diagnostics, declare_param, declare_params, now_sec,
                      rclpy_classes, spin)
 
 ALARM_HOLD = 30.0      # [s] of state time a linking or odometer alarm stays in the diagnostics
@@ -57,6 +58,15 @@ FIX_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=32, reliability=Reli
 # events that are a linking or odometer alarm (WARN for ALARM_HOLD), and the one that is an ERROR
 ALARMS = (EventKind.MISSED_LINKED_GROUP, EventKind.OUTSIDE_WINDOW, EventKind.ODOMETER_IMPAIRED,
           EventKind.REFERENCE_REJECTED, EventKind.NOT_LINKED, EventKind.UNKNOWN_GROUP)
+# the tracker's parameters but its orientation (the node's, or the scenario's train's)
+TRACKER_PARAMS = {name: p for name, p in location.PARAMS.items() if name != "orientation"}
+# the node's parameters (tools/docs.py writes them into config/params/etcs_location.yaml)
+PARAMS = {
+    "scenario": Param("", "scenario YAML (track with ETCS data, the train)"),
+    "track": Param("config/track_etcs.yaml", "track YAML when no scenario is given"),
+    "orientation": Param(1, "+1: the front faces increasing chainage, -1: decreasing (without a scenario)", (-1, 1)),
+    **TRACKER_PARAMS, **admission.PARAMS,
+}
 
 
 def state_from_msg(msg) -> location.FusedState:
@@ -87,8 +97,7 @@ class EtcsLocationNode(Node):
         self._report_cls, self._event_cls = EtcsLocation, EtcsEvent
         self.diag = Diagnostics(self, "ETCS location")
         track, orientation = self._configuration()
-        params = {name: declare(self, name, p.default, p.description, read_only=True, limits=p.limits)
-                  for name, p in location.PARAMS.items() if name != "orientation"}
+        params = declare_params(self, TRACKER_PARAMS)
         guard = declare_params(self, admission.PARAMS)
         try:
             data = EtcsData.from_track(track)
@@ -109,12 +118,9 @@ class EtcsLocationNode(Node):
         self.diag.extra(self._health)
 
     def _configuration(self) -> tuple[Track, int]:
-        scenario_path = declare(self, "scenario", "", "scenario YAML (track with ETCS data, the train)",
-                                read_only=True)
-        track_path = declare(self, "track", "config/track_etcs.yaml", "track YAML when no scenario is given",
-                             read_only=True)
-        orientation = declare(self, "orientation", 1, "+1: the front faces increasing chainage, -1: decreasing "
-                              "(without a scenario)", read_only=True, limits=(-1, 1))
+        scenario_path = declare_param(self, PARAMS, "scenario")
+        track_path = declare_param(self, PARAMS, "track")
+        orientation = declare_param(self, PARAMS, "orientation")
         if not scenario_path:
             if orientation == 0:
                 raise ConfigurationError("parameter 'orientation' must be +1 or -1")

@@ -25,7 +25,19 @@ import importlib
 from rclpy.node import Node
 
 from ..core.bagio import BagWriter
-from .common import CLOCK_QOS, LATCHED_QOS, STREAM_QOS, declare, spin, steady_clock
+from ..core.sensors.base import Param
+from .common import CLOCK_QOS, LATCHED_QOS, STREAM_QOS, declare_param, spin, steady_clock
+
+# the node's parameters (tools/docs.py writes them into config/params/recorder.yaml)
+PARAMS = {
+    "output": Param("recording.mcap", "MCAP file to write"),
+    "topics": Param([""], "topics to record; empty = all"),
+    "exclude": Param(["/rosout", "/parameter_events"], "topics never recorded"),
+    "discovery_period": Param(0.2, "topic discovery period [s]"),
+    "compression": Param("zstd", "chunk compression: zstd, lz4 or none"),
+    "chunk_size": Param(256 * 1024, "bytes of messages per chunk: a chunk reaches the file when full, a SIGKILL "
+                                    "loses only the open one", (1024, 64 * 1024 * 1024)),
+}
 
 
 def message_class(typename: str):
@@ -36,14 +48,13 @@ def message_class(typename: str):
 class RecorderNode(Node):
     def __init__(self):
         super().__init__("recorder")
-        self.output = declare(self, "output", "recording.mcap", "MCAP file to write")
-        wanted = [t for t in declare(self, "topics", [""], "topics to record; empty = all") if t]
+        self.output = declare_param(self, PARAMS, "output", read_only=False)
+        wanted = [t for t in declare_param(self, PARAMS, "topics", read_only=False) if t]
         self.wanted = {self.resolve_topic_name(t) for t in wanted}
-        self.exclude = set(declare(self, "exclude", ["/rosout", "/parameter_events"], "topics never recorded"))
-        period = float(declare(self, "discovery_period", 0.2, "topic discovery period [s]"))
-        compression = declare(self, "compression", "zstd", "chunk compression: zstd, lz4 or none")
-        chunk_size = declare(self, "chunk_size", 256 * 1024, "bytes of messages per chunk: a chunk reaches the "
-                             "file when full, a SIGKILL loses only the open one", limits=(1024, 64 * 1024 * 1024))
+        self.exclude = set(declare_param(self, PARAMS, "exclude", read_only=False))
+        period = float(declare_param(self, PARAMS, "discovery_period", read_only=False))
+        compression = declare_param(self, PARAMS, "compression", read_only=False)
+        chunk_size = declare_param(self, PARAMS, "chunk_size", read_only=False)
         self.writer = BagWriter(self.output, chunk_size=chunk_size, compression=compression)
         self.subs = {}
         self._discover()

@@ -38,36 +38,52 @@ from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 
 from ..core.bagio import recovered_copy
-from .common import CLOCK_QOS, LATCHED_QOS, STATE_QOS, STREAM_QOS, ConfigurationError, declare, spin
+from ..core.sensors.base import Param
+from .common import CLOCK_QOS, LATCHED_QOS, STATE_QOS, STREAM_QOS, ConfigurationError, declare_param, spin
 from .recorder import message_class
+
+# the node's parameters (tools/docs.py writes them into config/params/replayer.yaml)
+PARAMS = {
+    "bag": Param("", "MCAP file to play"),
+    "rate": Param(1.0, "playback speed factor; 0 = as fast as possible"),
+    "start_offset": Param(0.0, "skip this much of the bag [s]"),
+    "loop": Param(False, "start again at the end"),
+    "topics": Param([""], "topics to play; empty = all"),
+    "remap": Param([""], "'from:=to' topic remappings"),
+    "clock_rate": Param(100.0, "/clock rate [Hz of bag time]"),
+    "exit_at_end": Param(True, "shut down at the end"),
+    "wait_for_subscribers": Param(0, "matched subscribers to wait for"),
+    "wait_for_clock_subscribers": Param(0, "matched /clock subscribers to wait for (nodes with use_sim_time)"),
+    "wait_for_publishers": Param([""], "topics that must have a publisher before playing"),
+    "wait_for_subscribed": Param([""], "topics that must have a subscriber before playing"),
+}
 
 
 class ReplayerNode(Node):
     def __init__(self):
         super().__init__("replayer")
-        self.bag = declare(self, "bag", "", "MCAP file to play")
+        self.bag = declare_param(self, PARAMS, "bag", read_only=False)
         if not self.bag:
             raise ConfigurationError("parameter 'bag' is required (an MCAP file to play)")
-        self.rate = float(declare(self, "rate", 1.0, "playback speed factor; 0 = as fast as possible"))
-        self.start_offset = float(declare(self, "start_offset", 0.0, "skip this much of the bag [s]"))
-        self.loop = bool(declare(self, "loop", False, "start again at the end"))
-        self.topics = {t for t in declare(self, "topics", [""], "topics to play; empty = all") if t}
+        self.rate = float(declare_param(self, PARAMS, "rate", read_only=False))
+        self.start_offset = float(declare_param(self, PARAMS, "start_offset", read_only=False))
+        self.loop = bool(declare_param(self, PARAMS, "loop", read_only=False))
+        self.topics = {t for t in declare_param(self, PARAMS, "topics", read_only=False) if t}
         self.remap = {}
-        for item in declare(self, "remap", [""], "'from:=to' topic remappings"):
+        for item in declare_param(self, PARAMS, "remap", read_only=False):
             if item:
                 src, sep, dst = item.partition(":=")
                 if not sep:
                     raise ConfigurationError(f"remap entry {item!r} is not 'from:=to'")
                 self.remap[src] = dst
-        self.clock_period = 1.0 / float(declare(self, "clock_rate", 100.0, "/clock rate [Hz of bag time]"))
-        self.exit_at_end = bool(declare(self, "exit_at_end", True, "shut down at the end"))
-        self.wait_for = int(declare(self, "wait_for_subscribers", 0, "matched subscribers to wait for"))
-        self.wait_for_clock = int(declare(self, "wait_for_clock_subscribers", 0,
-                                          "matched /clock subscribers to wait for (nodes with use_sim_time)"))
-        self.wait_for_publishers = [str(t) for t in declare(
-            self, "wait_for_publishers", [""], "topics that must have a publisher before playing") if t]
-        self.wait_for_subscribed = [str(t) for t in declare(
-            self, "wait_for_subscribed", [""], "topics that must have a subscriber before playing") if t]
+        self.clock_period = 1.0 / float(declare_param(self, PARAMS, "clock_rate", read_only=False))
+        self.exit_at_end = bool(declare_param(self, PARAMS, "exit_at_end", read_only=False))
+        self.wait_for = int(declare_param(self, PARAMS, "wait_for_subscribers", read_only=False))
+        self.wait_for_clock = int(declare_param(self, PARAMS, "wait_for_clock_subscribers", read_only=False))
+        self.wait_for_publishers = [str(t) for t in declare_param(self, PARAMS, "wait_for_publishers",
+                                                                   read_only=False) if t]
+        self.wait_for_subscribed = [str(t) for t in declare_param(self, PARAMS, "wait_for_subscribed",
+                                                                   read_only=False) if t]
         self.pubs = {}
         self.published = 0
         self.finished = False

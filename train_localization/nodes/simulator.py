@@ -42,23 +42,32 @@ from rosgraph_msgs.msg import Clock
 from rclpy.node import Node
 
 from ..core.convert import raw_block_to_msg, sec_to_ns, switch_positions_to_msg, train_state_to_msg
-from .common import (CLOCK_QOS, LATCHED_QOS, STREAM_QOS, ConfigurationError, Diagnostics, declare, rclpy_classes,
-                     required_scenario, spin)
+from ..core.sensors.base import Param
+from .common import (CLOCK_QOS, LATCHED_QOS, STREAM_QOS, ConfigurationError, Diagnostics, declare_param,
+                     rclpy_classes, required_scenario, spin)
+
+
+# the node's parameters (tools/docs.py writes them into config/params/simulator.yaml)
+PARAMS = {
+    "scenario": Param("", "scenario YAML file"),
+    "rate": Param(1.0, "speed-up over real time; 0 = as fast as possible"),
+    "start_delay": Param(1.0, "wall seconds before t = 0 [s]"),
+    "exit_at_end": Param(True, "shut down after the last state"),
+    "wait_for_subscribers": Param(0, "subscribers of ground_truth/state to wait for"),
+    "wait_for_publisher": Param("", "a topic that must have a publisher before the start (e.g. "
+                                    "localization/state); empty: none"),
+}
 
 
 class SimulatorNode(Node):
     def __init__(self):
         super().__init__("simulator")
-        self.scenario = required_scenario(self, "scenario YAML file", "a scenario YAML file")
-        self.rate = float(declare(self, "rate", 1.0, "speed-up over real time; 0 = as fast as possible",
-                                  read_only=True))
-        self.start_delay = float(declare(self, "start_delay", 1.0, "wall seconds before t = 0 [s]", read_only=True))
-        self.exit_at_end = bool(declare(self, "exit_at_end", True, "shut down after the last state", read_only=True))
-        self.wait_for = int(declare(self, "wait_for_subscribers", 0, "subscribers of ground_truth/state to wait for",
-                                    read_only=True))
-        self.wait_for_publisher = str(declare(self, "wait_for_publisher", "", "a topic that must have a publisher "
-                                              "before the start (e.g. localization/state); empty: none",
-                                              read_only=True))
+        self.scenario = required_scenario(self, PARAMS, "a scenario YAML file")
+        self.rate = float(declare_param(self, PARAMS, "rate"))
+        self.start_delay = float(declare_param(self, PARAMS, "start_delay"))
+        self.exit_at_end = bool(declare_param(self, PARAMS, "exit_at_end"))
+        self.wait_for = int(declare_param(self, PARAMS, "wait_for_subscribers"))
+        self.wait_for_publisher = str(declare_param(self, PARAMS, "wait_for_publisher"))
         if not self.rate >= 0.0:
             raise ConfigurationError(f"parameter 'rate' must be >= 0 (0: as fast as possible), not {self.rate}")
         self.dynamics = None

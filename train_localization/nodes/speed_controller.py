@@ -44,27 +44,37 @@ from ..core.safety.admission import StreamAdmission, StreamLimits
 from ..core.safety.plausibility import Motion, MotionGate, speed_bound
 from ..core.safety.state_stream import StateStream
 from ..core.signals import InputRejected
-from .common import (STREAM_QOS, ConfigurationError, Diagnostics, declare, declare_params, now_sec, rclpy_classes,
-                     required_scenario, spin)
+from ..core.sensors.base import Param
+from .common import (STREAM_QOS, ConfigurationError, Diagnostics, declare_param, declare_params, now_sec,
+                     rclpy_classes, required_scenario, spin)
 
 STATE, COMMAND = "localization/state", "atp/command"
 WATCHDOG_PERIOD = 0.1     # [s] of the node clock
+GUARD_PARAMS = {**admission.PARAMS, **plausibility.PARAMS}
+# the node's parameters (tools/docs.py writes them into config/params/speed_controller.yaml)
+PARAMS = {
+    "scenario": Param("", "scenario YAML with a 'control' section"),
+    "require_atp": Param(False, "no traction without a fresh ATP command (default: the scenario has an 'atp' "
+                                "section)"),
+    "atp_timeout": Param(1.0, "ATP commands older than this are stale: acted on as an emergency brake when "
+                              "require_atp [s]", (0.01, 60.0)),
+    **GUARD_PARAMS,
+}
+SCENARIO_DEFAULTS = ("require_atp",)   # their default is the scenario's
 
 
 class SpeedControllerNode(Node):
     def __init__(self):
         super().__init__("speed_controller")
-        sc = required_scenario(self, "scenario YAML with a 'control' section", "a scenario YAML with 'control'")
+        sc = required_scenario(self, PARAMS, "a scenario YAML with 'control'")
         if not sc.control:
             raise ConfigurationError(f"scenario {sc.name} has no 'control' section")
         params, setpoints = control_config(sc.control)
         limit = Dynamics(sc.dynamics, sc.track).force_limit
         self.controller = SpeedController(params, setpoints, limit)
-        self.require_atp = bool(declare(self, "require_atp", bool(sc.atp), "no traction without a fresh ATP "
-                                        "command (default: the scenario has an 'atp' section)", read_only=True))
-        atp_timeout = float(declare(self, "atp_timeout", 1.0, "ATP commands older than this are stale: acted on "
-                                    "as an emergency brake when require_atp [s]", read_only=True, limits=(0.01, 60.0)))
-        guard = declare_params(self, {**admission.PARAMS, **plausibility.PARAMS})
+        self.require_atp = bool(declare_param(self, PARAMS, "require_atp", bool(sc.atp)))
+        atp_timeout = float(declare_param(self, PARAMS, "atp_timeout"))
+        guard = declare_params(self, GUARD_PARAMS)
         self.states = StateStream(STATE, admission.limits_from(guard), MotionGate.from_params(guard))
         self.commands = StreamAdmission(COMMAND, StreamLimits(guard["future_tolerance"], atp_timeout, ordered=False))
         self.mc = rclpy_classes()

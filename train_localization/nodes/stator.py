@@ -37,9 +37,21 @@ from ..core import convert, paths
 from ..core.scenario import Scenario
 from ..core.track import Track
 from ..core.wayside import stator
-from .common import LATCHED_QOS, STREAM_QOS, ConfigurationError, Diagnostics, declare, now_sec, rclpy_classes, spin
+from ..core.sensors.base import Param
+from .common import (LATCHED_QOS, STREAM_QOS, ConfigurationError, Diagnostics, declare_param, declare_params, now_sec,
+                     rclpy_classes, spin)
 
 PUBLISH_EVERY = 1.0    # [s] the feed is republished at least this often
+# the node's parameters (tools/docs.py writes them into config/params/stator_section_controller.yaml)
+PARAMS = {
+    "scenario": Param("", "scenario YAML (track with stator sections, vehicle)"),
+    "track": Param("config/track_maglev.yaml", "track YAML when no scenario is given"),
+    "trains": Param([""], "names of a line's trains whose /<name>/localization/state are fed; [''] = the train "
+                          "of this namespace"),
+    "train_length": Param(200.0, "vehicle length behind the front [m] (without a scenario)", (1.0, 2000.0)),
+    "orientation": Param(1, "+1: the front faces increasing chainage, -1: decreasing (without a scenario)", (-1, 1)),
+    **stator.PARAMS,
+}
 
 
 def view_from_msg(msg) -> stator.TrainView:
@@ -59,8 +71,7 @@ class StatorControllerNode(Node):
         self._feed_cls = StatorFeed
         self.diag = Diagnostics(self, "long-stator sectional feeding")
         track, vehicles, topics = self._configuration()
-        params = {name: declare(self, name, p.default, p.description, read_only=True, limits=p.limits)
-                  for name, p in stator.PARAMS.items()}
+        params = declare_params(self, stator.PARAMS)
         try:
             layout = stator.Layout.from_track(track, int(params["inverters"]))
         except stator.StatorError as exc:
@@ -81,17 +92,11 @@ class StatorControllerNode(Node):
 
     def _configuration(self) -> tuple[Track, dict, dict]:
         """(track, train name -> stator.Vehicle, train name -> state topic) from the parameters."""
-        scenario_path = declare(self, "scenario", "", "scenario YAML (track with stator sections, vehicle)",
-                                read_only=True)
-        track_path = declare(self, "track", "config/track_maglev.yaml", "track YAML when no scenario is given",
-                             read_only=True)
-        trains = [str(t) for t in declare(self, "trains", [""], "names of a line's trains whose "
-                                          "/<name>/localization/state are fed; [''] = the train of this namespace",
-                                          read_only=True) if str(t)]
-        length = declare(self, "train_length", 200.0, "vehicle length behind the front [m] (without a scenario)",
-                         read_only=True, limits=(1.0, 2000.0))
-        orientation = declare(self, "orientation", 1, "+1: the front faces increasing chainage, -1: decreasing "
-                              "(without a scenario)", read_only=True, limits=(-1, 1))
+        scenario_path = declare_param(self, PARAMS, "scenario")
+        track_path = declare_param(self, PARAMS, "track")
+        trains = [str(t) for t in declare_param(self, PARAMS, "trains") if str(t)]
+        length = declare_param(self, PARAMS, "train_length")
+        orientation = declare_param(self, PARAMS, "orientation")
         if orientation == 0:
             raise ConfigurationError("parameter 'orientation' must be +1 or -1")
         if not scenario_path:

@@ -47,23 +47,35 @@ from ..core.wayside import crosscheck as cc
 from ..core.wayside.changeover import ABB_TOPICS, COMBINED_TOPIC
 from ..core.wayside import neutral_section as ns
 from ..core.wayside import occupancy as oc
-from .common import (LATCHED_QOS, STATE_QOS, ConfigurationError, Diagnostics, declare, declare_params, now_sec,
+from ..core.sensors.base import Param
+from .common import (LATCHED_QOS, STATE_QOS, ConfigurationError, Diagnostics, declare_param, declare_params, now_sec,
                      rclpy_classes, spin)
 
 LEVEL = {"ok": 0, "warn": 1, "error": 2}
 
+# the nodes' parameters (tools/docs.py writes them into config/params/<node>.yaml)
+VOTING_PARAMS = {   # the combined occupancy's (wayside_occupancy, neutral_section_controller)
+    "sections": Param(["S1:TC1:S1", "S2:TC2:S2"], "combined sections SECTION:CIRCUIT:AXLE_SECTION (seed 004 Fig. 6)"),
+    "tc_source": Param("track_circuit", "unit id of the track-circuit system"),
+    "ac_source": Param("axle_counter", "unit id of the axle-counter system"),
+    **oc.PARAMS,
+}
+OCCUPANCY_PARAMS = {**VOTING_PARAMS, "rate": Param(20.0, "evaluation rate [Hz]", (0.1, 1000.0))}
+CONTROLLER_PARAMS = {**VOTING_PARAMS, **ns.PARAMS, "rate": Param(20.0, "evaluation rate [Hz]", (0.1, 1000.0))}
+CROSSCHECK_PARAMS = {"train_id": Param("train", "name of the train in the flags"), **cc.PARAMS,
+                     "rate": Param(4.0, "evaluation rate [Hz]", (0.1, 1000.0))}
+
 
 def _section_map(node: Node) -> oc.SectionMap:
-    entries = declare(node, "sections", ["S1:TC1:S1", "S2:TC2:S2"], "combined sections SECTION:CIRCUIT:AXLE_SECTION "
-                      "(seed 004 Fig. 6)", read_only=True)
+    entries = declare_param(node, VOTING_PARAMS, "sections")
     pairs = {}
     for e in entries:
         parts = str(e).split(":")
         if len(parts) != 3 or not all(parts):
             raise ConfigurationError(f"parameter 'sections': {e!r} is not SECTION:CIRCUIT:AXLE_SECTION")
         pairs[parts[0]] = (parts[1], parts[2])
-    tc = declare(node, "tc_source", "track_circuit", "unit id of the track-circuit system", read_only=True)
-    ac = declare(node, "ac_source", "axle_counter", "unit id of the axle-counter system", read_only=True)
+    tc = declare_param(node, VOTING_PARAMS, "tc_source")
+    ac = declare_param(node, VOTING_PARAMS, "ac_source")
     return oc.SectionMap(pairs, tc, ac)
 
 
@@ -108,7 +120,7 @@ class WaysideOccupancyNode(_Voting, Node):
         self.pub = self.create_publisher(self.mc.SectionOccupancy, COMBINED_TOPIC, LATCHED_QOS)
         self._last = None
         self._last_pub = -math.inf
-        rate = declare(self, "rate", 20.0, "evaluation rate [Hz]", read_only=True, limits=(0.1, 1000.0))
+        rate = declare_param(self, OCCUPANCY_PARAMS, "rate")
         self.create_timer(1.0 / rate, self.evaluate)
         self.diag.set_status(1, "no report yet")
 
@@ -147,7 +159,7 @@ class ChangeoverControllerNode(_Voting, Node):
         self.pubs = {sw: self.create_publisher(Bool, topic, LATCHED_QOS) for sw, topic in ABB_TOPICS.items()}
         for sw, closed in self.ctrl.abb.items():
             self.pubs[sw].publish(Bool(data=closed))
-        rate = declare(self, "rate", 20.0, "evaluation rate [Hz]", read_only=True, limits=(0.1, 1000.0))
+        rate = declare_param(self, CONTROLLER_PARAMS, "rate")
         self.create_timer(1.0 / rate, self.evaluate)
 
     def evaluate(self) -> None:
@@ -170,12 +182,12 @@ class CrossCheckNode(Node):
         Node.__init__(self, "crosscheck", **kw)
         self.diag = Diagnostics(self, "on-board / wayside cross-check")
         self.mc = rclpy_classes()
-        train = declare(self, "train_id", "train", "name of the train in the flags", read_only=True)
+        train = declare_param(self, CROSSCHECK_PARAMS, "train_id")
         self.inputs = cc.CrossCheckInputs(train, declare_params(self, cc.PARAMS))
         self.inputs.waiting_since(now_sec(self))
         self.create_subscription(self.mc.TrainState, "localization/state", self.on_state, STATE_QOS)
         self.create_subscription(self.mc.SectionOccupancy, COMBINED_TOPIC, self.on_combined, LATCHED_QOS)
-        rate = declare(self, "rate", 4.0, "evaluation rate [Hz]", read_only=True, limits=(0.1, 1000.0))
+        rate = declare_param(self, CROSSCHECK_PARAMS, "rate")
         self.create_timer(1.0 / rate, self.evaluate)
         self.diag.set_status(1, "waiting for the fused state and the combined occupancy")
 

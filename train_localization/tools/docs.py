@@ -1,5 +1,5 @@
 """Markdown tables of every sensor node's parameters (kept in docs/nodes.md) and the example
-params files of the sensor nodes (config/params/<node>.yaml).
+params files of every node but the fusion (config/params/<node>.yaml).
 
   python -m train_localization.tools.docs            # print the tables
   python -m train_localization.tools.docs --write    # update docs/nodes.md and config/params
@@ -73,22 +73,73 @@ def fusion_params_markdown() -> str:
     return "\n".join(lines) + "\n"
 
 
+# the track of a sensor node's example where the default one has none of its equipment
+EXAMPLE_TRACKS = {"checkin_loop": "config/track_hsst.yaml", "track_circuit_receiver": "config/track_highspeed.yaml"}
+# what the example of a node that is no sensor node sets beyond the defaults: the inputs it needs to start
+EXAMPLES = {
+    "simulator": {"scenario": "config/scenario_demo.yaml"},
+    "replayer": {"bag": "bags/stop_and_go.mcap"},
+    "speed_controller": {"scenario": "config/scenario_etcs_stop.yaml"},
+    "association": {"scenario": "config/scenario_line_conventional.yaml"},
+}
+
+
+def _header(node: str, what: str) -> list[str]:
+    """The first lines of a params file: ``what`` it holds, the command that runs it."""
+    return [f"# {what} (generated: python -m train_localization.tools.docs --write).",
+            f"# ros2 run train_localization {node} --ros-args --params-file config/params/{node}.yaml",
+            "# Keyed /** : applies to the node whatever its name and namespace (one node per file).",
+            "/**:", "  ros__parameters:"]
+
+
 def sensor_params_file(node: str) -> str:
     """Example ROS params file of a sensor node: every parameter at its default, described."""
     s = spec(node)
-    lines = [f"# Parameters of the {node} node at their defaults (generated: python -m "
-             "train_localization.tools.docs --write).",
-             f"# ros2 run train_localization {node} --ros-args --params-file config/params/{node}.yaml",
-             "# Keyed /** : applies to the node whatever its name and namespace (one node per file).",
-             "/**:", "  ros__parameters:",
-             '    mode: sim                  # sim: from ground_truth/state; ingest: decode sensors/<sensor>/raw',
-             '    scenario: ""               # scenario YAML (track, vehicle, seed, sensor overrides)',
-             "    track: config/track_conventional.yaml   # track YAML when no scenario is given"]
+    track = EXAMPLE_TRACKS.get(node, "config/track_conventional.yaml")
+    lines = _header(node, f"Parameters of the {node} node at their defaults") + [
+        '    mode: sim                  # sim: from ground_truth/state; ingest: decode sensors/<sensor>/raw',
+        '    scenario: ""               # scenario YAML (track, vehicle, seed, sensor overrides)',
+        f"    track: {track}   # track YAML when no scenario is given",
+        "    managed: false             # true: a lifecycle manager configures and activates the node",
+        f"    future_tolerance: {FUTURE_TOLERANCE!r}      # a raw block or truth state stamped further ahead of the node "
+        "clock is refused [s] [0.001 .. 3600]"]
     for name, p in {**COMMON_PARAMS, **s.params}.items():
         if isinstance(p.default, list) and not p.default:
             continue   # an empty list has no ROS parameter type: the default applies
         value = _yaml_value(p.default)
         lines.append(f"    {name}: {value}  # {p.meaning}")
+    return "\n".join(lines) + "\n"
+
+
+def node_tables() -> dict[str, tuple[dict, tuple]]:
+    """Every node that is neither a sensor node nor the fusion: (its parameter table, name ->
+    core Param, as the node declares them; the names whose default is the scenario's)."""
+    from ..nodes import (association, atp_supervision, etcs_location, recorder, replayer, simulator,
+                         speed_controller, stator, wayside)
+    return {"simulator": (simulator.PARAMS, ()), "recorder": (recorder.PARAMS, ()),
+            "replayer": (replayer.PARAMS, ()), "wayside_occupancy": (wayside.OCCUPANCY_PARAMS, ()),
+            "neutral_section_controller": (wayside.CONTROLLER_PARAMS, ()),
+            "crosscheck": (wayside.CROSSCHECK_PARAMS, ()),
+            "association": (association.PARAMS, association.SCENARIO_DEFAULTS),
+            "speed_controller": (speed_controller.PARAMS, speed_controller.SCENARIO_DEFAULTS),
+            "stator_section_controller": (stator.PARAMS, ()), "etcs_location": (etcs_location.PARAMS, ()),
+            "atp_supervision": (atp_supervision.PARAMS, ())}
+
+
+def node_params_file(node: str) -> str:
+    """Example ROS params file of a node of node_tables(): every parameter described, at its
+    default but for the example's inputs (EXAMPLES); one whose default is the scenario's is a
+    comment (set, it would override the scenario)."""
+    params, from_scenario = node_tables()[node]
+    example = EXAMPLES.get(node, {})
+    lines = _header(node, f"Parameters of the {node} node at their defaults" + (", with an example's inputs"
+                                                                               if example else ""))
+    for name, p in params.items():
+        value = _yaml_value(example.get(name, p.default))
+        if name in from_scenario:
+            lines.append(f"    # {name}: {value}  # {p.meaning} (unset: the scenario's)")
+        else:
+            lines.append(f"    {name}: {value}  # {p.meaning}")
     return "\n".join(lines) + "\n"
 
 
@@ -110,9 +161,33 @@ def _yaml_value(v) -> str:
     return json.dumps(v)
 
 
+# the fusion's example: a choice of sensors and tuning, and the nested form of the per-sensor
+# error-model overrides (its parameters are tabled in docs/nodes.md)
+FUSION_EXAMPLE = """\
+    track: config/track_conventional.yaml
+    sensors: [doppler, wheel, eurobalise, axle_counter]
+    publish_rate: 200.0          # [Hz], (0, 1000]; may change at run time
+    map_frame: map
+    base_frame: base_link
+    odom_frame: ""               # set (e.g. odom) when another source publishes odom -> base_link
+    confidence: 0.999            # probability of [position_min, position_max]; 0.5 .. 1 - 1e-9
+    lost_stddev: 100.0           # [m] position 1-sigma above which the mode is LOST; 0.01 .. 1e6
+    history: 2.0                 # [s] how late a measurement may be; 0.01 .. 60
+    # per-sensor error model: only what differs from the sensor's own model is an override
+    doppler:
+      scale_sigma: 0.004         # 1-sigma scale error of this radar (its datasheet; default 0.005)
+      timeout: 1.0               # [s] longest silence while in use
+    wheel:
+      faults: "slip,slide"       # fault modes the filter checks for
+"""
+
+
 def params_files() -> dict[str, str]:
-    """config/params/<node>.yaml for every sensor node."""
-    return {f"{node}.yaml": sensor_params_file(node) for node in NODE_NAMES}
+    """config/params/<node>.yaml for every node."""
+    files = {f"{node}.yaml": sensor_params_file(node) for node in NODE_NAMES}
+    files.update({f"{node}.yaml": node_params_file(node) for node in node_tables()})
+    files["fusion.yaml"] = "\n".join(_header("fusion", "Example parameters of the fusion node: sensors, tuning, error-model overrides")) + "\n" + FUSION_EXAMPLE
+    return files
 
 
 def splice(text: str, begin: str, end: str, body: str) -> str:

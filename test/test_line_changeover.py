@@ -48,8 +48,13 @@ def test_the_changeover_is_laid_around_three_consecutive_heads_of_the_track():
     # air sections 250 m inside the outer counting points, 50 m long; the neutral between them
     assert lay.air1 == (4250.0, 4300.0) and lay.air2 == (5300.0, 5350.0)
     assert lay.params["neutral_length"] == pytest.approx(1000.0)      # seed 004 section 4.1: about 1 km
-    # Fig. 6: a track circuit and an axle-counter section over each half
+    # Fig. 6: a track circuit and an axle-counter section in each half; seed 004 section 4.2: the
+    # blocks 800 m with the air section in them, the circuits 400 m, inside the neutral section
     assert site.section_strings() == ["S1:CO1:S1", "S2:CO2:S2"]
+    assert lay.ac[1] - lay.ac[0] == lay.ac[2] - lay.ac[1] == 800.0
+    circuits = {c["id"]: (c["start"], c["end"]) for c in sc.track.items("track_circuit")}
+    assert circuits["CO1"] == (4400.0, 4800.0) and circuits["CO2"] == (4800.0, 5200.0)
+    assert lay.air1[1] < circuits["CO1"][0] and circuits["CO2"][1] < lay.air2[0]
     assert site.switching(10.0, catenary.ABB1, False).stamp == pytest.approx(10.0 + 0.01 + 1 / 120)
     assert site.switching(10.0, catenary.ABB2, True).stamp == pytest.approx(10.01)
 
@@ -59,6 +64,7 @@ def test_the_changeover_is_laid_around_three_consecutive_heads_of_the_track():
     ({"counting_points": ["AC01", "AC02"]}, "three axle-counter heads"),
     ({"counting_points": ["AC01", "AC02", "AC09"]}, "AC09 not on track"),
     ({"catenary": {"approach": 800.0}}, "leave no neutral section"),
+    ({"catenary": {"approach": 360.0}}, "neutral section of 780 m: seed 004 section 4.2 asks for at least 800 m"),
     ({"command_latency": 5.0}, "command_latency"),
     ({"counting_points": ["AC01", "AC02", "AC03"], "switches": 2}, "unknown key"),
 ])
@@ -76,7 +82,7 @@ def test_a_half_without_its_own_track_circuit_is_refused():
             "equipment": {"axle_counter_head": track.items("axle_counter_head"),
                           "track_circuit": [{"id": "X", "start": 3000.0, "end": 4800.0}]}}
     from train_localization.core.track import Track
-    with pytest.raises(ChangeoverError, match="no track circuit .* spans 4000..4800"):
+    with pytest.raises(ChangeoverError, match=r"no track circuit .* in 4000..4800 m \(AC01..AC02\) reaches the middle"):
         Site.from_config({"counting_points": ["AC01", "AC02", "AC03"]}, Track.from_dict(data))
 
 

@@ -12,9 +12,10 @@ A line scenario declares it under ``wayside: changeover:`` (core/scenario.py)::
       controller: {}                          # neutral_section.PARAMS
       command_latency: 0.01                   # decision -> ABB gate signal [s]
 
-The track must lay a track circuit over each half (AC0..AC1 and AC1..AC2, as Fig. 6): the
-combined sections are S1 = (that circuit, the axle section from AC0) on the A side and S2
-on the B side. The air sections lie ``approach`` inside the outer counting points.
+The track must lay a track circuit in each half (AC0..AC1 and AC1..AC2, as Fig. 6) that
+reaches AC1 (seed 004 section 4.2: about 400 m, inside the neutral section): the combined
+sections are S1 = (that circuit, the axle section from AC0) on the A side and S2 on the B
+side. The air sections lie ``approach`` inside the outer counting points.
 
 ``ChangeoverLoop`` is what the two wayside nodes (``wayside_occupancy``,
 ``neutral_section_controller``) do live, for the offline line simulation and replay: it
@@ -91,11 +92,11 @@ class Site:
         axle_sections = acm.section_ids(heads)
         pairs = {}
         for sid, lo, hi, j in (("S1", ac[0], ac[1], k), ("S2", ac[1], ac[2], k + 1)):
-            circuits = [c["id"] for c in track.items(TC_KIND)
-                        if all(abs(a - b) <= 1.0 for a, b in zip(extent(TC_KIND, c), (lo, hi)))]
+            circuits = [c["id"] for c in track.items(TC_KIND) if _covers(extent(TC_KIND, c), lo, hi, ac[1])]
             if not circuits:
-                raise ChangeoverError(f"changeover: no track circuit of track {track.track_id} spans "
-                                      f"{lo:g}..{hi:g} m ({ids[j - k]}..{ids[j - k + 1]}, seed 004 Fig. 6)")
+                raise ChangeoverError(f"changeover: no track circuit of track {track.track_id} in {lo:g}..{hi:g} m "
+                                      f"({ids[j - k]}..{ids[j - k + 1]}) reaches the middle counting point at "
+                                      f"{ac[1]:g} m (seed 004 Fig. 6)")
             pairs[sid] = (str(circuits[0]), axle_sections[j])
         return cls(layout, occupancy.SectionMap(pairs), occ, ctrl, latency)
 
@@ -115,6 +116,13 @@ class Site:
                 for name in fronts if vehicles[name].pantographs}
         roof = {name: vehicles[name].roof_bus for name in pans}
         return catenary.events(self.layout, switchings, times, pans, roof)
+
+
+def _covers(span: tuple[float, float], lo: float, hi: float, middle: float) -> bool:
+    """A circuit over ``span`` [m] lies in the block lo..hi and reaches the middle counting
+    point (seed 004 section 4.2: about 400 m next to it; the whole block also serves)."""
+    a, b = span
+    return a >= lo - 1.0 and b <= hi + 1.0 and min(abs(a - middle), abs(b - middle)) <= 1.0 and b - a > 1.0
 
 
 class ChangeoverLoop:

@@ -174,9 +174,8 @@ def declare(node: Node, name: str, default, description: str = "", read_only: bo
     default is a value too (a parameter's 'not set', e.g. the wheel's diameter_error): its
     range is then in the description only (rclpy's range check refuses NaN)."""
     from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-    if node.has_parameter(name):   # a lifecycle node configured again
-        value = node.get_parameter(name).value
-        return float(value) if isinstance(default, float) else value
+    if node.has_parameter(name):   # declared before configure (ManagedNode.predeclare), or configured again
+        return _read_declared(node, name, default, read_only, limits)
     desc = ParameterDescriptor(description=description, read_only=read_only)
     if limits is not None:
         lo, hi = limits
@@ -205,6 +204,38 @@ def declare(node: Node, name: str, default, description: str = "", read_only: bo
     if why:
         raise ConfigurationError(why)
     return value
+
+
+def _read_declared(node: Node, name: str, default, read_only: bool, limits: tuple | None):
+    """The value of a parameter declared already. Declared before configure by a managed node
+    and not given by the user since, it takes ``default`` (the run-time one, e.g. the
+    scenario's); ``read_only``: from now on (a manager's sets before configure are over)."""
+    from rcl_interfaces.msg import ParameterDescriptor
+    given = getattr(node, "_given", None)
+    if given is not None and name not in given and name in node._predeclared:
+        value = float(default) if isinstance(default, float) else default
+        if node.get_parameter(name).value != value and not _both_nan(node.get_parameter(name).value, value):
+            node._quiet = True
+            try:
+                result = node.set_parameters([Parameter(name, value=value)])[0]
+            finally:
+                node._quiet = False
+            if not result.successful:
+                raise ConfigurationError(f"parameter {name!r}: {result.reason}")
+    value = node.get_parameter(name).value
+    d = node.describe_parameter(name)
+    if read_only and not d.read_only:
+        node.set_descriptor(name, ParameterDescriptor(
+            name=name, type=d.type, description=d.description, read_only=True, dynamic_typing=d.dynamic_typing,
+            floating_point_range=d.floating_point_range, integer_range=d.integer_range))
+    why = out_of_limits(name, value, limits, default)
+    if why:
+        raise ConfigurationError(why)
+    return float(value) if isinstance(default, float) else value
+
+
+def _both_nan(a, b) -> bool:
+    return isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b)
 
 
 def declare_params(node: Node, params: dict, read_only: bool = True) -> dict:
@@ -261,6 +292,42 @@ class ManagedNode(LifecycleNode):
         self.diag.set_status(1, "unconfigured")
         self._config_error = ""
         self._subs: list = []   # subscriptions made on activate
+        self._predeclared: set[str] = set()   # declared before configure (managed), writable until then
+        self._given: set[str] | None = None   # of those, the ones the user gave (overrides, sets)
+        self._quiet = False                   # a set of the node's own: not the user's
+
+    def predeclare(self, params: dict) -> None:
+        """Managed: declare ``params`` (name -> core Param) now, writable, so that a manager sees
+        them (list_parameters) and may set them before configure; configure reads them (one the
+        user has not given takes its run-time default, e.g. the scenario's) and makes them
+        read-only. An empty list has no parameter type (left to configure); a value given
+        beyond its range is left to configure too (its transition fails in one line, the node
+        stays up). Unmanaged: nothing (configure follows at once)."""
+        if not self._managed:
+            return
+        if self._given is None:
+            self._given = set()
+            self.add_post_set_parameters_callback(self._note_given)
+        self._quiet = True
+        try:
+            for name, p in params.items():
+                if self.has_parameter(name) or (isinstance(p.default, list) and not p.default):
+                    continue
+                try:
+                    declare(self, name, p.default, p.description, limits=p.limits)
+                except CONFIG_ERRORS:
+                    if self.has_parameter(name):
+                        self.undeclare_parameter(name)
+                    continue
+                self._predeclared.add(name)
+                if name in self._parameter_overrides:
+                    self._given.add(name)
+        finally:
+            self._quiet = False
+
+    def _note_given(self, params: list) -> None:
+        if not self._quiet:
+            self._given.update(p.name for p in params)
 
     def start(self) -> None:
         """Configure and activate now unless managed; ConfigurationError if configuring fails."""
@@ -319,11 +386,12 @@ def refuse_future(stamp: float, now: float, tolerance: float, what: str, clock: 
                                       f"(parameter future_tolerance: {tolerance:g} s)")
 
 
-def declare_future_tolerance(node: Node, what: str) -> float:
-    """The node's ``future_tolerance`` parameter [s] (refuse_future) for the messages ``what``."""
-    return float(declare(node, "future_tolerance", FUTURE_TOLERANCE, f"{what} stamped further ahead of the node "
-                         "clock than this [s] is refused (future): one stamped far ahead would become the "
-                         "reference of the next ones", read_only=True, limits=(1.0e-3, 3600.0)))
+def future_tolerance_param(what: str):
+    """The core Param of a node's ``future_tolerance`` [s] (refuse_future) for the messages ``what``."""
+    from ..core.sensors.base import Param
+    return Param(FUTURE_TOLERANCE, f"{what} stamped further ahead of the node clock than this [s] is refused "
+                                   "(future): one stamped far ahead would become the reference of the next ones",
+                 (1.0e-3, 3600.0))
 
 
 # longest time a stopping node keeps taking already delivered messages [s]

@@ -38,9 +38,17 @@ from ..core.sensors.base import COMMON_PARAMS
 from ..core.signals import InputRejected
 from ..core.track import Track
 from ..core import paths
-from .common import (LATCHED_QOS, STREAM_QOS, ConfigurationError, ManagedNode, declare,
-                     declare_future_tolerance, now_sec, rclpy_classes, refuse_future, spin)
+from ..core.sensors.base import Param
+from .common import (LATCHED_QOS, STREAM_QOS, ConfigurationError, ManagedNode, declare, declare_param,
+                     future_tolerance_param, now_sec, rclpy_classes, refuse_future, spin)
 
+# the parameters of every sensor node beyond its kind's (core/sensors/<kind>.py) and the common ones
+NODE_PARAMS = {
+    "mode": Param("sim", "sim: simulate from ground_truth/state; ingest: decode sensors/<sensor>/raw"),
+    "scenario": Param("", "scenario YAML (track, vehicle, seed, sensor overrides)"),
+    "track": Param("config/track_conventional.yaml", "track YAML when no scenario is given"),
+    "future_tolerance": future_tolerance_param("a raw block (its last sample) or a truth state"),
+}
 
 
 class SensorNode(ManagedNode):
@@ -54,6 +62,8 @@ class SensorNode(ManagedNode):
         self.spec = sensor_spec(node_name)
         super().__init__(node_name, self.spec.sensor)
         self.pubs: dict = {}
+        # managed: every parameter is there before configure (the scenario's defaults come at configure)
+        self.predeclare({**NODE_PARAMS, **COMMON_PARAMS, **self.spec.params})
         self.start()
 
     def on_configure(self, state) -> TransitionCallbackReturn:
@@ -65,12 +75,9 @@ class SensorNode(ManagedNode):
     def _configure(self) -> None:
         node_name = self.get_name()
         # every parameter is read at start-up: read-only (``ros2 param set`` refuses a change)
-        mode = declare(self, "mode", "sim",
-                       "sim: simulate from ground_truth/state; ingest: decode sensors/<sensor>/raw", read_only=True)
-        scenario_path = declare(self, "scenario", "", "scenario YAML (track, vehicle, seed, sensor overrides)",
-                                read_only=True)
-        track_path = declare(self, "track", "config/track_conventional.yaml", "track YAML when no scenario is given",
-                             read_only=True)
+        mode = declare_param(self, NODE_PARAMS, "mode")
+        scenario_path = declare_param(self, NODE_PARAMS, "scenario")
+        track_path = declare_param(self, NODE_PARAMS, "track")
         if mode not in ("sim", "ingest"):
             raise ConfigurationError(f"parameter 'mode' must be 'sim' or 'ingest', not {mode!r}")
         self.mode = mode
@@ -94,7 +101,7 @@ class SensorNode(ManagedNode):
             if isinstance(p.default, list) and not default:
                 continue  # empty lists have no ROS parameter type; keep the default
             overrides[name] = declare(self, name, default, p.description, read_only=True, limits=p.limits)
-        self.future_tolerance = declare_future_tolerance(self, "a raw block (its last sample) or a truth state")
+        self.future_tolerance = float(declare_param(self, NODE_PARAMS, "future_tolerance"))
         self.sim_time = bool(self.get_parameter("use_sim_time").value)
         self._truth_taken: tuple[float, float] | None = None   # (stamp, monotonic clock) [s] of the last truth
         unit = overrides.get("unit_id") or self.spec.sensor

@@ -1,7 +1,8 @@
 """Eurobalise reader (seed 001): telegram time and transmission distance (eq. 1-2), reading
 distance (Table 2), mutual inductance (eq. 3-5, Table 3) and read field strength (eq. 6-7,
 Table 4) for 100..600 km/h; simulated passages in both directions up to 500 km/h, failed
-reads above the speed limit of the readable window, unknown ids, determinism."""
+reads above the speed limit of the readable window and above seed 001's limits (long
+telegrams to 300 km/h, nothing above 500 km/h), unknown ids, determinism."""
 import dataclasses
 import math
 
@@ -108,9 +109,7 @@ def test_the_long_telegram_is_read_to_300_kmh_and_the_short_one_beyond_as_the_se
 def test_above_300_kmh_a_line_of_long_telegrams_loses_its_balises_and_one_of_short_ones_keeps_them(
         telegram, read):
     """500 km/h both ways, the top of the seed's short-telegram range, with the default reader:
-    every passage of a long-telegram balise is a failed read, every short-telegram one is read.
-    (Between 300 and about 450 km/h a long telegram is read on the passages whose field is
-    strong enough: 26 % of them at 400 km/h.)"""
+    every passage of a long-telegram balise is a failed read, every short-telegram one is read."""
     for v in (500 / 3.6, -500 / 3.6):
         _, fixes, rejected, pipe, traj = run(scenario(v, 4300.0 / abs(v), track=balise_track(telegram=telegram)))
         ids = passed(pipe.track, traj)
@@ -245,11 +244,12 @@ def test_direction_from_balise_group(v):
 
 
 def test_failed_reads_above_the_speed_limit_of_the_window():
-    """With Table 4's H_min(500 km/h) as sensitivity the window fits one 1023-bit telegram up
-    to 500 km/h: below it every balise (sending the long telegram) is read, above it none, each
-    counted as failed."""
-    sens = {"read_threshold": SEED_TABLE4[500] * 1e-3, "field_sigma": 0.0, "telegram_error_rate": 0.0}
-    v_max = eb.max_read_speed(SEED_TABLE4[500] * 1e-3)
+    """With Table 4's H_min(200 km/h) as sensitivity the window fits one 1023-bit telegram up
+    to 200 km/h (below seed 001's 300 km/h limit: the window alone decides): below it every
+    balise (sending the long telegram) is read, above it none, each counted as failed."""
+    sens = {"read_threshold": SEED_TABLE4[200] * 1e-3, "field_sigma": 0.0, "telegram_error_rate": 0.0}
+    v_max = eb.max_read_speed(SEED_TABLE4[200] * 1e-3)
+    assert rel(v_max * 3.6, 200.0) < TOL
     for factor, readable in ((0.97, True), (1.03, False)):
         for sign in (1, -1):
             v = sign * factor * v_max
@@ -262,8 +262,27 @@ def test_failed_reads_above_the_speed_limit_of_the_window():
             else:
                 assert not fixes and st["failed_reads"] == len(ids)
     # the short telegram (341 bit) fits at 1.03 x that speed
-    _, fixes, _, pipe, traj = run(scenario(1.03 * v_max, 10.0, sens))
+    _, fixes, _, pipe, traj = run(scenario(1.03 * v_max, 4300.0 / (1.03 * v_max), sens))
     assert len(fixes) == len(passed(pipe.track, traj)) > 5
+
+
+@pytest.mark.parametrize("telegram, kmh, read", [("long", 299.0, True), ("long", 301.0, False),
+                                                 ("short", 499.0, True), ("short", 501.0, False)])
+def test_seed_001s_speed_limits_hold_whatever_the_field(telegram, kmh, read):
+    """Seed 001 section 1: no standard (long) telegram between 300 and 500 km/h, nothing usable
+    above 500 km/h. A reader sensitive enough for Table 4's field at 600 km/h (its window fits
+    a long telegram to 600 km/h) reads every balise just below each limit and none just above
+    it, both ways; each passage above is a failed read."""
+    sens = {"read_threshold": SEED_TABLE4[600] * 1e-3, "field_sigma": 0.0, "telegram_error_rate": 0.0}
+    assert eb.max_read_speed(SEED_TABLE4[600] * 1e-3) * 3.6 > 590.0
+    assert eb.TELEGRAM_MAX_SPEED[telegram] * 3.6 == pytest.approx(300.0 if telegram == "long" else 500.0)
+    for sign in (1, -1):
+        v = sign * kmh / 3.6
+        _, fixes, rejected, pipe, traj = run(scenario(v, 4300.0 / abs(v), sens, track=balise_track(telegram=telegram)))
+        ids = passed(pipe.track, traj)
+        st = pipe.decoder.stats
+        assert len(ids) > 50 and st["passages"] == len(ids) and not rejected
+        assert (len(fixes), st["failed_reads"]) == ((len(ids), 0) if read else (0, len(ids)))
 
 
 def test_corrupt_telegrams_are_failed_reads():

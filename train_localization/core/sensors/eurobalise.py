@@ -33,7 +33,9 @@ balises of the track (equipment kind ``eurobalise``). Raw signal (default 5 kHz)
     a telegram has been received completely, 0 elsewhere. Each balise of the track sends
     the standard (long) telegram of 1023 bit or the short one of 341 bit (its ``telegram``
     key, ``long`` by default): seed 001 section 1, the long telegram is read up to
-    300 km/h, above it (300-500 km/h) the short one is needed. A telegram copy completes
+    300 km/h, above it (300-500 km/h) the short one is needed, and above 500 km/h no
+    balise transmission is usable. These limits hold whatever the field: a copy completing
+    above its telegram's TELEGRAM_MAX_SPEED is not received. A telegram copy completes
     T_r after the antenna entered the readable window (gain x H(max(|u| - a/2, 0)) >=
     ``read_threshold``) and counts only if the antenna is still inside the window
     then; copies are repeated every T_r while inside, each is corrupt with
@@ -115,6 +117,9 @@ TABLE1 = {
 # Telegram lengths [bit] (seed 001 section 1 and Table 1): the standard (long) telegram, read
 # up to 300 km/h, and the short one that 300-500 km/h needs
 TELEGRAM_BITS = {"long": 1023, "short": 341}
+# Highest speed [m/s] at which each telegram is transmitted (seed 001 section 1: no standard
+# telegram at 300-500 km/h, no balise transmission usable above 500 km/h), whatever the field
+TELEGRAM_MAX_SPEED = {"long": 300.0 * KMH, "short": 500.0 * KMH}
 
 PARAMS = {
     "antenna_offset": Param(2.0, "distance of the antenna centre behind the train front [m] "
@@ -125,9 +130,10 @@ PARAMS = {
     "balise_current": Param(10e-3, "balise loop current I_w [A] (seed 001 Table 1)", (1.0e-4, 1.0)),
     "read_threshold": Param(1.78e-3, "BTM read sensitivity H_th [A/m]: seed 001 Table 4's 1.957 mA/m, the "
                                      "field that reads the long telegram at 300 km/h (sec. 1), with the margin "
-                                     "of a passage 3 field_sigma weak (x 0.91): the long telegram is read to "
-                                     "300 km/h on such a passage and to 385 km/h on a nominal one, the short "
-                                     "one to 900 km/h", (1.0e-5, 0.1)),
+                                     "of a passage 3 field_sigma weak (x 0.91): the window fits the long telegram "
+                                     "to 300 km/h on such a passage (385 km/h on a nominal one) and the short one "
+                                     "to 900 km/h; seed 001 sec. 1's limits stop them at 300 and 500 km/h",
+                            (1.0e-5, 0.1)),
     "field_sigma": Param(0.03, "1-sigma per-passage relative variation of the up-link field [1] (balise "
                                "current tolerance, metal masses/rebar near the balise: seed 001 ref. 2, "
                                "antenna height; assumption)", (0.0, 1.0)),
@@ -376,6 +382,8 @@ class EurobaliseSimulator(Simulator):
         self._nid = np.array([nid[str(items[i]["id"])] for i in order], dtype=float)
         # T_r of each balise's telegram [s]
         self._t_r = np.array([telegram_time(balise_telegram_bits(items[i]), p["bit_rate"]) for i in order])
+        # highest speed each balise's telegram is received at [m/s] (seed 001 section 1)
+        self._v_max = np.array([TELEGRAM_MAX_SPEED[str(items[i].get("telegram", "long"))] for i in order])
         self._passage: dict | None = None
 
     def _installation_errors(self, sigma: np.ndarray) -> np.ndarray:
@@ -394,8 +402,9 @@ class EurobaliseSimulator(Simulator):
         half = window_half_width(p["read_threshold"] / gain, p["vertical_distance"], p["balise_current"])
         return {"k": k, "gain": gain, "half": half, "prev": None, "t_in": None, "copy": 1, "done": False}
 
-    def _copies(self, ps: dict, t_limit: float, t: np.ndarray, tel: np.ndarray, off: int) -> None:
-        """Telegram copies completing up to t_limit while in the window; deliver the first good one."""
+    def _copies(self, ps: dict, t_limit: float, t: np.ndarray, spd: np.ndarray, tel: np.ndarray, off: int) -> None:
+        """Telegram copies completing up to t_limit while in the window; deliver the first good
+        one received at a speed ``spd`` [m/s] (per sample of ``t``) within its telegram's limit."""
         err = self.params["telegram_error_rate"]
         while not ps["done"]:
             t_done = ps["t_in"] + ps["copy"] * self._t_r[ps["k"]]
@@ -405,10 +414,13 @@ class EurobaliseSimulator(Simulator):
             if self.rng.random() < err:
                 continue
             i = min(int(np.searchsorted(t, t_done - 1e-9)), len(t) - 1)
+            if abs(spd[i]) > self._v_max[ps["k"]] * (1.0 + 1e-9):
+                continue                   # too fast for this telegram (seed 001 section 1)
             tel[off + i] = self._nid[ps["k"]]
             ps["done"] = True
 
-    def _telegrams(self, ps: dict, t: np.ndarray, au: np.ndarray, tel: np.ndarray, off: int) -> None:
+    def _telegrams(self, ps: dict, t: np.ndarray, au: np.ndarray, spd: np.ndarray, tel: np.ndarray,
+                   off: int) -> None:
         half = ps["half"]
         inside = au <= half
         if ps["prev"] is None:
@@ -422,10 +434,10 @@ class EurobaliseSimulator(Simulator):
                 ps.update(t_in=t_cross, copy=1, done=False)
             else:                          # leaving it: copies completed before count
                 if ps["t_in"] is not None:
-                    self._copies(ps, t_cross, t, tel, off)
+                    self._copies(ps, t_cross, t, spd, tel, off)
                 ps["t_in"] = None
         if ps["t_in"] is not None:
-            self._copies(ps, t[-1], t, tel, off)
+            self._copies(ps, t[-1], t, spd, tel, off)
         ps["prev"] = (t[-1], au[-1], bool(inside[-1]))
 
     def samples(self, times, position, speed, acceleration):
@@ -436,6 +448,7 @@ class EurobaliseSimulator(Simulator):
         if self._pos.size:
             ant = position - p["antenna_offset"]
             u, runs = nearby_runs(self._pos, ant, NEAR_RANGE)
+            spd = np.broadcast_to(np.asarray(speed, dtype=float), np.shape(times))
             gain = np.zeros(n)
             for r0, r1, kk in runs:
                 if kk < 0:
@@ -445,7 +458,7 @@ class EurobaliseSimulator(Simulator):
                 if ps is None or ps["k"] != kk or r0 != 0:
                     ps = self._new_passage(kk)
                 gain[r0:r1] = ps["gain"]
-                self._telegrams(ps, times[r0:r1], np.abs(u[r0:r1]), tel, r0)
+                self._telegrams(ps, times[r0:r1], np.abs(u[r0:r1]), spd[r0:r1], tel, r0)
                 self._passage = ps
             h = gain * loop_field(u, p["vertical_distance"], current=p["balise_current"])
         field = np.abs(h + self.rng.normal(0.0, p["field_noise"], n))

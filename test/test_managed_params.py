@@ -75,3 +75,34 @@ def test_managed_sensor_nodes_list_and_take_every_parameter_before_configure(ros
             assert proc.interrupt() == 0, proc.output()
     finally:
         node.destroy_node()
+
+
+def test_the_managed_fusion_lists_and_takes_every_parameter_before_configure(ros_context, start_node):
+    """The fusion declares before configure its own parameters, the tuning, the error-model
+    fields of every sensor class and the network's; configure adds none, takes a tuning value
+    and an error-model field set while unconfigured, and makes them read-only."""
+    from lifecycle_msgs.srv import ChangeState
+    from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
+
+    proc = start_node("fusion", "--ros-args", *NS, "-p", "managed:=true", "-p", "sensors:=[doppler]")
+    node = ros_context.create_node("probe_managed_fusion", namespace="/train")
+    try:
+        lister = _client(node, ListParameters, "fusion/list_parameters")
+        setter = _client(node, SetParameters, "fusion/set_parameters")
+        getter = _client(node, GetParameters, "fusion/get_parameters")
+        change = node.create_client(ChangeState, "fusion/change_state")
+        assert lifecycle_replies(node, change), proc.output()
+        before = _names(node, lister)
+        assert {"scenario", "sensors", "history", "max_input_rate", "doppler.scale_sigma", "eurobalise.timeout",
+                "start_section"} <= before, sorted(before)
+        assert _set(node, setter, "history", 3.0).successful
+        assert _set(node, setter, "doppler.scale_sigma", 0.01).successful
+        assert _configure(node, change), proc.output()
+        assert _names(node, lister) == before
+        assert _get(node, getter, "history") == 3.0 and _get(node, getter, "doppler.scale_sigma") == 0.01
+        assert "error model of doppler overridden: scale_sigma=0.01" in proc.output()
+        refused = _set(node, setter, "history", 4.0)
+        assert not refused.successful and "read-only" in refused.reason.lower()
+        assert proc.interrupt() == 0, proc.output()
+    finally:
+        node.destroy_node()

@@ -68,11 +68,27 @@ from ..core.sensors.base import ERROR_MODEL_LIMITS
 from ..core.network.config import NetworkConfig, network_fusion_config
 from ..core.network.hypotheses import HypothesisSet
 from ..core.network.model import is_network
-from .common import (LATCHED_QOS, STATE_QOS, STREAM_QOS, ConfigurationError, ManagedNode, declare, now_sec, rclpy_classes,
-                     spin)
+from ..core.sensors.base import Param
+from .common import (LATCHED_QOS, STATE_QOS, STREAM_QOS, ConfigurationError, ManagedNode, declare, declare_param,
+                     now_sec, rclpy_classes, spin)
 
 # every sensor class, in the registry's order (core/sensors/__init__.py)
 ALL_SENSORS = list(dict.fromkeys(sensor_classes().values()))
+# the node's own parameters but publish_rate (declared at start, writable)
+NODE_PARAMS = {
+    "scenario": Param("", "scenario YAML (gives the track and the fusion tuning)"),
+    "track": Param("config/track_conventional.yaml", "track YAML"),
+    "sensors": Param(ALL_SENSORS, "sensor classes to subscribe (a sensor node's name is taken for its class)"),
+    "sensor_params": Param("", "YAML file: sensor node name -> its parameters (the sensors' own parameter files); "
+                               "their error models configure the filter (default: the scenario's sensors, else "
+                               "default parameters)"),
+    "map_frame": Param("map", "fixed frame (REP-105 map)"),
+    "base_frame": Param("base_link", "vehicle frame"),
+    "odom_frame": Param("", "REP-105 odom frame of a source that publishes odom -> base_frame on /tf: then this "
+                            "node publishes map -> odom (as robot_localization does); empty: map -> base_frame"),
+    "max_input_rate": Param(1000.0, "messages per second per input topic beyond which the excess is shed before "
+                                    "any work (counted: shed/<topic>); the fastest device sends 200/s", (1.0, 1.0e6)),
+}
 
 
 def _ros_value(value):
@@ -125,10 +141,8 @@ def declare_fusion_config(node: Node, base: FusionConfig, track) -> FusionConfig
     try:
         for sensor, own in base.sensors.items():
             start = own.overridden((base.overrides or {}).get(sensor))
-            given = {name: declare(node, f"{sensor}.{name}", value, f"{sensor} error model: {name} (core/sensors/"
-                                   "base.py ErrorModel; default: the sensor's own model)", read_only=True,
-                                   limits=ERROR_MODEL_LIMITS.get(name))
-                     for name, value in error_model_parameters(start).items()}
+            given = {name: declare_param(node, error_model_params(sensor, start), f"{sensor}.{name}")
+                     for name in error_model_parameters(start)}
             changed = overrides_from_parameters(own, given)
             if changed:
                 overrides[sensor] = changed
@@ -140,13 +154,39 @@ def declare_fusion_config(node: Node, base: FusionConfig, track) -> FusionConfig
         raise ConfigurationError(f"fusion parameters: {exc}") from None
 
 
+def error_model_params(sensor: str, model) -> dict:
+    """The nested parameters ``<sensor>.<field>`` of a sensor class's error model (core Params,
+    default the model's values)."""
+    return {f"{sensor}.{name}": Param(value, f"{sensor} error model: {name} (core/sensors/base.py ErrorModel; "
+                                             "default: the sensor's own model)", ERROR_MODEL_LIMITS.get(name))
+            for name, value in error_model_parameters(model).items()}
+
+
+def field_params(fields_, base) -> dict:
+    """A config's ``fields_`` (described and bounded by ``doc_field``) as core Params, default
+    their value in ``base``."""
+    return {f.name: Param(_ros_value(getattr(base, f.name)), f.metadata.get("doc", ""), f.metadata.get("limits"))
+            for f in fields_}
+
+
 def declare_fields(node: Node, fields_, base) -> dict:
     """Declare each of a config's ``fields_`` (described and bounded by ``doc_field``) as a read-only
     parameter, default its value in ``base``; field name -> the value set."""
-    return {f.name: _from_ros(getattr(base, f.name), declare(node, f.name, _ros_value(getattr(base, f.name)),
-                                                             f.metadata.get("doc", ""), read_only=True,
-                                                             limits=f.metadata.get("limits")))
-            for f in fields_}
+    params = field_params(fields_, base)
+    return {f.name: _from_ros(getattr(base, f.name), declare_param(node, params, f.name)) for f in fields_}
+
+
+def parameter_table() -> dict:
+    """Every parameter the fusion may declare, at its default without a scenario: the node's,
+    the tuning fields, the error-model fields of every sensor class, the network's (a managed
+    node declares them all before configure; configure uses those its sensors and track need)."""
+    from dataclasses import fields
+    from ..core.fusion.config import default_models
+    table = {**NODE_PARAMS, **field_params([f for f in FusionConfig.tuning_fields() if f.name != "track_id"],
+                                           FusionConfig())}
+    for sensor, model in default_models().items():
+        table.update(error_model_params(sensor, model))
+    return {**table, **field_params(fields(NetworkConfig), NetworkConfig())}
 
 
 def declare_network_config(node: Node, base: NetworkConfig) -> NetworkConfig:
@@ -243,22 +283,17 @@ class FusionNode(ManagedNode):
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.runner = None
         self._timer = None
+        self.predeclare(parameter_table())   # managed: every parameter before configure
         self.start()
 
     def _configure(self) -> None:
-        scenario_path = declare(self, "scenario", "", "scenario YAML (gives the track and the fusion tuning)",
-                                read_only=True)
-        track = declare(self, "track", "config/track_conventional.yaml", "track YAML", read_only=True)
+        scenario_path = declare_param(self, NODE_PARAMS, "scenario")
+        track = declare_param(self, NODE_PARAMS, "track")
         # on a line: the train of this node's namespace (its sensors and the wayside ones)
         scenario = Scenario.from_yaml(scenario_path).for_namespace(self.get_namespace()) if scenario_path else None
         self.track = scenario.track if scenario else Track.from_yaml(paths.resolve(track))
-        sensors = sensor_classes(declare(
-            self, "sensors", ALL_SENSORS, "sensor classes to subscribe (a sensor node's name is taken for its class)",
-            read_only=True))
-        params_file = declare(self, "sensor_params", "", "YAML file: sensor node name -> its parameters (the "
-                                                         "sensors' own parameter files); their error models "
-                                                         "configure the filter (default: the scenario's sensors, "
-                                                         "else default parameters)", read_only=True)
+        sensors = sensor_classes(declare_param(self, NODE_PARAMS, "sensors"))
+        params_file = declare_param(self, NODE_PARAMS, "sensor_params")
         self.network = scenario.network if scenario else None
         self.route = scenario.route if scenario else None   # on a network: the train's route (a TrackPath)
         if self.network is None and not scenario and is_network_file(paths.resolve(track)):
@@ -272,16 +307,11 @@ class FusionNode(ManagedNode):
             base = FusionConfig(**{**{f.name: getattr(base, f.name) for f in FusionConfig.tuning_fields()},
                                    "sensors": self._models(sensors, params_file), "overrides": base.overrides})
         cfg = declare_fusion_config(self, base, None if self.network is not None else self.track)
-        self.map_frame = declare(self, "map_frame", "map", "fixed frame (REP-105 map)", read_only=True)
-        self.base_frame = declare(self, "base_frame", "base_link", "vehicle frame", read_only=True)
-        self.odom_frame = declare(self, "odom_frame", "", "REP-105 odom frame of a source that publishes "
-                                  "odom -> base_frame on /tf: then this node publishes map -> odom (as "
-                                  "robot_localization does); empty: map -> base_frame", read_only=True)
+        self.map_frame = declare_param(self, NODE_PARAMS, "map_frame")
+        self.base_frame = declare_param(self, NODE_PARAMS, "base_frame")
+        self.odom_frame = declare_param(self, NODE_PARAMS, "odom_frame")
         self._odom_base = None   # latest odom -> base_frame from /tf: (x, y, yaw)
-        max_input_rate = float(declare(self, "max_input_rate", 1000.0, "messages per second per input topic "
-                                       "beyond which the excess is shed before any work (counted: "
-                                       "shed/<topic>); the fastest device sends 200/s", read_only=True,
-                                       limits=(1.0, 1.0e6)))
+        max_input_rate = float(declare_param(self, NODE_PARAMS, "max_input_rate"))
         self.shedder = InputShedder(max_input_rate)
         self.mc = rclpy_classes()
         hypotheses = self.tracks_pub = None

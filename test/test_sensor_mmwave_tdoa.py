@@ -13,23 +13,27 @@ from train_localization.core.sensors import NODE_NAMES, spec
 from train_localization.core.sensors.base import resolve_params
 from train_localization.core.sensors.mmwave_tdoa import CHANNELS, NO_REPLY, SLOTS, TICK
 from train_localization.core.signals import InputRejected, RawBlock
-from train_localization.core.track import Track
+from train_localization.core.track import Track, TrackError
 
 NODE = "mmwave_tdoa"
 V_MAX = 500.0 / 3.6
 # MW000 at 200 m .. MW024 at 9800 m
 STATIONS = [{"every": 400.0, "start": 200.0, "end": 9800.0, "id": "MW{n:03d}", "offset": 5.0, "height": 6.0}]
 Z999 = 3.29
+# the 6 nearest stations in view (three on each side of the antenna): a fix bounds a fault of
+# two neighbours together (``timing_neighbours``) only with a station left on each side
+RANGE = 1300.0
 
 
-def scenario(speed=V_MAX, start=1000.0, duration=30.0, params=None, seed=1, stations=None):
+def scenario(speed=V_MAX, start=1000.0, duration=30.0, params=None, seed=1, stations=None, common_cause=()):
     return Scenario.from_dict({
         "name": "mmwave_tdoa", "seed": seed, "duration": duration,
-        "track": {"track_id": "T1", "length": 10000.0, "equipment": {"mmwave_station": stations or STATIONS}},
+        "track": {"track_id": "T1", "length": 10000.0, "equipment": {"mmwave_station": stations or STATIONS},
+                  "common_cause": list(common_cause)},
         "vehicle": {"type": "maglev", "length": 150.0},
         "initial": {"position": start, "speed": speed},
         "profile": [{"speed": speed, "hold": 1000.0}],
-        "sensors": {NODE: params or {}},
+        "sensors": {NODE: {"max_range": RANGE, **(params or {})}},
     })
 
 
@@ -139,7 +143,7 @@ def test_a_fault_detected_but_not_identified_gives_no_fix():
     neither can be protected: its lone station ahead is unchecked): no fix, never a fix of the
     wrong candidate."""
     four = [{"id": f"S{k}", "position": p, "offset": 5.0} for k, p in enumerate((1000.0, 1400.0, 1800.0, 2200.0))]
-    params = {"faults": "S3@1-3:3.0", "nlos_rate": 0.0, "dropout_prob": 0.0}
+    params = {"faults": "S3@1-3:3.0", "nlos_rate": 0.0, "dropout_prob": 0.0, "timing_neighbours": 1}
     sc = scenario(50.0, 1550.0, duration=4.0, params=params, stations=four)   # 1550 .. 1750 m
     r = run(sc)
     stats = r.pipe.decoder.stats
@@ -170,7 +174,8 @@ def test_the_reference_station_may_be_the_faulty_one():
     """MW010 biased while the train passes it: it is the nearest station (the highest SNR), the
     reference of the differences, and is excluded all the same."""
     sc = scenario(V_MAX, 3800.0, duration=6.0, params={"faults": "MW010@0-6:4.0", "nlos_rate": 0.0,
-                                                         "snr_fading": 0.0})
+                                                         "snr_fading": 0.0, "timing_neighbours": 1,
+                                                         "max_range": 1000.0})
     r = run(sc)
     traj = sc.trajectory()
     near = [f for f in r.measurements if abs(np.interp(f.stamp, traj.t, traj.position) - 4200.0) < 60.0]
@@ -191,7 +196,8 @@ def test_beyond_the_last_station_the_geometry_gives_no_fix():
 
 
 def _good_block():
-    sc = scenario(V_MAX, 3000.0, duration=0.2)
+    """A block of 5 stations in view: its sixth slot is empty."""
+    sc = scenario(V_MAX, 3000.0, duration=0.2, params={"max_range": 1000.0})
     return sc, run(sc).blocks[0]
 
 
@@ -286,3 +292,53 @@ def test_forged_fixes_are_refused_with_their_reason():
     honest = PositionFix(10.0, NODE, NODE, "T1", "MW001,MW002,!MW003", 900.0, 0.05, 0, (0.1, -0.1, 2.0))
     hi = model.references.windows["MW001"].hi
     assert_forged_fixes_refused(model, honest, "MW001,MW999", hi + 300.0, far_id="MW001")
+
+
+# -- common-cause groups (core/common_cause.py) ------------------------------------------------
+PAIR_DRIFT = "MW012@4-20:sync=5;MW013@4-20:sync=5"   # two neighbours on one timing node walk off together
+
+
+def _held(sc, fixes) -> float:
+    err, sd = errors(sc, fixes)
+    return float(np.mean(np.abs(err) <= Z999 * sd))
+
+
+def test_two_neighbours_walking_off_together_are_covered_as_one_fault():
+    """Two neighbouring stations lose their synchronisation together, the same way (1.5 m/s of
+    range each): they agree with each other, so a decoder that only knows single faults keeps
+    them and publishes fixes metres off with a decimetre sigma; covering every two neighbours as
+    one fault (the default, ``timing_neighbours`` 2) keeps every fix's interval on the truth."""
+    params = {"faults": PAIR_DRIFT, "nlos_rate": 0.0}
+    sc = scenario(V_MAX, 3400.0, duration=20.0, params=params)
+    single = run(scenario(V_MAX, 3400.0, duration=20.0, params={**params, "timing_neighbours": 1})).measurements
+    assert _held(sc, single) < 0.99                     # the single-fault model is fooled
+    r = run(sc)
+    assert len([f for f in r.measurements if f.stamp < 4.0]) > 0.9 * 800   # before the fault
+    assert _held(sc, r.measurements) >= 0.999
+    assert r.pipe.decoder.stats["common_cause"] > 0
+
+
+def test_declared_groups_replace_the_neighbours():
+    """A track that declares its timing groups: a group of two stations that are not neighbours
+    (one fibre ring) is covered; without the declaration (neighbours only) it is not."""
+    drift = "MW011@4-20:sync=5;MW013@4-20:sync=5"
+    params = {"faults": drift, "nlos_rate": 0.0}
+    ring = {"id": "RING", "cause": "fibre ring", "members": ["MW011", "MW013"], "prior": 0.01}
+    neighbours = scenario(V_MAX, 3400.0, duration=20.0, params=params)
+    assert _held(neighbours, run(neighbours).measurements) < 0.99
+    declared = scenario(V_MAX, 3400.0, duration=20.0, params=params, common_cause=[ring])
+    r = run(declared)
+    assert len([f for f in r.measurements if f.stamp < 4.0]) > 0.9 * 800 and _held(declared, r.measurements) >= 0.999
+
+
+@pytest.mark.parametrize("entry,message", [
+    ({"id": "G", "members": ["MW001", "XX"], "prior": 0.01}, "does not have: XX"),
+    ({"id": "G", "members": ["MW001", "MW002"], "prior": 1.5}, "is not a probability"),
+    ({"id": "G", "equipment": "mmwave_station", "size": 1, "prior": 0.01}, "'size' must be"),
+    ({"id": "G", "prior": 0.01}, "names neither"),
+])
+def test_a_bad_common_cause_block_is_refused_in_one_line(entry, message):
+    data = {"track_id": "T1", "length": 10000.0, "equipment": {"mmwave_station": STATIONS},
+            "common_cause": [entry]}
+    with pytest.raises(TrackError, match=message):
+        Track.from_dict(data)

@@ -13,6 +13,9 @@ expands to one item every ``d`` metres (its other string values may use ``{n}`` 
 balise's ``group: "BG{n:03d}"``). Extra keys (a balise telegram, an LRL code,
 a base station's lateral offset, ...) stay in the dict for the sensor models.
 
+Equipment that can fail together (base stations on one timing node, balises of one survey) is
+the ``common_cause`` block: core/common_cause.py.
+
 ETCS data (balise groups' Q_LOCACC, linking) are the ``etcs`` block and keys of the
 ``eurobalise`` items: core/etcs/track_data.py.
 
@@ -35,9 +38,20 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from . import common_cause
+from .common_cause import CommonCause
+
 
 class TrackError(ValueError):
     """A track file that cannot be used, with the reason."""
+
+
+def _common_cause(data: dict, equipment: dict[str, list[dict]]) -> tuple[CommonCause, ...]:
+    """The track's ``common_cause`` groups (core/common_cause.py), refused as a TrackError."""
+    try:
+        return common_cause.parse(data.get("common_cause"), equipment)
+    except common_cause.CommonCauseError as exc:
+        raise TrackError(f"track '{data.get('track_id')}': {exc}") from None
 
 
 def _expand(kind: str, entries: list) -> list[dict]:
@@ -114,6 +128,7 @@ class Track:
     resolution: float = 10.0  # polyline step [m]
     closed: bool = False      # a loop: chainage ``length`` is chainage 0 again (the rig's disc, seed 003)
     etcs: dict = field(default_factory=dict)  # ETCS data: national values, linking (core/etcs/track_data.py)
+    common_cause: tuple[CommonCause, ...] = ()  # equipment that can fail together (core/common_cause.py)
 
     def __post_init__(self):
         if not (self.length > 0 and math.isfinite(self.length)):
@@ -275,6 +290,7 @@ class Track:
     def from_dict(cls, data: dict) -> "Track":
         try:
             origin = data.get("origin", {}) or {}
+            equipment = {kind: _expand(kind, entries) for kind, entries in (data.get("equipment", {}) or {}).items()}
             return cls(
                 track_id=str(data["track_id"]),
                 length=float(data["length"]),
@@ -282,11 +298,11 @@ class Track:
                         float(origin.get("heading", 0.0))),
                 segments=[(float(s["length"]), float(s.get("curvature", 0.0)))
                           for s in data.get("alignment", []) or []],
-                equipment={kind: _expand(kind, entries)
-                           for kind, entries in (data.get("equipment", {}) or {}).items()},
+                equipment=equipment,
                 closed=bool(data.get("closed", False)),
                 resolution=float(data.get("resolution", 10.0)),
                 etcs=data.get("etcs") or {},
+                common_cause=_common_cause(data, equipment),
             )
         except KeyError as exc:
             raise TrackError(f"track description lacks the key {exc}") from None

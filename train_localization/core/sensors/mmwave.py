@@ -137,6 +137,7 @@ import operator
 import numpy as np
 from scipy.special import chdtri, ndtri
 
+from ..common_cause import member_groups
 from ..measurements import PositionFix
 from ..signals import InputRejected, RawBlock
 from ..track import Track, TrackError
@@ -403,6 +404,9 @@ class _Pattern:
     __slots__ = ("idx", "s", "d2", "s4", "d4", "key", "lo", "hi", "stations", "loc")
 
 
+_POPCOUNT = np.array([bin(b).count("1") for b in range(256)])   # set bits of a slot mask (<= 8 slots)
+
+
 class _Subsets:
     """The non-empty subsets of m rows (stations or slots): subset i holds the rows of the
     bits of i + 1, so the last one holds them all.
@@ -457,6 +461,45 @@ class SolutionSeparation:
         self._cover_second_fault = busy > risk
         # both of two stations at once, a priori: two in view give no fix where that is likely
         self._withhold_two = busy * busy > risk
+
+    def _init_groups(self, track, ids, implied=()) -> None:
+        """The common-cause groups of the stations ``ids`` that this decoder covers
+        (core/common_cause.py): the track's and ``implied`` ones (a decoder's own fault model)
+        whose prior exceeds the risk the interval allows, 1 - protection_probability. Kept as a
+        (stations, groups) membership matrix."""
+        rows = member_groups(tuple(track.common_cause) + tuple(implied), ids,
+                             1.0 - self.params["protection_probability"])
+        self._groups = np.zeros((max(len(ids), 1), len(rows)), dtype=bool)
+        for g, members in enumerate(rows):
+            self._groups[list(members), g] = True
+
+    def _group_bits(self, idx, valid) -> np.ndarray:
+        """(groups in view, n) int: per covered group with a station in view, the bits of the
+        valid slots (idx: station index per slot (slots, n)) whose station belongs to it."""
+        in_view = self._groups[idx] & valid[:, :, None]                     # (slots, n, groups)
+        bits = np.add.reduce(in_view * self._slot_bits[:, None, None], axis=0).T   # (groups, n)
+        return bits[np.add.reduce(bits, axis=1) > 0]
+
+    def _group_protection(self, tab, xs, var, sub, group_bits) -> np.ndarray:
+        """Published 1-sigma (n,) that covers a fault of every covered group with two or more of
+        its stations inside the chosen subsets ``sub`` (n,): the solution without all of the
+        group's stations is taken as ``_protection`` takes the one without a single station (its
+        separation / k + its sigma), whatever the group's stations do together (their errors
+        may agree: two stations on one timing node walk off the same way and pass every test);
+        infinite where nothing is left or the rest does not fix x (no fix)."""
+        cols = self._columns(len(sub))
+        bits = tab.bits[sub]
+        x_s = xs[sub, cols]
+        sigma = np.zeros(len(sub))
+        for group in group_bits:
+            several = _POPCOUNT[bits & group] >= 2
+            if not _any(several):
+                continue
+            rest = (bits & ~group) - 1                     # subset index of the stations left (-1: none)
+            k = np.maximum(rest, 0)
+            cover = np.where(rest >= 0, np.abs(xs[k, cols] - x_s) / self._k_cover + np.sqrt(var[k, cols]), np.inf)
+            sigma = np.where(several, np.maximum(sigma, cover), sigma)
+        return sigma
 
     def _subsets(self, m: int) -> "_Subsets":
         """Table of the non-empty subsets of m rows (cached per m)."""

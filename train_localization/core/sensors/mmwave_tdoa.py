@@ -114,6 +114,17 @@ Decoder (vectorised over the epochs of a block and the subsets of its slots):
     (``stats["unbounded"]``), unless ``min_stations`` = 2, where such a fix is published
     unchecked, with ``unchecked_sigma`` added. With 3 in view where two faults alike are
     a priori likelier than the interval's risk, no fix (``stats["unprotected"]``).
+  * Common causes: stations served by one timing node or one fibre lose their
+    synchronisation together and walk off the same way; they agree with each other, so the
+    test passes (two on the same side of the antenna shift x and the clock bias alike: no
+    residual at all) or isolates a good station instead. Each group the track declares
+    (core/common_cause.py, prior above 1 - ``protection_probability``), or where it declares
+    none every ``timing_neighbours`` neighbouring stations, is a fault of its own: the sigma
+    also covers the solution without all of the group's stations in the chosen subset
+    (``SolutionSeparation._group_protection``), and where that leaves x unfixed there is no
+    fix. With pairs, a fix needs a station left on each side of the antenna after any two
+    neighbours are removed: three on each side (``stats["common_cause"]`` counts the fixes
+    whose sigma a group widened).
   * Output: one PositionFix per epoch; position = x + orientation * antenna_offset;
     reference_id = the stations used (ascending chainage), then the excluded ones with
     "!"; residuals = measured minus fitted pseudo-range (common offset of the used stations
@@ -126,6 +137,7 @@ import math
 import numpy as np
 from scipy.special import chdtri
 
+from ..common_cause import CommonCause
 from ..measurements import PositionFix
 from ..signals import InputRejected, RawBlock
 from ..track import Track
@@ -163,6 +175,11 @@ PARAMS = {
                                   "redundancy an NLOS bias (mean ~1 m) cannot be detected", (0.0, 50.0)),
     "max_geometry_sigma": Param(5.0, "largest LS 1-sigma of a fix [m]: beyond all stations on one side the "
                                      "range differences flatten and x is not fixed (no fix)", (0.01, 1000.0)),
+    "timing_neighbours": Param(2, "where the track declares no common_cause group of its stations: every run "
+                                  "of this many neighbouring stations (by chainage) may lose its "
+                                  "synchronisation together, as stations served by one timing node or one "
+                                  "fibre do, and is covered as one fault (1: each station on its own) [1]",
+                               (1, 6)),
     "faults": Param("", "injected faults 'ID@T0-T1:BIAS' (range bias [m]), 'ID@T0-T1:drop', "
                         "'ID@T0-T1:sync=RATE' (station timing walks off [ns/s]), 'clock@T0-T1:jump=NS' "
                         "(receiver clock step [ns]) or 'clock@T0-T1:drift=PPM', separated by ';' (tests)"),
@@ -201,6 +218,20 @@ def _split_faults(text: str):
         else:
             plain.append(item)
     return parse_range_faults(";".join(plain)), timing
+
+
+def timing_groups(track: Track, ids, positions, neighbours: int) -> tuple[CommonCause, ...]:
+    """The stations' common-cause groups: those the track declares (core/common_cause.py) or,
+    where it declares none of these stations, every run of ``neighbours`` neighbouring stations
+    by chainage ``positions`` [m] (``timing_neighbours``), each as likely as the risk of a fix's interval could
+    not neglect (prior 1: always covered)."""
+    mine = set(ids)
+    if any(mine.intersection(group.members) for group in track.common_cause) or neighbours < 2:
+        return ()
+    order = [ids[k] for k in np.argsort(positions, kind="stable")]
+    return tuple(CommonCause(f"timing:{','.join(order[k:k + neighbours])}", "timing node",
+                             tuple(order[k:k + neighbours]), 1.0 - 1e-12)
+                 for k in range(len(order) - neighbours + 1))
 
 
 def sync_sigma_m(p: dict) -> float:
@@ -310,10 +341,12 @@ class MmWaveTdoaDecoder(SolutionSeparation, Decoder):
         self._sync2 = sync_sigma_m(params) ** 2
         self._min_sigma = min_fix_sigma(params)
         self._init_separation(params, SLOTS)
+        self._init_groups(track, self.ids, timing_groups(track, self.ids, self.pos, params["timing_neighbours"]))
         self._tab = self._subsets(SLOTS)
         self._ref_cache: dict = {}
         self.stats.update(epochs=0, fixes=0, rejected_stations=0, no_fix=0, too_few=0, geometry=0,
-                          unidentifiable=0, inconsistent=0, unbounded=0, unprotected=0)
+                          unidentifiable=0, inconsistent=0, unbounded=0, unprotected=0,
+                          common_cause=0)
 
     def _gate_dof(self, dof: int) -> float:
         """Gate of a subset of dof + 1 stations: its test has dof - 1 degrees of freedom (x and
@@ -446,6 +479,11 @@ class MmWaveTdoaDecoder(SolutionSeparation, Decoder):
         x = xs[chosen, cols]
         ls = var[chosen, cols]
         size = tab.size[chosen]
+        if self._groups.shape[1]:
+            # a common-cause group's stations may be wrong together: the rest must bound x
+            group_sd = self._group_protection(tab, xs, var, chosen, self._group_bits(idx, valid))
+            self.stats["common_cause"] += int(np.count_nonzero(ok & (group_sd > sd)))
+            sd = np.maximum(sd, group_sd)
         if p["min_stations"] <= 2:
             # two stations: nothing left to check them, published unchecked
             sd = np.where(ok & (size == 2), np.sqrt(ls + p["unchecked_sigma"] ** 2), sd)

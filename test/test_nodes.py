@@ -545,7 +545,7 @@ def test_a_sensor_node_starts_from_its_example_params_file(exe, start_node, tmp_
         assert proc.interrupt() == 0, proc.output()
     probe.destroy_node()
     bad = tmp_path / f"{exe}.yaml"
-    bad.write_text(text.replace("    mode: sim ", "    mode: neither "))
+    bad.write_text(text.replace("    mode: \"sim\"", "    mode: \"neither\""))
     proc = start_node(exe, "--ros-args", "--params-file", str(bad))
     assert proc.proc.wait(timeout=30) == 2 and "mode" in proc.output(), proc.output()
 
@@ -618,6 +618,10 @@ def test_an_event_input_that_misses_a_reference_the_train_passed_is_a_warning(ro
                     return (st.level[0] if isinstance(st.level, bytes) else st.level), st.message
         return None, ""
 
+    def overall(since=0):
+        """(level, message) of the fusion's own status in every report from diags[since]."""
+        return [(st.level[0], st.message) for arr in diags[since:] for st in arr.status if st.name == "fusion: fusion"]
+
     def drive(t0, t1, fixes):
         for k in range(int(round(t0 * 20)), int(round(t1 * 20))):
             t = k / 20.0
@@ -640,11 +644,17 @@ def test_an_event_input_that_misses_a_reference_the_train_passed_is_a_warning(ro
         assert spin_until(node, lambda: fix_pub.get_subscription_count() > 0 and speed_pub.get_subscription_count() > 0,
                           30.0), proc.output()
         drive(0.0, 15.0, fixes={0, 1})
+        # located, every input OK: the fusion's own status OK (NOMINAL)
+        assert any(level == 0 and msg.startswith("NOMINAL") for level, msg in overall()), overall()
         spin_until(node, lambda: False, 1.5)
         assert balise()[0] == 0, balise()
+        mark = len(diags)
         drive(15.0, 26.0, fixes=set())                    # past EB002 (2,502 m at 20 s)
         assert spin_until(node, lambda: balise()[0] == 1, 5.0), (balise(), proc.output()[-1500:])
         assert "EB002" in balise()[1]
+        # the fusion's own status says it too (it stayed OK NOMINAL)
+        assert any(level == 1 and msg.startswith("NOMINAL") and "input eurobalise: no fix since" in msg
+                   for level, msg in overall(mark)), overall(mark)
         drive(26.0, 31.0, fixes={3})                      # EB003 read at 30 s
         assert spin_until(node, lambda: balise()[0] == 0, 5.0), balise()
         assert proc.interrupt() == 0

@@ -86,6 +86,9 @@ class Diagnostics:
         self.last_error = ""
         self.level = 0  # 0 OK, 1 WARN, 2 ERROR, 3 STALE (diagnostic_msgs/DiagnosticStatus)
         self.message = "starting"
+        # conditions that make the status at least WARN, each a line appended to the message
+        # (an input gone): the node sets them before each report (``extra``)
+        self.warnings: list[str] = []
         self._extra = None
         self.clock = None   # optional: () -> stamp [s] of the reports (default: the node clock)
         self.period = period   # [s]
@@ -133,11 +136,10 @@ class Diagnostics:
     def publish(self) -> None:
         extra = self._extra() if self._extra else []   # first: it may update this node's own status
         status = DiagnosticStatus(name=self.name, hardware_id=self.node.get_fully_qualified_name())
-        level = self.level
-        if self.rejected and level == 0:
-            level = 1
+        level = max(self.level, 1) if self.warnings or self.rejected else self.level
+        message = "; ".join([self.message] + self.warnings)
         status.level = bytes([level])
-        status.message = self.message if not self.rejected else f"{self.message}; {sum(self.rejected.values())} inputs rejected"
+        status.message = message if not self.rejected else f"{message}; {sum(self.rejected.values())} inputs rejected"
         kv = [KeyValue(key=f"accepted/{k}", value=str(v)) for k, v in sorted(self.accepted.items())]
         kv += [KeyValue(key=f"rejected/{k}", value=str(v)) for k, v in sorted(self.rejected.items())]
         kv += [KeyValue(key=k, value=v) for k, v in sorted(self.values.items())]

@@ -10,7 +10,8 @@ core/offline.py FusionRunner, the same code as the offline runs):
   /tf                    map -> base_frame, or map -> odom_frame when odom_frame is set (then
                          odom -> base_frame comes from another source on /tf, REP-105)
   /diagnostics           level from the mode (OK NOMINAL, WARN INITIALISING and DEGRADED, ERROR
-                         LOST; WARN also once input was rejected), counts of accepted, gated and
+                         LOST; WARN also once input was rejected, and while an input's own status
+                         is WARN, named in the message), counts of accepted, gated and
                          rejected measurements, mode, NIS; one status per sensor input (frequency,
                          age of the last message, WARN when silent beyond its timeout)
 Service: localization/set_position (train_localization_msgs/SetPosition): on a network with a
@@ -376,6 +377,7 @@ class FusionNode(ManagedNode):
         self.destroy_service(self._service)
         self.runner = None
         self.diag.extra(None)
+        self.diag.warnings = []
         self.diag.set_status(1, "unconfigured")
         return TransitionCallbackReturn.SUCCESS
 
@@ -490,6 +492,7 @@ class FusionNode(ManagedNode):
         elapsed = max(now - self._inputs_since, 1e-9)
         self._inputs_since = now
         out = []
+        self.diag.warnings = []   # an input that is WARN makes the fusion's own status WARN too, naming it
         for sensor in self.sensors:
             count, last_wall, age = self._inputs.get(sensor, [0, None, None])
             self._inputs[sensor] = [0, last_wall, age]
@@ -504,6 +507,8 @@ class FusionNode(ManagedNode):
                                      f"{len(passed)} of its references ({', '.join(passed[:3])})")
             elif age is not None and not -0.05 <= age <= self.filter.cfg.history:
                 level, message = 1, f"last measurement stamped {age:.3f} s before the node clock"
+            if level:
+                self.diag.warnings.append(f"input {sensor}: {message}")
             values = [KeyValue(key="frequency_hz", value=f"{count / elapsed:.2f}"),
                       KeyValue(key="last_age_s", value="none" if age is None else f"{age:.3f}"),
                       KeyValue(key="timeout_s", value="none" if timeout is None else f"{timeout:g}")]

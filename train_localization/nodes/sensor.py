@@ -48,6 +48,9 @@ NODE_PARAMS = {
     "scenario": Param("", "scenario YAML (track, vehicle, seed, sensor overrides)"),
     "track": Param("config/track_conventional.yaml", "track YAML when no scenario is given"),
     "future_tolerance": future_tolerance_param("a raw block (its last sample) or a truth state"),
+    "input_timeout": Param(1.0, "no raw block (ingest) or truth state (sim) received for this long while active, "
+                                "none since activation included: the node's diagnostics are WARN [s] of the wall "
+                                "clock", (0.01, 3600.0)),
 }
 
 
@@ -62,6 +65,9 @@ class SensorNode(ManagedNode):
         self.spec = sensor_spec(node_name)
         super().__init__(node_name, self.spec.sensor)
         self.pubs: dict = {}
+        self._active_since: float | None = None   # monotonic clock [s] of the activation; None: inactive
+        self._input_at: float | None = None       # monotonic clock [s] of the last input received
+        self.diag.extra(self._input_silence)
         # managed: every parameter is there before configure (the scenario's defaults come at configure)
         self.predeclare({**NODE_PARAMS, **COMMON_PARAMS, **self.spec.params})
         self.start()
@@ -102,6 +108,7 @@ class SensorNode(ManagedNode):
                 continue  # empty lists have no ROS parameter type; keep the default
             overrides[name] = declare(self, name, default, p.description, read_only=True, limits=p.limits)
         self.future_tolerance = float(declare_param(self, NODE_PARAMS, "future_tolerance"))
+        self.input_timeout = float(declare_param(self, NODE_PARAMS, "input_timeout"))
         self.sim_time = bool(self.get_parameter("use_sim_time").value)
         self._truth_taken: tuple[float, float] | None = None   # (stamp, monotonic clock) [s] of the last truth
         unit = overrides.get("unit_id") or self.spec.sensor
@@ -137,7 +144,28 @@ class SensorNode(ManagedNode):
             self._subs.append(self.create_subscription(self.mc.RawBlock, f"sensors/{self.spec.sensor}/raw",
                                                        self.on_raw, STREAM_QOS))
         self.diag.set_status(0, "running")
+        self._active_since, self._input_at = time.monotonic(), None
         return super().on_activate(state)
+
+    def on_deactivate(self, state) -> TransitionCallbackReturn:
+        self._active_since = None
+        return super().on_deactivate(state)
+
+    def _input_silence(self) -> list:
+        """Before each report: a WARN line while active and no input (raw block, or truth state in
+        sim) was received for ``input_timeout``, none since activation included; no extra status."""
+        self.diag.warnings = []
+        if self._active_since is None:
+            return []
+        now = time.monotonic()
+        what = "raw block" if self.mode == "ingest" else "truth state"
+        if self._input_at is None and now - self._active_since > self.input_timeout:
+            self.diag.warnings = [f"no {what} received in {now - self._active_since:.1f} s since activation "
+                                  f"(input_timeout {self.input_timeout:g} s)"]
+        elif self._input_at is not None and now - self._input_at > self.input_timeout:
+            self.diag.warnings = [f"no {what} for {now - self._input_at:.1f} s (input_timeout "
+                                  f"{self.input_timeout:g} s)"]
+        return []
 
     def on_cleanup(self, state) -> TransitionCallbackReturn:
         for pub in list(self.pubs.values()) + ([self.raw_pub] if self.raw_pub is not None else []):
@@ -153,6 +181,7 @@ class SensorNode(ManagedNode):
         return self.pubs[topic]
 
     def on_truth(self, msg):
+        self._input_at = time.monotonic()
         try:
             truth = convert.truth_from_msg(msg)
             now, clock = self._truth_clock()
@@ -182,6 +211,7 @@ class SensorNode(ManagedNode):
                            "time since: the node runs on the wall clock)")
 
     def on_raw(self, msg):
+        self._input_at = time.monotonic()
         try:
             block = convert.raw_block_from_msg(msg)
             refuse_future(block.t_end, now_sec(self), self.future_tolerance, "raw block end")

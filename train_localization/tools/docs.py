@@ -8,6 +8,8 @@ markers ``<!-- sensor-params:begin/end -->`` and ``<!-- fusion-params:begin/end 
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 from ..core.sensors import NODE_NAMES, spec
 from ..core.sensors.base import COMMON_PARAMS
 from ..nodes.common import FUTURE_TOLERANCE
@@ -22,12 +24,16 @@ def _value(v) -> str:
 
 
 def sensor_params_markdown() -> str:
+    from ..nodes.sensor import NODE_PARAMS
+    timeout = NODE_PARAMS["input_timeout"]
     lines = ["Common to every sensor node: `mode` (`\"sim\"` | `\"ingest\"`), `scenario` (YAML: track, "
              "vehicle, seed, overrides), `track` (YAML, when no scenario), `future_tolerance` (double, "
              f"default {FUTURE_TOLERANCE} s, 0.001 .. 3600: a raw block (ingest) or a truth state (sim) stamped further "
              "ahead of the node clock is refused as `future`; on the wall clock, a truth state further ahead of the "
              "truth's own time, the last one taken plus the wall time since: a simulator's truth is not in the wall "
-             "clock's time), and:", "",
+             f"clock's time), `input_timeout` (double, default {timeout.default} s, {timeout.limits[0]:g} .. "
+             f"{timeout.limits[1]:g}: no raw block (ingest) or truth state (sim) received for this long while "
+             "active, none since activation included, and the node's /diagnostics are WARN, saying so), and:", "",
              "| parameter | default | meaning |", "|---|---|---|"]
     lines += [f"| `{n}` | {_value(p.default)} | {p.meaning} |" for n, p in COMMON_PARAMS.items()]
     for node in NODE_NAMES:
@@ -96,13 +102,11 @@ def sensor_params_file(node: str) -> str:
     """Example ROS params file of a sensor node: every parameter at its default, described."""
     s = spec(node)
     track = EXAMPLE_TRACKS.get(node, "config/track_conventional.yaml")
-    lines = _header(node, f"Parameters of the {node} node at their defaults") + [
-        '    mode: sim                  # sim: from ground_truth/state; ingest: decode sensors/<sensor>/raw',
-        '    scenario: ""               # scenario YAML (track, vehicle, seed, sensor overrides)',
-        f"    track: {track}   # track YAML when no scenario is given",
-        "    managed: false             # true: a lifecycle manager configures and activates the node",
-        f"    future_tolerance: {FUTURE_TOLERANCE!r}      # a raw block or truth state stamped further ahead of the node "
-        "clock is refused [s] [0.001 .. 3600]"]
+    from ..nodes.sensor import NODE_PARAMS
+    lines = _header(node, f"Parameters of the {node} node at their defaults")
+    own = {**NODE_PARAMS, "track": replace(NODE_PARAMS["track"], default=track)}
+    lines += [f"    {name}: {_yaml_value(p.default)}  # {p.meaning}" for name, p in own.items()]
+    lines.append("    managed: false  # true: a lifecycle manager configures and activates the node")
     for name, p in {**COMMON_PARAMS, **s.params}.items():
         if isinstance(p.default, list) and not p.default:
             continue   # an empty list has no ROS parameter type: the default applies

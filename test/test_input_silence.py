@@ -1,0 +1,53 @@
+"""An ingest sensor node whose device is silent says so: its own /diagnostics are WARN when no
+raw block arrived for ``input_timeout``, none since activation included (over DDS)."""
+from __future__ import annotations
+
+import time
+
+from conftest import ROOT, spin_until
+
+NS = ["-r", "__ns:=/train"]
+
+
+def test_an_ingest_node_is_warn_without_raw_blocks_and_ok_while_they_come(ros_context, start_node):
+    """A Doppler node in ingest mode (input_timeout 0.5 s): WARN "no raw block received" before
+    the first block (it reported OK "running"), OK while blocks come at 20 Hz, WARN "no raw
+    block for" once they stop."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from train_localization_msgs.msg import RawBlock
+    from train_localization.core.convert import raw_block_to_msg
+    from train_localization.core.pipeline import run_offline
+    from train_localization.core.scenario import Scenario
+    from train_localization.nodes.common import STREAM_QOS, rclpy_classes
+
+    proc = start_node("doppler_radar", "--ros-args", *NS, "-p", "mode:=ingest", "-p", "input_timeout:=0.5")
+    node = ros_context.create_node("probe_input_silence", namespace="/train")
+    pub = node.create_publisher(RawBlock, "sensors/doppler/raw", STREAM_QOS)
+    reports = []
+    node.create_subscription(DiagnosticArray, "/diagnostics",
+                             lambda arr: reports.extend((s.level[0], s.message) for s in arr.status
+                                                        if s.name.startswith("doppler_radar:")), 10)
+    sc = Scenario.from_yaml(ROOT / "config" / "scenario_demo.yaml")
+    sc.duration = 30.0
+    blocks = [b for b in run_offline("doppler_radar", sc)[0] if b.t0 > 20.0]
+    mc = rclpy_classes()
+    try:
+        assert spin_until(node, lambda: any("no raw block received" in m for _, m in reports), 60.0), \
+            (reports, proc.output())
+        assert all(level == 1 for level, m in reports if "no raw block" in m), reports
+        assert spin_until(node, lambda: pub.get_subscription_count() > 0, 10.0)
+        reports.clear()
+        deadline = time.monotonic() + 3.0
+        k = 0
+        while time.monotonic() < deadline and k < len(blocks):
+            pub.publish(raw_block_to_msg(blocks[k], mc))
+            k += 1
+            spin_until(node, lambda: False, 0.05)
+        # while blocks came: OK (a report may come before the first block reached the node)
+        assert (0, "running") in reports, (reports, proc.output()[-2000:])
+        reports.clear()
+        assert spin_until(node, lambda: any(level == 1 and "no raw block for" in m for level, m in reports), 5.0), \
+            reports
+        assert proc.interrupt() == 0
+    finally:
+        node.destroy_node()

@@ -8,7 +8,8 @@ import math
 import pytest
 
 from conftest import ROOT, spin_until
-from train_localization.core.control import SpeedController, closed_loop, control_config
+from train_localization.core.control import SpeedController, control_config
+from train_localization.core.offline import closed_loop
 from train_localization.core.etcs import supervision as atp
 from train_localization.core.etcs.records import EventKind, LocationEvent, LocationReport, QDirLrbg, Reaction
 from train_localization.core.etcs.supervision import Brake, Status, Supervision

@@ -6,7 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from train_localization.core.control import SpeedController, closed_loop, control_config, step_response
+from train_localization.core.control import SpeedController, control_config, step_response
+from train_localization.core.offline import closed_loop
 from train_localization.core.dynamics import Dynamics
 from train_localization.core.pipeline import simulate_and_decode
 from train_localization.core.scenario import Scenario, ScenarioError

@@ -152,7 +152,7 @@ class BagReader:
     truncated MCAP file (its writer killed) is read up to its last complete chunk, with a
     warning.
     ``deserialize`` keeps working after the reader is closed (it only needs the types),
-    so the bytes can be decoded later or in another process (core/offline.py).
+    so the bytes can be decoded later or in another process (core/offline/parallel.py).
     """
 
     def __init__(self, path: str | Path):

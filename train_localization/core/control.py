@@ -17,27 +17,18 @@ brake is commanded, whatever the state's quality, the thrust is 0, the friction 
 and holds it, never reverses it) and the integral is cleared; once released the PID resumes
 from its set-point.
 
-``closed_loop`` steps dynamics (core/dynamics.py), the scenario's sensor simulators and
-decoders, the fusion and the controller together in increments of the truth step: the sensor
-pipelines already take the truth state by state (core/pipeline.py), so the loop hands them the
-state the dynamics reached instead of a precomputed trajectory, and the controller acts on the
-newest fused state at every step; an optional ``supervisor`` (t, RunResult so far) -> brake
-commands its brake at each step. ``step_response`` gives the overshoot and the settling time of
-each set-point step.
+``step_response`` gives the overshoot and the settling time of each set-point step; the
+closed loop through the localisation runs offline in core/offline/control_loop.py.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Callable
+from dataclasses import dataclass
 
 import numpy as np
 
 from .etcs.supervision import Brake
 from .sensors.base import Param, check_declared, resolve_params
-
-if TYPE_CHECKING:
-    from .offline import RunResult
 
 CONTROL_PARAMS = {
     "kp": Param(86.0, "proportional gain [N/(m/s)] (2 zeta omega m: omega 2.5 rad/s, zeta 0.9, equivalent mass "
@@ -184,84 +175,3 @@ def step_response(t: np.ndarray, speed: np.ndarray, setpoints: tuple[SetPoint, .
         out.append(StepFigures(sp.t, prev, sp.speed, over, settle, peak))
         prev = sp.speed
     return out
-
-
-# --------------------------------------------------------------------------- closed loop
-@dataclass
-class ClosedLoopResult:
-    truth: list = field(default_factory=list)        # TruthState (chainage wrapped)
-    distance: list = field(default_factory=list)     # unwrapped true distance [m]
-    estimates: list = field(default_factory=list)    # Estimate
-    commands: list = field(default_factory=list)     # (t [s], set-point [m/s], thrust command [N])
-    fv_speed: list = field(default_factory=list)     # (t [s], F/V output [m/s]) of rig-loop receivers
-    brakes: list = field(default_factory=list)       # (t [s], Brake) of the supervisor, when one is given
-    measurements: list = field(default_factory=list)
-    rejected: dict = field(default_factory=dict)
-    setpoints: tuple = ()
-    dynamics: object = None
-    controller: object = None
-    runner: object = None
-
-
-def closed_loop(scenario, t_end: float | None = None, fusion_rate: float = 200.0,
-                supervisor: Callable[[float, "RunResult"], int] | None = None) -> ClosedLoopResult:
-    """Run a scenario with ``control`` in closed loop: dynamics -> sensors -> fusion -> PID -> dynamics.
-
-    At each truth step (1 / truth_rate) the controller's command of the step before acts on the
-    dynamics, the sensors simulate and decode the blocks the new state completes, the fusion
-    takes their measurements and makes its states up to the step, and the controller acts on the
-    newest of them. A scenario whose track gives no absolute position (the rig) states where
-    the vehicle starts in its fusion tuning (``initial_position``, as the live fusion node's
-    parameter); from there the fusion counts.
-
-    ``supervisor`` (optional; e.g. the ETCS location function and the ATP supervision on the
-    fused states): called at every truth step ``t`` [s] after the fusion, before the
-    controller, with the RunResult so far (``estimates`` up to t); it returns the brake to
-    command (Brake / AtpCommand.BRAKE_*), handed to ``SpeedController.set_brake`` and recorded
-    in ``ClosedLoopResult.brakes``. Without it the loop is as before.
-    """
-    from .convert import canonical
-    from .dynamics import Dynamics
-    from .fusion import FusionRunner, fusion_config
-    from .offline import RunResult, FusionFeed, sensor_pipelines
-
-    if not scenario.control:
-        raise ValueError(f"scenario {scenario.name} has no 'control' section")
-    params, setpoints = control_config(scenario.control)
-    dyn = Dynamics(scenario.dynamics, scenario.track, scenario.start_position, scenario.start_speed)
-    ctrl = SpeedController(params, setpoints, dyn.force_limit)
-    pipes = sensor_pipelines(scenario)
-    runner = FusionRunner(fusion_config(scenario), fusion_rate)
-    run = RunResult(runner=runner)
-    out = FusionFeed(runner, run, None, None, scenario.track.track_id)
-    res = ClosedLoopResult(setpoints=setpoints, dynamics=dyn, controller=ctrl, runner=runner)
-    rig_pipes = [p for p in pipes if p.spec.sensor == "rig_loop"]
-    t_end = scenario.duration if t_end is None else t_end
-    dt = 1.0 / scenario.truth_rate
-    for k in range(int(round(t_end * scenario.truth_rate)) + 1):
-        t = canonical(k * dt)
-        if k:
-            dyn.step(dt)
-        state = dyn.state(t)
-        res.truth.append(state)
-        res.distance.append(dyn.distance)
-        for pipe in pipes:
-            for block in pipe.on_truth(state):
-                out.decode(pipe, block, t)
-        out.states(t)
-        est = run.estimates[-1] if run.estimates else None
-        if supervisor is not None:
-            ctrl.set_brake(supervisor(t, run))
-            dyn.set_brake(ctrl.brake_demand)
-            res.brakes.append((t, ctrl.brake))
-        if est is None:
-            force = 0.0
-        else:
-            force = ctrl.update(t, est.speed, est.acceleration, est.speed_stddev)
-        dyn.set_command(force)
-        res.commands.append((t, ctrl.setpoint(t), force))
-        for pipe in rig_pipes:
-            res.fv_speed.append((t, pipe.decoder.stats["fv_speed"]))
-    out.flush()
-    res.estimates, res.measurements, res.rejected = run.estimates, run.measurements, run.rejected
-    return res

@@ -134,6 +134,16 @@ class SensorPipeline:
                 else _with_stamp(m, t) for m in out]
 
 
+def sensor_pipelines(scenario: Scenario) -> list[SensorPipeline]:
+    """A simulating SensorPipeline per sensor of the scenario, each on its own random stream."""
+    pipes = []
+    for node, params in scenario.sensors.items():
+        spec = sensor_spec(node)
+        unit = (params or {}).get("unit_id") or spec.sensor
+        pipes.append(SensorPipeline(spec, params, scenario.track, scenario.vehicle, scenario.rng(node, unit)))
+    return pipes
+
+
 def _with_stamp(m: Measurement, stamp: float) -> Measurement:
     """``dataclasses.replace(m, stamp=stamp)`` without its per-field __init__ call (a hot
     path: up to 200 measurements/s per sensor). The measurement types are frozen

@@ -17,7 +17,7 @@ Per-sensor residuals: measurement minus the fused estimate at its stamp (positio
 fixes against position, speed and distance increments against speed), raw and
 normalised by the measurement's stddev.
 
-A line (several trains, core/offline.py LineResult): ``line_report`` gives the report
+A line (several trains, core/offline/line.py LineResult): ``line_report`` gives the report
 of each train (its on-board measurements and the wayside fixes delivered to it) and the
 line-level figures of the association (``association_check``) and, with a changeover
 section, its catenary events (``changeover_check``: the replayed controller's commands;

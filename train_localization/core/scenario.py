@@ -25,7 +25,7 @@ brake acts on the motion (core/etcs/supervised_run.py, the atp_supervision node)
 
 Closed loop: instead of ``profile`` a scenario may give ``control`` (a speed controller and
 its set-points, core/control.py) and ``dynamics`` (the vehicle's drive and resistance,
-core/dynamics.py); its motion then comes from ``core.control.closed_loop`` (offline) or from
+core/dynamics.py); its motion then comes from ``core.offline.closed_loop`` (offline) or from
 the simulator node integrating the controller's traction command, not from ``trajectory``.
 """
 from __future__ import annotations
@@ -157,7 +157,7 @@ class Scenario:
                                 f"(scenario.train(name).trajectory())")
         if self.control:
             raise ScenarioError(f"scenario {self.name} runs under closed-loop control: its motion comes from "
-                                "core.control.closed_loop or the simulator node, not from a profile")
+                                "core.offline.closed_loop or the simulator node, not from a profile")
         traj = Trajectory.from_legs(self.legs, self.start_position, self.start_speed, self.duration, dt)
         if self.track.closed:
             traj.period = self.track.length

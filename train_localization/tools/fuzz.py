@@ -41,14 +41,10 @@ one line per failing node.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import copy
 import json
 import math
-import os
 import random
-import signal
-import subprocess
 import sys
 import time
 from collections import Counter
@@ -56,8 +52,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable
 
-from .domains import DomainLease
-from . import domains
+from .fuzz_attacks import ATTACKS, run_attacks
+from .fuzz_nodes import Child, Probe, child_env, node_namespace, pick_domain, rss_mb, set_time
 
 ACCEPTED = "accepted"
 FUSION = "fusion"
@@ -225,12 +221,6 @@ def scenario_path(node: str) -> str:
     raise ValueError(f"no scenario of {', '.join(SCENARIOS)} has the sensor {node}")
 
 
-def node_namespace(namespace: str, node: str) -> str:
-    """Namespace of one node under test: ``<namespace>/<node>``, so that what a sensor node
-    decodes does not reach the fusion under test."""
-    return f"{namespace.rstrip('/')}/{node}"
-
-
 def start_args(node: str, namespace: str) -> list[str]:
     """Command-line ROS arguments of a node under test: a sensor node in ingest mode with
     its scenario, the fusion with the scenario and its sensors (as graph.demo_graph)."""
@@ -388,12 +378,6 @@ class _Stamps:
         return self.last
 
 
-def set_time(time_msg, t: float) -> None:
-    """A builtin_interfaces/Time (a header's stamp, a Clock's clock) set to ``t`` [s]."""
-    from ..core.convert import NS, sec_to_ns
-    time_msg.sec, time_msg.nanosec = divmod(sec_to_ns(t), NS)
-
-
 def _set_stamp(msg, t: float) -> None:
     set_time(msg.header.stamp, t)
 
@@ -535,155 +519,6 @@ def blinded(items: list[Item]) -> int:
             streak += 1
             worst = max(worst, streak)
     return worst
-
-
-# ---- processes and DDS -----------------------------------------------------------
-
-def rss_mb(pid: int) -> float | None:
-    """Resident memory of a process (VmRSS of /proc/<pid>/status) [MB]; None if gone."""
-    try:
-        with open(f"/proc/{pid}/status", encoding="ascii") as fh:
-            for line in fh:
-                if line.startswith("VmRSS:"):
-                    return int(line.split()[1]) / 1024.0
-    except OSError:
-        return None
-    return None
-
-
-def pick_domain() -> DomainLease:
-    """A free ROS_DOMAIN_ID in 1..101 held for the run (tools/domains.py), not the caller's own
-    (its graph never sees the fuzz)."""
-    own = os.environ.get("ROS_DOMAIN_ID", "").strip()
-    return domains.lease(1, 101, avoid=[int(own)] if own.isdigit() else [])
-
-
-def child_env(domain: int) -> dict:
-    """Environment of the started nodes: loopback discovery, this run's domain, no static peers."""
-    env = dict(os.environ)
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    env["ROS_DOMAIN_ID"] = str(domain)
-    env.pop("ROS_STATIC_PEERS", None)
-    env.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
-    env["PYTHONUNBUFFERED"] = "1"
-    return env
-
-
-@contextlib.contextmanager
-def _loopback_discovery():
-    """While this process's own DDS participant is made: loopback discovery and no static
-    peers (read from the environment by rcl); the caller's environment is restored after."""
-    saved = {k: os.environ.get(k) for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_STATIC_PEERS")}
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    os.environ.pop("ROS_STATIC_PEERS", None)
-    try:
-        yield
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-
-
-class Child:
-    """A node executable run as a subprocess of its own session, output to a log file."""
-
-    def __init__(self, exe: str, args: list[str], env: dict, log: Path):
-        from .demo import executable
-        self.log_path = log
-        self._log = open(log, "w")
-        self._interrupted = False
-        self.proc = subprocess.Popen([executable(exe)] + args, env=env, stdout=self._log,
-                                     stderr=subprocess.STDOUT, start_new_session=True)
-
-    def interrupt(self) -> None:
-        """SIGINT, once."""
-        if not self._interrupted and self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
-            self._interrupted = True
-
-    def stop(self, timeout: float) -> int:
-        """SIGINT (unless sent), wait up to ``timeout`` [s], then SIGKILL; the exit code
-        (negative: the signal that ended it)."""
-        self.interrupt()
-        try:
-            self.proc.wait(timeout=max(timeout, 0.1))
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
-        self._log.close()
-        return self.proc.returncode
-
-
-class Probe:
-    """The fuzzer's own ROS node (a context of its own on this run's domain): publishers to
-    the nodes' inputs and the latest /diagnostics status of each node."""
-
-    def __init__(self, domain: int, namespace: str, nodes: list[str]):
-        import rclpy
-        from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
-        from diagnostic_msgs.msg import DiagnosticArray
-        self.namespace = namespace
-        self._by_id = {f"{node_namespace(namespace, n)}/{n}": n for n in nodes}   # hardware_id -> node
-        self.context = Context()
-        with _loopback_discovery():
-            self.context.init(domain_id=domain)
-            self.node = rclpy.create_node("fuzz_probe", namespace=namespace, context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.pubs: dict[str, Any] = {}
-        self.status: dict[str, dict[str, str]] = {}   # node name -> key/values of its own status
-        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 50)
-
-    def _on_diag(self, arr) -> None:
-        for st in arr.status:
-            name = self._by_id.get(st.hardware_id)
-            if name is not None and ": input " not in st.name:
-                self.status[name] = {kv.key: kv.value for kv in st.values}
-
-    def publisher(self, node: str, topic: str, cls):
-        """The publisher to ``topic`` of ``node`` (relative to the node's namespace)."""
-        from ..nodes.common import STREAM_QOS
-        topic = f"{node_namespace(self.namespace, node)}/{topic}"
-        if topic not in self.pubs:
-            self.pubs[topic] = self.node.create_publisher(cls, topic, STREAM_QOS)
-        return self.pubs[topic]
-
-    def spin(self, seconds: float) -> None:
-        deadline = time.monotonic() + seconds
-        while True:
-            self.executor.spin_once(timeout_sec=max(0.0, min(0.05, deadline - time.monotonic())))
-            if time.monotonic() >= deadline:
-                return
-
-    def spin_until(self, predicate, timeout: float) -> bool:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if predicate():
-                return True
-            self.executor.spin_once(timeout_sec=0.05)
-        return predicate()
-
-    def counters(self, node: str) -> tuple[int, Counter]:
-        """(accepted, rejected by reason) of a node's latest diagnostics, over its inputs."""
-        values = self.status.get(node, {})
-        accepted = sum(int(v) for k, v in values.items() if k.startswith("accepted/"))
-        rejected = Counter()
-        for k, v in values.items():
-            if k.startswith("rejected/"):
-                rejected[k.rsplit("/", 1)[1]] += int(v)
-        return accepted, rejected
-
-    def total(self, node: str) -> int:
-        accepted, rejected = self.counters(node)
-        return accepted + sum(rejected.values())
-
-    def close(self) -> None:
-        self.executor.shutdown()
-        self.node.destroy_node()
-        self.context.try_shutdown()
 
 
 # ---- the run ---------------------------------------------------------------------
@@ -861,7 +696,6 @@ def _node_list(text: str) -> list[str]:
 
 
 def _attack_list(text: str) -> list[str]:
-    from .fuzz_attacks import ATTACKS
     names = [a.strip() for a in text.split(",") if a.strip()]
     if names == ["none"]:
         return []
@@ -888,7 +722,6 @@ def _domain(text: str) -> int:
 
 def parse_args(argv=None) -> argparse.Namespace:
     from ..core.sensors import NODE_NAMES
-    from .fuzz_attacks import ATTACKS
     ap = argparse.ArgumentParser(prog="python -m train_localization.tools.fuzz", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--nodes", type=_node_list, default=list(NODE_NAMES) + [FUSION],
@@ -922,7 +755,6 @@ def main(argv=None) -> int:
     try:
         reports = run(args.nodes, args.messages, args.seed, args.namespace, domain, Path(args.log_dir),
                       args.startup_timeout, args.settle_timeout)
-        from .fuzz_attacks import run_attacks
         attacks = run_attacks(args.attacks, args.namespace, domain, Path(args.log_dir))
     except KeyboardInterrupt:
         print("[fuzz] interrupted; the nodes are stopped", file=sys.stderr)

@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..core.convert import stamp_to_sec
-from .fuzz import Child, Probe, child_env, set_time
+from .fuzz_nodes import Child, Probe, child_env, set_time
 
 ATTACKS = ("set_position", "clock_jumps", "future_states", "flood", "etcs_state_ahead", "etcs_standstill_report",
            "etcs_far_group", "etcs_unknown_flood")
@@ -65,7 +65,7 @@ class AttackResult:
 
 
 class Bench(Probe):
-    """The attack's nodes (fuzz.Child) and the probe's own ROS node (fuzz.Probe) on the run's
+    """The attack's nodes (fuzz_nodes.Child) and the probe's own ROS node (fuzz_nodes.Probe) on the run's
     domain, with the latest diagnostics of every node by hardware_id (``<namespace>/<name>``)."""
 
     def __init__(self, attack: str, namespace: str, domain: int, log_dir: Path):

@@ -4,7 +4,7 @@ and the track each state names against the true one (docs/network.md).
   python -m train_localization.tools.network_plot [--scenario config/scenario_throat.yaml]
          [--out docs/network_throat.png]
 
-The scenario runs offline (core/offline.py simulate_scenario / simulate_line, the same code
+The scenario runs offline (core/offline/: simulate_scenario / simulate_line, the same code
 as the live graph); the figure has one row per train: left, the probability of every
 hypothesis (named by the ways it takes at the facing switches) around the switches, with the
 DEGRADED states shaded; right, the section each published state names and the true one.

@@ -24,7 +24,8 @@ from pathlib import Path
 
 from ..core import convert
 from ..core.bagio import read_bag
-from ..core.offline import FUSED_TOPIC, NAMESPACE, TRUTH_TOPIC, replay_bag, replay_line, scenario_from_bag
+from ..core.offline import FUSED_TOPIC, TRUTH_TOPIC, replay_bag, replay_line, scenario_from_bag
+from ..graph import NAMESPACE
 from ..core.report import evaluate, jsonable, line_report, plot
 from ..core.scenario import Scenario
 from ..core.signals import InputRejected

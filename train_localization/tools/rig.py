@@ -2,7 +2,7 @@
 
     python -m train_localization.tools.rig [--scenario config/scenario_rig.yaml] [--noise 5]
 
-Runs ``core.control.closed_loop`` on the scenario with the loop receiver's own noise (the
+Runs ``core.offline.closed_loop`` on the scenario with the loop receiver's own noise (the
 seed's circuit as modelled, core/sensors/rig_loop.py) and again with every noise figure of the
 receiver multiplied by ``--noise``; prints per set-point step the overshoot [%] and the settling
 time [s] (2 % band of the step) of the disc's true speed, and the fused errors.
@@ -15,7 +15,8 @@ import sys
 
 import numpy as np
 
-from ..core.control import closed_loop, step_response
+from ..core.control import step_response
+from ..core.offline import closed_loop
 from ..core.scenario import Scenario
 from ..core.scoring import StateSeries, score
 

@@ -84,7 +84,7 @@ VEHICLE_LENGTH = 200.0      # [m] the train of the drawn stops (draw_stop)
 def stator_under_attack(loop, orientation: int, attack: Attack) -> dict:
     """The long-stator sectional feeding (core/wayside/stator.py) of the run's line, laid in
     sections of the least length the controller needs at the run's top speed, fed from the run's
-    fused states (``loop``: control.ClosedLoopResult) with and without ``attack``'s spoofed states
+    fused states (``loop``: offline.ClosedLoopResult) with and without ``attack``'s spoofed states
     (``rate`` per second for ``duration`` s, ``ahead`` m from the fused position, stamped now),
     scored on the true motion: the thrust lost and the sections switched off under the vehicle in
     both, and what the controller refused."""

@@ -1,7 +1,7 @@
 """A train supervised to its end of authority in closed loop (docs/etcs.md): dynamics -> sensors
 -> fusion -> ETCS location -> ATP supervision -> speed controller -> dynamics, offline.
 
-``EtcsSupervisor`` is ``core.control.closed_loop``'s supervisor: at every truth step it gives
+``EtcsSupervisor`` is ``core.offline.closed_loop``'s supervisor: at every truth step it gives
 the location function (core/etcs/location.py) the fused states and balise fixes made since
 the step before, the supervision (core/etcs/supervision.py) its reports and events, and
 returns the brake to command, as the etcs_location and atp_supervision nodes do live.
@@ -194,7 +194,7 @@ class StopResult:
 def supervised_stop(scenario, t_end: float | None = None, attacks: tuple[Attack, ...] = ()) -> StopResult:
     """Run a scenario with ``control`` and ``atp`` in closed loop under the ETCS supervision,
     with ``attacks`` injected."""
-    from ..control import closed_loop
+    from ..offline import closed_loop
     orientation = scenario.orientation()
     atp = {"orientation": orientation, **scenario.atp}
     data = EtcsData.from_track(scenario.track)

@@ -26,7 +26,7 @@ A run (``generate``, from its seed alone):
              EMI spikes drawn, and in a third of the runs one injected miscount: a missed
              wheel or a spurious axle at a head of the leader's route
 
-``run`` simulates it (core/offline.py simulate_line: the trains' sensors and fusions, the
+``run`` simulates it (core/offline/line.py simulate_line: the trains' sensors and fusions, the
 wayside device, the association) and scores it (core/report.py line_report: the fixes used,
 ambiguous, unexplained and given to a train that did not cause them; per train
 network_scores). ``summarise`` adds the runs up against the goals: no fix to a wrong train,

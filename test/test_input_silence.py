@@ -51,3 +51,35 @@ def test_an_ingest_node_is_warn_without_raw_blocks_and_ok_while_they_come(ros_co
         assert proc.interrupt() == 0
     finally:
         node.destroy_node()
+
+
+def test_the_atp_supervision_without_any_report_says_none_was_received(ros_context, start_node):
+    """No location report ever: once report_timeout (0.5 s) has passed, the supervision's status
+    is WARN "no location report received" (no 'last at <start time>'); refused reports only:
+    "no location report admitted (N refused)"."""
+    import math
+    from diagnostic_msgs.msg import DiagnosticArray
+    from train_localization_msgs.msg import EtcsLocation
+    from train_localization.nodes.common import STREAM_QOS
+
+    proc = start_node("atp_supervision", "--ros-args", *NS, "-p", "report_timeout:=0.5")
+    node = ros_context.create_node("probe_atp_no_report", namespace="/train")
+    pub = node.create_publisher(EtcsLocation, "localization/etcs", STREAM_QOS)
+    reports = []
+    node.create_subscription(DiagnosticArray, "/diagnostics",
+                             lambda arr: reports.extend((s.level[0], s.message) for s in arr.status
+                                                        if s.name.startswith("atp_supervision:")), 10)
+    try:
+        assert spin_until(node, lambda: any("no location report received" in m for _, m in reports), 60.0), \
+            (reports, proc.output())
+        level, message = next((lv, m) for lv, m in reports if "no location report received" in m)
+        assert level == 1 and "since the start (report_timeout 0.5 s)" in message and "last at" not in message
+        assert spin_until(node, lambda: pub.get_subscription_count() > 0, 10.0)
+        bad = EtcsLocation(track_id="test", mode=1, min_safe_front_end=math.nan, max_safe_front_end=100.0)
+        bad.header.stamp = node.get_clock().now().to_msg()
+        pub.publish(bad)
+        assert spin_until(node, lambda: any("no location report admitted (1 refused)" in m for _, m in reports),
+                          10.0), (reports[-3:], proc.output())
+        assert proc.interrupt() == 0
+    finally:
+        node.destroy_node()

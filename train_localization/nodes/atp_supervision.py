@@ -13,7 +13,9 @@ Topics:
                                        authority: status, brake (held until standstill), distance
                                        to the EOA, permitted speed
              /diagnostics              OK (normal, indication, warning), WARN on intervention,
-                                       ERROR on trip; the supervision's counters
+                                       ERROR on trip; the supervision's counters; WARN when no
+                                       report was received (or none admitted) within
+                                       ``report_timeout`` of the start
 
 Parameters (core/etcs/supervision.py PARAMS, read at start): ``end_of_authority`` (chainage
 [m]; NaN: none until one comes on the topic), ``orientation`` (+1/-1: the direction the
@@ -116,13 +118,31 @@ class AtpSupervisionNode(Node):
             self._diagnose(d)
 
     def check_stale(self) -> None:
-        """Every 0.1 s: the emergency brake when the location reports have stopped (fail safe)."""
+        """Every 0.1 s: the emergency brake when the location reports have stopped (fail safe);
+        before the first admitted one, WARN once none came for report_timeout."""
         if not self.inputs.reports.admitted:
+            self._check_first_report()
             return
         decision = self.sup.check_stale(self.inputs.reports.silence(now_sec(self)))
         if decision is not None:
             self.get_logger().error(decision.reason)
             self.publish(decision)
+
+    def _check_first_report(self) -> None:
+        """No report admitted yet: WARN, saying whether none was received or every one refused, once
+        ``report_timeout`` has passed on the node clock since it first ran (nothing to say about a
+        last report: there is none)."""
+        now = now_sec(self)
+        if now <= 0.0:   # no /clock yet
+            return
+        self.inputs.reports.waiting_since(now)
+        waited, timeout = self.inputs.reports.silence(now), self.sup.params["report_timeout"]
+        if not waited > timeout:
+            return
+        refused = sum(n for key, n in self.diag.rejected.items() if key.startswith(f"{REPORTS}/"))
+        what = f"admitted ({refused} refused)" if refused else "received"
+        self.diag.set_status(1, f"no location report {what} in {waited:.1f} s since the start "
+                                f"(report_timeout {timeout:g} s)")
 
     def on_event(self, msg) -> None:
         try:

@@ -9,11 +9,19 @@ from conftest import ROOT, spin_until
 NS = ["-r", "__ns:=/train"]
 
 
+def _own_reports(node, name: str) -> list:
+    """(level, message) of every /diagnostics status of node ``name``'s own, as they come."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    reports = []
+    node.create_subscription(DiagnosticArray, "/diagnostics", lambda arr: reports.extend(
+        (s.level[0], s.message) for s in arr.status if s.name.startswith(f"{name}:")), 10)
+    return reports
+
+
 def test_an_ingest_node_is_warn_without_raw_blocks_and_ok_while_they_come(ros_context, start_node):
     """A Doppler node in ingest mode (input_timeout 0.5 s): WARN "no raw block received" before
     the first block (it reported OK "running"), OK while blocks come at 20 Hz, WARN "no raw
     block for" once they stop."""
-    from diagnostic_msgs.msg import DiagnosticArray
     from train_localization_msgs.msg import RawBlock
     from train_localization.core.convert import raw_block_to_msg
     from train_localization.core.pipeline import run_offline
@@ -23,10 +31,7 @@ def test_an_ingest_node_is_warn_without_raw_blocks_and_ok_while_they_come(ros_co
     proc = start_node("doppler_radar", "--ros-args", *NS, "-p", "mode:=ingest", "-p", "input_timeout:=0.5")
     node = ros_context.create_node("probe_input_silence", namespace="/train")
     pub = node.create_publisher(RawBlock, "sensors/doppler/raw", STREAM_QOS)
-    reports = []
-    node.create_subscription(DiagnosticArray, "/diagnostics",
-                             lambda arr: reports.extend((s.level[0], s.message) for s in arr.status
-                                                        if s.name.startswith("doppler_radar:")), 10)
+    reports = _own_reports(node, "doppler_radar")
     sc = Scenario.from_yaml(ROOT / "config" / "scenario_demo.yaml")
     sc.duration = 30.0
     blocks = [b for b in run_offline("doppler_radar", sc)[0] if b.t0 > 20.0]
@@ -58,17 +63,13 @@ def test_the_atp_supervision_without_any_report_says_none_was_received(ros_conte
     is WARN "no location report received" (no 'last at <start time>'); refused reports only:
     "no location report admitted (N refused)"."""
     import math
-    from diagnostic_msgs.msg import DiagnosticArray
     from train_localization_msgs.msg import EtcsLocation
     from train_localization.nodes.common import STREAM_QOS
 
     proc = start_node("atp_supervision", "--ros-args", *NS, "-p", "report_timeout:=0.5")
     node = ros_context.create_node("probe_atp_no_report", namespace="/train")
     pub = node.create_publisher(EtcsLocation, "localization/etcs", STREAM_QOS)
-    reports = []
-    node.create_subscription(DiagnosticArray, "/diagnostics",
-                             lambda arr: reports.extend((s.level[0], s.message) for s in arr.status
-                                                        if s.name.startswith("atp_supervision:")), 10)
+    reports = _own_reports(node, "atp_supervision")
     try:
         assert spin_until(node, lambda: any("no location report received" in m for _, m in reports), 60.0), \
             (reports, proc.output())

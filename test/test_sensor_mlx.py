@@ -277,6 +277,24 @@ def test_mlx_scenario_through_the_fusion_keeps_the_truth_inside_its_interval():
         assert accepted.get(sensor, 0) > 100, accepted
 
 
+def test_the_mlx_scenarios_wheels_serve_the_low_speed_stretch_only():
+    """Seed 002 section 2.2.2: the wheel rotation sensor serves the low-speed stretch, the EMF
+    observer medium and high speed. config/scenario_mlx.yaml runs to 300 km/h: its wheel sensor
+    sends nothing while the train runs at 150 km/h or more (the maglev's retract_speed), before
+    and after that it counts, and the EMF observer covers the speeds in between from 72 km/h."""
+    sc = Scenario.from_yaml("config/scenario_mlx.yaml")
+    run = simulate_and_decode("wheel_sensor", sc)
+    traj = sc.trajectory()
+    stamps = np.array([m.stamp for m in run.measurements])
+    speed = np.interp(stamps, traj.t, np.abs(traj.speed))
+    assert np.abs(traj.speed).max() * 3.6 == pytest.approx(300.0, abs=0.5)
+    assert np.all(speed < 150.0 / 3.6) and run.pipe.decoder.stats["gaps"] == 1
+    up = traj.t[np.abs(traj.speed) >= 150.0 / 3.6]
+    lo, hi = stamps[stamps < up[0]], stamps[stamps > up[-1]]
+    assert up[-1] - up[0] > 100.0 and len(lo) > 700 and len(hi) > 700
+    assert up[0] - lo.max() < 0.1 and hi.min() - up[-1] < 0.1      # silent from the first block up
+
+
 # --------------------------------------------------------------------------- error-model floors
 def _floor_runs(node, cases, ideal):
     """error_model_checks.floor_runs of ``node`` for cases (name: (initial speed [m/s], position

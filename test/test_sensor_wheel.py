@@ -412,3 +412,44 @@ def test_every_decoded_increment_is_at_or_above_the_error_model_floor():
 def test_an_increment_claiming_half_the_floor_is_refused_below_model():
     ms, _, model = decoded(NODE, scenario([{"speed": 10.0, "hold": 10.0}], 1.0, CLEAN, v0=10.0))
     assert_refused_below_half_the_floor(model, ms[5])
+
+
+# --------------------------------------------------------------------------- wheels retracted at speed
+def maglev(profile, duration, sensors=None, v0=0.0):
+    """scenario() on an MLX-type maglev (its wheels retract at the lift-off speed)."""
+    sc = scenario(profile, duration, sensors, v0=v0)
+    sc.vehicle = dataclasses.replace(sc.vehicle, kind="maglev", axles=())
+    return sc
+
+
+@pytest.mark.parametrize("kmh, sent", [(149.0, True), (151.0, False)])
+def test_a_maglevs_wheels_send_nothing_from_150_kmh(kmh, sent):
+    """Seed 002 section 2.2.2: the MLX wheels serve the low-speed stretch (an EDS maglev lifts
+    off at speed); a maglev's wheel sensor stops at 150 km/h (retract_speed, the vehicle's
+    default): just below it every block is decoded, just above it none; a conventional
+    vehicle's wheels and retract_speed 0 (never) run on."""
+    v = kmh / 3.6
+    ms, rejected, pipe = drive(maglev([{"speed": v, "hold": 10.0}], 2.0, CLEAN, v0=v))
+    assert not rejected
+    assert len(ms) == (40 if sent else 0)                    # 2 s of 50 ms blocks
+    for sc in (scenario([{"speed": v, "hold": 10.0}], 2.0, CLEAN, v0=v),
+               maglev([{"speed": v, "hold": 10.0}], 2.0, {**CLEAN, "retract_speed": 0.0}, v0=v)):
+        assert len(drive(sc)[0]) == 40
+    assert spec(NODE).error_model(resolve_params(PARAMS, {}), None, maglev([], 1.0).vehicle).timeout == math.inf
+
+
+def test_the_wheels_restart_counting_when_they_are_down_again():
+    """Up through 150 km/h and back: the wheel sends nothing while the train runs at 150 km/h or
+    more, then restarts its count (one gap) and measures the distance as before."""
+    sc = maglev([{"speed": 45.0, "accel": 1.0, "decel": 1.0, "hold": 5.0}, {"speed": 20.0, "decel": 1.0, "hold": 10.0}],
+                70.0, CLEAN, v0=30.0)
+    ms, rejected, pipe = drive(sc)
+    assert not rejected and pipe.decoder.stats["gaps"] == 1
+    traj = sc.trajectory()
+    stamp, dur, d_true, _ = truth_of(sc, ms)
+    speed = np.interp(stamp, traj.t, np.abs(traj.speed))
+    assert np.all(speed < 150.0 / 3.6)
+    before, after = stamp < 30.0, stamp > 30.0
+    assert before.sum() > 100 and after.sum() > 100
+    err = np.array([m.distance for m in ms]) - d_true
+    assert np.max(np.abs(err[after])) < 0.05

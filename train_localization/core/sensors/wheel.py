@@ -5,7 +5,9 @@ revolutions of the running wheels for position and speed at low speed (seed 002
 section 2.2.2); on conventional railways the same device (an axle-box pulse
 generator) is the primary odometer. This module models it up to conventional-rail
 speeds (``max_speed`` 300 km/h by default), not beyond: a maglev runs on wheels only
-at low speed.
+at low speed. Above ``retract_speed`` the wheels are retracted (an EDS maglev lifts off:
+seed 002 section 2.2.2) and the sensor sends nothing; the first block after the wheels
+are down again restarts the decoder's count (a gap).
 
 Physics (raw signal): a toothed/slotted disc on the axle with
 ``pulses_per_revolution`` pulses gives two square-wave channels A and B, 90 deg apart
@@ -91,6 +93,13 @@ PARAMS = {
     "diameter_error": Param(
         float("nan"), "true/nominal - 1 of this wheel [fraction]; NaN (default) = drawn per device "
         "uniformly within +-diameter_tolerance", (-0.1, 0.1)),
+    "retract_speed": Param(
+        float("nan"), "speed at and above which the running wheels are retracted and the sensor sends no "
+        "block [m/s]; NaN (default) = the vehicle's: 41.7 m/s (150 km/h) for a maglev, never for others; "
+        "0 = never. Seed 002 section 2.2.2: the MLX (EDS) runs on wheels because it lifts off only above "
+        "some speed, and the wheel sensor serves the low-speed stretch, the EMF observer the medium and high "
+        "speeds (its min_speed 72 km/h); the seed gives no figure, 150 km/h is the lift-off speed "
+        "published for the SCMaglev (assumption)", (0.0, 160.0)),
     "wear_fault_sigma": Param(
         0.03, "1-sigma size of a diameter error beyond diameter_tolerance (fault mode 'wear': a missed "
         "re-calibration, a re-profiled or changed wheel whose diameter was not re-entered) [fraction]; "
@@ -128,6 +137,18 @@ PARAMS = {
     "glitch_rate": Param(0.01, "EMI glitches per second: one channel flipped for one sample [1/s]", (0.0, 100.0)),
     "speed_window": Param(0.1, "decoder: longest time span of the edges used for the speed [s]", (1.0e-3, 10.0)),
 }
+
+MAGLEV_RETRACT_SPEED = 150.0 / 3.6
+"""[m/s] a maglev's wheels are up from this speed (``retract_speed`` NaN: the vehicle's)."""
+
+
+def retract_speed(params: dict, vehicle) -> float:
+    """Speed [m/s] at and above which the wheels are retracted; inf if never (module doc)."""
+    v = float(params["retract_speed"])
+    if math.isnan(v):
+        v = MAGLEV_RETRACT_SPEED if getattr(vehicle, "kind", "") == "maglev" else 0.0
+    return v if v > 0.0 else math.inf
+
 
 DEFAULT_SAMPLE_RATE = 10_000.0
 """A, B sampled at 10 kHz (2 x 10 k samples/s). With 60 ppr, +-15 deg phase and +-3 % duty
@@ -624,6 +645,16 @@ class WheelSimulator(Simulator):
         self._vib_zi = np.zeros(1)
         self._angle0 = float(self.rng.uniform(0.0, 1.0))  # initial disc angle [pulse periods]
         self.slip_log: list[tuple[float, float, float]] = []  # random episodes started (t, duration, ratio)
+        self.retract_speed = retract_speed(p, self.vehicle)
+        self._up: set[int] = set()    # seqs of blocks during which the wheels were up (not sent)
+
+    def simulate(self, truth):
+        """The blocks of Simulator.simulate but those during which the wheels were retracted."""
+        blocks = super().simulate(truth)
+        if self._up:
+            blocks = [b for b in blocks if b.seq not in self._up]
+            self._up.clear()
+        return blocks
 
     # slip ratio r(t): wheel circumferential speed = v (1 + r)
     def _slip_ratio(self, times, speed, accel):
@@ -666,6 +697,8 @@ class WheelSimulator(Simulator):
         p = self.params
         n = len(times)
         dt = 1.0 / self.sample_rate
+        if np.any(np.abs(speed) >= self.retract_speed):
+            self._up.add(self.seq)
         if self._s_ref is None:
             self._s_ref = float(position[0])
         r = self._slip_ratio(times, speed, acceleration)
@@ -746,11 +779,13 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
     forced = np.asarray(params["slip_episodes"], dtype=float).reshape(-1, 3)
     longest = max(params["slip_duration_max"], float(forced[:, 1].max()) if forced.size else 0.0)
     largest = max(params["slip_ratio_max"], float(np.abs(forced[:, 2]).max()) if forced.size else 0.0)
+    # wheels that are retracted at speed are silent by design there: no timeout
+    timeout = continuous_timeout(params) if math.isinf(retract_speed(params, vehicle)) else math.inf
     return ErrorModel("wheel", "distance", scale_sigma=scale, reported_scale=scale,
                       creep_coefficient=params["creep_coefficient"], creep_in_traction=params["driven_axle"],
                       faults=("slip", "slide", "wear") if params["driven_axle"] else ("slide", "wear"),
                       scale_fault_sigma=params["wear_fault_sigma"], fault_duration_max=longest,
-                      slip_ratio_max=largest, timeout=continuous_timeout(params),
+                      slip_ratio_max=largest, timeout=timeout,
                       min_stddev=SPEED_STDDEV_FLOOR)   # IncrementEstimator.make's floor of both stddevs
 
 

@@ -17,7 +17,10 @@ with or without them:
   stream (``inject``): copies of real fixes that claim 1 um, copies naming references the
   track does not have, each 2-300 m off; or a run of 3-10 real fixes of one sensor moved by
   1-4 of their own 1-sigma, the same way (a consistent offset that passes every check of a
-  single fix).
+  single fix); or, where no other attack was drawn, a ``ramp``: a run of 5-20 real fixes moved
+  by an offset that grows from nothing to 1-4 of their 1-sigma (no jump at its first fix);
+* ``common_cause`` (``_common_cause``): sources that share a cause fail together;
+* ``ramp`` (``_ramps``): persistent faults that grow slowly instead of stepping.
 """
 from __future__ import annotations
 
@@ -28,6 +31,7 @@ import numpy as np
 from .measurements import PositionFix
 
 P_TUNNEL, P_WORN, P_CRAWL, P_ADVERSARIAL = 0.25, 0.1, 0.1, 0.1
+P_COMMON_CAUSE, P_RAMP = 0.15, 0.15
 # sensor nodes whose fixes name equipment of the track, and their classes
 FIX_SENSORS = {"eurobalise_reader": "eurobalise", "axle_counter": "axle_counter", "tag_reader": "transponder",
                "lrl_scanner": "lrl", "inpo_receiver": "inpo", "lzb_receiver": "lzb", "mmwave_ranging": "mmwave",
@@ -95,10 +99,84 @@ def _crawl(d, body: dict, conditions: dict) -> None:
         conditions["crawl"] = {"speed": speed}
 
 
+def _stations_near(d, body: dict, trajectory, kind: str, count: int) -> tuple[float, list[str]]:
+    """(a time [s] in the run, the ids of ``count`` neighbouring ``kind`` items nearest the train
+    then), drawn; ([], ...) if the track has fewer."""
+    t0 = d.u(0.05, 0.8) * body["duration"]
+    items = sorted(body["track"]["equipment"].get(kind, []), key=lambda it: it["position"])
+    if len(items) < count:
+        return t0, []
+    front = float(np.interp(t0, trajectory.t, trajectory.position)) + body["initial"]["position"]
+    k = int(np.argmin([abs(it["position"] - front) for it in items]))
+    first = min(max(k - d.int(0, count - 1), 0), len(items) - count)
+    return t0, [it["id"] for it in items[first:first + count]]
+
+
+def _add_faults(sensor: dict, faults: list[str]) -> None:
+    sensor["faults"] = ";".join(filter(None, [str(sensor.get("faults", ""))] + faults))
+
+
+def _common_cause(d, body: dict, trajectory, conditions: dict) -> None:
+    """Sources that share a cause fail together, the same way (docs/campaign.md, "Common causes"):
+    neighbouring TDOA stations on one timing node walk off at one rate (and the receiver clock
+    jumps); neighbouring two-way-ranging stations share one range bias (one calibration, one
+    fibre delay); a low-adhesion stretch (wet rail, snow) makes every driven and braked axle slip
+    and slide more while the radar's beam reads off, ramping in, at the same time."""
+    sensors = body["sensors"]
+    size, sign, hold = d.int(2, 3), 1 if d.chance(0.5) else -1, d.u(5.0, 60.0)
+    drawn = {}
+    if "mmwave_tdoa" in sensors:
+        t0, ids = _stations_near(d, body, trajectory, "mmwave_station", size)
+        rate, jump = sign * d.logu(0.1, 5.0), d.u(-1000.0, 1000.0)
+        faults = [f"{i}@{t0:.5g}-{t0 + hold:.5g}:sync={rate:.4g}" for i in ids]
+        faults.append(f"clock@{t0 + 0.5 * hold:.5g}-{body['duration'] + 1.0:.5g}:jump={jump:.4g}")
+        _add_faults(sensors["mmwave_tdoa"], faults)
+        drawn["timing"] = ";".join(faults)
+    elif "mmwave_ranging" in sensors:
+        t0, ids = _stations_near(d, body, trajectory, "mmwave_station", size)
+        bias = sign * d.u(0.3, 3.0)
+        faults = [f"{i}@{t0:.5g}-{t0 + hold:.5g}:{bias:.4g}" for i in ids]
+        _add_faults(sensors["mmwave_ranging"], faults)
+        drawn["calibration"] = ";".join(faults)
+    if "wheel_sensor" in sensors and "doppler_radar" in sensors and not sensors["doppler_radar"].get("faults"):
+        wheel = sensors["wheel_sensor"]
+        wheel["slip_rate"] = float(min(1.0, wheel.get("slip_rate", 0.05) * d.u(3.0, 10.0)))
+        t0, size_k, ramp = d.u(0.05, 0.7) * body["duration"], sign * d.u(0.02, 0.06), d.u(5.0, 30.0)
+        fault = f"{t0:.5g}-{t0 + ramp + hold:.5g}:{size_k:.4g}:{ramp:.3g}"
+        sensors["doppler_radar"]["faults"] = fault
+        drawn["low_adhesion"] = {"slip_rate": wheel["slip_rate"], "radar_fault": fault}
+    if drawn:
+        conditions["common_cause"] = drawn
+
+
+def _ramps(d, body: dict, trajectory, conditions: dict) -> None:
+    """Persistent faults that grow slowly instead of stepping (docs/campaign.md, "Ramps"): the
+    radar's scale drifting off over 10-40 s; one TDOA station's timing walking off at
+    0.02-0.5 ns/s (a slowly growing delay) for 20-90 s."""
+    sensors = body["sensors"]
+    drawn = {}
+    if "doppler_radar" in sensors and not sensors["doppler_radar"].get("faults"):
+        t0, ramp = d.u(0.05, 0.7) * body["duration"], d.u(10.0, 40.0)
+        size = (1 if d.chance(0.5) else -1) * d.u(0.02, 0.08)
+        fault = f"{t0:.5g}-{t0 + ramp + d.u(10.0, 60.0):.5g}:{size:.4g}:{ramp:.3g}"
+        sensors["doppler_radar"]["faults"] = fault
+        drawn["radar"] = fault
+    if "mmwave_tdoa" in sensors:
+        t0, ids = _stations_near(d, body, trajectory, "mmwave_station", 1)
+        rate = (1 if d.chance(0.5) else -1) * d.logu(0.02, 0.5)
+        if ids:
+            fault = f"{ids[0]}@{t0:.5g}-{t0 + d.u(20.0, 90.0):.5g}:sync={rate:.4g}"
+            _add_faults(sensors["mmwave_tdoa"], [fault])
+            drawn["timing"] = fault
+    if drawn:
+        conditions["ramp"] = drawn
+
+
 def draw(d, family: str, body: dict, conditions: dict, trajectory) -> dict | None:
     """Draw the run's hard conditions (module docstring) into ``body`` and ``conditions``;
     returns the adversarial injection for the delivery, or None. ``trajectory``: the run's
-    motion from chainage 0 (core/scenario.py Trajectory)."""
+    motion from chainage 0 (core/scenario.py Trajectory). The common-cause and ramp draws come
+    last, so that the earlier draws of a run stay what they were without them."""
     sensors = body["sensors"]
     relative_pair = "wheel_sensor" in sensors and "doppler_radar" in sensors
     if d.chance(P_TUNNEL) and relative_pair:
@@ -108,13 +186,22 @@ def draw(d, family: str, body: dict, conditions: dict, trajectory) -> dict | Non
     if d.chance(P_CRAWL) and "doppler_radar" in sensors:
         _crawl(d, body, conditions)
     fixes = [cls for node, cls in FIX_SENSORS.items() if node in sensors]
-    if not (d.chance(P_ADVERSARIAL) and fixes):
-        return None
-    kind = ("claims", "unknown", "offset")[d.int(0, 2)]
-    attack = {"kind": kind, "sensor": fixes[d.int(0, len(fixes) - 1)], "t0": d.u(0.2, 0.8) * body["duration"],
-              "count": d.int(3, 10), "offset": d.u(2.0, 300.0) if kind != "offset" else d.u(1.0, 4.0),
-              "sign": 1 if d.chance(0.5) else -1}
-    conditions["adversarial"] = dict(attack)
+    attack = None
+    if d.chance(P_ADVERSARIAL) and fixes:
+        kind = ("claims", "unknown", "offset")[d.int(0, 2)]
+        attack = {"kind": kind, "sensor": fixes[d.int(0, len(fixes) - 1)], "t0": d.u(0.2, 0.8) * body["duration"],
+                  "count": d.int(3, 10), "offset": d.u(2.0, 300.0) if kind != "offset" else d.u(1.0, 4.0),
+                  "sign": 1 if d.chance(0.5) else -1}
+    if d.chance(P_COMMON_CAUSE):
+        _common_cause(d, body, trajectory, conditions)
+    if d.chance(P_RAMP):
+        _ramps(d, body, trajectory, conditions)
+    if attack is None and fixes and d.chance(P_ADVERSARIAL):
+        # a run of real fixes moved by an offset that grows from nothing: no jump at its start
+        attack = {"kind": "ramp", "sensor": fixes[d.int(0, len(fixes) - 1)], "t0": d.u(0.2, 0.8) * body["duration"],
+                  "count": d.int(5, 20), "offset": d.u(1.0, 4.0), "sign": 1 if d.chance(0.5) else -1}
+    if attack is not None:
+        conditions["adversarial"] = dict(attack)
     return attack
 
 
@@ -132,7 +219,9 @@ def inject(arrivals: list, attack: dict | None) -> list:
             continue
         left -= 1
         shift = attack["sign"] * attack["offset"]
-        if attack["kind"] == "offset":
+        if attack["kind"] == "ramp":   # the k-th of n moved by k / n of the offset
+            shift *= (attack["count"] - left) / attack["count"]
+        if attack["kind"] in ("offset", "ramp"):
             out.append((t, replace(m, position=m.position + shift * m.position_stddev)))
             continue
         out.append((t, m))

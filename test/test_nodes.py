@@ -523,15 +523,16 @@ def test_fusion_takes_nested_per_sensor_parameters_from_a_params_file(ros_contex
 @pytest.mark.parametrize("exe", ["wheel_sensor", "eurobalise_reader"])
 def test_a_sensor_node_starts_from_its_example_params_file(exe, start_node, tmp_path, ros_context):
     """config/params/<node>.yaml (every parameter at its default, NaN included) is read by
-    ROS's own params-file parser, run as its header says and in the demo's namespace (its keys
-    apply in any); the node then runs until interrupted. A value changed in a copy is applied
-    (the files had been keyed /train/<node>: run as documented, they applied nothing)."""
+    ROS's own params-file parser, in the demo's namespace (its keys apply in any; run as its
+    header says: test_params_files); the node then runs until interrupted. A value changed in a
+    copy is applied (the files had been keyed /train/<node>: run as documented, they applied
+    nothing)."""
     from conftest import ROOT
     text = (ROOT / "config" / "params" / f"{exe}.yaml").read_text()
     header = text.splitlines()[1]
     assert header == f"# ros2 run train_localization {exe} --ros-args --params-file config/params/{exe}.yaml"
     probe = ros_context.create_node(f"probe_params_{exe}")
-    for ns in ([], NS):
+    for ns in (NS,):
         proc = start_node(exe, "--ros-args", *ns, "--params-file", str(ROOT / "config" / "params" / f"{exe}.yaml"),
                           "-p", "mode:=ingest")
         # up once it is in the graph (a loaded host takes seconds to import; a fixed sleep

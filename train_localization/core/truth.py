@@ -12,6 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .vehicle import Vehicle
+
 
 @dataclass(frozen=True)
 class TruthState:

@@ -837,6 +837,23 @@ def _tdoa_ranging(seed: int, body: dict, conditions: dict) -> None:
     conditions["ranging"] = "tdoa"
 
 
+STATION_GROUP_SIZE = (2, 4)   # neighbouring base stations that share a timing node or a calibration
+STATION_GROUP_PRIOR = 0.01    # probability that such a group is in fault at a given time [1]
+
+
+def _station_groups(seed: int, body: dict) -> None:
+    """The track declares its base stations' common-cause groups (core/common_cause.py), from a
+    stream of their own: runs of 2-4 neighbouring stations on one timing node (TDOA) or laid out
+    by one calibration (two-way ranging), each with prior STATION_GROUP_PRIOR."""
+    if not body["track"]["equipment"].get("mmwave_station"):
+        return
+    rng = np.random.default_rng([seed, 5002])
+    cause = "timing node" if "mmwave_tdoa" in body["sensors"] else "calibration"
+    size = int(rng.integers(STATION_GROUP_SIZE[0], STATION_GROUP_SIZE[1] + 1))
+    body["track"]["common_cause"] = [{"id": "SITE", "cause": cause, "equipment": "mmwave_station",
+                                      "size": size, "prior": STATION_GROUP_PRIOR}]
+
+
 _GENERATORS = {"conventional": _conventional, "urban_maglev": _urban, "highspeed_maglev": _highspeed_maglev,
                "lzb": _lzb, "utm": _utm, "mlx": _mlx, "hsst": _hsst, "mbahn": _mbahn, "etcs": _etcs,
                "network": _network}
@@ -852,6 +869,7 @@ def generate(family: str, seed: int, max_duration: float | None = None) -> dict:
     body, conditions = _GENERATORS[family](d)
     if family == "mlx":
         _tdoa_ranging(seed, body, conditions)
+    _station_groups(seed, body)
     classes = sensor_classes()
     delivery = _delivery(d, body["duration"], [classes[n] for n in body["sensors"]])
     conditions["max_delay"] = delivery["max_delay"]

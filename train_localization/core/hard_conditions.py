@@ -29,6 +29,7 @@ from dataclasses import replace
 import numpy as np
 
 from .measurements import PositionFix
+from .track import Track
 
 P_TUNNEL, P_WORN, P_CRAWL, P_ADVERSARIAL = 0.25, 0.1, 0.1, 0.1
 P_COMMON_CAUSE, P_RAMP = 0.15, 0.15
@@ -112,28 +113,46 @@ def _stations_near(d, body: dict, trajectory, kind: str, count: int) -> tuple[fl
     return t0, [it["id"] for it in items[first:first + count]]
 
 
+def _group_near(d, body: dict, trajectory, kind: str) -> tuple[float, list[str]]:
+    """(a time [s] in the run, the members nearest the train then of the track's common-cause
+    group of ``kind`` items that holds them), drawn: a declared group (core/common_cause.py)
+    fails, whole or two of its members; without a declaration, 2-3 neighbouring items."""
+    t0, near = _stations_near(d, body, trajectory, kind, 1)
+    track = Track.from_dict({"track_id": "groups", "length": body["track"]["length"],
+                             "equipment": {kind: body["track"]["equipment"].get(kind, [])},
+                             "common_cause": body["track"].get("common_cause")})
+    groups = [g.members for g in track.common_cause if near and near[0] in g.members]
+    if not groups:
+        return _stations_near(d, body, trajectory, kind, d.int(2, 3))
+    members = list(groups[0])
+    if len(members) > 2 and d.chance(0.5):   # two of them
+        first = d.int(0, len(members) - 2)
+        members = members[first:first + 2]
+    return t0, members
+
+
 def _add_faults(sensor: dict, faults: list[str]) -> None:
     sensor["faults"] = ";".join(filter(None, [str(sensor.get("faults", ""))] + faults))
 
 
 def _common_cause(d, body: dict, trajectory, conditions: dict) -> None:
     """Sources that share a cause fail together, the same way (docs/campaign.md, "Common causes"):
-    neighbouring TDOA stations on one timing node walk off at one rate (and the receiver clock
-    jumps); neighbouring two-way-ranging stations share one range bias (one calibration, one
-    fibre delay); a low-adhesion stretch (wet rail, snow) makes every driven and braked axle slip
+    the TDOA stations of one timing node (a group the track declares) walk off at one rate (and
+    the receiver clock jumps); the two-way-ranging stations of one calibration share one range
+    bias; a low-adhesion stretch (wet rail, snow) makes every driven and braked axle slip
     and slide more while the radar's beam reads off, ramping in, at the same time."""
     sensors = body["sensors"]
-    size, sign, hold = d.int(2, 3), 1 if d.chance(0.5) else -1, d.u(5.0, 60.0)
+    sign, hold = 1 if d.chance(0.5) else -1, d.u(5.0, 60.0)
     drawn = {}
     if "mmwave_tdoa" in sensors:
-        t0, ids = _stations_near(d, body, trajectory, "mmwave_station", size)
+        t0, ids = _group_near(d, body, trajectory, "mmwave_station")
         rate, jump = sign * d.logu(0.1, 5.0), d.u(-1000.0, 1000.0)
         faults = [f"{i}@{t0:.5g}-{t0 + hold:.5g}:sync={rate:.4g}" for i in ids]
         faults.append(f"clock@{t0 + 0.5 * hold:.5g}-{body['duration'] + 1.0:.5g}:jump={jump:.4g}")
         _add_faults(sensors["mmwave_tdoa"], faults)
         drawn["timing"] = ";".join(faults)
     elif "mmwave_ranging" in sensors:
-        t0, ids = _stations_near(d, body, trajectory, "mmwave_station", size)
+        t0, ids = _group_near(d, body, trajectory, "mmwave_station")
         bias = sign * d.u(0.3, 3.0)
         faults = [f"{i}@{t0:.5g}-{t0 + hold:.5g}:{bias:.4g}" for i in ids]
         _add_faults(sensors["mmwave_ranging"], faults)

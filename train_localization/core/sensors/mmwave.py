@@ -501,6 +501,24 @@ class SolutionSeparation:
             sigma = np.where(several, np.maximum(sigma, cover), sigma)
         return sigma
 
+    def _group_downdate(self, idx, valid, wh, h, e, info) -> np.ndarray:
+        """Published 1-sigma (n,) that covers every common-cause group with two or more ranges in
+        a linearised all-in-view LS solution (slot-major wh = w h, h, residuals e; info its
+        information): the solution without the group is one downdate, x - x_G = sum_G w h e /
+        (info - sum_G w h^2), covered as ``_group_protection`` covers it."""
+        sigma = np.zeros(idx.shape[1])
+        slot = np.arange(idx.shape[0])[:, None]
+        for group in self._group_bits(idx, valid):
+            inside = ((group[None, :] >> slot) & 1).astype(bool) & valid
+            several = np.add.reduce(inside) >= 2
+            if not _any(several):
+                continue
+            rest = info - np.add.reduce(np.where(inside, wh * h, 0.0))
+            sep = np.abs(np.add.reduce(np.where(inside, wh * e, 0.0))) / np.maximum(rest, 1e-300)
+            cover = np.where(rest > 1e-6, sep / self._k_cover + 1.0 / np.sqrt(np.maximum(rest, 1e-300)), np.inf)
+            sigma = np.where(several, np.maximum(sigma, cover), sigma)
+        return sigma
+
     def _subsets(self, m: int) -> "_Subsets":
         """Table of the non-empty subsets of m rows (cached per m)."""
         tab = self._subset_tabs.get(m)
@@ -706,6 +724,7 @@ class MmWaveDecoder(SolutionSeparation, Decoder):
         # the 1 mm floor of sigma^2 can only act if the constant part is below it
         self._sig2_floor = not self._sig2_const >= MIN_RANGE_VAR
         self._init_separation(params)
+        self._init_groups(track, self.ids)
         self._block_loo: dict = {}   # per number of stations: all of them, then without each
         self._single_index = self._slot_bits - 1   # subset index of each slot alone
         self._gate_size = np.array([self._gate_dof(k - 1) for k in range(N_SLOTS + 1)])   # by stations
@@ -914,14 +933,18 @@ class MmWaveDecoder(SolutionSeparation, Decoder):
             sub = self._block_loo.get(m)
             if sub is None:
                 sub = self._block_loo[m] = np.vstack([np.ones(m), 1.0 - np.eye(m)])
+            member = self._groups[np.asarray(stations)[rows]]          # (m, groups)
+            member = member[:, np.add.reduce(member, axis=0) >= 2].T   # groups with two rows or more
+            if len(member):   # and without each common-cause group (_group_protection)
+                sub = np.vstack([sub, 1.0 - member])
             delta, var, chi2, e_bar = self._block_solutions(sub, line, r, pat, w_bar, avg)
             if chi2[0] <= self._subsets(m).gate[-1] and var[0] < np.inf:
-                has = np.full((m, 1), m > 1)
+                has = np.full((len(sub) - 1, 1), m > 1)
                 sep = np.abs(delta[1:] - delta[0])
                 if m == 2:   # without one station the other is left alone: its mirror image
                     mirror, reach = self._block_mirrors(delta[[2, 1]], line, r, pat, avg, rows, stations, xm)
                     far = reach[[0, 1], [1, 0]]
-                    sep = np.where(far, np.maximum(sep, np.abs(mirror[[1, 0]] - delta[0])), sep)
+                    sep[:2] = np.where(far, np.maximum(sep[:2], np.abs(mirror[[1, 0]] - delta[0])), sep[:2])
                 sigma = float(self._protection(sep[:, None], np.sqrt(var[1:])[:, None], has, np.sqrt(var[:1]))[0])
                 ok, c, used_rows = sigma < np.inf, 0, np.ones(m, dtype=bool)
                 if not ok:
@@ -938,6 +961,9 @@ class MmWaveDecoder(SolutionSeparation, Decoder):
                 chosen, good, sd, unident, inconsistent = self._isolate(tab, delta[:, None], var[:, None],
                                                                         chi2[:, None], full,
                                                                         (mirror[:, None], reach[:, :, None]))
+                if self._groups.shape[1]:
+                    bits = (member.astype(np.int64) << np.arange(m)).sum(axis=1)[:, None]   # (groups, 1)
+                    sd = np.maximum(sd, self._group_protection(tab, delta[:, None], var[:, None], chosen, bits))
                 ok, c, sigma = bool(good[0] and sd[0] < np.inf), int(chosen[0]), float(sd[0])
                 used_rows = tab.mask[c]
                 self.stats["unidentifiable"] += int(unident[0])
@@ -1113,6 +1139,8 @@ class MmWaveDecoder(SolutionSeparation, Decoder):
                 far = two & (np.abs(need) <= p["max_fault_bias"])
                 sep = np.where(far, np.maximum(sep, np.abs(mirror - x)), sep)
             var = self._protection(sep, sd_j, valid & (nv > 1), np.sqrt(var)) ** 2
+            if self._groups.shape[1]:
+                var = np.maximum(var, self._group_downdate(pat.idx, valid, wh, h, e, info) ** 2)
             unbounded = ok & ~(var < np.inf)
         elif isolate and _any(ok):
             tab = self._subsets(N_SLOTS)
@@ -1125,6 +1153,8 @@ class MmWaveDecoder(SolutionSeparation, Decoder):
             self.stats["unidentifiable"] += int(np.count_nonzero(ok & unident))
             self.stats["inconsistent"] += int(np.count_nonzero(ok & inconsistent))
             ok &= good
+            if self._groups.shape[1]:
+                sd = np.maximum(sd, self._group_protection(tab, xs, vs, chosen, self._group_bits(pat.idx, valid)))
             var = sd * sd
             unbounded = ok & ~(var < np.inf)
             excluded = ok & (chosen != full)

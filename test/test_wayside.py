@@ -14,7 +14,7 @@ import pytest
 from train_localization.core.measurements import CLEAR, DISTURBED, OCCUPIED, SectionOccupancy, SectionState
 from train_localization.core.wayside import catenary
 from train_localization.core.wayside.catenary import ABB1, ABB2, Layout, Switching
-from train_localization.core.wayside.changeover_campaign import generate, summarise
+from train_localization.core.wayside.changeover_campaign import LAYOUTS, generate, summarise
 from train_localization.core.wayside.crosscheck import Claim, CrossCheck
 from train_localization.core.wayside.neutral_section import ChangeoverController
 from train_localization.core.wayside.occupancy import (SILENT, CombinedOccupancy, CombinedSection, SectionMap,
@@ -132,6 +132,12 @@ def test_catenary_counts_a_bridge_dead_time_and_an_air_section_switching():
     assert rep.dead["t"] == pytest.approx(t_in - 1.0, abs=0.02)
     assert [a["switch"] for a in rep.air_switchings] == [ABB2]
     assert rep.unfed["t"] == pytest.approx(t_in, abs=0.02)    # on the neutral from the start until B
+    # a roof bus joins a pantograph on A to one on the neutral fed from B: the train is named
+    both = np.column_stack([np.full_like(times, LAYOUT.air1[0] - 10.0), np.full_like(times, LAYOUT.ac[1])])
+    log = [Switching(1.0, ABB1, False), Switching(1.1, ABB2, True)]
+    rep = catenary.events(LAYOUT, log, times, {"t": both}, {"t": True})
+    assert [c["cause"] for c in rep.short_circuits] == ["pantograph bridge: t (roof bus)"]
+    assert rep.short_circuits[0]["start"] == pytest.approx(1.1, abs=0.011)
     # both ABBs closed: a short through the switches
     rep = catenary.events(LAYOUT, [Switching(1.0, ABB2, True)], times, {"t": x[:, None] * 0.0}, {"t": False})
     assert rep.short_circuits[0]["cause"] == "ABB-1 and ABB-2 closed"
@@ -206,37 +212,53 @@ def test_following_train_is_held_then_fed_without_bridging():
 
     def make():
         lead = TrainSpec.of_type("KTX", name="lead", direction=1, entry_time=30.0, speed=kmh(250.0))
+        # the follower's front at AC0 1 s before the leader's last axle has left S2 at AC2
         follow = TrainSpec.of_type("EMU-320", name="follow", direction=1,
-                                   entry_time=lead.time_at(span + lead.length) + 0.2, speed=kmh(300.0))
+                                   entry_time=lead.time_at(span + max(lead.axles)) - 1.0, speed=kmh(300.0))
         return Run([lead, follow], seed=3)
     run, r = cached("follow", make)
     follow = run.trains[1]
     assert r.short_circuits == [] and r.air_switchings == []
     assert [why for _, why in r.safe_entries if "following train" in why]
     assert switch_sequence(r) == [(ABB1, False), (ABB2, True), (ABB2, False), (ABB1, True)] * 2
-    # the follower entered while the leader's S2 was still reported occupied: the feed came back
-    # to A before the follower reached air section 1
+    # the follower entered while the leader's S2 was still occupied: the feed came back to A
+    # before the follower reached air section 1
     assert r.switchings[3].stamp < front_passes(follow, LAYOUT.air1[0])
     assert all(p.dead_time < 1.0 for p in r.passages)
 
 
 # ---------------------------------------------------------------- injected faults
 
-def test_poor_shunt_train_is_held_by_the_axle_counter():
+@pytest.mark.parametrize("layout", ["seed", "blocks"])
+def test_poor_shunt_train_is_held_by_the_axle_counter(layout):
     """The track circuits do not see the train (seed 004 4.2: the dangerous side of a track
-    circuit); the axle counter keeps the sections occupied, the lasting disagreement puts the
-    changeover in its safe state (neutral dead), nothing bridges."""
+    circuit); the axle counter keeps the sections occupied and nothing bridges. Over the
+    whole blocks (``blocks``) the lasting disagreement puts the changeover in its safe state
+    (neutral dead). On the seed's layout the 400 m circuits cover part of each block, so the
+    axle counter alone is no contradiction there: the middle changeover opens ABB-1 as the
+    front reaches AC1 (the track circuit's CLEAR is the first sign) and closes ABB-2 when the
+    last axle has passed it (both systems clear): dead for the train's length."""
     train, r = sim(direction=1, speed_kmh=120.0, seed=2, train={"poor_shunt": True},
-                   track_circuit={"poor_shunt_resistance": 1.0e4})
+                   track_circuit={"poor_shunt_resistance": 1.0e4}, layout=dict(LAYOUTS[layout]))
     log = r.occupancy_log
     assert all(states["S1"][1] == CLEAR and states["S2"][1] == CLEAR for _, states in log)   # TC sees nothing
     t_in = first_change(log, "S1", 0, OCCUPIED)
     assert front_passes(train, LAYOUT.ac[0]) <= t_in <= front_passes(train, LAYOUT.ac[0]) + BLOCK + 0.01
     t_out = first_change(log, "S1", 0, CLEAR, after=t_in)
     assert rear_passes(train, LAYOUT.ac[1]) <= t_out <= rear_passes(train, LAYOUT.ac[1]) + BLOCK + 0.01
+    assert r.short_circuits == [] and r.air_switchings == []
+    if layout == "seed":
+        assert r.safe_entries == [] and r.contradictions == []
+        assert switch_sequence(r) == [(ABB1, False), (ABB2, True), (ABB2, False), (ABB1, True)]
+        front = front_passes(train, LAYOUT.ac[1])
+        # S2 occupied, then (the next block) S1's first clear: two blocks at most
+        assert front <= r.switchings[0].stamp <= front + 2 * BLOCK + LATENCY + HALF_CYCLE + 0.01
+        assert r.switchings[1].stamp == pytest.approx(t_out + LATENCY, abs=0.01)
+        assert r.passages[0].dead_time == pytest.approx(r.switchings[1].stamp - r.switchings[0].stamp, abs=0.01)
+        assert r.passages[0].dead_time > 10.0                     # 388 m at 120 km/h
+        return
     assert r.safe_entries and "S1 contradictory: track circuit CLEAR, axle counter OCCUPIED" in r.safe_entries[0][1]
     assert r.safe_entries[0][0] == pytest.approx(t_in + 3.0, abs=BLOCK + 0.01)
-    assert r.short_circuits == []
     # safe state: the neutral dead until both systems have seen every section clear for 5 s
     assert switch_sequence(r) == [(ABB1, False), (ABB1, True)]
     assert r.switchings[1].stamp > rear_passes(train, LAYOUT.ac[2]) + 5.0
@@ -540,15 +562,51 @@ def test_crosscheck_node_flags_a_train_claiming_a_clear_section(ros_context):
 
 
 @pytest.mark.parametrize("direction", [1, -1])
-def test_the_seeds_switching_moments_bridge_the_phases_where_ours_do_not(direction):
-    """Seed 004 section 4.1 taken literally (SeedMomentsController: B feeds as soon as a train is
-    in the changeover section, A again when it has left): the train's pantograph reaches the
-    air section between A and the neutral while the neutral is fed from B, which joins the two
-    phases (A -> B: on entering, the neutral goes to B before the pantograph has crossed air
-    section 1; B -> A: the neutral stays on B until the train has left, past air section 1).
-    Ours, on the same passage and detection: no short circuit, no switching under a pantograph."""
-    _, ours = sim(direction=direction)
-    _, seed = sim(direction=direction, controller_kind="seed")
-    assert not ours.short_circuits and not ours.air_switchings
-    assert len(seed.short_circuits) >= 1
-    assert switch_sequence(seed)[:2] == [("ABB-1", False), ("ABB-2", True)]   # the seed's order, at entry
+def test_the_seeds_moments_per_direction_switch_at_the_middle_with_no_bridge(direction):
+    """Seed 004 section 4.1 per running direction (SeedMomentsController) on the seed's layout
+    (section 4.2: 400 m track circuits in a 1 km neutral section, 800 m blocks): the neutral
+    goes from the phase behind the train to the phase ahead when its front enters the circuit
+    it enters second, at AC1; the dead time is the gap only (0.09 s); no short circuit and no
+    switching under a pantograph, for the KTX (pantograph 373 m behind the front) and the
+    coupled EMU-320 (360 m). The staged controller on the same passage: no bridge either, a
+    dead time of 0.74 s (last axle past AC1 until the track circuit has picked up)."""
+    assert LAYOUT.tc1 == (1400.0, 1800.0) and LAYOUT.tc2 == (1800.0, 2200.0)
+    assert LAYOUT.air1[1] < LAYOUT.tc1[0] and LAYOUT.tc2[1] < LAYOUT.air2[0]
+    assert LAYOUT.params["neutral_length"] == 1000.0 and LAYOUT.ac[1] - LAYOUT.ac[0] == 800.0
+    for kind in ("KTX", "EMU-320x2"):
+        train, seed = sim(direction=direction, kind=kind, controller_kind="seed")
+        assert seed.short_circuits == [] and seed.air_switchings == [] and seed.safe_entries == []
+        assert switch_sequence(seed) == [(ABB1, False), (ABB2, True), (ABB2, False), (ABB1, True)]
+        s = seed.switchings
+        middle = s[0] if direction > 0 else s[2]                 # A -> B: the first pair; B -> A: the second
+        front = front_passes(train, LAYOUT.ac[1])
+        assert front <= middle.stamp <= front + BLOCK + LATENCY + HALF_CYCLE + 0.01
+        if direction < 0:                                        # B fed before the air section
+            assert s[1].stamp < front_passes(train, LAYOUT.air2[1])
+        assert seed.passages[0].dead_time == pytest.approx(GAP - HALF_CYCLE, abs=0.005)
+        _, ours = sim(direction=direction, kind=kind)
+        assert ours.short_circuits == [] and ours.air_switchings == []
+        assert ours.passages[0].dead_time > 0.5
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+@pytest.mark.parametrize("pantograph, bridged_by", [(560.0, "seed"), (40.0, "staged")])
+def test_each_controller_bridges_the_phases_on_a_train_too_long_for_its_moment(direction, pantograph, bridged_by):
+    """The trade (docs/changeover.md), on a 600 m train with one raised pantograph. The seed's
+    moment (the front at AC1) is safe while the pantograph is then past the first air section:
+    less than half the neutral section (500 m) behind the first axle. The staged one (the last
+    axle past AC1) is safe while the pantograph has not yet reached the second air section
+    then: less than 500 m ahead of the last axle. 560 m behind the front breaks the first,
+    40 m behind it the second; the other controller passes the same train cleanly."""
+    def run(controller):
+        def make():
+            t = TrainSpec(name="t1", direction=direction, entry_time=30.0, speed=kmh(200.0), length=600.0,
+                          pantographs=(pantograph,), kind="600 m")
+            return Run([t], seed=1, controller_kind=controller)
+        return cached(("600 m", pantograph, direction, controller), make)[1]
+    for controller in ("seed", "staged"):
+        r = run(controller)
+        if controller == bridged_by:
+            assert len(r.short_circuits) == 1 and r.short_circuits[0]["cause"] == "pantograph bridge: t1"
+        else:
+            assert r.short_circuits == [] and r.air_switchings == [] and r.safe_entries == []

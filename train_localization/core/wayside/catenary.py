@@ -248,6 +248,8 @@ def events(layout: Layout, log: list[Switching], times: np.ndarray, pantographs:
     for t0, t1 in _intervals(short, times):
         i = int(np.searchsorted(times, t0))
         bridging = [owner[p] for p in range(xs.shape[1]) if touch[i, p].sum() >= 2]
+        bridging += [f"{owner[idx[0]]} (roof bus)" for idx in roof if touch[i, idx].any(axis=0).sum() >= 2
+                     and owner[idx[0]] not in bridging]
         cause = "ABB-1 and ABB-2 closed" if abb[i].all() else f"pantograph bridge: {', '.join(sorted(set(bridging)))}"
         shorts.append({"start": t0, "end": t1, "cause": cause})
     live = adj[:, :, A] | adj[:, :, B]                           # (n, 3): conductor joined to a source

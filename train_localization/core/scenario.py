@@ -27,6 +27,12 @@ Closed loop: instead of ``profile`` a scenario may give ``control`` (a speed con
 its set-points, core/control.py) and ``dynamics`` (the vehicle's drive and resistance,
 core/dynamics.py); its motion then comes from ``core.offline.closed_loop`` (offline) or from
 the simulator node integrating the controller's traction command, not from ``trajectory``.
+
+Loading checks every block through the check of the subsystem that owns it (sensor names
+and placement: core/sensors; control, dynamics, atp, changeover, network devices: their
+modules), imported at the top: the subsystems take the data they share with the scenario from
+core/truth.py and core/vehicle.py, never from this module, so no import cycle runs through it
+(test/test_imports.py).
 """
 from __future__ import annotations
 

@@ -22,6 +22,8 @@ from .feed import FusionFeed, RunResult
 
 @dataclass
 class ClosedLoopResult:
+    """A closed-loop run, step by step, with its set-points, dynamics, controller and runner."""
+
     truth: list = field(default_factory=list)        # TruthState (chainage wrapped)
     distance: list = field(default_factory=list)     # unwrapped true distance [m]
     estimates: list = field(default_factory=list)    # Estimate

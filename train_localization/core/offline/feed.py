@@ -20,6 +20,9 @@ from .topics import TRACKS_TOPIC
 
 @dataclass
 class RunResult:
+    """A one-train offline run: truth states, estimates and measurements in order, raw blocks
+    read, rejections by reason, and the runner."""
+
     truth: list = field(default_factory=list)       # TruthState
     estimates: list = field(default_factory=list)   # Estimate
     measurements: list = field(default_factory=list)

@@ -12,6 +12,7 @@ from dataclasses import dataclass, replace
 
 from .measurements import Measurement
 from .network.labels import SectionLabels
+from .network.wayside import SectionSimulators, network_decoder
 from .scenario import Scenario
 from .truth import LineTruth, TruthBuffer, TruthState
 from .vehicle import Vehicle
@@ -48,7 +49,6 @@ class SensorPipeline:
         self.params = sensor_params(spec, params, vehicle)
         self.track = track
         if network is not None:
-            from .network.wayside import network_decoder
             self.decoder = network_decoder(spec, self.params, network)
         else:
             self.decoder = spec.decoder(self.params, track)
@@ -64,7 +64,6 @@ class SensorPipeline:
         if not simulate:
             self.simulator = None
         elif network is not None:
-            from .network.wayside import SectionSimulators
             self.simulator = SectionSimulators(spec, self.params, network, vehicle, rng, *fleet_args,
                                                [routes[name] for name in fleet])
         else:

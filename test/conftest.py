@@ -24,6 +24,22 @@ import pytest  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
+# The files that take longest, longest first (pytest --durations=0, per file). scripts/test.sh hands whole files to its workers in collection order
+# (--dist loadfile --no-loadscope-reorder): the long ones go first so that no worker is left
+# with one of them while the other has finished (xdist's default order, by number of tests,
+# put the one-test colcon build and the DDS fuzz last).
+LONGEST_FIRST = ("test_nodes.py", "test_campaign.py", "test_fusion_integrity.py", "test_sensor_replay_identity.py",
+                 "test_package.py", "test_network.py", "test_sensor_utm.py", "test_fusion_scenarios.py",
+                 "test_network_wayside.py", "test_fuzz.py", "test_fusion_impact.py", "test_fusion_admission.py",
+                 "test_bags.py", "test_sensor_axle_counter.py", "test_stop.py", "test_sensor_mmwave.py",
+                 "test_sensor_mlx.py", "test_multitrain.py", "test_etcs_location.py", "test_fuzz_dds.py")
+
+
+def pytest_collection_modifyitems(items):
+    """Put the files of LONGEST_FIRST first, in its order; the others keep theirs."""
+    rank = {name: k for k, name in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
+
 
 @pytest.fixture(scope="session")
 def ros_context():

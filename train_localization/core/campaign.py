@@ -845,7 +845,7 @@ def _station_groups(seed: int, body: dict) -> None:
     """The track declares its base stations' common-cause groups (core/common_cause.py), from a
     stream of their own: runs of 2-4 neighbouring stations on one timing node (TDOA) or laid out
     by one calibration (two-way ranging), each with prior STATION_GROUP_PRIOR."""
-    if not body["track"]["equipment"].get("mmwave_station"):
+    if not body["track"].get("equipment", {}).get("mmwave_station"):
         return
     rng = np.random.default_rng([seed, 5002])
     cause = "timing node" if "mmwave_tdoa" in body["sensors"] else "calibration"

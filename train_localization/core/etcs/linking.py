@@ -37,10 +37,6 @@ class Expectation:
     def reaction(self) -> Reaction:
         return self.link.reaction
 
-    def open_at(self, lo: float, hi: float) -> bool:
-        """True if the safe front ends [lo, hi] (chainages, lo <= hi) overlap the window."""
-        return lo <= self.window[1] and hi >= self.window[0]
-
     def passed(self, lo: float, hi: float) -> bool:
         """True once the min safe front end has passed the window's far end (in the direction of travel)."""
         return lo > self.window[1] if self.direction > 0 else hi < self.window[0]

@@ -83,12 +83,6 @@ class Node:
     ports: dict[str, SectionEnd]
     clearance: float = DEFAULT_CLEARANCE   # [m] point to clearance point (point_switch)
 
-    def port_of(self, end: SectionEnd) -> str | None:
-        for port, joined in self.ports.items():
-            if joined == end:
-                return port
-        return None
-
 
 @dataclass(frozen=True)
 class Continuation:

@@ -113,7 +113,6 @@ KIND = "checkin_block"
 SENSOR = "checkin"
 # detailed block states (decoder.block_states); the message carries CLEAR / OCCUPIED
 CHECKED_IN, CHECKED_OUT = 3, 4
-STATE_NAMES = {CLEAR: "CLEAR", OCCUPIED: "OCCUPIED", CHECKED_IN: "CHECKED_IN", CHECKED_OUT: "CHECKED_OUT"}
 CARRIERS = ("in", "out")
 
 PARAMS = {
@@ -391,10 +390,6 @@ class CheckinDecoder(Decoder):
                          CLEAR if self.block_states[k] == CLEAR else OCCUPIED,
                          int(self.stored[k]), int(self.checkins[k]), int(self.checkouts[k]))
             for k, b in enumerate(self.blocks)))
-
-    def state_names(self) -> dict[str, str]:
-        """Detailed state of every block by id."""
-        return {bid: STATE_NAMES[s] for bid, s in zip(self.ids, self.block_states)}
 
     # -- decoding ---------------------------------------------------------------------
     def _check(self, block: RawBlock) -> np.ndarray:

@@ -74,8 +74,8 @@ def test_the_exit_guard_ends_a_process_stuck_holding_the_interpreter_lock_with_i
                       "assert exit_guard.arm(0.5, int(sys.argv[1]))\n"
                       "ctypes.PyDLL(None).sleep(30)\nprint('not reached')\n")
     for code in (0, 3):
-        t0 = time.monotonic()
+        # the process sleeps 30 s in C: an exit before the 20 s time-out (which raises) is the guard's
         done = subprocess.run([sys.executable, str(script), str(code)], capture_output=True, text=True, timeout=20,
                               cwd=ROOT)
-        assert done.returncode == code and time.monotonic() - t0 < 10.0, done.stderr[-2000:]
+        assert done.returncode == code, done.stderr[-2000:]
         assert "not reached" not in done.stdout

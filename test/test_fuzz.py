@@ -40,7 +40,7 @@ SCENARIO_OF = {"doppler_radar": "demo", "wheel_sensor": "demo", "eurobalise_read
                "mmwave_ranging": "maglev_500", "mmwave_tdoa": "maglev_500", "pattern_belt": "urban_stops", "lzb_receiver": "lzb",
                "track_circuit_receiver": "track_circuit", "dgps_receiver": "utm", "tag_reader": "utm",
                "coil_counter": "mlx", "emf_observer": "mlx", "checkin_loop": "hsst", "pole_position": "mbahn", "rig_loop_receiver": "rig_open",
-               "gyro": "demo"}
+               "gyro": "demo", "accelerometer": "demo"}
 # simulated time that gives WARM_UP + RESYNC_BLOCKS + 2 blocks: 2 s, but the DGPS delivers one
 # epoch per 0.1 s block
 T_END = {"dgps_receiver": 3.0}

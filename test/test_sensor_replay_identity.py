@@ -103,8 +103,13 @@ NETWORK = {   # a train on a network: fixes restated on sections, the DGPS on th
 SCENARIOS = [CONVENTIONAL, MAGLEV, LZB, TRACK_CIRCUIT, UTM, MLX, HSST, MBAHN, RIG, NETWORK]
 
 
+# sensors the fusion does not take yet (issue 51: the accelerometer's use as a speed source);
+# test_sensor_accelerometer's strict xfail says when it does
+NOT_FUSED = {"accelerometer"}
+
+
 def test_the_scenarios_cover_every_sensor():
-    assert set().union(*(set(d["sensors"]) for d in SCENARIOS)) == set(NODE_NAMES)
+    assert set().union(*(set(d["sensors"]) for d in SCENARIOS)) == set(NODE_NAMES) - NOT_FUSED
 
 
 @pytest.fixture(scope="module", params=SCENARIOS, ids=lambda d: d["name"])

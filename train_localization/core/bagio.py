@@ -68,6 +68,14 @@ def typestore_classes() -> MsgClasses:
             return c(**kw)
         return build
 
+    def accel_body(x: float, variance: float):
+        vector = t["geometry_msgs/msg/Vector3"]
+        covariance = np.zeros(36)
+        covariance[0] = variance
+        return t["geometry_msgs/msg/AccelWithCovariance"](
+            accel=t["geometry_msgs/msg/Accel"](linear=vector(x=x, y=0.0, z=0.0), angular=vector(x=0.0, y=0.0, z=0.0)),
+            covariance=covariance)
+
     p = MSG_PACKAGE + "/msg/"
     return MsgClasses(Time=make("builtin_interfaces/msg/Time"), Header=make("std_msgs/msg/Header"),
                       TrainState=make(p + "TrainState"), RawBlock=make(p + "RawBlock"),
@@ -75,7 +83,9 @@ def typestore_classes() -> MsgClasses:
                       DistanceIncrement=make(p + "DistanceIncrement"), SectionState=make(p + "SectionState"),
                       SectionOccupancy=make(p + "SectionOccupancy"), TrackHypothesis=make(p + "TrackHypothesis"),
                       TrackHypotheses=make(p + "TrackHypotheses"), SwitchPositions=make(p + "SwitchPositions"),
-                      YawRate=make(p + "YawRate"), array=array)
+                      YawRate=make(p + "YawRate"), array=array,
+                      AccelWithCovarianceStamped=make("geometry_msgs/msg/AccelWithCovarianceStamped"),
+                      accel_body=accel_body)
 
 
 def ros2_typename(name: str) -> str:

@@ -17,7 +17,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .measurements import (DistanceIncrement, PositionFix, SectionOccupancy, SectionState,
+from .measurements import (Acceleration, DistanceIncrement, PositionFix, SectionOccupancy, SectionState,
                            SpeedMeasurement, YawRate)
 from .etcs.records import EventKind, LocationEvent, LocationReport, QDirLrbg, Reaction
 from .safety.admission import MAX_ITEMS
@@ -58,6 +58,10 @@ class MsgClasses:
     SwitchPositions: Callable
     YawRate: Callable
     array: Callable[[np.ndarray, str], Any]
+    # an acceleration travels as geometry_msgs/AccelWithCovarianceStamped (``acceleration_from_msg``);
+    # accel_body(x [m/s^2], variance [m^2/s^4]) makes its AccelWithCovariance
+    AccelWithCovarianceStamped: Callable
+    accel_body: Callable[[float, float], Any]
 
     def header(self, t: float, frame_id: str = ""):
         sec, nanosec = divmod(sec_to_ns(t), NS)
@@ -101,6 +105,9 @@ def measurement_to_msg(m, mc: MsgClasses):
     if isinstance(m, YawRate):
         return mc.YawRate(header=h, sensor=m.sensor, unit_id=m.unit_id, yaw_rate=m.yaw_rate,
                           yaw_rate_stddev=m.yaw_rate_stddev)
+    if isinstance(m, Acceleration):
+        return mc.AccelWithCovarianceStamped(header=mc.header(m.stamp, m.unit_id),
+                                             accel=mc.accel_body(m.acceleration, m.acceleration_stddev ** 2))
     if isinstance(m, SectionOccupancy):
         return mc.SectionOccupancy(header=h, source=m.source, sections=[
             mc.SectionState(section_id=s.section_id, start=s.start, end=s.end, state=s.state,
@@ -141,6 +148,19 @@ def yaw_rate_from_msg(msg) -> YawRate:
     return m
 
 
+ACCELERATION_SENSOR = "accelerometer"   # the sensor class of an acceleration (its message names none)
+
+
+def acceleration_from_msg(msg) -> Acceleration:
+    """An Acceleration from a geometry_msgs/AccelWithCovarianceStamped: linear.x along the track
+    [m/s^2], covariance[0] its variance, header.frame_id the unit; validated (InputRejected)."""
+    variance = float(msg.accel.covariance[0])
+    m = Acceleration(stamp_to_sec(msg.header.stamp), ACCELERATION_SENSOR, msg.header.frame_id,
+                     float(msg.accel.accel.linear.x), math.copysign(math.sqrt(abs(variance)), variance))
+    m.validate()
+    return m
+
+
 def occupancy_from_msg(msg) -> SectionOccupancy:
     m = SectionOccupancy(stamp_to_sec(msg.header.stamp), msg.source, tuple(
         SectionState(s.section_id, float(s.start), float(s.end), int(s.state), int(s.axle_count),
@@ -155,8 +175,10 @@ MEASUREMENT_TOPICS = {
     "speed": ("SpeedMeasurement", speed_from_msg),
     "distance": ("DistanceIncrement", distance_from_msg),
     "yaw_rate": ("YawRate", yaw_rate_from_msg),
+    "acceleration": ("AccelWithCovarianceStamped", acceleration_from_msg),
 }
-SUFFIX_OF = {PositionFix: "position", SpeedMeasurement: "speed", DistanceIncrement: "distance", YawRate: "yaw_rate"}
+SUFFIX_OF = {PositionFix: "position", SpeedMeasurement: "speed", DistanceIncrement: "distance", YawRate: "yaw_rate",
+             Acceleration: "acceleration"}
 SECTIONS_TOPIC = "wayside/sections"
 
 

@@ -97,6 +97,33 @@ class YawRate:
         _require_range("YawRate", "yaw_rate_stddev", self.yaw_rate_stddev, *STDDEV_RANGE)
 
 
+MAX_ACCELERATION = 20.0       # [m/s^2]: about 2 g, beyond any train's traction, braking or gravity
+GRAVITY = 9.80665             # [m/s^2] standard gravity
+
+
+@dataclass(frozen=True)
+class Acceleration:
+    """Longitudinal acceleration of the train [m/s^2] (signed like speed: + = towards increasing
+    chainage) with 1-sigma [m/s^2], valid at ``stamp``: an accelerometer's specific force less the
+    component of gravity along the track (core/sensors/accelerometer.py)."""
+
+    stamp: float
+    sensor: str
+    unit_id: str
+    acceleration: float
+    acceleration_stddev: float
+
+    def validate(self) -> None:
+        require_short("Acceleration", sensor=self.sensor, unit_id=self.unit_id)
+        _require_finite("Acceleration", stamp=self.stamp, acceleration=self.acceleration,
+                        acceleration_stddev=self.acceleration_stddev)
+        if self.acceleration_stddev <= 0.0:
+            raise InputRejected("stddev", f"Acceleration stddev {self.acceleration_stddev} must be > 0")
+        _require_range("Acceleration", "stamp", self.stamp, -MAX_STAMP, MAX_STAMP)
+        _require_range("Acceleration", "acceleration", self.acceleration, -MAX_ACCELERATION, MAX_ACCELERATION)
+        _require_range("Acceleration", "acceleration_stddev", self.acceleration_stddev, *STDDEV_RANGE)
+
+
 @dataclass(frozen=True)
 class SpeedMeasurement:
     """Signed speed [m/s] with 1-sigma [m/s], valid at ``stamp``."""
@@ -181,4 +208,4 @@ class SectionOccupancy:
         _require_range("SectionOccupancy", "stamp", self.stamp, -MAX_STAMP, MAX_STAMP)
 
 
-Measurement = PositionFix | SpeedMeasurement | DistanceIncrement | SectionOccupancy | YawRate
+Measurement = PositionFix | SpeedMeasurement | DistanceIncrement | SectionOccupancy | YawRate | Acceleration

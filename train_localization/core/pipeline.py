@@ -99,6 +99,20 @@ class SensorPipeline:
         buffer.add(state)
         return self.simulator.simulate(self.truth) if self.simulator else []
 
+    def on_position(self, where) -> None:
+        """Feed the train's position to a decoder that takes one (``set_position``: the
+        accelerometer's gradient), its stamp in the decoder's time; ignored by the others.
+        Raises InputRejected (counted) for a position the decoder refuses."""
+        if not hasattr(self.decoder, "set_position"):
+            return
+        if self.origin is None:
+            self.origin = float(math.floor(where.stamp)) if abs(where.stamp) >= REBASE_FROM else 0.0
+        try:
+            self.decoder.set_position(where._replace(stamp=where.stamp - self.origin))
+        except InputRejected as exc:
+            self.rejected[exc.reason] += 1
+            raise
+
     def on_block(self, block: RawBlock) -> list[Measurement]:
         """Check and decode one raw block. Raises InputRejected (counted) for bad blocks."""
         try:

@@ -16,6 +16,9 @@ a base station's lateral offset, ...) stay in the dict for the sensor models.
 Equipment that can fail together (base stations on one timing node, balises of one survey) is
 the ``common_cause`` block: core/common_cause.py.
 
+The track's rise along its chainage is the ``gradient`` block (core/gradient.py); a track
+without one is level.
+
 ETCS data (balise groups' Q_LOCACC, linking) are the ``etcs`` block and keys of the
 ``eurobalise`` items: core/etcs/track_data.py.
 
@@ -38,8 +41,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from . import common_cause
+from . import common_cause, gradient
 from .common_cause import CommonCause
+from .gradient import GradientProfile
 
 
 class TrackError(ValueError):
@@ -51,6 +55,14 @@ def _common_cause(data: dict, equipment: dict[str, list[dict]]) -> tuple[CommonC
     try:
         return common_cause.parse(data.get("common_cause"), equipment)
     except common_cause.CommonCauseError as exc:
+        raise TrackError(f"track '{data.get('track_id')}': {exc}") from None
+
+
+def _gradient(data: dict) -> GradientProfile | None:
+    """The track's ``gradient`` profile (core/gradient.py), refused as a TrackError."""
+    try:
+        return gradient.parse(data.get("gradient"), float(data["length"]))
+    except gradient.GradientError as exc:
         raise TrackError(f"track '{data.get('track_id')}': {exc}") from None
 
 
@@ -129,6 +141,7 @@ class Track:
     closed: bool = False      # a loop: chainage ``length`` is chainage 0 again (the rig's disc, seed 003)
     etcs: dict = field(default_factory=dict)  # ETCS data: national values, linking (core/etcs/track_data.py)
     common_cause: tuple[CommonCause, ...] = ()  # equipment that can fail together (core/common_cause.py)
+    gradient: GradientProfile | None = None     # rise along the chainage (core/gradient.py); None: level
 
     def __post_init__(self):
         if not (self.length > 0 and math.isfinite(self.length)):
@@ -204,6 +217,15 @@ class Track:
         out = kappa[np.searchsorted(ends, c, side="right")]
         out = np.where((c < 0.0) | (c > self.length), 0.0, out)
         return out if out.ndim else float(out)
+
+    def grade(self, chainage):
+        """Gradient [1, rise / run] (+ rising towards increasing chainage) at chainages [m] (number or
+        array): the ``gradient`` profile's, 0 on a level track."""
+        c = self.wrap(np.asarray(chainage, dtype=float))
+        if self.gradient is None:
+            out = np.zeros(np.shape(c))
+            return out if out.ndim else 0.0
+        return self.gradient.at(c)
 
     def xy(self, chainage) -> tuple[np.ndarray, np.ndarray]:
         """Map coordinates (x [m], y [m]) of chainages (array), on the polyline ``pose`` uses."""
@@ -303,6 +325,7 @@ class Track:
                 resolution=float(data.get("resolution", 10.0)),
                 etcs=data.get("etcs") or {},
                 common_cause=_common_cause(data, equipment),
+                gradient=_gradient(data),
             )
         except KeyError as exc:
             raise TrackError(f"track description lacks the key {exc}") from None

@@ -51,18 +51,25 @@ CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=
 def rclpy_classes() -> MsgClasses:
     """MsgClasses backed by the generated rclpy message modules."""
     from builtin_interfaces.msg import Time
+    from geometry_msgs.msg import AccelWithCovariance, AccelWithCovarianceStamped
     from std_msgs.msg import Header
     from train_localization_msgs import msg as m
 
     def array(values: np.ndarray, kind: str):
         return np.ascontiguousarray(values, dtype=np.float32 if kind == "float32" else np.float64)
 
+    def accel_body(x: float, variance: float):
+        body = AccelWithCovariance()
+        body.accel.linear.x = x
+        body.covariance[0] = variance
+        return body
+
     return MsgClasses(Time=Time, Header=Header, TrainState=m.TrainState, RawBlock=m.RawBlock,
                       PositionFix=m.PositionFix, SpeedMeasurement=m.SpeedMeasurement,
                       DistanceIncrement=m.DistanceIncrement, SectionState=m.SectionState,
                       SectionOccupancy=m.SectionOccupancy, TrackHypothesis=m.TrackHypothesis,
                       TrackHypotheses=m.TrackHypotheses, SwitchPositions=m.SwitchPositions, YawRate=m.YawRate,
-                      array=array)
+                      array=array, AccelWithCovarianceStamped=AccelWithCovarianceStamped, accel_body=accel_body)
 
 
 MAX_ERROR_LENGTH = 256   # characters of the last refusal a node republishes on /diagnostics

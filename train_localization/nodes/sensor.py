@@ -9,8 +9,10 @@ core.pipeline.SensorPipeline:
   mode = ingest  subscribes sensors/<sensor>/raw (a device driver or a bag) and
                  decodes it.
 
-Decoded output: sensors/<sensor>/position | speed | distance, and wayside/sections
-for occupancy. Common parameters: mode, scenario (YAML: track, vehicle, seed and
+Decoded output: sensors/<sensor>/position | speed | distance | yaw_rate | acceleration, and
+wayside/sections for occupancy. A decoder that needs the train's position (the accelerometer's
+gradient) subscribes to the TrainState topic of its parameter ``position_topic`` (the fusion's
+localization/state, or ground_truth/state) in both modes. Common parameters: mode, scenario (YAML: track, vehicle, seed and
 this sensor's parameter overrides), track (track YAML, used when no scenario is
 given), plus every parameter of the sensor kind (docs/nodes.md and core/sensors/*.py list
 them with units and sources), and ``managed`` (a lifecycle node: see SensorNode). Bad
@@ -34,6 +36,7 @@ from ..core import convert
 from ..core.pipeline import SensorPipeline
 from ..core.scenario import Scenario, Vehicle
 from ..core.sensors import NODE_NAMES, spec as sensor_spec
+from ..core.sensors.accelerometer import TrackPosition
 from ..core.sensors.base import COMMON_PARAMS
 from ..core.signals import InputRejected
 from ..core.track import Track
@@ -122,6 +125,8 @@ class SensorNode(ManagedNode):
         self.mc = rclpy_classes()
         self.diag.name = f"{node_name}: {self.spec.sensor} {unit} ({mode})"
         base = f"sensors/{self.spec.sensor}"
+        # a decoder that takes the train's position (set_position) gets it from a TrainState topic
+        self.position_topic = overrides.get("position_topic") if hasattr(self.pipe.decoder, "set_position") else None
         self.raw_pub = None
         if mode == "sim":
             self.raw_pub = self.create_lifecycle_publisher(self.mc.RawBlock, f"{base}/raw", STREAM_QOS)
@@ -143,6 +148,9 @@ class SensorNode(ManagedNode):
         else:
             self._subs.append(self.create_subscription(self.mc.RawBlock, f"sensors/{self.spec.sensor}/raw",
                                                        self.on_raw, STREAM_QOS))
+        if self.position_topic:
+            self._subs.append(self.create_subscription(self.mc.TrainState, self.position_topic, self.on_position,
+                                                       STREAM_QOS))
         self.diag.set_status(0, "running")
         self._active_since, self._input_at = time.monotonic(), None
         return super().on_activate(state)
@@ -195,6 +203,19 @@ class SensorNode(ManagedNode):
         for block in blocks:
             self.raw_pub.publish(convert.raw_block_to_msg(block, self.mc))
             self._decode(block)
+
+    def on_position(self, msg):
+        """The train's position for the decoder (a TrainState: the fusion's or the truth); a state
+        that claims no position (MODE_INITIALISING) is skipped."""
+        if msg.mode == self.mc.TrainState.MODE_INITIALISING:
+            return
+        try:
+            self.pipe.on_position(TrackPosition(convert.stamp_to_sec(msg.header.stamp), float(msg.position),
+                                                float(msg.position_stddev), float(msg.speed)))
+        except InputRejected as exc:
+            self.diag.reject(self.position_topic, exc.reason, str(exc))
+            return
+        self.diag.accept(self.position_topic)
 
     def _truth_clock(self) -> tuple[float, str]:
         """(time [s], its name) a truth state's stamp is checked against: the node clock on

@@ -26,6 +26,7 @@ _MODULES = {
     "pole_position": "pole_position",
     "rig_loop_receiver": "rig_loop",
     "gyro": "gyro",
+    "accelerometer": "accelerometer",
 }
 
 NODE_NAMES = tuple(_MODULES)

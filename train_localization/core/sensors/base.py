@@ -137,7 +137,7 @@ def sensor_params(spec: "SensorSpec", overrides: dict | None, vehicle: Vehicle) 
     return resolve_params(spec.params, params)
 
 
-MEASURES = ("speed", "distance", "position", "occupancy", "yaw_rate")
+MEASURES = ("speed", "distance", "position", "occupancy", "yaw_rate", "acceleration")
 
 # [m] least 1-sigma of a fix of a sensor that reads equipment from the track file: the millimetre
 # of the file's chainages (a guard for sensors whose error parameters may all be 0)
@@ -308,6 +308,12 @@ class ErrorModel:
             if m.yaw_rate_stddev < floor:
                 return InputRejected("below_model", f"{self.sensor} yaw rate claims 1-sigma {m.yaw_rate_stddev:.3g} "
                                                     f"rad/s, below its model's {self.min_stddev:.3g} rad/s")
+            return None
+        if self.measures == "acceleration":
+            if m.acceleration_stddev < floor:
+                return InputRejected("below_model", f"{self.sensor} acceleration claims 1-sigma "
+                                                    f"{m.acceleration_stddev:.3g} m/s^2, below its model's "
+                                                    f"{self.min_stddev:.3g} m/s^2")
             return None
         claimed = m.speed_stddev
         if self.measures == "distance":

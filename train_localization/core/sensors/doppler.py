@@ -71,8 +71,10 @@ PARAMS = {
 }
 
 
-def _parse_faults(text: str) -> list[tuple[float, float, float, float]]:
-    """'T0-T1:SCALE[:RAMP]' items -> (t0, t1, scale, ramp)."""
+def parse_window_faults(text: str, sensor: str = "doppler",
+                        value: str = "SCALE") -> list[tuple[float, float, float, float]]:
+    """'T0-T1:VALUE[:RAMP]' items (an error injected over a time window: a Doppler's scale, an
+    accelerometer's bias) -> (t0, t1, value, ramp); ValueError naming ``sensor``."""
     out = []
     for item in filter(None, (s.strip() for s in str(text).split(";"))):
         try:
@@ -82,9 +84,12 @@ def _parse_faults(text: str) -> list[tuple[float, float, float, float]]:
                 raise ValueError
             out.append((t0, t1, float(scale), float(ramp[0]) if ramp else 0.0))
         except ValueError:
-            raise ValueError(f"malformed doppler fault {item!r}; expected 'T0-T1:SCALE' or "
-                             f"'T0-T1:SCALE:RAMP' (RAMP >= 0 s)") from None
+            raise ValueError(f"malformed {sensor} fault {item!r}; expected 'T0-T1:{value}' or "
+                             f"'T0-T1:{value}:RAMP' (RAMP >= 0 s)") from None
     return out
+
+
+_parse_faults = parse_window_faults   # the Doppler's own name (tests and campaigns)
 
 
 def fault_scale(faults: list, times) -> np.ndarray:

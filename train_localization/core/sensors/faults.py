@@ -28,6 +28,10 @@ CATALOGUE = (
     FaultMode("wear", "speed", True, "a wheel's diameter beyond its tolerance by up to its scale_fault_sigma "
                                      "(a missed re-calibration, a re-profiled or changed wheel whose "
                                      "diameter was not re-entered)"),
+    FaultMode("bias_step", "speed", True, "an accelerometer's bias steps by up to its fault_bias_sigma (a mount "
+                                          "worked loose and tilted: g sin(tilt), 0.017 m/s^2 per 0.1 deg; a "
+                                          "shock to the proof mass): the speed integrated from it drifts off "
+                                          "linearly, which only another speed source or the fixes show"),
     FaultMode("offset", "offset", True, "a run of a position sensor's fixes shares one offset, each within the "
                                         "single-fix gate of its own 1-sigma, so that every check of one fix "
                                         "passes (a balise laid or surveyed off, a wrong antenna offset or "

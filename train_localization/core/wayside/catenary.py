@@ -108,7 +108,7 @@ class Layout:
         """The layout around three counting points of a line's track [m]: the air sections
         ``approach`` inside the outer ones, the neutral section between them (its length
         follows from the points; ``neutral_length`` and ``lead`` are not used). ValueError if
-        the middle point is not inside the neutral section."""
+        the middle point is not inside the neutral section or that is shorter than MIN_NEUTRAL."""
         p = resolve_params(PARAMS, overrides)
         x0, x1, x2 = (float(x) for x in ac)
         a1, b2 = x0 + p["approach"], x2 - p["approach"]
@@ -117,7 +117,10 @@ class Layout:
             raise ValueError(f"counting points {x0:g}, {x1:g}, {x2:g} m leave no neutral section around the middle "
                              f"one with approach {p['approach']:g} m and air sections of {p['air_length']:g} m "
                              f"on a track of {length:g} m")
-        return cls((x0, x1, x2), (a1, b1), (a2, b2), float(length), {**p, "neutral_length": a2 - b1})
+        # the line's track lays the circuits (changeover.Site): this length only has to fit the blocks
+        tc = min(p["track_circuit_length"], x1 - x0, x2 - x1)
+        return cls((x0, x1, x2), (a1, b1), (a2, b2), float(length),
+                   {**p, "neutral_length": a2 - b1, "track_circuit_length": tc})
 
     @property
     def neutral(self) -> tuple[float, float]:

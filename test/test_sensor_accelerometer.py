@@ -49,6 +49,8 @@ def test_the_gradient_profile_holds_between_change_points_and_turns_over_vertica
     ({"vertical_curve_radius": 1.0e5, "profile": [{"position": 0.0, "gradient": 0.0},
                                                    {"position": 100.0, "gradient": 30.0}]}, "overlaps"),
     ({"vertical_curve_radius": -1.0, "profile": [{"position": 0.0, "gradient": 0.0}]}, ">= 0"),
+    ({"profile": [{"position": 0.0, "gradient": "steep"}]}, "gradient 'steep' is not a number"),
+    ([{"position": 0.0, "gradient": 1.0}], "must be a mapping"),
 ])
 def test_a_bad_gradient_block_is_refused_in_one_line(block, why):
     with pytest.raises(TrackError, match=why) as exc:
@@ -233,8 +235,9 @@ def test_the_node_takes_its_position_from_a_train_state_and_publishes_the_accele
                                                                                        tmp_path):
     """Over DDS: an ingest accelerometer node on a graded track (a train at rest at 2 km, 20 per
     mille), its raw blocks simulated here and its position on localization/state (the fusion's
-    TrainState): it publishes AccelWithCovarianceStamped with the gravity (0.196 m/s^2) taken
-    out: about 0, within 4 sigma, its 1-sigma that of a placed position (not the track's span)."""
+    TrainState; states of another track refused): it publishes AccelWithCovarianceStamped with
+    the gravity (0.196 m/s^2) taken out: about 0, within 4 sigma, its 1-sigma that of a placed
+    position (not the track's span)."""
     import yaml
     from geometry_msgs.msg import AccelWithCovarianceStamped
     from train_localization_msgs.msg import RawBlock as RawBlockMsg, TrainState
@@ -257,8 +260,10 @@ def test_the_node_takes_its_position_from_a_train_state_and_publishes_the_accele
     try:
         assert spin_until(node, lambda: raw_pub.get_subscription_count() > 0 and state_pub.get_subscription_count() > 0,
                           30.0), proc.output()
-        for block in blocks:
+        for k, block in enumerate(blocks):
             state_pub.publish(train_state_to_msg(mc, block.t0, "t", 2000.0, 0.0, 0.0, position_stddev=5.0))
+            if k % 2:   # a newer state of another track, on the level part: refused, or the output shows it
+                state_pub.publish(train_state_to_msg(mc, block.t0 + 0.001, "other", 500.0, 0.0, 0.0))
             spin_until(node, lambda: False, 0.01)
             raw_pub.publish(raw_block_to_msg(block, mc))
         assert spin_until(node, lambda: len(got) >= len(blocks) - 5, 20.0), (len(got), proc.output()[-2000:])

@@ -61,6 +61,14 @@ def along_track_gravity(gradient, g: float):
     return out if out.ndim else float(out)
 
 
+def _number(value, name: str) -> float:
+    """``value`` as a float; GradientError naming ``name`` if it is none."""
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise GradientError(f"gradient block: {name} {value!r} is not a number") from None
+
+
 def parse(block, length: float) -> GradientProfile | None:
     """The profile of a track's ``gradient`` block (module docstring) on a track of ``length``
     [m]; None without one. GradientError names the first bad entry."""
@@ -68,14 +76,14 @@ def parse(block, length: float) -> GradientProfile | None:
         return None
     if not isinstance(block, dict) or not isinstance(block.get("profile"), list) or not block["profile"]:
         raise GradientError(f"gradient block must be a mapping with a non-empty 'profile' list, not {block!r}")
-    radius = float(block.get("vertical_curve_radius", 0.0))
+    radius = _number(block.get("vertical_curve_radius", 0.0), "vertical_curve_radius")
     if not (math.isfinite(radius) and radius >= 0.0):
         raise GradientError(f"gradient vertical_curve_radius {radius!r} must be a number >= 0 [m]")
     points, grades = [], []
     for entry in block["profile"]:
         if not isinstance(entry, dict) or "position" not in entry or "gradient" not in entry:
             raise GradientError(f"gradient entry {entry!r} needs 'position' [m] and 'gradient' [per mille]")
-        s, i = float(entry["position"]), float(entry["gradient"])
+        s, i = _number(entry["position"], "position"), _number(entry["gradient"], "gradient")
         if not (math.isfinite(s) and 0.0 <= s <= length):
             raise GradientError(f"gradient change point {s!r} m is off the track (0..{length} m)")
         if not (math.isfinite(i) and abs(i) <= MAX_GRADIENT):

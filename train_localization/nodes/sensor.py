@@ -206,10 +206,14 @@ class SensorNode(ManagedNode):
 
     def on_position(self, msg):
         """The train's position for the decoder (a TrainState: the fusion's or the truth); a state
-        that claims no position (MODE_INITIALISING) is skipped."""
+        that claims no position (MODE_INITIALISING) is skipped, one on another track refused
+        (``wrong_track``, counted)."""
         if msg.mode == self.mc.TrainState.MODE_INITIALISING:
             return
         try:
+            if msg.track_id and msg.track_id != self.pipe.track.track_id:
+                raise InputRejected("wrong_track", f"position on track {msg.track_id[:64]!r}, not the node's "
+                                                   f"{self.pipe.track.track_id!r}")
             self.pipe.on_position(TrackPosition(convert.stamp_to_sec(msg.header.stamp), float(msg.position),
                                                 float(msg.position_stddev), float(msg.speed)))
         except InputRejected as exc:

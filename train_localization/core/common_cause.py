@@ -92,3 +92,10 @@ def member_groups(groups, ids, risk: float) -> list[tuple[int, ...]]:
         if group.monitored(risk) and len(rows) >= 2:
             out.append(rows)
     return out
+
+
+# How long a common-cause fault that a decoder's protection covers is taken to last [s]: a
+# calibration or a timing node's loss of lock lasts minutes or more, and a standing train keeps
+# the stations in view; the fusion counts the fixes of that time as sharing one such error
+# (core/fusion/models.py fix_noise).
+FAULT_PERSISTENCE = 60.0

@@ -137,7 +137,7 @@ import operator
 import numpy as np
 from scipy.special import chdtri, ndtri
 
-from ..common_cause import member_groups
+from ..common_cause import FAULT_PERSISTENCE, member_groups
 from ..measurements import PositionFix
 from ..signals import InputRejected, RawBlock
 from ..track import Track, TrackError
@@ -226,6 +226,22 @@ def base_stations(track: Track, params: dict):
     if any(c <= 0 or c >= 2 ** 24 for c in codes):
         raise TrackError(f"{STATION_KIND} codes must be integers in 1..2^24-1")
     return ids, np.asarray(pos, float), np.asarray(perp, float), np.asarray(codes, np.int64)
+
+
+def group_excess(track: Track | None, params: dict, implied=()) -> dict:
+    """The ErrorModel's ``fix_excess_length`` / ``fix_excess_tau`` where the decoder covers
+    common-cause groups of the track's stations (the track's and ``implied``, as
+    ``SolutionSeparation._init_groups``): the excess of a fix may be a group's shared error,
+    lasting ``FAULT_PERSISTENCE`` s and shared over twice the radio range; {} where it covers none
+    (or without a track)."""
+    if track is None:
+        return {}
+    ids = base_stations(track, params)[0]
+    risk = 1.0 - params["protection_probability"]
+    if not member_groups(tuple(track.common_cause) + tuple(implied), ids, risk):
+        return {}
+    return {"fix_excess_length": 2.0 * params["max_range"],
+            "fix_excess_tau": max(FAULT_PERSISTENCE, params["nlos_duration"])}
 
 
 def parse_range_faults(text: str) -> list[tuple[str, float, float, float | None]]:
@@ -1321,11 +1337,15 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
     track) and as NLOS episodes end (``nlos_duration``). The white part of a fix is at most
     the noise of one range at 20 dB SNR: what a fix reports beyond it is the protection
     against an undetected fault (a biased range the test let pass), which lasts as long as
-    its cause: the fusion does not average it over the fixes within that time."""
+    its cause: the fusion does not average it over the fixes within that time. Where the
+    decoder covers common-cause groups of the track (``SolutionSeparation._init_groups``), that
+    cause may be a group's shared error: it lasts ``FAULT_PERSISTENCE`` and stays while the
+    group is in view (twice the radio range)."""
     spacing, references = station_references(track, params)
     return ErrorModel("mmwave", "position", fix_bias_sigma=math.hypot(params["cal_sigma"],
                                                                       params["range_sigma_floor"]),
                       fix_bias_length=spacing, fix_bias_tau=params["nlos_duration"],
+                      **group_excess(track, params),
                       fix_white_sigma=math.hypot(params["range_sigma_floor"], params["range_sigma_snr"]),
                       faults=("nlos", "outage"), min_stddev=min_fix_sigma(params), references=references)
 

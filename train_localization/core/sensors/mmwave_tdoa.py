@@ -143,7 +143,8 @@ from ..signals import InputRejected, RawBlock
 from ..track import Track
 from .base import Decoder, ErrorModel, Param, SensorSpec
 from .mmwave import (C_AIR, MIN_RANGE_VAR, PARAMS as TWR_PARAMS, MmWaveSimulator, SolutionSeparation,
-                     base_stations, handover, item_picker, parse_range_faults, range_sigma, station_references)
+                     base_stations, group_excess, handover, item_picker, parse_range_faults, range_sigma,
+                     station_references)
 
 SLOTS = 6                # stations received at once (correlator channels of the receiver)
 TICK = 2.0 ** -20        # coarse counter step of the receiver's timestamps [s] (~0.95 us)
@@ -539,16 +540,23 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
       whose excess the fusion does not average, below). It does not decorrelate in time (a
       standing or slow train keeps its stations and their offsets), only as the stations in
       view change: over the SLOTS stations received, SLOTS x the mean spacing;
-    * NLOS excess paths that the test let pass: the published sigma is the protection level
-      that covers them; what a fix reports beyond its white noise lasts as long as its cause,
-      an NLOS episode (``nlos_duration``, or while the station is in view).
+    * NLOS excess paths that the test let pass, and the common-cause groups the decoder
+      covers: the published sigma is the protection level that covers them; what a fix reports
+      beyond its white noise lasts as long as its cause: an NLOS episode (``nlos_duration``, or
+      while the station is in view), a group's loss of synchronisation (``group_excess``:
+      minutes, while the group is in view).
 
     The receiver clock cancels and adds nothing."""
     spacing, references = station_references(track, params)
+    implied = ()
+    if track is not None:
+        ids, pos, _, _ = base_stations(track, params)
+        implied = timing_groups(track, ids, pos, params["timing_neighbours"])
+    excess = {"fix_excess_length": spacing, "fix_excess_tau": params["nlos_duration"],
+              **group_excess(track, params, implied)}
     return ErrorModel("mmwave_tdoa", "position",
                       fix_bias_sigma=sync_sigma_m(params) / math.sqrt(2.0),
-                      fix_bias_length=SLOTS * spacing, fix_bias_tau=math.inf,
-                      fix_excess_length=spacing, fix_excess_tau=params["nlos_duration"],
+                      fix_bias_length=SLOTS * spacing, fix_bias_tau=math.inf, **excess,
                       fix_white_sigma=math.hypot(params["range_sigma_floor"], params["range_sigma_snr"]),
                       faults=("nlos", "outage"), min_stddev=min_fix_sigma(params), references=references)
 

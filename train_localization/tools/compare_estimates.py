@@ -2,14 +2,15 @@
 
   python -m train_localization.tools.compare_estimates record OUT.npz [--bags bags]
       [--per-family 2] [--max-duration 30] [--only PREFIX]
-  python -m train_localization.tools.compare_estimates compare A.npz B.npz
+  python -m train_localization.tools.compare_estimates compare A.npz B.npz [--only PREFIX]
 
 ``record`` runs the fusion offline on every bag of ``--bags`` (``replay_bag``, serial; a line's
 bag gives one run per train) and on the first ``--per-family`` campaign runs of every family
 (core/campaign.py ``jobs`` with base seed 0, cut to ``--max-duration`` s), and writes every
 estimate's every field (a dict field per key; a tuple or string field as its repr) and the
 filter's counters per run to an .npz. ``compare`` exits 1 at the first difference (run, field,
-index, both values), 0 if the two files hold the same bits.
+index, both values), 0 if the two files hold the same bits (``--only``: the runs whose name
+starts with PREFIX, for a quick check against a full record).
 """
 from __future__ import annotations
 
@@ -106,16 +107,15 @@ def same_bits(a: np.ndarray, b: np.ndarray) -> int:
     return int(idx[0]) if len(idx) else -1
 
 
-def compare(a_path: Path, b_path: Path) -> int:
+def compare(a_path: Path, b_path: Path, only: str = "") -> int:
     a, b = np.load(a_path), np.load(b_path)
-    keys_a, keys_b = set(a.files), set(b.files)
+    keys_a, keys_b = ({k for k in x.files if k != "runs" and k.startswith(only)} | {"runs"} for x in (a, b))
     if keys_a != keys_b:
         print(f"different runs or fields: only in {a_path}: {sorted(keys_a - keys_b)[:5]}, "
               f"only in {b_path}: {sorted(keys_b - keys_a)[:5]}")
         return 1
-    for key in a["runs"].tolist() + sorted(keys_a - {"runs"}):
-        if key not in keys_a:
-            continue
+    runs = [r for r in a["runs"].tolist() if r.startswith(only)]
+    for key in ([] if only else ["runs"]) + sorted(keys_a - {"runs"}):
         x, y = a[key], b[key]
         i = same_bits(x, y)
         if i >= 0:
@@ -123,7 +123,7 @@ def compare(a_path: Path, b_path: Path) -> int:
             show = (repr(xs[i]) if i < xs.size else "-", repr(ys[i]) if i < ys.size else "-")
             print(f"first difference: {key} at index {i}: {show[0]} != {show[1]}")
             return 1
-    print(f"identical: {len(a['runs'])} runs, {len(keys_a) - 1} arrays")
+    print(f"identical: {len(runs)} runs, {len(keys_a) - 1} arrays")
     return 0
 
 
@@ -139,10 +139,11 @@ def main(argv=None) -> int:
     cmp_ = sub.add_parser("compare", help="exit 1 at the first difference of two recorded files")
     cmp_.add_argument("a", type=Path)
     cmp_.add_argument("b", type=Path)
+    cmp_.add_argument("--only", default="", help="only the runs whose name starts with this")
     args = parser.parse_args(argv)
     if args.cmd == "record":
         return record(args.out, args.bags, args.per_family, args.max_duration, args.only)
-    return compare(args.a, args.b)
+    return compare(args.a, args.b, args.only)
 
 
 if __name__ == "__main__":

@@ -12,7 +12,7 @@ import pytest
 from train_localization.core.fusion import FusionConfig, TrainFilter, pipeline
 from train_localization.core.fusion.bookkeeping import Bookkeeping
 from train_localization.core.fusion.config import POLICIES, sensor_models
-from train_localization.core.fusion.events import EndExclusion, Relearn, RelearnFault, Separate, Suspend
+from train_localization.core.fusion.events import LoneTakeFix, Relearn, RelearnFault, Separate, Suspend
 from train_localization.core.fusion.pipeline import DONE, EXCLUDED, GO_ON, Reading, Step, Verdict, apply_reading
 from train_localization.core.measurements import PositionFix, SpeedMeasurement
 from train_localization.core.scenario import Vehicle
@@ -111,14 +111,14 @@ def test_the_suspension_stage_excludes_what_the_arbitration_keeps_suspended_and_
     assert pipeline.suspension(f, r) == Verdict(pipeline.Kind.GO_ON, (RelearnFault("doppler"),))
 
 
-def test_events_are_routed_in_order_and_the_ones_they_ask_come_after_those_waiting():
+def test_events_are_routed_in_order_and_the_ones_they_ask_come_right_after_them():
     f = fake_filter()
-    f.episodes = SimpleNamespace(relearn_fault=lambda cls: (f.calls.append(("relearn", cls)),
-                                                            (EndExclusion(cls, 2.0),))[1],
-                                 separate=lambda m, e, S: f.calls.append(("separate", m.sensor)))
-    f.arbitration = SimpleNamespace(end_exclusion=lambda cls, stamp: f.calls.append(("end", cls, stamp)))
+    f.arbitration = SimpleNamespace(relearn_fault=lambda cls: (f.calls.append(("relearn", cls)),
+                                                               (Suspend("wheel", None),))[1],
+                                    suspend=lambda cls, fault: f.calls.append(("suspend", cls)))
+    f.episodes = SimpleNamespace(separate=lambda m, e, S: f.calls.append(("separate", m.sensor)))
     pipeline.route(f, (RelearnFault("doppler"), Separate(SPEED, 1.0, 1.0)))
-    assert f.calls == [("relearn", "doppler"), ("separate", "doppler"), ("end", "doppler", 2.0)]
+    assert f.calls == [("relearn", "doppler"), ("suspend", "wheel"), ("separate", "doppler")]
 
 
 def test_the_slip_stage_asks_only_about_the_sensors_with_episodes():
@@ -130,7 +130,7 @@ def test_the_slip_stage_asks_only_about_the_sensors_with_episodes():
 
 
 def test_the_first_fix_initialises_and_is_done():
-    f = fake_filter(fixes=SimpleNamespace(initialise=lambda m: f.calls.append("initialise")))
+    f = fake_filter(fixes=SimpleNamespace(initialise=lambda m: (f.calls.append("initialise"), ())[1]))
     f.layout.per_reference = ()
     assert pipeline.fix_reference(f, Reading(FIX, "eb", True)) == DONE and f.calls == ["initialise"]
     f.aux.initialised = True
@@ -204,11 +204,23 @@ def test_the_reacquisition_stage_needs_a_kept_fix_with_a_scale_opened():
     assert pipeline.reacquisition(f, r) == GO_ON
 
 
-def test_the_accept_stage_updates_counts_and_passes_on_the_plausibility_effects():
-    f = fake_filter(update=lambda *args: f.calls.append("update"),
-                    plausibility=SimpleNamespace(check_plausible=lambda: (Suspend("doppler", None),)))
+def test_the_update_stage_updates_and_counts():
+    f = fake_filter(update=lambda *args: f.calls.append("update"))
     f.aux.episode_views = {"doppler": None}
     r = Reading(SPEED, "doppler", False, z=10.0, R=0.01, h=np.zeros(3), hx=9.0, PHt=np.zeros(3), S=1.0, nis=1.0)
-    assert pipeline.accept(f, r) == Verdict(pipeline.Kind.DONE, (Suspend("doppler", None),))
+    assert pipeline.update(f, r) == GO_ON
     assert f.calls == ["update"] and f.aux.accepted == {"doppler": 1} and f.aux.last_accepted == {"doppler": 1.0}
-    assert f.aux.nis["doppler"].count == 1 and f.aux.speed_sources == {"doppler"} and f.aux.episode_views == {}
+    assert f.aux.nis["doppler"].count == 1 and f.aux.episode_views == {}
+
+
+def test_the_locate_stage_passes_on_what_the_solutions_ask_of_the_lone_source():
+    f = fake_filter(solutions=SimpleNamespace(hypotheses_take_fix=lambda m: (LoneTakeFix(m, 100.0, 0.1),)))
+    assert pipeline.locate(f, Reading(FIX, "eb", True)) == Verdict(pipeline.Kind.GO_ON, (LoneTakeFix(FIX, 100.0, 0.1),))
+    assert pipeline.locate(f, Reading(SPEED, "doppler", False)) == GO_ON
+
+
+def test_the_accept_stage_records_the_speed_source_and_passes_on_the_plausibility_effects():
+    f = fake_filter(plausibility=SimpleNamespace(check_plausible=lambda: (Suspend("doppler", None),)))
+    r = Reading(SPEED, "doppler", False, z=10.0, R=0.01, hx=9.0, S=1.0, nis=1.0)
+    assert pipeline.accept(f, r) == Verdict(pipeline.Kind.DONE, (Suspend("doppler", None),))
+    assert f.aux.speed_sources == {"doppler"}

@@ -1,12 +1,13 @@
 """Bit-for-bit comparison of the fusion's published estimates before and after a change.
 
   python -m train_localization.tools.compare_estimates record OUT.npz [--bags bags]
-      [--per-family 2] [--max-duration 30] [--only PREFIX]
+      [--per-family 2] [--max-duration 30] [--exported test/data] [--only PREFIX]
   python -m train_localization.tools.compare_estimates compare A.npz B.npz [--only PREFIX]
 
 ``record`` runs the fusion offline on every bag of ``--bags`` (``replay_bag``, serial; a line's
 bag gives one run per train) and on the first ``--per-family`` campaign runs of every family
-(core/campaign.py ``jobs`` with base seed 0, cut to ``--max-duration`` s), and writes every
+(core/campaign.py ``jobs`` with base seed 0, cut to ``--max-duration`` s) and on the campaign
+runs exported to ``--exported`` (``campaign_*.yaml``: the fault cases the tests replay), and writes every
 estimate's every field (a dict field per key; a tuple or string field as its repr) and the
 filter's counters per run to an .npz. ``compare`` exits 1 at the first difference (run, field,
 index, both values), 0 if the two files hold the same bits (``--only``: the runs whose name
@@ -58,30 +59,44 @@ def bag_runs(bags: Path, only: str = ""):
             yield name, result.estimates, result.runner.counters()
 
 
-def campaign_runs(per_family: int, max_duration: float, only: str = ""):
-    """(run name, estimates, counters) of the first ``per_family`` campaign runs of every family."""
+def _fused(data: dict):
+    """(estimates, counters) of a generated campaign scenario dict, delivered and fused as
+    ``campaign.run_scenario`` does."""
     from ..core import campaign
     from ..core.offline import fuse_arrivals, fusion_runner, scenario_measurements, sensor_pipelines
     from ..core.scenario import Scenario
+    sc = Scenario.from_dict(data)
+    arrivals = scenario_measurements(sc, pipes=sensor_pipelines(sc), trajectory=sc.trajectory())
+    delivered = campaign.deliver(arrivals, data.get("campaign", {}).get("delivery", {}))
+    runner = fusion_runner(sc, campaign.FUSION_RATE)
+    runner, estimates, _, _ = fuse_arrivals(runner.filter.cfg, delivered, sc.duration, campaign.FUSION_RATE,
+                                            runner=runner)
+    return estimates, runner.counters()
+
+
+def campaign_runs(per_family: int, max_duration: float, only: str = ""):
+    """(run name, estimates, counters) of the first ``per_family`` campaign runs of every family."""
+    from ..core import campaign
     families = campaign.ALL_FAMILIES
     for family, seed in campaign.jobs(per_family * len(families), families):
         name = f"campaign:{family}:{seed}"
-        if not name.startswith(only):
-            continue
-        data = campaign.generate(family, seed, max_duration)
-        sc = Scenario.from_dict(data)
-        arrivals = scenario_measurements(sc, pipes=sensor_pipelines(sc), trajectory=sc.trajectory())
-        delivered = campaign.deliver(arrivals, data["campaign"]["delivery"])
-        runner = fusion_runner(sc, campaign.FUSION_RATE)
-        runner, estimates, _, _ = fuse_arrivals(runner.filter.cfg, delivered, sc.duration, campaign.FUSION_RATE,
-                                                runner=runner)
-        yield name, estimates, runner.counters()
+        if name.startswith(only):
+            yield (name, *_fused(campaign.generate(family, seed, max_duration)))
 
 
-def record(out: Path, bags: Path, per_family: int, max_duration: float, only: str = "") -> int:
+def exported_runs(folder: Path, only: str = ""):
+    """(run name, estimates, counters) of the campaign runs exported to ``folder`` (campaign_*.yaml)."""
+    import yaml
+    for path in sorted(folder.glob("campaign_*.yaml")):
+        name = f"exported:{path.stem}"
+        if name.startswith(only):
+            yield (name, *_fused(yaml.safe_load(path.read_text())))
+
+
+def record(out: Path, bags: Path, per_family: int, max_duration: float, exported: Path, only: str = "") -> int:
     arrays: dict[str, np.ndarray] = {}
     runs = []
-    for source in (bag_runs(bags, only), campaign_runs(per_family, max_duration, only)):
+    for source in (bag_runs(bags, only), campaign_runs(per_family, max_duration, only), exported_runs(exported, only)):
         for name, estimates, counters in source:
             runs.append(name)
             arrays[f"{name}|counters"] = np.asarray(json.dumps(counters, sort_keys=True, default=repr))
@@ -135,14 +150,16 @@ def main(argv=None) -> int:
     rec.add_argument("--bags", type=Path, default=Path("bags"))
     rec.add_argument("--per-family", type=int, default=2, help="campaign runs per family (jobs, base seed 0)")
     rec.add_argument("--max-duration", type=float, default=30.0, help="campaign runs cut to this [s]")
-    rec.add_argument("--only", default="", help="only the runs whose name starts with this (bag:x, campaign:family)")
+    rec.add_argument("--exported", type=Path, default=Path("test/data"), help="folder of exported campaign runs")
+    rec.add_argument("--only", default="",
+                     help="only the runs whose name starts with this (bag:x, campaign:family, exported:x)")
     cmp_ = sub.add_parser("compare", help="exit 1 at the first difference of two recorded files")
     cmp_.add_argument("a", type=Path)
     cmp_.add_argument("b", type=Path)
     cmp_.add_argument("--only", default="", help="only the runs whose name starts with this")
     args = parser.parse_args(argv)
     if args.cmd == "record":
-        return record(args.out, args.bags, args.per_family, args.max_duration, args.only)
+        return record(args.out, args.bags, args.per_family, args.max_duration, args.exported, args.only)
     return compare(args.a, args.b, args.only)
 
 

@@ -89,8 +89,7 @@ class Arbitration(Component):
                     pass        # a slip ends by itself
                 elif "scale_fault" in self.f.models[cls].faults and self.f.in_use(m.stamp, but=cls):
                     # a radar's scale fault, which the sources in use (shown right) can teach it
-                    for ended in self.f.episodes.relearn_fault(cls):
-                        self.end_exclusion(ended.cls, ended.stamp)
+                    self.relearn_fault(cls)
                 else:                                      # a faulty radar may not recover
                     self.suspend(cls, self.view_fault(alt, m.stamp))
             else:
@@ -169,13 +168,37 @@ class Arbitration(Component):
         aux.suspended = without_key(aux.suspended, cls)
         aux.last_accepted = {**aux.last_accepted, cls: stamp}
 
+    def relearn_fault(self, cls: str) -> None:
+        """Speed source ``cls`` has a scale fault that the others in use were shown not to have
+        (``views.outlasted_by``, or a fix that the filter explains and its view does not): it is back
+        in use, its constant scale opened by the fault's size (``scale_fault_sigma``) to learn
+        the fault from them, and plausible up to that size. Suspended, it would never agree
+        again, and would be no reference while the others' own faults come (a wheel's slide
+        under braking would be seen against the motion model alone). The speed rests on the
+        others: it keeps its variance."""
+        aux, lay = self.f.aux, self.f.layout
+        i = lay.fault_scale[cls]
+        floor = lay.prior_sigma[i] ** 2 + self.f.models[cls].scale_fault_sigma ** 2
+        P = self.f.ekf.P
+        if P[i, i] < floor:
+            P = P.copy()
+            r = math.sqrt(floor / P[i, i]) if P[i, i] > 0.0 else 0.0
+            if r > 0.0:
+                P[i, :] *= r
+                P[:, i] *= r
+            else:
+                P[i, i] = floor
+            self.f.ekf.P = P
+        aux.scale_faults = aux.scale_faults | {cls}
+        aux.slip_window = without_key(aux.slip_window, cls)
+        aux.view_speeds = without_key(aux.view_speeds, cls)
+        self.end_exclusion(cls, aux.t)
+        aux.events = incremented(aux.events, "scale_fault_relearnt")
+
     def merge_view(self, spread: float) -> None:
-        """An excluded sensor's view no longer tracked of its own: its squared separation (plus
-        its own variance) [m^2] added to the position variance, the filter's mean kept (moment
-        matching of the two views), so the interval still covers it."""
-        P = self.f.ekf.P.copy()
-        P[0, 0] += spread
-        self.f.ekf.P = P
+        """An excluded sensor's view no longer tracked of its own, merged into the filter's
+        (``views.merged``) so the interval still covers it."""
+        self.f.ekf.P = views.merged(self.f.ekf.P, spread)
         self.f.aux.events = incremented(self.f.aux.events, "alternative_merged")
 
     @staticmethod

@@ -69,7 +69,7 @@ POLICIES = {
     "scale_fault_explanation": "a gated fix that a scale fault of a speed source in use explains opens that "
                                "source's scale (fixes.py)",
     "lone_sensor_exempt": "the only relative sensor of a train without slip physics is not excluded by the "
-                          "disagreement tests (Episodes.judged)",
+                          "disagreement tests (views.judged)",
 }
 
 

@@ -24,7 +24,7 @@ from ..sensors import faults as fault_modes
 from .bookkeeping import (Fault, FaultWindow, ViewSpeed, incremented, is_coasting, new_view,
                           without_key)
 from . import impact, views
-from .events import CommonErrorEnded, EndExclusion, Suspend, Swap, TakeSpeed
+from .events import CommonErrorEnded, Suspend, Swap, TakeSpeed
 from .models import implied_speed
 from . import separation
 
@@ -64,11 +64,12 @@ class Episodes(Component):
             # tracked as a view of its own, but merged into the position covariance (moment
             # matching of the two views, the filter's mean kept), so the interval still covers it
             aux.relative_alternatives = without_key(aux.relative_alternatives, cls)
-            self.f.arbitration.merge_view(alt.farthest ** 2)
+            self.f.ekf.P = views.merged(self.f.ekf.P, alt.farthest ** 2)
+            aux.events = incremented(aux.events, "alternative_merged")
         window, summed = views.windowed(aux.slip_window.get(cls, ()), m, e, S, cfg.slip_window,
                                         abs(float(self.f.ekf.x[1, 0])))
         if (nis > self.f.limits.slip_gate or summed > self.f.limits.slip_gate) and not views.judged(cls, self.f.layout, self.f.models, cfg.policies):
-            # the only speed source, without slip physics (``Episodes.judged``): an outlying reading is
+            # the only speed source, without slip physics (``views.judged``): an outlying reading is
             # gated; a fault that persists is the lone solution's to cover (``LoneSource.track``) and
             # the fix drift test's to find (``Fixes.fix_bias_consistency``)
             aux.slip_window = {**aux.slip_window, cls: ()}
@@ -143,7 +144,7 @@ class Episodes(Component):
         return (TakeSpeed(m.stamp, [(u, white + common)], {cls}),)
 
     def fault_ended(self, m, e: float, S: float) -> bool:
-        """Sensor ``m.sensor``, whose scale fault is being learnt (``Episodes.relearn_fault``), disagrees
+        """Sensor ``m.sensor``, whose scale fault is being learnt (``Arbitration.relearn_fault``), disagrees
         by e [m/s] (innovation variance S): if its fault has ended (``views.fault_ended_shown``), its
         constant scale is back to its prior (``end_fault``), and True."""
         h = self.f.measurement_of(m)[2]
@@ -168,33 +169,6 @@ class Episodes(Component):
         aux.scale_faults = aux.scale_faults - {cls}
         aux.slip_window = without_key(aux.slip_window, cls)
         aux.events = incremented(aux.events, "scale_fault_ended")
-
-    def relearn_fault(self, cls: str) -> tuple:
-        """Speed source ``cls`` has a scale fault that the others in use were shown not to have
-        (``views.outlasted_by``, or a fix that the filter explains and its view does not): it is back
-        in use, its constant scale opened by the fault's size (``scale_fault_sigma``) to learn
-        the fault from them, and plausible up to that size. Suspended, it would never agree
-        again, and would be no reference while the others' own faults come (a wheel's slide
-        under braking would be seen against the motion model alone). The speed rests on the
-        others: it keeps its variance. Returns the effect on the arbitration: its exclusion ends."""
-        aux, lay = self.f.aux, self.f.layout
-        i = lay.fault_scale[cls]
-        floor = lay.prior_sigma[i] ** 2 + self.f.models[cls].scale_fault_sigma ** 2
-        P = self.f.ekf.P
-        if P[i, i] < floor:
-            P = P.copy()
-            r = math.sqrt(floor / P[i, i]) if P[i, i] > 0.0 else 0.0
-            if r > 0.0:
-                P[i, :] *= r
-                P[:, i] *= r
-            else:
-                P[i, i] = floor
-            self.f.ekf.P = P
-        aux.scale_faults = aux.scale_faults | {cls}
-        aux.slip_window = without_key(aux.slip_window, cls)
-        aux.view_speeds = without_key(aux.view_speeds, cls)
-        aux.events = incremented(aux.events, "scale_fault_relearnt")
-        return (EndExclusion(cls, aux.t),)
 
     def common(self, cls: str, h) -> float:
         """The part [m^2/s^2] of a relative measurement's innovation variance that its sensor's

@@ -1,6 +1,6 @@
 """Effects a policy asks of another policy: returned with its verdict, routed by the pipeline
 (pipeline.py ``ROUTES``) to the policy that owns what they change, in the order returned. A
-routed effect may return effects of its own, routed after the ones already waiting."""
+routed effect may return effects of its own, routed right after it (before the ones waiting)."""
 from __future__ import annotations
 
 from typing import NamedTuple
@@ -21,16 +21,9 @@ class FaultEnded(NamedTuple):
 
 
 class RelearnFault(NamedTuple):
-    """Speed source ``cls`` is back in use, its scale opened to learn its fault (Episodes.relearn_fault)."""
+    """Speed source ``cls`` is back in use, its scale opened to learn its fault (Arbitration.relearn_fault)."""
 
     cls: str
-
-
-class EndExclusion(NamedTuple):
-    """Speed source ``cls``'s episode or suspension ends; in use from ``stamp`` [s] (Arbitration.end_exclusion)."""
-
-    cls: str
-    stamp: float
 
 
 class Suspend(NamedTuple):
@@ -82,3 +75,19 @@ class Relearn(NamedTuple):
 
     reason: str
     faulty: tuple = ()
+
+
+class SeedSubs(NamedTuple):
+    """Every relative sensor's own solution starts again from the filter's position at ``stamp`` [s]
+    (Solutions.seed_subs)."""
+
+    stamp: float
+
+
+class LoneTakeFix(NamedTuple):
+    """The lone source's hypothesis conditioned on an accepted fix ``m`` located at z [m], variance
+    R [m^2] (LoneSource.take_fix)."""
+
+    m: object
+    z: float
+    R: float

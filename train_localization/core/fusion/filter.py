@@ -258,7 +258,7 @@ class TrainFilter:
         """The share [0, 1] of a transient fault of ``cls``'s bound (``slip_ratio_max`` x its reading's
         ``speed`` [m/s]) that the slip tests let pass at this reading (S: its innovation variance
         [m^2/s^2]). Another speed source in use checks it: up to the gate's radius of a fault that
-        lasts through the n readings of the accumulated test's window (``Episodes.windowed``),
+        lasts through the n readings of the accumulated test's window (``views.windowed``),
         where it shows at sqrt(n) times its size in one reading's 1-sigma. Another one excluded as
         an undecided alternative reads beside it: the disagreement with its last reading (within
         ``slip_reference_timeout`` s) and that gate's radius. Else nothing but the motion model

@@ -36,7 +36,7 @@ import numpy as np
 from .component import Component
 from .bookkeeping import Candidate, ModelView, UnexplainedFix, incremented, without_key
 from . import impact, views
-from .events import Relearn
+from .events import Relearn, SeedSubs
 from .episodes import Lookback
 
 
@@ -63,7 +63,6 @@ class Fixes(Component):
         aux.unverified = ""
         aux.last_fix_accepted = m.stamp
         aux.s_last_fix = float(self.f.ekf.x[0, 0])
-        self.f.solutions.hypotheses_take_fix(m)
         if m.sensor in self.f.layout.fix:
             self.fix_bias_consistency(m, nis, u, S)
             return   # a fix with a persistent error: not an independent test of the others
@@ -183,7 +182,7 @@ class Fixes(Component):
         """A gated absolute fix: keep it as the alternative, or let it confirm the one kept.
         Where a persistent scale fault of a speed source in use would explain it (a lone
         radar's, which nothing else measures), that source's scale is opened to the fault's
-        size (``Fixes.raised``): under that hypothesis the filter's speed is wrong, and the interval
+        size (``views.raised``): under that hypothesis the filter's speed is wrong, and the interval
         of both the filter and the kept fix moves with the filter's motion. The next fix of
         another reference decides: one that agrees with the kept fix re-acquires the position
         from itself, the scale left open for the fixes after it to learn (``Plausibility.relearn``).
@@ -209,11 +208,11 @@ class Fixes(Component):
     def reacquire(self, m) -> tuple:
         """Two independent fixes agree with each other, not with the filter (the kept
         alternative and ``m``): the position from ``m``, the relative error states re-learnt
-        (the effect returned: events.py); a scale opened for the alternative stays open."""
+        (the effects returned: events.py); a scale opened for the alternative stays open."""
         faulty = self.f.aux.alternative.opened
-        self.set_position(m)
+        events = self.set_position(m)
         self.f.aux.alternative = None
-        return (Relearn("reacquired", faulty),)
+        return events + (Relearn("reacquired", faulty),)
 
     def remembered(self, m, R: float) -> bool:
         """A fix of a reference whose earlier fix the filter still holds: its error (a balise's
@@ -244,29 +243,31 @@ class Fixes(Component):
         d[0] = 0.0
         self.f.ekf.P = self.f.ekf.P + (1.0 - 1.0 / nis) * np.outer(d, d)
 
-    def initialise(self, m) -> None:
+    def initialise(self, m) -> tuple:
         """Claim the position from a fix. A fix of a sensor that can misread its reference (a
         balise telegram, a lug code) is only a candidate: the position is set when a fix of
-        another reference agrees with it, moved by the dead reckoning since."""
+        another reference agrees with it, moved by the dead reckoning since. Returns the effects
+        on other policies (events.py)."""
         aux, cfg = self.f.aux, self.f.cfg
         if "misread" not in self.f.models[m.sensor].faults:
             # a reference that cannot be misidentified (wayside heads, loops, ranging): its decoder
             # withholds what it cannot tell (a miscounted axle, an unresolved NLOS)
-            self.set_position(m)
+            events = self.set_position(m)
             self.first_position(m.stamp)
-            return
+            return events
         z, R, _, _ = self.f.measurement_of(m)
         x0, P00 = float(self.f.ekf.x[0, 0]), float(self.f.ekf.P[0, 0])
         cand = aux.candidate
         if cand is not None and m.stamp - cand.stamp <= cfg.branch_timeout:
             if m.reference_id == cand.reference and m.sensor == cand.sensor:
-                return                               # the same reference confirms nothing
+                return ()                            # the same reference confirms nothing
             if views.agrees(z, R, x0, P00, cand.z, cand.R, cand.s, cand.P00, self.f.limits.gates[m.sensor]):
-                self.set_position(m)
+                events = self.set_position(m)
                 self.first_position(m.stamp)
-                return
+                return events
             aux.events = incremented(aux.events, "candidate_replaced")
         aux.candidate = Candidate(m.stamp, z, R, x0, m.sensor, m.reference_id, P00)
+        return ()
 
     def first_position(self, stamp: float) -> None:
         """The position is claimed for the first time (``Fixes.set_position`` has just taken it from a
@@ -286,8 +287,9 @@ class Fixes(Component):
                                         float(P[2, 2]))))
         aux.motion_views = tuple(kept)
 
-    def set_position(self, m) -> None:
-        """Take the position from a fix alone (first fix, re-acquisition): s = z - e."""
+    def set_position(self, m) -> tuple:
+        """Take the position from a fix alone (first fix, re-acquisition): s = z - e. The sensors'
+        own solutions start again from it: the effect returned (events.py)."""
         aux, cls = self.f.aux, m.sensor
         z, R, _, _ = self.f.measurement_of(m)
         x = self.f.ekf.x.copy()
@@ -309,8 +311,8 @@ class Fixes(Component):
         aux.last_accepted = {**aux.last_accepted, cls: m.stamp}
         aux.last_fix_accepted = m.stamp
         aux.s_last_fix = float(x[0, 0])
-        self.f.solutions.seed_subs(m.stamp)
         aux.lone_view = None      # the lone source's solution starts again from here (LoneSource.track)
+        return (SeedSubs(m.stamp),)
 
     def new_fix_bias(self, cls: str) -> None:
         """A new reference: its fix bias is independent of the previous one."""

@@ -32,7 +32,7 @@ class LoneSource(Component):
         fault of a few percent runs the filter out of its interval while every test passes. The
         solution without that sensor is the motion model from the last time another source
         checked it, conditioned on the fixes the filter accepts (``LoneSource.take_fix``); the
-        interval covers it (``LoneSource.lone_interval``). It starts when one such sensor is left in use
+        interval covers it (``views.lone_interval``). It starts when one such sensor is left in use
         (accepted within ``slip_reference_timeout`` s), and ends when another source is in use
         (``LoneSource.accompanied``). A wheel in a slip or slide episode still counts: the episode is
         short (its ``fault_duration_max``) and ends with the wheel agreeing with the filter
@@ -84,7 +84,7 @@ class LoneSource(Component):
         twice ``slip_reference_timeout``: a lone view starts once the others have been silent
         that long), the speed is that sensor's own reading and its fault may have begun long
         before: the speed's variance then holds its scale fault, (``scale_fault_sigma`` x v)^2,
-        for the fixes to narrow (``MotionViews.motion_view_fixed``)."""
+        for the fixes to narrow (``views.motion_view_fixed``)."""
         view = views.model_view(stamp, self.f.ekf.x, self.f.ekf.P)
         checked = max((self.f.aux.last_accepted.get(c, -math.inf) for c in self.f.layout.relative if c != lone),
                       default=-math.inf)

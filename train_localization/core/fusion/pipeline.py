@@ -13,14 +13,13 @@ from __future__ import annotations
 
 import enum
 import math
-from collections import deque
 from dataclasses import dataclass
 from typing import Callable, NamedTuple
 
 from ..measurements import PositionFix
 from . import impact, views
-from .events import (CommonErrorEnded, EndExclusion, FaultEnded, Relearn, RelearnFault, Separate, SetPosition, SetSpeed,
-                     Suspend, Swap, TakeSpeed)
+from .events import (CommonErrorEnded, FaultEnded, LoneTakeFix, Relearn, RelearnFault, SeedSubs, Separate,
+                     SetPosition, SetSpeed, Suspend, Swap, TakeSpeed)
 from .bookkeeping import MovedView, NisSum, incremented, is_coasting, speed_excluded, without_key
 
 
@@ -86,8 +85,7 @@ def fix_reference(f, r: Reading) -> Verdict:
         f.fixes.new_fix_bias(r.cls)
         aux.fix_ref = {**aux.fix_ref, r.cls: m.reference_id}
     if r.is_fix and not aux.initialised:
-        f.fixes.initialise(m)
-        return DONE
+        return Verdict(Kind.DONE, f.fixes.initialise(m))
     return GO_ON
 
 
@@ -140,7 +138,7 @@ def blind(f, r: Reading) -> Verdict:
 
 def suspension(f, r: Reading) -> Verdict:
     """A suspended speed source is judged (Arbitration.suspended); it may come back with its scale
-    opened (Episodes.relearn_fault: a new covariance)."""
+    opened (Arbitration.relearn_fault: a new covariance)."""
     if r.cls not in f.aux.suspended:
         return GO_ON
     excluded, events = f.arbitration.suspended(r.m, r.z - r.hx, r.S, r.nis, f.episodes.common(r.cls, r.h))
@@ -204,9 +202,9 @@ def transient_onset(f, r: Reading) -> Verdict:
     return GO_ON
 
 
-def accept(f, r: Reading) -> Verdict:
-    """The EKF update and what follows an accepted reading: its counts, the fix policies, the
-    lone source, the plausibility of the error states."""
+def update(f, r: Reading) -> Verdict:
+    """The EKF update and its counts; a fix's correction of the speed states that its NIS does not
+    confirm (Fixes.correction_unconfirmed)."""
     aux, cls, m = f.aux, r.cls, r.m
     x_before = f.ekf.x
     f.update(r.z, r.R, r.h, r.hx, r.PHt, r.S)
@@ -219,6 +217,18 @@ def accept(f, r: Reading) -> Verdict:
     if cls in aux.episode_views or cls in aux.fault_windows:
         aux.episode_views = without_key(aux.episode_views, cls)
         aux.fault_windows = without_key(aux.fault_windows, cls)
+    return GO_ON
+
+
+def locate(f, r: Reading) -> Verdict:
+    """An accepted fix locates the train under every hypothesis kept (Solutions.hypotheses_take_fix)."""
+    return Verdict(Kind.GO_ON, f.solutions.hypotheses_take_fix(r.m)) if r.is_fix else GO_ON
+
+
+def accept(f, r: Reading) -> Verdict:
+    """What follows an accepted reading: the fix policies, the speed sources and the lone source,
+    the plausibility of the error states."""
+    aux, cls, m = f.aux, r.cls, r.m
     if r.is_fix:
         f.fixes.fix_accepted(m, r.nis, (r.z - r.hx) / math.sqrt(r.S), r.S)
     else:
@@ -240,8 +250,7 @@ def excluded(f, r: Reading) -> None:
 ROUTES = {
     Separate: lambda f, ev: f.episodes.separate(ev.m, ev.e, ev.S),
     FaultEnded: lambda f, ev: f.episodes.end_fault(ev.cls),
-    RelearnFault: lambda f, ev: f.episodes.relearn_fault(ev.cls),
-    EndExclusion: lambda f, ev: f.arbitration.end_exclusion(ev.cls, ev.stamp),
+    RelearnFault: lambda f, ev: f.arbitration.relearn_fault(ev.cls),
     Suspend: lambda f, ev: f.arbitration.suspend(ev.cls, ev.fault),
     TakeSpeed: lambda f, ev: f.motion.take_speed(ev.stamp, ev.readings, ev.sensors),
     SetSpeed: lambda f, ev: f.motion.set_speed(ev.readings),
@@ -249,16 +258,18 @@ ROUTES = {
     Swap: lambda f, ev: f.arbitration.swap(ev.m, ev.z, ev.R, ev.view, ev.other),
     SetPosition: lambda f, ev: f.fixes.set_position(ev.m),
     Relearn: lambda f, ev: f.plausibility.relearn(ev.reason, ev.faulty),
+    SeedSubs: lambda f, ev: f.solutions.seed_subs(ev.stamp),
+    LoneTakeFix: lambda f, ev: f.lone.take_fix(ev.m, ev.z, ev.R),
 }
 
 
 def route(f, events: tuple) -> None:
     """Apply ``events`` in order, each by the policy ``ROUTES`` names; the events a routed one
-    returns come after those already waiting."""
-    waiting = deque(events)
+    returns come right after it, before those still waiting (as a call would)."""
+    waiting = list(reversed(events))
     while waiting:
-        event = waiting.popleft()
-        waiting.extend(ROUTES[type(event)](f, event) or ())
+        event = waiting.pop()
+        waiting.extend(reversed(ROUTES[type(event)](f, event) or ()))
 
 
 class Step(NamedTuple):
@@ -269,7 +280,7 @@ class Step(NamedTuple):
 # the order in which the policies act on a reading
 STAGES = (Step(prepare), Step(fix_reference), Step(motion_views_move), Step(innovation), Step(motion_views_fix),
           Step(blind), Step(suspension, renew=True), Step(slip, renew=True), Step(decide_views), Step(reacquisition),
-          Step(gate), Step(transient_onset), Step(accept))
+          Step(gate), Step(transient_onset), Step(update), Step(locate), Step(accept))
 
 
 def apply_reading(f, m, stages: tuple = STAGES) -> None:

@@ -53,7 +53,7 @@ class Plausibility(Component):
         if len(owners) == 1 and not views.judged(next(iter(owners)), self.f.layout, self.f.models,
                                                        self.f.cfg.policies):
             # the only relative sensor, without slip physics: suspended, nothing could show it
-            # agreeing again (``Episodes.judged``); its scale may hold a fault, opened to the fault's size
+            # agreeing again (``views.judged``); its scale may hold a fault, opened to the fault's size
             # for the fixes to teach, the lone solution covering it meanwhile
             self.relearn("implausible_error_state", faulty=owners)
             return ()
@@ -83,7 +83,7 @@ class Plausibility(Component):
 
     def relearn(self, reason: str, faulty=()) -> None:
         """Error states of the relative sensors back to their priors (the scales of ``faulty``
-        sensors, suspected of a scale fault, by the fault's size more: ``Fixes.raised``); the
+        sensors, suspected of a scale fault, by the fault's size more: ``views.raised``); the
         position and speed covariance widened by what the discarded estimates can have caused
         since the last accepted fix (scale x distance, scale x speed, bias x time)."""
         aux, lay = self.f.aux, self.f.layout

@@ -17,6 +17,7 @@ from .component import Component
 from .bookkeeping import incremented, speed_excluded
 from .models import fixes_sharing
 from . import separation, views
+from .events import LoneTakeFix
 
 
 class Solutions(Component):
@@ -60,18 +61,18 @@ class Solutions(Component):
             R += float(self.f.layout.prior_sigma[f_idx]) ** 2 * shared
         return z, R
 
-    def hypotheses_take_fix(self, m) -> None:
+    def hypotheses_take_fix(self, m) -> tuple:
         """An absolute fix the filter accepted locates the train under every hypothesis it
         keeps: each relative sensor's own solution (separation.py; one that cannot explain the
         fix is refuted and starts again from the filter's) and each motion-model hypothesis of
         a coasting (conditioned on it: a fix that both explain tells where the train is, not
-        only which one is right)."""
+        only which one is right). The lone source's hypothesis likewise: the effect returned
+        (events.py)."""
         aux = self.f.aux
         if not aux.subs and not aux.motion_views and aux.lone_view is None:
-            return
+            return ()
         z, R = self.located(m)
-        if aux.lone_view is not None:
-            self.f.lone.take_fix(m, z, R)
+        events = (LoneTakeFix(m, z, R),) if aux.lone_view is not None else ()
         x0, P00 = float(self.f.ekf.x[0, 0]), float(self.f.ekf.P[0, 0])
         if aux.motion_views:
             aux.motion_views = tuple(views.motion_view_fixed(view, m.stamp, z, R, x0, P00, self.f.process, self.f.cfg.jerk_psd)
@@ -85,3 +86,4 @@ class Solutions(Component):
                     aux.events = incremented(aux.events, "sensor_solution_refuted")
                 subs[name] = new
             aux.subs = subs
+        return events

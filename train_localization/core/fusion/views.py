@@ -140,6 +140,15 @@ def corroborated(m, z: float, R: float, alt, x: np.ndarray, P: np.ndarray, layou
     return agrees(z, R, float(x[0, 0]), float(P[0, 0]), alt.z, alt.R, alt.s, alt.P00, gate)
 
 
+def merged(P: np.ndarray, spread: float) -> np.ndarray:
+    """Covariance P with an excluded sensor's view that is no longer tracked of its own merged in:
+    its squared separation (plus its own variance) ``spread`` [m^2] added to the position
+    variance, the filter's mean kept (moment matching of the two views)."""
+    P = P.copy()
+    P[0, 0] += spread
+    return P
+
+
 def judged(cls: str, layout, models: dict, policies: frozenset) -> bool:
     """Whether a fault test may exclude relative sensor ``cls``: it has slip physics (a wheel's
     slip under traction stands out against the motion model), or another relative sensor

@@ -178,21 +178,26 @@ def test_a_run_of_lzb_fixes_sharing_an_offset_beyond_the_survey_prior_is_covered
     assert run["scores"]["integrity"]["outside_count"] == 0
 
 
+SLIP_RUN = 45.0   # simulated seconds of network:4262354916: its DGPS outage ends at 24.1 s, the excursion at 26.6 s
+
+
 def test_a_slip_no_other_source_could_see_is_covered_through_the_fixes_that_follow():
     """Campaign run network:4262354916 (seed 0 of ``--families network``): a wheel slipping 2 % for
     7.4 s under traction while the radar's readings are lost for 2.9 s and then disagree, and the
     DGPS has no corrections for 14 s. The slip test, its reference the motion model since the radar
     fell silent, took the wheel back at a large gain; the filter ran 2.4 m ahead, and took the
     first differential fixes' disagreement for their multipath bias: 140 states outside while
-    NOMINAL (98.38 %). The unseen slip's cover (the filter's own sensitivity to what the tests
-    let pass, ``transient`` rows) keeps every NOMINAL state inside; without it the run fails again."""
+    NOMINAL (98.38 %), all from 24.9 s (its first ``SLIP_RUN`` s hold them). The unseen slip's
+    cover (the filter's own sensitivity to what the tests let pass, ``transient`` rows) keeps
+    every NOMINAL state inside; without it (``FusionConfig.policies`` without
+    ``transient_fault_cover``) the run fails again."""
     from train_localization.core import campaign
     from train_localization.core.fusion.config import POLICIES
-    covered = campaign.run_one("network", 4262354916)
+    covered = campaign.run_one("network", 4262354916, max_duration=SLIP_RUN)
     assert covered["conditions"]["dgps_faults"].endswith("nocorr") and covered["conditions"]["slip_rate"] > 0.1
     assert covered["scores"]["integrity"]["outside_nominal"] == 0
     assert covered["scores"]["integrity"]["inside_fraction"] >= 0.995
-    data = campaign.generate("network", 4262354916)
+    data = campaign.generate("network", 4262354916, SLIP_RUN)
     data["fusion"] = {**data["fusion"], "policies": frozenset(POLICIES) - {"transient_fault_cover"}}
     before = campaign.run_scenario(data)
     assert before["scores"]["integrity"]["outside_nominal"] > 50

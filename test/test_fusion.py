@@ -79,7 +79,7 @@ def test_scalar_update_equals_filterpy_extended_kalman_filter_update():
         ref.update(np.array([[z]]), lambda _x: h[None, :], lambda _x: np.array([[hx]]), R=np.array([[R]]))
         f.ekf.x, f.ekf.P = x.copy(), P.copy()
         PHt = P.dot(h)
-        f._update(z, R, h, hx, PHt, float(h.dot(PHt)) + R)
+        f.update(z, R, h, hx, PHt, float(h.dot(PHt)) + R)
         assert np.allclose(f.ekf.x, ref.x, rtol=0, atol=1e-12)
         assert np.allclose(f.ekf.P, ref.P, rtol=0, atol=1e-12)
 

@@ -64,14 +64,14 @@ def test_a_fault_no_reading_can_test_is_covered_up_to_its_size():
     faults only as the fixes come."""
     f = _radar_and_balises(0.0, balise_every=2000.0, until=79.0, onset_spacing=5.0)
     est = f.estimate(79.0)
-    bound = f._fault_bounds["doppler"]
-    assert bound == pytest.approx(f._z * f.models["doppler"].scale_fault_sigma)
+    bound = f.limits.fault_bounds["doppler"]
+    assert bound == pytest.approx(f.limits.z * f.models["doppler"].scale_fault_sigma)
     _, _, aux = f.state()
     newest = max(aux.impacts, key=lambda imp: imp.onset)
-    assert newest.excluded_beyond(bound, f._z) == pytest.approx(bound, rel=0.2)
+    assert newest.excluded_beyond(bound, f.limits.z) == pytest.approx(bound, rel=0.2)
     x, P, _ = f.state()
-    half_s, _ = impact.cover(aux.impacts, 79.0 - aux.t, f._z, P[0, 0], P[1, 1])
-    assert half_s > f._z * math.sqrt(P[0, 0]) and est.position_max - est.position >= half_s - 1e-9
+    half_s, _ = impact.cover(aux.impacts, 79.0 - aux.t, f.limits.z, P[0, 0], P[1, 1])
+    assert half_s > f.limits.z * math.sqrt(P[0, 0]) and est.position_max - est.position >= half_s - 1e-9
     assert len([imp for imp in aux.impacts if imp.sensor == "doppler"]) == f.cfg.fault_onsets
 
 
@@ -130,7 +130,7 @@ def test_the_offset_impact_is_the_filters_own_sensitivity_to_a_run_of_offset_fix
     x1, _, aux1 = moved.state()
     assert aux0.events == aux1.events and aux0.gated == aux1.gated   # the same decisions
     (imp,) = [i for i in aux1.impacts if i.offset and i.active and i.onset == pytest.approx(32.0)]
-    assert imp.sensor == "eurobalise" and moved._offset_bounds["eurobalise"] == pytest.approx(3.8906, abs=1e-4)
+    assert imp.sensor == "eurobalise" and moved.limits.offset_bounds["eurobalise"] == pytest.approx(3.8906, abs=1e-4)
     np.testing.assert_allclose((x1 - x0)[:2] / 0.5, imp.e[:2], rtol=0.02, atol=1e-3)
     # per unit: about the fix's 1-sigma (0.4 m), and what the radar scale it mis-calibrated added since
     assert 0.3 < imp.e[0] < 0.5
@@ -181,7 +181,7 @@ def test_a_run_of_lzb_fixes_sharing_an_offset_beyond_the_survey_prior_is_covered
 SLIP_RUN = 45.0   # simulated seconds of network:4262354916: its DGPS outage ends at 24.1 s, the excursion at 26.6 s
 
 
-def test_a_slip_no_other_source_could_see_is_covered_through_the_fixes_that_follow(monkeypatch):
+def test_a_slip_no_other_source_could_see_is_covered_through_the_fixes_that_follow():
     """Campaign run network:4262354916 (seed 0 of ``--families network``): a wheel slipping 2 % for
     7.4 s under traction while the radar's readings are lost for 2.9 s and then disagree, and the
     DGPS has no corrections for 14 s. The slip test, its reference the motion model since the radar
@@ -189,20 +189,17 @@ def test_a_slip_no_other_source_could_see_is_covered_through_the_fixes_that_foll
     first differential fixes' disagreement for their multipath bias: 140 states outside while
     NOMINAL (98.38 %), all from 24.9 s (its first ``SLIP_RUN`` s hold them). The unseen slip's
     cover (the filter's own sensitivity to what the tests let pass, ``transient`` rows) keeps
-    every NOMINAL state inside; without it the run fails again."""
+    every NOMINAL state inside; without it (``FusionConfig.policies`` without
+    ``transient_fault_cover``) the run fails again."""
     from train_localization.core import campaign
-    from train_localization.core.fusion import filter as fusion_filter
+    from train_localization.core.fusion.config import POLICIES
     covered = campaign.run_one("network", 4262354916, max_duration=SLIP_RUN)
     assert covered["conditions"]["dgps_faults"].endswith("nocorr") and covered["conditions"]["slip_rate"] > 0.1
     assert covered["scores"]["integrity"]["outside_nominal"] == 0
     assert covered["scores"]["integrity"]["inside_fraction"] >= 0.995
-    init = fusion_filter.TrainFilter.__init__
-
-    def uncovered(self, config=None):
-        init(self, config)
-        self._transient_bounds = {}
-    monkeypatch.setattr(fusion_filter.TrainFilter, "__init__", uncovered)
-    before = campaign.run_one("network", 4262354916, max_duration=SLIP_RUN)
+    data = campaign.generate("network", 4262354916, SLIP_RUN)
+    data["fusion"] = {**data["fusion"], "policies": frozenset(POLICIES) - {"transient_fault_cover"}}
+    before = campaign.run_scenario(data)
     assert before["scores"]["integrity"]["outside_nominal"] > 50
 
 

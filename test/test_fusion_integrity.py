@@ -13,13 +13,11 @@ import yaml
 from train_localization.core import campaign
 from train_localization.core.fusion import separation
 from train_localization.core.fusion.bookkeeping import View
-from train_localization.core.fusion.episodes import Episodes
-from train_localization.core.fusion.fixes import Fixes
-from train_localization.core.fusion.lone import LoneSource
 from train_localization.core.fusion import (MODE_DEGRADED, MODE_INITIALISING, MODE_LOST, MODE_NOMINAL, FusionConfig,
                                           TrainFilter, sensor_models)
 from train_localization.core.measurements import DistanceIncrement, PositionFix, SpeedMeasurement
 from train_localization.core.fusion import fusion_config
+from train_localization.core.fusion.config import POLICIES
 from train_localization.core.offline import simulate_scenario
 from train_localization.core.scenario import Scenario, Vehicle
 from train_localization.core.scoring import speed_envelope
@@ -34,9 +32,13 @@ CONVENTIONAL = {
 }
 
 
-def _exported(name: str) -> dict:
-    """A campaign run exported as a scenario (``tl_campaign --export``) in test/data, run."""
-    return campaign.run_scenario(yaml.safe_load((Path(__file__).parent / "data" / name).read_text()))
+def _exported(name: str, off=frozenset()) -> dict:
+    """A campaign run exported as a scenario (``tl_campaign --export``) in test/data, run (the
+    policies ``off`` switched off)."""
+    data = yaml.safe_load((Path(__file__).parent / "data" / name).read_text())
+    if off:
+        data["fusion"] = {**(data.get("fusion") or {}), "policies": _with(off)}
+    return campaign.run_scenario(data)
 
 
 def scenario(name, seed, duration, profile, sensors):
@@ -54,18 +56,20 @@ def integrity(sc, result):
     return float(np.mean((truth >= lo) & (truth <= hi))), float(err.max())
 
 
-def _without_fault_cover(monkeypatch):
-    """Filters built from here on lack the fault cover of core/fusion/impact.py (the relative
-    sensors' scale faults and unseen slips, the fixes' offsets): what the special cases below gave
-    on their own."""
-    init = TrainFilter.__init__
+FAULT_COVER = frozenset({"persistent_fault_cover", "transient_fault_cover", "offset_fault_cover"})
 
-    def uncovered(self, config=None):
-        init(self, config)
-        self._fault_bounds = {}
-        self._transient_bounds = {}
-        self._offset_bounds = {}
-    monkeypatch.setattr(TrainFilter, "__init__", uncovered)
+
+def _with(off=frozenset()) -> frozenset:
+    """FusionConfig.policies with the policies ``off`` switched off. Without ``FAULT_COVER``: the
+    filter without the fault cover of core/fusion/impact.py (the relative sensors' scale faults and
+    unseen slips, the fixes' offsets), what the special cases below gave on their own."""
+    return frozenset(POLICIES) - frozenset(off)
+
+
+def _campaign_run(family: str, seed: int, max_duration: float | None = None, off=frozenset()) -> dict:
+    """``campaign.run_one`` of (family, seed) with the policies ``off`` switched off."""
+    data = campaign.generate(family, seed, max_duration)
+    return campaign.run_scenario({**data, "fusion": {**data["fusion"], "policies": _with(off)}})
 
 
 # --------------------------------------------------------------------------- error-model ownership
@@ -315,12 +319,13 @@ def test_an_excluded_sensors_view_keeps_its_farthest_separation():
     assert e.mode == MODE_DEGRADED
 
 
-def _train_run(sensors, speed, accel, steps, seed, feed):
+def _train_run(sensors, speed, accel, steps, seed, feed, off=frozenset()):
     """A filter on ``sensors`` from ``speed`` [m/s] at position 0, the train accelerating at
     accel(t) [m/s^2] (never below a standstill) over ``steps`` 50 ms steps; feed(f, j, t, s,
     v, v_old, rng) adds step j's measurements (s, v: true position and speed, v_old: speed a
-    step before). Returns the filter and (t, estimate, s, v) per step."""
-    f = TrainFilter(FusionConfig(sensors=sensor_models(sensors, None, Vehicle())))
+    step before); the policies ``off`` switched off. Returns the filter and (t, estimate, s, v)
+    per step."""
+    f = TrainFilter(FusionConfig(sensors=sensor_models(sensors, None, Vehicle()), policies=_with(off)))
     f.reset(position=0.0, position_stddev=0.1, speed=speed, speed_stddev=0.1, stamp=0.0)
     rng = np.random.default_rng(seed)
     s, v, checked = 0.0, speed, []
@@ -334,7 +339,7 @@ def _train_run(sensors, speed, accel, steps, seed, feed):
     return f, checked
 
 
-def _radar_low_under_traction(wheel=None, slips=()):
+def _radar_low_under_traction(wheel=None, slips=(), off=frozenset()):
     """From standstill the train accelerates at 0.7 m/s^2 from 2 s to 25 m/s (37.7 s), then
     holds it; the radar, silent below 0.3 m/s (no Doppler shift to measure), reads 7 % low
     throughout, and no fix comes. Starting, the wheel turns faster than the radar under
@@ -348,7 +353,7 @@ def _radar_low_under_traction(wheel=None, slips=()):
             f.add(SpeedMeasurement(t - 0.025, "doppler", "doppler", rv + rng.normal(0, 0.03), 0.1543))
         f.add(DistanceIncrement(t, "wheel", "wheel", 0.05, wv * 0.05 + rng.normal(0, 0.002), 0.03, wv, 0.6))
     return _train_run({"doppler_radar": {}, "wheel_sensor": wheel or {}, "eurobalise_reader": {}}, 0.0,
-                      lambda t: 0.7 if 2.0 <= t < 2.0 + 25.0 / 0.7 else 0.0, 1000, 11, feed)
+                      lambda t: 0.7 if 2.0 <= t < 2.0 + 25.0 / 0.7 else 0.0, 1000, 11, feed, off)
 
 
 def test_a_slip_that_outlasts_the_wheels_model_is_the_radars_fault():
@@ -372,7 +377,7 @@ def test_a_slip_that_outlasts_the_wheels_model_is_the_radars_fault():
     assert "doppler" in f.state()[2].suspended and "wheel" not in f.state()[2].suspended
 
 
-def test_an_undetected_radar_scale_fault_is_covered_by_the_wheels_own_solution(monkeypatch):
+def test_an_undetected_radar_scale_fault_is_covered_by_the_wheels_own_solution():
     """The same start: while the radar's 7 % is being absorbed into both scale states no test
     fires (until 18 s). Without the sensors' own solutions the filter is NOMINAL with the truth
     outside its interval from 9 s on; the wheel's own dead reckoning, which the radar cannot
@@ -383,11 +388,9 @@ def test_an_undetected_radar_scale_fault_is_covered_by_the_wheels_own_solution(m
     assert all(e.position_min <= s <= e.position_max for _, e, s, _ in early)
     assert all(abs(e.speed - v) <= Z999 * e.speed_stddev for t, e, _, v in early if t >= 3.0)
     assert any(e.mode == MODE_DEGRADED for t, e, _, _ in early if t < 14.0)
-    monkeypatch.setattr(separation, "sub_models", lambda models: {})
-    _, alone = _radar_low_under_traction()   # the fault's cover alone also holds it
+    _, alone = _radar_low_under_traction(off={"own_solutions"})   # the fault's cover alone also holds it
     assert all(e.position_min <= s <= e.position_max for t, e, s, _ in alone if t < 18.0)
-    _without_fault_cover(monkeypatch)
-    _, alone = _radar_low_under_traction()
+    _, alone = _radar_low_under_traction(off=FAULT_COVER | {"own_solutions"})
     wrong = [t for t, e, s, _ in alone if t < 18.0 and not e.position_min <= s <= e.position_max]
     assert wrong and min(wrong) < 11.0
     assert all(e.mode == MODE_NOMINAL for t, e, _, _ in alone if t in wrong)
@@ -759,7 +762,7 @@ def test_sensor_solutions_are_kept_where_another_sensors_fault_could_be_blended_
     def kept(nodes, overrides=None):
         cfg = FusionConfig(sensors=sensor_models(nodes, None, Vehicle()), overrides=overrides or {})
         f = TrainFilter(cfg)
-        return sorted(f._subs), {h: sorted(v) for h, v in f._hypotheses.items()}
+        return sorted(f.limits.subs), {h: sorted(v) for h, v in f.limits.hypotheses.items()}
     assert kept(["wheel_sensor", "doppler_radar", "eurobalise_reader"]) == (
         ["doppler", "wheel", "wheel/wear"],
         {"doppler/scale_fault": ["wheel", "wheel/wear"], "wheel/wear": ["doppler", "wheel/wear"]})
@@ -858,7 +861,7 @@ def test_a_sensor_solution_started_at_a_fix_moves_with_its_own_first_reading_not
 
 
 
-def _lone_radar_ramp_run():
+def _lone_radar_ramp_run(off=frozenset()):
     """A steady 20 m/s with the radar as the only speed source; its scale error grows from 0
     at 10 s to -6 % at 25 s (a film building up: too gradual for any reading to disagree with
     the motion model) and stays; a balise every 200 m (every 10 s)."""
@@ -868,10 +871,10 @@ def _lone_radar_ramp_run():
         n = int(s // 200.0)
         if int((s - v * 0.05) // 200.0) != n:
             f.add(PositionFix(t, "eurobalise", "eb", "T", f"EB{n}", n * 200.0, 0.3))
-    return _train_run(["doppler_radar", "eurobalise_reader"], 20.0, lambda t: 0.0, 1600, 3, feed)
+    return _train_run(["doppler_radar", "eurobalise_reader"], 20.0, lambda t: 0.0, 1600, 3, feed, off)
 
 
-def test_a_fix_that_a_lone_radars_scale_fault_explains_opens_its_scale(monkeypatch):
+def test_a_fix_that_a_lone_radars_scale_fault_explains_opens_its_scale():
     """No reading shows the radar's growing scale fault: until a balise does, the filter is
     NOMINAL and, from 18 s, wrong (nothing could tell). The balise at 20 s is 3.5 m off, which
     the filter's interval does not explain and a radar scale fault over the 200 m since the
@@ -883,21 +886,18 @@ def test_a_fix_that_a_lone_radars_scale_fault_explains_opens_its_scale(monkeypat
     wrong speed: the truth was outside the interval in 935 of the 1,600 states, DEGRADED.
     (Without the lone radar's own protection, which covers the drift before the balise:
     the next test, and the persistent-fault cover of core/fusion/impact.py, left out here.)"""
-    _without_fault_cover(monkeypatch)
-    monkeypatch.setattr(LoneSource, "track", lambda self, stamp: None)
-    f, checked = _lone_radar_ramp_run()
+    f, checked = _lone_radar_ramp_run(off=FAULT_COVER | {"lone_source"})
     events = f.counters()["integrity"]
     assert events["scale_fault_suspected"] == 1 and events["reacquired"] == 1
     outside = [t for t, e, s, _ in checked if not e.position_min <= s <= e.position_max]
     assert outside and 15.0 < min(outside) and max(outside) < 20.0
     assert all(e.mode == MODE_NOMINAL for t, e, _, _ in checked if t < 15.0)
     assert all(e.mode != MODE_NOMINAL for t, e, _, _ in checked if 20.0 <= t < 40.0)
-    monkeypatch.setattr(Fixes, "scale_faults_explaining", lambda self, m, z, R: [])
-    _, before = _lone_radar_ramp_run()
+    _, before = _lone_radar_ramp_run(off=FAULT_COVER | {"lone_source", "scale_fault_explanation"})
     assert sum(1 for t, e, s, _ in before if not e.position_min <= s <= e.position_max) > 800
 
 
-def test_the_solution_without_a_lone_radar_covers_its_fault_before_any_fix_shows_it(monkeypatch):
+def test_the_solution_without_a_lone_radar_covers_its_fault_before_any_fix_shows_it():
     """The run above: while the radar alone carries the speed, the interval also covers the
     solution without it (the motion model from the last balise, within what a radar scale
     fault of ``fault_scale_sigma`` = 5 % can do over the distance since it, 3.29 x 5 % of the
@@ -908,17 +908,15 @@ def test_the_solution_without_a_lone_radar_covers_its_fault_before_any_fix_shows
     assert all(e.position_min <= s <= e.position_max for _, e, s, _ in checked)
     half = {round(t, 2): 0.5 * (e.position_max - e.position_min) for t, e, _, _ in checked}
     assert 29.0 < half[9.5] < 3.29 * 0.05 * 200.0 and half[10.5] < 3.0
-    monkeypatch.setattr(LoneSource, "track", lambda self, stamp: None)
-    _, cover_only = _lone_radar_ramp_run()   # the persistent-fault cover (impact.py) alone holds it too
+    _, cover_only = _lone_radar_ramp_run(off={"lone_source"})   # the persistent-fault cover (impact.py) alone holds it too
     assert all(e.position_min <= s <= e.position_max for _, e, s, _ in cover_only)
-    _without_fault_cover(monkeypatch)
-    _, before = _lone_radar_ramp_run()
+    _, before = _lone_radar_ramp_run(off=FAULT_COVER | {"lone_source"})
     outside = [t for t, e, s, _ in before if not e.position_min <= s <= e.position_max]
     assert outside and 15.0 < min(outside) < 20.0
     assert max(0.5 * (e.position_max - e.position_min) for t, e, _, _ in before if t < 10.0) < 3.1
 
 
-def test_a_lone_radars_solution_stays_when_a_second_source_comes_back_until_a_fix_locates_the_train(monkeypatch):
+def test_a_lone_radars_solution_stays_when_a_second_source_comes_back_until_a_fix_locates_the_train():
     """Campaign run urban_maglev:537686460: at a gap in the pattern belt (a switch) the radar
     alone carries the speed for 6 s and, 0.8 % low, puts the filter 0.37 m behind, which its
     lone solution covers. When the belt comes back the two check each other from then on, but
@@ -929,14 +927,9 @@ def test_a_lone_radars_solution_stays_when_a_second_source_comes_back_until_a_fi
     run = campaign.run_one("urban_maglev", 537686460, max_duration=25.0)
     assert run["fusion"]["integrity"]["lone_source_accompanied"] >= 1
     assert run["scores"]["integrity"]["outside_count"] == 0
-
-    def dropped(self, stamp):
-        self.f.aux.lone_view = None
-    monkeypatch.setattr(LoneSource, "accompanied", dropped)
-    cover_only = campaign.run_one("urban_maglev", 537686460, max_duration=25.0)
+    cover_only = _campaign_run("urban_maglev", 537686460, 25.0, off={"lone_source_kept"})
     assert cover_only["scores"]["integrity"]["outside_count"] == 0   # the persistent-fault cover holds it
-    _without_fault_cover(monkeypatch)
-    before = campaign.run_one("urban_maglev", 537686460, max_duration=25.0)
+    before = _campaign_run("urban_maglev", 537686460, 25.0, off=FAULT_COVER | {"lone_source_kept"})
     assert before["scores"]["integrity"]["outside_count"] > 30
 
 
@@ -1002,7 +995,7 @@ def test_a_lone_wheel_slipping_under_traction_is_found_by_the_mmwave_fixes_drift
     assert result["scores"]["integrity"]["mean_interval_width_m"] < 1.0   # still a useful interval
 
 
-def test_a_radar_silent_at_a_stop_does_not_put_the_stop_into_its_view(monkeypatch):
+def test_a_radar_silent_at_a_stop_does_not_put_the_stop_into_its_view():
     """Campaign run utm:1453734283, cut to 100 s (``tl_campaign --export utm:1453734283
     --max-duration 100``): the lone radar, suspended at 66 s on a disagreement with the motion
     model (noise), keeps its view in the interval while DGPS fixes decide. The train stops at
@@ -1014,8 +1007,7 @@ def test_a_radar_silent_at_a_stop_does_not_put_the_stop_into_its_view(monkeypatc
     train is no longer suspended on the motion model, the next test; the window test is
     forced here to keep the excluded view's silence under test, as a radar beside a wheel
     has it.)"""
-    monkeypatch.setattr(Episodes, "judged", lambda self, m: True)
-    result = _exported("campaign_utm_radar_silent_at_a_stop.yaml")
+    result = _exported("campaign_utm_radar_silent_at_a_stop.yaml", off={"lone_sensor_exempt"})
     assert result["scores"]["integrity"]["outside_count"] == 0
     assert result["fusion"]["integrity"].get("ambiguous_slip", 0) >= 1       # the view was opened
     assert "excluded_sensor_confirmed_faulty" not in result["fusion"]["integrity"]

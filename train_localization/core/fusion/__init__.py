@@ -3,7 +3,11 @@
   config.py        global tuning (FusionConfig) and the configured sensors' error models
   layout.py        the state vector laid out from those models
   models.py        process and measurement models (scalar measurements)
+  limits.py        the derived thresholds and fault bounds (gates, z, ...), the policies switched off
   filter.py        the extended Kalman filter (filterpy) that runs the policies below
+  pipeline.py      one reading through the policies: the ordered stages, their verdicts, the routing of effects
+  events.py        the effects one policy asks of another, routed by the pipeline
+  views.py         the hypotheses kept beside the filter as pure functions (motion views, excluded views, windows)
   component.py     the base of the filter's policy components
   bookkeeping.py   the filter's records that roll back with x and P (copy-on-write)
   history.py       late and out-of-order data: exact rollback and lazy re-application

@@ -36,7 +36,8 @@ import math
 from .component import Component
 from ..sensors import faults as fault_modes
 from .bookkeeping import Fault, Suspension, View, fault_at, incremented, is_coasting, speed_excluded, without_key
-from . import impact
+from . import impact, views
+from .events import FaultEnded, Relearn, RelearnFault, Separate, SetPosition, SetSpeed
 from .models import implied_speed
 from . import separation
 
@@ -44,18 +45,19 @@ from . import separation
 class Arbitration(Component):
     """Arbitration between disagreeing speed sources."""
 
-    def decide_relative(self, m, z: float, R: float, hx: float, S: float, nis: float) -> bool:
-        """An absolute fix decides between the filter and the excluded sensors' views. True if
-        the fix was used for it (the position re-acquired). A fix that only an excluded view
+    def decide_relative(self, m, z: float, R: float, hx: float, S: float, nis: float) -> tuple[bool, tuple]:
+        """An absolute fix decides between the filter and the excluded sensors' views: (whether
+        the fix was used for it (the position re-acquired), the effects on other policies:
+        events.py). A fix that only an excluded view
         explains overturns the filter only if its sensor cannot produce outliers (NLOS,
         misread, miscount), or an unexplained fix of another reference agrees with it;
         otherwise it is kept as the unexplained alternative and the views stay undecided."""
         aux = self.f.aux
-        gate = self.f._gates[m.sensor]
+        gate = self.f.limits.gates[m.sensor]
         explained = nis <= gate
         keep, fitting, ruled_out = {}, [], 0
         for cls, alt in aux.relative_alternatives.items():
-            D, var_D = self.alternative_spread(cls, alt)
+            D, var_D = views.alternative_spread(self.f.models[cls], alt)
             # the view's position: the filter's when it began (or was last located by a fix),
             # moved by its own sensor since; the filter's uncertainty from a coasting since is
             # not the view's
@@ -85,9 +87,9 @@ class Arbitration(Component):
                 ruled_out += 1
                 if cls in self.f.layout.slip_sensors:
                     pass        # a slip ends by itself
-                elif "scale_fault" in self.f.models[cls].faults and self.f._in_use(m.stamp, but=cls):
+                elif "scale_fault" in self.f.models[cls].faults and self.f.in_use(m.stamp, but=cls):
                     # a radar's scale fault, which the sources in use (shown right) can teach it
-                    self.f.episodes.relearn_fault(cls)
+                    self.relearn_fault(cls)
                 else:                                      # a faulty radar may not recover
                     self.suspend(cls, self.view_fault(alt, m.stamp))
             else:
@@ -101,28 +103,29 @@ class Arbitration(Component):
             aux.relative_alternatives = dict(aux.relative_alternatives)
             self.end_exclusion(cls, m.stamp)
             reading = aux.peer_speeds.get(cls)
+            events = ()
             if reading is not None and reading.stamp > m.stamp - self.f.cfg.slip_reference_timeout:
-                self.f.motion.set_speed([(reading.speed, reading.white_var + reading.common_var)])   # its speed, not the middle
+                events = (SetSpeed([(reading.speed, reading.white_var + reading.common_var)]),)   # its speed, not the middle
             aux.slip_window = without_key(aux.slip_window, cls)
             if view is not None:
                 self.merge_view(view.separation ** 2 + view.white_var)
             aux.events = incremented(aux.events, "excluded_sensor_confirmed_right")
-            return False
+            return False, events
         if explained or not fitting:
-            return False                           # the filter explains it, or nothing does
-        if fault_modes.OUTLIER.intersection(self.f.models[m.sensor].faults) and not self.f.fixes.corroborated(m, z, R):
-            return False
+            return False, ()                       # the filter explains it, or nothing does
+        if fault_modes.OUTLIER.intersection(self.f.models[m.sensor].faults) and not views.corroborated(
+                m, z, R, aux.alternative, self.f.ekf.x, self.f.ekf.P, self.f.layout, self.f.cfg.branch_timeout,
+                self.f.limits.gates[m.sensor]):
+            return False, ()
         # an excluded sensor was right: the other speed sources are faulty
         cls = min(fitting)[1]
         fault = self.view_fault(aux.relative_alternatives[cls], m.stamp)
         fault = None if fault is None else Fault(-fault.disagreement, fault.speed)   # the others ran behind it
-        self.f.fixes.set_position(m)
-        self.f.plausibility.relearn("speed_source_faulty")
         aux.relative_alternatives = {}
         self.end_exclusion(cls, m.stamp)
         for other in aux.speed_sources - {cls}:
             self.suspend(other, fault)
-        return True
+        return True, (SetPosition(m), Relearn("speed_source_faulty"))
 
     def swap(self, m, z: float, R: float, view: View, other: str) -> None:
         """The excluded sensor ``m.sensor`` was right and ``other``, the speed source in use, is
@@ -133,7 +136,7 @@ class Arbitration(Component):
         filter awaits one (DEGRADED)."""
         aux, cls, stamp = self.f.aux, m.sensor, m.stamp
         D = view.separation
-        var_D = self.alternative_spread(cls, view)[1]
+        var_D = views.alternative_spread(self.f.models[cls], view)[1]
         u, u_white, u_common = implied_speed(self.f.layout, self.f.ekf.x, self.f.ekf.P, m, z, R)
         x, P = self.f.ekf.x.copy(), self.f.ekf.P.copy()
         x[0, 0] += D
@@ -156,12 +159,6 @@ class Arbitration(Component):
         aux.events = incremented(aux.events, "speed_sources_swapped")
         aux.unverified = "speed_sources_swapped"
 
-    def alternative_spread(self, cls: str, alt: View) -> tuple[float, float]:
-        """(separation D [m], its variance [m^2]) of a relative alternative."""
-        model = self.f.models[cls]
-        scale = model.scale_sigma + model.scale_offset_sigma
-        return alt.separation, alt.white_var + (scale * alt.run) ** 2
-
     def end_exclusion(self, cls: str, stamp: float) -> None:
         """Speed source ``cls`` found right by a fix: its slip episode or suspension ends, and it
         counts as in use from ``stamp`` (not as a sensor back from an episode that waits for a
@@ -171,13 +168,37 @@ class Arbitration(Component):
         aux.suspended = without_key(aux.suspended, cls)
         aux.last_accepted = {**aux.last_accepted, cls: stamp}
 
+    def relearn_fault(self, cls: str) -> None:
+        """Speed source ``cls`` has a scale fault that the others in use were shown not to have
+        (``views.outlasted_by``, or a fix that the filter explains and its view does not): it is back
+        in use, its constant scale opened by the fault's size (``scale_fault_sigma``) to learn
+        the fault from them, and plausible up to that size. Suspended, it would never agree
+        again, and would be no reference while the others' own faults come (a wheel's slide
+        under braking would be seen against the motion model alone). The speed rests on the
+        others: it keeps its variance."""
+        aux, lay = self.f.aux, self.f.layout
+        i = lay.fault_scale[cls]
+        floor = lay.prior_sigma[i] ** 2 + self.f.models[cls].scale_fault_sigma ** 2
+        P = self.f.ekf.P
+        if P[i, i] < floor:
+            P = P.copy()
+            r = math.sqrt(floor / P[i, i]) if P[i, i] > 0.0 else 0.0
+            if r > 0.0:
+                P[i, :] *= r
+                P[:, i] *= r
+            else:
+                P[i, i] = floor
+            self.f.ekf.P = P
+        aux.scale_faults = aux.scale_faults | {cls}
+        aux.slip_window = without_key(aux.slip_window, cls)
+        aux.view_speeds = without_key(aux.view_speeds, cls)
+        self.end_exclusion(cls, aux.t)
+        aux.events = incremented(aux.events, "scale_fault_relearnt")
+
     def merge_view(self, spread: float) -> None:
-        """An excluded sensor's view no longer tracked of its own: its squared separation (plus
-        its own variance) [m^2] added to the position variance, the filter's mean kept (moment
-        matching of the two views), so the interval still covers it."""
-        P = self.f.ekf.P.copy()
-        P[0, 0] += spread
-        self.f.ekf.P = P
+        """An excluded sensor's view no longer tracked of its own, merged into the filter's
+        (``views.merged``) so the interval still covers it."""
+        self.f.ekf.P = views.merged(self.f.ekf.P, spread)
         self.f.aux.events = incremented(self.f.aux.events, "alternative_merged")
 
     @staticmethod
@@ -202,31 +223,33 @@ class Arbitration(Component):
         agrees at a standstill is back)."""
         persistent = "scale_fault" in self.f.models[cls].faults
         if fault is not None and (not persistent or
-                                  fault.disagreement ** 2 <= self.f._slip_gate * self.model_variance(cls, fault.speed)):
+                                  fault.disagreement ** 2 <= self.f.limits.slip_gate * self.model_variance(cls, fault.speed)):
             fault = None
         self.f.aux.suspended = {**self.f.aux.suspended, cls: Suspension(math.inf, (), fault)}
 
-    def suspended(self, m, e: float, S: float, nis: float, common: float) -> bool:
+    def suspended(self, m, e: float, S: float, nis: float, common: float) -> tuple[bool, tuple]:
         """A speed source found or suspected faulty: excluded until it agrees again (neither its
         single nor its windowed disagreement test fires, with a reference to judge it by) for
-        ``slip_window`` s, in a window where the fault seen would have shown (``Arbitration.would_show``)."""
-        aux = self.f.aux
+        ``slip_window`` s, in a window where the fault seen would have shown (``Arbitration.would_show``).
+        Returns (whether the reading is excluded, the effects on the episodes: events.py)."""
+        aux, gate = self.f.aux, self.f.limits.slip_gate
         held = aux.suspended[m.sensor]
         since, fault = held.since, held.fault
-        window, summed = self.f.episodes.windowed(held.window, m, e, S, common)
-        if (nis > self.f._slip_gate or summed > self.f._slip_gate) and m.sensor in aux.scale_faults \
-                and self.f.episodes.fault_ended(m, e, S):
+        window, summed = views.windowed(held.window, m, e, S, self.f.cfg.slip_window, abs(float(self.f.ekf.x[1, 0])),
+                                        common)
+        disagrees = nis > gate or summed > gate
+        if disagrees and m.sensor in aux.scale_faults and views.fault_ended_shown(
+                m.sensor, self.f.layout, self.f.ekf.x, self.f.ekf.P, self.f.measurement_of(m)[2], e, S, gate):
             # judged from its next reading on, at the scale without the fault
             aux.suspended = {**aux.suspended, m.sensor: Suspension(math.inf, (), fault)}
             aux.gated = incremented(aux.gated, m.sensor + "/suspended")
-            self.f.episodes.separate(m, e, S)
-            return True
-        if (nis > self.f._slip_gate or summed > self.f._slip_gate) and self.f.episodes.outlasted_by(m):
+            return True, (FaultEnded(m.sensor), Separate(m, e, S))
+        if disagrees and views.outlasted_by(m, aux, self.f.models, self.f.in_use(m.stamp, but=m.sensor),
+                                            self.f.limits.bounded, self.f.cfg.slip_window):
             aux.relative_alternatives = without_key(aux.relative_alternatives, m.sensor)
-            self.f.episodes.relearn_fault(m.sensor)
             aux.events = incremented(aux.events, "fault_outlasted_the_others")
-            return False
-        if nis > self.f._slip_gate or summed > self.f._slip_gate or not self.f._agreement_reference(m, S):
+            return False, (RelearnFault(m.sensor),)
+        if disagrees or not self.f.agreement_reference(m, S):
             since = math.inf
         elif since == math.inf:
             since = m.stamp
@@ -235,11 +258,10 @@ class Arbitration(Component):
             # its readings of the agreement so far are the slip test's window from here
             aux.slip_window = {**aux.slip_window, m.sensor: window}
             aux.events = incremented(aux.events, "speed_source_restored")
-            return False
+            return False, ()
         aux.suspended = {**aux.suspended, m.sensor: Suspension(since, window, fault)}
         aux.gated = incremented(aux.gated, m.sensor + "/suspended")
-        self.f.episodes.separate(m, e, S)
-        return True
+        return True, (Separate(m, e, S),)
 
     def would_show(self, fault: Fault | None, window: tuple) -> bool:
         """Whether the fault a sensor was suspended for, had it persisted, would stand out of the
@@ -251,7 +273,7 @@ class Arbitration(Component):
         if fault is None or len(window) < 3:
             return fault is None
         shown = sum(w.weight * fault_at(fault, w.speed) for w in window)
-        return shown * shown >= self.f._slip_gate * sum(w.white_var for w in window)
+        return shown * shown >= self.f.limits.slip_gate * sum(w.white_var for w in window)
 
     def model_variance(self, cls: str, speed: float) -> float:
         """The variance [m^2/s^2] of relative sensor ``cls``'s reading at ``speed`` [m/s] that its

@@ -93,7 +93,7 @@ class Fault(NamedTuple):
 
 
 class WindowEntry(NamedTuple):
-    """One reading of a disagreement window (``Episodes.windowed``)."""
+    """One reading of a disagreement window (``views.windowed``)."""
 
     stamp: float        # [s]
     distance: float     # e d [m]: the disagreement e [m/s] times the weight d
@@ -210,7 +210,7 @@ class Bookkeeping:
         # solution without it (the fixes and the motion model, ``LoneSource.track``)
         self.lone_view: LoneView | None = None
         # speed sources whose scale fault the others showed and whose constant scale now learns
-        # it (``Episodes.relearn_fault``): their scale is plausible up to the fault's size
+        # it (``Arbitration.relearn_fault``): their scale is plausible up to the fault's size
         self.scale_faults: frozenset = frozenset()
         # the persistent-fault hypotheses of the relative sensors (impact.py Bank), None before any
         self.impacts = None

@@ -54,6 +54,25 @@ def default_models() -> dict[str, ErrorModel]:
     return sensor_models(list(NODE_NAMES), None, Vehicle())
 
 
+# the policies that can be switched off (``FusionConfig.policies``): name -> what it does
+POLICIES = {
+    "persistent_fault_cover": "the interval covers what a relative sensor's persistent fault (a radar's scale "
+                              "fault) up to its bound put into the state (impact.py)",
+    "transient_fault_cover": "the interval covers what an unseen slip or slide put into the state (impact.py)",
+    "offset_fault_cover": "the interval covers what a run of fixes sharing an offset put into the state (impact.py)",
+    "own_solutions": "each relative sensor's own solution beside the filter, and the fixes under each fault "
+                     "hypothesis (separation.py, solutions.py)",
+    "lone_source": "while one speed source with a persistent fault mode carries the speed alone, the interval "
+                   "covers the solution without it (lone.py)",
+    "lone_source_kept": "that solution stays, moving with the filter, when another source comes back, until a fix "
+                        "locates the train (lone.py)",
+    "scale_fault_explanation": "a gated fix that a scale fault of a speed source in use explains opens that "
+                               "source's scale (fixes.py)",
+    "lone_sensor_exempt": "the only relative sensor of a train without slip physics is not excluded by the "
+                          "disagreement tests (views.judged)",
+}
+
+
 @dataclass
 class FusionConfig:
     """Global tuning of the filter; every field but ``sensors`` is a fusion node parameter."""
@@ -113,11 +132,18 @@ class FusionConfig:
                                                   "filter starts there at rest instead of waiting for absolute fixes; "
                                                   "NaN: unknown")
     initial_position_stddev: float = doc_field(0.01, "1-sigma of initial_position [m]", limits=(1.0e-4, 1.0e4))
+    policies: frozenset = doc_field(lambda: frozenset(POLICIES), "the policies switched on (names of POLICIES; "
+                                                                "all by default): a study or a test leaves one out "
+                                                                "(not a node parameter)", True)
 
     def __post_init__(self):
         check_limits(self, self.tuning_fields())
         if math.isinf(self.initial_position):
             raise ValueError(f"initial_position must be a chainage [m] or NaN (unknown), not {self.initial_position}")
+        self.policies = frozenset(self.policies)
+        unknown = sorted(self.policies - POLICIES.keys())
+        if unknown:
+            raise ValueError(f"policies names unknown {', '.join(unknown)}; known: {', '.join(POLICIES)}")
         models = dict(self.sensors)
         for name, values in (self.overrides or {}).items():
             if name not in models:
@@ -129,7 +155,7 @@ class FusionConfig:
     @classmethod
     def tuning_fields(cls):
         """The fields that are global tuning (node parameters)."""
-        return [f for f in fields(cls) if f.name not in ("sensors", "overrides", "track")]
+        return [f for f in fields(cls) if f.name not in ("sensors", "overrides", "track", "policies")]
 
 
 # per-sensor tables that scenarios (and the bags recorded from them) carried before the

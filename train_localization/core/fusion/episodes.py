@@ -21,9 +21,10 @@ from scipy.stats import chi2
 
 from .component import Component
 from ..sensors import faults as fault_modes
-from .bookkeeping import (Fault, FaultWindow, MovedView, ViewSpeed, WindowEntry, incremented, is_coasting, new_view,
+from .bookkeeping import (Fault, FaultWindow, ViewSpeed, incremented, is_coasting, new_view,
                           without_key)
-from . import impact
+from . import impact, views
+from .events import CommonErrorEnded, Suspend, Swap, TakeSpeed
 from .models import implied_speed
 from . import separation
 
@@ -39,8 +40,9 @@ class Lookback(Exception):
 class Episodes(Component):
     """Fault episodes of the relative sensors."""
 
-    def slipping(self, m, e: float, S: float, nis: float) -> bool:
-        """Slip/slide check of one increment; True if it is excluded."""
+    def slipping(self, m, e: float, S: float, nis: float) -> tuple[bool, tuple]:
+        """Slip/slide check of one increment: (whether it is excluded, the effects on other
+        policies: events.py)."""
         aux, cfg, cls = self.f.aux, self.f.cfg, m.sensor
         alt = aux.relative_alternatives.get(cls)
         # excluded (a view of its own, or an episode) and not accepted since, and nothing to show
@@ -49,38 +51,41 @@ class Episodes(Component):
         accepted = aux.last_accepted.get(cls, -math.inf)
         out = (alt is not None and accepted < alt.since) or \
             accepted < aux.slip_until.get(cls, -math.inf) - cfg.slip_holdoff
-        undecided = out and not self.f._agreement_reference(m, S)
+        undecided = out and not self.f.agreement_reference(m, S)
         if aux.slip_until.get(cls, -math.inf) > m.stamp or undecided:
             # still slipping, or undecided
-            if nis > self.f._slip_gate or undecided:
+            if nis > self.f.limits.slip_gate or undecided:
                 aux.slip_until = {**aux.slip_until, cls: m.stamp + cfg.slip_holdoff}
             aux.gated = incremented(aux.gated, cls + "/slip")
             self.separate(m, e, S)
-            return True
-        if alt is not None and alt.farthest ** 2 <= self.f._slip_gate * self.f.arbitration.alternative_spread(cls, alt)[1]:
+            return True, ()
+        if alt is not None and alt.farthest ** 2 <= self.f.limits.slip_gate * views.alternative_spread(self.f.models[cls], alt)[1]:
             # the episode ended with a separation that the sensor's own errors explain: no longer
             # tracked as a view of its own, but merged into the position covariance (moment
             # matching of the two views, the filter's mean kept), so the interval still covers it
             aux.relative_alternatives = without_key(aux.relative_alternatives, cls)
-            self.f.arbitration.merge_view(alt.farthest ** 2)
-        window, summed = self.windowed(aux.slip_window.get(cls, ()), m, e, S)
-        if (nis > self.f._slip_gate or summed > self.f._slip_gate) and not self.judged(cls):
-            # the only speed source, without slip physics (``Episodes.judged``): an outlying reading is
+            self.f.ekf.P = views.merged(self.f.ekf.P, alt.farthest ** 2)
+            aux.events = incremented(aux.events, "alternative_merged")
+        window, summed = views.windowed(aux.slip_window.get(cls, ()), m, e, S, cfg.slip_window,
+                                        abs(float(self.f.ekf.x[1, 0])))
+        if (nis > self.f.limits.slip_gate or summed > self.f.limits.slip_gate) and not views.judged(cls, self.f.layout, self.f.models, cfg.policies):
+            # the only speed source, without slip physics (``views.judged``): an outlying reading is
             # gated; a fault that persists is the lone solution's to cover (``LoneSource.track``) and
             # the fix drift test's to find (``Fixes.fix_bias_consistency``)
             aux.slip_window = {**aux.slip_window, cls: ()}
-            if nis > self.f._slip_gate:
+            if nis > self.f.limits.slip_gate:
                 aux.gated = incremented(aux.gated, cls)
-                return True
-            return False
-        if nis > self.f._slip_gate or summed > self.f._slip_gate:
+                return True, ()
+            return False, ()
+        if nis > self.f.limits.slip_gate or summed > self.f.limits.slip_gate:
             aux.slip_window = {**aux.slip_window, cls: ()}
             # the disagreement that showed: this one, or the window's mean
-            shown = e if nis > self.f._slip_gate else sum(w.distance for w in window) / sum(w.weight for w in window)
+            shown = e if nis > self.f.limits.slip_gate else sum(w.distance for w in window) / sum(w.weight for w in window)
             if cls in aux.scale_faults and self.fault_ended(m, e, S):
-                return False
-            if self.refutes_model(m, shown):
-                return False
+                return False, ()
+            refuted = self.refutes_model(m, shown)
+            if refuted is not None:
+                return False, refuted
             # the onset: the increments before this one that already disagreed the same way were
             # absorbed (a slip ramps up): take them out and re-apply the history without them
             k = len(window) - 1
@@ -88,11 +93,11 @@ class Episodes(Component):
                 k -= 1
             if k < len(window) - 1:
                 raise Lookback(cls, window[k].stamp, shown)
-            self.episode_starts(m, e, shown)
+            events = self.episode_starts(m, e, shown)
             aux.slip_until = {**aux.slip_until, cls: m.stamp + cfg.slip_holdoff}
             aux.gated = incremented(aux.gated, cls + "/slip")
             self.separate(m, e, S)
-            return True
+            return True, events
         aux.slip_window = {**aux.slip_window, cls: window}
         if out and len(window) < 3:
             # back from an episode: its first readings are judged together before one is applied
@@ -100,28 +105,8 @@ class Episodes(Component):
             # the precise sensor would be adopted at full weight)
             aux.gated = incremented(aux.gated, cls + "/slip")
             self.separate(m, e, S)
-            return True
-        return False
-
-    def outlasted_by(self, m) -> bool:
-        """Whether suspended sensor ``m.sensor`` (a scale-fault mode), kept as an undecided
-        alternative, still disagreeing, has outlasted the faults of the speed sources in use:
-        each has only fault modes that end by themselves (a wheel's slip or slide, at most its
-        ``fault_duration_max`` s), has not been excluded since the view began, and the view is
-        older than the longest of those episodes and ``slip_window``. Then the fault is
-        ``m.sensor``'s: a wheel does not slip for longer."""
-        aux = self.f.aux
-        alt = aux.relative_alternatives.get(m.sensor)
-        if alt is None or "scale_fault" not in self.f.models[m.sensor].faults:
-            return False
-        in_use = self.f._in_use(m.stamp, but=m.sensor)
-        if not in_use or not all(c in self.f._bounded for c in in_use):
-            return False
-        since = alt.since
-        if any(aux.slip_until.get(c, -math.inf) > since for c in in_use):
-            return False
-        longest = max(self.f.models[c].fault_duration_max for c in in_use)
-        return m.stamp - since > longest + self.f.cfg.slip_window
+            return True, ()
+        return False, ()
 
     def slip_physics(self, cls: str, e: float) -> bool:
         """Whether sensor ``cls``'s own fault modes can give a disagreement e [m/s] with the
@@ -135,7 +120,7 @@ class Episodes(Component):
         return ("slip" in faults and drive >= limit and excess > 0.0) or \
             ("slide" in faults and drive <= -limit and excess < 0.0)
 
-    def refutes_model(self, m, e: float) -> bool:
+    def refutes_model(self, m, e: float) -> tuple | None:
         """Slip sensor ``m.sensor``, with no other speed source in use, disagrees with the filter's
         speed (the motion model's, since nothing else measures it) by e [m/s] in a way its own
         fault modes cannot produce under the filter's drive: slower under traction (a driven
@@ -145,35 +130,36 @@ class Episodes(Component):
         sensor, the acceleration back to its prior, its exclusion ends, and the motion model's
         hypothesis stays in the interval until the sensor's longest episode has passed and
         after, until a fix rules it out (``MotionViews.take_speed``: if the drive was misjudged, the truth
-        lies between the two). True if so."""
+        lies between the two). If so, the effect on the motion views (events.py), else None."""
         cls, aux = m.sensor, self.f.aux
-        if not fault_modes.ADHESION & set(self.f.models[cls].faults) or self.f._reference_ok(m) \
+        if not fault_modes.ADHESION & set(self.f.models[cls].faults) or self.f.reference_ok(m) \
                 or self.slip_physics(cls, e):
-            return False
-        z, R, _, _ = self.f._measurement(m)
+            return None
+        z, R, _, _ = self.f.measurement_of(m)
         u, white, common = implied_speed(self.f.layout, self.f.ekf.x, self.f.ekf.P, m, z, R)
         aux.episode_views = without_key(aux.episode_views, cls)
         aux.relative_alternatives = without_key(aux.relative_alternatives, cls)
         aux.view_speeds = without_key(aux.view_speeds, cls)
-        self.f.motion.take_speed(m.stamp, [(u, white + common)], {cls})
         aux.events = incremented(aux.events, "motion_model_refuted")
-        return True
+        return (TakeSpeed(m.stamp, [(u, white + common)], {cls}),)
 
     def fault_ended(self, m, e: float, S: float) -> bool:
-        """Sensor ``m.sensor``, whose scale fault is being learnt (``Episodes.relearn_fault``), disagrees
-        by e [m/s] (innovation variance S): if the reading agrees with its model without the
-        fault (its constant scale at its prior: within the slip gate), the fault has ended
-        rather than another source's begun. Then its constant scale is back to its prior, and
-        True."""
-        aux, lay, cls = self.f.aux, self.f.layout, m.sensor
-        i = lay.fault_scale[cls]
-        h = self.f._measurement(m)[2]
-        x, P = self.f.ekf.x, self.f.ekf.P
-        e_raw = e + float(h[i] * x[i, 0])
-        S_raw = S + float(h[i] * h[i]) * (lay.prior_sigma[i] ** 2 - float(P[i, i]))
-        if S_raw <= 0.0 or e_raw * e_raw > self.f._slip_gate * S_raw:
+        """Sensor ``m.sensor``, whose scale fault is being learnt (``Arbitration.relearn_fault``), disagrees
+        by e [m/s] (innovation variance S): if its fault has ended (``views.fault_ended_shown``), its
+        constant scale is back to its prior (``end_fault``), and True."""
+        h = self.f.measurement_of(m)[2]
+        if not views.fault_ended_shown(m.sensor, self.f.layout, self.f.ekf.x, self.f.ekf.P, h, e, S,
+                                       self.f.limits.slip_gate):
             return False
-        x, P = x.copy(), P.copy()
+        self.end_fault(m.sensor)
+        return True
+
+    def end_fault(self, cls: str) -> None:
+        """The scale fault being learnt of speed source ``cls`` has ended: its constant scale back
+        to its prior."""
+        aux, lay = self.f.aux, self.f.layout
+        i = lay.fault_scale[cls]
+        x, P = self.f.ekf.x.copy(), self.f.ekf.P.copy()
         x[i, 0] = 0.0
         P[i, :] = 0.0
         P[:, i] = 0.0
@@ -183,65 +169,6 @@ class Episodes(Component):
         aux.scale_faults = aux.scale_faults - {cls}
         aux.slip_window = without_key(aux.slip_window, cls)
         aux.events = incremented(aux.events, "scale_fault_ended")
-        return True
-
-    def relearn_fault(self, cls: str) -> None:
-        """Speed source ``cls`` has a scale fault that the others in use were shown not to have
-        (``Episodes.outlasted_by``, or a fix that the filter explains and its view does not): it is back
-        in use, its constant scale opened by the fault's size (``scale_fault_sigma``) to learn
-        the fault from them, and plausible up to that size. Suspended, it would never agree
-        again, and would be no reference while the others' own faults come (a wheel's slide
-        under braking would be seen against the motion model alone). The speed rests on the
-        others: it keeps its variance."""
-        aux, lay = self.f.aux, self.f.layout
-        i = lay.fault_scale[cls]
-        floor = lay.prior_sigma[i] ** 2 + self.f.models[cls].scale_fault_sigma ** 2
-        P = self.f.ekf.P
-        if P[i, i] < floor:
-            P = P.copy()
-            r = math.sqrt(floor / P[i, i]) if P[i, i] > 0.0 else 0.0
-            if r > 0.0:
-                P[i, :] *= r
-                P[:, i] *= r
-            else:
-                P[i, i] = floor
-            self.f.ekf.P = P
-        aux.scale_faults = aux.scale_faults | {cls}
-        aux.slip_window = without_key(aux.slip_window, cls)
-        aux.view_speeds = without_key(aux.view_speeds, cls)
-        self.f.arbitration.end_exclusion(cls, aux.t)
-        aux.events = incremented(aux.events, "scale_fault_relearnt")
-
-    def judged(self, cls: str) -> bool:
-        """Whether a fault test may exclude relative sensor ``cls``: it has slip physics (a wheel's
-        slip under traction stands out against the motion model), or another relative sensor
-        is configured (whose episodes and suspensions the test arbitrates, with the coastings
-        that keep both views). Not so the only relative sensor of a train without slip physics
-        (a UTM's radar): suspended, nothing could show it agreeing again (its readings are the
-        filter's speed; the fixes alone know the speed too poorly), and the filter would run on
-        the motion model for good; its persistent faults are the lone solution's to cover and
-        the fix drift test's to find."""
-        return len(self.f.layout.relative) > 1 or bool(fault_modes.ADHESION & set(self.f.models[cls].faults))
-
-    def windowed(self, window: tuple, m, e: float, S: float, common: float = 0.0) -> tuple[tuple, float]:
-        """The disagreement window of a relative sensor with this measurement added, and its
-        test statistic: the innovations summed over ``slip_window`` s (as distances), squared,
-        over the variance of that sum (0 with fewer than 3). common [m^2/s^2]: for a suspended
-        sensor, whose error states are no longer learnt from its readings, the part of S from
-        them (scale, bias): the same error in every reading of the window, so its standard
-        deviations add up where the rest's variances do (its scale error is no disagreement
-        beyond its model). A sensor in use has those states learnt: its innovations are white.
-        Entries: WindowEntry."""
-        d = getattr(m, "duration", 0.0) or 0.0
-        weight = d if d > 0.0 else 1.0
-        window = tuple(w for w in window if w.stamp > m.stamp - self.f.cfg.slip_window)
-        speed = abs(float(self.f.ekf.x[1, 0]))
-        window += (WindowEntry(m.stamp, e * weight, (S - common) * weight * weight, math.sqrt(common) * weight,
-                               weight, speed),)
-        if len(window) < 3:
-            return window, 0.0
-        var = sum(w.white_var for w in window) + sum(w.common_sd for w in window) ** 2
-        return window, sum(w.distance for w in window) ** 2 / var
 
     def common(self, cls: str, h) -> float:
         """The part [m^2/s^2] of a relative measurement's innovation variance that its sensor's
@@ -252,19 +179,20 @@ class Episodes(Component):
         hk = h[idx]
         return max(float(hk.dot(self.f.ekf.P[np.ix_(idx, idx)]).dot(hk)), 0.0)
 
-    def episode_starts(self, m, e: float, shown: float) -> None:
+    def episode_starts(self, m, e: float, shown: float) -> tuple:
         """A fault episode of ``m.sensor`` starts with the disagreement e [m/s] (``shown``: the
         disagreement the test saw, e or its mean over the window). A wheel slips
         only under traction (it turns faster) and slides only under braking (slower); a
         disagreement of another kind, or of a sensor without slip physics (the radar), may
         be the other speed sources' fault: then the sensor's own view is kept as the
-        alternative until an absolute fix decides."""
+        alternative until an absolute fix decides, and the sensor suspended (the effect on the
+        arbitration returned: events.py)."""
         aux = self.f.aux
         aux.slips += 1
         # without another speed source the disagreement is with the motion model alone
-        physical = self.slip_physics(m.sensor, e) and self.f._reference_ok(m)
+        physical = self.slip_physics(m.sensor, e) and self.f.reference_ok(m)
         view = new_view(m.stamp, float(self.f.ekf.P[0, 0]))
-        if physical and m.sensor not in aux.episode_views and m.sensor in self.f._bounded:
+        if physical and m.sensor not in aux.episode_views and m.sensor in self.f.limits.bounded:
             aux.episode_views = {**aux.episode_views, m.sensor: view}   # its own fault: not in the interval
         if not physical and m.sensor not in aux.relative_alternatives:
             aux.relative_alternatives = {**aux.relative_alternatives, m.sensor: view}
@@ -273,7 +201,8 @@ class Episodes(Component):
         if not physical and m.sensor not in aux.suspended:
             # suspected faulty: back only after agreeing for slip_window s without being applied
             # (one reading that slips through the gate would be adopted at full weight)
-            self.f.arbitration.suspend(m.sensor, Fault(shown, float(self.f.ekf.x[1, 0])))
+            return (Suspend(m.sensor, Fault(shown, float(self.f.ekf.x[1, 0]))),)
+        return ()
 
     def separate(self, m, e: float, S: float) -> None:
         """While a sensor is excluded as the alternative (or for its own slip: ``episode_views``),
@@ -302,7 +231,7 @@ class Episodes(Component):
         aux.view_speeds = {**aux.view_speeds, m.sensor: ViewSpeed(m.stamp, float(self.f.ekf.x[1, 0]) + e, R)}
         aux.relative_alternatives = {**aux.relative_alternatives, m.sensor: view}
 
-    def outlasted(self, m, z: float, R: float, hx: float, S: float, h) -> None:
+    def outlasted(self, m, z: float, R: float, hx: float, S: float, h) -> tuple:
         """Sensor ``m.sensor``, excluded, whose fault modes all end by themselves (a wheel's slip
         or slide, at most ``fault_duration_max`` s): if it has been excluded for longer and it
         still disagrees (its disagreements summed over ``slip_window`` s, its own error states
@@ -314,11 +243,12 @@ class Episodes(Component):
         of the disagreements against the speed, the residual inside the chi-square quantile of
         ``slip_gate_probability``: back-to-back slips of different ratios do not), that one is
         the faulty one: the two swap roles (``Arbitration.swap``), or the coasting ends on this sensor
-        (``Episodes.coast_outlasted``). With more sources in use the majority stands."""
+        (``Episodes.coast_outlasted``). With more sources in use the majority stands. Returns
+        the effects on the arbitration and the motion views (events.py)."""
         aux, cls, stamp = self.f.aux, m.sensor, m.stamp
         view = aux.relative_alternatives.get(cls) or aux.episode_views.get(cls)
         recent = stamp - self.f.cfg.slip_reference_timeout
-        in_use = self.f._in_use(stamp, but=cls)
+        in_use = self.f.in_use(stamp, but=cls)
         peers = [c for c, p in aux.peer_speeds.items() if c != cls and p.stamp > recent]
         other = None
         if view is not None and len(in_use) == 1:
@@ -333,28 +263,29 @@ class Episodes(Component):
             # the evidence counts only while it is one source with a persistent fault mode
             if cls in aux.fault_windows:
                 aux.fault_windows = without_key(aux.fault_windows, cls)
-            return
+            return ()
         record = aux.fault_windows.get(cls)
         if record is None or record.against != (other, bool(in_use)):
             record = FaultWindow((other, bool(in_use)), stamp, (), 0, 0.0, 0.0, 0.0)
-        window, summed = self.windowed(record.window, m, e, var, common)
+        window, summed = views.windowed(record.window, m, e, var, self.f.cfg.slip_window,
+                                        abs(float(self.f.ekf.x[1, 0])), common)
         record = record._replace(window=window, n=record.n + 1, sum_ev=record.sum_ev + e * v / var,
                                  sum_vv=record.sum_vv + v * v / var, sum_ee=record.sum_ee + e * e / var)
         aux.fault_windows = {**aux.fault_windows, cls: record}
         n, s_ev, s_vv = record.n, record.sum_ev, record.sum_vv
         # the whole window past the longest episode the sensor's model allows
-        if summed <= self.f._slip_gate or n < 3 or s_vv <= 0.0 or \
+        if summed <= self.f.limits.slip_gate or n < 3 or s_vv <= 0.0 or \
                 stamp - self.f.cfg.slip_window - record.since <= self.f.models[cls].fault_duration_max:
-            return
+            return ()
         # a scale error of the other source is one ratio throughout; a chain of slips is not
         # (their ratios differ, and each ramps down to none): the residual of that fit
         if record.sum_ee - s_ev * s_ev / s_vv <= chi2.ppf(self.f.cfg.slip_gate_probability, n - 1):
             if in_use:
-                self.f.arbitration.swap(m, z, R, view, other)
-            else:
-                self.coast_outlasted(m, other, e, v)
+                return (Swap(m, z, R, view, other),)
+            return self.coast_outlasted(m, other, e, v)
+        return ()
 
-    def coast_outlasted(self, m, other: str, e: float, v: float) -> None:
+    def coast_outlasted(self, m, other: str, e: float, v: float) -> tuple:
         """The filter coasts between excluded ``m.sensor`` and ``other``, and the disagreement
         e [m/s] (at speed v [m/s]) has outlasted ``m.sensor``'s transient fault modes: the
         speed is taken from ``m.sensor``'s reading (its exclusion ends, as a re-acquisition)
@@ -362,29 +293,29 @@ class Episodes(Component):
         interval until a fix decides, and so does the coasting's motion-model hypothesis (both
         may have been wrong the same way while it lasted), moving with the filter from here:
         ``m.sensor``'s fault cannot go on, so it shares no error with it from now on. The
-        filter awaits a fix (DEGRADED)."""
+        filter awaits a fix (DEGRADED). Returns the effects on the arbitration and the motion
+        views (events.py)."""
         aux, cls, stamp = self.f.aux, m.sensor, m.stamp
         own = aux.peer_speeds[cls]
-        if other not in aux.suspended:
-            self.f.arbitration.suspend(other, Fault(-e, v))
+        events = (Suspend(other, Fault(-e, v)),) if other not in aux.suspended else ()
         aux.fault_windows = without_key(aux.fault_windows, cls)
-        self.f.motion.take_speed(stamp, [(own.speed, own.white_var + own.common_var)], {cls})
-        moved = aux.motion_views[-1] if aux.motion_views else None
-        if isinstance(moved, MovedView):
-            aux.motion_views = aux.motion_views[:-1] + (moved._replace(r=0.0, var_r=0.0, until=math.inf),)
         aux.events = incremented(aux.events, "transient_fault_outlasted")
+        return events + (TakeSpeed(stamp, [(own.speed, own.white_var + own.common_var)], {cls}), CommonErrorEnded())
 
-    def excluded(self, m, shown: float) -> None:
+    def excluded(self, m, shown: float) -> tuple:
         """Apply a measurement that a fault check excluded after the fact (a slip's onset), the
-        check having seen a disagreement of ``shown`` [m/s]."""
+        check having seen a disagreement of ``shown`` [m/s]; the effects on other policies
+        returned (events.py)."""
         aux = self.f.aux = self.f.aux.copy()
-        self.f._predict_to(m.stamp)
+        self.f.predict_to(m.stamp)
         cls = m.sensor
-        z, R, h, hx, _, S = self.f._innovation(m)
+        z, R, h, hx, _, S = self.f.innovation(m)
+        events = ()
         if not aux.slip_until.get(cls, -math.inf) > m.stamp:
-            self.episode_starts(m, z - hx, shown)
+            events = self.episode_starts(m, z - hx, shown)
             aux.events = incremented(aux.events, "slip_lookback")
         self.separate(m, z - hx, S)
         aux.slip_until = {**aux.slip_until, cls: m.stamp + self.f.cfg.slip_holdoff}
         aux.slip_window = {**aux.slip_window, cls: ()}
         aux.gated = incremented(aux.gated, cls + "/slip")
+        return events

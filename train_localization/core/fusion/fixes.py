@@ -35,7 +35,8 @@ import numpy as np
 
 from .component import Component
 from .bookkeeping import Candidate, ModelView, UnexplainedFix, incremented, without_key
-from . import impact
+from . import impact, views
+from .events import Relearn, SeedSubs
 from .episodes import Lookback
 
 
@@ -62,13 +63,12 @@ class Fixes(Component):
         aux.unverified = ""
         aux.last_fix_accepted = m.stamp
         aux.s_last_fix = float(self.f.ekf.x[0, 0])
-        self.f.solutions.hypotheses_take_fix(m)
         if m.sensor in self.f.layout.fix:
             self.fix_bias_consistency(m, nis, u, S)
             return   # a fix with a persistent error: not an independent test of the others
         window = (aux.fix_nis + (nis,))[-cfg.consistency_fixes:]
         mean = sum(window) / len(window)
-        if len(window) == cfg.consistency_fixes and mean > self.f._consistency:
+        if len(window) == cfg.consistency_fixes and mean > self.f.limits.consistency:
             # independent fixes disagree more than the covariance says: all of it is too small
             self.f.ekf.P = self.f.ekf.P * mean
             window = ()
@@ -98,8 +98,8 @@ class Fixes(Component):
         decay = math.exp(-max(m.stamp - t, 0.0) / cfg.slip_window)
         last = (last + (nis,))[-cfg.consistency_fixes:]
         summed, weights = summed * decay + u, weights * decay * decay + 1.0
-        noisy = len(last) == cfg.consistency_fixes and sum(last) / len(last) > self.f._consistency
-        drift = weights >= 3.0 and summed * summed / weights > self.f._slip_gate
+        noisy = len(last) == cfg.consistency_fixes and sum(last) / len(last) > self.f.limits.consistency
+        drift = weights >= 3.0 and summed * summed / weights > self.f.limits.slip_gate
         if not (noisy or drift):
             aux.fix_bias_nis = {**aux.fix_bias_nis, cls: (last, m.stamp, summed, weights)}
             return
@@ -124,7 +124,7 @@ class Fixes(Component):
         # scale opened that wide), nor again while the question is open (the same fixes would
         # pull the opened states again and again)
         faulty = () if noisy or pending else [c for c in self.f.layout.scale if "scale_fault" in self.f.models[c].faults]
-        self.f.ekf.P = self.raised(P, faulty)
+        self.f.ekf.P = views.raised(P, faulty, self.f.layout, self.f.models, float(self.f.ekf.x[1, 0]))
         aux.events = incremented(aux.events, "inconsistent_fix_bias")
         # the fixes pull the filter by about the bias it had estimated (s = z - e, e now 0): the
         # dead-reckoned view stays where it was, moving with the filter's motion from there
@@ -152,8 +152,8 @@ class Fixes(Component):
         # speed source read too fast
         ahead = summed * sv < 0.0
         limit = self.f.cfg.slip_min_drive
-        for cls in self.f._in_use(stamp):
-            if cls not in self.f._bounded:
+        for cls in self.f.in_use(stamp):
+            if cls not in self.f.limits.bounded:
                 continue
             faults = self.f.models[cls].faults
             if ("slip" in faults and drive >= limit and ahead) or ("slide" in faults and drive <= -limit and not ahead):
@@ -162,95 +162,57 @@ class Fixes(Component):
                 shown = -summed / weights * math.sqrt(S) / self.f.cfg.slip_window
                 raise Lookback(cls, stamp - self.f.cfg.history, shown)
 
-    def raised(self, P, faulty) -> np.ndarray:
-        """Covariance P with the relative error states at least as uncertain as their priors,
-        and the constant scale of each sensor in ``faulty`` (with a scale-fault mode) by the
-        fault's size (``scale_fault_sigma``) more; the speed, learnt through the scales, as
-        uncertain as they became. Rows and columns are rescaled, so the correlations stay."""
-        lay = self.f.layout
-        idx = lay.relative_states
-        if not len(idx):
-            return P
-        P = P.copy()
-        floor = np.zeros(self.f.n)
-        floor[idx] = lay.prior_sigma[idx] ** 2
-        for name in faulty:
-            floor[lay.fault_scale[name]] += self.f.models[name].scale_fault_sigma ** 2
-        var = np.diag(P).copy()
-        scales = [*lay.scale.values(), *lay.offset.values()]
-        P[1, 1] += float(np.sum(np.maximum(floor[scales] - var[scales], 0.0))) * float(self.f.ekf.x[1, 0]) ** 2
-        ratio = np.sqrt(np.divide(np.maximum(var[idx], floor[idx]), var[idx], out=np.ones(len(idx)),
-                                  where=var[idx] > 0))
-        P[idx, :] *= ratio[:, None]
-        P[:, idx] *= ratio[None, :]
-        return P
-
     def scale_faults_explaining(self, m, z: float, R: float) -> list[str]:
         """The speed sources in use with a scale-fault mode whose fault, over the distance run
         since the last accepted fix, would explain independent fix ``m`` (z, R) that the
         filter does not: the innovation inside the gate of its variance with that fault's
         (``scale_fault_sigma`` x distance) added."""
         aux, stamp = self.f.aux, m.stamp
+        if "scale_fault_explanation" not in self.f.cfg.policies:
+            return []
         if m.sensor in self.f.layout.fix or not math.isfinite(aux.s_last_fix):
             return []
         s, P00 = float(self.f.ekf.x[0, 0]), float(self.f.ekf.P[0, 0])
         run = abs(s - aux.s_last_fix)
-        return [c for c in sorted(self.f._in_use(stamp)) if c in self.f.layout.scale
+        return [c for c in sorted(self.f.in_use(stamp)) if c in self.f.layout.scale
                 and "scale_fault" in self.f.models[c].faults
-                and (z - s) ** 2 <= self.f._gates[m.sensor] * (P00 + R + (self.f.models[c].scale_fault_sigma * run) ** 2)]
+                and (z - s) ** 2 <= self.f.limits.gates[m.sensor] * (P00 + R + (self.f.models[c].scale_fault_sigma * run) ** 2)]
 
-    def unexplained(self, m, z: float, R: float) -> None:
+    def unexplained(self, m, z: float, R: float) -> tuple:
         """A gated absolute fix: keep it as the alternative, or let it confirm the one kept.
         Where a persistent scale fault of a speed source in use would explain it (a lone
         radar's, which nothing else measures), that source's scale is opened to the fault's
-        size (``Fixes.raised``): under that hypothesis the filter's speed is wrong, and the interval
+        size (``views.raised``): under that hypothesis the filter's speed is wrong, and the interval
         of both the filter and the kept fix moves with the filter's motion. The next fix of
         another reference decides: one that agrees with the kept fix re-acquires the position
-        from itself, the scale left open for the fixes after it to learn (``Plausibility.relearn``)."""
+        from itself, the scale left open for the fixes after it to learn (``Plausibility.relearn``).
+        Returns the effects on other policies (events.py)."""
         aux = self.f.aux
-        if self.corroborated(m, z, R):
+        if views.corroborated(m, z, R, self.f.aux.alternative, self.f.ekf.x, self.f.ekf.P, self.f.layout,
+                              self.f.cfg.branch_timeout, self.f.limits.gates[m.sensor]):
             # two independent fixes agree with each other, not with the filter: it was wrong
-            self.reacquire(m)
-            return
+            return self.reacquire(m)
         alt = aux.alternative
         if alt is not None and m.stamp - alt.stamp <= self.f.cfg.branch_timeout and \
                 (m.sensor, m.reference_id) == (alt.sensor, alt.reference):
-            return   # the kept reference read again confirms nothing and stays the alternative
+            return ()   # the kept reference read again confirms nothing and stays the alternative
         faulty = self.scale_faults_explaining(m, z, R)
         if faulty:
-            self.f.ekf.P = self.raised(self.f.ekf.P, faulty)
+            self.f.ekf.P = views.raised(self.f.ekf.P, faulty, self.f.layout, self.f.models, float(self.f.ekf.x[1, 0]))
             aux.events = incremented(aux.events, "scale_fault_suspected")
         aux.alternative = UnexplainedFix(m.stamp, z, R, float(self.f.ekf.x[0, 0]), float(self.f.ekf.P[0, 0]), m.sensor,
                                          m.reference_id, tuple(faulty))
         aux.events = incremented(aux.events, "unexplained_fix")
+        return ()
 
-    def reacquire(self, m) -> None:
+    def reacquire(self, m) -> tuple:
         """Two independent fixes agree with each other, not with the filter (the kept
-        alternative and ``m``): the position from ``m``, the relative error states re-learnt;
-        a scale opened for the alternative stays open."""
+        alternative and ``m``): the position from ``m``, the relative error states re-learnt
+        (the effects returned: events.py); a scale opened for the alternative stays open."""
         faulty = self.f.aux.alternative.opened
-        self.set_position(m)
-        self.f.plausibility.relearn("reacquired", faulty)
+        events = self.set_position(m)
         self.f.aux.alternative = None
-
-    def corroborated(self, m, z: float, R: float) -> bool:
-        """An unexplained fix of another, independent reference is kept and agrees with fix m
-        (z, R). Fixes of one sensor with a fix-bias state are not independent, whatever their
-        reference ids (mm-wave ranging: overlapping sets of stations, one NLOS or calibration
-        fault in all of them)."""
-        alt = self.f.aux.alternative
-        if alt is None or m.stamp - alt.stamp > self.f.cfg.branch_timeout:
-            return False
-        if m.sensor == alt.sensor and (m.reference_id == alt.reference or m.sensor in self.f.layout.fix):
-            return False
-        return self.agrees(m, z, R, float(self.f.ekf.x[0, 0]), float(self.f.ekf.P[0, 0]), alt.z, alt.R, alt.s, alt.P00)
-
-    def agrees(self, m, z: float, R: float, s: float, P00: float,
-               z_kept: float, R_kept: float, s_kept: float, P00_kept: float) -> bool:
-        """Whether fix ``m`` (z, R) agrees with a kept fix moved by the dead reckoning since:
-        filter position and its variance s, P00 now, s_kept, P00_kept when it was kept."""
-        var = R_kept + R + max(P00 - P00_kept, 0.0)
-        return (z - (z_kept + (s - s_kept))) ** 2 / var <= self.f._gates[m.sensor]
+        return events + (Relearn("reacquired", faulty),)
 
     def remembered(self, m, R: float) -> bool:
         """A fix of a reference whose earlier fix the filter still holds: its error (a balise's
@@ -281,29 +243,31 @@ class Fixes(Component):
         d[0] = 0.0
         self.f.ekf.P = self.f.ekf.P + (1.0 - 1.0 / nis) * np.outer(d, d)
 
-    def initialise(self, m) -> None:
+    def initialise(self, m) -> tuple:
         """Claim the position from a fix. A fix of a sensor that can misread its reference (a
         balise telegram, a lug code) is only a candidate: the position is set when a fix of
-        another reference agrees with it, moved by the dead reckoning since."""
+        another reference agrees with it, moved by the dead reckoning since. Returns the effects
+        on other policies (events.py)."""
         aux, cfg = self.f.aux, self.f.cfg
         if "misread" not in self.f.models[m.sensor].faults:
             # a reference that cannot be misidentified (wayside heads, loops, ranging): its decoder
             # withholds what it cannot tell (a miscounted axle, an unresolved NLOS)
-            self.set_position(m)
+            events = self.set_position(m)
             self.first_position(m.stamp)
-            return
-        z, R, _, _ = self.f._measurement(m)
+            return events
+        z, R, _, _ = self.f.measurement_of(m)
         x0, P00 = float(self.f.ekf.x[0, 0]), float(self.f.ekf.P[0, 0])
         cand = aux.candidate
         if cand is not None and m.stamp - cand.stamp <= cfg.branch_timeout:
             if m.reference_id == cand.reference and m.sensor == cand.sensor:
-                return                               # the same reference confirms nothing
-            if self.agrees(m, z, R, x0, P00, cand.z, cand.R, cand.s, cand.P00):
-                self.set_position(m)
+                return ()                            # the same reference confirms nothing
+            if views.agrees(z, R, x0, P00, cand.z, cand.R, cand.s, cand.P00, self.f.limits.gates[m.sensor]):
+                events = self.set_position(m)
                 self.first_position(m.stamp)
-                return
+                return events
             aux.events = incremented(aux.events, "candidate_replaced")
         aux.candidate = Candidate(m.stamp, z, R, x0, m.sensor, m.reference_id, P00)
+        return ()
 
     def first_position(self, stamp: float) -> None:
         """The position is claimed for the first time (``Fixes.set_position`` has just taken it from a
@@ -314,19 +278,20 @@ class Fixes(Component):
         aux = self.f.aux
         aux.initialised = True
         aux.candidate = None
-        views = []
+        kept = []
         for view in aux.motion_views:
             if isinstance(view, ModelView):
-                x, P = self.f.motion.model_view_at(view, stamp)
-                views.append(ModelView(stamp, float(self.f.ekf.x[0, 0]), float(x[1]), float(x[2]),
+                x, P = views.model_view_at(view, stamp, self.f.process)
+                kept.append(ModelView(stamp, float(self.f.ekf.x[0, 0]), float(x[1]), float(x[2]),
                                        (float(self.f.ekf.P[0, 0]), 0.0, 0.0, float(P[1, 1]), float(P[1, 2]),
                                         float(P[2, 2]))))
-        aux.motion_views = tuple(views)
+        aux.motion_views = tuple(kept)
 
-    def set_position(self, m) -> None:
-        """Take the position from a fix alone (first fix, re-acquisition): s = z - e."""
+    def set_position(self, m) -> tuple:
+        """Take the position from a fix alone (first fix, re-acquisition): s = z - e. The sensors'
+        own solutions start again from it: the effect returned (events.py)."""
         aux, cls = self.f.aux, m.sensor
-        z, R, _, _ = self.f._measurement(m)
+        z, R, _, _ = self.f.measurement_of(m)
         x = self.f.ekf.x.copy()
         P = self.f.ekf.P.copy()
         P[0, :] = 0.0
@@ -341,13 +306,13 @@ class Fixes(Component):
             P[0, 0] = R + P[f_idx, f_idx]
         self.f.ekf.x, self.f.ekf.P = x, P
         aux.impacts = impact.position_set_from_fix(
-            aux.impacts, f_idx, impact.FaultInput(cls, m.position_stddev, True) if cls in self.f._offset_bounds else None)
+            aux.impacts, f_idx, impact.FaultInput(cls, m.position_stddev, True) if cls in self.f.limits.offset_bounds else None)
         aux.accepted = incremented(aux.accepted, cls)
         aux.last_accepted = {**aux.last_accepted, cls: m.stamp}
         aux.last_fix_accepted = m.stamp
         aux.s_last_fix = float(x[0, 0])
-        self.f.solutions.seed_subs(m.stamp)
         aux.lone_view = None      # the lone source's solution starts again from here (LoneSource.track)
+        return (SeedSubs(m.stamp),)
 
     def new_fix_bias(self, cls: str) -> None:
         """A new reference: its fix bias is independent of the previous one."""

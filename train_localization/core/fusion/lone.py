@@ -17,8 +17,8 @@ from __future__ import annotations
 import math
 
 from .component import Component
-from .bookkeeping import MAX_MOTION_VIEWS, Bookkeeping, LoneView, ModelView, MovedView, incremented, is_coasting
-from .models import kinematics
+from .bookkeeping import MAX_MOTION_VIEWS, LoneView, ModelView, MovedView, incremented, is_coasting
+from . import views
 
 
 class LoneSource(Component):
@@ -32,15 +32,17 @@ class LoneSource(Component):
         fault of a few percent runs the filter out of its interval while every test passes. The
         solution without that sensor is the motion model from the last time another source
         checked it, conditioned on the fixes the filter accepts (``LoneSource.take_fix``); the
-        interval covers it (``LoneSource.lone_interval``). It starts when one such sensor is left in use
+        interval covers it (``views.lone_interval``). It starts when one such sensor is left in use
         (accepted within ``slip_reference_timeout`` s), and ends when another source is in use
         (``LoneSource.accompanied``). A wheel in a slip or slide episode still counts: the episode is
         short (its ``fault_duration_max``) and ends with the wheel agreeing with the filter
         again, which a drifting radar fails; a suspended sensor does not."""
+        if "lone_source" not in self.f.cfg.policies:
+            return
         aux, timeout = self.f.aux, self.f.cfg.slip_reference_timeout
         in_use = [c for c in self.f.layout.relative if c not in aux.suspended
                   and max(aux.last_accepted.get(c, -math.inf), aux.slip_until.get(c, -math.inf)) >= stamp - timeout]
-        lone = in_use[0] if len(in_use) == 1 and in_use[0] in self.f._persistent else None
+        lone = in_use[0] if len(in_use) == 1 and in_use[0] in self.f.limits.persistent else None
         if lone is None:
             if aux.lone_view is not None and in_use:
                 self.accompanied(stamp)
@@ -56,19 +58,24 @@ class LoneSource(Component):
         the filter (a MovedView, as a coasting's that ended): conditioned on the fixes, ruled out by
         one it does not fit, no longer needed once the filter explains a fix."""
         aux = self.f.aux
+        if "lone_source_kept" not in self.f.cfg.policies:
+            aux.lone_view = None
+            return
         s, var_s = float(self.f.ekf.x[0, 0]), float(self.f.ekf.P[0, 0])
         v, var_v = float(self.f.ekf.x[1, 0]), float(self.f.ekf.P[1, 1])
-        lo, hi, _, _, _ = self.lone_interval(aux, stamp, s, var_s, v, var_v)
+        lo, hi, _, _, _ = views.lone_interval(aux.lone_view, aux.t, stamp, s, var_s, v, var_v,
+                                              self.f.models[aux.lone_view.sensor].scale_fault_sigma, self.f.limits.z,
+                                              self.f.cfg.jerk_psd)
         aux.lone_view = None
-        half = self.f._z * math.sqrt(var_s)
+        half = self.f.limits.z * math.sqrt(var_s)
         if lo > hi or (lo >= s - half and hi <= s + half):
             return     # ruled out, or within the filter's own interval
-        moved = MovedView(0.5 * (lo + hi), (0.5 * (hi - lo) / self.f._z) ** 2, s, var_s, 0.0, 0.0, math.inf)
-        views = aux.motion_views
+        moved = MovedView(0.5 * (lo + hi), (0.5 * (hi - lo) / self.f.limits.z) ** 2, s, var_s, 0.0, 0.0, math.inf)
+        held = aux.motion_views
         if is_coasting(aux):   # the coasting's own hypothesis stays the last one
-            aux.motion_views = views[-(MAX_MOTION_VIEWS - 1):-1] + (moved, views[-1])
+            aux.motion_views = held[-(MAX_MOTION_VIEWS - 1):-1] + (moved, held[-1])
         else:
-            aux.motion_views = views[-(MAX_MOTION_VIEWS - 1):] + (moved,)
+            aux.motion_views = held[-(MAX_MOTION_VIEWS - 1):] + (moved,)
         aux.events = incremented(aux.events, "lone_source_accompanied")
 
     def lone_model_view(self, stamp: float, lone: str) -> ModelView:
@@ -77,8 +84,8 @@ class LoneSource(Component):
         twice ``slip_reference_timeout``: a lone view starts once the others have been silent
         that long), the speed is that sensor's own reading and its fault may have begun long
         before: the speed's variance then holds its scale fault, (``scale_fault_sigma`` x v)^2,
-        for the fixes to narrow (``MotionViews.motion_view_fixed``)."""
-        view = self.f.motion.model_view(stamp)
+        for the fixes to narrow (``views.motion_view_fixed``)."""
+        view = views.model_view(stamp, self.f.ekf.x, self.f.ekf.P)
         checked = max((self.f.aux.last_accepted.get(c, -math.inf) for c in self.f.layout.relative if c != lone),
                       default=-math.inf)
         if checked >= stamp - 2.0 * self.f.cfg.slip_reference_timeout:
@@ -95,31 +102,14 @@ class LoneSource(Component):
         held = aux.lone_view
         view = held.view
         s_f, P00 = float(self.f.ekf.x[0, 0]), float(self.f.ekf.P[0, 0])
-        s_m, var_m = self.f.motion.motion_view(view, m.stamp, s_f, P00)
-        if (z - s_m) ** 2 > self.f._gates[m.sensor] * (R + var_m):
+        s_m, var_m = views.motion_view(view, m.stamp, s_f, P00, self.f.cfg.jerk_psd)
+        if (z - s_m) ** 2 > self.f.limits.gates[m.sensor] * (R + var_m):
             view = self.lone_model_view(m.stamp, held.sensor)
             aux.events = incremented(aux.events, "lone_source_solution_refuted")
         else:
-            view = self.f.motion.motion_view_fixed(view, m.stamp, z, R, s_f, P00)
+            view = views.motion_view_fixed(view, m.stamp, z, R, s_f, P00, self.f.process, self.f.cfg.jerk_psd)
         # the filter accepted the fix: its error before was at most the innovation and the fix's
         # own error; the update took its gain's share of it (a DGPS fix little, a tag nearly all)
-        gain, nu = self.f._last_update
-        before = min(held.bound, abs(nu) + self.f._z * math.sqrt(R))
+        gain, nu = self.f.last_update
+        before = min(held.bound, abs(nu) + self.f.limits.z * math.sqrt(R))
         aux.lone_view = LoneView(view, held.sensor, (1.0 - min(max(float(gain[0]), 0.0), 1.0)) * before)
-
-    def lone_interval(self, aux: Bookkeeping, t: float, s: float, var_s: float, v: float, var_v: float) -> tuple:
-        """(lo, hi [m], speed half-width [m/s], its position and variance) of the lone source's
-        fault hypothesis at t (the filter at s [m], var_s [m^2], v [m/s], var_v [m^2/s^2]): the
-        motion model's interval, within what the sensor's scale fault can have put into the
-        filter's position (the lone view's bound: z x ``scale_fault_sigma`` x the distance run,
-        less what the accepted fixes corrected, for a fault that began at any time since; both
-        hold under the hypothesis); empty (lo > hi) where they do not meet."""
-        lone = aux.lone_view
-        sigma_f, z = self.f.models[lone.sensor].scale_fault_sigma, self.f._z
-        bound = lone.bound + z * sigma_f * abs(v) * max(t - aux.t, 0.0)
-        view = lone.view
-        s_m, v_m, _, var_m, var_vm = kinematics(view.s, view.v, view.a, view.cov, max(t - view.stamp, 0.0),
-                                                self.f.cfg.jerk_psd)
-        half, cap = z * math.sqrt(var_m), math.sqrt(z * z * var_s + bound * bound)
-        half_v = min(abs(v_m - v) + z * math.sqrt(var_vm), z * math.sqrt(var_v + (sigma_f * v) ** 2))
-        return max(s_m - half, s - cap), min(s_m + half, s + cap), half_v, s_m, var_m

@@ -23,14 +23,12 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 from .component import Component
 from ..sensors import faults as fault_modes
 from .bookkeeping import (MAX_MOTION_VIEWS, Fault, ModelView, MovedView, PeerRun, PeerSpeed, fault_at, incremented,
                           is_coasting, speed_excluded)
-from . import impact
-from .models import implied_speed, kinematic_covariance, kinematic_mean, kinematics
+from . import impact, views
+from .models import implied_speed, kinematics
 
 
 def _shows(fault: Fault | None, speed: float, variance: float, gate: float) -> bool:
@@ -59,7 +57,7 @@ class MotionViews(Component):
         if not coasting and float(self.f.ekf.P[1, 1]) <= half_range * half_range:
             return False                    # a short slip: the motion model still knows better
         if not coasting:
-            aux.motion_views = aux.motion_views[-(MAX_MOTION_VIEWS - 1):] + (self.model_view(stamp),)
+            aux.motion_views = aux.motion_views[-(MAX_MOTION_VIEWS - 1):] + (views.model_view(stamp, self.f.ekf.x, self.f.ekf.P),)
             aux.events = incremented(aux.events, "coasting_between_speed_sources")
             aux.unverified = aux.unverified or "speed_sources_disagree"
         self.set_speed(readings, middle=True)
@@ -91,46 +89,6 @@ class MotionViews(Component):
             until = stamp + min(md.fault_duration_max for md in models)
         return MovedView(s_m, var_m, s_f, float(self.f.ekf.P[0, 0]), r, var_r, until)
 
-    def model_view(self, stamp: float) -> ModelView:
-        """The motion model's hypothesis from the filter's kinematic state now."""
-        return ModelView(stamp, *self.f.ekf.x[:3, 0].tolist(), kinematic_covariance(self.f.ekf.P))
-
-    def model_view_at(self, view: ModelView, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """(kinematic state [s, v, a], its 3x3 covariance) of a coasting's view predicted to t [s]."""
-        dt = max(t - view.stamp, 0.0)
-        F, _, Q = self.f.process.transition(dt)
-        F, Q = F[:3, :3], Q[:3, :3]      # the kinematic block: the error states do not enter it
-        p00, p01, p02, p11, p12, p22 = view.cov
-        P = F @ np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]]) @ F.T + Q
-        return np.array(kinematic_mean(view.s, view.v, view.a, dt)), P
-
-    def motion_view_fixed(self, view: ModelView | MovedView, t: float, z: float, R: float, s_f: float,
-                          P00_f: float) -> ModelView | MovedView:
-        """A motion-model hypothesis conditioned on a fix z [m] of variance R [m^2] at t [s] (the
-        filter at s_f, P00_f after it): a coasting's kinematic state moved to t and updated
-        (H = [1, 0, 0]); a moved one as a scalar update, moved with the filter from here."""
-        if isinstance(view, MovedView):
-            s_m, var_m = self.motion_view(view, t, s_f, P00_f)
-            k = var_m / (var_m + R)
-            return view._replace(s=s_m + k * (z - s_m), var=(1.0 - k) * var_m, s_filter=s_f, P00_filter=P00_f)
-        x, P = self.model_view_at(view, t)
-        K = P[:, 0] / (P[0, 0] + R)
-        x = x + K * (z - x[0])
-        P = P - np.outer(K, P[0, :])
-        return ModelView(t, float(x[0]), float(x[1]), float(x[2]), kinematic_covariance(P))
-
-    def motion_view(self, view: ModelView | MovedView, t: float, s_f: float, var_f: float) -> tuple[float, float]:
-        """(position [m], variance [m^2]) at t of a motion-model hypothesis: during its coasting
-        the kinematic block from its start predicted with the white-jerk process noise; after it
-        moved with the filter (position s_f [m], variance var_f [m^2] at t), the distance scaled
-        by 1 + r, r the common scale error of the speed sources in use (``MotionViews.coasting_ended``)."""
-        if isinstance(view, MovedView):
-            d = s_f - view.s_filter
-            return (view.s + d * (1.0 + view.r),
-                    view.var + max(var_f - view.P00_filter, 0.0) + (view.var_r * d * d if d else 0.0))
-        s_m, _, _, var, _ = kinematics(view.s, view.v, view.a, view.cov, max(t - view.stamp, 0.0), self.f.cfg.jerk_psd)
-        return s_m, var
-
     def peer_run(self, cls: str, stamp: float, u: float, white: float, common: float,
                  peers: dict) -> str | None:
         """Extend the run of agreement of ``cls`` with an excluded peer: each reading inside the
@@ -139,7 +97,7 @@ class MotionViews(Component):
         and only if the fault each of the two was suspended for would stand out of that mean
         difference's spread (``_shows``): two sources whose common errors are wider than a radar's
         scale fault "agree" with a slipping wheel as well."""
-        aux, cfg, gate = self.f.aux, self.f.cfg, self.f._slip_gate
+        aux, cfg, gate = self.f.aux, self.f.cfg, self.f.limits.slip_gate
         run = aux.peer_run
         fits = [c for c, p in peers.items()
                 if (u - p.speed) ** 2 <= gate * (white + common + p.white_var + p.common_var)]
@@ -201,7 +159,7 @@ class MotionViews(Component):
         coasting = is_coasting(aux)
         # the motion model's hypothesis: of the coasting, or the filter's own until now (its speed
         # rested on the motion model alone)
-        view = aux.motion_views[-1] if coasting else self.model_view(stamp)
+        view = aux.motion_views[-1] if coasting else views.model_view(stamp, self.f.ekf.x, self.f.ekf.P)
         self.set_speed(readings)
         aux.suspended = {c: v for c, v in aux.suspended.items() if c not in sensors}
         aux.slip_until = {c: (min(t, stamp) if c in sensors else t) for c, t in aux.slip_until.items()}
@@ -214,6 +172,14 @@ class MotionViews(Component):
             aux.motion_views = kept + (moved,)
         aux.events = incremented(aux.events, "speed_reacquired")
         aux.unverified = "speed_reacquired"
+
+    def common_error_ended(self) -> None:
+        """The newest motion-model hypothesis, if it moves with the filter, no longer shares an
+        error with the sources in use (a transient fault that cannot go on)."""
+        aux = self.f.aux
+        moved = aux.motion_views[-1] if aux.motion_views else None
+        if isinstance(moved, MovedView):
+            aux.motion_views = aux.motion_views[:-1] + (moved._replace(r=0.0, var_r=0.0, until=math.inf),)
 
     def blind_speed(self, m, z: float, R: float) -> bool:
         """Every speed source excluded (slip episodes, suspensions) and the filter's speed resting

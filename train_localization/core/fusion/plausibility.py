@@ -15,13 +15,14 @@ import numpy as np
 
 from .component import Component
 from .bookkeeping import Fault, incremented, new_view, without_key
-from . import impact
+from . import impact, views
+from .events import Suspend
 
 
 class Plausibility(Component):
     """Plausibility of the error states."""
 
-    def check_plausible(self) -> None:
+    def check_plausible(self) -> tuple:
         """Re-learn the relative sensors' error states if one of them left its plausible range.
 
         If the states of one sensor alone left it, that sensor is outside its own error
@@ -29,10 +30,11 @@ class Plausibility(Component):
         suspended until it agrees again, its view kept as the alternative if another speed source
         may be the faulty one; the only relative sensor of a train without slip physics keeps
         its readings in use, its scale opened to the fault's size. States of several sensors: a fault was absorbed between them (a
-        slip learnt as scales), which one cannot be told."""
+        slip learnt as scales), which one cannot be told. Returns the effect on the arbitration
+        (events.py)."""
         idx = self.f.layout.relative_states
         if not len(idx):
-            return
+            return ()
         x = self.f.ekf.x[idx, 0]
         sigma = self.f.layout.prior_sigma[idx]
         if self.f.aux.scale_faults:   # a scale fault being learnt: plausible up to its size
@@ -43,21 +45,22 @@ class Plausibility(Component):
         # beyond the plausible range, and significantly so where a fix-bias inconsistency widened
         # the state past its prior (a noisy estimate of a scale that may hold a fault is no proof)
         bad = (np.abs(x) > self.f.cfg.plausible_sigmas * sigma) & \
-            (x * x > self.f._slip_gate * np.diag(self.f.ekf.P)[idx])
+            (x * x > self.f.limits.slip_gate * np.diag(self.f.ekf.P)[idx])
         if not bad.any():
-            return
+            return ()
         owners = {self.f.layout.owner[i] for i in idx[bad]}
         x_before = self.f.ekf.x
-        if len(owners) == 1 and not self.f.episodes.judged(next(iter(owners))):
+        if len(owners) == 1 and not views.judged(next(iter(owners)), self.f.layout, self.f.models,
+                                                       self.f.cfg.policies):
             # the only relative sensor, without slip physics: suspended, nothing could show it
-            # agreeing again (``Episodes.judged``); its scale may hold a fault, opened to the fault's size
+            # agreeing again (``views.judged``); its scale may hold a fault, opened to the fault's size
             # for the fixes to teach, the lone solution covering it meanwhile
             self.relearn("implausible_error_state", faulty=owners)
-            return
+            return ()
         self.relearn("implausible_error_state")
         if len(owners) == 1:
             (cls,) = owners
-            self.f.arbitration.suspend(cls, self.state_fault(cls, x_before))
+            events = (Suspend(cls, self.state_fault(cls, x_before)),)
             aux = self.f.aux
             aux.events = incremented(aux.events, "implausible_sensor_suspended")
             if aux.speed_sources - {cls} and cls not in aux.relative_alternatives:
@@ -66,6 +69,8 @@ class Plausibility(Component):
                 aux.relative_alternatives = {**aux.relative_alternatives,
                                              cls: new_view(aux.t, float(self.f.ekf.P[0, 0]))}
                 aux.episode_views = without_key(aux.episode_views, cls)
+            return events
+        return ()
 
     def state_fault(self, cls: str, x) -> Fault:
         """The fault that relative sensor ``cls``'s error states in x had absorbed: its scale and
@@ -78,7 +83,7 @@ class Plausibility(Component):
 
     def relearn(self, reason: str, faulty=()) -> None:
         """Error states of the relative sensors back to their priors (the scales of ``faulty``
-        sensors, suspected of a scale fault, by the fault's size more: ``Fixes.raised``); the
+        sensors, suspected of a scale fault, by the fault's size more: ``views.raised``); the
         position and speed covariance widened by what the discarded estimates can have caused
         since the last accepted fix (scale x distance, scale x speed, bias x time)."""
         aux, lay = self.f.aux, self.f.layout
@@ -98,7 +103,7 @@ class Plausibility(Component):
         P[:, idx] = 0.0
         P[idx, idx] = lay.prior_sigma[idx] ** 2
         self.f.ekf.x = x
-        self.f.ekf.P = self.f.fixes.raised(P, faulty) if faulty else P
+        self.f.ekf.P = views.raised(P, faulty, lay, self.f.models, float(x[1, 0])) if faulty else P
         aux.scale_faults = aux.scale_faults & frozenset(faulty)
         aux.events = incremented(aux.events, reason)
         aux.unverified = reason

@@ -5,29 +5,19 @@ locate the train under every hypothesis.
               radar scale fault or a worn wheel every other one, against a wheel slip the
               fault-free ones; against its own wear the wheel, its scale opened) keeps its own
               dead reckoning from the fixes; per fault hypothesis the interval and the speed
-              cover the valid one that widens them least, DEGRADED where the filter's own
-              interval would not have (a radar scale fault absorbed into both scale states
-              before any test sees it).
+              cover the valid one that widens them least (interval.py ``Interval.hypotheses_cover``),
+              DEGRADED where the filter's own interval would not have (a radar scale fault
+              absorbed into both scale states before any test sees it).
 """
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
 from .component import Component
-from .bookkeeping import Bookkeeping, incremented, speed_excluded
+from .bookkeeping import incremented, speed_excluded
 from .models import fixes_sharing
-from .mode import Mode
-from . import separation
-
-
-class Placed(NamedTuple):
-    """A sensor solution placed at the time of a published state."""
-
-    s: float           # position [m]
-    var: float         # its variance, at least the filter's [m^2]
-    half: float        # z x its 1-sigma [m]
-    half_v: float      # half-width [m/s] of the speeds it allows; 0 while its sensor does not read
+from . import separation, views
+from .events import LoneTakeFix
 
 
 class Solutions(Component):
@@ -36,7 +26,7 @@ class Solutions(Component):
     def seed_subs(self, stamp: float) -> None:
         """Every relative sensor's own solution starts again from the filter's position."""
         s, P00, d = float(self.f.ekf.x[0, 0]), float(self.f.ekf.P[0, 0]), self.f.aux.odometer
-        self.f.aux.subs = {name: separation.seed(sm, stamp, s, P00, d) for name, sm in self.f._subs.items()}
+        self.f.aux.subs = {name: separation.seed(sm, stamp, s, P00, d) for name, sm in self.f.limits.subs.items()}
 
     def main(self) -> separation.Main:
         """The filter's own solution now, for the sensor solutions."""
@@ -46,14 +36,14 @@ class Solutions(Component):
     def sub_reading(self, m, key: str, sm) -> None:
         """Sensor ``m.sensor``'s own solution ``key`` after its reading m; while the filter has
         excluded it for its own fault (not as an undecided alternative) it follows the filter."""
-        aux, cls, before = self.f.aux, m.sensor, self.f._before
+        aux, cls, before = self.f.aux, m.sensor, self.f.before
         sub = aux.subs.get(key)
         if sub is None:
             sub = separation.seed(sm, m.stamp, before.s, before.P00, before.d)
         elif speed_excluded(aux, cls, m.stamp) and cls not in aux.relative_alternatives:
             sub = separation.follow(sub, m.stamp, before)._replace(t_v=-math.inf)
         else:
-            R = self.f._measurement(m)[1]
+            R = self.f.measurement_of(m)[1]
             sub = separation.reading(sub, sm, m, R, float(self.f.ekf.x[2, 0]), before, self.f.cfg.slip_window)
         aux.subs = {**aux.subs, key: sub}
 
@@ -64,71 +54,36 @@ class Solutions(Component):
         got wrong. Its prior variance is added, as shared by the sensor's fixes within its
         correlation time (each counts for the fraction of that time since the previous one, as
         ``models.fix_noise`` counts a decoder's excess)."""
-        z, R, _, _ = self.f._measurement(m)
+        z, R, _, _ = self.f.measurement_of(m)
         f_idx = self.f.layout.fix.get(m.sensor)
         if f_idx is not None:
-            shared = fixes_sharing(self.f.models[m.sensor], abs(float(self.f.ekf.x[1, 0])), self.f._since)
+            shared = fixes_sharing(self.f.models[m.sensor], abs(float(self.f.ekf.x[1, 0])), self.f.since_fix)
             R += float(self.f.layout.prior_sigma[f_idx]) ** 2 * shared
         return z, R
 
-    def hypotheses_take_fix(self, m) -> None:
+    def hypotheses_take_fix(self, m) -> tuple:
         """An absolute fix the filter accepted locates the train under every hypothesis it
         keeps: each relative sensor's own solution (separation.py; one that cannot explain the
         fix is refuted and starts again from the filter's) and each motion-model hypothesis of
         a coasting (conditioned on it: a fix that both explain tells where the train is, not
-        only which one is right)."""
+        only which one is right). The lone source's hypothesis likewise: the effect returned
+        (events.py)."""
         aux = self.f.aux
         if not aux.subs and not aux.motion_views and aux.lone_view is None:
-            return
+            return ()
         z, R = self.located(m)
-        if aux.lone_view is not None:
-            self.f.lone.take_fix(m, z, R)
+        events = (LoneTakeFix(m, z, R),) if aux.lone_view is not None else ()
         x0, P00 = float(self.f.ekf.x[0, 0]), float(self.f.ekf.P[0, 0])
         if aux.motion_views:
-            aux.motion_views = tuple(self.f.motion.motion_view_fixed(view, m.stamp, z, R, x0, P00)
+            aux.motion_views = tuple(views.motion_view_fixed(view, m.stamp, z, R, x0, P00, self.f.process, self.f.cfg.jerk_psd)
                                      for view in aux.motion_views)
         if aux.subs:
             subs = {}
             for name, sub in aux.subs.items():
-                new = separation.fix(sub, m.stamp, z, R, self.f._before, self.f._gates[m.sensor])
+                new = separation.fix(sub, m.stamp, z, R, self.f.before, self.f.limits.gates[m.sensor])
                 if new is None:
-                    new = separation.seed(self.f._subs[name], m.stamp, x0, P00, aux.odometer)
+                    new = separation.seed(self.f.limits.subs[name], m.stamp, x0, P00, aux.odometer)
                     aux.events = incremented(aux.events, "sensor_solution_refuted")
                 subs[name] = new
             aux.subs = subs
-
-    def hypotheses_cover(self, aux: Bookkeeping, t: float, s: float, var_s: float, v: float, var_v: float,
-                         lo: float, hi: float, sd_s: float, sd_v: float, mode: Mode, odometer: float) -> tuple:
-        """(lo, hi, position and speed 1-sigma, mode) widened to cover, per fault hypothesis of
-        the relative sensors (separation.hypotheses), the valid solution that widens the interval
-        least: each is a bound under that hypothesis. A solution whose sensor has not read since it
-        started is the filter's own. DEGRADED where the filter's interval alone would not have
-        covered the chosen solution (the separation beyond its test threshold). ``odometer``: the
-        filter's at t (Bookkeeping.odometer), which a solution without readings follows."""
-        z, placed = self.f._z, {}
-        for key, sub in aux.subs.items():
-            if not sub.own:
-                continue
-            s_j, var_j = separation.at(sub, t, var_s, v, var_v, odometer)
-            var_j = max(var_j, var_s)
-            half_v = (separation.speed_half_width(sub, self.f._subs[key], v, var_v, z)
-                      if t - sub.t_v <= self.f.cfg.slip_reference_timeout else 0.0)
-            placed[key] = Placed(s_j, var_j, z * math.sqrt(var_j), half_v)
-        for valid in self.f._hypotheses.values():
-            # only a solution whose sensor reads is a bound of its own; one that follows the
-            # filter (its sensor silent or excluded) may carry the fault: then each is covered
-            # (one whose sensor has not read since it started is the filter's own: none)
-            own = [k for k in valid if k in placed]
-            reading = [k for k in own if placed[k].half_v > 0.0]
-            chosen = [min(reading, key=lambda k: max(hi, placed[k].s + placed[k].half)
-                          - min(lo, placed[k].s - placed[k].half))] if reading else own
-            for k in chosen:
-                p = placed[k]
-                if p.s - p.half < lo or p.s + p.half > hi:
-                    lo, hi, sd_s, mode = self.f.interval.widen(aux, t, lo, hi, sd_s, mode, p.s - p.half, p.s + p.half)
-                    if mode == Mode.NOMINAL and separation.separated(p.s, p.var, s, var_s, z):
-                        mode = Mode.DEGRADED
-            half_v = min((placed[k].half_v for k in reading), default=0.0)
-            if half_v > z * sd_v:
-                sd_v = half_v / z
-        return lo, hi, sd_s, sd_v, mode
+        return events

@@ -1,0 +1,93 @@
+"""Effects a policy asks of another policy: returned with its verdict, routed by the pipeline
+(pipeline.py ``ROUTES``) to the policy that owns what they change, in the order returned. A
+routed effect may return effects of its own, routed right after it (before the ones waiting)."""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+
+class Separate(NamedTuple):
+    """An excluded reading adds to its sensor's view (Episodes.separate)."""
+
+    m: object       # the reading
+    e: float        # its disagreement [m/s]
+    S: float        # its innovation variance [m^2/s^2]
+
+
+class FaultEnded(NamedTuple):
+    """The scale fault being learnt of speed source ``cls`` has ended (Episodes.end_fault)."""
+
+    cls: str
+
+
+class RelearnFault(NamedTuple):
+    """Speed source ``cls`` is back in use, its scale opened to learn its fault (Arbitration.relearn_fault)."""
+
+    cls: str
+
+
+class Suspend(NamedTuple):
+    """Speed source ``cls`` suspended for the fault seen (Arbitration.suspend)."""
+
+    cls: str
+    fault: object   # bookkeeping.Fault, or None if its size is not known
+
+
+class TakeSpeed(NamedTuple):
+    """The speed taken from ``readings`` ((speed [m/s], variance [m^2/s^2]), ...), the exclusions of
+    ``sensors`` ended at ``stamp`` [s] (MotionViews.take_speed)."""
+
+    stamp: float
+    readings: list
+    sensors: set
+
+
+class SetSpeed(NamedTuple):
+    """The speed taken from ``readings`` ((speed [m/s], variance [m^2/s^2]), ...) (MotionViews.set_speed)."""
+
+    readings: list
+
+
+class CommonErrorEnded(NamedTuple):
+    """The newest motion-model hypothesis that moves with the filter no longer shares an error
+    with the sources in use (MotionViews.common_error_ended)."""
+
+
+class Swap(NamedTuple):
+    """Excluded sensor ``m.sensor`` was right, ``other`` in use is faulty (Arbitration.swap)."""
+
+    m: object       # the reading
+    z: float        # its value
+    R: float        # its variance
+    view: object    # its view (bookkeeping.View)
+    other: str
+
+
+class SetPosition(NamedTuple):
+    """The position from fix ``m`` alone (Fixes.set_position)."""
+
+    m: object
+
+
+class Relearn(NamedTuple):
+    """The relative sensors' error states back to their priors, for ``reason`` (an event name), the
+    scales of ``faulty`` opened to their fault's size (Plausibility.relearn)."""
+
+    reason: str
+    faulty: tuple = ()
+
+
+class SeedSubs(NamedTuple):
+    """Every relative sensor's own solution starts again from the filter's position at ``stamp`` [s]
+    (Solutions.seed_subs)."""
+
+    stamp: float
+
+
+class LoneTakeFix(NamedTuple):
+    """The lone source's hypothesis conditioned on an accepted fix ``m`` located at z [m], variance
+    R [m^2] (LoneSource.take_fix)."""
+
+    m: object
+    z: float
+    R: float

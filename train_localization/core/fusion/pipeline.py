@@ -1,0 +1,306 @@
+"""One reading through the filter's policies: the ordered stages of ``STAGES``, each a function
+(filter, Reading) -> Verdict, run by ``apply_reading``.
+
+A stage reads and changes the filter through its components (filter.py) and says whether the
+reading goes on to the next stage (``GO_ON``), is done with (``DONE``: used, gated or kept) or
+excluded by a fault test (``EXCLUDED``: then ``excluded`` follows its sensor's episode), with
+the effects it asks of other policies (events.py), which ``route`` applies right after it. The
+innovation is computed by the ``innovation`` stage and again after a stage whose ``Step``
+declares it (``renew``) if that stage replaced the covariance (the EKF's ``revision`` counts
+the replacements).
+"""
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass
+from typing import Callable, NamedTuple
+
+from ..measurements import PositionFix
+from . import impact, views
+from .events import (CommonErrorEnded, FaultEnded, LoneTakeFix, Relearn, RelearnFault, SeedSubs, Separate,
+                     SetPosition, SetSpeed, Suspend, Swap, TakeSpeed)
+from .bookkeeping import MovedView, NisSum, incremented, is_coasting, speed_excluded, without_key
+
+
+class Kind(enum.Enum):
+    GO_ON = 0       # the next stage judges the reading
+    DONE = 1        # used, gated or kept: no further stage
+    EXCLUDED = 2    # excluded by a fault test (its sensor's episode follows it: ``excluded``)
+
+
+class Verdict(NamedTuple):
+    """A stage's verdict on a reading, and the effects it asks of other policies (events.py)."""
+
+    kind: Kind
+    events: tuple = ()
+
+
+GO_ON, DONE, EXCLUDED = Verdict(Kind.GO_ON), Verdict(Kind.DONE), Verdict(Kind.EXCLUDED)
+
+
+@dataclass(slots=True)
+class Reading:
+    """A reading being applied and its innovation at the current state."""
+
+    m: object
+    cls: str                   # its sensor
+    is_fix: bool               # an absolute fix (PositionFix)
+    z: float = math.nan        # the measurement [its units]
+    R: float = math.nan        # its variance
+    h: object = None           # the Jacobian row (n,)
+    hx: float = math.nan       # h(x)
+    PHt: object = None         # P h (n,)
+    S: float = math.nan        # the innovation variance
+    nis: float = math.nan      # (z - hx)^2 / S
+
+    def innovate(self, f) -> None:
+        """The innovation at the filter's current state."""
+        self.z, self.R, self.h, self.hx, self.PHt, self.S = f.innovation(self.m)
+        self.nis = (self.z - self.hx) ** 2 / self.S
+
+
+def prepare(f, r: Reading) -> Verdict:
+    """Predict to the reading, note the filter's own solution before it (separation.py) and what
+    its own fault would add (impact.py); a run of offset fixes may begin with it."""
+    m, cls, aux = r.m, r.cls, f.aux
+    f.predict_to(m.stamp)
+    if f.limits.subs:
+        f.before = f.solutions.main()
+    f.applied += 1
+    f.fault_input = f.fault_input_of(m, r.is_fix)
+    if cls in f.limits.offset_bounds and (aux.impacts is None or m.stamp - aux.impacts.last_onset_of((cls,))
+                                          >= f.cfg.fault_onset_spacing):
+        aux.impacts = impact.started(aux.impacts, {cls: f.limits.offset_bounds[cls]}, m.stamp, f.n,
+                                     f.cfg.fault_onsets, f.limits.z, offset=True)
+    if r.is_fix:   # since the sensor's previous fix, before this one counts (Solutions.located)
+        f.since_fix = m.stamp - aux.last_accepted.get(cls, -math.inf)
+    return GO_ON
+
+
+def fix_reference(f, r: Reading) -> Verdict:
+    """A fix of a new reference starts its fix bias; the first fixes initialise the filter."""
+    aux, m = f.aux, r.m
+    if r.cls in f.layout.per_reference and r.is_fix and aux.fix_ref.get(r.cls) != m.reference_id:
+        f.fixes.new_fix_bias(r.cls)
+        aux.fix_ref = {**aux.fix_ref, r.cls: m.reference_id}
+    if r.is_fix and not aux.initialised:
+        return Verdict(Kind.DONE, f.fixes.initialise(m))
+    return GO_ON
+
+
+def motion_views_move(f, r: Reading) -> Verdict:
+    """The motion model's hypotheses that move with the filter from this reading on."""
+    aux, stamp = f.aux, r.m.stamp
+    if is_coasting(aux) and not all(speed_excluded(aux, c, stamp) for c in aux.speed_sources):
+        # a speed source is in use again: the coasting ends, its motion-model hypothesis moves
+        # with the filter from now on until a fix rules it out
+        aux.motion_views = aux.motion_views[:-1] + (f.motion.coasting_ended(aux.motion_views[-1], stamp),)
+    if any(isinstance(v, MovedView) and v.until <= stamp for v in aux.motion_views):
+        # past the longest episode of a transient fault the sources in use may share: their
+        # common error no longer grows; the hypothesis moves with the filter from here
+        s_f, P00 = float(f.ekf.x[0, 0]), float(f.ekf.P[0, 0])
+        aux.motion_views = tuple(
+            MovedView(*views.motion_view(v, stamp, s_f, P00, f.cfg.jerk_psd), s_f, P00, 0.0, 0.0, math.inf)
+            if isinstance(v, MovedView) and v.until <= stamp else v for v in aux.motion_views)
+    return GO_ON
+
+
+def innovation(f, r: Reading) -> Verdict:
+    r.innovate(f)
+    return GO_ON
+
+
+def motion_views_fix(f, r: Reading) -> Verdict:
+    """A fix rules out the motion-model hypotheses it does not fit."""
+    aux = f.aux
+    if r.is_fix and aux.motion_views:
+        s_f, P00 = float(f.ekf.x[0, 0]), float(f.ekf.P[0, 0])
+        gate = f.limits.gates[r.cls]
+        aux.motion_views = tuple(view for view in aux.motion_views
+                                 if (r.z - (mv := views.motion_view(view, r.m.stamp, s_f, P00, f.cfg.jerk_psd))[0]) ** 2
+                                 / (r.R + mv[1]) <= gate)
+    return GO_ON
+
+
+def blind(f, r: Reading) -> Verdict:
+    """An excluded speed source while nothing else gives the speed (MotionViews.blind_speed);
+    then, a fix the filter explains on its speed sources again confirms it: an old coasting's
+    motion-model hypothesis (however vague) is no longer needed."""
+    aux = f.aux
+    if not r.is_fix and speed_excluded(aux, r.cls, r.m.stamp) \
+            and not f.agreement_reference(r.m, r.S) and f.motion.blind_speed(r.m, r.z, r.R):
+        r.innovate(f)   # at the re-acquired speed
+    if r.is_fix and r.nis <= f.limits.gates[r.cls] and any(isinstance(v, MovedView) for v in aux.motion_views):
+        aux.motion_views = tuple(v for v in aux.motion_views if not isinstance(v, MovedView))
+    return GO_ON
+
+
+def suspension(f, r: Reading) -> Verdict:
+    """A suspended speed source is judged (Arbitration.suspended); it may come back with its scale
+    opened (Arbitration.relearn_fault: a new covariance)."""
+    if r.cls not in f.aux.suspended:
+        return GO_ON
+    excluded, events = f.arbitration.suspended(r.m, r.z - r.hx, r.S, r.nis, f.episodes.common(r.cls, r.h))
+    return Verdict(Kind.EXCLUDED if excluded else Kind.GO_ON, events)
+
+
+def slip(f, r: Reading) -> Verdict:
+    """The slip and slide tests of a relative sensor (Episodes.slipping); a learnt fault that
+    ended gives a new covariance (Episodes.fault_ended)."""
+    if r.cls not in f.layout.episode_sensors:
+        return GO_ON
+    excluded, events = f.episodes.slipping(r.m, r.z - r.hx, r.S, r.nis)
+    return Verdict(Kind.EXCLUDED if excluded else Kind.GO_ON, events)
+
+
+def decide_views(f, r: Reading) -> Verdict:
+    """A fix decides between the filter and the excluded sensors' views (Arbitration.decide_relative)."""
+    if not (r.is_fix and f.aux.relative_alternatives):
+        return GO_ON
+    used, events = f.arbitration.decide_relative(r.m, r.z, r.R, r.hx, r.S, r.nis)
+    return Verdict(Kind.DONE if used else Kind.GO_ON, events)
+
+
+def reacquisition(f, r: Reading) -> Verdict:
+    """The kept fix, for which a scale was opened, and this one agree: the position from them
+    (Fixes.reacquire), also where the filter's opened interval would have taken this one (it
+    would learn the scale from this fix against a position the kept fix showed wrong)."""
+    aux, m = f.aux, r.m
+    if r.is_fix and aux.alternative is not None and aux.alternative.opened and views.corroborated(
+            m, r.z, r.R, aux.alternative, f.ekf.x, f.ekf.P, f.layout, f.cfg.branch_timeout, f.limits.gates[r.cls]):
+        return Verdict(Kind.DONE, f.fixes.reacquire(m))
+    return GO_ON
+
+
+def gate(f, r: Reading) -> Verdict:
+    """The NIS gate; a gated fix may be kept as the unexplained alternative, and a fix that
+    revisits a remembered reference is judged by it (Fixes.remembered)."""
+    aux = f.aux
+    if r.nis > f.limits.gates[r.cls]:
+        aux.gated = incremented(aux.gated, r.cls)
+        if r.is_fix and aux.initialised:
+            return Verdict(Kind.DONE, f.fixes.unexplained(r.m, r.z, r.R))
+        return DONE
+    if r.is_fix and f.fixes.remembered(r.m, r.R):
+        return DONE
+    return GO_ON
+
+
+def transient_onset(f, r: Reading) -> Verdict:
+    """The train driven or braked; a relative reading's unseen share of a transient fault (impact.py)."""
+    aux, cls, stamp = f.aux, r.cls, r.m.stamp
+    if abs(float(f.ekf.x[2, 0])) >= f.cfg.slip_min_drive:
+        aux.last_drive = stamp
+    if cls in f.limits.transient_bounds and aux.initialised:   # a relative reading: its fault input is set
+        share = f.unseen_share(cls, stamp, f.fault_input.per_unit, r.S)
+        f.fault_input = f.fault_input._replace(unseen=share)
+        alone = share >= 1.0
+        if aux.impacts is None or aux.impacts.episode_begins(cls, alone):
+            aux.impacts = impact.episode_started(aux.impacts, cls, f.limits.transient_bounds[cls], stamp, alone,
+                                                 f.n, f.cfg.fault_onsets, f.limits.z)
+    return GO_ON
+
+
+def update(f, r: Reading) -> Verdict:
+    """The EKF update and its counts; a fix's correction of the speed states that its NIS does not
+    confirm (Fixes.correction_unconfirmed)."""
+    aux, cls, m = f.aux, r.cls, r.m
+    x_before = f.ekf.x
+    f.update(r.z, r.R, r.h, r.hx, r.PHt, r.S)
+    if r.is_fix and r.nis > 1.0 and cls not in f.layout.fix:
+        f.fixes.correction_unconfirmed(x_before, r.nis)
+    seen = aux.nis.get(cls, NisSum(0, 0.0))
+    aux.nis = {**aux.nis, cls: NisSum(seen.count + 1, seen.total + r.nis)}
+    aux.accepted = incremented(aux.accepted, cls)
+    aux.last_accepted = {**aux.last_accepted, cls: m.stamp}
+    if cls in aux.episode_views or cls in aux.fault_windows:
+        aux.episode_views = without_key(aux.episode_views, cls)
+        aux.fault_windows = without_key(aux.fault_windows, cls)
+    return GO_ON
+
+
+def locate(f, r: Reading) -> Verdict:
+    """An accepted fix locates the train under every hypothesis kept (Solutions.hypotheses_take_fix)."""
+    return Verdict(Kind.GO_ON, f.solutions.hypotheses_take_fix(r.m)) if r.is_fix else GO_ON
+
+
+def accept(f, r: Reading) -> Verdict:
+    """What follows an accepted reading: the fix policies, the speed sources and the lone source,
+    the plausibility of the error states."""
+    aux, cls, m = f.aux, r.cls, r.m
+    if r.is_fix:
+        f.fixes.fix_accepted(m, r.nis, (r.z - r.hx) / math.sqrt(r.S), r.S)
+    else:
+        if cls not in aux.speed_sources:
+            aux.speed_sources = aux.speed_sources | {cls}
+        if f.limits.persistent:
+            f.lone.track(m.stamp)
+    return Verdict(Kind.DONE, f.plausibility.check_plausible())
+
+
+def excluded(f, r: Reading) -> None:
+    """After an exclusion: a sensor whose fault modes all end by themselves may have outlasted
+    them (Episodes.outlasted)."""
+    if r.cls in f.limits.bounded:
+        route(f, f.episodes.outlasted(r.m, r.z, r.R, r.hx, r.S, r.h))
+
+
+# event -> the policy that owns what it changes (each returns the events it asks in turn, if any)
+ROUTES = {
+    Separate: lambda f, ev: f.episodes.separate(ev.m, ev.e, ev.S),
+    FaultEnded: lambda f, ev: f.episodes.end_fault(ev.cls),
+    RelearnFault: lambda f, ev: f.arbitration.relearn_fault(ev.cls),
+    Suspend: lambda f, ev: f.arbitration.suspend(ev.cls, ev.fault),
+    TakeSpeed: lambda f, ev: f.motion.take_speed(ev.stamp, ev.readings, ev.sensors),
+    SetSpeed: lambda f, ev: f.motion.set_speed(ev.readings),
+    CommonErrorEnded: lambda f, ev: f.motion.common_error_ended(),
+    Swap: lambda f, ev: f.arbitration.swap(ev.m, ev.z, ev.R, ev.view, ev.other),
+    SetPosition: lambda f, ev: f.fixes.set_position(ev.m),
+    Relearn: lambda f, ev: f.plausibility.relearn(ev.reason, ev.faulty),
+    SeedSubs: lambda f, ev: f.solutions.seed_subs(ev.stamp),
+    LoneTakeFix: lambda f, ev: f.lone.take_fix(ev.m, ev.z, ev.R),
+}
+
+
+def route(f, events: tuple) -> None:
+    """Apply ``events`` in order, each by the policy ``ROUTES`` names; the events a routed one
+    returns come right after it, before those still waiting (as a call would)."""
+    waiting = list(reversed(events))
+    while waiting:
+        event = waiting.pop()
+        waiting.extend(reversed(ROUTES[type(event)](f, event) or ()))
+
+
+class Step(NamedTuple):
+    judge: Callable[..., Verdict]
+    renew: bool = False   # the innovation is computed again after it if it replaced the covariance
+
+
+# the order in which the policies act on a reading
+STAGES = (Step(prepare), Step(fix_reference), Step(motion_views_move), Step(innovation), Step(motion_views_fix),
+          Step(blind), Step(suspension, renew=True), Step(slip, renew=True), Step(decide_views), Step(reacquisition),
+          Step(gate), Step(transient_onset), Step(update), Step(locate), Step(accept))
+
+
+def apply_reading(f, m, stages: tuple = STAGES) -> None:
+    """Run ``m`` through ``stages`` on the filter ``f`` (its bookkeeping copied first: copy-on-write)."""
+    f.aux = f.aux.copy()
+    r = Reading(m, m.sensor, isinstance(m, PositionFix))
+    for step in stages:
+        revision = f.ekf.revision
+        verdict = step.judge(f, r)
+        route(f, verdict.events)
+        if verdict.kind is Kind.EXCLUDED:
+            excluded(f, r)
+            return
+        if verdict.kind is Kind.DONE:
+            return
+        if step.renew and f.ekf.revision != revision:   # the stage replaced the covariance
+            r.innovate(f)
+
+
+def apply_excluded(f, m, shown: float) -> None:
+    """Apply ``m``, which a fault test excluded after the fact (a slip's onset, having seen a
+    disagreement of ``shown`` [m/s]: Episodes.excluded), and route the effects it asks."""
+    route(f, f.episodes.excluded(m, shown))

@@ -218,17 +218,16 @@ def test_bad_input_is_refused_in_one_line_and_counted():
             m.validate()
 
 
-@pytest.mark.xfail(strict=True, raises=KeyError, reason="issue 51: the fusion does not admit an acceleration yet "
-                                                        "(core/fusion/admission.py KIND_OF)")
-def test_the_fusion_admits_or_refuses_an_acceleration():
-    """A fusion configured with an accelerometer takes its Acceleration or refuses it (counted),
-    never a crash; when this passes, the accelerometer joins test_sensor_replay_identity."""
+def test_the_fusion_refuses_an_acceleration_it_does_not_use_and_counts_it():
+    """A fusion configured with an accelerometer refuses its Acceleration (``not_fused``,
+    counted), never a crash: the filter does not use the kind yet (issue 51)."""
     from train_localization.core.fusion import FusionRunner, fusion_config
     from train_localization.core.scenario import Scenario
     sc = Scenario.from_yaml(ROOT / "config" / "scenario_demo.yaml")
     sc.sensors["accelerometer"] = {}
     runner = FusionRunner(fusion_config(sc))
     runner.add(Acceleration(0.1, "accelerometer", "accelerometer", 0.1, 0.03))
+    assert runner.rejected == {"not_fused": 1}
 
 
 def test_the_node_takes_its_position_from_a_train_state_and_publishes_the_acceleration(ros_context, start_node,

@@ -12,6 +12,7 @@ reason                    refused
 ``implausible``           beyond the physical limits (core/measurements.py)
 ``too_long``              an id (sensor, unit, track, reference) beyond 64 characters
 ``unknown_sensor``        a sensor class the fusion is not configured for
+``not_fused``             a measurement of a kind the filter does not use (an acceleration)
 ``wrong_kind``            a measurement of another kind than its sensor gives
 ``wrong_track``           a fix that names another track than the fusion's
 ``off_track``             a fix beyond the track's ends by more than 100 m + 5 sigma
@@ -60,7 +61,10 @@ class Admission:
         if model is None:
             raise InputRejected("unknown_sensor", f"measurement of sensor {m.sensor[:64]!r}, which the fusion "
                                 f"is not configured for (configured: {', '.join(sorted(self.models))})")
-        kind = KIND_OF[model.measures]
+        kind = KIND_OF.get(model.measures)
+        if kind is None:
+            raise InputRejected("not_fused", f"measurement of sensor {m.sensor!r}, which measures "
+                                f"{model.measures}: the fusion does not use that kind")
         if not isinstance(m, kind):
             raise InputRejected("wrong_kind", f"{type(m).__name__} of sensor {m.sensor!r}, which "
                                 f"measures {model.measures} ({kind.__name__})")

@@ -61,7 +61,10 @@ VOTING_PARAMS = {   # the combined occupancy's (wayside_occupancy, neutral_secti
     **oc.PARAMS,
 }
 OCCUPANCY_PARAMS = {**VOTING_PARAMS, "rate": Param(20.0, "evaluation rate [Hz]", (0.1, 1000.0))}
-CONTROLLER_PARAMS = {**VOTING_PARAMS, **ns.PARAMS, "rate": Param(20.0, "evaluation rate [Hz]", (0.1, 1000.0))}
+CONTROLLER_PARAMS = {**VOTING_PARAMS, **ns.PARAMS, "rate": Param(20.0, "evaluation rate [Hz]", (0.1, 1000.0)),
+                     "controller": Param("staged", "changeover sequence: 'staged' (both systems agree, the last "
+                                                   "axle has left) or 'seed' (seed 004 section 4.1's moments per "
+                                                   "running direction); the trade: docs/changeover.md")}
 CROSSCHECK_PARAMS = {"train_id": Param("train", "name of the train in the flags"), **cc.PARAMS,
                      "rate": Param(4.0, "evaluation rate [Hz]", (0.1, 1000.0))}
 
@@ -155,7 +158,10 @@ class ChangeoverControllerNode(_Voting, Node):
         self._setup_voting()
         from std_msgs.msg import Bool
         self._bool = Bool
-        self.ctrl = ns.ChangeoverController(declare_params(self, ns.PARAMS))
+        kind = declare_param(self, CONTROLLER_PARAMS, "controller")
+        if kind not in ns.CONTROLLERS:
+            raise ConfigurationError(f"parameter 'controller': {kind!r} is not one of {', '.join(ns.CONTROLLERS)}")
+        self.ctrl = ns.CONTROLLERS[kind](declare_params(self, ns.PARAMS))
         self.pubs = {sw: self.create_publisher(Bool, topic, LATCHED_QOS) for sw, topic in ABB_TOPICS.items()}
         for sw, closed in self.ctrl.abb.items():
             self.pubs[sw].publish(Bool(data=closed))

@@ -37,6 +37,12 @@ class Leg:
     hold: float = 0.0
 
 
+
+def _clamp(x: float, limit: float) -> float:
+    """x within +-limit, on plain floats (np.clip per step was 97 % of a campaign draw: 150
+    draws 3.05 s -> 0.60 s)."""
+    return min(max(float(x), -limit), limit)
+
 class Trajectory:
     """Ground-truth motion sampled every ``dt`` [s]: arrays t, position, speed, acceleration.
 
@@ -71,16 +77,16 @@ class Trajectory:
                     ease = acc * acc / (2.0 * leg.jerk)
                     if abs(err) <= ease + abs(acc) * dt:
                         a_target = 0.0
-                    acc += float(np.clip(a_target - acc, -leg.jerk * dt, leg.jerk * dt))
+                    acc += _clamp(a_target - acc, leg.jerk * dt)
                     if abs(err) < 1e-3 or (abs(err) < abs(acc) * dt * 2 and a_target == 0.0):
                         reached, hold_left, acc = True, leg.hold, 0.0
                 if reached:
-                    acc = float(np.clip((leg.speed - v[k - 1]) / dt, -leg.jerk * dt, leg.jerk * dt))
+                    acc = _clamp((leg.speed - v[k - 1]) / dt, leg.jerk * dt)
                     hold_left -= dt
                     if hold_left <= 0:
                         leg_idx, reached = leg_idx + 1, False
             else:
-                acc = float(np.clip(-acc, -0.5 * dt, 0.5 * dt)) + acc
+                acc = _clamp(-acc, 0.5 * dt) + acc
             a[k] = acc
             v[k] = v[k - 1] + acc * dt
             s[k] = s[k - 1] + 0.5 * (v[k - 1] + v[k]) * dt
@@ -109,6 +115,7 @@ class TruthBuffer:
         self._s: list[float] = []
         self._v: list[float] = []
         self._a: list[float] = []
+        self._arrays: tuple | None = None   # the lists as arrays, until the next add
 
     def add(self, state: TruthState) -> None:
         """Append a state; states must come in increasing time (others are ignored)."""
@@ -118,6 +125,7 @@ class TruthBuffer:
         self._s.append(state.position)
         self._v.append(state.speed)
         self._a.append(state.acceleration)
+        self._arrays = None
         if self._t[-1] - self._t[0] > 2 * self.horizon:
             cut = int(np.searchsorted(self._t, self._t[-1] - self.horizon))
             del self._t[:cut], self._s[:cut], self._v[:cut], self._a[:cut]
@@ -133,10 +141,12 @@ class TruthBuffer:
 
     def sample(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(position, speed, acceleration) arrays at ``times`` [s]."""
-        t = np.asarray(self._t)
+        if self._arrays is None:   # a simulator samples many blocks between two states
+            self._arrays = tuple(np.asarray(x) for x in (self._t, self._s, self._v, self._a))
+        t, s, v, a = self._arrays
         idx = np.clip(np.searchsorted(t, times, side="right") - 1, 0, len(t) - 1)
         dt = np.asarray(times) - t[idx]
-        s0, v0, a0 = np.asarray(self._s)[idx], np.asarray(self._v)[idx], np.asarray(self._a)[idx]
+        s0, v0, a0 = s[idx], v[idx], a[idx]
         return s0 + v0 * dt + 0.5 * a0 * dt * dt, v0 + a0 * dt, a0
 
 

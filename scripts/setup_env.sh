@@ -51,9 +51,16 @@ _tl_build() {
       --build-base "$_tl_ws/build" --install-base "$_tl_ws/install" \
       --cmake-args -DBUILD_TESTING=OFF -DPython3_EXECUTABLE="$_tl_venv/bin/python" \
       >"$_tl_ws/colcon.out" 2>&1) || { cat "$_tl_ws/colcon.out" >&2; return 1; }
-  # The package itself, editable: console scripts in .venv/bin, ament index marker
-  # and share/ files in the venv prefix.
+  # The package itself, editable: its executables in .venv/lib/train_localization (setup.cfg).
+  # An editable install (setup.py develop) installs no data_files: the ament index marker, by
+  # which a ROS command line finds package 'train_localization' in this prefix, and the share/
+  # files are put there here (links to the source tree).
   "$_tl_venv/bin/python" -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e "$_tl_root" || return 1
+  mkdir -p "$_tl_venv/share/ament_index/resource_index/packages" "$_tl_venv/share/train_localization" || return 1
+  cp "$_tl_root/resource/train_localization" "$_tl_venv/share/ament_index/resource_index/packages/" || return 1
+  for _tl_f in package.xml launch config; do
+    ln -sfn "$_tl_root/$_tl_f" "$_tl_venv/share/train_localization/$_tl_f" || return 1
+  done
   _tl_stamp_inputs > "$_tl_venv/.stamp"
   echo "[setup] environment ready" >&2
 }

@@ -118,8 +118,6 @@ def test_no_node_changes_the_discovery_variables():
     assert pattern.search('os.environ["ROS_DOMAIN_ID"] = "5"')
 
 
-@pytest.mark.xfail(strict=True, reason="scripts/setup_env.sh does not put the ament index marker in the pip "
-                                       "environment yet (issue 55): remove this mark with that change")
 def test_a_ros_command_line_on_the_pip_environment_finds_the_package():
     """What ``ros2 run train_localization <node>`` looks up: the package's prefix by the ament index
     marker (share/ament_index/resource_index/packages/train_localization) on AMENT_PREFIX_PATH,

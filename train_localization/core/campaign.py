@@ -43,6 +43,7 @@ from .offline import delayed, fuse_arrivals, fusion_runner, scenario_measurement
 from .report import jsonable
 from .scenario import Leg, Scenario, Trajectory
 from .scoring import StateSeries, passing_times, run_scores
+from .signals import MAX_CHANNELS
 from . import hard_conditions
 from .oracle import availability, fault_free, ratios
 from .sensors import sensor_classes
@@ -643,6 +644,9 @@ def _mlx(d: Draw) -> tuple[dict, dict]:
     return scenario, conditions
 
 
+HSST_MAX_BLOCKS = MAX_CHANNELS // 2   # check-in blocks of a campaign line (two loop channels each)
+
+
 def _hsst(d: Draw) -> tuple[dict, dict]:
     """An HSST-type urban maglev line (seed 000 section 2.2.1, seed 002 section 2.1.1): the
     pattern belt on board (interrupted at switches) and the wayside check-in / check-out block
@@ -652,7 +656,8 @@ def _hsst(d: Draw) -> tuple[dict, dict]:
     duration, v0, legs, prof, traj, vehicle, length, start = _urban_run(
         d, (40.0, 100.0), (30.0, 60.0), (3000.0, 8000.0), 200.0)
     front = traj.position + start
-    block_length = d.u(150.0, 500.0)
+    # at most HSST_MAX_BLOCKS: one check-in device reads two loops a block within a raw block's channels
+    block_length = max(d.u(150.0, 500.0), length / HSST_MAX_BLOCKS)
     edges = np.arange(0.0, length - 1.0, block_length)
     blocks = [{"id": f"B{n:03d}", "start": rounded(x, 8), "end": rounded(min(x + block_length, length), 8)}
               for n, x in enumerate(edges)]

@@ -41,6 +41,9 @@ SCENARIO_OF = {"doppler_radar": "demo", "wheel_sensor": "demo", "eurobalise_read
                "track_circuit_receiver": "track_circuit", "dgps_receiver": "utm", "tag_reader": "utm",
                "coil_counter": "mlx", "emf_observer": "mlx", "checkin_loop": "hsst", "pole_position": "mbahn", "rig_loop_receiver": "rig_open",
                "gyro": "demo", "accelerometer": "demo"}
+# parameters beside the scenario's: TDOA on the maglev line's 500 m spacing hears six stations
+# (three on each side: a fix bounds a fault of two neighbours together) from 1.4 km
+PARAMS_OF = {"mmwave_tdoa": {"max_range": 1400.0}}
 # simulated time that gives WARM_UP + RESYNC_BLOCKS + 2 blocks: 2 s, but the DGPS delivers one
 # epoch per 0.1 s block
 T_END = {"dgps_receiver": 3.0}
@@ -180,7 +183,8 @@ def test_memory_per_block_is_bounded_by_the_configured_largest_block(node):
     is refused before the decoder sees it."""
     BYTES_PER_VALUE = 1000
     scen = Scenario.from_yaml(ROOT / "config" / f"scenario_{SCENARIO_OF[node]}.yaml")
-    params = {**scen.sensors.get(node, {}), "block_duration": 1.0, "max_block_duration": 1.0}
+    params = {**scen.sensors.get(node, {}), **PARAMS_OF.get(node, {}), "block_duration": 1.0,
+              "max_block_duration": 1.0}
     run = simulate_and_decode(node, scen, params=params, t_end=40.0)
     per_block = np.bincount([min(int((m.stamp - run.blocks[0].t0) // 1.0), len(run.blocks) - 1)
                              for m in run.measurements], minlength=len(run.blocks))

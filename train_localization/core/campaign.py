@@ -657,7 +657,7 @@ def _hsst(d: Draw) -> tuple[dict, dict]:
         d, (40.0, 100.0), (30.0, 60.0), (3000.0, 8000.0), 200.0)
     front = traj.position + start
     # at most HSST_MAX_BLOCKS: one check-in device reads two loops a block within a raw block's channels
-    block_length = max(d.u(150.0, 500.0), length / HSST_MAX_BLOCKS)
+    block_length = max(d.u(150.0, 500.0), length / HSST_MAX_BLOCKS * (1.0 + 1e-9))
     edges = np.arange(0.0, length - 1.0, block_length)
     blocks = [{"id": f"B{n:03d}", "start": rounded(x, 8), "end": rounded(min(x + block_length, length), 8)}
               for n, x in enumerate(edges)]

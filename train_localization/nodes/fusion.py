@@ -532,6 +532,7 @@ class FusionNode(ManagedNode):
     def on_set_position(self, request, response):
         t = now_sec(self)
         if request.reset:
+            self._fixed_at.clear()   # the references passed are counted from the next position
             self.filter.reset(stamp=t)
             response.success, response.message = True, "filter reset: INITIALISING"
             self.get_logger().info(response.message)
@@ -555,6 +556,7 @@ class FusionNode(ManagedNode):
             response.success, response.message = False, f"refused: {exc}"
             self.get_logger().warn(response.message)
             return response
+        self._fixed_at.clear()   # an operator's position: the references passed are counted from it
         response.success = True
         self.get_logger().info(response.message)
         return response

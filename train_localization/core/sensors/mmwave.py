@@ -498,22 +498,26 @@ class SolutionSeparation:
 
     def _group_protection(self, tab, xs, var, sub, group_bits) -> np.ndarray:
         """Published 1-sigma (n,) that covers a fault of every covered group with two or more of
-        its stations inside the chosen subsets ``sub`` (n,): the solution without all of the
+        its stations in view and one inside the chosen subsets ``sub`` (n,): the solution without all of the
         group's stations is taken as ``_protection`` takes the one without a single station (its
         separation / k + its sigma), whatever the group's stations do together (their errors
         may agree: two stations on one timing node walk off the same way and pass every test);
-        infinite where nothing is left or the rest does not fix x (no fix)."""
+        infinite where fewer than two stations are left or the rest does not fix x (no fix)."""
         cols = self._columns(len(sub))
         bits = tab.bits[sub]
         x_s = xs[sub, cols]
         sigma = np.zeros(len(sub))
         for group in group_bits:
-            several = _POPCOUNT[bits & group] >= 2
+            # a group with two stations in view is suspect wherever one of them is used: the others
+            # may have been excluded as if they were the only faulty ones
+            several = (_POPCOUNT[group] >= 2) & (_POPCOUNT[bits & group] >= 1)
             if not _any(several):
                 continue
             rest = (bits & ~group) - 1                     # subset index of the stations left (-1: none)
             k = np.maximum(rest, 0)
-            cover = np.where(rest >= 0, np.abs(xs[k, cols] - x_s) / self._k_cover + np.sqrt(var[k, cols]), np.inf)
+            # a single station left cannot tell its side (a range's mirror image fits it as well)
+            cover = np.where(_POPCOUNT[rest + 1] >= 2,
+                             np.abs(xs[k, cols] - x_s) / self._k_cover + np.sqrt(var[k, cols]), np.inf)
             sigma = np.where(several, np.maximum(sigma, cover), sigma)
         return sigma
 
@@ -531,7 +535,9 @@ class SolutionSeparation:
                 continue
             rest = info - np.add.reduce(np.where(inside, wh * h, 0.0))
             sep = np.abs(np.add.reduce(np.where(inside, wh * e, 0.0))) / np.maximum(rest, 1e-300)
-            cover = np.where(rest > 1e-6, sep / self._k_cover + 1.0 / np.sqrt(np.maximum(rest, 1e-300)), np.inf)
+            left = np.add.reduce(valid & ~inside) >= 2     # one range left cannot tell its side
+            cover = np.where(left & (rest > 1e-6), sep / self._k_cover + 1.0 / np.sqrt(np.maximum(rest, 1e-300)),
+                             np.inf)
             sigma = np.where(several, np.maximum(sigma, cover), sigma)
         return sigma
 
@@ -954,6 +960,8 @@ class MmWaveDecoder(SolutionSeparation, Decoder):
             if len(member):   # and without each common-cause group (_group_protection)
                 sub = np.vstack([sub, 1.0 - member])
             delta, var, chi2, e_bar = self._block_solutions(sub, line, r, pat, w_bar, avg)
+            if len(member):   # a group that leaves a single station: its side is open, no bound
+                var[m + 1:] = np.where(m - member.sum(axis=1) >= 2, var[m + 1:], np.inf)
             if chi2[0] <= self._subsets(m).gate[-1] and var[0] < np.inf:
                 has = np.full((len(sub) - 1, 1), m > 1)
                 sep = np.abs(delta[1:] - delta[0])

@@ -228,17 +228,19 @@ def base_stations(track: Track, params: dict):
     return ids, np.asarray(pos, float), np.asarray(perp, float), np.asarray(codes, np.int64)
 
 
+def covered_groups(track: Track, ids, params: dict, implied=()) -> list[tuple[int, ...]]:
+    """The common-cause groups a mm-wave decoder covers among the stations ``ids``: the track's
+    and ``implied`` ones (a decoder's own fault model) whose prior exceeds the risk its interval
+    allows, 1 - protection_probability; per group the indices into ``ids`` of its members."""
+    return member_groups(tuple(track.common_cause) + tuple(implied), ids, 1.0 - params["protection_probability"])
+
+
 def group_excess(track: Track | None, params: dict, implied=()) -> dict:
     """The ErrorModel's ``fix_excess_length`` / ``fix_excess_tau`` where the decoder covers
-    common-cause groups of the track's stations (the track's and ``implied``, as
-    ``SolutionSeparation._init_groups``): the excess of a fix may be a group's shared error,
-    lasting ``FAULT_PERSISTENCE`` s and shared over twice the radio range; {} where it covers none
-    (or without a track)."""
-    if track is None:
-        return {}
-    ids = base_stations(track, params)[0]
-    risk = 1.0 - params["protection_probability"]
-    if not member_groups(tuple(track.common_cause) + tuple(implied), ids, risk):
+    common-cause groups of the track's stations (``covered_groups``): the excess of a fix may be
+    a group's shared error, lasting ``FAULT_PERSISTENCE`` s and shared over twice the radio
+    range; {} where it covers none (or without a track)."""
+    if track is None or not covered_groups(track, base_stations(track, params)[0], params, implied):
         return {}
     return {"fix_excess_length": 2.0 * params["max_range"],
             "fix_excess_tau": max(FAULT_PERSISTENCE, params["nlos_duration"])}
@@ -480,11 +482,8 @@ class SolutionSeparation:
 
     def _init_groups(self, track, ids, implied=()) -> None:
         """The common-cause groups of the stations ``ids`` that this decoder covers
-        (core/common_cause.py): the track's and ``implied`` ones (a decoder's own fault model)
-        whose prior exceeds the risk the interval allows, 1 - protection_probability. Kept as a
-        (stations, groups) membership matrix."""
-        rows = member_groups(tuple(track.common_cause) + tuple(implied), ids,
-                             1.0 - self.params["protection_probability"])
+        (``covered_groups``), kept as a (stations, groups) membership matrix."""
+        rows = covered_groups(track, ids, self.params, implied)
         self._groups = np.zeros((max(len(ids), 1), len(rows)), dtype=bool)
         for g, members in enumerate(rows):
             self._groups[list(members), g] = True

@@ -222,10 +222,10 @@ def _split_faults(text: str):
 
 
 def timing_groups(track: Track, ids, positions, neighbours: int) -> tuple[CommonCause, ...]:
-    """The stations' common-cause groups: those the track declares (core/common_cause.py) or,
-    where it declares none of these stations, every run of ``neighbours`` neighbouring stations
-    by chainage ``positions`` [m] (``timing_neighbours``), each as likely as the risk of a fix's interval could
-    not neglect (prior 1: always covered)."""
+    """The stations' implied common-cause groups: none where the track declares a group of
+    these stations (core/common_cause.py), else every run of ``neighbours`` neighbouring
+    stations by chainage ``positions`` [m] (``timing_neighbours``), each with prior 1 (always
+    covered)."""
     mine = set(ids)
     if any(mine.intersection(group.members) for group in track.common_cause) or neighbours < 2:
         return ()

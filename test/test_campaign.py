@@ -216,7 +216,8 @@ def test_urban_maglev_draws_cover_the_stated_ranges(draws):
     assert (_c(draws, f, "stops") >= 2).sum() > 50
     assert 20 < sum(d["campaign"]["conditions"]["reversal_speed_kmh"] is not None for d in draws[f]) < 120
     assert (_c(draws, f, "belt_gaps") > 0).sum() > 50
-    assert {tuple(sorted(d["sensors"])) for d in draws[f]} == {("doppler_radar", "eurobalise_reader", "pattern_belt")}
+    assert {tuple(sorted(set(d["sensors"]) - {"accelerometer"})) for d in draws[f]} == \
+        {("doppler_radar", "eurobalise_reader", "pattern_belt")}
 
 
 def test_highspeed_maglev_draws_cover_the_stated_ranges(draws):

@@ -247,3 +247,18 @@ def test_an_unseen_slip_is_carried_only_while_no_other_source_sees_the_wheel():
     assert driven[36] < 0.2 * driven[34]
     coasting = _radar_gap_run(0.0)
     assert max(coasting.values()) < 0.5
+
+
+def test_a_ramp_on_inpo_fixes_is_covered_by_the_offset_mode():
+    """Campaign run highspeed_maglev:3387733988: 20 INPO fixes moved by an offset growing from
+    nothing to 3.99 of their 1-sigma (the adversarial ``ramp``) from 26.4 s. The crossed loops'
+    fixes are centimetre-precise and the filter's interval was as narrow: 13 states outside
+    while NOMINAL until INPO declared the ``offset`` mode; now none, the interval covering the
+    run's offset within the gate's radius."""
+    from train_localization.core import campaign
+    from train_localization.core.sensors import inpo
+    assert "offset" in inpo.error_model({k: p.default for k, p in inpo.PARAMS.items()}, None, None).faults
+    run = campaign.run_one("highspeed_maglev", 3387733988, max_duration=32.0)
+    attack = run["conditions"]["adversarial"]
+    assert (attack["kind"], attack["sensor"]) == ("ramp", "inpo") and attack["offset"] > 3.89
+    assert run["scores"]["integrity"]["outside_count"] == 0

@@ -182,8 +182,11 @@ def test_error_model_figures():
     accelerometer = spec("accelerometer")
     model = accelerometer.errors(sensor_params(accelerometer, {}, Vehicle()), graded_track(), Vehicle())
     assert model.measures == "acceleration" and not model.relative
-    assert model.bias_sigma == pytest.approx(math.hypot(0.02, 0.002)) == model.reported_bias
-    assert model.scale_sigma == 0.002 == model.reported_scale and math.isinf(model.scale_tau)
+    # the fusion's bias state: turn-on and instability, 5e-4 m/s^2/K over 5 K, 0.5 per mille of g
+    reported = math.hypot(math.hypot(0.02, 0.002), GRAVITY * 0.5e-3)
+    assert model.bias_sigma == pytest.approx(math.hypot(reported, 5.0e-4 * 5.0)) and model.bias_tau == 20.0
+    assert model.reported_bias == pytest.approx(reported)
+    assert model.scale_sigma == 0.0 == model.reported_scale   # 0.2 % of a: in the reported 1-sigma
     assert set(model.faults) == {"dropout", "bias_step"} and model.timeout == 1.0
     assert model.min_stddev == pytest.approx(math.hypot(turn_on_sigma({"bias_sigma": 0.02, "bias_instability": 0.002}),
                                                         GRAVITY * 0.5e-3))
@@ -218,16 +221,24 @@ def test_bad_input_is_refused_in_one_line_and_counted():
             m.validate()
 
 
-def test_the_fusion_refuses_an_acceleration_it_does_not_use_and_counts_it():
-    """A fusion configured with an accelerometer refuses its Acceleration (``not_fused``,
-    counted), never a crash: the filter does not use the kind yet (issue 51)."""
+def test_the_fusion_takes_an_acceleration_into_its_acceleration_and_the_bias_state():
+    """A fusion configured with an accelerometer takes its Acceleration (nothing refused): the
+    filter's acceleration moves towards the reading, the accelerometer's bias state (layout
+    ``accel_bias``) takes a share of the difference, and the acceleration's variance shrinks."""
     from train_localization.core.fusion import FusionRunner, fusion_config
     from train_localization.core.scenario import Scenario
     sc = Scenario.from_yaml(ROOT / "config" / "scenario_demo.yaml")
     sc.sensors["accelerometer"] = {}
     runner = FusionRunner(fusion_config(sc))
-    runner.add(Acceleration(0.1, "accelerometer", "accelerometer", 0.1, 0.03))
-    assert runner.rejected == {"not_fused": 1}
+    f = runner.filter
+    c = f.layout.accel_bias["accelerometer"]
+    P_aa = float(f.ekf.P[2, 2])
+    runner.add(Acceleration(0.1, "accelerometer", "accelerometer", 0.5, 0.03))
+    runner.advance(0.2)
+    assert runner.rejected == {} and f.counters()["accepted"] == {"accelerometer": 1}
+    a, bias = float(f.ekf.x[2, 0]), float(f.ekf.x[c, 0])
+    assert 0.3 < a < 0.5 and 0.0 < bias < 0.05
+    assert float(f.ekf.P[2, 2]) < 0.1 * P_aa
 
 
 def test_the_node_takes_its_position_from_a_train_state_and_publishes_the_acceleration(ros_context, start_node,

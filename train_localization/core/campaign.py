@@ -45,7 +45,7 @@ from .scenario import Leg, Scenario, Trajectory
 from .scoring import StateSeries, passing_times, run_scores
 from .signals import MAX_CHANNELS
 from . import hard_conditions
-from .oracle import availability, fault_free, ratios
+from .oracle import availability, fault_free, plain_config, ratios
 from .sensors import sensor_classes
 from .wayside import stator
 from .sensors import wheel as _wheel
@@ -55,6 +55,7 @@ FAMILIES = ("conventional", "urban_maglev", "highspeed_maglev")
 MORE_FAMILIES = ("lzb", "utm", "mlx", "hsst", "mbahn", "etcs", "network")
 ALL_FAMILIES = FAMILIES + MORE_FAMILIES
 FUSION_RATE = 200.0   # published states per second (the fusion node's default)
+P_ACCELEROMETER = 0.5  # share of the trains that carry a longitudinal accelerometer (single lines)
 KMH = 1.0 / 3.6
 
 def fusion_overrides(family: str, draw: dict) -> dict:
@@ -859,6 +860,16 @@ def _station_groups(seed: int, body: dict) -> None:
                                       "size": size, "prior": STATION_GROUP_PRIOR}]
 
 
+def _accelerometer(seed: int, body: dict, conditions: dict) -> None:
+    """A share P_ACCELEROMETER of the trains carries a longitudinal accelerometer (the node
+    ``accelerometer`` at its defaults), drawn from a stream of its own: the rest of the run is the
+    same with or without it. Not on a network yet (its gravity needs the line's gradient:
+    docs/network.md)."""
+    if "route" not in body and np.random.default_rng([seed, 5003]).random() < P_ACCELEROMETER:
+        body["sensors"]["accelerometer"] = {}
+    conditions["accelerometer"] = "accelerometer" in body["sensors"]
+
+
 _GENERATORS = {"conventional": _conventional, "urban_maglev": _urban, "highspeed_maglev": _highspeed_maglev,
                "lzb": _lzb, "utm": _utm, "mlx": _mlx, "hsst": _hsst, "mbahn": _mbahn, "etcs": _etcs,
                "network": _network}
@@ -888,6 +899,7 @@ def generate(family: str, seed: int, max_duration: float | None = None) -> dict:
         attack = hard_conditions.draw(d, family, body, conditions, coarse)
     if attack:
         delivery["adversarial"] = attack
+    _accelerometer(seed, body, conditions)
     reader = body["sensors"].get("eurobalise_reader", {})
     if reader.get("silent_balises"):   # a hard condition (a tunnel) may have taken the silent group away
         on_track = {b["id"] for b in body["track"]["equipment"].get("eurobalise", [])}
@@ -982,7 +994,7 @@ def run_scenario(data: dict, oracle: bool = False) -> dict:
         out["stator"] = stator_scores(layout, sc, StateSeries.from_estimates(estimates), traj)
     if oracle:
         clean = fault_free(delivered, traj)
-        _, told, _, _ = fuse_arrivals(config, clean, sc.duration, FUSION_RATE)
+        _, told, _, _ = fuse_arrivals(plain_config(config), clean, sc.duration, FUSION_RATE)
         out["availability"] = {**availability(estimates, told, traj, config.lost_stddev),
                                "left_out": len(delivered) - len(clean)}
     return out

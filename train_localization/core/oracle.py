@@ -1,18 +1,22 @@
-"""The availability oracle of the integrity campaign: the same fusion, told by the truth which
+"""The availability oracle of the integrity campaign: a plain filter, told by the truth which
 measurements are faulty, leaves them out.
 
-An interval wider than it needs to be costs trains. The oracle runs the same models on the
-same delivered measurements less those the truth shows faulty: a measurement whose error
-against the true motion exceeds ``ORACLE_SIGMAS`` of its own reported 1-sigma (a radar
-reading during its scale fault, a wheel increment in a slip, a misread balise, an NLOS
-range). What is left is what a perfect fault detector would give the filter; the campaign
-reports the fusion's width and error against it and the states the fusion was LOST where
-the oracle knew the position within ``lost_stddev``.
+An interval wider than it needs to be costs trains. The oracle runs the same sensor models
+(their noise and error states) in a plain filter (``plain_config``: no fault mode, no fault
+cover, no special case) on the same delivered measurements less those the truth shows faulty:
+a measurement whose error against the true motion exceeds ``ORACLE_SIGMAS`` of its own
+reported 1-sigma (a radar reading during its scale fault, a wheel increment in a slip, a
+misread balise, an NLOS range). What is left is the interval a perfect fault detector would
+allow; the campaign reports the fusion's width and error against it and the states the fusion
+was LOST where the oracle knew the position within ``lost_stddev``.
 """
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
+from .fusion.config import FusionConfig
 from .measurements import DistanceIncrement, PositionFix, SpeedMeasurement
 
 # a measurement further from the truth than this many of its own 1-sigma is faulty
@@ -29,6 +33,14 @@ def truth_error(m, traj) -> float:
         run = float(np.interp(m.stamp, traj.t, traj.position) - np.interp(m.stamp - m.duration, traj.t, traj.position))
         return abs(m.distance - run) / m.distance_stddev
     return 0.0
+
+
+def plain_config(config: FusionConfig) -> FusionConfig:
+    """``config`` as a plain filter: every policy off (``FusionConfig.policies``) and no fault
+    mode in any sensor's model (no slip episodes, no fault hypotheses, no offsets); the models'
+    noise, error states and timeouts as they are."""
+    overrides = {name: {**(config.overrides or {}).get(name, {}), "faults": ()} for name in config.models}
+    return dataclasses.replace(config, policies=frozenset(), overrides=overrides)
 
 
 def fault_free(delivered: list, traj) -> list:

@@ -1,7 +1,7 @@
 """Fusion node: absolute along-track position and speed from every sensor.
 
-Subscribes sensors/<sensor>/position | speed | distance | yaw_rate (what that kind of sensor
-publishes; a turn rate serves only the track selection on a network) for each sensor in
+Subscribes sensors/<sensor>/position | speed | distance | yaw_rate | acceleration (what that kind
+of sensor publishes; a turn rate serves only the track selection on a network) for each sensor in
 ``sensors``; publishes at a fixed rate, independent of the inputs (the grid of
 core/offline.py FusionRunner, the same code as the offline runs):
   localization/state     TrainState (reliable, transient-local, depth 1: a late joiner gets the
@@ -347,7 +347,8 @@ class FusionNode(ManagedNode):
         parsers = {"position": (self.mc.PositionFix, convert.position_fix_from_msg),
                    "speed": (self.mc.SpeedMeasurement, convert.speed_from_msg),
                    "distance": (self.mc.DistanceIncrement, convert.distance_from_msg),
-                   "yaw_rate": (self.mc.YawRate, convert.yaw_rate_from_msg)}
+                   "yaw_rate": (self.mc.YawRate, convert.yaw_rate_from_msg),
+                   "acceleration": (self.mc.AccelWithCovarianceStamped, convert.acceleration_from_msg)}
         outputs = {spec(n).sensor: spec(n).outputs for n in NODE_NAMES}
         for sensor in self.sensors:
             for suffix in (o for o in outputs[sensor] if o in parsers):   # only what that sensor publishes

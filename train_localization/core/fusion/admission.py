@@ -12,7 +12,7 @@ reason                    refused
 ``implausible``           beyond the physical limits (core/measurements.py)
 ``too_long``              an id (sensor, unit, track, reference) beyond 64 characters
 ``unknown_sensor``        a sensor class the fusion is not configured for
-``not_fused``             a measurement of a kind the filter does not use (an acceleration)
+``not_fused``             a measurement of a kind the filter does not use (a section's occupancy)
 ``wrong_kind``            a measurement of another kind than its sensor gives
 ``wrong_track``           a fix that names another track than the fusion's
 ``off_track``             a fix beyond the track's ends by more than 100 m + 5 sigma
@@ -32,13 +32,14 @@ from __future__ import annotations
 
 import math
 
-from ..measurements import (MAX_CHAINAGE, MAX_SPEED, STDDEV_RANGE, DistanceIncrement, PositionFix, SpeedMeasurement,
-                            YawRate)
+from ..measurements import (MAX_CHAINAGE, MAX_SPEED, STDDEV_RANGE, Acceleration, DistanceIncrement, PositionFix,
+                            SpeedMeasurement, YawRate)
 from ..signals import InputRejected
 from .config import FusionConfig
 
 # the measurement type of each kind of sensor (ErrorModel.measures)
-KIND_OF = {"position": PositionFix, "speed": SpeedMeasurement, "distance": DistanceIncrement, "yaw_rate": YawRate}
+KIND_OF = {"position": PositionFix, "speed": SpeedMeasurement, "distance": DistanceIncrement, "yaw_rate": YawRate,
+           "acceleration": Acceleration}
 
 # a fix this far beyond the track's ends [m] (plus 5 of its sigma) cannot be of a train on it
 OFF_TRACK_MARGIN = 100.0

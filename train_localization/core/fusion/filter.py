@@ -228,8 +228,8 @@ class TrainFilter:
         if is_fix:   # a fix's own offset per unit is its 1-sigma; the dead reckoning checks it
             return impact.FaultInput(cls, m.position_stddev if cls in self.limits.offset_bounds else 0.0, True,
                                      independent=cls not in self.layout.fix)
-        if not (self.limits.fault_bounds or self.limits.transient_bounds):
-            return None
+        if not (self.limits.fault_bounds or self.limits.transient_bounds) or cls not in self.layout.relative:
+            return None   # an acceleration carries none of the bank's faults; it tests them
         return impact.FaultInput(cls, m.distance / m.duration if hasattr(m, "distance") else m.speed,   # in its units
                                  bool(self.in_use(m.stamp, but=cls)), relative=True)
 

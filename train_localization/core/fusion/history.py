@@ -9,7 +9,7 @@ from __future__ import annotations
 import bisect
 import math
 
-from ..measurements import MAX_DURATION, DistanceIncrement, PositionFix, SpeedMeasurement, YawRate
+from ..measurements import MAX_DURATION, Acceleration, DistanceIncrement, PositionFix, SpeedMeasurement, YawRate
 from ..signals import InputRejected
 
 # [s] two increments of one unit may share at their ends: their stamps are whole nanoseconds,
@@ -25,6 +25,8 @@ def order_key(m) -> tuple:
         body = (1, m.speed, m.speed_stddev)
     elif isinstance(m, YawRate):
         body = (3, m.yaw_rate, m.yaw_rate_stddev)
+    elif isinstance(m, Acceleration):
+        body = (4, m.acceleration, m.acceleration_stddev)
     else:
         body = (2, m.distance, m.duration)
     return (m.stamp, m.sensor, m.unit_id) + body

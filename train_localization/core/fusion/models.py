@@ -12,6 +12,8 @@ Process model
 Measurement models
   PositionFix        z = s (+ e)
   SpeedMeasurement   z = (1 + k + k0)(u + sign(z) b),  u = v
+  Acceleration       z = a + c (the accelerometer's bias state), R: the reported variance less the
+                     bias part the state carries (``reported_bias``)
   DistanceIncrement  z = distance / d = (1 + k + k0)(u + sign(z) b), u = v - a d/2: the mean
                      speed over the interval d ending at the stamp, R = (distance_stddev / d)^2.
                      A wheel under traction or braking turns faster or slower than the train
@@ -30,7 +32,7 @@ import math
 
 import numpy as np
 
-from ..measurements import PositionFix, SpeedMeasurement
+from ..measurements import Acceleration, PositionFix, SpeedMeasurement
 from .layout import StateLayout
 
 
@@ -111,6 +113,16 @@ class ProcessModel:
         return x, P
 
 
+def _direct(h: np.ndarray, x: list, k: int, bias: int | None) -> float:
+    """h(x) of a reading of state k plus an additive bias state (None: without one); sets their
+    entries of the H row h."""
+    h[k] = 1.0
+    if bias is None:
+        return x[k]
+    h[bias] = 1.0
+    return x[k] + x[bias]
+
+
 def measurement(layout: StateLayout, x_col, m, since: float = math.inf):
     """(z, R, H row (1-D), h(x)) of a measurement at the state x (n, 1); since: time [s]
     since its sensor's previous fix (``fix_noise``)."""
@@ -119,13 +131,12 @@ def measurement(layout: StateLayout, x_col, m, since: float = math.inf):
     h = np.zeros(layout.n)
     cls = m.sensor
     if isinstance(m, PositionFix):
-        h[0] = 1.0
-        z, hx = m.position, x[0]
-        f_idx = layout.fix.get(cls)
-        if f_idx is not None:
-            h[f_idx] = 1.0
-            hx = hx + x[f_idx]
+        z, hx = m.position, _direct(h, x, 0, layout.fix.get(cls))
         R = fix_noise(layout, m, abs(x[1]), since)
+    elif isinstance(m, Acceleration):
+        z, hx = m.acceleration, _direct(h, x, 2, layout.accel_bias.get(cls))
+        R = m.acceleration_stddev ** 2
+        R = max(R - model.reported_bias ** 2, 0.01 * R)
     else:
         k_idx = layout.scale.get(cls)
         o_idx = layout.offset.get(cls)

@@ -16,7 +16,7 @@ import math
 from dataclasses import dataclass
 from typing import Callable, NamedTuple
 
-from ..measurements import PositionFix
+from ..measurements import Acceleration, PositionFix
 from . import impact, views
 from .events import (CommonErrorEnded, FaultEnded, LoneTakeFix, Relearn, RelearnFault, SeedSubs, Separate,
                      SetPosition, SetSpeed, Suspend, Swap, TakeSpeed)
@@ -231,7 +231,7 @@ def accept(f, r: Reading) -> Verdict:
     aux, cls, m = f.aux, r.cls, r.m
     if r.is_fix:
         f.fixes.fix_accepted(m, r.nis, (r.z - r.hx) / math.sqrt(r.S), r.S)
-    else:
+    elif cls in f.layout.relative:
         if cls not in aux.speed_sources:
             aux.speed_sources = aux.speed_sources | {cls}
         if f.limits.persistent:
@@ -283,9 +283,17 @@ STAGES = (Step(prepare), Step(fix_reference), Step(motion_views_move), Step(inno
           Step(gate), Step(transient_onset), Step(update), Step(locate), Step(accept))
 
 
-def apply_reading(f, m, stages: tuple = STAGES) -> None:
-    """Run ``m`` through ``stages`` on the filter ``f`` (its bookkeeping copied first: copy-on-write)."""
+# an acceleration: no fix, speed-source or slip policy judges it; it moves the state and tests the
+# fault hypotheses (impact.py) through the update
+ACCELERATION_STAGES = (Step(prepare), Step(innovation), Step(gate), Step(update), Step(accept))
+
+
+def apply_reading(f, m, stages: tuple | None = None) -> None:
+    """Run ``m`` through ``stages`` on the filter ``f`` (its bookkeeping copied first: copy-on-write);
+    by default ``STAGES``, an acceleration ``ACCELERATION_STAGES``."""
     f.aux = f.aux.copy()
+    if stages is None:
+        stages = ACCELERATION_STAGES if isinstance(m, Acceleration) else STAGES
     r = Reading(m, m.sensor, isinstance(m, PositionFix))
     for step in stages:
         revision = f.ekf.revision

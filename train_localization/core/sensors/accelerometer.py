@@ -116,6 +116,9 @@ PARAMS = {
                                                   "the gradient: the fusion's state, or ground_truth/state"),
     "position_timeout": Param(2.0, "a position older than this is not used: the track's whole gradient span "
                                    "bounds the gravity [s]", (0.01, 3600.0)),
+    "bias_correlation_time": Param(20.0, "correlation time the fusion gives the bias state [s]: the gradient "
+                                         "data's error changes from one gradient section to the next "
+                                         "(assumption: a 600 m section at 30 m/s)", (1.0, 1.0e6)),
     "fault_bias_sigma": Param(0.05, "1-sigma size of a bias step (a mount tilted by 0.3 deg: g x 0.005) "
                                     "[m/s^2]: what the fusion must allow once it suspects one", (0.0, 10.0)),
     "faults": Param("", "injected bias steps 'T0-T1:BIAS[:RAMP]' (bias added from T0 to T1 [s], m/s^2; "
@@ -286,16 +289,31 @@ def min_stddev(params: dict) -> float:
     return max(math.hypot(turn_on_sigma(params), GRAVITY * params["gradient_tolerance"] / 1000.0), MIN_STDDEV)
 
 
+def bias_state_sigma(params: dict) -> float:
+    """1-sigma [m/s^2] of what the decoder's acceleration carries as a slowly varying bias: the
+    turn-on bias and its in-run instability, the temperature drift over the device's span
+    (``calibration_temperature`` to ``ambient_temperature`` + ``warmup_rise``) and the gradient
+    data's tolerance."""
+    span = max(abs(params["ambient_temperature"] - params["calibration_temperature"]),
+               abs(params["ambient_temperature"] + params["warmup_rise"] - params["calibration_temperature"]))
+    return math.sqrt(turn_on_sigma(params) ** 2 + (params["temp_coefficient"] * span) ** 2
+                     + (GRAVITY * params["gradient_tolerance"] / 1000.0) ** 2)
+
+
 def error_model(params: dict, track, vehicle) -> ErrorModel:
-    """An acceleration (measures "acceleration": its bias in m/s^2): the bias 1-sigma (turn-on and
-    instability, ``bias_sigma``) and the constant scale error (``scale_sigma``), both inside the
-    decoder's stddev (``reported_*``); the temperature drift, the misalignment on curves and the
-    gravity's uncertainty are only in the stddev (they vary with the block). Fault modes: silence
-    (``dropout``) and a bias step (``bias_step``, 1-sigma size ``fault_bias_sigma``, in the
-    module's figures: the ErrorModel has no field of an acceleration fault's size)."""
-    bias = turn_on_sigma(params)
-    return ErrorModel(SENSOR, "acceleration", scale_sigma=float(params["scale_sigma"]), bias_sigma=bias,
-                      reported_scale=float(params["scale_sigma"]), reported_bias=bias,
+    """An acceleration (measures "acceleration"): the fusion's state carries its bias
+    (``bias_state_sigma``, Gauss-Markov with ``bias_correlation_time``: the filter re-learns it
+    from the speed sources and the fixes), whose turn-on and gradient parts are taken out of the
+    decoder's stddev (``reported_bias``); the temperature drift at the block's temperature, the
+    scale error (0.2 % of a), the misalignment on curves and the white noise stay in it. Fault modes: silence (``dropout``) and a bias step (``bias_step``, 1-sigma
+    size ``fault_bias_sigma``, in the module's figures: the ErrorModel has no field of an
+    acceleration fault's size)."""
+    # the decoder reports the temperature drift at the block's own temperature, which may be below
+    # the span the state allows: only the turn-on bias and the gradient's tolerance, which it
+    # reports in full, come out of R (what is left is never below the white noise)
+    reported = math.hypot(turn_on_sigma(params), GRAVITY * params["gradient_tolerance"] / 1000.0)
+    return ErrorModel(SENSOR, "acceleration", bias_sigma=bias_state_sigma(params),
+                      bias_tau=float(params["bias_correlation_time"]), reported_bias=reported,
                       faults=("dropout", "bias_step"), timeout=continuous_timeout(params),
                       min_stddev=min_stddev(params), sensor_offset=float(params["mount_offset"]))
 

@@ -209,7 +209,7 @@ def _short(text: str, limit: int = 64) -> str:
 # creep coefficient [s^2/m], the gate's probability (1: no gate; NaN: the fusion's global one)
 ERROR_MODEL_LIMITS = {
     "scale_sigma": (0.0, 1.0), "scale_tau": (0.0, math.inf), "scale_offset_sigma": (0.0, 1.0),
-    "bias_sigma": (0.0, math.inf), "fix_bias_sigma": (0.0, math.inf), "fix_bias_length": (0.0, math.inf),
+    "bias_sigma": (0.0, math.inf), "bias_tau": (0.0, math.inf), "fix_bias_sigma": (0.0, math.inf), "fix_bias_length": (0.0, math.inf),
     "fix_bias_tau": (0.0, math.inf), "fix_excess_length": (0.0, math.inf), "fix_excess_tau": (0.0, math.inf),
     "fix_white_sigma": (0.0, math.inf), "reported_scale": (0.0, 1.0),
     "reported_bias": (0.0, math.inf), "reported_fix_bias": (0.0, math.inf), "creep_coefficient": (0.0, 1.0),
@@ -238,7 +238,8 @@ class ErrorModel:
     scale_sigma: float = 0.0             # 1-sigma scale error (stationary if scale_tau is finite); 0 = no state
     scale_tau: float = math.inf          # correlation time of the scale error [s]; inf = constant
     scale_offset_sigma: float = 0.0      # constant scale error on top of a Gauss-Markov one; 0 = no state
-    bias_sigma: float = 0.0              # speed bias along the motion [m/s]; 0 = no state
+    bias_sigma: float = 0.0              # speed bias along the motion [m/s] (an acceleration's [m/s^2]); 0 = no state
+    bias_tau: float = math.inf           # correlation time of the bias [s]; inf = constant
     fix_bias_sigma: float = 0.0          # persistent position-fix error [m]; 0 = no state
     fix_bias_length: float = math.inf    # its correlation length along the track [m]
     fix_bias_tau: float = math.inf       # its correlation time [s]

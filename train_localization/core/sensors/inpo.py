@@ -626,7 +626,7 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
         references = ReferenceTable({s["id"]: ReferenceWindow(*section_window(params, s))
                                      for s in section_table(track, params["period"])})
     return ErrorModel("inpo", "position", fix_bias_sigma=fixed, fix_bias_per_reference=True,
-                      reported_fix_bias=fixed, faults=("outage",), min_stddev=fix_sigma(params),
+                      reported_fix_bias=fixed, faults=("outage", "offset"), min_stddev=fix_sigma(params),
                       references=references)
 
 

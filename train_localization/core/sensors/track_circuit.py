@@ -749,7 +749,7 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
     rate = float(params.get("sample_rate") or TrackCircuitSimulator.default_sample_rate)
     references = ReferenceTable(boundary_windows(params, circuits)) if track is not None else None
     return ErrorModel(SENSOR, "position", fix_bias_sigma=0.5 * zone, reported_fix_bias=0.5 * zone,
-                      faults=("miscount",), min_stddev=fix_sigma(params, shortest, rate), references=references)
+                      faults=("miscount", "offset"), min_stddev=fix_sigma(params, shortest, rate), references=references)
 
 
 SPEC = SensorSpec(

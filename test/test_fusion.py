@@ -599,3 +599,22 @@ def test_implausible_measurements_are_rejected_and_the_filter_stays_finite(bad):
     assert runner.add(SpeedMeasurement(1.5, "doppler", "d", 10.0, 0.1))
     e = f.estimate(2.0)
     assert math.isfinite(e.position) and abs(e.position - 120.0) < 1.0 and e.mode != MODE_LOST
+
+
+def test_the_interval_is_cut_to_the_tracks_ends():
+    """A train placed 3 m from the track's start (a start of mission), told with 1-sigma 5 m: the
+    filter's own interval reaches 13 m before chainage 0, where no train can be; the published
+    one ends at 0, and at the track's far end at its length."""
+    from conftest import ROOT
+    from train_localization.core.fusion import FusionRunner, fusion_config
+    from train_localization.core.scenario import Scenario
+    sc = Scenario.from_yaml(ROOT / "config" / "scenario_demo.yaml")
+    length = sc.track.length
+    for place, low_end in ((3.0, True), (length - 3.0, False)):
+        runner = FusionRunner(fusion_config(sc, initial_position=place, initial_position_stddev=5.0))
+        e = runner.advance(0.1)[-1][0]
+        assert e.position == pytest.approx(place) and e.position_stddev == pytest.approx(5.0, rel=0.01)
+        if low_end:
+            assert e.position_min == 0.0 and e.position_max > place + 16.0
+        else:
+            assert e.position_max == length and e.position_min < place - 16.0

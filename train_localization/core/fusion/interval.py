@@ -87,7 +87,17 @@ class Interval(Component):
         if aux.subs:   # the relative sensors' own solutions: per fault hypothesis (protection level)
             lo, hi, sd_s, sd_v, mode = self.hypotheses_cover(aux, t, float(s), var_s, float(v), var_v,
                                                              lo, hi, sd_s, sd_v, mode, odometer)
+        lo, hi = self.on_track(lo, hi)
         return lo, hi, sd_s, sd_v, mode
+
+    def on_track(self, lo: float, hi: float) -> tuple[float, float]:
+        """[lo, hi] [m] cut to the track's ends: the train's front is on its track, whatever the
+        hypotheses (a closed track, or a network's paths, which the track selection bounds: as
+        they are; an interval wholly beyond an end, which no cut can mend: as it is)."""
+        track = self.f.cfg.track
+        if track is None or track.closed or hi < 0.0 or lo > track.length:
+            return lo, hi
+        return max(lo, 0.0), min(hi, track.length)
 
     def speed_covering_views(self, aux: Bookkeeping, t: float, v: float, sd_v: float) -> float:
         """The speed 1-sigma [m/s] to publish: the filter's, widened so that v +- z sd_v also

@@ -1,4 +1,4 @@
-"""Fusion unit tests (core/fusion.py): measurement and process models, rollback of late
+"""Fusion unit tests (core/fusion/): measurement and process models, rollback of late
 measurements, gating, slip, modes, reset and initialisation."""
 from __future__ import annotations
 

@@ -5,8 +5,8 @@ objects rosbags deserialises from a bag alike. Writing needs the message classes
 ``MsgClasses`` holds them, built either from the generated rclpy modules
 (nodes/common.py) or from a rosbags typestore (core/bagio.py).
 
-Stamps are handled in integer nanoseconds: ``stamp_to_sec`` and ``sec_to_stamp``
-are exact inverses for canonical times (``canonical``), so a value that goes
+Stamps are handled in integer nanoseconds: ``stamp_to_sec`` and ``MsgClasses.header``
+(through ``sec_to_ns``) are exact inverses for canonical times (``canonical``), so a value that goes
 through a message and back is bit-identical.
 """
 from __future__ import annotations

@@ -84,7 +84,7 @@ class Scenario:
     start_speed: float = 0.0
     truth_rate: float = 100.0            # ground_truth/state rate [Hz]
     sensors: dict[str, dict] = field(default_factory=dict)  # sensor node name -> parameters
-    fusion: dict = field(default_factory=dict)  # FusionConfig overrides (core/fusion.py)
+    fusion: dict = field(default_factory=dict)  # FusionConfig overrides (core/fusion/config.py)
     source: Path | None = None
     description: dict = field(default_factory=dict, repr=False)  # the YAML, track inlined
     control: dict = field(default_factory=dict)    # closed-loop speed control (core/control.py); {} = profile

@@ -3,7 +3,7 @@
 Subscribes sensors/<sensor>/position | speed | distance | yaw_rate | acceleration (what that kind
 of sensor publishes; a turn rate serves only the track selection on a network) for each sensor in
 ``sensors``; publishes at a fixed rate, independent of the inputs (the grid of
-core/offline.py FusionRunner, the same code as the offline runs):
+core/fusion/runner.py FusionRunner, the same code as the offline runs):
   localization/state     TrainState (reliable, transient-local, depth 1: a late joiner gets the
                          current state first)
   localization/odometry  nav_msgs/Odometry, pose in map from the track alignment

@@ -22,7 +22,7 @@ A line (several trains, core/scenario.py): every train's truth on
 ``/<train>/ground_truth/state``, the scenario on ``/scenario``, and the simulated raw
 blocks of every train's on-board sensors on ``/<train>/sensors/<sensor>/raw`` and of
 the wayside sensors (which see every train) on ``/wayside/sensors/<sensor>/raw``
-(core/offline.py LineSimulation): the sensor nodes of a line run in ingest mode, each
+(core/offline/line.py LineSimulation): the sensor nodes of a line run in ingest mode, each
 in its train's namespace or in /wayside. ``wait_for_subscribers`` then counts the
 subscribers of all its truth and raw topics together.
 

@@ -1,4 +1,4 @@
-"""Benchmark of the fusion (core/fusion.py): cost on the measurements of a scenario, and
+"""Benchmark of the fusion (core/fusion/): cost on the measurements of a scenario, and
 accuracy figures of whole scenarios against their ground truth.
 
   python -m train_localization.tools.bench_fusion [--scenario config/scenario_maglev_500.yaml]

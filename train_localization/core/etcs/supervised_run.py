@@ -9,7 +9,7 @@ returns the brake to command, as the etcs_location and atp_supervision nodes do 
 truth: where the true front came to rest against the end of authority (``margin`` [m], > 0
 short of it), the trips and the interventions.
 
-``draw_stop`` / ``stop_runs`` are the randomised stops of ``tools/etcs_stops.py``: the driver
+``draw_stop`` / ``run_stop`` / ``stop_summary`` are the randomised stops of ``tools/etcs_stops.py``: the driver
 (the PID) never brakes for the end of authority, so the supervision must stop the train,
 over drawn speeds, EOA places, braking capability, Q_LOCACC, wheel slides in the braking,
 radar faults and missed balise groups.

@@ -279,7 +279,7 @@ class TrainFilter:
         return 1.0
 
     def reference_ok(self, m) -> bool:
-        """Another speed source is in use (``_in_use``)."""
+        """Another speed source is in use (``in_use``)."""
         return bool(self.in_use(m.stamp, but=m.sensor))
 
     def agreement_reference(self, m, S: float) -> bool:

@@ -41,7 +41,7 @@ sensor's, shrinks it.
 A transient fault of a relative sensor (a wheel's slip or slide, ``transient`` rows) is the same
 linear algebra with a different input. The other speed sources' tests catch a slip while one of
 them reads beside the wheel; each reading carries the share of a slip of the sensor's bound
-(``slip_ratio_max``) that they let pass there (``FaultInput.unseen``, ``TrainFilter._unseen_share``:
+(``slip_ratio_max``) that they let pass there (``FaultInput.unseen``, ``TrainFilter.unseen_share``:
 all of it while nothing but the motion model sees the wheel), delta = that share x its speed. e is
 then the filter's own sensitivity to what slips nobody could see have put into it, through every
 later predict, update and policy (a readmission at a large gain included), shrinking as fixes

@@ -1,6 +1,6 @@
 """The fusion node's logic: the filter plus its fixed-rate output grid.
 
-The live node (nodes/fusion.py) and the offline runs (core/offline.py) both drive a
+The live node (nodes/fusion.py) and the offline runs (core/offline/) both drive a
 ``FusionRunner``, so they make the same estimates from the same measurement sequence.
 """
 from __future__ import annotations

@@ -3,7 +3,7 @@
 A path has one coordinate, the *path distance* s [m], which runs in the train's direction
 of travel along every section it contains (against a section's chainage where the path
 runs along it backwards). A scenario's route is a path (the simulator drives the train
-along it); each hypothesis of the track-selective fusion is one (core/network/fusion.py).
+along it); each hypothesis of the track-selective fusion is one (core/network/hypotheses.py).
 Paths grown from one start share its origin, so a path distance is the distance run
 whichever way the train took at the switches.
 """

@@ -49,7 +49,7 @@ class FusionFeed:
     The measurements decoded since the last grid step are held and given to the
     fusion in the filter's own order (``order_key``) just before the next estimate
     is made: the filter's result does not depend on the order in which a set of
-    measurements is added (core/fusion.py), so the estimates are the same, but
+    measurements is added (core/fusion/history.py), so the estimates are the same, but
     measurements of one step that arrive out of stamp order (blocks of several
     sensors ending at the same time) no longer roll the filter back one by one.
     """

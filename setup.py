@@ -1,4 +1,4 @@
-"""ament_python package train_localization (DESIGN.md section 2)."""
+"""ament_python package train_localization (README.md: install and the nodes it installs)."""
 import ast
 from glob import glob
 from pathlib import Path

@@ -23,6 +23,8 @@ NODES = {
     "etcs_location": "train_localization.nodes.etcs_location:main",
     "atp_supervision": "train_localization.nodes.atp_supervision:main",
     "standard_inputs": "train_localization.nodes.standard_inputs:main",
+    "nmea_ingest": "train_localization.nodes.nmea_ingest:main",
+    "can_ingest": "train_localization.nodes.can_ingest:main",
 }
 
 

@@ -10,4 +10,11 @@ project's own sensors (docs/integration.md, "From your drivers"):
   imu.py       IMU samples -> the gyro's YawRate and the accelerometer's Acceleration (their decoders)
   speed.py     a body twist -> a Doppler SpeedMeasurement or a wheel DistanceIncrement
   inputs.py    the configuration of every input and the models they are floored by
+
+and what devices without a ROS driver send becomes those standard messages' records:
+
+  nmea.py      NMEA 0183 sentences (GGA, GST, RMC, VTG; pynmea2) -> GNSS fixes with their accuracy
+  canbus.py    CAN frames of a wheel pulse generator and a radar (cantools, a DBC) -> body speeds
+  streams.py   the lines of a file, a UDP port or a serial device
+  pacing.py    the pace of a recording replayed into a live graph
 """

@@ -22,6 +22,9 @@ NODES = {
     "stator_section_controller": "train_localization.nodes.stator:main",
     "etcs_location": "train_localization.nodes.etcs_location:main",
     "atp_supervision": "train_localization.nodes.atp_supervision:main",
+    "standard_inputs": "train_localization.nodes.standard_inputs:main",
+    "nmea_ingest": "train_localization.nodes.nmea_ingest:main",
+    "can_ingest": "train_localization.nodes.can_ingest:main",
 }
 
 
@@ -61,6 +64,7 @@ setup(
         ("share/" + PACKAGE + "/launch", glob("launch/*.py")),
         ("share/" + PACKAGE + "/config", glob("config/*.yaml")),
         ("share/" + PACKAGE + "/config/params", glob("config/params/*.yaml")),
+        ("share/" + PACKAGE + "/config/devices", glob("config/devices/*")),
     ],
     install_requires=["setuptools"],
     zip_safe=True,

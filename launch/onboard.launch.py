@@ -8,6 +8,12 @@ recorder (unless record:=false). The scenario gives the track, the train's senso
 parameters; its profile is not used (the vehicle is real). ``--show-args`` lists the
 arguments (train_localization/graph.py: onboard_graph).
 
+Drivers that publish standard messages (NavSatFix, Imu, Odometry, TwistWithCovarianceStamped):
+``standard_inputs:=config/params/standard_inputs.yaml`` (a params file of that node, naming the
+topics) adds the standard_inputs node; the scenario's sensors whose measurements it publishes
+get no ingest node, and nothing of this project is needed on the input side
+(docs/integration.md, "From your drivers").
+
 Time: on the host's clock (``use_sim_time:=false``, the default), so the drivers stamp their
 blocks with it; ``use_sim_time:=true`` takes it from /clock, for data played by an outside
 player that publishes it (``ros2 bag play --clock``). The demo, line and replay launches run
@@ -28,7 +34,7 @@ from launch.substitutions import LaunchConfiguration
 
 from train_localization.core.scenario import Scenario
 from train_localization.graph import NAMESPACE, onboard_graph
-from train_localization.launch_common import common_arguments, flag, graph_actions, scenario_path
+from train_localization.launch_common import common_arguments, flag, graph_actions, params_file_values, scenario_path
 
 
 def _nodes(context):
@@ -36,8 +42,10 @@ def _nodes(context):
     bag = os.path.abspath(LaunchConfiguration("bag").perform(context))
     namespace = LaunchConfiguration("namespace").perform(context)
     sc = Scenario.from_yaml(scenario)
+    standard = LaunchConfiguration("standard_inputs").perform(context)
     graph = onboard_graph(scenario, list(sc.sensors), bag, record=flag(context, "record"),
-                          use_sim_time=flag(context, "use_sim_time"))
+                          use_sim_time=flag(context, "use_sim_time"),
+                          standard_inputs=params_file_values(scenario_path(standard)) if standard else None)
     return graph_actions(context, graph, namespace)
 
 
@@ -54,6 +62,10 @@ def generate_launch_description():
                               description="namespace of every node and topic of the graph"),
         DeclareLaunchArgument("record", default_value="true", choices=["true", "false"],
                               description="run the recorder (MCAP bag of every topic)"),
+        DeclareLaunchArgument("standard_inputs", default_value="",
+                              description="params file of a standard_inputs node (the topics of your drivers' "
+                                          "NavSatFix, Imu, Odometry, TwistWithCovarianceStamped) that feeds the "
+                                          "fusion; empty: none (every sensor of the scenario ingests raw blocks)"),
         DeclareLaunchArgument("bag", default_value="onboard.mcap",
                               description="the recorder's output file (relative: to the current directory)"),
         *common_arguments(),

@@ -107,6 +107,30 @@ def test_the_onboard_graph_runs_on_the_hosts_clock_unless_told_otherwise(launch_
     assert all(_params(n)["use_sim_time"] is True for n in played)
 
 
+def test_the_onboard_graph_takes_standard_messages_through_standard_inputs(launch_file, tmp_path):
+    """standard_inputs:=<its params file>: the node with those parameters (the launch's scenario
+    and clock), no ingest node for the sensors whose measurements it publishes, the fusion on
+    them; a params file naming only the GNSS keeps the other sensors' ingest nodes."""
+    _, nodes = launch_file("onboard.launch.py")
+    scenario = str(ROOT / "config" / "scenario_drivers.yaml")
+    built = nodes(scenario=scenario, bag=str(tmp_path / "b.mcap"), standard_inputs="config/params/standard_inputs.yaml")
+    assert sorted(n.kwargs["executable"] for n in built) == ["fusion", "recorder", "standard_inputs"]
+    inputs = next(n for n in built if n.kwargs["executable"] == "standard_inputs")
+    assert _params(inputs)["scenario"] == scenario and _params(inputs)["use_sim_time"] is False
+    assert (_params(inputs)["navsat.topic"], _params(inputs)["odometry.topic"]) == ("/gnss/fix", "/wheel/odometry")
+    fusion = next(n for n in built if n.kwargs["executable"] == "fusion")
+    assert _params(fusion)["sensors"] == ["dgps", "gyro", "wheel"]
+    gnss_only = tmp_path / "gnss.yaml"
+    gnss_only.write_text("/**:\n  ros__parameters:\n    navsat: {topic: /fix, min_status: 0}\n")
+    built = nodes(scenario=scenario, bag=str(tmp_path / "b.mcap"), standard_inputs=str(gnss_only))
+    assert sorted(n.kwargs["executable"] for n in built) == ["fusion", "gyro", "recorder", "standard_inputs",
+                                                             "wheel_sensor"]
+    inputs = next(n for n in built if n.kwargs["executable"] == "standard_inputs")
+    assert (_params(inputs)["navsat.topic"], _params(inputs)["navsat.min_status"]) == ("/fix", 0)
+    assert _params(next(n for n in built if n.kwargs["executable"] == "fusion"))["sensors"] == ["gyro", "wheel",
+                                                                                               "dgps"]
+
+
 @pytest.mark.parametrize("name, given", [("demo.launch.py", {}), ("onboard.launch.py", {}),
                                          ("replay.launch.py", {"bag": "/nonexistent/recorded.mcap"})])
 def test_a_relative_scenario_is_found_in_the_share_directory_from_any_current_directory(

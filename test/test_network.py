@@ -22,7 +22,7 @@ from train_localization.core.paths import resolve
 from train_localization.core.scenario import Scenario, ScenarioError
 from train_localization.core.signals import InputRejected
 from train_localization.core.sensors import spec
-from train_localization.core.sensors.dgps import DgpsDecoder
+from train_localization.core.sensors.dgps import DgpsDecoder, fix_sigma
 from train_localization.core.sensors.base import sensor_params
 from train_localization.core.scenario import Vehicle
 
@@ -152,11 +152,12 @@ def test_the_dgps_projects_onto_the_whole_network_and_keeps_the_lateral_offset(t
     params = sensor_params(spec("dgps_receiver"), {}, Vehicle())
     dec = DgpsDecoder(params, line)
     # a fix 3.9 m left of track A at x = 700 m is nearer track B (T4, 0.6 m right of it)
-    fix = dec._network_fix(1.0, 700.0, 3.9, 1.0)
+    at_hdop_1 = lambda near: fix_sigma(params, 1.0, near)   # noqa: E731
+    fix = dec.locate(1.0, 700.0, 3.9, at_hdop_1)
     assert fix.track_id == "T4" and fix.lateral == pytest.approx(-0.6, abs=1e-6)
     assert fix.is_map_fix and fix.lateral_stddev == fix.position_stddev
     assert fix.position == pytest.approx(700.0 - 258.30737517673, abs=1e-3)   # the antenna's chainage on T4
-    assert dec._network_fix(2.0, 700.0, -30.0, 1.0) is None and dec.stats["off_track"] == 1
+    assert dec.locate(2.0, 700.0, -30.0, at_hdop_1) is None and dec.stats["off_track"] == 1
 
 
 def test_switch_positions_messages_are_checked():

@@ -77,19 +77,34 @@ def demo_graph(scenario: str, sensors: list[str], bag: str, rate: float = 1.0,
 
 
 def onboard_graph(scenario: str, sensors: list[str], out_bag: str, record: bool = True,
-                  use_sim_time: bool = False) -> list[tuple[str, str, dict]]:
+                  use_sim_time: bool = False, standard_inputs: dict | None = None) -> list[tuple[str, str, dict]]:
     """The on-board graph of a train whose raw sensor blocks come from outside: recorder (if
     ``record``), one sensor node per entry of ``sensors`` (node names) in ingest mode (it
     decodes what arrives on sensors/<sensor>/raw: the device drivers', or a bag player's),
     and the fusion. ``use_sim_time``: the nodes take their time from /clock (a player of
-    recorded data publishes it) instead of the host's clock."""
+    recorded data publishes it) instead of the host's clock. ``standard_inputs``: the
+    parameters of a standard_inputs node (docs/integration.md, "From your drivers") that feeds
+    the fusion from the drivers' standard messages; a sensor of a class it publishes gets no
+    ingest node, and the fusion takes its classes too (ValueError in one line for parameters
+    that configure no input)."""
     from .core.sensors import spec
-    classes = [spec(n).sensor for n in sensors]
+    from_standard = []
+    if standard_inputs is not None:
+        from .core.ingest.inputs import PARAMS, StandardInputs
+        from .core.scenario import Scenario
+        sc = Scenario.from_yaml(scenario)
+        values = {name: standard_inputs.get(name, p.default) for name, p in PARAMS.items()}
+        from_standard = StandardInputs.build(values, sc.track, sc.sensors, sc.vehicle).sensor_classes()
+    ingest = [n for n in sensors if spec(n).sensor not in from_standard]
+    classes = list(dict.fromkeys([spec(n).sensor for n in ingest] + from_standard))
     nodes = []
     if record:
         nodes.append(("recorder", "recorder", {"output": out_bag, "use_sim_time": use_sim_time}))
     nodes += [(name, name, {"mode": "ingest", "scenario": scenario, "use_sim_time": use_sim_time})
-              for name in sensors]
+              for name in ingest]
+    if standard_inputs is not None:
+        nodes.append(("standard_inputs", "standard_inputs",
+                      {**standard_inputs, "scenario": scenario, "use_sim_time": use_sim_time}))
     nodes.append(("fusion", "fusion", {"scenario": scenario, "sensors": classes, "use_sim_time": use_sim_time}))
     return nodes
 

@@ -45,6 +45,24 @@ def scenario_path(value: str) -> str:
     return os.path.join(get_package_share_directory("train_localization"), value)
 
 
+def params_file_values(path: str) -> dict:
+    """The parameters of a one-node ROS params file (``/**:`` or a node name, then
+    ``ros__parameters``), a nested mapping flattened to dotted names as ROS reads it."""
+    import yaml
+    with open(path, encoding="utf-8") as fh:
+        data = yaml.safe_load(fh) or {}
+    if not isinstance(data, dict) or len(data) != 1:
+        raise ValueError(f"{path}: a params file of one node (its key, then ros__parameters)")
+    params = next(iter(data.values())).get("ros__parameters", {})
+
+    def flat(prefix: str, values: dict) -> dict:
+        out = {}
+        for key, value in values.items():
+            out.update(flat(f"{prefix}{key}.", value) if isinstance(value, dict) else {f"{prefix}{key}": value})
+        return out
+    return flat("", params)
+
+
 def flag(context, name: str) -> bool:
     """A true/false launch argument."""
     return LaunchConfiguration(name).perform(context).lower() in ("true", "1", "yes")

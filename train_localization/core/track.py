@@ -17,7 +17,8 @@ Equipment that can fail together (base stations on one timing node, balises of o
 the ``common_cause`` block: core/common_cause.py.
 
 The track's rise along its chainage is the ``gradient`` block (core/gradient.py); a track
-without one is level.
+without one is level. Its place on the Earth (WGS-84), for GNSS fixes, is the ``geodetic``
+block (core/geodesy.py).
 
 ETCS data (balise groups' Q_LOCACC, linking) are the ``etcs`` block and keys of the
 ``eurobalise`` items: core/etcs/track_data.py.
@@ -43,6 +44,7 @@ import yaml
 
 from . import common_cause, gradient
 from .common_cause import CommonCause
+from .geodesy import GeodesyError, GeodeticAnchor
 from .gradient import GradientProfile
 
 
@@ -142,6 +144,7 @@ class Track:
     etcs: dict = field(default_factory=dict)  # ETCS data: national values, linking (core/etcs/track_data.py)
     common_cause: tuple[CommonCause, ...] = ()  # equipment that can fail together (core/common_cause.py)
     gradient: GradientProfile | None = None     # rise along the chainage (core/gradient.py); None: level
+    geodetic: GeodeticAnchor | None = None      # WGS-84 place of the map frame (core/geodesy.py); None: none
 
     def __post_init__(self):
         if not (self.length > 0 and math.isfinite(self.length)):
@@ -326,9 +329,12 @@ class Track:
                 etcs=data.get("etcs") or {},
                 common_cause=_common_cause(data, equipment),
                 gradient=_gradient(data),
+                geodetic=GeodeticAnchor.from_dict(data.get("geodetic")),
             )
         except KeyError as exc:
             raise TrackError(f"track description lacks the key {exc}") from None
+        except GeodesyError as exc:
+            raise TrackError(f"track {data.get('track_id')!r}: {exc}") from None
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> "Track":

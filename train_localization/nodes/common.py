@@ -368,6 +368,53 @@ class ManagedNode(LifecycleNode):
 
 
 
+class PollingNode(ManagedNode):
+    """A managed node that reads a device (a port, a bus, a file) on a timer: ``_open`` opens it
+    on activate (OSError or ValueError in one line: the transition fails, the status says why),
+    ``on_timer`` polls it every ``poll_period`` [s], ``_close`` releases it on deactivate and at
+    the end (``close``). Unmanaged, a device that cannot be opened stops the node in one line."""
+
+    poll_period = 0.01
+    _open_error = ""
+
+    def start(self) -> None:
+        super().start()
+        if not self._managed and self._open_error:
+            raise ConfigurationError(self._open_error)
+
+    def _open(self) -> None:
+        raise NotImplementedError
+
+    def _close(self) -> None:
+        raise NotImplementedError
+
+    def on_timer(self) -> None:
+        raise NotImplementedError
+
+    def on_activate(self, state) -> TransitionCallbackReturn:
+        try:
+            self._open()
+        except (OSError, ValueError) as exc:
+            why = self._open_error = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            self.get_logger().error(why)
+            self.diag.set_status(2, why)
+            return TransitionCallbackReturn.FAILURE
+        self._open_error = ""
+        self._timer = self.create_timer(self.poll_period, self.on_timer)
+        self.diag.set_status(0, "reading")
+        return super().on_activate(state)
+
+    def on_deactivate(self, state) -> TransitionCallbackReturn:
+        self.close()
+        return super().on_deactivate(state)
+
+    def close(self) -> None:
+        if getattr(self, "_timer", None) is not None:
+            self.destroy_timer(self._timer)
+            self._timer = None
+        self._close()
+
+
 def required_scenario(node: Node, params: dict, needed: str):
     """The scenario of the read-only parameter ``scenario`` (of the node's table ``params``); a
     node that cannot run without one stops in one line naming what it ``needed``."""

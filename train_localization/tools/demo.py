@@ -312,9 +312,12 @@ def _run(args, scenario: Scenario, out: Path, bag: Path) -> int:
             print_changeover(summary["changeover"], "the live controller's recorded ABB commands")
     else:
         codes = run_graph(args.scenario, bag, args.rate, out / "logs")
-        summary = summarise(bag)
+        summary = summarise(bag, NAMESPACE, scenario.network is None)
         summary["exit_codes"] = codes
         print_summary(summary)
+        if scenario.network is not None:   # one train on a network: scored on its route
+            summary["network"] = jsonable(recorded_network(bag, scenario, NAMESPACE))
+            print_network(summary["network"])
         if scenario.track.items(STATOR_KIND):
             summary["stator"] = jsonable(recorded_stator(bag, scenario, NAMESPACE))
             print_stator(summary["stator"])

@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 from ..core.sensors import NODE_NAMES, spec
-from ..core.sensors.base import COMMON_PARAMS
+from ..core.sensors.base import COMMON_PARAMS, Param
 from ..nodes.common import FUTURE_TOLERANCE
 
 BEGIN, END = "<!-- sensor-params:begin -->", "<!-- sensor-params:end -->"
@@ -87,7 +87,13 @@ EXAMPLES = {
     "replayer": {"bag": "bags/stop_and_go.mcap"},
     "speed_controller": {"scenario": "config/scenario_etcs_stop.yaml"},
     "association": {"scenario": "config/scenario_line_conventional.yaml"},
+    "standard_inputs": {"scenario": "config/scenario_drivers.yaml", "navsat.topic": "/gnss/fix",
+                        "imu.topic": "/imu/data", "odometry.topic": "/wheel/odometry"},
+    "nmea_ingest": {"udp.port": 10110},
+    "can_ingest": {"interface": "virtual"},   # starts anywhere; socketcan vcan0 / can0 on a real bus
 }
+# the ``managed`` parameter of the lifecycle nodes (nodes/common.py ManagedNode) in their tables
+MANAGED = {"managed": Param(False, "true: a lifecycle manager configures and activates the node")}
 
 
 def _header(node: str, what: str) -> list[str]:
@@ -118,8 +124,8 @@ def sensor_params_file(node: str) -> str:
 def node_tables() -> dict[str, tuple[dict, tuple]]:
     """Every node that is neither a sensor node nor the fusion: (its parameter table, name ->
     core Param, as the node declares them; the names whose default is the scenario's)."""
-    from ..nodes import (association, atp_supervision, etcs_location, recorder, replayer, simulator,
-                         speed_controller, stator, wayside)
+    from ..nodes import (association, atp_supervision, can_ingest, etcs_location, nmea_ingest, recorder, replayer,
+                         simulator, speed_controller, standard_inputs, stator, wayside)
     return {"simulator": (simulator.PARAMS, ()), "recorder": (recorder.PARAMS, ()),
             "replayer": (replayer.PARAMS, ()), "wayside_occupancy": (wayside.OCCUPANCY_PARAMS, ()),
             "neutral_section_controller": (wayside.CONTROLLER_PARAMS, ()),
@@ -127,7 +133,10 @@ def node_tables() -> dict[str, tuple[dict, tuple]]:
             "association": (association.PARAMS, association.SCENARIO_DEFAULTS),
             "speed_controller": (speed_controller.PARAMS, speed_controller.SCENARIO_DEFAULTS),
             "stator_section_controller": (stator.PARAMS, ()), "etcs_location": (etcs_location.PARAMS, ()),
-            "atp_supervision": (atp_supervision.PARAMS, ())}
+            "atp_supervision": (atp_supervision.PARAMS, ()),
+            "standard_inputs": ({**standard_inputs.NODE_PARAMS, **MANAGED}, ()),
+            "nmea_ingest": ({**nmea_ingest.PARAMS, **MANAGED}, ()),
+            "can_ingest": ({**can_ingest.PARAMS, **MANAGED}, ())}
 
 
 def node_params_file(node: str) -> str:

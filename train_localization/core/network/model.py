@@ -24,6 +24,7 @@ YAML (``track:`` of a scenario, or a file it names)::
       - {id: T2, length: 400.0}                  # starts where W1 puts it
     nodes:
       - {id: W1, type: point_switch, A: T1.end, B1: T2.begin, B2: T3.begin, clearance: 40.0}
+    geodetic: {latitude: 48.14, longitude: 11.56}   # optional: the map frame on WGS-84 (core/geodesy.py)
 
 A section without ``origin`` starts at the node its ``begin`` is joined to, in the
 direction the node's through route gives (a switch's B ports leave it the way its A port
@@ -39,6 +40,7 @@ from pathlib import Path
 
 import yaml
 
+from ..geodesy import GeodesyError, GeodeticAnchor
 from ..track import Track, TrackError
 
 NODE_PORTS = {
@@ -104,6 +106,7 @@ class Network:
     network_id: str
     sections: dict[str, Track]
     nodes: dict[str, Node] = field(default_factory=dict)
+    geodetic: GeodeticAnchor | None = None   # WGS-84 place of the map frame (core/geodesy.py); None: none
 
     def __post_init__(self):
         self._joints: dict[SectionEnd, tuple[str, str]] = {}
@@ -233,7 +236,11 @@ class Network:
                 raise NetworkError(f"network: node id {node.node_id!r} is used twice")
             nodes[node.node_id] = node
         sections = _place_sections(raw, nodes)
-        return cls(network_id=network_id, sections=sections, nodes=nodes)
+        try:
+            geodetic = GeodeticAnchor.from_dict(data.get("geodetic"))
+        except GeodesyError as exc:
+            raise NetworkError(f"network {network_id}: {exc}") from None
+        return cls(network_id=network_id, sections=sections, nodes=nodes, geodetic=geodetic)
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> "Network":

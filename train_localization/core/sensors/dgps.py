@@ -62,6 +62,7 @@ Not modelled: the receiver's latency (the epoch is the sample stamp), height, ca
 from __future__ import annotations
 
 import math
+from typing import Callable
 
 import numpy as np
 
@@ -280,34 +281,41 @@ class DgpsDecoder(Decoder):
             if hdop > p["max_hdop"] or sats < p["min_satellites"]:
                 self.stats["weak_geometry"] += 1
                 continue
-            if self._network is not None:
-                fix = self._network_fix(float(t[i]), float(x), float(y), float(hdop))
-                if fix is not None:
-                    out.append(fix)
-                continue
-            chain, lateral = self.track.project(x, y)
-            s = float(chain[0])
-            under, near = sky_zone(self._spans, np.array([s]), self._reach)
-            sigma = fix_sigma(p, hdop, bool(near[0]))
-            gate = p["lateral_gate"] * sigma
-            if s <= 0.0 or s >= self.track.length or not abs(float(lateral[0])) <= gate:
-                self.stats["off_track"] += 1
-                continue
-            if self.track.distance_elsewhere(x, y, s, 2.0 * gate) <= gate:
-                # another part of the alignment passes within the gate too (a flyover, a hairpin):
-                # a 2-D fix cannot tell which, and the nearest may be the wrong one by kilometres
-                self.stats["ambiguous"] += 1
-                continue
-            if under[0]:
-                self.stats["under_structure"] += 1
-                continue
-            self.stats["fixes"] += 1
-            out.append(PositionFix(float(t[i]), self.sensor, self.unit_id, self.track.track_id, self.unit_id,
-                                   s + p["antenna_offset"], sigma, 0))
+            fix = self.locate(float(t[i]), float(x), float(y), lambda near, h=float(hdop): fix_sigma(p, h, near))
+            if fix is not None:
+                out.append(fix)
         return out
 
+    def locate(self, t: float, x: float, y: float, sigma_at: Callable[[bool], float]) -> PositionFix | None:
+        """The fix of one differential epoch at ``t`` [s]: the antenna at map point (x, y) [m]
+        projected onto the track (or the network), 1-sigma ``sigma_at(near)`` [m] where the antenna
+        is (``near`` a structure or in the open); None when it is withheld (counted in ``stats``,
+        module docstring). The same map matching serves this decoder's blocks and a receiver's
+        standard messages (core/ingest/navsat.py)."""
+        p = self.params
+        if self._network is not None:
+            return self._network_fix(t, x, y, sigma_at)
+        chain, lateral = self.track.project(x, y)
+        s = float(chain[0])
+        under, near = sky_zone(self._spans, np.array([s]), self._reach)
+        sigma = sigma_at(bool(near[0]))
+        gate = p["lateral_gate"] * sigma
+        if s <= 0.0 or s >= self.track.length or not abs(float(lateral[0])) <= gate:
+            self.stats["off_track"] += 1
+            return None
+        if self.track.distance_elsewhere(x, y, s, 2.0 * gate) <= gate:
+            # another part of the alignment passes within the gate too (a flyover, a hairpin):
+            # a 2-D fix cannot tell which, and the nearest may be the wrong one by kilometres
+            self.stats["ambiguous"] += 1
+            return None
+        if under[0]:
+            self.stats["under_structure"] += 1
+            return None
+        self.stats["fixes"] += 1
+        return PositionFix(t, self.sensor, self.unit_id, self.track.track_id, self.unit_id,
+                           s + p["antenna_offset"], sigma, 0)
 
-    def _network_fix(self, t: float, x: float, y: float, hdop: float) -> PositionFix | None:
+    def _network_fix(self, t: float, x: float, y: float, sigma_at: Callable[[bool], float]) -> PositionFix | None:
         """The fix of an epoch on a network: the antenna's point on the nearest section, with its
         lateral offset from it (a map fix: the track-selective fusion projects it onto each
         hypothesis's path and adds the antenna offset along it). Withheld as on a line: further
@@ -315,7 +323,7 @@ class DgpsDecoder(Decoder):
         p = self.params
         section, s, lateral = self._network.project(x, y)
         under, near = sky_zone(self._section_spans[section], np.array([s]), self._reach)
-        sigma = fix_sigma(p, hdop, bool(near[0]))
+        sigma = sigma_at(bool(near[0]))
         if not abs(lateral) <= p["lateral_gate"] * sigma:
             self.stats["off_track"] += 1
             return None

@@ -122,6 +122,14 @@ class FusionConfig:
     fault_onsets: int = doc_field(8, "fault hypotheses followed per sensor with a persistent fault (the latest "
                                      "onsets, and older ones, going on or ended, whose effect is the largest)",
                                   limits=(2, 100))
+    common_cause_prior: float = doc_field(1.0e-4, "probability that the relative sensors sharing a cause of failure "
+                                                  "(the error models' common_causes: a wheel's slips and a radar's "
+                                                  "echo on one wet or snowy track) are in fault together; above 1 - "
+                                                  "confidence they are one fault hypothesis, their readings carrying "
+                                                  "the same scale error (core/fusion/impact.py). Not monitored by "
+                                                  "default: its price is 2-9x the mean width of a wheel-and-radar "
+                                                  "train (docs/fusion.md); set it to 0.01 where wet or snowy track "
+                                                  "and a degraded radar meet", limits=(0.0, 1.0))
     branch_timeout: float = doc_field(120.0, "longest time an unexplained (gated) fix is kept as an alternative "
                                              "hypothesis [s]", limits=(0.0, 3600.0))
     history: float = doc_field(2.0, "how late a measurement may be [s]", limits=(0.01, 60.0))

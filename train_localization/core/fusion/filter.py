@@ -37,6 +37,7 @@ from filterpy.kalman import ExtendedKalmanFilter
 
 from ..measurements import MAX_SPEED, YawRate
 from ..signals import InputRejected
+from ..sensors import faults
 from .bookkeeping import Bookkeeping, is_coasting, speed_excluded
 from .config import FusionConfig
 from .history import History, order_key
@@ -190,11 +191,11 @@ class TrainFilter:
             self.ekf.x, self.ekf.P = self.process.predict(self.ekf.x, self.ekf.P, aux.t, t)
             aux.odometer += float(self.ekf.x[0, 0] - s0)
             aux.t = t
-            if self.limits.fault_bounds and aux.initialised and (
-                    aux.impacts is None or
-                    t - aux.impacts.last_onset_of(self.limits.fault_bounds) >= self.cfg.fault_onset_spacing):
-                aux.impacts = impact.started(aux.impacts, self.limits.fault_bounds, t, self.n, self.cfg.fault_onsets,
-                                             self.limits.z)
+            bounds = self.limits.persistent_bounds
+            if bounds and aux.initialised and (
+                    aux.impacts is None or t - aux.impacts.last_onset_of(bounds) >= self.cfg.fault_onset_spacing):
+                aux.impacts = impact.started(aux.impacts, bounds, t, self.n, self.cfg.fault_onsets, self.limits.z,
+                                             members=self.limits.group_members)
             if aux.lone_view is not None:   # what a lone source's scale fault adds over the distance
                 lone = aux.lone_view
                 step = self.limits.z * self.models[lone.sensor].scale_fault_sigma * abs(float(self.ekf.x[0, 0] - s0))
@@ -228,10 +229,17 @@ class TrainFilter:
         if is_fix:   # a fix's own offset per unit is its 1-sigma; the dead reckoning checks it
             return impact.FaultInput(cls, m.position_stddev if cls in self.limits.offset_bounds else 0.0, True,
                                      independent=cls not in self.layout.fix)
-        if not (self.limits.fault_bounds or self.limits.transient_bounds) or cls not in self.layout.relative:
+        if not (self.limits.persistent_bounds or self.limits.transient_bounds) or cls not in self.layout.relative:
             return None   # an acceleration carries none of the bank's faults; it tests them
+        checkers = frozenset(self.in_use(m.stamp, but=cls))
+        # a sensor whose common cause acts through adhesion (a wheel's slips) carries it only while the
+        # train is driven or braked, and within its longest episode after
+        model = self.models[cls]
+        in_groups = not faults.ADHESION & set(model.faults) or (
+            abs(float(self.ekf.x[2, 0])) >= self.cfg.slip_min_drive
+            or m.stamp - self.aux.last_drive <= model.fault_duration_max)
         return impact.FaultInput(cls, m.distance / m.duration if hasattr(m, "distance") else m.speed,   # in its units
-                                 bool(self.in_use(m.stamp, but=cls)), relative=True)
+                                 bool(checkers), checkers, in_groups, relative=True)
 
     def measurement_of(self, m):
         """(z, R, H row, h(x)) of a measurement at the current state (models.measurement), with

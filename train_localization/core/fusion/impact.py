@@ -67,6 +67,10 @@ class FaultInput(NamedTuple):
     sensor: str          # its sensor
     per_unit: float      # its own fault per unit fault: the speed of a relative reading, the 1-sigma of a fix
     checked: bool        # another speed source in use checks it (a fix: always)
+    checkers: frozenset = frozenset()  # a relative reading: the other speed sources in use (a common-cause
+                                       # group's row is tested by its members' readings only beside a non-member)
+    in_groups: bool = True  # it may carry its common-cause groups' fault now (a wheel: while the train is
+                            # driven or braked); else it reads outside them and tests their rows
     relative: bool = False  # a relative sensor's reading (else a fix)
     independent: bool = False  # a fix whose error is its own (no fix-bias state, which could take up a
                                # dead-reckoning error): it tests a transient fault's size
@@ -118,6 +122,8 @@ class Bank:
     offset: np.ndarray   # (k,) bool: an offset of a run of fixes (Impact.offset)
     transient: np.ndarray  # (k,) bool: a transient fault (Impact.transient)
     alone: np.ndarray    # (k,) bool: a transient fault's sensor read last with nothing but the motion model to see it
+    groups: tuple = ()   # (k,) frozensets: the sensors whose readings carry each row's fault ({sensor}; a
+                         # common-cause group's row: all its members)
 
     def __len__(self) -> int:
         return len(self.sensors)
@@ -130,8 +136,17 @@ class Bank:
         return (self[k] for k in range(len(self)))
 
     def of(self, sensor: str) -> np.ndarray:
-        """(k,) bool: the hypotheses of ``sensor``."""
-        return np.array([s == sensor for s in self.sensors], dtype=bool)
+        """(k,) bool: the hypotheses whose fault ``sensor``'s readings carry (its own rows, and those of
+        the common-cause groups it belongs to)."""
+        return np.array([sensor in g for g in self.groups], dtype=bool)
+
+    def grouped(self) -> np.ndarray:
+        """(k,) bool: the rows of common-cause groups (more than one member)."""
+        return np.array([len(g) > 1 for g in self.groups], dtype=bool)
+
+    def unchecked(self, checkers: frozenset) -> np.ndarray:
+        """(k,) bool: the rows whose members no speed source in ``checkers`` outside them checks."""
+        return np.array([not (checkers - g) for g in self.groups], dtype=bool)
 
     def episode_begins(self, sensor: str, alone: bool) -> bool:
         """Whether a reading of ``sensor``, ``alone`` (nothing but the motion model sees it) or
@@ -184,14 +199,14 @@ def _rows(bank: Bank, keep) -> Bank:
     keep = list(keep)
     return Bank(tuple(bank.sensors[k] for k in keep), bank.onsets[keep], bank.active[keep], bank.bounds[keep],
                 bank.E[keep], bank.info[keep], bank.score[keep], bank.offset[keep], bank.transient[keep],
-                bank.alone[keep])
+                bank.alone[keep], tuple(bank.groups[k] for k in keep))
 
 
 def _joined(a: Bank, b: Bank) -> Bank:
     """The hypotheses of ``a`` followed by those of ``b``."""
     return Bank(a.sensors + b.sensors, *(np.concatenate([getattr(a, f), getattr(b, f)])
                                          for f in ("onsets", "active", "bounds", "E", "info", "score", "offset",
-                                                   "transient", "alone")))
+                                                   "transient", "alone")), a.groups + b.groups)
 
 
 def _keeps_none(transform):
@@ -203,8 +218,9 @@ def _keeps_none(transform):
 
 
 def started(bank: Bank | None, bounds: dict[str, float], onset: float, n: int, max_onsets: int, z: float,
-            offset: bool = False) -> Bank:
-    """``bank`` plus, per sensor of ``bounds`` (sensor -> fault bound), a new hypothesis from
+            offset: bool = False, members: dict | None = None) -> Bank:
+    """``bank`` plus, per sensor of ``bounds`` (sensor or common-cause group -> fault bound; ``members``:
+    group -> its sensors), a new hypothesis from
     ``onset`` [s] (e = 0; ``offset``: of a run of that sensor's fixes, else of its scale), and the fault that matters most so far ended at ``onset`` (a fault
     that ended leaves its error in the state, while its sensor's readings, right again, agree:
     followed as still going on, the data would exclude it). Beyond ``max_onsets`` for a sensor
@@ -221,7 +237,7 @@ def started(bank: Bank | None, bounds: dict[str, float], onset: float, n: int, m
             if covers[largest] > 0.0:   # the same error and test, ended here
                 ended = _rows(bank, [largest])
                 bank = _joined(bank, dataclasses.replace(ended, active=np.zeros(1, bool)))
-        bank = _joined(bank, _row(sensor, onset, bound, n, offset=offset))
+        bank = _joined(bank, _row(sensor, onset, bound, n, offset=offset, group=(members or {}).get(sensor)))
         covers = _covers(bank, z)
         own = [k for k in range(len(bank)) if bank.sensors[k] == sensor and not bank.transient[k]]
         drop = set()
@@ -237,13 +253,16 @@ def started(bank: Bank | None, bounds: dict[str, float], onset: float, n: int, m
 def _empty(n: int) -> Bank:
     """A bank without hypotheses, for states of dimension n."""
     return Bank((), np.zeros(0), np.zeros(0, bool), np.zeros(0), np.zeros((0, n)), np.zeros(0), np.zeros(0),
-                np.zeros(0, bool), np.zeros(0, bool), np.zeros(0, bool))
+                np.zeros(0, bool), np.zeros(0, bool), np.zeros(0, bool), ())
 
 
-def _row(sensor: str, onset: float, bound: float, n: int, offset: bool = False, transient: bool = False) -> Bank:
-    """One new active hypothesis of ``sensor`` from ``onset`` [s], e = 0."""
+def _row(sensor: str, onset: float, bound: float, n: int, offset: bool = False, transient: bool = False,
+         group: frozenset | None = None) -> Bank:
+    """One new active hypothesis of ``sensor`` (a common-cause group: of its members ``group``) from
+    ``onset`` [s], e = 0."""
     return Bank((sensor,), np.array([onset]), np.ones(1, bool), np.array([bound]), np.zeros((1, n)), np.zeros(1),
-                np.zeros(1), np.full(1, offset), np.full(1, transient), np.zeros(1, bool))
+                np.zeros(1), np.full(1, offset), np.full(1, transient), np.zeros(1, bool),
+                (group or frozenset((sensor,)),))
 
 
 def episode_started(bank: Bank | None, sensor: str, bound: float, onset: float, alone: bool, n: int,
@@ -283,9 +302,14 @@ def updated(bank: Bank, fault_input: FaultInput | None, h: np.ndarray, K: np.nda
     alone = bank.alone
     if fault_input is not None:
         own = bank.of(fault_input.sensor)
+        if not fault_input.in_groups:
+            own = own & ~bank.grouped()
         delta = np.where(bank.transient, fault_input.per_unit * fault_input.unseen, fault_input.per_unit)
         g = g + np.where(own & bank.active, delta, 0.0)
-        if not fault_input.checked:   # against the motion model alone a ramp passes: no test
+        # against the motion model alone a ramp passes: no test (a group's members check none of its rows)
+        if fault_input.relative:
+            tests = tests & ~(own & bank.unchecked(fault_input.checkers))
+        elif not fault_input.checked:
             tests = tests & ~own
         if fault_input.relative:
             alone = np.where(own & bank.transient, fault_input.unseen >= 1.0, alone)

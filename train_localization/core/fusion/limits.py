@@ -27,6 +27,9 @@ class Limits:
     fault_bounds: dict          # persistent-fault sensor -> z x scale_fault_sigma (impact.py)
     transient_bounds: dict      # relative sensor -> slip_ratio_max of a slip no own solution covers
     offset_bounds: dict         # position sensor -> shared offset bound in each fix's 1-sigma (the gate's radius)
+    group_members: dict         # common-cause group ("doppler+wheel") -> its relative sensors (frozenset)
+    persistent_bounds: dict     # fault_bounds and each monitored group -> its bound: the scale fault its members
+                                # share, up to the smallest of their own bounds (impact.py)
     subs: dict                  # key -> SubModel of the relative sensors' own solutions (separation.py)
     sensor_subs: dict           # sensor -> ((key, SubModel), ...) of its own solutions
     hypotheses: dict            # fault hypothesis -> the own solutions valid under it (separation.hypotheses)
@@ -65,6 +68,32 @@ class Limits:
         offset_bounds = {n: math.sqrt(gates[n]) for n, m in models.items()
                          if m.measures == "position" and fault_modes.OFFSET & set(m.faults)
                          } if "offset_fault_cover" in on else {}
+        group_members, group_bounds = common_cause_groups(cfg, z)
         return cls(gates, float(chi2.ppf(cfg.slip_gate_probability, 1)),
                    float(chi2.ppf(cfg.consistency_probability, cfg.consistency_fixes)) / cfg.consistency_fixes,
-                   z, bounded, persistent, fault_bounds, transient_bounds, offset_bounds, subs, sensor_subs, hypotheses)
+                   z, bounded, persistent, fault_bounds, transient_bounds, offset_bounds, group_members,
+                   {**fault_bounds, **group_bounds}, subs, sensor_subs, hypotheses)
+
+
+def common_cause_groups(cfg: FusionConfig, z: float) -> tuple[dict, dict]:
+    """({group: members}, {group: bound}) of the relative sensors that declare a common cause
+    (``ErrorModel.common_causes``), two or more per cause, monitored where ``common_cause_prior``
+    exceeds the risk the interval leaves (1 - ``confidence``; ARAIM's wide faults): their readings
+    may carry one scale error, up to the smallest of the members' own bounds (a wheel's slips,
+    ``slip_ratio_max``; a radar's scale fault, z x ``scale_fault_sigma``), which only a source outside the
+    group tests (z: the confidence's quantile). Empty without the persistent-fault cover."""
+    if "persistent_fault_cover" not in cfg.policies or cfg.common_cause_prior <= 1.0 - cfg.confidence:
+        return {}, {}
+    causes: dict[str, list[str]] = {}
+    for name, m in sorted(cfg.models.items()):
+        if m.relative:
+            for cause in m.common_causes:
+                causes.setdefault(cause, []).append(name)
+    members, bounds = {}, {}
+    for names in causes.values():
+        own = [cfg.models[n].slip_ratio_max if fault_modes.ADHESION & set(cfg.models[n].faults)
+               else z * cfg.models[n].scale_fault_sigma for n in names]
+        if len(names) >= 2 and all(b > 0.0 for b in own):
+            label = "+".join(names)
+            members[label], bounds[label] = frozenset(names), min(own)
+    return members, bounds

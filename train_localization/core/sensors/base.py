@@ -255,6 +255,8 @@ class ErrorModel:
     creep_coefficient: float = 0.0       # wheel creep c [s^2/m]: wheel speed = v (1 + c a sign v)
     creep_in_traction: bool = True       # creep under traction too (a motored axle), else only braking
     faults: tuple[str, ...] = ()         # fault modes (faults.py) the fusion must check for
+    common_causes: tuple[str, ...] = ()  # causes of failure it shares with other sensors of the train (a wheel's
+                                         # and a radar's "track_surface": wet rail, snow): those fail together
     scale_fault_sigma: float = 0.0       # 1-sigma size of a persistent scale fault (``scale_fault``, ``wear``) [1]:
                                          # what its scale may be off by once the fusion suspects one
     fault_duration_max: float = math.inf  # longest episode of its transient fault modes (slip, slide)

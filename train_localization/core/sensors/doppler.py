@@ -195,12 +195,14 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
     """Doppler errors for the fusion: the AR(1) scale (``scale_sigma``, ``scale_tau``), a
     constant mounting-angle scale error (tan(theta) x ``mount_angle_tolerance``), the
     device ``bias``; the decoder reports the scale and the bias inside its stddev. Fault
-    modes: dropouts, and a scale fault of about ``fault_scale_sigma``."""
+    modes: dropouts, and a scale fault of about ``fault_scale_sigma``. Its echo off a wet or snowy
+    track bed fails with the wheels' adhesion there: common cause ``track_surface``."""
     mount = math.tan(math.radians(params["mount_angle"])) * math.radians(params["mount_angle_tolerance"])
     return ErrorModel("doppler", "speed", scale_sigma=params["scale_sigma"], scale_tau=params["scale_tau"],
                       scale_offset_sigma=mount, bias_sigma=abs(params["bias"]),
                       reported_scale=params["scale_sigma"], reported_bias=abs(params["bias"]),
                       faults=("dropout", "scale_fault"), scale_fault_sigma=params["fault_scale_sigma"],
+                      common_causes=("track_surface",),
                       timeout=continuous_timeout(params),
                       min_stddev=min_speed_stddev(params))   # the decoder's max(sigma, min_speed_stddev)
 

@@ -774,7 +774,8 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
     reports inside its stddev); creep under braking, and under traction on a driven axle;
     slip (driven axle) and slide episodes, which the decoder cannot see, none longer than
     ``slip_duration_max`` or the longest forced episode, nor larger than ``slip_ratio_max`` or the
-    largest forced one."""
+    largest forced one. Its slips come with a radar's echo off the same wet or snowy track: common
+    cause ``track_surface``."""
     scale = params["diameter_tolerance"] / math.sqrt(3.0)
     forced = np.asarray(params["slip_episodes"], dtype=float).reshape(-1, 3)
     longest = max(params["slip_duration_max"], float(forced[:, 1].max()) if forced.size else 0.0)
@@ -785,6 +786,7 @@ def error_model(params: dict, track, vehicle) -> ErrorModel:
                       creep_coefficient=params["creep_coefficient"], creep_in_traction=params["driven_axle"],
                       faults=("slip", "slide", "wear") if params["driven_axle"] else ("slide", "wear"),
                       scale_fault_sigma=params["wear_fault_sigma"], fault_duration_max=longest,
+                      common_causes=("track_surface",),
                       slip_ratio_max=largest, timeout=timeout,
                       min_stddev=SPEED_STDDEV_FLOOR)   # IncrementEstimator.make's floor of both stddevs
 

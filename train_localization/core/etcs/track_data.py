@@ -94,8 +94,8 @@ class EtcsData:
         if national is None:
             national = national_default
         if national is not None:
-            national = _q_locacc(national, f"track {track.track_id}: etcs.q_nvlocacc")
-        groups, group_of = _groups(track, national)
+            national = checked_q_locacc(national, f"track {track.track_id}: etcs.q_nvlocacc")
+        groups, group_of = balise_groups(track, national)
         return cls(track.track_id, groups, group_of, _links(track.track_id, block, groups), national)
 
 
@@ -104,12 +104,12 @@ def q_locacc_of_balise(track: Track, item: dict) -> float | None:
     value of the track's ``etcs`` block), None if neither is given (the reader's error model
     then keeps its ``location_sigma``)."""
     if item.get("q_locacc") is not None:
-        return _q_locacc(item["q_locacc"], f"balise {item['id']}: q_locacc")
+        return checked_q_locacc(item["q_locacc"], f"balise {item['id']}: q_locacc")
     national = (track.etcs or {}).get("q_nvlocacc") if isinstance(track.etcs, dict) else None
-    return None if national is None else _q_locacc(national, f"track {track.track_id}: etcs.q_nvlocacc")
+    return None if national is None else checked_q_locacc(national, f"track {track.track_id}: etcs.q_nvlocacc")
 
 
-def _q_locacc(value, what: str) -> float:
+def checked_q_locacc(value, what: str) -> float:
     try:
         q = float(value)
     except (TypeError, ValueError):
@@ -119,7 +119,7 @@ def _q_locacc(value, what: str) -> float:
     return q
 
 
-def _groups(track: Track, national: float | None) -> tuple[dict[str, BaliseGroup], dict[str, str]]:
+def balise_groups(track: Track, national: float | None) -> tuple[dict[str, BaliseGroup], dict[str, str]]:
     members: dict[str, list[dict]] = {}
     for item in track.items(KIND):
         members.setdefault(str(item.get("group", item["id"])), []).append(item)
@@ -135,7 +135,7 @@ def _groups(track: Track, national: float | None) -> tuple[dict[str, BaliseGroup
         if own is None and national is None:
             raise TrackError(f"balise group {nid} has no q_locacc and track {track.track_id} no national value "
                              f"(etcs.q_nvlocacc)")
-        q = _q_locacc(own, f"balise group {nid}: q_locacc") if own is not None else national
+        q = checked_q_locacc(own, f"balise group {nid}: q_locacc") if own is not None else national
         orientation = orientations.pop()
         ordered = sorted(items, key=lambda it: it["position"])
         reference = ordered[0] if orientation > 0 else ordered[-1]
@@ -147,7 +147,7 @@ def _groups(track: Track, national: float | None) -> tuple[dict[str, BaliseGroup
     return groups, group_of
 
 
-def _reaction(value, where: str) -> Reaction:
+def reaction_of(value, where: str) -> Reaction:
     if str(value) not in REACTIONS:
         raise TrackError(f"{where}: reaction {value!r} unknown; known: {', '.join(REACTIONS)}")
     return REACTIONS[str(value)]
@@ -159,7 +159,7 @@ def _links(track_id: str, block: dict, groups: dict[str, BaliseGroup]) -> dict[t
         return {}
     links: dict[tuple[str, int], Link] = {}
     if linking == "auto":
-        reaction = _reaction(block.get("link_reaction", "service_brake"), f"track {track_id}: etcs.link_reaction")
+        reaction = reaction_of(block.get("link_reaction", "service_brake"), f"track {track_id}: etcs.link_reaction")
         ordered = sorted(groups.values(), key=lambda g: g.reference)
         for a, b in zip(ordered, ordered[1:]):
             distance = b.reference - a.reference
@@ -186,5 +186,5 @@ def _links(track_id: str, block: dict, groups: dict[str, BaliseGroup]) -> dict[t
         if (a, direction) in links:
             raise TrackError(f"track {track_id}: group {a} is linked twice in direction {direction:+d}")
         links[(a, direction)] = Link(a, b, distance, direction,
-                                     _reaction(entry.get("reaction", "service_brake"), f"link {a} -> {b}"))
+                                     reaction_of(entry.get("reaction", "service_brake"), f"link {a} -> {b}"))
     return links

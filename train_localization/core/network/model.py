@@ -104,6 +104,7 @@ class Network:
     network_id: str
     sections: dict[str, Track]
     nodes: dict[str, Node] = field(default_factory=dict)
+    etcs: dict = field(default_factory=dict)   # ETCS data: national values, linking (core/etcs/network_data.py)
 
     def __post_init__(self):
         self._joints: dict[SectionEnd, tuple[str, str]] = {}
@@ -233,7 +234,7 @@ class Network:
                 raise NetworkError(f"network: node id {node.node_id!r} is used twice")
             nodes[node.node_id] = node
         sections = _place_sections(raw, nodes)
-        return cls(network_id=network_id, sections=sections, nodes=nodes)
+        return cls(network_id=network_id, sections=sections, nodes=nodes, etcs=data.get("etcs") or {})
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> "Network":

@@ -27,7 +27,7 @@ from ..network.model import Network
 from ..network.path import TrackPath
 from ..track import TrackError
 from .records import Reaction
-from .track_data import BaliseGroup, balise_groups, checked_q_locacc, reaction_of
+from .track_data import BaliseGroup, balise_groups, etcs_block, reaction_of
 
 DEFAULT_REACH = 5000.0   # [m] linking looks no further for the next group on a path
 
@@ -68,15 +68,7 @@ class NetworkEtcsData:
         """The ETCS data of ``network``; TrackError in one line if it is inconsistent (a group id
         used on two sections, a group without Q_LOCACC where the network gives no national value,
         an unknown key, a linking other than ``auto``)."""
-        block = network.etcs or {}
-        if not isinstance(block, dict):
-            raise TrackError(f"network {network.network_id}: 'etcs' must be a mapping")
-        unknown = set(block) - {"q_nvlocacc", "linking", "link_reaction"}
-        if unknown:
-            raise TrackError(f"network {network.network_id}: unknown keys in 'etcs': {', '.join(sorted(unknown))}")
-        national = block.get("q_nvlocacc")
-        if national is not None:
-            national = checked_q_locacc(national, f"network {network.network_id}: etcs.q_nvlocacc")
+        block, national = etcs_block(network.etcs, f"network {network.network_id}")
         groups: dict[str, LocatedGroup] = {}
         group_of: dict[str, str] = {}
         for sid, section in network.sections.items():

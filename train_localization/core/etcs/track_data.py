@@ -84,19 +84,27 @@ class EtcsData:
         """The ETCS data of a track; TrackError in one line if it is inconsistent.
         ``national_default`` [m]: the national value of Q_LOCACC where the track gives none (the
         campaign scores a track without ETCS data with its reader's location bound)."""
-        block = track.etcs or {}
-        if not isinstance(block, dict):
-            raise TrackError(f"track {track.track_id}: 'etcs' must be a mapping")
-        unknown = set(block) - {"q_nvlocacc", "linking", "link_reaction"}
-        if unknown:
-            raise TrackError(f"track {track.track_id}: unknown keys in 'etcs': {', '.join(sorted(unknown))}")
-        national = block.get("q_nvlocacc")
-        if national is None:
-            national = national_default
-        if national is not None:
-            national = checked_q_locacc(national, f"track {track.track_id}: etcs.q_nvlocacc")
+        block, national = etcs_block(track.etcs, f"track {track.track_id}", national_default)
         groups, group_of = balise_groups(track, national)
         return cls(track.track_id, groups, group_of, _links(track.track_id, block, groups), national)
+
+
+def etcs_block(block, where: str, national_default: float | None = None) -> tuple[dict, float | None]:
+    """(the ``etcs`` block, its national Q_LOCACC [m] or ``national_default``) of a track or a
+    network (``where`` names it); TrackError in one line for a block that is no mapping, an
+    unknown key or a Q_LOCACC out of range."""
+    block = block or {}
+    if not isinstance(block, dict):
+        raise TrackError(f"{where}: 'etcs' must be a mapping")
+    unknown = set(block) - {"q_nvlocacc", "linking", "link_reaction"}
+    if unknown:
+        raise TrackError(f"{where}: unknown keys in 'etcs': {', '.join(sorted(unknown))}")
+    national = block.get("q_nvlocacc")
+    if national is None:
+        national = national_default
+    if national is not None:
+        national = checked_q_locacc(national, f"{where}: etcs.q_nvlocacc")
+    return block, national
 
 
 def q_locacc_of_balise(track: Track, item: dict) -> float | None:

@@ -403,3 +403,27 @@ def test_the_association_node_routes_a_head_fix_by_the_trains_track_hypotheses(r
         assoc.terminate()
         assoc.wait(timeout=10)
         log.close()
+
+
+def test_a_track_circuit_hand_over_across_a_switch_resolves_the_way_at_its_point():
+    """South alone through W3 (reported B1, lies B2) with track circuits as its only wayside
+    equipment: the hand-over T5b/T7a across W3 is admitted by its fusion (a reference of the
+    network's joints), delivered to south, and names the way at the switch point, so the way is
+    resolved within the clearance where the axle-counter head 45 m beyond could not."""
+    data = yaml.safe_load(open(resolve(SCENARIO), encoding="utf-8"))
+    data["track"] = _circuits_over_w3()
+    data["wayside"] = {"sensors": {"track_circuit_receiver": {"front_first": True}}}
+    data["trains"] = [train for train in data["trains"] if train["name"] == "south"]
+    data["trains"][0]["initial"] = {"position": 650.0, "speed": 0.0}
+    data["trains"][0]["profile"] = [{"speed": 22.0, "accel": 1.2, "jerk": 1.0, "hold": 60.0}]
+    data["duration"] = 38.0
+    res = simulate_line(Scenario.from_dict(data), fusion_rate=50.0)
+    report = line_report(res)
+    decisions = [(d.fix.reference_id, d.train) for d in res.associator.decisions]
+    assert decisions == [("T5a/T5b", "south"), ("T5b/T7a", "south")]
+    south = res.trains["south"].runner.counters()
+    assert not {"reference_mismatch", "unknown_reference", "wrong_track"} & set(south["rejected"]), south["rejected"]
+    assert south["switches_contradicted"] == {"W3": "reported B1, found B2"}
+    net = report["trains"]["south"]["network"]
+    assert net["nominal_wrong_track"] == 0 and net["inside"] == 1.0 and net["true_hypothesis_outside"] == 0
+    assert net["switch_ways_resolved"] == net["switch_ways"] == 1

@@ -81,11 +81,14 @@ def _live_states(bag, train: str) -> list:
 
 def test_offline_replay_matches_the_live_graph_within_the_filter_tolerance(replayed):
     name, runs, _, _ = replayed
+    ring = scenario_from_bag(BAGS / f"{name}.mcap").track.circumference
     for train, run in runs.items():
-        _matches_live(f"{name} {train}", run.estimates, _live_states(BAGS / f"{name}.mcap", train))
+        _matches_live(f"{name} {train}", run.estimates, _live_states(BAGS / f"{name}.mcap", train), ring)
 
 
-def _matches_live(name: str, offline: list, live: list) -> None:
+def _matches_live(name: str, offline: list, live: list, ring: float | None = None) -> None:
+    """``ring``: the circumference of a closed track, on which the published positions are wrapped
+    and the filter's are the distance run (compared modulo it)."""
     off_t = np.array([e.stamp for e in offline])
     off_s = np.array([e.position for e in offline])
     live_t = np.array([convert.stamp_to_sec(m.header.stamp) for m in live])
@@ -95,7 +98,8 @@ def _matches_live(name: str, offline: list, live: list) -> None:
     idx = np.searchsorted(off_t, live_t[both])
     idx = np.clip(idx, 0, len(off_t) - 1)
     same_time = np.abs(off_t[idx] - live_t[both]) < 1e-6
-    diff = np.abs(off_s[idx][same_time] - live_s[both][same_time])
+    diff = off_s[idx][same_time] - live_s[both][same_time]
+    diff = np.abs((diff + 0.5 * ring) % ring - 0.5 * ring if ring else diff)
     sd = live_sd[both][same_time]
     ok = np.isfinite(diff)
     if not both.any():   # the live train claimed no position (a line's train that passed one reference)
@@ -193,12 +197,48 @@ def test_a_network_bag_names_each_trains_track_live_and_replayed(replayed):
         pytest.skip(f"{name}: no train on a network")
     for train in networked:
         live = recorded_network(bag, scenario.trains[train], f"/{train}")
-        assert live["claimed"] > 3000 and live["nominal_wrong_track"] == 0, (train, live)
+        assert live["claimed"] > 1500 and live["nominal_wrong_track"] == 0, (train, live)
         assert live["inside"] == 1.0 and live["true_hypothesis_inside"] >= 0.999, (train, live)
-        assert live["switch_ways"] >= 1 and live["switch_ways_resolved"] == live["switch_ways"], (train, live)
+        # every way resolved within its clearance where the bag's evidence can (throat_wayside's south:
+        # only the head 45 m past W3 tells its way, beyond the clearance: bags/thresholds.json)
+        resolved = TABLE[name]["trains"][train]["bounds"]["network.switch_ways_resolved"]["min"]
+        assert live["switch_ways"] >= 1 and live["switch_ways_resolved"] >= resolved, (train, live)
         replayed_ways = [(w["switch"], w["resolved"]) for w in reports[train]["network"]["ways"]]
         assert replayed_ways == [(w["switch"], w["resolved"]) for w in live["ways"]], train
     contradicted = {tr: runs[tr].runner.counters()["switches_contradicted"] for tr in networked}
     reported_wrong = {tr: {k: v for k, v in scenario.trains[tr].interlocking.items()
                            if v and scenario.trains[tr].route.ways().get(k, v) != v} for tr in networked}
     assert {tr: sorted(c) for tr, c in contradicted.items()} == {tr: sorted(w) for tr, w in reported_wrong.items()}
+
+
+def _outside_scorer():
+    """scripts/score_bag.py, the scorer that reads a bag with the mcap library alone."""
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("score_bag", ROOT / "scripts" / "score_bag.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_outside_scorer_uses_no_project_code():
+    import ast
+    tree = ast.parse((ROOT / "scripts" / "score_bag.py").read_text())
+    imported = {alias.name.split(".")[0] for node in ast.walk(tree) if isinstance(node, ast.Import)
+                for alias in node.names}
+    imported |= {node.module.split(".")[0] for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)}
+    assert imported <= {"__future__", "argparse", "bisect", "json", "math", "sys", "collections", "yaml", "mcap",
+                        "mcap_ros2"}, imported
+
+
+@pytest.mark.parametrize("name", sorted(TABLE))
+def test_every_bag_scores_inside_per_train_from_the_mcap_file_alone(name):
+    """An outside scorer (scripts/score_bag.py: mcap's ROS 2 decoder, no project code) finds the
+    truth inside the published interval in >= 99.9 % of every train's states, none outside while
+    NOMINAL and none NOMINAL on a wrong track: the truth is in the fused state's frame (on a
+    network its section and chainage), a closed track's positions are wrapped in both streams."""
+    scores = _outside_scorer().score_bag(str(BAGS / f"{name}.mcap"))
+    assert scores, f"{name}: no train with a truth and a fused state"
+    claimed = {ns: s for ns, s in scores.items() if s["states"]}
+    assert claimed, name
+    for ns, s in claimed.items():
+        assert s["inside"] >= 0.999 and s["nominal_outside"] == 0 and s["nominal_wrong_track"] == 0, (name, ns, s)

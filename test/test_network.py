@@ -113,6 +113,42 @@ def test_a_route_against_a_sections_chainage_counts_it_backwards(throat):
     assert (moved.track_id, moved.position, moved.direction) == ("T1", pytest.approx(598.0), -1)
 
 
+def test_the_truth_of_a_network_train_names_its_section_and_chainage_like_the_state(throat):
+    """ground_truth/state of a train on a network is in the fused state's frame (the section the
+    front is on, its chainage and the speed along it) and carries the route distance, which the
+    sensor simulators and the project's scores read back (convert.truth_from_msg)."""
+    from train_localization.core.truth import TruthState
+    mc = typestore_classes()
+    back = route_track(route_path(throat, ["T5", "T3", "T1"], first_direction=-1), "throat:back")
+    t5 = throat.section("T5").length
+    for distance, section, chainage in ((10.0, "T5", t5 - 10.0), (t5 + 5.0, "T3", throat.section("T3").length - 5.0),
+                                        (t5 + throat.section("T3").length + 100.0, "T1", 900.0)):
+        state = TruthState(2.0, distance, 12.0, -0.5)
+        msg = convert.truth_to_msg(mc, state, back)
+        assert (msg.track_id, msg.route_id, msg.route_direction) == (section, "throat:back", -1)
+        assert msg.position == pytest.approx(chainage) == msg.position_min == msg.position_max
+        assert (msg.speed, msg.acceleration, msg.route_distance) == (-12.0, 0.5, distance)
+        assert convert.truth_from_msg(msg) == state
+    single = Scenario.from_yaml("config/scenario_demo.yaml").track
+    msg = convert.truth_to_msg(mc, TruthState(1.0, 250.0, 3.0, 0.0), single)
+    assert (msg.track_id, msg.position, msg.route_id, msg.route_direction) == (single.track_id, 250.0, "", 0)
+    assert math.isnan(msg.route_distance) and convert.truth_from_msg(msg).position == 250.0
+
+
+def test_a_hypothesis_restates_its_interval_on_every_section_it_spans(throat):
+    """TrackHypothesis path_min / path_max: the interval on each section of its path, in that
+    section's chainage, so that a place (section, chainage) is found in it without the topology."""
+    path = route_path(throat, ["T5", "T3", "T1"], first_direction=-1)
+    t5, t3 = throat.section("T5").length, throat.section("T3").length
+    spans = path.spans(t5 - 4.0, t5 + t3 + 6.0)     # from 4 m before T5's begin to 6 m into T1
+    assert [(sp.section, sp.lo, sp.hi) for sp in spans] == [
+        ("T5", pytest.approx(0.0), pytest.approx(4.0)), ("T3", pytest.approx(0.0, abs=1e-9), pytest.approx(t3)),
+        ("T1", pytest.approx(994.0), pytest.approx(1000.0))]
+    assert path.sections(t5 - 4.0, t5 + t3 + 6.0) == ["T5", "T3", "T1"]
+    beyond = path.spans(-3.0, 2.0)                  # the path's first section, continued before it
+    assert [(sp.section, sp.lo, sp.hi) for sp in beyond] == [("T5", pytest.approx(t5 - 2.0), pytest.approx(t5 + 3.0))]
+
+
 def test_a_route_through_sections_that_do_not_follow_is_refused(throat):
     with pytest.raises(NetworkError, match="section T6 does not follow T1"):
         route_path(throat, ["T1", "T6"])
@@ -218,6 +254,10 @@ def test_while_several_tracks_are_plausible_the_state_is_degraded_and_covers_the
     for e in several:
         for h in e.hypotheses:   # every plausible hypothesis's interval lies within the published one
             assert e.path_min <= e.path_position <= e.path_max
+            assert len(h.pieces) == len(h.path) and all(lo <= hi for lo, hi in h.pieces)
+    msg = convert.track_hypotheses_to_msg(typestore_classes(), several[-1], "throat")
+    for h, m in zip(several[-1].hypotheses, msg.hypotheses):   # the interval on each section of its path
+        assert list(m.path) == list(h.path) and list(zip(m.path_min, m.path_max)) == list(h.pieces)
 
 
 def _north_arrivals():

@@ -10,7 +10,8 @@ from train_localization.core.association import AMBIGUOUS, UNEXPLAINED, USED, As
 from train_localization.core.measurements import PositionFix, SectionOccupancy
 from train_localization.core.network import Network, NetworkError, route_path
 from train_localization.core.network.hypotheses import TrackHypothesisState
-from train_localization.core.network.wayside import (Placement, SectionDecoders, SectionSimulators, network_areas,
+from train_localization.core.network.config import network_fusion_config
+from train_localization.core.network.wayside import (NetworkTrackCircuits, Placement, SectionSimulators, network_areas,
                                                      network_decoder, section_params)
 from train_localization.core.offline import replay_line, simulate_line
 from train_localization.core.paths import resolve
@@ -117,7 +118,7 @@ def test_a_block_one_sections_columns_refuse_changes_no_sections_decoder(throat)
         dec.decode(replace(block, channels=block.channels[:-1] + ("AC99.b",)))
     assert err.value.reason == "unknown_id"
     assert len(dec.decode(block)) == 1                         # the first report, of every area
-    # a device of one decoder per section (track circuits): every section's checks first
+    # track circuits over the network: one decoder, every circuit's checks first
     data = yaml.safe_load(open(resolve("config/track_throat.yaml"), encoding="utf-8"))
     for sec in data["sections"]:
         if sec["id"] in ("T2", "T6"):
@@ -129,13 +130,13 @@ def test_a_block_one_sections_columns_refuse_changes_no_sections_decoder(throat)
     sim = SectionSimulators(tc, params, net, Vehicle(axles=AXLES), np.random.default_rng(1), [Vehicle(axles=AXLES)],
                             [north])
     dec = network_decoder(tc, params, net)
-    assert isinstance(dec, SectionDecoders)
+    assert isinstance(dec, NetworkTrackCircuits)
     block = sim.simulate(truth)[0]
     bad = block.data.copy()
     bad[:, -1] = 50.0                       # T6's receiver: beyond its range
     with pytest.raises(InputRejected) as err:
         dec.decode(replace(block, data=bad))
-    assert err.value.reason == "implausible" and all(p._last_report is None for p in dec.parts)
+    assert err.value.reason == "implausible" and dec._last_report is None
     assert len(dec.decode(block)) == 1
 
 
@@ -234,36 +235,72 @@ def test_the_recorded_bag_replays_to_the_same_associations(wayside_run):
         assert [e.position for e in again.trains[name].estimates] == [e.position for e in res.trains[name].estimates]
 
 
-def test_track_circuits_of_a_section_hand_over_on_that_section_only(throat):
+def _circuits_over_w3():
+    """The throat with TI21 circuits up to W3 on track B (T5a, T5b) and from it on T6 and T7."""
     data = yaml.safe_load(open(resolve("config/track_throat.yaml"), encoding="utf-8"))
+    t5 = next(sec for sec in data["sections"] if sec["id"] == "T5")["length"]
+    circuits = {"T5": [("T5a", 20.0, 141.0), ("T5b", 141.0, t5)], "T6": [("T6a", 0.0, 200.0), ("T6b", 200.0, 400.0)],
+                "T7": [("T7a", 0.0, 200.0)]}
     for sec in data["sections"]:
-        if sec["id"] in ("T2", "T6"):
-            sec["equipment"]["track_circuit"] = [
-                {"id": f"{sec['id']}a", "start": 10.0, "end": 200.0, "system": "TI21"},
-                {"id": f"{sec['id']}b", "start": 200.0, "end": 400.0, "system": "TI21"}]
-    net = Network.from_dict(data)
+        if sec["id"] in circuits:
+            sec["equipment"]["track_circuit"] = [{"id": cid, "start": a, "end": b, "system": "TI21"}
+                                                 for cid, a, b in circuits[sec["id"]]]
+    return data
+
+
+def _circuit_fixes(net, sections, start, speed, seconds, direction=1):
+    """Fixes and circuits seen occupied of one train at ``speed`` along ``sections`` from route-line
+    chainage ``start``; and its route."""
     tc = spec("track_circuit_receiver")
     params = sensor_params(tc, {"front_first": True}, Vehicle(axles=AXLES))
-    north = route_path(net, ["T1", "T3", "T5", "T6"])
+    route = route_path(net, sections, direction)
     sim = SectionSimulators(tc, params, net, Vehicle(axles=AXLES), np.random.default_rng(1), [Vehicle(axles=AXLES)],
-                            [north])
+                            [route])
     dec = network_decoder(tc, params, net)
-    truth = LineTruth({"north": Vehicle(axles=AXLES)})
-    out, occupied = [], set()
-    for k in range(0, 5001):          # 12 m/s from route-line chainage 850 m for 100 s
+    truth = LineTruth({"train": Vehicle(axles=AXLES)})
+    fixes, occupied = [], set()
+    for k in range(0, int(seconds * 50) + 1):
         t = k / 50.0
-        truth.add("north", TruthState(t, 850.0 + 12.0 * t, 12.0, 0.0))
+        truth.add("train", TruthState(t, start + speed * t, speed, 0.0))
         for block in sim.simulate(truth):
             for m in dec.decode(block):
-                out.append(m)
                 if isinstance(m, SectionOccupancy):
                     occupied |= {s.section_id for s in m.sections if s.state != 0}
-    fixes = [m for m in out if isinstance(m, PositionFix)]
-    assert [(f.track_id, f.reference_id, f.direction) for f in fixes] == [("T6", "T6a/T6b", 1)]
-    step = north.steps[3]
-    t_front = (step.distance(fixes[0].position) - north.begin - 850.0) / 12.0
-    assert abs(t_front - fixes[0].stamp) * 12.0 < 3.3 * fixes[0].position_stddev
-    assert occupied == {"T6a", "T6b"}                # track A's circuits never saw the train
+                else:
+                    fixes.append(m)
+    return fixes, occupied, route
+
+
+def test_track_circuits_hand_over_across_a_switch_and_fix_the_way_taken():
+    """A hand-over into a circuit of another section, across the node (an insulated joint), gives
+    a fix on the entered circuit's section at the joint: at W3 T5b hands over to T6a for the
+    train that goes straight and to T7a for the one that turns out; the fusion's references know
+    both joints, each way, on the entered section."""
+    net = Network.from_dict(_circuits_over_w3())
+    north_fixes, north_seen, north = _circuit_fixes(net, ["T1", "T3", "T5", "T6"], 1050.0, 12.0, 55.0)
+    assert [(f.track_id, f.reference_id, f.direction) for f in north_fixes] == [
+        ("T5", "T5a/T5b", 1), ("T6", "T5b/T6a", 1), ("T6", "T6a/T6b", 1)]
+    for f in north_fixes:
+        step = north.step_on(f.track_id)
+        t_front = (step.distance(f.position) - north.begin - 1050.0) / 12.0
+        assert abs(t_front - f.stamp) * 12.0 < 3.3 * f.position_stddev
+    assert north_fixes[1].position == pytest.approx(AXLES[0])          # at the joint, the first axle past it
+    assert "T7a" not in north_seen
+    south_fixes, south_seen, _ = _circuit_fixes(net, ["T4", "T5", "T7"], 750.0, 12.0, 45.0)
+    assert [(f.track_id, f.reference_id) for f in south_fixes] == [("T5", "T5a/T5b"), ("T7", "T5b/T7a")]
+    assert {"T6a", "T6b"}.isdisjoint(south_seen)
+    back_fixes, _, _ = _circuit_fixes(net, ["T6", "T5", "T4"], 590.0, 12.0, 55.0, -1)   # from T6's 410 m, backwards
+    assert [(f.track_id, f.reference_id, f.direction) for f in back_fixes] == [
+        ("T6", "T6a/T6b", -1), ("T5", "T6a/T5b", -1), ("T5", "T5a/T5b", -1)]
+    assert back_fixes[1].position == pytest.approx(net.section("T5").length - AXLES[0])
+    data = yaml.safe_load(open(resolve(SCENARIO), encoding="utf-8"))
+    data["track"] = _circuits_over_w3()
+    data["wayside"]["sensors"] = {"track_circuit_receiver": {"front_first": True}}
+    cfg, _ = network_fusion_config(Scenario.from_dict(data).trains["north"])
+    windows = cfg.models["track_circuit"].references.windows
+    assert windows["T5b/T6a"].lo == windows["T5b/T6a"].hi == pytest.approx(AXLES[0])
+    assert windows["T6a/T5b"].lo == pytest.approx(net.section("T5").length - AXLES[0])
+    assert {"T5b/T7a", "T7a/T5b", "T5a/T5b", "T6a/T6b"} <= set(windows)
 
 
 # ---- randomised runs (core/network/line_campaign.py) ----------------------------------------
@@ -366,3 +403,27 @@ def test_the_association_node_routes_a_head_fix_by_the_trains_track_hypotheses(r
         assoc.terminate()
         assoc.wait(timeout=10)
         log.close()
+
+
+def test_a_track_circuit_hand_over_across_a_switch_resolves_the_way_at_its_point():
+    """South alone through W3 (reported B1, lies B2) with track circuits as its only wayside
+    equipment: the hand-over T5b/T7a across W3 is admitted by its fusion (a reference of the
+    network's joints), delivered to south, and names the way at the switch point, so the way is
+    resolved within the clearance where the axle-counter head 45 m beyond could not."""
+    data = yaml.safe_load(open(resolve(SCENARIO), encoding="utf-8"))
+    data["track"] = _circuits_over_w3()
+    data["wayside"] = {"sensors": {"track_circuit_receiver": {"front_first": True}}}
+    data["trains"] = [train for train in data["trains"] if train["name"] == "south"]
+    data["trains"][0]["initial"] = {"position": 650.0, "speed": 0.0}
+    data["trains"][0]["profile"] = [{"speed": 22.0, "accel": 1.2, "jerk": 1.0, "hold": 60.0}]
+    data["duration"] = 38.0
+    res = simulate_line(Scenario.from_dict(data), fusion_rate=50.0)
+    report = line_report(res)
+    decisions = [(d.fix.reference_id, d.train) for d in res.associator.decisions]
+    assert decisions == [("T5a/T5b", "south"), ("T5b/T7a", "south")]
+    south = res.trains["south"].runner.counters()
+    assert not {"reference_mismatch", "unknown_reference", "wrong_track"} & set(south["rejected"]), south["rejected"]
+    assert south["switches_contradicted"] == {"W3": "reported B1, found B2"}
+    net = report["trains"]["south"]["network"]
+    assert net["nominal_wrong_track"] == 0 and net["inside"] == 1.0 and net["true_hypothesis_outside"] == 0
+    assert net["switch_ways_resolved"] == net["switch_ways"] == 1

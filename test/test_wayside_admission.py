@@ -116,8 +116,10 @@ def test_a_stream_refused_or_silent_past_its_time_out_is_stale_until_a_real_stat
 # ---------------------------------------------------------------- on a network
 
 def hyp(track, position, half=4.0, speed=12.0, path=None, probability=1.0):
+    path = list(path or [track])
     return SimpleNamespace(track_id=track, position=position, speed=speed, position_min=position - half,
-                           position_max=position + half, probability=probability, path=list(path or [track]))
+                           position_max=position + half, probability=probability, path=path,
+                           pieces=[(position - half, position + half)] * len(path))
 
 
 def test_network_states_are_restated_across_a_section_change_and_a_far_section_refused(throat):
@@ -421,7 +423,7 @@ def test_the_association_node_refuses_oversized_hypotheses_and_a_far_state_and_k
         def est(t, hyps):
             return SimpleNamespace(stamp=t, hypotheses=[SimpleNamespace(
                 track_id=h.track_id, position=h.position, speed=h.speed, position_min=h.position_min,
-                position_max=h.position_max, probability=h.probability, path=h.path) for h in hyps])
+                position_max=h.position_max, probability=h.probability, path=h.path, pieces=h.pieces) for h in hyps])
 
         def send_state(t, track, position, speed=12.0, pub=states):
             pub.publish(convert.train_state_to_msg(mc, t, track, position, speed, 0.0, 1.0, 0.1, position - 4.0,

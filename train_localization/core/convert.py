@@ -192,23 +192,49 @@ def measurement_topic(m) -> str:
 # ---- train state --------------------------------------------------------------
 
 def truth_from_msg(msg) -> TruthState:
+    """The TruthState on the train's own track: a network train's route line (its route
+    distance; core/network/path.py route_track), else the track's chainage. A bag recorded before
+    the route fields existed has none: its position is then the route distance itself."""
     t = stamp_to_sec(msg.header.stamp)
-    values = (float(msg.position), float(msg.speed), float(msg.acceleration))
+    direction = int(getattr(msg, "route_direction", 0))
+    if getattr(msg, "route_id", "") and direction in (1, -1):
+        values = (float(msg.route_distance), direction * float(msg.speed), direction * float(msg.acceleration))
+    else:
+        values = (float(msg.position), float(msg.speed), float(msg.acceleration))
     if not all(map(math.isfinite, values)):
         raise InputRejected("nan", "ground truth state has NaN/inf fields")
     return TruthState(t, *values)
 
 
+def truth_to_msg(mc: MsgClasses, state: TruthState, track):
+    """ground_truth/state of ``state`` on ``track`` in the fused state's frame: on a network's
+    route line (``track.path``, core/network/path.py route_track) the section the front is on
+    and its chainage there, speed and acceleration along that chainage, with the route
+    (``track.track_id``), the route distance and the route's direction along the section
+    (docs/network.md); on a single line its chainage (wrapped on a closed track: the state's
+    ``position`` already is)."""
+    path = getattr(track, "path", None)
+    if path is None:
+        return train_state_to_msg(mc, state.stamp, track.track_id, state.position, state.speed, state.acceleration)
+    s = state.position + path.begin
+    step = path.step_at(s)
+    return train_state_to_msg(mc, state.stamp, step.section, step.chainage(s), state.speed * step.direction,
+                              state.acceleration * step.direction, route_id=track.track_id,
+                              route_distance=state.position, route_direction=step.direction)
+
+
 def train_state_to_msg(mc: MsgClasses, stamp: float, track_id: str, position: float, speed: float,
                        acceleration: float, position_stddev: float = 0.0, speed_stddev: float = 0.0,
                        position_min: float | None = None, position_max: float | None = None,
-                       confidence: float = 1.0, mode: int = 1, sensors=(), track_probability: float = 1.0):
+                       confidence: float = 1.0, mode: int = 1, sensors=(), track_probability: float = 1.0,
+                       route_id: str = "", route_distance: float = math.nan, route_direction: int = 0):
     return mc.TrainState(
         header=mc.header(stamp, "map"), track_id=track_id, position=position, speed=speed,
         acceleration=acceleration, position_stddev=position_stddev, speed_stddev=speed_stddev,
         position_min=position if position_min is None else position_min,
         position_max=position if position_max is None else position_max,
-        confidence=confidence, mode=mode, sensors=list(sensors), track_probability=track_probability)
+        confidence=confidence, mode=mode, sensors=list(sensors), track_probability=track_probability,
+        route_id=route_id, route_distance=route_distance, route_direction=route_direction)
 
 
 # ---- networks (core/network) --------------------------------------------------
@@ -220,7 +246,9 @@ def track_hypotheses_to_msg(mc: MsgClasses, est, network_id: str):
     """TrackHypotheses message of a core/network NetworkEstimate (most probable first)."""
     return mc.TrackHypotheses(header=mc.header(est.stamp, "map"), network_id=network_id, hypotheses=[
         mc.TrackHypothesis(track_id=h.track_id, position=h.position, speed=h.speed, position_min=h.position_min,
-                           position_max=h.position_max, probability=h.probability, path=list(h.path))
+                           position_max=h.position_max, probability=h.probability, path=list(h.path),
+                           path_min=mc.array(np.array([a for a, _ in h.pieces], dtype=float), "float64"),
+                           path_max=mc.array(np.array([b for _, b in h.pieces], dtype=float), "float64"))
         for h in est.hypotheses])
 
 

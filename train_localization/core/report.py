@@ -312,7 +312,7 @@ def recorded_changeover(bag, scenario) -> dict:
     """Catenary events of a line bag with the ABB commands recorded in it (the live
     controller's, at their log times) and the recorded truth."""
     from .bagio import read_bag
-    from .convert import stamp_to_sec
+    from .convert import stamp_to_sec, truth_from_msg
     from .scenario import WAYSIDE
     from .wayside.changeover import ABB_TOPICS, line_events
     from .wayside.neutral_section import START
@@ -323,7 +323,7 @@ def recorded_changeover(bag, scenario) -> dict:
     switchings, commands, truth = [], [], {name: [] for name in scenario.trains}
     for topic, _, t_ns, msg in read_bag(bag, [*topics, *truth_topics]):
         if topic in truth_topics:
-            truth[truth_topics[topic]].append((stamp_to_sec(msg.header.stamp), float(msg.position)))
+            truth[truth_topics[topic]].append((stamp_to_sec(msg.header.stamp), truth_from_msg(msg).position))
             continue
         switch, closed, t = topics[topic], bool(msg.data), t_ns / 1e9
         if closed != state[switch]:
@@ -340,7 +340,7 @@ def recorded_stator(bag, scenario, namespace: str) -> dict:
     controller's parameters at their defaults (the graph's); ``switch_ons``: (decision stamp,
     section) of every section it switched on, in order."""
     from .bagio import read_bag
-    from .convert import stamp_to_sec
+    from .convert import stamp_to_sec, truth_from_msg
     from .wayside import stator
     ns = namespace.rstrip("/")
     feed_topic, truth_topic = f"{ns}/{stator.FEED_TOPIC}", f"{ns}/ground_truth/state"
@@ -348,7 +348,7 @@ def recorded_stator(bag, scenario, namespace: str) -> dict:
     for topic, _, _, msg in read_bag(bag, [feed_topic, truth_topic]):
         stamp = stamp_to_sec(msg.header.stamp)
         if topic == truth_topic:
-            truth.append((stamp, float(msg.position)))
+            truth.append((stamp, truth_from_msg(msg).position))
         else:
             feeds.append((stamp, [sid for sid, on in zip(msg.section_ids, msg.fed) if on]))
     params = stator.controller_params()
@@ -429,7 +429,7 @@ def recorded_network(bag, scenario, namespace: str) -> dict:
     (core/network/scoring.py ``network_scores``: track selectivity, switch ways, states
     NOMINAL on a wrong track, the truth inside the interval and inside its true hypothesis)."""
     from .bagio import read_bag
-    from .convert import stamp_to_sec
+    from .convert import stamp_to_sec, truth_from_msg
     from .network.scoring import network_scores, published_from_msgs
     ns = namespace.rstrip("/")
     topics = {f"{ns}/localization/state": "state", f"{ns}/localization/tracks": "tracks",
@@ -437,7 +437,8 @@ def recorded_network(bag, scenario, namespace: str) -> dict:
     rows: dict[str, list] = {kind: [] for kind in topics.values()}
     for topic, _, _, msg in read_bag(bag, list(topics)):
         rows[topics[topic]].append(msg)
-    truth = np.array([(stamp_to_sec(m.header.stamp), m.position) for m in rows["truth"]], dtype=float).reshape(-1, 2)
+    truth = np.array([(stamp_to_sec(m.header.stamp), truth_from_msg(m).position) for m in rows["truth"]],
+                     dtype=float).reshape(-1, 2)
     if not truth.size:
         return {"states": len(rows["state"])}
     return network_scores(scenario.route, truth[:, 0], truth[:, 1], published_from_msgs(rows["state"], rows["tracks"]))

@@ -14,8 +14,9 @@ Parameters:
 Topics: /clock (rosgraph_msgs/Clock), ground_truth/state (TrainState, stddevs 0,
 interval = position), scenario (std_msgs/String, transient-local: the scenario
 YAML with the track inlined, so that a recorded bag describes itself), /diagnostics.
-A train on a network (docs/network.md): its truth is the distance along its route (track_id
-``<network>:<train>``), and interlocking/switches (SwitchPositions, transient-local) gives
+A train on a network (docs/network.md): its truth is in the fused state's frame (track_id the
+section the front is on, position its chainage there) with its route (route_id
+``<network>:<train>``), the distance along it and its direction there; and interlocking/switches (SwitchPositions, transient-local) gives
 the switch positions the interlocking reports for its route.
 
 A line (several trains, core/scenario.py): every train's truth on
@@ -41,7 +42,7 @@ import time
 from rosgraph_msgs.msg import Clock
 from rclpy.node import Node
 
-from ..core.convert import raw_block_to_msg, sec_to_ns, switch_positions_to_msg, train_state_to_msg
+from ..core.convert import raw_block_to_msg, sec_to_ns, switch_positions_to_msg, truth_to_msg
 from ..core.sensors.base import Param
 from .common import (CLOCK_QOS, LATCHED_QOS, STREAM_QOS, ConfigurationError, Diagnostics, declare_param,
                      rclpy_classes, required_scenario, spin)
@@ -155,8 +156,7 @@ class SimulatorNode(Node):
                     st = self.dynamics.state(t)
                 else:
                     st = self.trajectory.state_at(t)
-                self.truth_pub.publish(train_state_to_msg(self.mc, st.stamp, sc.track.track_id, st.position,
-                                                          st.speed, st.acceleration))
+                self.truth_pub.publish(truth_to_msg(self.mc, st, sc.track))
             self.published += 1
             self.sim_time = t
             self.diag.values["sim_time"] = f"{t:.2f}"
@@ -177,9 +177,7 @@ class SimulatorNode(Node):
         """Truth step k of a line: every train's truth, then the raw blocks completed."""
         t, truths, blocks = self.line.step(k)
         for name, st in truths.items():
-            track_id = self.scenario.trains[name].track.track_id   # on a network: the train's route
-            self.truth_pubs[name].publish(train_state_to_msg(self.mc, st.stamp, track_id, st.position, st.speed,
-                                                             st.acceleration))
+            self.truth_pubs[name].publish(truth_to_msg(self.mc, st, self.scenario.trains[name].track))
         for ns, _, block in blocks:
             self.raw_pubs[f"{ns}/sensors/{block.sensor}/raw"].publish(raw_block_to_msg(block, self.mc))
 

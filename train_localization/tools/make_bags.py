@@ -48,7 +48,7 @@ BAGS = {
 }
 # the fusion's publish rate [Hz] of a bag where the default 200 Hz would take it over 5 MB: the
 # supervised stop's location reports follow every state, the throat's track hypotheses too
-FUSION_RATE = {"etcs_stop": 50.0, "throat": 50.0}
+FUSION_RATE = {"etcs_stop": 50.0, "throat": 50.0, "throat_wayside": 50.0}
 # A line's raw blocks (every train's wheel pulses, the wayside's axle counters) fill 5 MB in about
 # 30 s, before any train of the line scenarios has left its start. Their bags therefore take the
 # line in its running phase: each train starts at its line speed (train name -> initial state and
@@ -73,6 +73,16 @@ LINE_BAGS = {
         "train_a": ({"position": 3300.0, "speed": 83.33}, [{"speed": 83.33, "hold": 60.0}]),
         "train_b": ({"position": 1500.0, "speed": 83.33}, [{"speed": 83.33, "hold": 60.0}]),
         "train_c": None, "train_d": None}),
+    # the throat with its axle counter over the network, 36 s (the scenario's 105 s fill 12 MB). Each
+    # train starts at rest where its fusion is told it stands (a start of mission on a known track:
+    # a train started at speed would be somewhere else by the fusion's first state), nearer the
+    # switches than in the scenario and quicker: south to 22 m/s through W2 and its wrongly
+    # reported W3 until head AC9 on T7 finds the way (at 34 s); north to 16 m/s through W1 into the
+    # crossover, following south into the counting areas it occupies (so the heads give north no
+    # front fix, as a real counter's would not)
+    "throat_wayside": ("config/scenario_throat_wayside.yaml", 36.0, 1.0, {
+        "north": ({"position": 760.0, "speed": 0.0}, [{"speed": 16.0, "accel": 1.0, "jerk": 1.0, "hold": 60.0}]),
+        "south": ({"position": 650.0, "speed": 0.0}, [{"speed": 22.0, "accel": 1.2, "jerk": 1.0, "hold": 60.0}])}),
 }
 
 

@@ -84,19 +84,27 @@ class EtcsData:
         """The ETCS data of a track; TrackError in one line if it is inconsistent.
         ``national_default`` [m]: the national value of Q_LOCACC where the track gives none (the
         campaign scores a track without ETCS data with its reader's location bound)."""
-        block = track.etcs or {}
-        if not isinstance(block, dict):
-            raise TrackError(f"track {track.track_id}: 'etcs' must be a mapping")
-        unknown = set(block) - {"q_nvlocacc", "linking", "link_reaction"}
-        if unknown:
-            raise TrackError(f"track {track.track_id}: unknown keys in 'etcs': {', '.join(sorted(unknown))}")
-        national = block.get("q_nvlocacc")
-        if national is None:
-            national = national_default
-        if national is not None:
-            national = _q_locacc(national, f"track {track.track_id}: etcs.q_nvlocacc")
-        groups, group_of = _groups(track, national)
+        block, national = etcs_block(track.etcs, f"track {track.track_id}", national_default)
+        groups, group_of = balise_groups(track, national)
         return cls(track.track_id, groups, group_of, _links(track.track_id, block, groups), national)
+
+
+def etcs_block(block, where: str, national_default: float | None = None) -> tuple[dict, float | None]:
+    """(the ``etcs`` block, its national Q_LOCACC [m] or ``national_default``) of a track or a
+    network (``where`` names it); TrackError in one line for a block that is no mapping, an
+    unknown key or a Q_LOCACC out of range."""
+    block = block or {}
+    if not isinstance(block, dict):
+        raise TrackError(f"{where}: 'etcs' must be a mapping")
+    unknown = set(block) - {"q_nvlocacc", "linking", "link_reaction"}
+    if unknown:
+        raise TrackError(f"{where}: unknown keys in 'etcs': {', '.join(sorted(unknown))}")
+    national = block.get("q_nvlocacc")
+    if national is None:
+        national = national_default
+    if national is not None:
+        national = checked_q_locacc(national, f"{where}: etcs.q_nvlocacc")
+    return block, national
 
 
 def q_locacc_of_balise(track: Track, item: dict) -> float | None:
@@ -104,12 +112,12 @@ def q_locacc_of_balise(track: Track, item: dict) -> float | None:
     value of the track's ``etcs`` block), None if neither is given (the reader's error model
     then keeps its ``location_sigma``)."""
     if item.get("q_locacc") is not None:
-        return _q_locacc(item["q_locacc"], f"balise {item['id']}: q_locacc")
+        return checked_q_locacc(item["q_locacc"], f"balise {item['id']}: q_locacc")
     national = (track.etcs or {}).get("q_nvlocacc") if isinstance(track.etcs, dict) else None
-    return None if national is None else _q_locacc(national, f"track {track.track_id}: etcs.q_nvlocacc")
+    return None if national is None else checked_q_locacc(national, f"track {track.track_id}: etcs.q_nvlocacc")
 
 
-def _q_locacc(value, what: str) -> float:
+def checked_q_locacc(value, what: str) -> float:
     try:
         q = float(value)
     except (TypeError, ValueError):
@@ -119,7 +127,7 @@ def _q_locacc(value, what: str) -> float:
     return q
 
 
-def _groups(track: Track, national: float | None) -> tuple[dict[str, BaliseGroup], dict[str, str]]:
+def balise_groups(track: Track, national: float | None) -> tuple[dict[str, BaliseGroup], dict[str, str]]:
     members: dict[str, list[dict]] = {}
     for item in track.items(KIND):
         members.setdefault(str(item.get("group", item["id"])), []).append(item)
@@ -135,7 +143,7 @@ def _groups(track: Track, national: float | None) -> tuple[dict[str, BaliseGroup
         if own is None and national is None:
             raise TrackError(f"balise group {nid} has no q_locacc and track {track.track_id} no national value "
                              f"(etcs.q_nvlocacc)")
-        q = _q_locacc(own, f"balise group {nid}: q_locacc") if own is not None else national
+        q = checked_q_locacc(own, f"balise group {nid}: q_locacc") if own is not None else national
         orientation = orientations.pop()
         ordered = sorted(items, key=lambda it: it["position"])
         reference = ordered[0] if orientation > 0 else ordered[-1]
@@ -147,7 +155,7 @@ def _groups(track: Track, national: float | None) -> tuple[dict[str, BaliseGroup
     return groups, group_of
 
 
-def _reaction(value, where: str) -> Reaction:
+def reaction_of(value, where: str) -> Reaction:
     if str(value) not in REACTIONS:
         raise TrackError(f"{where}: reaction {value!r} unknown; known: {', '.join(REACTIONS)}")
     return REACTIONS[str(value)]
@@ -159,7 +167,7 @@ def _links(track_id: str, block: dict, groups: dict[str, BaliseGroup]) -> dict[t
         return {}
     links: dict[tuple[str, int], Link] = {}
     if linking == "auto":
-        reaction = _reaction(block.get("link_reaction", "service_brake"), f"track {track_id}: etcs.link_reaction")
+        reaction = reaction_of(block.get("link_reaction", "service_brake"), f"track {track_id}: etcs.link_reaction")
         ordered = sorted(groups.values(), key=lambda g: g.reference)
         for a, b in zip(ordered, ordered[1:]):
             distance = b.reference - a.reference
@@ -186,5 +194,5 @@ def _links(track_id: str, block: dict, groups: dict[str, BaliseGroup]) -> dict[t
         if (a, direction) in links:
             raise TrackError(f"track {track_id}: group {a} is linked twice in direction {direction:+d}")
         links[(a, direction)] = Link(a, b, distance, direction,
-                                     _reaction(entry.get("reaction", "service_brake"), f"link {a} -> {b}"))
+                                     reaction_of(entry.get("reaction", "service_brake"), f"link {a} -> {b}"))
     return links

@@ -6,7 +6,9 @@ import dataclasses
 from dataclasses import dataclass
 
 from ..fusion.config import FusionConfig, doc_field, check_limits, fusion_config, sensor_models
-from ..sensors.base import ReferenceWindow
+from ..sensors import spec as sensor_spec
+from ..sensors.base import ReferenceWindow, sensor_params
+from .wayside import network_references
 from ..track import Track, extent
 
 
@@ -106,6 +108,12 @@ def network_fusion_config(scenario, **overrides) -> tuple[FusionConfig, NetworkC
                 b = back.get(ref, w)
                 windows[ref] = ReferenceWindow(min(w.lo, section.length - b.hi), max(w.hi, section.length - b.lo))
             tables[name] = dataclasses.replace(model.references, windows=windows)
+    for node, params in scenario.wayside.items():   # fixes a device gives only over the network's nodes
+        sp = sensor_spec(node)
+        extra = network_references(sp, sensor_params(sp, params, scenario.vehicle), scenario.network)
+        if extra and sp.sensor in tables:
+            known = tables[sp.sensor]
+            tables[sp.sensor] = dataclasses.replace(known, windows={**known.windows, **extra})
     models = {name: dataclasses.replace(m, references=tables.get(name)) if m.references is not None else m
               for name, m in models.items()}
     values.setdefault("sensors", models)

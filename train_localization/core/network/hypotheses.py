@@ -65,6 +65,7 @@ class TrackHypothesisState:
     path: tuple[str, ...]  # sections the interval spans, in the direction of travel
     mode: int
     ways: tuple[tuple[str, str], ...] = ()   # (switch, way) of the facing switches on its path
+    pieces: tuple[tuple[float, float], ...] = ()   # the interval on each section of path, its chainages [m]
 
 
 @dataclass(slots=True)
@@ -421,12 +422,14 @@ class HypothesisSet:
         if not math.isfinite(e.position):
             step = h.path.steps[-1]
             return TrackHypothesisState(step.section, math.nan, math.nan, -math.inf, math.inf, probability,
-                                        (step.section,), int(e.mode), tuple(h.path.ways().items()))
+                                        (step.section,), int(e.mode), tuple(h.path.ways().items()),
+                                        ((-math.inf, math.inf),))
         step = h.path.step_at(e.position)
         a, b = step.chainage(e.position_min), step.chainage(e.position_max)
+        spans = h.path.spans(e.position_min, e.position_max)
         return TrackHypothesisState(step.section, step.chainage(e.position), e.speed * step.direction, min(a, b),
-                                    max(a, b), probability, tuple(h.path.sections(e.position_min, e.position_max)),
-                                    int(e.mode), tuple(h.path.ways().items()))
+                                    max(a, b), probability, tuple(sp.section for sp in spans), int(e.mode),
+                                    tuple(h.path.ways().items()), tuple((sp.lo, sp.hi) for sp in spans))
 
 
 def robust_log_likelihood(residual: float, sigma: float, outliers: float, span: float) -> float:

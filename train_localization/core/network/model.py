@@ -107,6 +107,7 @@ class Network:
     sections: dict[str, Track]
     nodes: dict[str, Node] = field(default_factory=dict)
     geodetic: GeodeticAnchor | None = None   # WGS-84 place of the map frame (core/geodesy.py); None: none
+    etcs: dict = field(default_factory=dict)   # ETCS data: national values, linking (core/etcs/network_data.py)
 
     def __post_init__(self):
         self._joints: dict[SectionEnd, tuple[str, str]] = {}
@@ -240,7 +241,8 @@ class Network:
             geodetic = GeodeticAnchor.from_dict(data.get("geodetic"))
         except GeodesyError as exc:
             raise NetworkError(f"network {network_id}: {exc}") from None
-        return cls(network_id=network_id, sections=sections, nodes=nodes, geodetic=geodetic)
+        return cls(network_id=network_id, sections=sections, nodes=nodes, geodetic=geodetic,
+                   etcs=data.get("etcs") or {})
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> "Network":

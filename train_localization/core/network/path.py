@@ -45,6 +45,15 @@ class PathStep:
 
 
 @dataclass(frozen=True)
+class SectionSpan:
+    """A stretch of one section: chainages ``lo`` <= ``hi`` [m] on ``section``."""
+
+    section: str
+    lo: float
+    hi: float
+
+
+@dataclass(frozen=True)
 class TrackPath:
     """Consecutive steps through ``network``; immutable (extending makes a new path)."""
 
@@ -121,7 +130,19 @@ class TrackPath:
 
     def sections(self, lo: float, hi: float) -> list[str]:
         """Sections the path distances lo .. hi span, in the path's order."""
-        return [st.section for st in self.steps if st.stop > lo and st.start < hi] or [self.step_at(lo).section]
+        return [span.section for span in self.spans(lo, hi)]
+
+    def spans(self, lo: float, hi: float) -> list["SectionSpan"]:
+        """The path distances lo .. hi restated on each section they span, in the path's order
+        (beyond the path's ends they run on along its first or last section's axis)."""
+        steps = [st for st in self.steps if st.stop > lo and st.start < hi] or [self.step_at(lo)]
+        out = []
+        for st in steps:
+            a = lo if st is self.steps[0] else max(lo, st.start)
+            b = hi if st is self.steps[-1] else min(hi, st.stop)
+            ca, cb = st.chainage(a), st.chainage(b)
+            out.append(SectionSpan(st.section, min(ca, cb), max(ca, cb)))
+        return out
 
     @classmethod
     def through(cls, network: Network, sections: tuple[str, ...] | list[str]) -> "TrackPath | None":

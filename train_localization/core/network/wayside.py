@@ -10,24 +10,28 @@ axles placed on the section by its route (``Placement``; elsewhere they are off 
 Decoded, an axle counter is one counter over the network (``NetworkAxleCounter``): its heads'
 passages and fixes are the single-line decoder's, and the areas it counts run across the
 nodes, so a switch's area is bounded by the heads on its legs, as an interlocking's switch
-section is; a track circuit's receivers decode per section (``SectionDecoders``). A fix names
+section is; a track circuit is one device too (``NetworkTrackCircuits``), its circuits handing over across
+the nodes where they reach their sections' ends (an insulated joint there). A fix names
 the section of its head or circuit boundary, in that section's chainage. Which train it
 belongs to is the association's question (core/association.py): the device does not know.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
-from ..measurements import SectionOccupancy
 from ..vehicle import Vehicle
-from ..signals import MAX_CHANNELS, InputRejected, RawBlock
+from ..signals import MAX_CHANNELS
+from ..sensors import track_circuit
 from ..sensors.axle_counter import AxleCounterDecoder, Areas, device_heads
-from ..sensors.base import OFF_RAILS, Decoder, SensorSpec, Simulator
+from ..sensors.base import OFF_RAILS, Decoder, ReferenceWindow, SensorSpec, Simulator
+from ..sensors.track_circuit import TrackCircuitDecoder, circuit_table
 from .model import Network, NetworkError, SectionEnd
 from .path import TrackPath
+
+_TOUCH = 1e-6    # [m] a circuit this near a section's end reaches it
 
 # sensor class -> (equipment kind it monitors, the parameter that restricts a device to some of
 # it, raw channels per piece of equipment: a head's two systems, a circuit's receiver level)
@@ -216,68 +220,62 @@ def check_device(spec: SensorSpec, params: dict, network: Network) -> dict[str, 
 
 def network_decoder(spec: SensorSpec, params: dict, network: Network) -> Decoder:
     """The decoder of a wayside device on a network: an axle counter counts over the network's
-    areas (NetworkAxleCounter); a track circuit's receivers decode per section (SectionDecoders)."""
+    areas (NetworkAxleCounter); track circuits hand over across the nodes (NetworkTrackCircuits)."""
     per_section = check_device(spec, params, network)
     if spec.sensor == "axle_counter":
         return NetworkAxleCounter(params, network, per_section)
-    return SectionDecoders(spec, params, network, per_section)
+    return NetworkTrackCircuits(params, network, per_section)
 
 
-class SectionDecoders(Decoder):
-    """A wayside device of a network, decoded: the sensor's decoder on each section that
-    carries its equipment, each on its own columns of the block. Its fixes pass as the
-    section's decoder makes them; its occupancy reports are merged into one of every section,
-    at each stamp a section's decoder reports."""
+class NetworkTrackCircuits(TrackCircuitDecoder):
+    """A network's track circuits, decoded as one device: every section's circuits (the raw
+    block's channels in the order SectionSimulators gives them), neighbours on a section as on
+    a line and, across a node, the circuits of the joined sections that touch it there
+    (``network_circuits``). A hand-over is the single-line decoder's; across a node its fix
+    names the entered circuit's section."""
 
-    caches = ("_offsets",)
-
-    def __init__(self, spec: SensorSpec, params: dict, network: Network, per_section: dict[str, dict]):
-        self.sensor = spec.sensor
+    def __init__(self, params: dict, network: Network, per_section: dict[str, dict]):
+        self.network, self.per_section = network, per_section
         super().__init__(params, network.section(next(iter(per_section))))
-        self.parts: list[Decoder] = [spec.decoder(p, network.section(sid)) for sid, p in per_section.items()]
-        self.columns: list[slice] = []
-        start = 0
-        for part in self.parts:
-            self.columns.append(slice(start, start + len(part.expected)))
-            start += len(part.expected)
-        self.expected = tuple(c for part in self.parts for c in part.expected)
-        self._latest: list[tuple | None] = [None] * len(self.parts)   # each part's last reported sections
-        self.stats = self._totals()
 
-    def _totals(self) -> dict:
-        totals: dict[str, float] = {}
-        for part in self.parts:
-            for k, v in part.stats.items():
-                totals[k] = totals.get(k, 0) + v
-        return totals
+    def circuit_layout(self, track, params):
+        return network_circuits(self.network, self.per_section)
 
-    def _split(self, block: RawBlock) -> list[RawBlock]:
-        if block.channels != self.expected:
-            known = set(self.expected)
-            for name in block.channels:
-                if name not in known:
-                    raise InputRejected("unknown_id", f"channel {name!r} is not equipment of this {self.sensor}")
-            raise InputRejected("channels", f"channels {block.channels} differ from {self.expected}")
-        subs = [replace(block, channels=block.channels[c], units=block.units[c], data=block.data[:, c])
-                for c in self.columns]
-        for part, sub in zip(self.parts, subs):
-            part._check(sub)    # every part's checks before any part's state changes
-        return subs
 
-    def decode(self, block: RawBlock):
-        subs = self._split(block)
-        fixes, reports = [], []
-        for k, (part, sub) in enumerate(zip(self.parts, subs)):
-            for m in part.decode(sub):
-                (reports if isinstance(m, SectionOccupancy) else fixes).append((m.stamp, k, m))
-        self.stats = self._totals()
-        out = [m for _, _, m in fixes]
-        reports.sort(key=lambda r: (r[0], r[1]))
-        for i, (stamp, k, m) in enumerate(reports):
-            self._latest[k] = m.sections
-            if i + 1 < len(reports) and reports[i + 1][0] == stamp:
-                continue     # one report per stamp, of every section
-            if all(s is not None for s in self._latest):
-                out.append(SectionOccupancy(stamp, self.unit_id, tuple(s for part in self._latest for s in part)))
-        out.sort(key=lambda m: m.stamp)
-        return out
+def network_circuits(network: Network, per_section: dict[str, dict]) -> list[dict]:
+    """The track circuits of a device over a network (core/sensors/track_circuit.py
+    ``circuit_table`` of each section, in ``per_section``'s order, indices made the network's),
+    each circuit that reaches an end of its section joined to the circuits that reach the
+    section ends continuing it past the node (``across_start`` / ``across_end``). The joint
+    there is an insulated one: an axle shunts the circuit of the section it is on (the
+    simulator places it so, ``Placement``), so the fix of a hand-over across it lies at the
+    joint itself (``fix_position``'s ``insulated``)."""
+    table: list[dict] = []
+    for sid, params in per_section.items():
+        base = len(table)
+        for c in circuit_table(network.section(sid), params):
+            table.append(dict(c, below=c["below"] + base if c["below"] >= 0 else -1,
+                              above=c["above"] + base if c["above"] >= 0 else -1, across_start=[], across_end=[]))
+    at_end = {}      # (section, "begin"/"end") -> index of the circuit reaching it
+    for k, c in enumerate(table):
+        length = network.section(c["section"]).length
+        if c["start"] <= _TOUCH:
+            at_end[(c["section"], "begin")] = k
+        if c["end"] >= length - _TOUCH:
+            at_end[(c["section"], "end")] = k
+    for (sid, end), k in at_end.items():
+        key = "across_start" if end == "begin" else "across_end"
+        for cont in network.continuations(sid, -1 if end == "begin" else 1):
+            other = at_end.get((cont.section, "begin" if cont.direction > 0 else "end"))
+            if other is not None:
+                table[k][key].append(other)
+    return table
+
+
+def network_references(spec: SensorSpec, params: dict, network: Network) -> dict[str, ReferenceWindow]:
+    """Reference windows of the fixes a wayside device gives only on a network (each in the
+    chainage of the section its fix names): a track circuit's hand-overs across nodes; none for
+    an axle counter (its heads' fixes are each section's own)."""
+    if spec.sensor != "track_circuit":
+        return {}
+    return track_circuit.boundary_windows(params, network_circuits(network, section_params(spec, params, network)))

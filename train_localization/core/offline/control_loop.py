@@ -64,7 +64,7 @@ def closed_loop(scenario, t_end: float | None = None, fusion_rate: float = 200.0
     pipes = sensor_pipelines(scenario)
     runner = FusionRunner(fusion_config(scenario), fusion_rate)
     run = RunResult(runner=runner)
-    out = FusionFeed(runner, run, None, None, scenario.track.track_id)
+    out = FusionFeed(runner, run, None, None, scenario.track)
     res = ClosedLoopResult(setpoints=setpoints, dynamics=dyn, controller=ctrl, runner=runner)
     rig_pipes = [p for p in pipes if p.spec.sensor == "rig_loop"]
     t_end = scenario.duration if t_end is None else t_end

@@ -14,6 +14,8 @@ from ..network.hypotheses import HypothesisSet
 from ..pipeline import SensorPipeline
 from ..scenario import Scenario
 from ..signals import InputRejected
+from ..track import Track
+from ..truth import TruthState
 from ...graph import NAMESPACE
 from .topics import TRACKS_TOPIC
 
@@ -54,11 +56,19 @@ class FusionFeed:
     sensors ending at the same time) no longer roll the filter back one by one.
     """
 
-    def __init__(self, runner: FusionRunner, result: RunResult, writer: BagWriter | None, mc, track_id: str,
+    def __init__(self, runner: FusionRunner, result: RunResult, writer: BagWriter | None, mc, track: Track,
                  namespace: str = NAMESPACE):
-        self.runner, self.result, self.writer, self.mc, self.track_id = runner, result, writer, mc, track_id
+        self.runner, self.result, self.writer, self.mc = runner, result, writer, mc
+        self.track, self.track_id = track, track.track_id   # the train's track (on a network: its route line)
         self.namespace = namespace
         self._pending: list = []
+
+    def truth(self, state: TruthState, t_ns: int) -> None:
+        """A ground-truth state: kept, and written in the fused state's frame (convert.truth_to_msg)."""
+        self.result.truth.append(state)
+        if self.writer:
+            self.writer.write(f"{self.namespace}/ground_truth/state", convert.truth_to_msg(self.mc, state, self.track),
+                              t_ns)
 
     def reject(self, exc: InputRejected) -> None:
         self.result.rejected[exc.reason] = self.result.rejected.get(exc.reason, 0) + 1

@@ -67,7 +67,7 @@ class LineFusion:
         self.outs = {}
         for name, train in scenario.trains.items():
             runner = fusion_runner(train, fusion_rate)
-            self.outs[name] = FusionFeed(runner, RunResult(runner=runner), writer, mc, train.track.track_id,
+            self.outs[name] = FusionFeed(runner, RunResult(runner=runner), writer, mc, train.track,
                                          train_namespace(train))
         associator = Associator.for_trains({n: o.result.estimates for n, o in self.outs.items()},
                                            {n: o.track_id for n, o in self.outs.items()}, scenario.association,
@@ -93,11 +93,7 @@ class LineFusion:
                 self._abb(cmd.switch, cmd.on, t)
 
     def truth(self, name: str, state, t_ns: int) -> None:
-        out = self.outs[name]
-        out.result.truth.append(state)
-        if self.writer:
-            self.writer.write(f"{out.namespace}/ground_truth/state", convert.train_state_to_msg(
-                self.mc, state.stamp, out.track_id, state.position, state.speed, state.acceleration), t_ns)
+        self.outs[name].truth(state, t_ns)
 
     def wayside(self, measurements: list, t: float) -> None:
         """Wayside measurements decoded at t [s]: published under /wayside; each fix goes to the

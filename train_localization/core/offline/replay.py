@@ -68,10 +68,7 @@ def _fuse(items, out: FusionFeed, bar) -> None:
         if isinstance(item, InputRejected):
             out.reject(item)
         elif topic == TRUTH_TOPIC:
-            result.truth.append(item)
-            if writer:
-                writer.write(topic, convert.train_state_to_msg(out.mc, item.stamp, out.track_id, item.position,
-                                                               item.speed, item.acceleration), t_ns)
+            out.truth(item, t_ns)
         else:
             out.take(item, t)
     out.flush()
@@ -119,7 +116,6 @@ def replay_bag(bag: str | Path, scenario: Scenario | None = None, out_bag: str |
                     spec, params, scenario.track, scenario.vehicle, simulate=False)
             runner = fusion_runner(scenario, fusion_rate)
             result = RunResult(runner=runner)
-            track_id = scenario.track.track_id
             topics = list(pipes) + [TRUTH_TOPIC]
             if progress:
                 from tqdm import tqdm
@@ -133,7 +129,7 @@ def replay_bag(bag: str | Path, scenario: Scenario | None = None, out_bag: str |
                 items = ((topic, t_ns, decoder(topic, typename, data))
                          for topic, typename, t_ns, data in reader.cdr(topics))
             writer = BagWriter(out_bag) if out_bag else None
-            _fuse(items, FusionFeed(runner, result, writer, mc, track_id), bar if not parallel else None)
+            _fuse(items, FusionFeed(runner, result, writer, mc, scenario.track), bar if not parallel else None)
     finally:
         if items is not None:
             items.close()   # parallel: ends the worker processes

@@ -20,7 +20,7 @@ from ...graph import NAMESPACE
 from .bags import string_message, write_interlocking
 from .feed import FusionFeed, RunResult, fusion_runner
 from .line import simulate_line
-from .topics import SCENARIO_TOPIC, TRUTH_TOPIC, raw_topic
+from .topics import SCENARIO_TOPIC, raw_topic
 
 
 def scenario_measurements(scenario: Scenario, t_end: float | None = None,
@@ -104,10 +104,9 @@ def simulate_scenario(scenario: Scenario, bag: str | Path | None = None, fusion_
     runner = fusion_runner(scenario, fusion_rate)
     traj = scenario.trajectory()
     result = RunResult(runner=runner)
-    track_id = scenario.track.track_id
     t_end = scenario.duration if t_end is None else t_end
     n = int(round(t_end * scenario.truth_rate)) + 1
-    out = FusionFeed(runner, result, writer, mc, track_id)
+    out = FusionFeed(runner, result, writer, mc, scenario.track)
     if writer:
         writer.write(SCENARIO_TOPIC, string_message(scenario.to_yaml()), 0)
         write_interlocking(writer, mc, scenario, NAMESPACE)
@@ -115,10 +114,7 @@ def simulate_scenario(scenario: Scenario, bag: str | Path | None = None, fusion_
         for k in range(n):
             t = convert.canonical(k / scenario.truth_rate)
             state = traj.state_at(t)
-            result.truth.append(state)
-            if writer:
-                writer.write(TRUTH_TOPIC, convert.train_state_to_msg(
-                    mc, t, track_id, state.position, state.speed, state.acceleration), convert.sec_to_ns(t))
+            out.truth(state, convert.sec_to_ns(t))
             for pipe in pipes:
                 for block in pipe.on_truth(state):
                     result.blocks += 1

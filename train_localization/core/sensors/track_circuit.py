@@ -258,7 +258,9 @@ def circuit_table(track: Track | None, params: dict) -> list[dict]:
     """The track_circuit entries of a track (restricted to ``circuits``), sorted along it:
     dicts id, start, end, system, group (line / pair), carrier [Hz], label (F1/F2, A-H),
     band (low, high) [Hz] (TI21), spacing (capacitor spacing [m], 0 = none), zone [m],
-    below / above (index of the touching neighbour or -1). TrackError for a table that
+    below / above (index of the touching neighbour or -1), section (the track's id), across_start /
+    across_end (indices of the circuits of other sections joined at its start / end: none on one
+    track; core/network/wayside.py ``network_circuits``). TrackError for a table that
     cannot be laid."""
     if track is None:
         return []
@@ -294,7 +296,8 @@ def circuit_table(track: Track | None, params: dict) -> list[dict]:
         band = TI21_FREQUENCIES[label][1:] if system == "TI21" else (carrier, carrier)
         spacing = CAPACITOR_SPACING[carrier] if system == "UM71C" else 0.0
         out.append({"id": cid, "start": start, "end": end, "system": system, "group": group, "carrier": carrier,
-                    "label": label, "band": band, "spacing": spacing, "zone": zone, "below": -1, "above": -1})
+                    "label": label, "band": band, "spacing": spacing, "zone": zone, "below": -1, "above": -1,
+                    "section": track.track_id, "across_start": [], "across_end": []})
     for k in range(1, len(out)):
         if abs(out[k]["start"] - out[k - 1]["end"]) <= 1e-6:
             if out[k]["carrier"] == out[k - 1]["carrier"]:
@@ -551,7 +554,7 @@ class TrackCircuitDecoder(Decoder):
         p = params
         if p["threshold_drop"] >= p["threshold_pick"]:
             raise ValueError("threshold_drop must be below threshold_pick")
-        self.circuits = circuit_table(track, p)
+        self.circuits = self.circuit_layout(track, p)
         self.expected, _ = channel_layout(self.circuits)
         self.ids = [c["id"] for c in self.circuits]
         nc = len(self.circuits)
@@ -559,13 +562,17 @@ class TrackCircuitDecoder(Decoder):
         self.edge = np.full(nc, -math.inf)           # time of the last hysteresis edge (onset) [s]
         self.state = [CLEAR] * nc
         self.entered: list[float | None] = [None] * nc   # onset of the hand-over into each circuit [s]
-        self.direction = 0                            # of the last hand-over
+        self.moving = [0] * nc     # direction of the hand-over into each circuit, along its chainage (0: none)
         self.orient = int(np.sign(p["orientation"])) or None
         self._reported: tuple | None = None
         self._last_report: float | None = None
         self._force_report = True
         self._fs = 1.0
         self.stats.update(drops=0, picks=0, fixes=0, train_lost=0, fix_withheld=0)
+
+    def circuit_layout(self, track: Track, params: dict) -> list[dict]:
+        """The circuits this decoder watches (``circuit_table``; a network's device: every section's)."""
+        return circuit_table(track, params)
 
     # -- public API -------------------------------------------------------------------
     def reset_section(self, section_id: str) -> None:
@@ -648,11 +655,11 @@ class TrackCircuitDecoder(Decoder):
         self.state[k] = OCCUPIED
         self.stats["drops"] += 1
         c = self.circuits[k]
-        behind = [(nb, d) for nb, d in ((c["below"], 1), (c["above"], -1))
-                  if nb >= 0 and self.state[nb] == OCCUPIED]
+        behind = [(nb, d) for nb, d in _neighbours(c) if self.state[nb] == OCCUPIED]
         if len(behind) != 1:
             return []
         nb, d = behind[0]
+        across = self.circuits[nb]["section"] != c["section"]
         t_on = float(self.edge[k])
         entered, self.entered[k] = self.entered[nb], None
         if entered is not None:
@@ -663,7 +670,7 @@ class TrackCircuitDecoder(Decoder):
                 self.stats["fix_withheld"] += 1
                 return []
         self.entered[k] = t_on
-        self.direction = d
+        self.moving[k] = d
         if self.params["front_first"]:
             o = d
         else:
@@ -677,35 +684,53 @@ class TrackCircuitDecoder(Decoder):
         p = self.params
         sigma = fix_sigma(p, c["zone"], self._fs)
         self.stats["fixes"] += 1
-        ref = f"{self.circuits[nb]['id']}/{c['id']}" if d > 0 else f"{c['id']}/{self.circuits[nb]['id']}"
-        return [PositionFix(t_on, self.sensor, self.unit_id, self.track.track_id, ref,
-                            fix_position(c, d, o * offset), sigma, int(d))]
+        return [PositionFix(t_on, self.sensor, self.unit_id, c["section"], joint_id(self.circuits[nb], c, d),
+                            fix_position(c, d, o * offset, insulated=across), sigma, int(d))]
 
     def _picked(self, k: int, t: float) -> None:
         """Circuit k decided CLEAR at t: if no neighbour holds the train, it was lost."""
         self.state[k] = CLEAR
         self.entered[k] = None
+        moving, self.moving[k] = self.moving[k], 0
         self.stats["picks"] += 1
         c = self.circuits[k]
-        nbs = [nb for nb in (c["below"], c["above"]) if nb >= 0]
-        if not nbs or any(self._busy(nb) for nb in nbs):
+        sides = _neighbours(c)
+        if not sides or any(self._busy(nb) for nb, _ in sides):
             return
-        ahead = c["above"] if self.direction > 0 else c["below"] if self.direction < 0 else None
-        lost = [ahead] if ahead is not None else nbs
-        lost = [nb for nb in lost if nb >= 0]
+        # the neighbours ahead of the train that handed over into k (beyond its end when it entered
+        # at its start: entry direction +1); both sides when no hand-over was seen
+        lost = [nb for nb, d in sides if not moving or d != moving]
         if lost:
             self.stats["train_lost"] += 1
             for nb in lost:
                 self.state[nb] = DISTURBED
 
 
-def fix_position(circuit: dict, direction: int, axle: float) -> float:
+def _neighbours(c: dict) -> list[tuple[int, int]]:
+    """(index, direction of a train entering ``c`` from it) of every circuit touching ``c``: at its
+    start (entered along its chainage, +1) and at its end (-1), on its track and across nodes."""
+    return ([(nb, 1) for nb in (c["below"], *c["across_start"]) if nb >= 0]
+            + [(nb, -1) for nb in (c["above"], *c["across_end"]) if nb >= 0])
+
+
+def joint_id(left: dict, entered: dict, direction: int) -> str:
+    """Reference id of the hand-over from circuit ``left`` into ``entered`` (entered in
+    ``direction`` along its chainage): on one track 'BELOW/ABOVE' in chainage order, whichever
+    way; across a node (the two circuits on different sections) 'LEFT/ENTERED', one id per
+    direction, since its fixes lie on the entered circuit's section."""
+    if left["section"] != entered["section"]:
+        return f"{left['id']}/{entered['id']}"
+    return f"{left['id']}/{entered['id']}" if direction > 0 else f"{entered['id']}/{left['id']}"
+
+
+def fix_position(circuit: dict, direction: int, axle: float, insulated: bool = False) -> float:
     """Train-front chainage [m] of a boundary fix of ``circuit`` entered in ``direction`` (+1:
     at its start, -1: at its end): the entering axle shunts the new circuit down where its line
-    begins, the tuned unit at the near edge of the zone, half a zone before the boundary; the
-    front is ``axle`` [m] (o x the axle's offset behind the front) beyond that."""
+    begins, the tuned unit at the near edge of the zone, half a zone before the boundary (at an
+    ``insulated`` joint, where two sections meet at a node: the boundary itself); the front is
+    ``axle`` [m] (o x the axle's offset behind the front) beyond that."""
     boundary = circuit["start"] if direction > 0 else circuit["end"]
-    drop_point = boundary - direction * 0.5 * circuit["zone"]
+    drop_point = boundary - (0.0 if insulated else direction * 0.5 * circuit["zone"])
     return float(drop_point + axle)
 
 
@@ -725,14 +750,14 @@ def boundary_windows(params: dict, circuits: list[dict]) -> dict[str, ReferenceW
     axles = [params["first_axle_offset"]]
     if params["last_axle_offset"] > 0.0 and not params["front_first"]:
         axles.append(-params["last_axle_offset"])
-    out = {}
-    for lower in circuits:
-        if lower["above"] < 0:
-            continue
-        upper = circuits[lower["above"]]
-        xs = [fix_position(upper, 1, a) for a in axles] + [fix_position(lower, -1, -a) for a in axles]
-        out[f"{lower['id']}/{upper['id']}"] = ReferenceWindow(min(xs), max(xs))
-    return out
+    points: dict[str, list[float]] = {}
+    for entered in circuits:
+        for nb, d in _neighbours(entered):
+            left = circuits[nb]
+            insulated = left["section"] != entered["section"]
+            points.setdefault(joint_id(left, entered, d), []).extend(
+                fix_position(entered, d, d * a, insulated) for a in axles)
+    return {ref: ReferenceWindow(min(xs), max(xs)) for ref, xs in points.items()}
 
 
 def error_model(params: dict, track, vehicle) -> ErrorModel:

@@ -280,7 +280,7 @@ class AccelerometerDecoder(Decoder):
                           + temp_sigma ** 2 + (p["scale_sigma"] * accel) ** 2 + lateral_sigma ** 2
                           + term.sigma ** 2)
         self.stats["gravity"] = round(term.gravity, 6)   # [m/s^2] taken out of the last block (diagnostics)
-        return [Acceleration(float(t_mid), self.sensor, self.unit_id, accel, max(sigma, MIN_STDDEV))]
+        return [Acceleration(float(t_mid), self.sensor, self.unit_id, float(accel), float(max(sigma, MIN_STDDEV)))]
 
 
 def min_stddev(params: dict) -> float:

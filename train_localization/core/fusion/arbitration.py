@@ -35,8 +35,9 @@ import math
 
 from .component import Component
 from ..sensors import faults as fault_modes
-from .bookkeeping import Fault, Suspension, View, fault_at, incremented, is_coasting, speed_excluded, without_key
-from . import impact, views
+from . import counts
+from .bookkeeping import Fault, Suspension, View, fault_at, is_coasting, speed_excluded, without_key
+from . import views
 from .events import FaultEnded, Relearn, RelearnFault, Separate, SetPosition, SetSpeed
 from .models import implied_speed
 from . import separation
@@ -83,7 +84,7 @@ class Arbitration(Component):
             elif explained or m.stamp - alt.since > self.f.cfg.branch_timeout:
                 # the filter explains the fix and this excluded sensor's view does not (or far
                 # worse): it was faulty
-                aux.events = incremented(aux.events, "excluded_sensor_confirmed_faulty")
+                counts.event(aux, "excluded_sensor_confirmed_faulty")
                 ruled_out += 1
                 if cls in self.f.layout.slip_sensors:
                     pass        # a slip ends by itself
@@ -109,7 +110,7 @@ class Arbitration(Component):
             aux.slip_window = without_key(aux.slip_window, cls)
             if view is not None:
                 self.merge_view(view.separation ** 2 + view.white_var)
-            aux.events = incremented(aux.events, "excluded_sensor_confirmed_right")
+            counts.event(aux, "excluded_sensor_confirmed_right")
             return False, events
         if explained or not fitting:
             return False, ()                       # the filter explains it, or nothing does
@@ -147,7 +148,7 @@ class Arbitration(Component):
         P[:, 1] = 0.0
         P[1, 1] = u_white + u_common
         self.f.ekf.x, self.f.ekf.P = x, P
-        aux.impacts = impact.speed_set(aux.impacts, u)
+        self.f.bank.speed_set(u)
         aux.relative_alternatives = {**without_key(aux.relative_alternatives, cls),
                                      other: view._replace(separation=-D, farthest=-D)}
         aux.episode_views = without_key(aux.episode_views, cls)
@@ -156,7 +157,7 @@ class Arbitration(Component):
         aux.slip_window = without_key(aux.slip_window, cls)
         self.end_exclusion(cls, stamp)
         self.suspend(other, self.view_fault(aux.relative_alternatives[other], stamp))
-        aux.events = incremented(aux.events, "speed_sources_swapped")
+        counts.event(aux, "speed_sources_swapped")
         aux.unverified = "speed_sources_swapped"
 
     def end_exclusion(self, cls: str, stamp: float) -> None:
@@ -166,7 +167,7 @@ class Arbitration(Component):
         aux = self.f.aux
         aux.slip_until = {**aux.slip_until, cls: stamp}
         aux.suspended = without_key(aux.suspended, cls)
-        aux.last_accepted = {**aux.last_accepted, cls: stamp}
+        counts.in_use_from(aux, (cls,), stamp)
 
     def relearn_fault(self, cls: str) -> None:
         """Speed source ``cls`` has a scale fault that the others in use were shown not to have
@@ -193,13 +194,13 @@ class Arbitration(Component):
         aux.slip_window = without_key(aux.slip_window, cls)
         aux.view_speeds = without_key(aux.view_speeds, cls)
         self.end_exclusion(cls, aux.t)
-        aux.events = incremented(aux.events, "scale_fault_relearnt")
+        counts.event(aux, "scale_fault_relearnt")
 
     def merge_view(self, spread: float) -> None:
         """An excluded sensor's view no longer tracked of its own, merged into the filter's
         (``views.merged``) so the interval still covers it."""
         self.f.ekf.P = views.merged(self.f.ekf.P, spread)
-        self.f.aux.events = incremented(self.f.aux.events, "alternative_merged")
+        counts.event(self.f.aux, "alternative_merged")
 
     @staticmethod
     def view_conditioned(alt: View, D: float, var_D: float, nu: float, S: float, R: float) -> View:
@@ -242,12 +243,12 @@ class Arbitration(Component):
                 m.sensor, self.f.layout, self.f.ekf.x, self.f.ekf.P, self.f.measurement_of(m)[2], e, S, gate):
             # judged from its next reading on, at the scale without the fault
             aux.suspended = {**aux.suspended, m.sensor: Suspension(math.inf, (), fault)}
-            aux.gated = incremented(aux.gated, m.sensor + "/suspended")
+            counts.gated(aux, m.sensor + "/suspended")
             return True, (FaultEnded(m.sensor), Separate(m, e, S))
         if disagrees and views.outlasted_by(m, aux, self.f.models, self.f.in_use(m.stamp, but=m.sensor),
                                             self.f.limits.bounded, self.f.cfg.slip_window):
             aux.relative_alternatives = without_key(aux.relative_alternatives, m.sensor)
-            aux.events = incremented(aux.events, "fault_outlasted_the_others")
+            counts.event(aux, "fault_outlasted_the_others")
             return False, (RelearnFault(m.sensor),)
         if disagrees or not self.f.agreement_reference(m, S):
             since = math.inf
@@ -257,10 +258,10 @@ class Arbitration(Component):
             aux.suspended = without_key(aux.suspended, m.sensor)
             # its readings of the agreement so far are the slip test's window from here
             aux.slip_window = {**aux.slip_window, m.sensor: window}
-            aux.events = incremented(aux.events, "speed_source_restored")
+            counts.event(aux, "speed_source_restored")
             return False, ()
         aux.suspended = {**aux.suspended, m.sensor: Suspension(since, window, fault)}
-        aux.gated = incremented(aux.gated, m.sensor + "/suspended")
+        counts.gated(aux, m.sensor + "/suspended")
         return True, (Separate(m, e, S),)
 
     def would_show(self, fault: Fault | None, window: tuple) -> bool:

@@ -21,9 +21,10 @@ from scipy.stats import chi2
 
 from .component import Component
 from ..sensors import faults as fault_modes
-from .bookkeeping import (Fault, FaultWindow, ViewSpeed, incremented, is_coasting, new_view,
+from . import counts
+from .bookkeeping import (Fault, FaultWindow, ViewSpeed, is_coasting, new_view,
                           without_key)
-from . import impact, views
+from . import views
 from .events import CommonErrorEnded, Suspend, Swap, TakeSpeed
 from .models import implied_speed
 from . import separation
@@ -56,7 +57,7 @@ class Episodes(Component):
             # still slipping, or undecided
             if nis > self.f.limits.slip_gate or undecided:
                 aux.slip_until = {**aux.slip_until, cls: m.stamp + cfg.slip_holdoff}
-            aux.gated = incremented(aux.gated, cls + "/slip")
+            counts.gated(aux, cls + "/slip")
             self.separate(m, e, S)
             return True, ()
         if alt is not None and alt.farthest ** 2 <= self.f.limits.slip_gate * views.alternative_spread(self.f.models[cls], alt)[1]:
@@ -65,7 +66,7 @@ class Episodes(Component):
             # matching of the two views, the filter's mean kept), so the interval still covers it
             aux.relative_alternatives = without_key(aux.relative_alternatives, cls)
             self.f.ekf.P = views.merged(self.f.ekf.P, alt.farthest ** 2)
-            aux.events = incremented(aux.events, "alternative_merged")
+            counts.event(aux, "alternative_merged")
         window, summed = views.windowed(aux.slip_window.get(cls, ()), m, e, S, cfg.slip_window,
                                         abs(float(self.f.ekf.x[1, 0])))
         if (nis > self.f.limits.slip_gate or summed > self.f.limits.slip_gate) and not views.judged(cls, self.f.layout, self.f.models, cfg.policies):
@@ -74,7 +75,7 @@ class Episodes(Component):
             # the fix drift test's to find (``Fixes.fix_bias_consistency``)
             aux.slip_window = {**aux.slip_window, cls: ()}
             if nis > self.f.limits.slip_gate:
-                aux.gated = incremented(aux.gated, cls)
+                counts.gated(aux, cls)
                 return True, ()
             return False, ()
         if nis > self.f.limits.slip_gate or summed > self.f.limits.slip_gate:
@@ -95,7 +96,7 @@ class Episodes(Component):
                 raise Lookback(cls, window[k].stamp, shown)
             events = self.episode_starts(m, e, shown)
             aux.slip_until = {**aux.slip_until, cls: m.stamp + cfg.slip_holdoff}
-            aux.gated = incremented(aux.gated, cls + "/slip")
+            counts.gated(aux, cls + "/slip")
             self.separate(m, e, S)
             return True, events
         aux.slip_window = {**aux.slip_window, cls: window}
@@ -103,7 +104,7 @@ class Episodes(Component):
             # back from an episode: its first readings are judged together before one is applied
             # (a slide that goes on passes one reading's test while the reference is noisy, and
             # the precise sensor would be adopted at full weight)
-            aux.gated = incremented(aux.gated, cls + "/slip")
+            counts.gated(aux, cls + "/slip")
             self.separate(m, e, S)
             return True, ()
         return False, ()
@@ -140,7 +141,7 @@ class Episodes(Component):
         aux.episode_views = without_key(aux.episode_views, cls)
         aux.relative_alternatives = without_key(aux.relative_alternatives, cls)
         aux.view_speeds = without_key(aux.view_speeds, cls)
-        aux.events = incremented(aux.events, "motion_model_refuted")
+        counts.event(aux, "motion_model_refuted")
         return (TakeSpeed(m.stamp, [(u, white + common)], {cls}),)
 
     def fault_ended(self, m, e: float, S: float) -> bool:
@@ -165,10 +166,10 @@ class Episodes(Component):
         P[:, i] = 0.0
         P[i, i] = lay.prior_sigma[i] ** 2
         self.f.ekf.x, self.f.ekf.P = x, P
-        aux.impacts = impact.states_set(aux.impacts, [i])
+        self.f.bank.states_set([i])
         aux.scale_faults = aux.scale_faults - {cls}
         aux.slip_window = without_key(aux.slip_window, cls)
-        aux.events = incremented(aux.events, "scale_fault_ended")
+        counts.event(aux, "scale_fault_ended")
 
     def common(self, cls: str, h) -> float:
         """The part [m^2/s^2] of a relative measurement's innovation variance that its sensor's
@@ -197,7 +198,7 @@ class Episodes(Component):
         if not physical and m.sensor not in aux.relative_alternatives:
             aux.relative_alternatives = {**aux.relative_alternatives, m.sensor: view}
             aux.episode_views = without_key(aux.episode_views, m.sensor)
-            aux.events = incremented(aux.events, "ambiguous_slip")
+            counts.event(aux, "ambiguous_slip")
         if not physical and m.sensor not in aux.suspended:
             # suspected faulty: back only after agreeing for slip_window s without being applied
             # (one reading that slips through the gate would be adopted at full weight)
@@ -299,7 +300,7 @@ class Episodes(Component):
         own = aux.peer_speeds[cls]
         events = (Suspend(other, Fault(-e, v)),) if other not in aux.suspended else ()
         aux.fault_windows = without_key(aux.fault_windows, cls)
-        aux.events = incremented(aux.events, "transient_fault_outlasted")
+        counts.event(aux, "transient_fault_outlasted")
         return events + (TakeSpeed(stamp, [(own.speed, own.white_var + own.common_var)], {cls}), CommonErrorEnded())
 
     def excluded(self, m, shown: float) -> tuple:
@@ -313,9 +314,9 @@ class Episodes(Component):
         events = ()
         if not aux.slip_until.get(cls, -math.inf) > m.stamp:
             events = self.episode_starts(m, z - hx, shown)
-            aux.events = incremented(aux.events, "slip_lookback")
+            counts.event(aux, "slip_lookback")
         self.separate(m, z - hx, S)
         aux.slip_until = {**aux.slip_until, cls: m.stamp + self.f.cfg.slip_holdoff}
         aux.slip_window = {**aux.slip_window, cls: ()}
-        aux.gated = incremented(aux.gated, cls + "/slip")
+        counts.gated(aux, cls + "/slip")
         return events

@@ -84,6 +84,10 @@ class SeedSubs(NamedTuple):
     stamp: float
 
 
+class LoneReset(NamedTuple):
+    """The position was taken from a fix alone: the lone source's solution starts again (LoneSource.reset)."""
+
+
 class LoneTakeFix(NamedTuple):
     """The lone source's hypothesis conditioned on an accepted fix ``m`` located at z [m], variance
     R [m^2] (LoneSource.take_fix)."""

@@ -17,7 +17,8 @@ from __future__ import annotations
 import math
 
 from .component import Component
-from .bookkeeping import MAX_MOTION_VIEWS, LoneView, ModelView, MovedView, incremented, is_coasting
+from . import counts
+from .bookkeeping import MAX_MOTION_VIEWS, LoneView, ModelView, MovedView, is_coasting
 from . import views
 
 
@@ -49,6 +50,20 @@ class LoneSource(Component):
         elif aux.lone_view is None or aux.lone_view.sensor != lone:
             aux.lone_view = LoneView(self.lone_model_view(stamp, lone), lone, 0.0)
 
+    def ran(self, distance: float) -> None:
+        """The filter's position moved by ``distance`` [m] in a prediction: what the lone source's
+        scale fault can add to the position error over it."""
+        aux = self.f.aux
+        if aux.lone_view is not None:
+            lone = aux.lone_view
+            step = self.f.limits.z * self.f.models[lone.sensor].scale_fault_sigma * abs(distance)
+            aux.lone_view = lone._replace(bound=lone.bound + step)
+
+    def reset(self) -> None:
+        """The position was taken from a fix alone: the lone source's solution starts again from the
+        filter's (``LoneSource.track``)."""
+        self.f.aux.lone_view = None
+
     def accompanied(self, stamp: float) -> None:
         """The lone source has company again: from ``stamp`` the sources in use check each other,
         so its fault adds nothing more, but what it may have put into the filter's position while
@@ -76,7 +91,7 @@ class LoneSource(Component):
             aux.motion_views = held[-(MAX_MOTION_VIEWS - 1):-1] + (moved, held[-1])
         else:
             aux.motion_views = held[-(MAX_MOTION_VIEWS - 1):] + (moved,)
-        aux.events = incremented(aux.events, "lone_source_accompanied")
+        counts.event(aux, "lone_source_accompanied")
 
     def lone_model_view(self, stamp: float, lone: str) -> ModelView:
         """The motion model's hypothesis without lone source ``lone``, from the filter's state
@@ -105,7 +120,7 @@ class LoneSource(Component):
         s_m, var_m = views.motion_view(view, m.stamp, s_f, P00, self.f.cfg.jerk_psd)
         if (z - s_m) ** 2 > self.f.limits.gates[m.sensor] * (R + var_m):
             view = self.lone_model_view(m.stamp, held.sensor)
-            aux.events = incremented(aux.events, "lone_source_solution_refuted")
+            counts.event(aux, "lone_source_solution_refuted")
         else:
             view = views.motion_view_fixed(view, m.stamp, z, R, s_f, P00, self.f.process, self.f.cfg.jerk_psd)
         # the filter accepted the fix: its error before was at most the innovation and the fix's

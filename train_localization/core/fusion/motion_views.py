@@ -25,9 +25,10 @@ import math
 
 from .component import Component
 from ..sensors import faults as fault_modes
-from .bookkeeping import (MAX_MOTION_VIEWS, Fault, ModelView, MovedView, PeerRun, PeerSpeed, fault_at, incremented,
+from . import counts
+from .bookkeeping import (MAX_MOTION_VIEWS, Fault, ModelView, MovedView, PeerRun, PeerSpeed, fault_at,
                           is_coasting, speed_excluded)
-from . import impact, views
+from . import views
 from .models import implied_speed, kinematics
 
 
@@ -58,7 +59,7 @@ class MotionViews(Component):
             return False                    # a short slip: the motion model still knows better
         if not coasting:
             aux.motion_views = aux.motion_views[-(MAX_MOTION_VIEWS - 1):] + (views.model_view(stamp, self.f.ekf.x, self.f.ekf.P),)
-            aux.events = incremented(aux.events, "coasting_between_speed_sources")
+            counts.event(aux, "coasting_between_speed_sources")
             aux.unverified = aux.unverified or "speed_sources_disagree"
         self.set_speed(readings, middle=True)
         return True
@@ -150,7 +151,7 @@ class MotionViews(Component):
         x[1, 0], P[1, 1] = u_hat, var
         x[2, 0], P[2, 2] = 0.0, self.f.cfg.initial_accel_stddev ** 2
         self.f.ekf.x, self.f.ekf.P = x, P
-        self.f.aux.impacts = impact.speed_set(self.f.aux.impacts, u_hat)
+        self.f.bank.speed_set(u_hat)
 
     def take_speed(self, stamp: float, readings: list, sensors: set) -> None:
         """Speed from independent readings that agree (weighted); the exclusions of ``sensors``
@@ -164,13 +165,13 @@ class MotionViews(Component):
         aux.suspended = {c: v for c, v in aux.suspended.items() if c not in sensors}
         aux.slip_until = {c: (min(t, stamp) if c in sensors else t) for c, t in aux.slip_until.items()}
         aux.slip_window = {c: w for c, w in aux.slip_window.items() if c not in sensors}
-        aux.last_accepted = {**aux.last_accepted, **{c: stamp for c in sensors}}
+        counts.in_use_from(aux, sensors, stamp)
         aux.peer_speeds, aux.peer_run = {}, None
         moved = self.coasting_ended(view, stamp)
         if coasting or moved.var_r > 0.0:
             kept = aux.motion_views[:-1] if coasting else aux.motion_views[-(MAX_MOTION_VIEWS - 1):]
             aux.motion_views = kept + (moved,)
-        aux.events = incremented(aux.events, "speed_reacquired")
+        counts.event(aux, "speed_reacquired")
         aux.unverified = "speed_reacquired"
 
     def common_error_ended(self) -> None:

@@ -18,9 +18,10 @@ from typing import Callable, NamedTuple
 
 from ..measurements import Acceleration, PositionFix
 from . import impact, views
-from .events import (CommonErrorEnded, FaultEnded, LoneTakeFix, Relearn, RelearnFault, SeedSubs, Separate,
+from .events import (CommonErrorEnded, FaultEnded, LoneReset, LoneTakeFix, Relearn, RelearnFault, SeedSubs, Separate,
                      SetPosition, SetSpeed, Suspend, Swap, TakeSpeed)
-from .bookkeeping import MovedView, NisSum, incremented, is_coasting, speed_excluded, without_key
+from . import counts
+from .bookkeeping import MovedView, NisSum, is_coasting, speed_excluded, without_key
 
 
 class Kind(enum.Enum):
@@ -69,10 +70,8 @@ def prepare(f, r: Reading) -> Verdict:
         f.before = f.solutions.main()
     f.applied += 1
     f.fault_input = f.fault_input_of(m, r.is_fix)
-    if cls in f.limits.offset_bounds and (aux.impacts is None or m.stamp - aux.impacts.last_onset_of((cls,))
-                                          >= f.cfg.fault_onset_spacing):
-        aux.impacts = impact.started(aux.impacts, {cls: f.limits.offset_bounds[cls]}, m.stamp, f.n,
-                                     f.cfg.fault_onsets, f.limits.z, offset=True)
+    if cls in f.limits.offset_bounds:
+        f.bank.offset_onset(cls, m.stamp)
     if r.is_fix:   # since the sensor's previous fix, before this one counts (Solutions.located)
         f.since_fix = m.stamp - aux.last_accepted.get(cls, -math.inf)
     return GO_ON
@@ -178,7 +177,7 @@ def gate(f, r: Reading) -> Verdict:
     revisits a remembered reference is judged by it (Fixes.remembered)."""
     aux = f.aux
     if r.nis > f.limits.gates[r.cls]:
-        aux.gated = incremented(aux.gated, r.cls)
+        counts.gated(aux, r.cls)
         if r.is_fix and aux.initialised:
             return Verdict(Kind.DONE, f.fixes.unexplained(r.m, r.z, r.R))
         return DONE
@@ -195,10 +194,7 @@ def transient_onset(f, r: Reading) -> Verdict:
     if cls in f.limits.transient_bounds and aux.initialised:   # a relative reading: its fault input is set
         share = f.unseen_share(cls, stamp, f.fault_input.per_unit, r.S)
         f.fault_input = f.fault_input._replace(unseen=share)
-        alone = share >= 1.0
-        if aux.impacts is None or aux.impacts.episode_begins(cls, alone):
-            aux.impacts = impact.episode_started(aux.impacts, cls, f.limits.transient_bounds[cls], stamp, alone,
-                                                 f.n, f.cfg.fault_onsets, f.limits.z)
+        f.bank.transient_onset(cls, stamp, share >= 1.0)
     return GO_ON
 
 
@@ -212,8 +208,7 @@ def update(f, r: Reading) -> Verdict:
         f.fixes.correction_unconfirmed(x_before, r.nis)
     seen = aux.nis.get(cls, NisSum(0, 0.0))
     aux.nis = {**aux.nis, cls: NisSum(seen.count + 1, seen.total + r.nis)}
-    aux.accepted = incremented(aux.accepted, cls)
-    aux.last_accepted = {**aux.last_accepted, cls: m.stamp}
+    counts.accepted(aux, cls, m.stamp)
     if cls in aux.episode_views or cls in aux.fault_windows:
         aux.episode_views = without_key(aux.episode_views, cls)
         aux.fault_windows = without_key(aux.fault_windows, cls)
@@ -260,6 +255,7 @@ ROUTES = {
     Relearn: lambda f, ev: f.plausibility.relearn(ev.reason, ev.faulty),
     SeedSubs: lambda f, ev: f.solutions.seed_subs(ev.stamp),
     LoneTakeFix: lambda f, ev: f.lone.take_fix(ev.m, ev.z, ev.R),
+    LoneReset: lambda f, ev: f.lone.reset(),
 }
 
 

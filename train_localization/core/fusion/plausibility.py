@@ -14,8 +14,9 @@ import math
 import numpy as np
 
 from .component import Component
-from .bookkeeping import Fault, incremented, new_view, without_key
-from . import impact, views
+from . import counts
+from .bookkeeping import Fault, new_view, without_key
+from . import views
 from .events import Suspend
 
 
@@ -62,7 +63,7 @@ class Plausibility(Component):
             (cls,) = owners
             events = (Suspend(cls, self.state_fault(cls, x_before)),)
             aux = self.f.aux
-            aux.events = incremented(aux.events, "implausible_sensor_suspended")
+            counts.event(aux, "implausible_sensor_suspended")
             if aux.speed_sources - {cls} and cls not in aux.relative_alternatives:
                 # which state absorbs a disagreement follows the priors, not the fault: the other
                 # speed source may be the faulty one, so the suspended sensor's view is kept
@@ -98,12 +99,12 @@ class Plausibility(Component):
         P[1, 1] += (scale * x[1, 0]) ** 2 + bias ** 2
         idx = lay.relative_states
         x[idx, 0] = 0.0
-        aux.impacts = impact.states_set(aux.impacts, idx)
+        self.f.bank.states_set(idx)
         P[idx, :] = 0.0
         P[:, idx] = 0.0
         P[idx, idx] = lay.prior_sigma[idx] ** 2
         self.f.ekf.x = x
         self.f.ekf.P = views.raised(P, faulty, lay, self.f.models, float(x[1, 0])) if faulty else P
         aux.scale_faults = aux.scale_faults & frozenset(faulty)
-        aux.events = incremented(aux.events, reason)
+        counts.event(aux, reason)
         aux.unverified = reason

@@ -14,7 +14,8 @@ from __future__ import annotations
 import math
 
 from .component import Component
-from .bookkeeping import incremented, speed_excluded
+from . import counts
+from .bookkeeping import speed_excluded
 from .models import fixes_sharing
 from . import separation, views
 from .events import LoneTakeFix
@@ -83,7 +84,7 @@ class Solutions(Component):
                 new = separation.fix(sub, m.stamp, z, R, self.f.before, self.f.limits.gates[m.sensor])
                 if new is None:
                     new = separation.seed(self.f.limits.subs[name], m.stamp, x0, P00, aux.odometer)
-                    aux.events = incremented(aux.events, "sensor_solution_refuted")
+                    counts.event(aux, "sensor_solution_refuted")
                 subs[name] = new
             aux.subs = subs
         return events

@@ -175,7 +175,9 @@ def test_the_prepare_stage_predicts_notes_the_solution_before_and_the_time_since
 
 def test_a_fix_rules_out_the_motion_model_hypotheses_it_does_not_fit():
     from train_localization.core.fusion.bookkeeping import MovedView
+    from train_localization.core.fusion.motion_views import MotionViews
     f = fake_filter()
+    f.motion = MotionViews(f)
     near, far = MovedView(100.0, 1.0, 0.0, 0.0, 0.0, 0.0, math.inf), MovedView(200.0, 1.0, 0.0, 0.0, 0.0, 0.0, math.inf)
     f.aux.motion_views = (near, far)
     assert pipeline.motion_views_fix(f, Reading(FIX, "eb", True, z=100.5, R=0.09)) == GO_ON

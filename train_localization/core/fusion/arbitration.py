@@ -38,7 +38,7 @@ from ..sensors import faults as fault_modes
 from . import counts
 from .bookkeeping import Fault, Suspension, View, fault_at, is_coasting, speed_excluded, without_key
 from . import views
-from .events import FaultEnded, Relearn, RelearnFault, Separate, SetPosition, SetSpeed
+from .events import AwaitFix, FaultEnded, Relearn, RelearnFault, Separate, SetPosition, SetSpeed
 from .models import implied_speed
 from . import separation
 
@@ -128,13 +128,13 @@ class Arbitration(Component):
             self.suspend(other, fault)
         return True, (SetPosition(m), Relearn("speed_source_faulty"))
 
-    def swap(self, m, z: float, R: float, view: View, other: str) -> None:
+    def swap(self, m, z: float, R: float, view: View, other: str) -> tuple:
         """The excluded sensor ``m.sensor`` was right and ``other``, the speed source in use, is
         faulty: the filter takes the excluded sensor's view (its separation D added to the
         position, the view's spread to the position variance, the speed from this reading), and
         ``other``'s view becomes the alternative (-D: where it puts the train) while it is
         suspended for the fault seen. The interval keeps covering both until a fix decides; the
-        filter awaits one (DEGRADED)."""
+        filter awaits one (DEGRADED: the effect on the fixes returned, events.py)."""
         aux, cls, stamp = self.f.aux, m.sensor, m.stamp
         D = view.separation
         var_D = views.alternative_spread(self.f.models[cls], view)[1]
@@ -158,7 +158,7 @@ class Arbitration(Component):
         self.end_exclusion(cls, stamp)
         self.suspend(other, self.view_fault(aux.relative_alternatives[other], stamp))
         counts.event(aux, "speed_sources_swapped")
-        aux.unverified = "speed_sources_swapped"
+        return (AwaitFix("speed_sources_swapped"),)
 
     def end_exclusion(self, cls: str, stamp: float) -> None:
         """Speed source ``cls`` found right by a fix: its slip episode or suspension ends, and it

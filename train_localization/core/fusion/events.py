@@ -84,6 +84,37 @@ class SeedSubs(NamedTuple):
     stamp: float
 
 
+class FirstPosition(NamedTuple):
+    """The position claimed for the first time at ``stamp`` [s]: the motion model's hypotheses from
+    before take it (MotionViews.first_position)."""
+
+    stamp: float
+
+
+class KeepMotionView(NamedTuple):
+    """A hypothesis that moves with the filter (bookkeeping.MovedView) kept among the motion
+    model's own (MotionViews.keep)."""
+
+    view: object
+
+
+class MotionViewsTakeFix(NamedTuple):
+    """The motion model's hypotheses conditioned on an accepted fix ``m`` located at z [m],
+    variance R [m^2] (MotionViews.take_fix)."""
+
+    m: object
+    z: float
+    R: float
+
+
+class AwaitFix(NamedTuple):
+    """The filter awaits a confirming fix for ``reason`` (an event name; Fixes.await_fix);
+    ``replace`` False: an earlier reason stays."""
+
+    reason: str
+    replace: bool = True
+
+
 class LoneReset(NamedTuple):
     """The position was taken from a fix alone: the lone source's solution starts again (LoneSource.reset)."""
 

@@ -35,9 +35,9 @@ import numpy as np
 
 from .component import Component
 from . import counts
-from .bookkeeping import Candidate, ModelView, UnexplainedFix, without_key
+from .bookkeeping import Candidate, UnexplainedFix, without_key
 from . import impact, views
-from .events import LoneReset, Relearn, SeedSubs
+from .events import FirstPosition, LoneReset, Relearn, SeedSubs
 from .episodes import Lookback
 
 
@@ -253,9 +253,7 @@ class Fixes(Component):
         if "misread" not in self.f.models[m.sensor].faults:
             # a reference that cannot be misidentified (wayside heads, loops, ranging): its decoder
             # withholds what it cannot tell (a miscounted axle, an unresolved NLOS)
-            events = self.set_position(m)
-            self.first_position(m.stamp)
-            return events
+            return self.set_position(m) + self.first_position(m.stamp)
         z, R, _, _ = self.f.measurement_of(m)
         x0, P00 = float(self.f.ekf.x[0, 0]), float(self.f.ekf.P[0, 0])
         cand = aux.candidate
@@ -263,9 +261,7 @@ class Fixes(Component):
             if m.reference_id == cand.reference and m.sensor == cand.sensor:
                 return ()                            # the same reference confirms nothing
             if views.agrees(z, R, x0, P00, cand.z, cand.R, cand.s, cand.P00, self.f.limits.gates[m.sensor]):
-                events = self.set_position(m)
-                self.first_position(m.stamp)
-                return events
+                return self.set_position(m) + self.first_position(m.stamp)
             counts.event(aux, "candidate_replaced")
         aux.candidate = Candidate(m.stamp, z, R, x0, m.sensor, m.reference_id, P00)
         return ()
@@ -278,23 +274,20 @@ class Fixes(Component):
         aux.s_last_fix = float(self.f.ekf.x[0, 0])
         counts.in_use_from(aux, ("operator",), stamp)
 
-    def first_position(self, stamp: float) -> None:
-        """The position is claimed for the first time (``Fixes.set_position`` has just taken it from a
-        fix). The motion model's hypotheses of coastings before it were kept in the frame of the
-        dead reckoning from the start; the fix locates the train under each of them: a moved
-        one adds nothing more and is dropped, a coasting in progress keeps its speed and
-        acceleration hypothesis and takes the filter's position."""
+    def first_position(self, stamp: float) -> tuple:
+        """The position is claimed for the first time at ``stamp`` [s] (``Fixes.set_position`` has
+        just taken it from a fix); the motion model's hypotheses from before take it (the effect
+        returned: events.py)."""
         aux = self.f.aux
         aux.initialised = True
         aux.candidate = None
-        kept = []
-        for view in aux.motion_views:
-            if isinstance(view, ModelView):
-                x, P = views.model_view_at(view, stamp, self.f.process)
-                kept.append(ModelView(stamp, float(self.f.ekf.x[0, 0]), float(x[1]), float(x[2]),
-                                       (float(self.f.ekf.P[0, 0]), 0.0, 0.0, float(P[1, 1]), float(P[1, 2]),
-                                        float(P[2, 2]))))
-        aux.motion_views = tuple(kept)
+        return (FirstPosition(stamp),)
+
+    def await_fix(self, reason: str, replace: bool = True) -> None:
+        """The filter awaits a confirming fix for ``reason`` (an event name; DEGRADED until a fix is
+        accepted: ``Fixes.fix_accepted``); ``replace`` False keeps an earlier reason."""
+        aux = self.f.aux
+        aux.unverified = reason if replace else (aux.unverified or reason)
 
     def set_position(self, m) -> tuple:
         """Take the position from a fix alone (first fix, re-acquisition): s = z - e. The sensors'

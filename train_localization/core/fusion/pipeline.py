@@ -17,11 +17,12 @@ from dataclasses import dataclass
 from typing import Callable, NamedTuple
 
 from ..measurements import Acceleration, PositionFix
-from . import impact, views
-from .events import (CommonErrorEnded, FaultEnded, LoneReset, LoneTakeFix, Relearn, RelearnFault, SeedSubs, Separate,
+from . import views
+from .events import (AwaitFix, CommonErrorEnded, FaultEnded, FirstPosition, KeepMotionView, LoneReset, LoneTakeFix,
+                     MotionViewsTakeFix, Relearn, RelearnFault, SeedSubs, Separate,
                      SetPosition, SetSpeed, Suspend, Swap, TakeSpeed)
 from . import counts
-from .bookkeeping import MovedView, NisSum, is_coasting, speed_excluded, without_key
+from .bookkeeping import NisSum, speed_excluded, without_key
 
 
 class Kind(enum.Enum):
@@ -89,19 +90,8 @@ def fix_reference(f, r: Reading) -> Verdict:
 
 
 def motion_views_move(f, r: Reading) -> Verdict:
-    """The motion model's hypotheses that move with the filter from this reading on."""
-    aux, stamp = f.aux, r.m.stamp
-    if is_coasting(aux) and not all(speed_excluded(aux, c, stamp) for c in aux.speed_sources):
-        # a speed source is in use again: the coasting ends, its motion-model hypothesis moves
-        # with the filter from now on until a fix rules it out
-        aux.motion_views = aux.motion_views[:-1] + (f.motion.coasting_ended(aux.motion_views[-1], stamp),)
-    if any(isinstance(v, MovedView) and v.until <= stamp for v in aux.motion_views):
-        # past the longest episode of a transient fault the sources in use may share: their
-        # common error no longer grows; the hypothesis moves with the filter from here
-        s_f, P00 = float(f.ekf.x[0, 0]), float(f.ekf.P[0, 0])
-        aux.motion_views = tuple(
-            MovedView(*views.motion_view(v, stamp, s_f, P00, f.cfg.jerk_psd), s_f, P00, 0.0, 0.0, math.inf)
-            if isinstance(v, MovedView) and v.until <= stamp else v for v in aux.motion_views)
+    """The motion model's hypotheses that move with the filter from this reading on (MotionViews.move)."""
+    f.motion.move(r.m.stamp)
     return GO_ON
 
 
@@ -111,14 +101,9 @@ def innovation(f, r: Reading) -> Verdict:
 
 
 def motion_views_fix(f, r: Reading) -> Verdict:
-    """A fix rules out the motion-model hypotheses it does not fit."""
-    aux = f.aux
-    if r.is_fix and aux.motion_views:
-        s_f, P00 = float(f.ekf.x[0, 0]), float(f.ekf.P[0, 0])
-        gate = f.limits.gates[r.cls]
-        aux.motion_views = tuple(view for view in aux.motion_views
-                                 if (r.z - (mv := views.motion_view(view, r.m.stamp, s_f, P00, f.cfg.jerk_psd))[0]) ** 2
-                                 / (r.R + mv[1]) <= gate)
+    """A fix rules out the motion-model hypotheses it does not fit (MotionViews.rule_out)."""
+    if r.is_fix and f.aux.motion_views:
+        f.motion.rule_out(r.m.stamp, r.z, r.R, f.limits.gates[r.cls])
     return GO_ON
 
 
@@ -126,13 +111,15 @@ def blind(f, r: Reading) -> Verdict:
     """An excluded speed source while nothing else gives the speed (MotionViews.blind_speed);
     then, a fix the filter explains on its speed sources again confirms it: an old coasting's
     motion-model hypothesis (however vague) is no longer needed."""
-    aux = f.aux
-    if not r.is_fix and speed_excluded(aux, r.cls, r.m.stamp) \
-            and not f.agreement_reference(r.m, r.S) and f.motion.blind_speed(r.m, r.z, r.R):
-        r.innovate(f)   # at the re-acquired speed
-    if r.is_fix and r.nis <= f.limits.gates[r.cls] and any(isinstance(v, MovedView) for v in aux.motion_views):
-        aux.motion_views = tuple(v for v in aux.motion_views if not isinstance(v, MovedView))
-    return GO_ON
+    events = ()
+    if not r.is_fix and speed_excluded(f.aux, r.cls, r.m.stamp) and not f.agreement_reference(r.m, r.S):
+        taken = f.motion.blind_speed(r.m, r.z, r.R)
+        if taken is not None:
+            events = taken
+            r.innovate(f)   # at the re-acquired speed
+    if r.is_fix and r.nis <= f.limits.gates[r.cls]:
+        f.motion.confirmed()
+    return Verdict(Kind.GO_ON, events)
 
 
 def suspension(f, r: Reading) -> Verdict:
@@ -230,7 +217,7 @@ def accept(f, r: Reading) -> Verdict:
         if cls not in aux.speed_sources:
             aux.speed_sources = aux.speed_sources | {cls}
         if f.limits.persistent:
-            f.lone.track(m.stamp)
+            return Verdict(Kind.DONE, f.lone.track(m.stamp) + f.plausibility.check_plausible())
     return Verdict(Kind.DONE, f.plausibility.check_plausible())
 
 
@@ -256,6 +243,10 @@ ROUTES = {
     SeedSubs: lambda f, ev: f.solutions.seed_subs(ev.stamp),
     LoneTakeFix: lambda f, ev: f.lone.take_fix(ev.m, ev.z, ev.R),
     LoneReset: lambda f, ev: f.lone.reset(),
+    FirstPosition: lambda f, ev: f.motion.first_position(ev.stamp),
+    KeepMotionView: lambda f, ev: f.motion.keep(ev.view),
+    MotionViewsTakeFix: lambda f, ev: f.motion.take_fix(ev.m, ev.z, ev.R),
+    AwaitFix: lambda f, ev: f.fixes.await_fix(ev.reason, ev.replace),
 }
 
 

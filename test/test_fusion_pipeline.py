@@ -207,7 +207,9 @@ def test_the_reacquisition_stage_needs_a_kept_fix_with_a_scale_opened():
 
 
 def test_the_update_stage_updates_and_counts():
+    from train_localization.core.fusion.episodes import Episodes
     f = fake_filter(update=lambda *args: f.calls.append("update"))
+    f.episodes = Episodes(f)
     f.aux.episode_views = {"doppler": None}
     r = Reading(SPEED, "doppler", False, z=10.0, R=0.01, h=np.zeros(3), hx=9.0, PHt=np.zeros(3), S=1.0, nis=1.0)
     assert pipeline.update(f, r) == GO_ON

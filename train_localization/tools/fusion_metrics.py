@@ -76,47 +76,34 @@ def _targets(node: ast.AST):
 
 
 def _written_fields(tree: ast.AST, fields: set) -> set:
-    """The state fields a module writes (see the module's docstring for what counts)."""
-    written: set = set()
-    for scope in [tree] + [n for n in ast.walk(tree) if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef))]:
-        if isinstance(scope, ast.ClassDef):
-            continue
-        nodes = list(ast.walk(scope))
-        if any(isinstance(n, ast.ClassDef) and n.name == "Bookkeeping" and scope is tree for n in nodes):
-            nodes = [n for n in nodes if not _inside_bookkeeping(n, tree)]
-        aliases: set = set()
-        changed = True
-        while changed:   # local names bound to the record, also through other aliases
-            changed = False
-            for n in nodes:
-                if isinstance(n, (ast.Assign, ast.AnnAssign)) and n.value is not None and _is_record(n.value, aliases):
-                    for t in _targets(n):
-                        if isinstance(t, ast.Name) and t.id not in aliases:
-                            aliases.add(t.id)
-                            changed = True
+    """The state fields a module writes (see the module's docstring for what counts). Aliases are
+    collected over the whole module (conservative: a name bound to the record anywhere counts
+    everywhere)."""
+    definition = next(((c.lineno, c.end_lineno) for c in ast.walk(tree)
+                       if isinstance(c, ast.ClassDef) and c.name == "Bookkeeping"), (0, -1))
+    nodes = [n for n in ast.walk(tree) if not definition[0] <= getattr(n, "lineno", 0) <= definition[1]]
+    aliases: set = set()
+    changed = True
+    while changed:   # names bound to the record, also through other aliases
+        changed = False
         for n in nodes:
-            for t in _targets(n):
-                field = _record_field(t, aliases, fields)
-                if field:
-                    written.add(field)
-            if isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute):
-                if n.func.attr in MUTATORS:
-                    field = _record_field(n.func.value, aliases, fields)
-                    if field:
-                        written.add(field)
-            if isinstance(n, ast.Call) and getattr(n.func, "id", "") == "setattr" and n.args \
-                    and _is_record(n.args[0], aliases):
-                name = n.args[1].value if len(n.args) > 1 and isinstance(n.args[1], ast.Constant) else None
-                written.update({name} if name in fields else fields)
+            if isinstance(n, (ast.Assign, ast.AnnAssign)) and n.value is not None and _is_record(n.value, aliases):
+                for t in _targets(n):
+                    if isinstance(t, ast.Name) and t.id not in aliases:
+                        aliases.add(t.id)
+                        changed = True
+    written: set = set()
+    for n in nodes:
+        written.update(f for f in (_record_field(t, aliases, fields) for t in _targets(n)) if f)
+        if isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute) and n.func.attr in MUTATORS:
+            field = _record_field(n.func.value, aliases, fields)
+            if field:
+                written.add(field)
+        if isinstance(n, ast.Call) and getattr(n.func, "id", "") == "setattr" and n.args \
+                and _is_record(n.args[0], aliases):
+            name = n.args[1].value if len(n.args) > 1 and isinstance(n.args[1], ast.Constant) else None
+            written.update({name} if name in fields else fields)
     return written
-
-
-def _inside_bookkeeping(node: ast.AST, tree: ast.AST) -> bool:
-    """Whether ``node`` lies in the Bookkeeping class (its constructor and copy define the record)."""
-    for cls in ast.walk(tree):
-        if isinstance(cls, ast.ClassDef) and cls.name == "Bookkeeping":
-            return cls.lineno <= getattr(node, "lineno", -1) <= cls.end_lineno
-    return False
 
 
 def _function_length(path: Path, name: str) -> int | None:

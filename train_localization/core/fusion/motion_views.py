@@ -29,7 +29,7 @@ from . import counts
 from .bookkeeping import (MAX_MOTION_VIEWS, Fault, ModelView, MovedView, PeerRun, PeerSpeed, fault_at,
                           is_coasting, speed_excluded)
 from . import views
-from .events import AwaitFix
+from .events import AwaitFix, EpisodesEnded, SuspensionsEnded
 from .models import implied_speed, kinematics
 
 
@@ -67,7 +67,7 @@ class MotionViews(Component):
         self.set_speed(readings, middle=True)
         return events
 
-    def coasting_ended(self, view: ModelView, stamp: float) -> MovedView:
+    def coasting_ended(self, view: ModelView, stamp: float, back=frozenset()) -> MovedView:
         """The motion-model hypothesis of a coasting that ends at ``stamp`` [s], as it moves with
         the filter from here. The speed sources back in use were excluded for faults; that they
         now agree does not prove both right: a radar scale fault and a wheel slide of the same
@@ -75,12 +75,13 @@ class MotionViews(Component):
         (a slip ratio, a scale fault) until the shortest of their transient fault modes must
         have ended: r from the motion model's speed against theirs, combined with the prior of
         the smallest scale fault among them (a sensor without a speed fault mode rules the
-        hypothesis out: r = 0)."""
+        hypothesis out: r = 0). ``back``: sources whose exclusions end now (their end is routed
+        after: events.py)."""
         s_m, v_m, _, var_m, var_v = kinematics(view.s, view.v, view.a, view.cov, max(stamp - view.stamp, 0.0),
                                                self.f.cfg.jerk_psd)
         s_f, v_f = float(self.f.ekf.x[0, 0]), float(self.f.ekf.x[1, 0])
         aux = self.f.aux
-        in_use = [c for c in aux.speed_sources if not speed_excluded(aux, c, stamp)]
+        in_use = [c for c in aux.speed_sources if c in back or not speed_excluded(aux, c, stamp)]
         models = [self.f.models[c] for c in in_use]
         r, var_r, until = 0.0, 0.0, math.inf
         if models and all(set(md.faults) & fault_modes.SPEED for md in models):
@@ -165,17 +166,14 @@ class MotionViews(Component):
         # rested on the motion model alone)
         view = aux.motion_views[-1] if coasting else views.model_view(stamp, self.f.ekf.x, self.f.ekf.P)
         self.set_speed(readings)
-        aux.suspended = {c: v for c, v in aux.suspended.items() if c not in sensors}
-        aux.slip_until = {c: (min(t, stamp) if c in sensors else t) for c, t in aux.slip_until.items()}
-        aux.slip_window = {c: w for c, w in aux.slip_window.items() if c not in sensors}
         counts.in_use_from(aux, sensors, stamp)
         aux.peer_speeds, aux.peer_run = {}, None
-        moved = self.coasting_ended(view, stamp)
+        moved = self.coasting_ended(view, stamp, back=sensors)
         if coasting or moved.var_r > 0.0:
             kept = aux.motion_views[:-1] if coasting else aux.motion_views[-(MAX_MOTION_VIEWS - 1):]
             aux.motion_views = kept + (moved,)
         counts.event(aux, "speed_reacquired")
-        return (AwaitFix("speed_reacquired"),)
+        return SuspensionsEnded(sensors), EpisodesEnded(stamp, sensors), AwaitFix("speed_reacquired")
 
     def move(self, stamp: float) -> None:
         """The hypotheses that move with the filter from a reading at ``stamp`` [s] on: a coasting's

@@ -18,11 +18,12 @@ from typing import Callable, NamedTuple
 
 from ..measurements import Acceleration, PositionFix
 from . import views
-from .events import (AwaitFix, CommonErrorEnded, FaultEnded, FirstPosition, KeepMotionView, LoneReset, LoneTakeFix,
-                     MotionViewsTakeFix, Relearn, RelearnFault, SeedSubs, Separate,
-                     SetPosition, SetSpeed, Suspend, Swap, TakeSpeed)
+from .events import (AwaitFix, CommonErrorEnded, EpisodeEnded, EpisodesEnded, FaultEnded, FirstPosition, KeepMotionView,
+                     LoneReset, LoneTakeFix, MotionViewsTakeFix, OwnViewEnded, Relearn, RelearnFault, ScaleFaultsReset,
+                     SeedSubs, Separate, SetPosition, SetSpeed, SlipWindow, Suspend, SuspensionsEnded, Swap, TakeSpeed,
+                     Undecided, ViewDropped, ViewMerged, ViewSeparates)
 from . import counts
-from .bookkeeping import NisSum, speed_excluded, without_key
+from .bookkeeping import NisSum, speed_excluded
 
 
 class Kind(enum.Enum):
@@ -196,9 +197,7 @@ def update(f, r: Reading) -> Verdict:
     seen = aux.nis.get(cls, NisSum(0, 0.0))
     aux.nis = {**aux.nis, cls: NisSum(seen.count + 1, seen.total + r.nis)}
     counts.accepted(aux, cls, m.stamp)
-    if cls in aux.episode_views or cls in aux.fault_windows:
-        aux.episode_views = without_key(aux.episode_views, cls)
-        aux.fault_windows = without_key(aux.fault_windows, cls)
+    f.episodes.own_view_ended(cls)
     return GO_ON
 
 
@@ -231,7 +230,17 @@ def excluded(f, r: Reading) -> None:
 # event -> the policy that owns what it changes (each returns the events it asks in turn, if any)
 ROUTES = {
     Separate: lambda f, ev: f.episodes.separate(ev.m, ev.e, ev.S),
-    FaultEnded: lambda f, ev: f.episodes.end_fault(ev.cls),
+    EpisodeEnded: lambda f, ev: f.episodes.episode_ended(ev.cls, ev.stamp),
+    EpisodesEnded: lambda f, ev: f.episodes.episodes_ended(ev.stamp, ev.sensors),
+    SlipWindow: lambda f, ev: f.episodes.set_window(ev.cls, ev.window),
+    OwnViewEnded: lambda f, ev: f.episodes.own_view_ended(ev.cls, ev.fault_window),
+    FaultEnded: lambda f, ev: f.arbitration.end_fault(ev.cls),
+    ScaleFaultsReset: lambda f, ev: f.arbitration.scale_faults_reset(ev.keep),
+    SuspensionsEnded: lambda f, ev: f.arbitration.suspensions_ended(ev.sensors),
+    Undecided: lambda f, ev: f.arbitration.undecided(ev.cls, ev.view),
+    ViewMerged: lambda f, ev: f.arbitration.view_merged(ev.cls),
+    ViewDropped: lambda f, ev: f.arbitration.view_dropped(ev.cls),
+    ViewSeparates: lambda f, ev: f.arbitration.view_separates(ev.m, ev.e, ev.S),
     RelearnFault: lambda f, ev: f.arbitration.relearn_fault(ev.cls),
     Suspend: lambda f, ev: f.arbitration.suspend(ev.cls, ev.fault),
     TakeSpeed: lambda f, ev: f.motion.take_speed(ev.stamp, ev.readings, ev.sensors),

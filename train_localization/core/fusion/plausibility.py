@@ -15,9 +15,9 @@ import numpy as np
 
 from .component import Component
 from . import counts
-from .bookkeeping import Fault, new_view, without_key
+from .bookkeeping import Fault, new_view
 from . import views
-from .events import AwaitFix, Suspend
+from .events import AwaitFix, OwnViewEnded, ScaleFaultsReset, Suspend, Undecided
 
 
 class Plausibility(Component):
@@ -66,9 +66,7 @@ class Plausibility(Component):
             if aux.speed_sources - {cls} and cls not in aux.relative_alternatives:
                 # which state absorbs a disagreement follows the priors, not the fault: the other
                 # speed source may be the faulty one, so the suspended sensor's view is kept
-                aux.relative_alternatives = {**aux.relative_alternatives,
-                                             cls: new_view(aux.t, float(self.f.ekf.P[0, 0]))}
-                aux.episode_views = without_key(aux.episode_views, cls)
+                events += (Undecided(cls, new_view(aux.t, float(self.f.ekf.P[0, 0]))), OwnViewEnded(cls, False))
         return events
 
     def state_fault(self, cls: str, x) -> Fault:
@@ -104,6 +102,5 @@ class Plausibility(Component):
         P[idx, idx] = lay.prior_sigma[idx] ** 2
         self.f.ekf.x = x
         self.f.ekf.P = views.raised(P, faulty, lay, self.f.models, float(x[1, 0])) if faulty else P
-        aux.scale_faults = aux.scale_faults & frozenset(faulty)
         counts.event(aux, reason)
-        return (AwaitFix(reason),)
+        return ScaleFaultsReset(tuple(faulty)), AwaitFix(reason)

@@ -175,7 +175,9 @@ def test_the_prepare_stage_predicts_notes_the_solution_before_and_the_time_since
 
 def test_a_fix_rules_out_the_motion_model_hypotheses_it_does_not_fit():
     from train_localization.core.fusion.bookkeeping import MovedView
+    from train_localization.core.fusion.motion_views import MotionViews
     f = fake_filter()
+    f.motion = MotionViews(f)
     near, far = MovedView(100.0, 1.0, 0.0, 0.0, 0.0, 0.0, math.inf), MovedView(200.0, 1.0, 0.0, 0.0, 0.0, 0.0, math.inf)
     f.aux.motion_views = (near, far)
     assert pipeline.motion_views_fix(f, Reading(FIX, "eb", True, z=100.5, R=0.09)) == GO_ON
@@ -205,7 +207,9 @@ def test_the_reacquisition_stage_needs_a_kept_fix_with_a_scale_opened():
 
 
 def test_the_update_stage_updates_and_counts():
+    from train_localization.core.fusion.episodes import Episodes
     f = fake_filter(update=lambda *args: f.calls.append("update"))
+    f.episodes = Episodes(f)
     f.aux.episode_views = {"doppler": None}
     r = Reading(SPEED, "doppler", False, z=10.0, R=0.01, h=np.zeros(3), hx=9.0, PHt=np.zeros(3), S=1.0, nis=1.0)
     assert pipeline.update(f, r) == GO_ON

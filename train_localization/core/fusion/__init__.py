@@ -9,7 +9,9 @@
   events.py        the effects one policy asks of another, routed by the pipeline
   views.py         the hypotheses kept beside the filter as pure functions (motion views, excluded views, windows)
   component.py     the base of the filter's policy components
-  bookkeeping.py   the filter's records that roll back with x and P (copy-on-write)
+  bookkeeping.py   the filter's records that roll back with x and P (copy-on-write); each field has one writer
+  counts.py        the counters: integrity events, readings accepted and gated, when each sensor was last accepted
+  bank.py          the fault hypotheses' bank (impact.py) kept with the state, following every change of x
   history.py       late and out-of-order data: exact rollback and lazy re-application
   admission.py     every check that protects the filter from its inputs (one place, every path)
   shedding.py      load shedding at the inputs (a token bucket per topic)

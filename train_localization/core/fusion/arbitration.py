@@ -35,9 +35,11 @@ import math
 
 from .component import Component
 from ..sensors import faults as fault_modes
-from .bookkeeping import Fault, Suspension, View, fault_at, incremented, is_coasting, speed_excluded, without_key
-from . import impact, views
-from .events import FaultEnded, Relearn, RelearnFault, Separate, SetPosition, SetSpeed
+from . import counts
+from .bookkeeping import Fault, Suspension, View, ViewSpeed, fault_at, is_coasting, speed_excluded, without_key
+from . import views
+from .events import (AwaitFix, EpisodeEnded, FaultEnded, OwnViewEnded, Relearn, RelearnFault, Separate, SetPosition,
+                     SetSpeed, SlipWindow)
 from .models import implied_speed
 from . import separation
 
@@ -55,7 +57,7 @@ class Arbitration(Component):
         aux = self.f.aux
         gate = self.f.limits.gates[m.sensor]
         explained = nis <= gate
-        keep, fitting, ruled_out = {}, [], 0
+        keep, fitting, ruled_out, events, relearnt = {}, [], 0, (), set()
         for cls, alt in aux.relative_alternatives.items():
             D, var_D = views.alternative_spread(self.f.models[cls], alt)
             # the view's position: the filter's when it began (or was last located by a fix),
@@ -83,13 +85,16 @@ class Arbitration(Component):
             elif explained or m.stamp - alt.since > self.f.cfg.branch_timeout:
                 # the filter explains the fix and this excluded sensor's view does not (or far
                 # worse): it was faulty
-                aux.events = incremented(aux.events, "excluded_sensor_confirmed_faulty")
+                counts.event(aux, "excluded_sensor_confirmed_faulty")
                 ruled_out += 1
                 if cls in self.f.layout.slip_sensors:
                     pass        # a slip ends by itself
-                elif "scale_fault" in self.f.models[cls].faults and self.f.in_use(m.stamp, but=cls):
-                    # a radar's scale fault, which the sources in use (shown right) can teach it
-                    self.relearn_fault(cls)
+                elif "scale_fault" in self.f.models[cls].faults and (
+                        self.f.in_use(m.stamp, but=cls) or (relearnt & aux.speed_sources) - {cls}):
+                    # a radar's scale fault, which the sources in use (shown right) can teach it (one
+                    # relearnt above is in use from now: its episode's end is routed after this)
+                    events += self.relearn_fault(cls)
+                    relearnt.add(cls)
                 else:                                      # a faulty radar may not recover
                     self.suspend(cls, self.view_fault(alt, m.stamp))
             else:
@@ -101,39 +106,38 @@ class Arbitration(Component):
             cls = fitting[0][1]
             view = aux.relative_alternatives.pop(cls, None)
             aux.relative_alternatives = dict(aux.relative_alternatives)
-            self.end_exclusion(cls, m.stamp)
+            events += self.end_exclusion(cls, m.stamp)
             reading = aux.peer_speeds.get(cls)
-            events = ()
+            events += (SlipWindow(cls, None),)
             if reading is not None and reading.stamp > m.stamp - self.f.cfg.slip_reference_timeout:
-                events = (SetSpeed([(reading.speed, reading.white_var + reading.common_var)]),)   # its speed, not the middle
-            aux.slip_window = without_key(aux.slip_window, cls)
+                events += (SetSpeed([(reading.speed, reading.white_var + reading.common_var)]),)   # its speed, not the middle
             if view is not None:
                 self.merge_view(view.separation ** 2 + view.white_var)
-            aux.events = incremented(aux.events, "excluded_sensor_confirmed_right")
+            counts.event(aux, "excluded_sensor_confirmed_right")
             return False, events
         if explained or not fitting:
-            return False, ()                       # the filter explains it, or nothing does
+            return False, events                   # the filter explains it, or nothing does
         if fault_modes.OUTLIER.intersection(self.f.models[m.sensor].faults) and not views.corroborated(
                 m, z, R, aux.alternative, self.f.ekf.x, self.f.ekf.P, self.f.layout, self.f.cfg.branch_timeout,
                 self.f.limits.gates[m.sensor]):
-            return False, ()
+            return False, events
         # an excluded sensor was right: the other speed sources are faulty
         cls = min(fitting)[1]
         fault = self.view_fault(aux.relative_alternatives[cls], m.stamp)
         fault = None if fault is None else Fault(-fault.disagreement, fault.speed)   # the others ran behind it
         aux.relative_alternatives = {}
-        self.end_exclusion(cls, m.stamp)
+        events += self.end_exclusion(cls, m.stamp)
         for other in aux.speed_sources - {cls}:
             self.suspend(other, fault)
-        return True, (SetPosition(m), Relearn("speed_source_faulty"))
+        return True, events + (SetPosition(m), Relearn("speed_source_faulty"))
 
-    def swap(self, m, z: float, R: float, view: View, other: str) -> None:
+    def swap(self, m, z: float, R: float, view: View, other: str) -> tuple:
         """The excluded sensor ``m.sensor`` was right and ``other``, the speed source in use, is
         faulty: the filter takes the excluded sensor's view (its separation D added to the
         position, the view's spread to the position variance, the speed from this reading), and
         ``other``'s view becomes the alternative (-D: where it puts the train) while it is
         suspended for the fault seen. The interval keeps covering both until a fix decides; the
-        filter awaits one (DEGRADED)."""
+        filter awaits one (DEGRADED: the effect on the fixes returned, events.py)."""
         aux, cls, stamp = self.f.aux, m.sensor, m.stamp
         D = view.separation
         var_D = views.alternative_spread(self.f.models[cls], view)[1]
@@ -147,35 +151,32 @@ class Arbitration(Component):
         P[:, 1] = 0.0
         P[1, 1] = u_white + u_common
         self.f.ekf.x, self.f.ekf.P = x, P
-        aux.impacts = impact.speed_set(aux.impacts, u)
+        self.f.bank.speed_set(u)
         aux.relative_alternatives = {**without_key(aux.relative_alternatives, cls),
                                      other: view._replace(separation=-D, farthest=-D)}
-        aux.episode_views = without_key(aux.episode_views, cls)
-        aux.fault_windows = without_key(aux.fault_windows, cls)
         aux.view_speeds = without_key(aux.view_speeds, cls)
-        aux.slip_window = without_key(aux.slip_window, cls)
-        self.end_exclusion(cls, stamp)
+        events = (OwnViewEnded(cls), SlipWindow(cls, None)) + self.end_exclusion(cls, stamp)
         self.suspend(other, self.view_fault(aux.relative_alternatives[other], stamp))
-        aux.events = incremented(aux.events, "speed_sources_swapped")
-        aux.unverified = "speed_sources_swapped"
+        counts.event(aux, "speed_sources_swapped")
+        return events + (AwaitFix("speed_sources_swapped"),)
 
-    def end_exclusion(self, cls: str, stamp: float) -> None:
-        """Speed source ``cls`` found right by a fix: its slip episode or suspension ends, and it
-        counts as in use from ``stamp`` (not as a sensor back from an episode that waits for a
-        reference to agree with)."""
+    def end_exclusion(self, cls: str, stamp: float) -> tuple:
+        """Speed source ``cls`` found right by a fix: its suspension and its slip episode (the
+        effect on the episodes returned: events.py) end, and it counts as in use from ``stamp`` (not
+        as a sensor back from an episode that waits for a reference to agree with)."""
         aux = self.f.aux
-        aux.slip_until = {**aux.slip_until, cls: stamp}
         aux.suspended = without_key(aux.suspended, cls)
-        aux.last_accepted = {**aux.last_accepted, cls: stamp}
+        counts.in_use_from(aux, (cls,), stamp)
+        return (EpisodeEnded(cls, stamp),)
 
-    def relearn_fault(self, cls: str) -> None:
+    def relearn_fault(self, cls: str) -> tuple:
         """Speed source ``cls`` has a scale fault that the others in use were shown not to have
         (``views.outlasted_by``, or a fix that the filter explains and its view does not): it is back
         in use, its constant scale opened by the fault's size (``scale_fault_sigma``) to learn
         the fault from them, and plausible up to that size. Suspended, it would never agree
         again, and would be no reference while the others' own faults come (a wheel's slide
         under braking would be seen against the motion model alone). The speed rests on the
-        others: it keeps its variance."""
+        others: it keeps its variance. Returns the effects on the episodes (events.py)."""
         aux, lay = self.f.aux, self.f.layout
         i = lay.fault_scale[cls]
         floor = lay.prior_sigma[i] ** 2 + self.f.models[cls].scale_fault_sigma ** 2
@@ -190,16 +191,39 @@ class Arbitration(Component):
                 P[i, i] = floor
             self.f.ekf.P = P
         aux.scale_faults = aux.scale_faults | {cls}
-        aux.slip_window = without_key(aux.slip_window, cls)
         aux.view_speeds = without_key(aux.view_speeds, cls)
-        self.end_exclusion(cls, aux.t)
-        aux.events = incremented(aux.events, "scale_fault_relearnt")
+        events = (SlipWindow(cls, None),) + self.end_exclusion(cls, aux.t)
+        counts.event(aux, "scale_fault_relearnt")
+        return events
+
+    def end_fault(self, cls: str) -> tuple:
+        """The scale fault being learnt of speed source ``cls`` has ended: its constant scale back
+        to its prior, its slip test's window started again (the effect on the episodes returned:
+        events.py)."""
+        aux, lay = self.f.aux, self.f.layout
+        i = lay.fault_scale[cls]
+        x, P = self.f.ekf.x.copy(), self.f.ekf.P.copy()
+        x[i, 0] = 0.0
+        P[i, :] = 0.0
+        P[:, i] = 0.0
+        P[i, i] = lay.prior_sigma[i] ** 2
+        self.f.ekf.x, self.f.ekf.P = x, P
+        self.f.bank.states_set([i])
+        aux.scale_faults = aux.scale_faults - {cls}
+        counts.event(aux, "scale_fault_ended")
+        return (SlipWindow(cls, None),)
+
+    def scale_faults_reset(self, keep) -> None:
+        """The relative sensors' error states re-learnt from their priors (``Plausibility.relearn``):
+        the scale faults being learnt end, but those of ``keep``."""
+        aux = self.f.aux
+        aux.scale_faults = aux.scale_faults & frozenset(keep)
 
     def merge_view(self, spread: float) -> None:
         """An excluded sensor's view no longer tracked of its own, merged into the filter's
         (``views.merged``) so the interval still covers it."""
         self.f.ekf.P = views.merged(self.f.ekf.P, spread)
-        self.f.aux.events = incremented(self.f.aux.events, "alternative_merged")
+        counts.event(self.f.aux, "alternative_merged")
 
     @staticmethod
     def view_conditioned(alt: View, D: float, var_D: float, nu: float, S: float, R: float) -> View:
@@ -227,6 +251,39 @@ class Arbitration(Component):
             fault = None
         self.f.aux.suspended = {**self.f.aux.suspended, cls: Suspension(math.inf, (), fault)}
 
+    def suspensions_ended(self, sensors) -> None:
+        """The speed is taken from ``sensors`` (``MotionViews.take_speed``): their suspensions end."""
+        aux = self.f.aux
+        aux.suspended = {c: v for c, v in aux.suspended.items() if c not in sensors}
+
+    def undecided(self, cls: str, view: View) -> None:
+        """Sensor ``cls``, excluded, may be the right one: its view kept as the undecided
+        alternative until a fix decides."""
+        aux = self.f.aux
+        aux.relative_alternatives = {**aux.relative_alternatives, cls: view}
+
+    def view_merged(self, cls: str) -> None:
+        """Sensor ``cls``'s episode ended with a separation its own errors explain, merged into the
+        position covariance (``Episodes.slipping``): its view is no longer tracked."""
+        aux = self.f.aux
+        aux.relative_alternatives = without_key(aux.relative_alternatives, cls)
+
+    def view_dropped(self, cls: str) -> None:
+        """Sensor ``cls`` gives the speed (``Episodes.refutes_model``): its view and last speed are
+        no longer kept."""
+        aux = self.f.aux
+        aux.relative_alternatives = without_key(aux.relative_alternatives, cls)
+        aux.view_speeds = without_key(aux.view_speeds, cls)
+
+    def view_separates(self, m, e: float, S: float) -> None:
+        """An excluded reading adds to its sensor's undecided view (``views.separated``), and is the
+        speed it last read."""
+        aux = self.f.aux
+        v = float(self.f.ekf.x[1, 0])
+        view, R = views.separated(aux.relative_alternatives[m.sensor], m, e, S, v, float(self.f.ekf.P[1, 1]))
+        aux.view_speeds = {**aux.view_speeds, m.sensor: ViewSpeed(m.stamp, v + e, R)}
+        aux.relative_alternatives = {**aux.relative_alternatives, m.sensor: view}
+
     def suspended(self, m, e: float, S: float, nis: float, common: float) -> tuple[bool, tuple]:
         """A speed source found or suspected faulty: excluded until it agrees again (neither its
         single nor its windowed disagreement test fires, with a reference to judge it by) for
@@ -242,12 +299,12 @@ class Arbitration(Component):
                 m.sensor, self.f.layout, self.f.ekf.x, self.f.ekf.P, self.f.measurement_of(m)[2], e, S, gate):
             # judged from its next reading on, at the scale without the fault
             aux.suspended = {**aux.suspended, m.sensor: Suspension(math.inf, (), fault)}
-            aux.gated = incremented(aux.gated, m.sensor + "/suspended")
+            counts.gated(aux, m.sensor + "/suspended")
             return True, (FaultEnded(m.sensor), Separate(m, e, S))
         if disagrees and views.outlasted_by(m, aux, self.f.models, self.f.in_use(m.stamp, but=m.sensor),
                                             self.f.limits.bounded, self.f.cfg.slip_window):
             aux.relative_alternatives = without_key(aux.relative_alternatives, m.sensor)
-            aux.events = incremented(aux.events, "fault_outlasted_the_others")
+            counts.event(aux, "fault_outlasted_the_others")
             return False, (RelearnFault(m.sensor),)
         if disagrees or not self.f.agreement_reference(m, S):
             since = math.inf
@@ -255,12 +312,11 @@ class Arbitration(Component):
             since = m.stamp
         if since != math.inf and m.stamp - since >= self.f.cfg.slip_window and self.would_show(fault, window):
             aux.suspended = without_key(aux.suspended, m.sensor)
+            counts.event(aux, "speed_source_restored")
             # its readings of the agreement so far are the slip test's window from here
-            aux.slip_window = {**aux.slip_window, m.sensor: window}
-            aux.events = incremented(aux.events, "speed_source_restored")
-            return False, ()
+            return False, (SlipWindow(m.sensor, window),)
         aux.suspended = {**aux.suspended, m.sensor: Suspension(since, window, fault)}
-        aux.gated = incremented(aux.gated, m.sensor + "/suspended")
+        counts.gated(aux, m.sensor + "/suspended")
         return True, (Separate(m, e, S),)
 
     def would_show(self, fault: Fault | None, window: tuple) -> bool:

@@ -154,7 +154,24 @@ class FaultWindow(NamedTuple):
 
 class Bookkeeping:
     """Bookkeeping that rolls back with x and P. Copy-on-write: ``copy`` is shallow and the
-    containers are never changed in place, only replaced."""
+    containers are never changed in place, only replaced.
+
+    Each field is written from one module, its owner; the others ask it through the events the
+    pipeline routes (events.py) or, for the owners that are not policies (counts, bank, the
+    filter), through their functions (``tools/fusion_metrics.py`` counts the writers):
+
+      filter.py        t, odometer
+      counts.py        events, accepted, gated, last_accepted
+      bank.py          impacts
+      pipeline.py      nis, fix_ref, speed_sources, last_drive
+      fixes.py         initialised, s_last_fix, last_fix_accepted, fix_nis, fix_bias_nis, alternative,
+                       candidate, used_refs, unverified
+      episodes.py      slips, slip_until, slip_window, episode_views, fault_windows
+      arbitration.py   suspended, relative_alternatives, view_speeds, scale_faults
+      motion_views.py  motion_views, peer_speeds, peer_run
+      solutions.py     subs
+      lone.py          lone_view
+    """
 
     __slots__ = ("initialised", "t", "last_accepted", "slip_until", "accepted", "gated", "slips",
                  "speed_sources", "nis", "fix_ref", "last_fix_accepted", "fix_nis", "slip_window",

@@ -21,12 +21,12 @@ from scipy.stats import chi2
 
 from .component import Component
 from ..sensors import faults as fault_modes
-from .bookkeeping import (Fault, FaultWindow, ViewSpeed, incremented, is_coasting, new_view,
-                          without_key)
-from . import impact, views
-from .events import CommonErrorEnded, Suspend, Swap, TakeSpeed
+from . import counts
+from .bookkeeping import Fault, FaultWindow, is_coasting, new_view, without_key
+from . import views
+from .events import (CommonErrorEnded, FaultEnded, Separate, Suspend, Swap, TakeSpeed, Undecided, ViewDropped,
+                     ViewMerged, ViewSeparates)
 from .models import implied_speed
-from . import separation
 
 
 class Lookback(Exception):
@@ -56,16 +56,17 @@ class Episodes(Component):
             # still slipping, or undecided
             if nis > self.f.limits.slip_gate or undecided:
                 aux.slip_until = {**aux.slip_until, cls: m.stamp + cfg.slip_holdoff}
-            aux.gated = incremented(aux.gated, cls + "/slip")
-            self.separate(m, e, S)
-            return True, ()
+            counts.gated(aux, cls + "/slip")
+            return True, (Separate(m, e, S),)
+        merged = ()
         if alt is not None and alt.farthest ** 2 <= self.f.limits.slip_gate * views.alternative_spread(self.f.models[cls], alt)[1]:
             # the episode ended with a separation that the sensor's own errors explain: no longer
-            # tracked as a view of its own, but merged into the position covariance (moment
-            # matching of the two views, the filter's mean kept), so the interval still covers it
-            aux.relative_alternatives = without_key(aux.relative_alternatives, cls)
+            # tracked as a view of its own (the arbitration's), but merged into the position
+            # covariance (moment matching of the two views, the filter's mean kept), so the
+            # interval still covers it
+            merged = (ViewMerged(cls),)
             self.f.ekf.P = views.merged(self.f.ekf.P, alt.farthest ** 2)
-            aux.events = incremented(aux.events, "alternative_merged")
+            counts.event(aux, "alternative_merged")
         window, summed = views.windowed(aux.slip_window.get(cls, ()), m, e, S, cfg.slip_window,
                                         abs(float(self.f.ekf.x[1, 0])))
         if (nis > self.f.limits.slip_gate or summed > self.f.limits.slip_gate) and not views.judged(cls, self.f.layout, self.f.models, cfg.policies):
@@ -74,18 +75,18 @@ class Episodes(Component):
             # the fix drift test's to find (``Fixes.fix_bias_consistency``)
             aux.slip_window = {**aux.slip_window, cls: ()}
             if nis > self.f.limits.slip_gate:
-                aux.gated = incremented(aux.gated, cls)
-                return True, ()
-            return False, ()
+                counts.gated(aux, cls)
+                return True, merged
+            return False, merged
         if nis > self.f.limits.slip_gate or summed > self.f.limits.slip_gate:
             aux.slip_window = {**aux.slip_window, cls: ()}
             # the disagreement that showed: this one, or the window's mean
             shown = e if nis > self.f.limits.slip_gate else sum(w.distance for w in window) / sum(w.weight for w in window)
             if cls in aux.scale_faults and self.fault_ended(m, e, S):
-                return False, ()
+                return False, merged + (FaultEnded(cls),)
             refuted = self.refutes_model(m, shown)
             if refuted is not None:
-                return False, refuted
+                return False, merged + refuted
             # the onset: the increments before this one that already disagreed the same way were
             # absorbed (a slip ramps up): take them out and re-apply the history without them
             k = len(window) - 1
@@ -93,20 +94,18 @@ class Episodes(Component):
                 k -= 1
             if k < len(window) - 1:
                 raise Lookback(cls, window[k].stamp, shown)
-            events = self.episode_starts(m, e, shown)
+            events = self.episode_starts(m, e, shown, alt is not None and not merged)
             aux.slip_until = {**aux.slip_until, cls: m.stamp + cfg.slip_holdoff}
-            aux.gated = incremented(aux.gated, cls + "/slip")
-            self.separate(m, e, S)
-            return True, events
+            counts.gated(aux, cls + "/slip")
+            return True, merged + events + (Separate(m, e, S),)
         aux.slip_window = {**aux.slip_window, cls: window}
         if out and len(window) < 3:
             # back from an episode: its first readings are judged together before one is applied
             # (a slide that goes on passes one reading's test while the reference is noisy, and
             # the precise sensor would be adopted at full weight)
-            aux.gated = incremented(aux.gated, cls + "/slip")
-            self.separate(m, e, S)
-            return True, ()
-        return False, ()
+            counts.gated(aux, cls + "/slip")
+            return True, merged + (Separate(m, e, S),)
+        return False, merged
 
     def slip_physics(self, cls: str, e: float) -> bool:
         """Whether sensor ``cls``'s own fault modes can give a disagreement e [m/s] with the
@@ -138,37 +137,16 @@ class Episodes(Component):
         z, R, _, _ = self.f.measurement_of(m)
         u, white, common = implied_speed(self.f.layout, self.f.ekf.x, self.f.ekf.P, m, z, R)
         aux.episode_views = without_key(aux.episode_views, cls)
-        aux.relative_alternatives = without_key(aux.relative_alternatives, cls)
-        aux.view_speeds = without_key(aux.view_speeds, cls)
-        aux.events = incremented(aux.events, "motion_model_refuted")
-        return (TakeSpeed(m.stamp, [(u, white + common)], {cls}),)
+        counts.event(aux, "motion_model_refuted")
+        return ViewDropped(cls), TakeSpeed(m.stamp, [(u, white + common)], {cls})
 
     def fault_ended(self, m, e: float, S: float) -> bool:
-        """Sensor ``m.sensor``, whose scale fault is being learnt (``Arbitration.relearn_fault``), disagrees
-        by e [m/s] (innovation variance S): if its fault has ended (``views.fault_ended_shown``), its
-        constant scale is back to its prior (``end_fault``), and True."""
+        """Whether sensor ``m.sensor``, whose scale fault is being learnt (``Arbitration.relearn_fault``),
+        disagreeing by e [m/s] (innovation variance S), shows that its fault has ended
+        (``views.fault_ended_shown``; then ``Arbitration.end_fault``)."""
         h = self.f.measurement_of(m)[2]
-        if not views.fault_ended_shown(m.sensor, self.f.layout, self.f.ekf.x, self.f.ekf.P, h, e, S,
-                                       self.f.limits.slip_gate):
-            return False
-        self.end_fault(m.sensor)
-        return True
-
-    def end_fault(self, cls: str) -> None:
-        """The scale fault being learnt of speed source ``cls`` has ended: its constant scale back
-        to its prior."""
-        aux, lay = self.f.aux, self.f.layout
-        i = lay.fault_scale[cls]
-        x, P = self.f.ekf.x.copy(), self.f.ekf.P.copy()
-        x[i, 0] = 0.0
-        P[i, :] = 0.0
-        P[:, i] = 0.0
-        P[i, i] = lay.prior_sigma[i] ** 2
-        self.f.ekf.x, self.f.ekf.P = x, P
-        aux.impacts = impact.states_set(aux.impacts, [i])
-        aux.scale_faults = aux.scale_faults - {cls}
-        aux.slip_window = without_key(aux.slip_window, cls)
-        aux.events = incremented(aux.events, "scale_fault_ended")
+        return views.fault_ended_shown(m.sensor, self.f.layout, self.f.ekf.x, self.f.ekf.P, h, e, S,
+                                       self.f.limits.slip_gate)
 
     def common(self, cls: str, h) -> float:
         """The part [m^2/s^2] of a relative measurement's innovation variance that its sensor's
@@ -179,9 +157,10 @@ class Episodes(Component):
         hk = h[idx]
         return max(float(hk.dot(self.f.ekf.P[np.ix_(idx, idx)]).dot(hk)), 0.0)
 
-    def episode_starts(self, m, e: float, shown: float) -> tuple:
+    def episode_starts(self, m, e: float, shown: float, undecided: bool) -> tuple:
         """A fault episode of ``m.sensor`` starts with the disagreement e [m/s] (``shown``: the
-        disagreement the test saw, e or its mean over the window). A wheel slips
+        disagreement the test saw, e or its mean over the window; ``undecided``: whether the sensor
+        has an undecided view, the arbitration's, already). A wheel slips
         only under traction (it turns faster) and slides only under braking (slower); a
         disagreement of another kind, or of a sensor without slip physics (the radar), may
         be the other speed sources' fault: then the sensor's own view is kept as the
@@ -194,42 +173,55 @@ class Episodes(Component):
         view = new_view(m.stamp, float(self.f.ekf.P[0, 0]))
         if physical and m.sensor not in aux.episode_views and m.sensor in self.f.limits.bounded:
             aux.episode_views = {**aux.episode_views, m.sensor: view}   # its own fault: not in the interval
-        if not physical and m.sensor not in aux.relative_alternatives:
-            aux.relative_alternatives = {**aux.relative_alternatives, m.sensor: view}
+        events = ()
+        if not physical and not undecided:
+            events = (Undecided(m.sensor, view),)
             aux.episode_views = without_key(aux.episode_views, m.sensor)
-            aux.events = incremented(aux.events, "ambiguous_slip")
+            counts.event(aux, "ambiguous_slip")
         if not physical and m.sensor not in aux.suspended:
             # suspected faulty: back only after agreeing for slip_window s without being applied
             # (one reading that slips through the gate would be adopted at full weight)
-            return (Suspend(m.sensor, Fault(shown, float(self.f.ekf.x[1, 0]))),)
+            return events + (Suspend(m.sensor, Fault(shown, float(self.f.ekf.x[1, 0]))),)
+        return events
+
+    def separate(self, m, e: float, S: float) -> tuple:
+        """An excluded reading adds to its sensor's view (``views.separated``): its own (a slip's:
+        ``episode_views``) here; an undecided one is the arbitration's (the effect returned:
+        events.py)."""
+        aux = self.f.aux
+        if m.sensor in aux.relative_alternatives:
+            return (ViewSeparates(m, e, S),)
+        own = aux.episode_views.get(m.sensor)
+        if own is not None:
+            view, _ = views.separated(own, m, e, S, float(self.f.ekf.x[1, 0]), float(self.f.ekf.P[1, 1]))
+            aux.episode_views = {**aux.episode_views, m.sensor: view}
         return ()
 
-    def separate(self, m, e: float, S: float) -> None:
-        """While a sensor is excluded as the alternative (or for its own slip: ``episode_views``),
-        add up how far it ran ahead [m], the white part of its variance and the distance run
-        (its scale error is common to all)."""
+    def own_view_ended(self, cls: str, fault_window: bool = True) -> None:
+        """Sensor ``cls``'s own view ends (it is accepted, or its view becomes undecided), and with
+        ``fault_window`` the fit of the other source's scale error to it (``Episodes.outlasted``)."""
         aux = self.f.aux
-        alt = aux.relative_alternatives.get(m.sensor)
-        own = alt is None
-        if own:
-            alt = aux.episode_views.get(m.sensor)
-            if alt is None:
-                return
-        d = getattr(m, "duration", 0.0)
-        if not d:
-            # a speed holds since the previous one, not across a silence (a radar below its
-            # minimum speed at a stop): there the sensor told nothing, as in its own solution
-            d = m.stamp - alt.last if m.stamp - alt.last <= separation.SPEED_GAP else 0.0
-        R = max(S - float(self.f.ekf.P[1, 1]), 0.0)              # its own noise (speed units), roughly
-        D = alt.separation + e * d
-        view = alt._replace(separation=D, white_var=alt.white_var + R * d * d, last=m.stamp,
-                            run=alt.run + abs(float(self.f.ekf.x[1, 0])) * d,
-                            farthest=D if abs(D) > abs(alt.farthest) else alt.farthest)
-        if own:
-            aux.episode_views = {**aux.episode_views, m.sensor: view}
-            return
-        aux.view_speeds = {**aux.view_speeds, m.sensor: ViewSpeed(m.stamp, float(self.f.ekf.x[1, 0]) + e, R)}
-        aux.relative_alternatives = {**aux.relative_alternatives, m.sensor: view}
+        if cls in aux.episode_views:
+            aux.episode_views = without_key(aux.episode_views, cls)
+        if fault_window and cls in aux.fault_windows:
+            aux.fault_windows = without_key(aux.fault_windows, cls)
+
+    def episode_ended(self, cls: str, stamp: float) -> None:
+        """A fix found speed source ``cls`` right: its slip episode ends at ``stamp`` [s]."""
+        aux = self.f.aux
+        aux.slip_until = {**aux.slip_until, cls: stamp}
+
+    def episodes_ended(self, stamp: float, sensors) -> None:
+        """The speed is taken from ``sensors`` at ``stamp`` [s]: their slip episodes end, their slip
+        tests' windows start again."""
+        aux = self.f.aux
+        aux.slip_until = {c: (min(t, stamp) if c in sensors else t) for c, t in aux.slip_until.items()}
+        aux.slip_window = {c: w for c, w in aux.slip_window.items() if c not in sensors}
+
+    def set_window(self, cls: str, window: tuple | None) -> None:
+        """The slip test's window of ``cls`` from here (None: it starts again)."""
+        aux = self.f.aux
+        aux.slip_window = without_key(aux.slip_window, cls) if window is None else {**aux.slip_window, cls: window}
 
     def outlasted(self, m, z: float, R: float, hx: float, S: float, h) -> tuple:
         """Sensor ``m.sensor``, excluded, whose fault modes all end by themselves (a wheel's slip
@@ -299,7 +291,7 @@ class Episodes(Component):
         own = aux.peer_speeds[cls]
         events = (Suspend(other, Fault(-e, v)),) if other not in aux.suspended else ()
         aux.fault_windows = without_key(aux.fault_windows, cls)
-        aux.events = incremented(aux.events, "transient_fault_outlasted")
+        counts.event(aux, "transient_fault_outlasted")
         return events + (TakeSpeed(stamp, [(own.speed, own.white_var + own.common_var)], {cls}), CommonErrorEnded())
 
     def excluded(self, m, shown: float) -> tuple:
@@ -312,10 +304,9 @@ class Episodes(Component):
         z, R, h, hx, _, S = self.f.innovation(m)
         events = ()
         if not aux.slip_until.get(cls, -math.inf) > m.stamp:
-            events = self.episode_starts(m, z - hx, shown)
-            aux.events = incremented(aux.events, "slip_lookback")
-        self.separate(m, z - hx, S)
+            events = self.episode_starts(m, z - hx, shown, cls in aux.relative_alternatives)
+            counts.event(aux, "slip_lookback")
         aux.slip_until = {**aux.slip_until, cls: m.stamp + self.f.cfg.slip_holdoff}
         aux.slip_window = {**aux.slip_window, cls: ()}
-        aux.gated = incremented(aux.gated, cls + "/slip")
-        return events
+        counts.gated(aux, cls + "/slip")
+        return events + (Separate(m, z - hx, S),)

@@ -46,9 +46,10 @@ from .limits import Limits
 from . import impact
 from .models import ProcessModel, kinematic_covariance, kinematics, measurement
 from .mode import Mode
-from . import pipeline, separation
+from . import pipeline
 # the policies (components)
 from .arbitration import Arbitration
+from .bank import FaultBank
 from .episodes import Episodes, Lookback
 from .fixes import Fixes
 from .interval import Interval
@@ -134,6 +135,7 @@ class TrainFilter:
         self.rejected: dict[str, int] = {}
         self.applied = 0          # measurement updates run, replays included
         # the policies (one component each; they read and change the filter's state through it)
+        self.bank = FaultBank(self)   # not a policy: the fault hypotheses' bank, which follows the state
         self.lone = LoneSource(self)
         self.solutions = Solutions(self)
         self.interval = Interval(self)
@@ -167,15 +169,13 @@ class TrainFilter:
         Measurements stamped before ``stamp`` are rejected afterwards (``too_late``).
         """
         x, P, aux = self._initial_state()
-        if position is not None:
+        aux.t = stamp
+        self._set((x, P, aux))
+        if position is not None:   # located as by a fix (Fixes.operator_position), the solutions seeded from it
             x[0, 0], x[1, 0] = position, speed
             P[0, 0], P[1, 1] = position_stddev ** 2, speed_stddev ** 2
-            aux.initialised = True
-            aux.last_accepted = {"operator": stamp if stamp is not None else 0.0}
-            aux.s_last_fix = position
-            aux.subs = {name: separation.seed(sm, stamp if stamp is not None else 0.0, position,
-                                              position_stddev ** 2, aux.odometer) for name, sm in self.limits.subs.items()}
-        aux.t = stamp
+            self.fixes.operator_position(stamp if stamp is not None else 0.0)
+            self.solutions.seed_subs(stamp if stamp is not None else 0.0)
         self._clear((x, P, aux))
         if stamp is not None:
             self.hist.base_key = (stamp,)
@@ -187,19 +187,12 @@ class TrainFilter:
             return
         if t > aux.t:
             s0 = self.ekf.x[0, 0]
-            aux.impacts = impact.predicted(aux.impacts, self.process.transition(t - aux.t)[0])
+            self.bank.predicted(self.process.transition(t - aux.t)[0])
             self.ekf.x, self.ekf.P = self.process.predict(self.ekf.x, self.ekf.P, aux.t, t)
             aux.odometer += float(self.ekf.x[0, 0] - s0)
             aux.t = t
-            bounds = self.limits.persistent_bounds
-            if bounds and aux.initialised and (
-                    aux.impacts is None or t - aux.impacts.last_onset_of(bounds) >= self.cfg.fault_onset_spacing):
-                aux.impacts = impact.started(aux.impacts, bounds, t, self.n, self.cfg.fault_onsets, self.limits.z,
-                                             members=self.limits.group_members)
-            if aux.lone_view is not None:   # what a lone source's scale fault adds over the distance
-                lone = aux.lone_view
-                step = self.limits.z * self.models[lone.sensor].scale_fault_sigma * abs(float(self.ekf.x[0, 0] - s0))
-                aux.lone_view = lone._replace(bound=lone.bound + step)
+            self.bank.persistent_onset(t)
+            self.lone.ran(float(self.ekf.x[0, 0] - s0))
 
     # -- measurement update ----------------------------------------------------
     def update(self, z: float, R: float, h, hx: float, PHt, S: float) -> None:
@@ -210,7 +203,7 @@ class TrainFilter:
         P = self.ekf.P
         K = PHt / S
         self.last_update = (K, z - hx)
-        self.aux.impacts = impact.updated(self.aux.impacts, self.fault_input, h, K, z - hx, S)
+        self.bank.updated(self.fault_input, h, K, z - hx, S)
         Kc = K[:, None]
         self.ekf.x = self.ekf.x + Kc * (z - hx)
         A = self._eye - Kc * h

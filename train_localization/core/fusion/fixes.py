@@ -34,9 +34,10 @@ import math
 import numpy as np
 
 from .component import Component
-from .bookkeeping import Candidate, ModelView, UnexplainedFix, incremented, without_key
+from . import counts
+from .bookkeeping import Candidate, UnexplainedFix, without_key
 from . import impact, views
-from .events import Relearn, SeedSubs
+from .events import FirstPosition, LoneReset, Relearn, SeedSubs
 from .episodes import Lookback
 
 
@@ -59,7 +60,7 @@ class Fixes(Component):
             # the filter explains an independent fix (not one of the same sensor with a fix-bias
             # state, whatever its reference: mm-wave station sets overlap): that one was wrong
             aux.alternative = None
-            aux.events = incremented(aux.events, "outlier_fix")
+            counts.event(aux, "outlier_fix")
         aux.unverified = ""
         aux.last_fix_accepted = m.stamp
         aux.s_last_fix = float(self.f.ekf.x[0, 0])
@@ -72,7 +73,7 @@ class Fixes(Component):
             # independent fixes disagree more than the covariance says: all of it is too small
             self.f.ekf.P = self.f.ekf.P * mean
             window = ()
-            aux.events = incremented(aux.events, "inconsistent")
+            counts.event(aux, "inconsistent")
             aux.unverified = "inconsistent"
         aux.fix_nis = window
 
@@ -125,7 +126,7 @@ class Fixes(Component):
         # pull the opened states again and again)
         faulty = () if noisy or pending else [c for c in self.f.layout.scale if "scale_fault" in self.f.models[c].faults]
         self.f.ekf.P = views.raised(P, faulty, self.f.layout, self.f.models, float(self.f.ekf.x[1, 0]))
-        aux.events = incremented(aux.events, "inconsistent_fix_bias")
+        counts.event(aux, "inconsistent_fix_bias")
         # the fixes pull the filter by about the bias it had estimated (s = z - e, e now 0): the
         # dead-reckoned view stays where it was, moving with the filter's motion from there
         if not pending:
@@ -199,10 +200,10 @@ class Fixes(Component):
         faulty = self.scale_faults_explaining(m, z, R)
         if faulty:
             self.f.ekf.P = views.raised(self.f.ekf.P, faulty, self.f.layout, self.f.models, float(self.f.ekf.x[1, 0]))
-            aux.events = incremented(aux.events, "scale_fault_suspected")
+            counts.event(aux, "scale_fault_suspected")
         aux.alternative = UnexplainedFix(m.stamp, z, R, float(self.f.ekf.x[0, 0]), float(self.f.ekf.P[0, 0]), m.sensor,
                                          m.reference_id, tuple(faulty))
-        aux.events = incremented(aux.events, "unexplained_fix")
+        counts.event(aux, "unexplained_fix")
         return ()
 
     def reacquire(self, m) -> tuple:
@@ -225,7 +226,7 @@ class Fixes(Component):
         aux = self.f.aux
         key = (m.sensor, m.reference_id)
         if key in aux.used_refs and float(self.f.ekf.P[0, 0]) < R:
-            aux.events = incremented(aux.events, "reference_revisited")
+            counts.event(aux, "reference_revisited")
             return True
         return False
 
@@ -252,9 +253,7 @@ class Fixes(Component):
         if "misread" not in self.f.models[m.sensor].faults:
             # a reference that cannot be misidentified (wayside heads, loops, ranging): its decoder
             # withholds what it cannot tell (a miscounted axle, an unresolved NLOS)
-            events = self.set_position(m)
-            self.first_position(m.stamp)
-            return events
+            return self.set_position(m) + self.first_position(m.stamp)
         z, R, _, _ = self.f.measurement_of(m)
         x0, P00 = float(self.f.ekf.x[0, 0]), float(self.f.ekf.P[0, 0])
         cand = aux.candidate
@@ -262,30 +261,33 @@ class Fixes(Component):
             if m.reference_id == cand.reference and m.sensor == cand.sensor:
                 return ()                            # the same reference confirms nothing
             if views.agrees(z, R, x0, P00, cand.z, cand.R, cand.s, cand.P00, self.f.limits.gates[m.sensor]):
-                events = self.set_position(m)
-                self.first_position(m.stamp)
-                return events
-            aux.events = incremented(aux.events, "candidate_replaced")
+                return self.set_position(m) + self.first_position(m.stamp)
+            counts.event(aux, "candidate_replaced")
         aux.candidate = Candidate(m.stamp, z, R, x0, m.sensor, m.reference_id, P00)
         return ()
 
-    def first_position(self, stamp: float) -> None:
-        """The position is claimed for the first time (``Fixes.set_position`` has just taken it from a
-        fix). The motion model's hypotheses of coastings before it were kept in the frame of the
-        dead reckoning from the start; the fix locates the train under each of them: a moved
-        one adds nothing more and is dropped, a coasting in progress keeps its speed and
-        acceleration hypothesis and takes the filter's position."""
+    def operator_position(self, stamp: float) -> None:
+        """The operator set the position (``TrainFilter.reset``) at ``stamp`` [s]: the filter is
+        initialised, located as by an accepted fix."""
+        aux = self.f.aux
+        aux.initialised = True
+        aux.s_last_fix = float(self.f.ekf.x[0, 0])
+        counts.in_use_from(aux, ("operator",), stamp)
+
+    def first_position(self, stamp: float) -> tuple:
+        """The position is claimed for the first time at ``stamp`` [s] (``Fixes.set_position`` has
+        just taken it from a fix); the motion model's hypotheses from before take it (the effect
+        returned: events.py)."""
         aux = self.f.aux
         aux.initialised = True
         aux.candidate = None
-        kept = []
-        for view in aux.motion_views:
-            if isinstance(view, ModelView):
-                x, P = views.model_view_at(view, stamp, self.f.process)
-                kept.append(ModelView(stamp, float(self.f.ekf.x[0, 0]), float(x[1]), float(x[2]),
-                                       (float(self.f.ekf.P[0, 0]), 0.0, 0.0, float(P[1, 1]), float(P[1, 2]),
-                                        float(P[2, 2]))))
-        aux.motion_views = tuple(kept)
+        return (FirstPosition(stamp),)
+
+    def await_fix(self, reason: str, replace: bool = True) -> None:
+        """The filter awaits a confirming fix for ``reason`` (an event name; DEGRADED until a fix is
+        accepted: ``Fixes.fix_accepted``); ``replace`` False keeps an earlier reason."""
+        aux = self.f.aux
+        aux.unverified = reason if replace else (aux.unverified or reason)
 
     def set_position(self, m) -> tuple:
         """Take the position from a fix alone (first fix, re-acquisition): s = z - e. The sensors'
@@ -305,14 +307,13 @@ class Fixes(Component):
             P[:, 0] = -P[:, f_idx]
             P[0, 0] = R + P[f_idx, f_idx]
         self.f.ekf.x, self.f.ekf.P = x, P
-        aux.impacts = impact.position_set_from_fix(
-            aux.impacts, f_idx, impact.FaultInput(cls, m.position_stddev, True) if cls in self.f.limits.offset_bounds else None)
-        aux.accepted = incremented(aux.accepted, cls)
-        aux.last_accepted = {**aux.last_accepted, cls: m.stamp}
+        self.f.bank.position_set_from_fix(
+            f_idx, impact.FaultInput(cls, m.position_stddev, True) if cls in self.f.limits.offset_bounds else None)
+        counts.accepted(aux, cls, m.stamp)
         aux.last_fix_accepted = m.stamp
         aux.s_last_fix = float(x[0, 0])
-        aux.lone_view = None      # the lone source's solution starts again from here (LoneSource.track)
-        return (SeedSubs(m.stamp),)
+        # the sensors' own solutions and the lone source's start again from here
+        return SeedSubs(m.stamp), LoneReset()
 
     def new_fix_bias(self, cls: str) -> None:
         """A new reference: its fix bias is independent of the previous one."""
@@ -323,4 +324,4 @@ class Fixes(Component):
         P[:, i] = 0.0
         P[i, i] = self.f.layout.prior_sigma[i] ** 2
         self.f.ekf.x, self.f.ekf.P = x, P
-        self.f.aux.impacts = impact.states_set(self.f.aux.impacts, [i])
+        self.f.bank.states_set([i])

@@ -17,14 +17,16 @@ from __future__ import annotations
 import math
 
 from .component import Component
-from .bookkeeping import MAX_MOTION_VIEWS, LoneView, ModelView, MovedView, incremented, is_coasting
+from . import counts
+from .bookkeeping import LoneView, ModelView, MovedView
+from .events import KeepMotionView
 from . import views
 
 
 class LoneSource(Component):
     """The solution without a lone speed source."""
 
-    def track(self, stamp: float) -> None:
+    def track(self, stamp: float) -> tuple:
         """Solution separation for the fault of a lone speed source. A relative sensor whose scale
         fault no test of its own can see (a Doppler radar's, growing slowly: the speed it reads
         drifts like an acceleration) may carry the speed alone: the only relative sensor, or the
@@ -36,31 +38,48 @@ class LoneSource(Component):
         (accepted within ``slip_reference_timeout`` s), and ends when another source is in use
         (``LoneSource.accompanied``). A wheel in a slip or slide episode still counts: the episode is
         short (its ``fault_duration_max``) and ends with the wheel agreeing with the filter
-        again, which a drifting radar fails; a suspended sensor does not."""
+        again, which a drifting radar fails; a suspended sensor does not. Returns the effect on the
+        motion views (events.py)."""
         if "lone_source" not in self.f.cfg.policies:
-            return
+            return ()
         aux, timeout = self.f.aux, self.f.cfg.slip_reference_timeout
         in_use = [c for c in self.f.layout.relative if c not in aux.suspended
                   and max(aux.last_accepted.get(c, -math.inf), aux.slip_until.get(c, -math.inf)) >= stamp - timeout]
         lone = in_use[0] if len(in_use) == 1 and in_use[0] in self.f.limits.persistent else None
         if lone is None:
             if aux.lone_view is not None and in_use:
-                self.accompanied(stamp)
+                return self.accompanied(stamp)
         elif aux.lone_view is None or aux.lone_view.sensor != lone:
             aux.lone_view = LoneView(self.lone_model_view(stamp, lone), lone, 0.0)
+        return ()
 
-    def accompanied(self, stamp: float) -> None:
+    def ran(self, distance: float) -> None:
+        """The filter's position moved by ``distance`` [m] in a prediction: what the lone source's
+        scale fault can add to the position error over it."""
+        aux = self.f.aux
+        if aux.lone_view is not None:
+            lone = aux.lone_view
+            step = self.f.limits.z * self.f.models[lone.sensor].scale_fault_sigma * abs(distance)
+            aux.lone_view = lone._replace(bound=lone.bound + step)
+
+    def reset(self) -> None:
+        """The position was taken from a fix alone: the lone source's solution starts again from the
+        filter's (``LoneSource.track``)."""
+        self.f.aux.lone_view = None
+
+    def accompanied(self, stamp: float) -> tuple:
         """The lone source has company again: from ``stamp`` the sources in use check each other,
         so its fault adds nothing more, but what it may have put into the filter's position while
         it was alone stays there, unseen by the newcomer (a relative sensor tells the motion from
         now on, not the distance already run), until a fix locates the train. The lone solution
         (its interval at ``stamp``) therefore stays as a motion-model hypothesis that moves with
         the filter (a MovedView, as a coasting's that ended): conditioned on the fixes, ruled out by
-        one it does not fit, no longer needed once the filter explains a fix."""
+        one it does not fit, no longer needed once the filter explains a fix. Returns the effect
+        on the motion views (events.py)."""
         aux = self.f.aux
         if "lone_source_kept" not in self.f.cfg.policies:
             aux.lone_view = None
-            return
+            return ()
         s, var_s = float(self.f.ekf.x[0, 0]), float(self.f.ekf.P[0, 0])
         v, var_v = float(self.f.ekf.x[1, 0]), float(self.f.ekf.P[1, 1])
         lo, hi, _, _, _ = views.lone_interval(aux.lone_view, aux.t, stamp, s, var_s, v, var_v,
@@ -69,14 +88,10 @@ class LoneSource(Component):
         aux.lone_view = None
         half = self.f.limits.z * math.sqrt(var_s)
         if lo > hi or (lo >= s - half and hi <= s + half):
-            return     # ruled out, or within the filter's own interval
+            return ()     # ruled out, or within the filter's own interval
         moved = MovedView(0.5 * (lo + hi), (0.5 * (hi - lo) / self.f.limits.z) ** 2, s, var_s, 0.0, 0.0, math.inf)
-        held = aux.motion_views
-        if is_coasting(aux):   # the coasting's own hypothesis stays the last one
-            aux.motion_views = held[-(MAX_MOTION_VIEWS - 1):-1] + (moved, held[-1])
-        else:
-            aux.motion_views = held[-(MAX_MOTION_VIEWS - 1):] + (moved,)
-        aux.events = incremented(aux.events, "lone_source_accompanied")
+        counts.event(aux, "lone_source_accompanied")
+        return (KeepMotionView(moved),)
 
     def lone_model_view(self, stamp: float, lone: str) -> ModelView:
         """The motion model's hypothesis without lone source ``lone``, from the filter's state
@@ -105,7 +120,7 @@ class LoneSource(Component):
         s_m, var_m = views.motion_view(view, m.stamp, s_f, P00, self.f.cfg.jerk_psd)
         if (z - s_m) ** 2 > self.f.limits.gates[m.sensor] * (R + var_m):
             view = self.lone_model_view(m.stamp, held.sensor)
-            aux.events = incremented(aux.events, "lone_source_solution_refuted")
+            counts.event(aux, "lone_source_solution_refuted")
         else:
             view = views.motion_view_fixed(view, m.stamp, z, R, s_f, P00, self.f.process, self.f.cfg.jerk_psd)
         # the filter accepted the fix: its error before was at most the innovation and the fix's

@@ -17,10 +17,13 @@ from dataclasses import dataclass
 from typing import Callable, NamedTuple
 
 from ..measurements import Acceleration, PositionFix
-from . import impact, views
-from .events import (CommonErrorEnded, FaultEnded, LoneTakeFix, Relearn, RelearnFault, SeedSubs, Separate,
-                     SetPosition, SetSpeed, Suspend, Swap, TakeSpeed)
-from .bookkeeping import MovedView, NisSum, incremented, is_coasting, speed_excluded, without_key
+from . import views
+from .events import (AwaitFix, CommonErrorEnded, EpisodeEnded, EpisodesEnded, FaultEnded, FirstPosition, KeepMotionView,
+                     LoneReset, LoneTakeFix, MotionViewsTakeFix, OwnViewEnded, Relearn, RelearnFault, ScaleFaultsReset,
+                     SeedSubs, Separate, SetPosition, SetSpeed, SlipWindow, Suspend, SuspensionsEnded, Swap, TakeSpeed,
+                     Undecided, ViewDropped, ViewMerged, ViewSeparates)
+from . import counts
+from .bookkeeping import NisSum, speed_excluded
 
 
 class Kind(enum.Enum):
@@ -69,10 +72,8 @@ def prepare(f, r: Reading) -> Verdict:
         f.before = f.solutions.main()
     f.applied += 1
     f.fault_input = f.fault_input_of(m, r.is_fix)
-    if cls in f.limits.offset_bounds and (aux.impacts is None or m.stamp - aux.impacts.last_onset_of((cls,))
-                                          >= f.cfg.fault_onset_spacing):
-        aux.impacts = impact.started(aux.impacts, {cls: f.limits.offset_bounds[cls]}, m.stamp, f.n,
-                                     f.cfg.fault_onsets, f.limits.z, offset=True)
+    if cls in f.limits.offset_bounds:
+        f.bank.offset_onset(cls, m.stamp)
     if r.is_fix:   # since the sensor's previous fix, before this one counts (Solutions.located)
         f.since_fix = m.stamp - aux.last_accepted.get(cls, -math.inf)
     return GO_ON
@@ -90,19 +91,8 @@ def fix_reference(f, r: Reading) -> Verdict:
 
 
 def motion_views_move(f, r: Reading) -> Verdict:
-    """The motion model's hypotheses that move with the filter from this reading on."""
-    aux, stamp = f.aux, r.m.stamp
-    if is_coasting(aux) and not all(speed_excluded(aux, c, stamp) for c in aux.speed_sources):
-        # a speed source is in use again: the coasting ends, its motion-model hypothesis moves
-        # with the filter from now on until a fix rules it out
-        aux.motion_views = aux.motion_views[:-1] + (f.motion.coasting_ended(aux.motion_views[-1], stamp),)
-    if any(isinstance(v, MovedView) and v.until <= stamp for v in aux.motion_views):
-        # past the longest episode of a transient fault the sources in use may share: their
-        # common error no longer grows; the hypothesis moves with the filter from here
-        s_f, P00 = float(f.ekf.x[0, 0]), float(f.ekf.P[0, 0])
-        aux.motion_views = tuple(
-            MovedView(*views.motion_view(v, stamp, s_f, P00, f.cfg.jerk_psd), s_f, P00, 0.0, 0.0, math.inf)
-            if isinstance(v, MovedView) and v.until <= stamp else v for v in aux.motion_views)
+    """The motion model's hypotheses that move with the filter from this reading on (MotionViews.move)."""
+    f.motion.move(r.m.stamp)
     return GO_ON
 
 
@@ -112,14 +102,9 @@ def innovation(f, r: Reading) -> Verdict:
 
 
 def motion_views_fix(f, r: Reading) -> Verdict:
-    """A fix rules out the motion-model hypotheses it does not fit."""
-    aux = f.aux
-    if r.is_fix and aux.motion_views:
-        s_f, P00 = float(f.ekf.x[0, 0]), float(f.ekf.P[0, 0])
-        gate = f.limits.gates[r.cls]
-        aux.motion_views = tuple(view for view in aux.motion_views
-                                 if (r.z - (mv := views.motion_view(view, r.m.stamp, s_f, P00, f.cfg.jerk_psd))[0]) ** 2
-                                 / (r.R + mv[1]) <= gate)
+    """A fix rules out the motion-model hypotheses it does not fit (MotionViews.rule_out)."""
+    if r.is_fix and f.aux.motion_views:
+        f.motion.rule_out(r.m.stamp, r.z, r.R, f.limits.gates[r.cls])
     return GO_ON
 
 
@@ -127,13 +112,15 @@ def blind(f, r: Reading) -> Verdict:
     """An excluded speed source while nothing else gives the speed (MotionViews.blind_speed);
     then, a fix the filter explains on its speed sources again confirms it: an old coasting's
     motion-model hypothesis (however vague) is no longer needed."""
-    aux = f.aux
-    if not r.is_fix and speed_excluded(aux, r.cls, r.m.stamp) \
-            and not f.agreement_reference(r.m, r.S) and f.motion.blind_speed(r.m, r.z, r.R):
-        r.innovate(f)   # at the re-acquired speed
-    if r.is_fix and r.nis <= f.limits.gates[r.cls] and any(isinstance(v, MovedView) for v in aux.motion_views):
-        aux.motion_views = tuple(v for v in aux.motion_views if not isinstance(v, MovedView))
-    return GO_ON
+    events = ()
+    if not r.is_fix and speed_excluded(f.aux, r.cls, r.m.stamp) and not f.agreement_reference(r.m, r.S):
+        taken = f.motion.blind_speed(r.m, r.z, r.R)
+        if taken is not None:
+            events = taken
+            r.innovate(f)   # at the re-acquired speed
+    if r.is_fix and r.nis <= f.limits.gates[r.cls]:
+        f.motion.confirmed()
+    return Verdict(Kind.GO_ON, events)
 
 
 def suspension(f, r: Reading) -> Verdict:
@@ -178,7 +165,7 @@ def gate(f, r: Reading) -> Verdict:
     revisits a remembered reference is judged by it (Fixes.remembered)."""
     aux = f.aux
     if r.nis > f.limits.gates[r.cls]:
-        aux.gated = incremented(aux.gated, r.cls)
+        counts.gated(aux, r.cls)
         if r.is_fix and aux.initialised:
             return Verdict(Kind.DONE, f.fixes.unexplained(r.m, r.z, r.R))
         return DONE
@@ -195,10 +182,7 @@ def transient_onset(f, r: Reading) -> Verdict:
     if cls in f.limits.transient_bounds and aux.initialised:   # a relative reading: its fault input is set
         share = f.unseen_share(cls, stamp, f.fault_input.per_unit, r.S)
         f.fault_input = f.fault_input._replace(unseen=share)
-        alone = share >= 1.0
-        if aux.impacts is None or aux.impacts.episode_begins(cls, alone):
-            aux.impacts = impact.episode_started(aux.impacts, cls, f.limits.transient_bounds[cls], stamp, alone,
-                                                 f.n, f.cfg.fault_onsets, f.limits.z)
+        f.bank.transient_onset(cls, stamp, share >= 1.0)
     return GO_ON
 
 
@@ -212,11 +196,8 @@ def update(f, r: Reading) -> Verdict:
         f.fixes.correction_unconfirmed(x_before, r.nis)
     seen = aux.nis.get(cls, NisSum(0, 0.0))
     aux.nis = {**aux.nis, cls: NisSum(seen.count + 1, seen.total + r.nis)}
-    aux.accepted = incremented(aux.accepted, cls)
-    aux.last_accepted = {**aux.last_accepted, cls: m.stamp}
-    if cls in aux.episode_views or cls in aux.fault_windows:
-        aux.episode_views = without_key(aux.episode_views, cls)
-        aux.fault_windows = without_key(aux.fault_windows, cls)
+    counts.accepted(aux, cls, m.stamp)
+    f.episodes.own_view_ended(cls)
     return GO_ON
 
 
@@ -235,7 +216,7 @@ def accept(f, r: Reading) -> Verdict:
         if cls not in aux.speed_sources:
             aux.speed_sources = aux.speed_sources | {cls}
         if f.limits.persistent:
-            f.lone.track(m.stamp)
+            return Verdict(Kind.DONE, f.lone.track(m.stamp) + f.plausibility.check_plausible())
     return Verdict(Kind.DONE, f.plausibility.check_plausible())
 
 
@@ -249,7 +230,17 @@ def excluded(f, r: Reading) -> None:
 # event -> the policy that owns what it changes (each returns the events it asks in turn, if any)
 ROUTES = {
     Separate: lambda f, ev: f.episodes.separate(ev.m, ev.e, ev.S),
-    FaultEnded: lambda f, ev: f.episodes.end_fault(ev.cls),
+    EpisodeEnded: lambda f, ev: f.episodes.episode_ended(ev.cls, ev.stamp),
+    EpisodesEnded: lambda f, ev: f.episodes.episodes_ended(ev.stamp, ev.sensors),
+    SlipWindow: lambda f, ev: f.episodes.set_window(ev.cls, ev.window),
+    OwnViewEnded: lambda f, ev: f.episodes.own_view_ended(ev.cls, ev.fault_window),
+    FaultEnded: lambda f, ev: f.arbitration.end_fault(ev.cls),
+    ScaleFaultsReset: lambda f, ev: f.arbitration.scale_faults_reset(ev.keep),
+    SuspensionsEnded: lambda f, ev: f.arbitration.suspensions_ended(ev.sensors),
+    Undecided: lambda f, ev: f.arbitration.undecided(ev.cls, ev.view),
+    ViewMerged: lambda f, ev: f.arbitration.view_merged(ev.cls),
+    ViewDropped: lambda f, ev: f.arbitration.view_dropped(ev.cls),
+    ViewSeparates: lambda f, ev: f.arbitration.view_separates(ev.m, ev.e, ev.S),
     RelearnFault: lambda f, ev: f.arbitration.relearn_fault(ev.cls),
     Suspend: lambda f, ev: f.arbitration.suspend(ev.cls, ev.fault),
     TakeSpeed: lambda f, ev: f.motion.take_speed(ev.stamp, ev.readings, ev.sensors),
@@ -260,6 +251,11 @@ ROUTES = {
     Relearn: lambda f, ev: f.plausibility.relearn(ev.reason, ev.faulty),
     SeedSubs: lambda f, ev: f.solutions.seed_subs(ev.stamp),
     LoneTakeFix: lambda f, ev: f.lone.take_fix(ev.m, ev.z, ev.R),
+    LoneReset: lambda f, ev: f.lone.reset(),
+    FirstPosition: lambda f, ev: f.motion.first_position(ev.stamp),
+    KeepMotionView: lambda f, ev: f.motion.keep(ev.view),
+    MotionViewsTakeFix: lambda f, ev: f.motion.take_fix(ev.m, ev.z, ev.R),
+    AwaitFix: lambda f, ev: f.fixes.await_fix(ev.reason, ev.replace),
 }
 
 

@@ -14,9 +14,10 @@ import math
 import numpy as np
 
 from .component import Component
-from .bookkeeping import Fault, incremented, new_view, without_key
-from . import impact, views
-from .events import Suspend
+from . import counts
+from .bookkeeping import Fault, new_view
+from . import views
+from .events import AwaitFix, OwnViewEnded, ScaleFaultsReset, Suspend, Undecided
 
 
 class Plausibility(Component):
@@ -55,22 +56,18 @@ class Plausibility(Component):
             # the only relative sensor, without slip physics: suspended, nothing could show it
             # agreeing again (``views.judged``); its scale may hold a fault, opened to the fault's size
             # for the fixes to teach, the lone solution covering it meanwhile
-            self.relearn("implausible_error_state", faulty=owners)
-            return ()
-        self.relearn("implausible_error_state")
+            return self.relearn("implausible_error_state", faulty=owners)
+        events = self.relearn("implausible_error_state")
         if len(owners) == 1:
             (cls,) = owners
-            events = (Suspend(cls, self.state_fault(cls, x_before)),)
+            events += (Suspend(cls, self.state_fault(cls, x_before)),)
             aux = self.f.aux
-            aux.events = incremented(aux.events, "implausible_sensor_suspended")
+            counts.event(aux, "implausible_sensor_suspended")
             if aux.speed_sources - {cls} and cls not in aux.relative_alternatives:
                 # which state absorbs a disagreement follows the priors, not the fault: the other
                 # speed source may be the faulty one, so the suspended sensor's view is kept
-                aux.relative_alternatives = {**aux.relative_alternatives,
-                                             cls: new_view(aux.t, float(self.f.ekf.P[0, 0]))}
-                aux.episode_views = without_key(aux.episode_views, cls)
-            return events
-        return ()
+                events += (Undecided(cls, new_view(aux.t, float(self.f.ekf.P[0, 0]))), OwnViewEnded(cls, False))
+        return events
 
     def state_fault(self, cls: str, x) -> Fault:
         """The fault that relative sensor ``cls``'s error states in x had absorbed: its scale and
@@ -81,11 +78,12 @@ class Plausibility(Component):
         b = float(x[lay.bias[cls], 0]) if cls in lay.bias else 0.0
         return Fault(k * v + (b if v >= 0.0 else -b), v)
 
-    def relearn(self, reason: str, faulty=()) -> None:
+    def relearn(self, reason: str, faulty=()) -> tuple:
         """Error states of the relative sensors back to their priors (the scales of ``faulty``
         sensors, suspected of a scale fault, by the fault's size more: ``views.raised``); the
         position and speed covariance widened by what the discarded estimates can have caused
-        since the last accepted fix (scale x distance, scale x speed, bias x time)."""
+        since the last accepted fix (scale x distance, scale x speed, bias x time). The filter awaits
+        a confirming fix: the effect returned (events.py)."""
         aux, lay = self.f.aux, self.f.layout
         x, P = self.f.ekf.x.copy(), self.f.ekf.P.copy()
         scale = 0.0
@@ -98,12 +96,11 @@ class Plausibility(Component):
         P[1, 1] += (scale * x[1, 0]) ** 2 + bias ** 2
         idx = lay.relative_states
         x[idx, 0] = 0.0
-        aux.impacts = impact.states_set(aux.impacts, idx)
+        self.f.bank.states_set(idx)
         P[idx, :] = 0.0
         P[:, idx] = 0.0
         P[idx, idx] = lay.prior_sigma[idx] ** 2
         self.f.ekf.x = x
         self.f.ekf.P = views.raised(P, faulty, lay, self.f.models, float(x[1, 0])) if faulty else P
-        aux.scale_faults = aux.scale_faults & frozenset(faulty)
-        aux.events = incremented(aux.events, reason)
-        aux.unverified = reason
+        counts.event(aux, reason)
+        return ScaleFaultsReset(tuple(faulty)), AwaitFix(reason)

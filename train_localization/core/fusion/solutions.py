@@ -14,10 +14,11 @@ from __future__ import annotations
 import math
 
 from .component import Component
-from .bookkeeping import incremented, speed_excluded
+from . import counts
+from .bookkeeping import speed_excluded
 from .models import fixes_sharing
-from . import separation, views
-from .events import LoneTakeFix
+from . import separation
+from .events import LoneTakeFix, MotionViewsTakeFix
 
 
 class Solutions(Component):
@@ -75,15 +76,14 @@ class Solutions(Component):
         events = (LoneTakeFix(m, z, R),) if aux.lone_view is not None else ()
         x0, P00 = float(self.f.ekf.x[0, 0]), float(self.f.ekf.P[0, 0])
         if aux.motion_views:
-            aux.motion_views = tuple(views.motion_view_fixed(view, m.stamp, z, R, x0, P00, self.f.process, self.f.cfg.jerk_psd)
-                                     for view in aux.motion_views)
+            events = (MotionViewsTakeFix(m, z, R),) + events
         if aux.subs:
             subs = {}
             for name, sub in aux.subs.items():
                 new = separation.fix(sub, m.stamp, z, R, self.f.before, self.f.limits.gates[m.sensor])
                 if new is None:
                     new = separation.seed(self.f.limits.subs[name], m.stamp, x0, P00, aux.odometer)
-                    aux.events = incremented(aux.events, "sensor_solution_refuted")
+                    counts.event(aux, "sensor_solution_refuted")
                 subs[name] = new
             aux.subs = subs
         return events

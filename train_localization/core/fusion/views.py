@@ -11,6 +11,7 @@ import numpy as np
 from ..sensors import faults as fault_modes
 from .bookkeeping import LoneView, ModelView, MovedView, View, WindowEntry
 from .models import kinematic_covariance, kinematic_mean, kinematics
+from .separation import SPEED_GAP
 
 
 def model_view(stamp: float, x: np.ndarray, P: np.ndarray) -> ModelView:
@@ -138,6 +139,22 @@ def corroborated(m, z: float, R: float, alt, x: np.ndarray, P: np.ndarray, layou
     if m.sensor == alt.sensor and (m.reference_id == alt.reference or m.sensor in layout.fix):
         return False
     return agrees(z, R, float(x[0, 0]), float(P[0, 0]), alt.z, alt.R, alt.s, alt.P00, gate)
+
+
+def separated(view: View, m, e: float, S: float, v: float, P11: float) -> tuple[View, float]:
+    """An excluded sensor's view after its reading m, of disagreement e [m/s] and innovation
+    variance S [m^2/s^2], at the filter's speed v [m/s] of variance P11 [m^2/s^2]: how far it ran
+    ahead [m], the white part of its variance and the distance run added (its scale error is
+    common to all); and the reading's own noise [m^2/s^2], roughly."""
+    d = getattr(m, "duration", 0.0)
+    if not d:
+        # a speed holds since the previous one, not across a silence (a radar below its
+        # minimum speed at a stop): there the sensor told nothing, as in its own solution
+        d = m.stamp - view.last if m.stamp - view.last <= SPEED_GAP else 0.0
+    R = max(S - P11, 0.0)
+    D = view.separation + e * d
+    return view._replace(separation=D, white_var=view.white_var + R * d * d, last=m.stamp, run=view.run + abs(v) * d,
+                         farthest=D if abs(D) > abs(view.farthest) else view.farthest), R
 
 
 def merged(P: np.ndarray, spread: float) -> np.ndarray:

@@ -294,7 +294,7 @@ def test_a_lug_without_a_strict_majority_gives_no_fix(monkeypatch, flips, fix):
             if bit is not None:
                 mask[k, bit] = 1.0
         return mask
-    monkeypatch.setattr(lrl.LrlSimulator, "_flips", forced)
+    monkeypatch.setattr(lrl.LrlSimulator, "flips", forced)
     sc = scenario(60.0, 12.0, {"n_sensors": n}, start=990.0, groups=EVERY_CODE)
     _, fixes, rejected, pipe, traj = run(sc)
     passed = passed_groups(sc.track, traj)
@@ -312,13 +312,13 @@ def test_a_lug_without_a_strict_majority_gives_no_fix(monkeypatch, flips, fix):
 
 def test_one_valid_read_of_a_redundant_head_is_not_confirmed(monkeypatch):
     # 3 of 4 sensors give no usable read: the one left is confirmed by nothing
-    original = lrl.LrlDecoder._sensor
+    original = lrl.LrlDecoder.sensor_read
     calls = {"n": 0}
 
     def sensor(self, t, lev, edges):
         calls["n"] += 1
         return original(self, t, lev, edges) if calls["n"] % 4 == 1 else None
-    monkeypatch.setattr(lrl.LrlDecoder, "_sensor", sensor)
+    monkeypatch.setattr(lrl.LrlDecoder, "sensor_read", sensor)
     sc = scenario(60.0, 5.0, {"n_sensors": 4}, start=990.0, groups=EVERY_CODE)
     _, fixes, _, pipe, _ = run(sc)
     st = pipe.decoder.stats

@@ -239,8 +239,9 @@ class LrlSimulator(Simulator):
         self._passage: tuple[int, np.ndarray] | None = None    # (lug index, flip mask per sensor)
         self._near = lug_extent(self.mode, p["bit_pitch"]) + 0.2
 
-    def _flips(self) -> np.ndarray:
-        """Bit-flip mask (n_sensors, 4) of one lug passage."""
+    def flips(self) -> np.ndarray:
+        """Bit-flip mask (n_sensors, 4) of one lug passage: each sensor misreads one bit with
+        ``misread_probability`` (a study forcing a misread pattern replaces this method)."""
         mask = np.zeros((self.n_sensors, 4))
         for s in range(self.n_sensors):
             if self.rng.random() < self.params["misread_probability"]:
@@ -287,7 +288,7 @@ class LrlSimulator(Simulator):
                     self._passage = None
                     continue
                 if self._passage is None or self._passage[0] != kk or r0 != 0:
-                    self._passage = (kk, self._flips())
+                    self._passage = (kk, self.flips())
                 eff = np.abs(self._bits[kk][None, :] - self._passage[1])        # XOR
                 bits[r0:r1] = eff[None, :, :]
             cov = self.coverage(u, bits)
@@ -508,9 +509,10 @@ class LrlDecoder(Decoder):
             self._rows_cache = np.arange(max(m, 2 * len(self._rows_cache)))[:, None]
         return self._rows_cache[:m]
 
-    def _sensor(self, t: np.ndarray, lev: np.ndarray, edges) -> tuple[int, float, float, int, float] | None:
+    def sensor_read(self, t: np.ndarray, lev: np.ndarray, edges) -> tuple[int, float, float, int, float] | None:
         """(value, t_ref, v, n_crossings, fit residual [m]) of one sensor's lug passage, None
-        if unusable. ``edges``: _edges of the sensor's 5 channels.
+        if unusable (the vote over the head's sensors takes these; a study of a failing sensor
+        replaces this method). ``edges``: _edges of the sensor's 5 channels.
 
         Every threshold crossing of a sync or plate channel is a point (ref, t): the
         channel at offset o crosses the lug edge e when the sensor reference point is at
@@ -595,7 +597,7 @@ class LrlDecoder(Decoder):
         n_runs, k0, k1, f0, r0 = self._edges(lev)
         for s in range(self.n_sensors):
             c = slice(5 * s, 5 * s + 5)
-            r = self._sensor(t, lev[:, c], (n_runs[c], k0[c], k1[c], f0[c], r0[c]))
+            r = self.sensor_read(t, lev[:, c], (n_runs[c], k0[c], k1[c], f0[c], r0[c]))
             if r is None:
                 self.stats["sensor_invalid"] += 1
             else:

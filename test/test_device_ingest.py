@@ -253,6 +253,12 @@ def _diag_values(diags, prefix):
     return {kv.key: kv.value for kv in ours[-1].values} if ours else {}
 
 
+def _reading(diags, prefix) -> bool:
+    """Whether the last status of ``prefix`` published on /diagnostics says it is reading its device."""
+    ours = [s for d in diags for s in d.status if s.name.startswith(prefix)]
+    return bool(ours) and ours[-1].message.startswith("reading")
+
+
 def test_the_ingest_nodes_publish_navsatfix_odometry_and_twist_over_dds(ros_context, start_node, tmp_path, dbc):
     """nmea_ingest on a UDP port and can_ingest replaying a candump log publish the standard
     messages standard_inputs reads; corrupted sentences and frames are counted, not published."""
@@ -286,7 +292,9 @@ def test_the_ingest_nodes_publish_navsatfix_odometry_and_twist_over_dds(ros_cont
     node.create_subscription(TwistWithCovarianceStamped, "/t54/radar/twist", twists.append, 100)
     node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 100)
     try:
-        assert spin_until(node, lambda: node.count_publishers("/t54/gnss/fix") and len(twists) >= 40
+        # the UDP port is bound on activate, after the publisher exists: send once the node says
+        # it is reading (a datagram sent before is lost, as on any UDP port nobody listens to)
+        assert spin_until(node, lambda: _reading(diags, "nmea_ingest") and len(twists) >= 40
                           and len(odoms) >= 39, 30.0), \
             canin.output()[-800:]
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:

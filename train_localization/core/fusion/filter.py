@@ -226,9 +226,10 @@ class TrainFilter:
             return None   # an acceleration carries none of the bank's faults; it tests them
         checkers = frozenset(self.in_use(m.stamp, but=cls))
         # a sensor whose common cause acts through adhesion (a wheel's slips) carries it only while the
-        # train is driven or braked, and within its longest episode after
+        # train is driven or braked, and within its longest episode after (asked only where a group
+        # is monitored: the flag touches group rows alone)
         model = self.models[cls]
-        in_groups = not faults.ADHESION & set(model.faults) or (
+        in_groups = not self.limits.group_members or not faults.ADHESION & set(model.faults) or (
             abs(float(self.ekf.x[2, 0])) >= self.cfg.slip_min_drive
             or m.stamp - self.aux.last_drive <= model.fault_duration_max)
         return impact.FaultInput(cls, m.distance / m.duration if hasattr(m, "distance") else m.speed,   # in its units

@@ -1,17 +1,21 @@
 """Regression: every bag in bags/ replays offline within its stored bounds, and the
-offline replay agrees with the live graph that recorded it."""
+offline replay agrees with the live graph that recorded it; the recording of a train's
+drivers' standard messages (osm_drivers) replays through the standard inputs."""
 from __future__ import annotations
 
 import json
+from collections import Counter
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 
 from conftest import ROOT
 from train_localization.core import convert
-from train_localization.core.bagio import read_bag
+from train_localization.core.bagio import read_bag, topic_counts
 from train_localization.core.fusion import Mode
-from train_localization.core.offline import replay_bag, replay_line, scenario_from_bag
+from train_localization.core.ingest.nmea import NmeaFix, decode_log
+from train_localization.core.offline import SCENARIO_TOPIC, TRUTH_TOPIC, replay_bag, replay_line, scenario_from_bag
 from train_localization.core.report import (evaluate, line_report, recorded_changeover, recorded_etcs, recorded_network,
                                           recorded_stator)
 from train_localization.core.scoring import StateSeries
@@ -32,20 +36,27 @@ def test_every_bag_has_bounds_and_is_small():
         assert f"`{name}.mcap`" in (BAGS / "README.md").read_text(), f"{name} is not described in bags/README.md"
 
 
+def _live(bag) -> bool:
+    """Whether a bag holds a live graph's fused states (a recording of drivers' messages has none)."""
+    return any(topic.endswith("/localization/state") for topic in topic_counts(bag))
+
+
 @pytest.fixture(scope="module", params=sorted(TABLE))
-def replayed(request):
-    """(bag name, {train: offline replay}, {train: its report}, line report or None); a
-    one-train bag has the one train ``train``."""
+def replayed(request, tmp_path_factory):
+    """(bag name, {train: offline replay}, {train: its report}, line report or None, the file
+    holding the fused states: the bag, or for a bag without live states the offline replay's
+    output); a one-train bag has the one train ``train``."""
     name = request.param
     bag = BAGS / f"{name}.mcap"
     scenario = scenario_from_bag(bag)
     if scenario.line:
         result = replay_line(bag, scenario)
         report = line_report(result)
-        return name, result.trains, report["trains"], report
-    run = replay_bag(bag, scenario)
+        return name, result.trains, report["trains"], report, bag
+    fused = bag if _live(bag) else tmp_path_factory.mktemp(name) / "replayed.mcap"
+    run = replay_bag(bag, scenario, None if fused == bag else fused)
     report = evaluate(run.truth, run.estimates, run.measurements, scenario.track.circumference)[0]
-    return name, {"train": run}, {"train": report}, None
+    return name, {"train": run}, {"train": report}, None, fused
 
 
 def _failures(label: str, bounds: dict, report: dict) -> list[str]:
@@ -60,7 +71,7 @@ def _failures(label: str, bounds: dict, report: dict) -> list[str]:
 
 
 def test_offline_replay_scores_stay_within_stored_bounds(replayed):
-    name, _, reports, line = replayed
+    name, _, reports, line, _ = replayed
     if line is None:
         failures = _failures(f"{name}.mcap", TABLE[name]["bounds"], reports["train"])
     else:   # every train within its bounds, no wayside fix given to the wrong train
@@ -80,7 +91,9 @@ def _live_states(bag, train: str) -> list:
 
 
 def test_offline_replay_matches_the_live_graph_within_the_filter_tolerance(replayed):
-    name, runs, _, _ = replayed
+    name, runs, _, _, fused = replayed
+    if fused != BAGS / f"{name}.mcap":
+        pytest.skip(f"{name}: a recording of the drivers' messages, no live fused state")
     ring = scenario_from_bag(BAGS / f"{name}.mcap").track.circumference
     for train, run in runs.items():
         _matches_live(f"{name} {train}", run.estimates, _live_states(BAGS / f"{name}.mcap", train), ring)
@@ -115,7 +128,7 @@ def test_a_changeover_bag_switches_live_and_replayed_without_a_short_circuit(rep
     """A line bag with a changeover section: the replayed controller (offline, from the recorded
     wayside raw blocks) makes the live controller's commands, and neither shorts the phases or
     switches under a pantograph in an air section."""
-    name, _, _, line = replayed
+    name, _, _, line, _ = replayed
     if line is None or "changeover" not in line:
         pytest.skip(f"{name}: no changeover section")
     bounds = TABLE[name]["changeover"]
@@ -134,7 +147,7 @@ def test_a_long_stator_bag_feeds_live_and_replayed_without_a_switching_under_the
     stator_section_controller's recorded feed and the controller replayed on the offline
     fused states switch no section under the vehicle, lose no thrust, never feed two sections
     from one inverter, and switch the same sections at about the same times."""
-    name, runs, _, line = replayed
+    name, runs, _, line, _ = replayed
     bag = BAGS / f"{name}.mcap"
     scenario = scenario_from_bag(bag)
     if line is not None or not scenario.track.items(stator.KIND):
@@ -164,7 +177,7 @@ def test_an_etcs_bag_stops_short_of_its_authority_live_and_locates_the_same_repl
     inside too and takes the same LRBGs."""
     from train_localization.core.etcs import scoring as etcs_scoring
     from train_localization.core.etcs.track_data import EtcsData
-    name, runs, _, line = replayed
+    name, runs, _, line, _ = replayed
     bag = BAGS / f"{name}.mcap"
     scenario = scenario_from_bag(bag)
     if line is not None or not scenario.atp:
@@ -189,12 +202,12 @@ def test_a_network_bag_names_each_trains_track_live_and_replayed(replayed):
     never claim a wrong track NOMINAL, keep the truth inside the interval and inside the true
     track's hypothesis, and resolve every switch way within its clearance; the replayed
     fusions reach the same tracks (the same switch ways, the same contradicted report)."""
-    name, runs, reports, line = replayed
+    name, runs, reports, line, _ = replayed
     bag = BAGS / f"{name}.mcap"
     scenario = scenario_from_bag(bag)
     networked = [n for n, tr in scenario.trains.items() if tr.network is not None]
-    if not networked:
-        pytest.skip(f"{name}: no train on a network")
+    if not networked or line is None:
+        pytest.skip(f"{name}: no line of trains on a network")
     for train in networked:
         live = recorded_network(bag, scenario.trains[train], f"/{train}")
         assert live["claimed"] > 1500 and live["nominal_wrong_track"] == 0, (train, live)
@@ -209,6 +222,45 @@ def test_a_network_bag_names_each_trains_track_live_and_replayed(replayed):
     reported_wrong = {tr: {k: v for k, v in scenario.trains[tr].interlocking.items()
                            if v and scenario.trains[tr].route.ways().get(k, v) != v} for tr in networked}
     assert {tr: sorted(c) for tr, c in contradicted.items()} == {tr: sorted(w) for tr, w in reported_wrong.items()}
+
+
+def test_a_recording_of_drivers_standard_messages_replays_through_the_standard_inputs(replayed):
+    """bags/osm_drivers.mcap (scripts/record_drivers_bag.py): a train's drivers' standard messages
+    only (NavSatFix from the NMEA log test/fixtures/osm_drivers.nmea, Imu, Odometry) and its truth,
+    through the passing loop of the track imported from OSM. The NMEA path refuses the log's
+    corrupt sentences by reason and the bag's fixes are the log's; the replay reads the messages
+    as the standard_inputs node does, refuses the bad ones by reason, and its fused states hold
+    the truth in every state, name the truth's track through the loop's switches and err by less
+    than half a metre."""
+    name, runs, reports, _, fused = replayed
+    bag = BAGS / f"{name}.mcap"
+    scenario = scenario_from_bag(bag)
+    if not scenario.standard_inputs:
+        pytest.skip(f"{name}: no standard inputs")
+    with open(bag, "rb") as fh:
+        summary = make_reader(fh).get_summary()
+    types = {ch.topic: summary.schemas[ch.schema_id].name for ch in summary.channels.values()}
+    assert types == {"/gnss/fix": "sensor_msgs/msg/NavSatFix", "/imu/data": "sensor_msgs/msg/Imu",
+                     "/wheel/odometry": "nav_msgs/msg/Odometry", SCENARIO_TOPIC: "std_msgs/msg/String",
+                     TRUTH_TOPIC: "train_localization_msgs/msg/TrainState"}
+    records, refused = decode_log((ROOT / "test" / "fixtures" / "osm_drivers.nmea").read_bytes().splitlines())
+    assert refused == {"checksum": 3, "truncated": 2}   # a GGA, a GST and an RMC with a bad checksum, a GGA and a GST cut
+    fixes = [r for r in records if isinstance(r, NmeaFix)]
+    recorded = [msg for _, _, _, msg in read_bag(bag, ["/gnss/fix"])]
+    assert len(fixes) == len(recorded) == 298   # 300 epochs, two GGAs refused
+    assert [(f.latitude, f.longitude, f.status) for f in fixes] == \
+        [(m.latitude, m.longitude, m.status.status) for m in recorded]
+    assert [m.position_covariance_type for m in recorded].count(0) == 2   # the epochs whose GST was refused
+    run = runs["train"]
+    assert run.rejected == {"nan": 1, "out_of_order": 1}   # the Imu with a NaN rate, the Odometry stamped back
+    assert Counter(m.sensor for m in run.measurements) == {"dgps": 298, "gyro": 599, "wheel": 1199}
+    report = reports["train"]
+    assert report["integrity"]["inside_fraction"] == 1.0 and report["integrity"]["outside_count"] == 0, report
+    assert report["position_error_m"]["n"] > 11000, report["position_error_m"]
+    assert report["position_error_m"]["rms"] < 0.25 and report["position_error_m"]["max"] < 0.5, report
+    net = recorded_network(fused, scenario.trains["train"], "/train")
+    assert net["nominal_wrong_track"] == 0 and net["on_true_track"] == 1.0 and net["inside"] == 1.0, net
+    assert [(w["switch"], w["way"], w["resolved"]) for w in net["ways"]] == [("W1", "B2", True)], net
 
 
 def _outside_scorer():
@@ -230,13 +282,14 @@ def test_the_outside_scorer_uses_no_project_code():
                         "mcap_ros2"}, imported
 
 
-@pytest.mark.parametrize("name", sorted(TABLE))
-def test_every_bag_scores_inside_per_train_from_the_mcap_file_alone(name):
+def test_every_bag_scores_inside_per_train_from_the_mcap_file_alone(replayed):
     """An outside scorer (scripts/score_bag.py: mcap's ROS 2 decoder, no project code) finds the
     truth inside the published interval in >= 99.9 % of every train's states, none outside while
     NOMINAL and none NOMINAL on a wrong track: the truth is in the fused state's frame (on a
-    network its section and chainage), a closed track's positions are wrapped in both streams."""
-    scores = _outside_scorer().score_bag(str(BAGS / f"{name}.mcap"))
+    network its section and chainage), a closed track's positions are wrapped in both streams. A
+    recording of drivers' messages is scored in its offline replay's output."""
+    name, _, _, _, fused = replayed
+    scores = _outside_scorer().score_bag(str(fused))
     assert scores, f"{name}: no train with a truth and a fused state"
     claimed = {ns: s for ns, s in scores.items() if s["states"]}
     assert claimed, name

@@ -90,10 +90,10 @@ def onboard_graph(scenario: str, sensors: list[str], out_bag: str, record: bool 
     from .core.sensors import spec
     from_standard = []
     if standard_inputs is not None:
-        from .core.ingest.inputs import PARAMS, StandardInputs
+        from .core.ingest.inputs import PARAMS, StandardInputs, input_values
         from .core.scenario import Scenario
         sc = Scenario.from_yaml(scenario)
-        values = {name: standard_inputs.get(name, p.default) for name, p in PARAMS.items()}
+        values = input_values({k: v for k, v in standard_inputs.items() if k in PARAMS})   # not the node's own
         from_standard = StandardInputs.build(values, sc.track, sc.sensors, sc.vehicle).sensor_classes()
     ingest = [n for n in sensors if spec(n).sensor not in from_standard]
     classes = list(dict.fromkeys([spec(n).sensor for n in ingest] + from_standard))

@@ -23,6 +23,12 @@ ATP: ``atp`` gives the supervision of the train to an end of authority (the para
 core/etcs/supervision.py, ``end_of_authority`` among them); with ``control`` the supervision's
 brake acts on the motion (core/etcs/supervised_run.py, the atp_supervision node).
 
+Drivers' standard messages: ``standard_inputs`` (the standard_inputs node's input parameters,
+core/ingest/inputs.py PARAMS: ``navsat.topic``, ``imu.topic``, ``odometry.topic``, ...) names the
+topics on which the train's sensors come as sensor_msgs/NavSatFix, Imu, nav_msgs/Odometry, read
+with the models of its ``sensors``; the replay of a recording of them reads those topics
+(core/offline/replay.py).
+
 Closed loop: instead of ``profile`` a scenario may give ``control`` (a speed controller and
 its set-points, core/control.py) and ``dynamics`` (the vehicle's drive and resistance,
 core/dynamics.py); its motion then comes from ``core.offline.closed_loop`` (offline) or from
@@ -48,6 +54,7 @@ from . import paths
 from .control import control_config
 from .dynamics import DYNAMICS_PARAMS
 from .etcs.supervision import supervision_params
+from .ingest.inputs import StandardInputs, input_values
 from .network.model import Network, NetworkError, is_network
 from .network.path import route_path, route_track
 from .network.wayside import WAYSIDE_KINDS, check_device
@@ -90,6 +97,7 @@ class Scenario:
     control: dict = field(default_factory=dict)    # closed-loop speed control (core/control.py); {} = profile
     dynamics: dict = field(default_factory=dict)   # drive and resistance parameters (core/dynamics.py)
     atp: dict = field(default_factory=dict)        # ATP supervision to an end of authority (core/etcs/supervision.py)
+    standard_inputs: dict = field(default_factory=dict)  # the drivers' standard topics (core/ingest/inputs.py)
     # name -> one train's scenario: {train_name: self} but for a line (set by from_dict)
     trains: dict[str, "Scenario"] = field(default_factory=dict, init=False, repr=False, compare=False)
     wayside: dict[str, dict] = field(default_factory=dict)  # wayside sensor node name -> parameters
@@ -223,6 +231,12 @@ class Scenario:
                     supervision_params(train.atp)
                 except ValueError as exc:
                     raise ScenarioError(f"scenario {scenario.name}: atp: {exc}") from None
+            if train.standard_inputs:
+                try:
+                    StandardInputs.build(input_values(train.standard_inputs), train.track, train.sensors,
+                                         train.vehicle)
+                except ValueError as exc:
+                    raise ScenarioError(f"scenario {scenario.name}: standard_inputs: {exc}") from None
         return scenario
 
     def orientation(self) -> int:
@@ -279,7 +293,8 @@ def _train_fields(data: dict) -> dict:
                 start_speed=float(init.get("speed", 0.0)),
                 sensors={name: dict(params or {}) for name, params in (data.get("sensors", {}) or {}).items()},
                 fusion=dict(data.get("fusion", {}) or {}),
-                control=control, dynamics=dict(data.get("dynamics", {}) or {}), atp=dict(data.get("atp", {}) or {}))
+                control=control, dynamics=dict(data.get("dynamics", {}) or {}), atp=dict(data.get("atp", {}) or {}),
+                standard_inputs=dict(data.get("standard_inputs", {}) or {}))
 
 
 def _network(track_data: dict):

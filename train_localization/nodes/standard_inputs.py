@@ -32,7 +32,6 @@ from rclpy.lifecycle import TransitionCallbackReturn
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from ..core import convert, paths
-from ..core.ingest import records
 from ..core.ingest.inputs import PARAMS as INPUT_PARAMS, StandardInputs
 from ..core.scenario import Scenario, Vehicle
 from ..core.sensors.accelerometer import TrackPosition
@@ -41,6 +40,7 @@ from ..core.signals import InputRejected
 from ..core.track import Track
 from .common import (STREAM_QOS, ConfigurationError, ManagedNode, declare_param, future_tolerance_param, now_sec,
                      rclpy_classes, refuse_future, spin)
+from .recorder import message_class
 
 NODE_PARAMS = {
     "scenario": Param("", "scenario YAML: the track and the sensors' parameters (the fusion's)"),
@@ -91,34 +91,22 @@ class StandardInputsNode(ManagedNode):
         self.diag.name = f"{self.get_name()}: standard inputs -> {', '.join(self.inputs.sensor_classes())}"
 
     def on_activate(self, state) -> TransitionCallbackReturn:
-        from nav_msgs.msg import Odometry
-        from geometry_msgs.msg import TwistWithCovarianceStamped
-        from sensor_msgs.msg import Imu, NavSatFix
-        for topic, ing in self.inputs.navsat.items():
-            self._subscribe(NavSatFix, topic, records.gnss_fix_from_msg, lambda r, i=ing: [f for f in [i.fix(r)] if f])
-        for topic, ing in self.inputs.imu.items():
-            self._subscribe(Imu, topic, records.imu_sample_from_msg, ing.add)
-        for topic, (kind, ing) in self.inputs.speed.items():
-            msg_type, parse = ((Odometry, records.twist_from_odometry) if kind == "odometry" else
-                               (TwistWithCovarianceStamped, records.twist_from_twist_stamped))
-            self._subscribe(msg_type, topic, parse, ing.add)
+        for topic, reader in self.inputs.readers().items():
+            self._subs.append(self.create_subscription(
+                message_class(reader.typename), topic, lambda msg, t=topic, r=reader: self.on_message(t, r, msg),
+                DRIVER_QOS))
         if self.position_topic:
             self._subs.append(self.create_subscription(self.mc.TrainState, self.position_topic, self.on_position,
                                                        STREAM_QOS))
         self.diag.set_status(0, "running")
         return super().on_activate(state)
 
-    def _subscribe(self, msg_type, topic: str, parse, ingest) -> None:
-        self._subs.append(self.create_subscription(
-            msg_type, topic, lambda msg: self.on_message(topic, parse, ingest, msg), DRIVER_QOS))
+    def _admit(self, record) -> None:
+        refuse_future(record.stamp, now_sec(self), self.future_tolerance, "a message")
 
-    def on_message(self, topic: str, parse, ingest, msg) -> None:
+    def on_message(self, topic: str, reader, msg) -> None:
         try:
-            record = parse(msg)
-            refuse_future(record.stamp, now_sec(self), self.future_tolerance, "a message")
-            out = ingest(record)
-            for m in out:
-                m.validate()
+            out = reader.read(msg, self._admit)
         except InputRejected as exc:
             self.diag.reject(topic, exc.reason, str(exc))
             return

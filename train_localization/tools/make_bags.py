@@ -8,6 +8,9 @@ bags/<name>.mcap (without /tf and odometry, which the fused state determines).
 Then every bag is replayed offline and its scores, with margins, go to
 bags/thresholds.json, which test/test_bags.py enforces. Re-run after a deliberate
 change of a sensor model or the fusion, and say why in the commit.
+
+A bag of RECORDINGS is no live graph's: scripts/record_drivers_bag.py writes it (a train's
+drivers' standard messages and the truth); ``--only NAME --thresholds-only`` stores its bounds.
 """
 from __future__ import annotations
 
@@ -85,6 +88,9 @@ LINE_BAGS = {
         "south": ({"position": 650.0, "speed": 0.0}, [{"speed": 22.0, "accel": 1.2, "jerk": 1.0, "hold": 60.0}])}),
 }
 
+# bags written by a script of their own (name -> the script), not from the live graph
+RECORDINGS = {"osm_drivers": "scripts/record_drivers_bag.py"}
+
 
 def thresholds(report: dict) -> dict:
     """Bounds a later replay must respect: {metric: {"max": v} or {"min": v}}.
@@ -128,11 +134,14 @@ def main(argv=None) -> int:
     ap.add_argument("--thresholds-only", action="store_true", help="do not record, only recompute thresholds")
     args = ap.parse_args(argv)
     BAG_DIR.mkdir(exist_ok=True)
+    recorded = [name for name in args.only if name in RECORDINGS]
+    if recorded and not args.thresholds_only:
+        raise SystemExit(f"{', '.join(recorded)}: {RECORDINGS[recorded[0]]} records it; then --thresholds-only")
     for name in args.only:
-        scenario_file, duration, rate, running = LINE_BAGS[name] if name in LINE_BAGS else (*BAGS[name], {})
-        bag = BAG_DIR / f"{name}.mcap"
         if args.thresholds_only:
             continue
+        scenario_file, duration, rate, running = LINE_BAGS[name] if name in LINE_BAGS else (*BAGS[name], {})
+        bag = BAG_DIR / f"{name}.mcap"
         with tempfile.TemporaryDirectory() as tmp:
             data = yaml.safe_load((SOURCE_ROOT / scenario_file).read_text())
             data["duration"] = duration

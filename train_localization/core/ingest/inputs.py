@@ -10,9 +10,11 @@ drivers").
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 from ..sensors import spec
 from ..sensors.base import Param, check_declared, sensor_params
+from . import records
 from .imu import ImuIngest, ImuMount
 from .navsat import NavSatIngest
 from .speed import SpeedIngest
@@ -49,6 +51,41 @@ PARAMS = {
                           "increment [s]", (0.01, 60.0)),
 }
 check_declared(PARAMS, "ingest PARAMS")
+# the ROS type of each input's messages (pkg/msg/Type)
+NAVSAT_TYPE, IMU_TYPE = "sensor_msgs/msg/NavSatFix", "sensor_msgs/msg/Imu"
+SPEED_TYPES = {"odometry": ("nav_msgs/msg/Odometry", records.twist_from_odometry),
+               "twist": ("geometry_msgs/msg/TwistWithCovarianceStamped", records.twist_from_twist_stamped)}
+
+
+def input_values(given: dict) -> dict:
+    """Every PARAMS value: ``given`` (PARAMS name -> value) over the defaults. ValueError in one
+    line for a name that is none of PARAMS."""
+    unknown = sorted(set(given) - set(PARAMS))
+    if unknown:
+        raise ValueError(f"standard inputs: unknown parameters {unknown}; known: {sorted(PARAMS)}")
+    return {name: given.get(name, p.default) for name, p in PARAMS.items()}
+
+
+@dataclass(frozen=True)
+class InputReader:
+    """How one input topic is read: its messages' ROS type, the record of a message (admission,
+    core/ingest/records.py) and the measurements of a record (its ingest)."""
+
+    typename: str
+    parse: Callable
+    ingest: Callable
+
+    def read(self, msg, admit: Callable = lambda record: None) -> list:
+        """The measurements of one message, each validated (core/measurements.py); InputRejected
+        with the reason for a message refused by its record's admission, by ``admit(record)`` (a
+        node's clock: future stamps) or by the ingest. ``[]``: withheld (counted in the ingest's
+        stats) or a block not yet complete."""
+        record = self.parse(msg)
+        admit(record)
+        out = self.ingest(record)
+        for m in out:
+            m.validate()
+        return out
 
 
 @dataclass
@@ -99,6 +136,16 @@ class StandardInputs:
             raise ValueError("no input configured: set at least one of navsat.topic, imu.topic, odometry.topic, "
                              "twist.topic")
         return cls(navsat, imu, speed)
+
+    def readers(self) -> dict[str, InputReader]:
+        """topic -> its InputReader, for every input configured."""
+        out = {topic: InputReader(NAVSAT_TYPE, records.gnss_fix_from_msg,
+                                  lambda r, i=ing: [f for f in [i.fix(r)] if f is not None])
+               for topic, ing in self.navsat.items()}
+        out.update({topic: InputReader(IMU_TYPE, records.imu_sample_from_msg, ing.add)
+                    for topic, ing in self.imu.items()})
+        out.update({topic: InputReader(*SPEED_TYPES[kind], ing.add) for topic, (kind, ing) in self.speed.items()})
+        return out
 
     def sensor_classes(self) -> list[str]:
         """The sensor classes whose measurements these inputs publish (the fusion's ``sensors``)."""

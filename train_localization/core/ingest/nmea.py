@@ -252,6 +252,18 @@ class NmeaDecoder:
         return out
 
 
+def decode_log(lines) -> tuple[list, dict[str, int]]:
+    """The records of a logged stream's lines, read whole as nmea_ingest reads a file (the fix
+    held at the end flushed), and the sentences refused, by reason."""
+    decoder, records, refused = NmeaDecoder(), [], {}
+    for line in lines:
+        try:
+            records += decoder.feed(line)
+        except InputRejected as exc:
+            refused[exc.reason] = refused.get(exc.reason, 0) + 1
+    return records + decoder.flush(), refused
+
+
 class LineBuffer:
     """The bytes of a stream (a serial port) -> its complete lines. Bytes that run past ``limit``
     without a line end (noise on the line, a wrong baud rate) come out as one line, which the

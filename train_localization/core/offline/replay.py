@@ -1,6 +1,8 @@
 """Offline replay (docs/replay.md): a bag's raw topics through the decoders (ingest mode) and
 the fusion, in log-time order, as fast as the CPU allows, optionally into a new bag with the
-recomputed outputs: one train's bag (``replay_bag``) or a line's (``replay_line``)."""
+recomputed outputs: one train's bag (``replay_bag``) or a line's (``replay_line``). A train
+whose scenario names ``standard_inputs`` has its drivers' standard messages (NavSatFix, Imu,
+Odometry, ...) read from those topics by the standard_inputs node's core (core/ingest/inputs.py)."""
 from __future__ import annotations
 
 import contextlib
@@ -10,6 +12,7 @@ from typing import Callable
 
 from .. import convert
 from ..bagio import BagReader, BagWriter, topic_counts, typestore_classes
+from ..ingest.inputs import InputReader, StandardInputs, input_values
 from ..pipeline import SensorPipeline
 from ..scenario import Scenario
 from ..sensors import spec as sensor_spec
@@ -25,21 +28,34 @@ class MessageDecoder:
     """One replayed message -> what the fusion loop needs.
 
     Returns a TruthState (ground truth topic), the measurements of a raw block (a
-    raw topic, through that sensor's SensorPipeline), or the InputRejected that
-    refused the message (malformed CDR, invalid block, decoder rejection).
+    raw topic, through that sensor's SensorPipeline) or of a standard message (a topic of
+    ``readers``, core/ingest/inputs.py), or the InputRejected that refused the message
+    (malformed CDR, invalid block or message, decoder rejection).
     """
 
-    def __init__(self, pipes: dict[str, SensorPipeline], deserialize, truth_topics=(TRUTH_TOPIC,)):
+    def __init__(self, pipes: dict[str, SensorPipeline], deserialize, truth_topics=(TRUTH_TOPIC,),
+                 readers: dict[str, InputReader] | None = None):
         self.pipes, self.deserialize, self.truth_topics = pipes, deserialize, frozenset(truth_topics)
+        self.readers = readers or {}
 
     def __call__(self, topic: str, typename: str, data: bytes):
         try:
             msg = self.deserialize(data, typename)
             if topic in self.truth_topics:
                 return convert.truth_from_msg(msg)
+            if topic in self.readers:
+                return self.readers[topic].read(msg)
             return self.pipes[topic].on_block(convert.raw_block_from_msg(msg))
         except InputRejected as exc:
             return exc
+
+
+def standard_inputs(scenario: Scenario) -> StandardInputs | None:
+    """The ingests of the drivers' standard topics a train's scenario names, or None."""
+    if not scenario.standard_inputs:
+        return None
+    return StandardInputs.build(input_values(scenario.standard_inputs), scenario.track, scenario.sensors,
+                                scenario.vehicle)
 
 
 def _at_log_times(items, states: Callable[[float], None]):
@@ -96,7 +112,9 @@ def replay_bag(bag: str | Path, scenario: Scenario | None = None, out_bag: str |
     to the result and the new bag. Raw topics of sensors the scenario does not list
     are ignored; a message that does not deserialise, a bad block or a decoder
     rejection is counted in ``rejected`` by reason (``blocks`` counts the raw
-    messages read).
+    messages read). The scenario's ``standard_inputs`` topics are read as the
+    standard_inputs node reads them, instead of the raw topics of the sensor classes
+    they stand for.
 
     ``parallel`` reads and decodes the sensors in forked worker processes while this
     one fuses (``decode_in_parallel``); the result is identical to the serial replay.
@@ -109,19 +127,23 @@ def replay_bag(bag: str | Path, scenario: Scenario | None = None, out_bag: str |
     writer = items = bar = None
     try:
         with BagReader(bag) as reader:
+            standard = standard_inputs(scenario)
+            readers = standard.readers() if standard else {}
+            from_standard = standard.sensor_classes() if standard else []
             pipes = {}
             for node, params in scenario.sensors.items():
                 spec = sensor_spec(node)
-                pipes[raw_topic(spec.sensor)] = SensorPipeline(
-                    spec, params, scenario.track, scenario.vehicle, simulate=False)
+                if spec.sensor not in from_standard:
+                    pipes[raw_topic(spec.sensor)] = SensorPipeline(
+                        spec, params, scenario.track, scenario.vehicle, simulate=False)
             runner = fusion_runner(scenario, fusion_rate)
             result = RunResult(runner=runner)
-            topics = list(pipes) + [TRUTH_TOPIC]
+            topics = list(pipes) + list(readers) + [TRUTH_TOPIC]
             if progress:
                 from tqdm import tqdm
                 bar = tqdm(total=sum(n for t, n in topic_counts(bag).items() if t in topics), unit="msg",
                            desc=Path(bag).name)
-            decoder = MessageDecoder(pipes, reader.deserialize)
+            decoder = MessageDecoder(pipes, reader.deserialize, readers=readers)
             parallel = parallel and can_fork()
             if parallel:
                 items = decode_in_parallel(reader.source, decoder, topics, bar)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from train_localization.core.fusion import FusionConfig, TrainFilter, impact, sensor_models
-from train_localization.core.measurements import PositionFix, SpeedMeasurement
+from train_localization.core.measurements import Acceleration, PositionFix, SpeedMeasurement
 from train_localization.core.scenario import Vehicle
 
 
@@ -305,3 +305,60 @@ def test_a_low_adhesion_stretch_with_a_radar_reading_off_is_covered_as_one_fault
     data["fusion"] = {**data["fusion"], "common_cause_prior": 0.01}
     run = campaign.run_scenario(data)
     assert run["scores"]["integrity"]["outside_count"] == 0
+
+
+def _lone_radar_with_accelerometer(fault_at: float | None, accelerometer: bool, until: float = 79.0,
+                                   fault: float = 0.03) -> tuple[TrainFilter, list]:
+    """A train at a steady 25 m/s, a lone Doppler radar at 20 Hz, balise fixes every 2 km, and
+    with ``accelerometer`` a longitudinal accelerometer at 20 Hz reading 0 (1-sigma 0.02 m/s^2);
+    from ``fault_at`` [s] the radar reads ``fault`` high (a scale fault's step). Returns the
+    filter and the (t, estimate, true position) of every 0.2 s."""
+    names = ["doppler_radar", "eurobalise_reader"] + (["accelerometer"] if accelerometer else [])
+    f = TrainFilter(FusionConfig(sensors=sensor_models(names, None, Vehicle()), fault_onset_spacing=5.0))
+    f.reset(position=0.0, position_stddev=0.5, speed=25.0, speed_stddev=0.1, stamp=0.0)
+    rng, states, next_balise = np.random.default_rng(5), [], 2000.0
+    for k in range(1, int(until * 20) + 1):
+        t, s = k / 20.0, 25.0 * k / 20.0
+        scale = 1.0 + (fault if fault_at is not None and t >= fault_at else 0.0)
+        f.add(SpeedMeasurement(t, "doppler", "d", 25.0 * scale + float(rng.normal(0, 0.05)), 0.3))
+        if accelerometer:
+            f.add(Acceleration(t, "accelerometer", "a", float(rng.normal(0, 0.02)), 0.02))
+        if s >= next_balise:
+            f.add(PositionFix(t, "eurobalise", "b", "T", f"EB{int(s)}", next_balise + float(rng.normal(0, 0.3)), 0.4))
+            next_balise += 2000.0
+        if k % 4 == 0:
+            states.append((t, f.estimate(t), s))
+    return f, states
+
+
+def test_an_accelerometer_checks_a_lone_radar_so_its_untested_faults_shrink():
+    """Between balises 2 km apart nothing but the fixes tests a lone radar's scale fault (the
+    test above); with an accelerometer every radar reading tests it too: a step shows as a change
+    of speed that no measured acceleration explains. The newest onset's fault the data has not
+    excluded falls from about the bound to a small part of it, and the bank's cover with it (the
+    lone-source solution, the motion model without the radar, still covers a ramp that the
+    accelerometer's bias state could take up: core/fusion/lone.py)."""
+    alone, _ = _lone_radar_with_accelerometer(None, accelerometer=False)
+    checked, _ = _lone_radar_with_accelerometer(None, accelerometer=True)
+    bound = alone.limits.fault_bounds["doppler"]
+    z = alone.limits.z
+    newest = {name: max(f.state()[2].impacts, key=lambda imp: imp.onset)
+              for name, f in (("alone", alone), ("checked", checked))}
+    assert newest["alone"].excluded_beyond(bound, z) == pytest.approx(bound, rel=0.2)
+    assert newest["checked"].excluded_beyond(bound, z) < 0.25 * bound
+    cover = {}
+    for name, f in (("alone", alone), ("checked", checked)):
+        _, P, aux = f.state()
+        cover[name] = impact.cover(aux.impacts, 79.0 - aux.t, z, P[0, 0], P[1, 1])[0]
+    assert cover["checked"] < 0.5 * cover["alone"]
+
+
+def test_a_radar_scale_step_between_fixes_stays_covered_with_the_accelerometer_checking_it():
+    """The same train, the radar 3 % high from 30 s (between the balises at 2,000 m and 4,000 m):
+    the filter follows the radar until a fix, but the interval holds the truth in every state
+    (the fault's step is what the accelerometer's check measures, not what it hides)."""
+    f, states = _lone_radar_with_accelerometer(30.0, accelerometer=True)
+    outside = [(t, est.position_min, s, est.position_max) for t, est, s in states
+               if math.isfinite(est.position) and not est.position_min <= s <= est.position_max]
+    assert not outside
+    assert max(abs(est.position - s) for t, est, s in states if 30.0 < t < 80.0) > 5.0   # the fault did move it

@@ -21,6 +21,7 @@
   plausibility.py  plausibility of the error states: an absorbed fault, the re-learn from the priors
   fixes.py         policies on absolute fixes (initialisation, consistency, unexplained, recalibration, revisits)
   lone.py          the solution without the relative sensor that carries the speed alone
+  inertial.py      the accelerometer's own dead reckoning (position, speed, bias), which narrows it
   separation.py    solution separation over the relative sensors: protection for undetected faults
   solutions.py     the relative sensors' own solutions kept beside the filter, and fixes under each hypothesis
   impact.py        fault impact by construction (scale fault, unseen wheel slip, offset of a run of fixes)

@@ -6,6 +6,8 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+from .inertial import InertialView
+
 
 class UnexplainedFix(NamedTuple):
     """An absolute fix the gate rejected (or the dead-reckoned position at a fix-bias
@@ -76,6 +78,7 @@ class LoneView(NamedTuple):
     view: ModelView     # the motion model since that sensor became the lone one
     sensor: str         # the lone sensor
     bound: float        # the position error [m] its scale fault can have put into the filter
+    inertial: InertialView | None = None  # the accelerometer's dead reckoning since (inertial.py), if one reads
 
 
 class NisSum(NamedTuple):

@@ -224,7 +224,7 @@ class TrainFilter:
                                      independent=cls not in self.layout.fix)
         if not (self.limits.persistent_bounds or self.limits.transient_bounds) or cls not in self.layout.relative:
             return None   # an acceleration carries none of the bank's faults; it tests them
-        checkers = frozenset(self.in_use(m.stamp, but=cls))
+        checkers = frozenset(self.in_use(m.stamp, but=cls)) | self.accelerometers_in_use(m.stamp)
         # a sensor whose common cause acts through adhesion (a wheel's slips) carries it only while the
         # train is driven or braked, and within its longest episode after (asked only where a group
         # is monitored: the flag touches group rows alone)
@@ -255,6 +255,15 @@ class TrainFilter:
         aux, recent = self.aux, stamp - self.cfg.slip_reference_timeout
         return [s for s in aux.speed_sources if s != but and not speed_excluded(aux, s, stamp)
                 and aux.last_accepted.get(s, -math.inf) > recent]
+
+    def accelerometers_in_use(self, stamp: float) -> frozenset[str]:
+        """The accelerometers accepted within ``slip_reference_timeout`` s of ``stamp`` [s]. They
+        check a speed source's readings as another speed source does: a scale fault's step or ramp
+        shows as a change of speed that the measured acceleration does not explain (beyond its
+        bias state, which the fault bank's linear algebra carries)."""
+        recent = stamp - self.cfg.slip_reference_timeout
+        return frozenset(s for s in self.layout.accelerometers
+                         if self.aux.last_accepted.get(s, -math.inf) > recent)
 
     def unseen_share(self, cls: str, stamp: float, speed: float, S: float) -> float:
         """The share [0, 1] of a transient fault of ``cls``'s bound (``slip_ratio_max`` x its reading's

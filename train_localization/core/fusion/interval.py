@@ -71,7 +71,8 @@ class Interval(Component):
         if aux.lone_view is not None:   # the solution without a lone speed source (its fault)
             l_lo, l_hi, half_v, s_m, var_m = views.lone_interval(
                 aux.lone_view, aux.t, t, float(s), var_s, float(v), var_v,
-                self.f.models[aux.lone_view.sensor].scale_fault_sigma, self.f.limits.z, self.f.cfg.jerk_psd)
+                self.f.models[aux.lone_view.sensor].scale_fault_sigma, self.f.limits.z, self.f.cfg.jerk_psd,
+                self.f.cfg.slip_reference_timeout)
             if l_lo <= l_hi and (l_lo < lo or l_hi > hi):
                 lo, hi, sd_s, mode = self.widen(aux, t, lo, hi, sd_s, mode, l_lo, l_hi)
                 if mode == Mode.NOMINAL and separation.separated(s_m, var_m, float(s), var_s, self.f.limits.z):

@@ -44,6 +44,7 @@ class StateLayout:
         self.accel_bias = block([s for s, m in models.items() if m.measures == "acceleration" and m.bias_sigma > 0.0])
         self.n = n
         self.relative = frozenset(relative)
+        self.accelerometers = frozenset(s for s, m in models.items() if m.measures == "acceleration")
         self.slip_sensors = frozenset(s for s in relative if faults.ADHESION & set(models[s].faults))
         # relative sensors whose disagreement with the others is checked as a fault episode
         self.episode_sensors = frozenset(s for s in relative

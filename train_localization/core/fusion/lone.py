@@ -20,7 +20,7 @@ from .component import Component
 from . import counts
 from .bookkeeping import LoneView, ModelView, MovedView
 from .events import KeepMotionView
-from . import views
+from . import inertial, views
 
 
 class LoneSource(Component):
@@ -50,8 +50,31 @@ class LoneSource(Component):
             if aux.lone_view is not None and in_use:
                 return self.accompanied(stamp)
         elif aux.lone_view is None or aux.lone_view.sensor != lone:
-            aux.lone_view = LoneView(self.lone_model_view(stamp, lone), lone, 0.0)
+            aux.lone_view = LoneView(self.lone_model_view(stamp, lone), lone, 0.0, self.inertial_start(stamp, lone))
         return ()
+
+    def take_acceleration(self, m) -> None:
+        """An accepted acceleration reading moves the accelerometer's dead reckoning of the lone
+        source's hypothesis (inertial.py), started here if there is none yet."""
+        aux = self.f.aux
+        if aux.lone_view is None:
+            return
+        view = aux.lone_view.inertial or self.inertial_start(m.stamp, aux.lone_view.sensor, m.sensor)
+        aux.lone_view = aux.lone_view._replace(
+            inertial=inertial.read(view, m.stamp, m.acceleration, m.acceleration_stddev))
+
+    def inertial_start(self, stamp: float, lone: str, accelerometer: str | None = None):
+        """The accelerometer's dead reckoning of the hypothesis from the filter's state now (its
+        speed's variance widened as ``lone_model_view`` widens it), the bias within the device's
+        prior (the filter's bias estimate learnt from the lone source: not under its fault); None
+        without an accelerometer."""
+        names = [accelerometer] if accelerometer else sorted(self.f.layout.accelerometers)
+        if not names:
+            return None
+        x, P = self.f.ekf.x, self.f.ekf.P
+        var_v = float(P[1, 1]) + self.lone_speed_widening(stamp, lone)
+        return inertial.started(stamp, float(x[0, 0]), float(P[0, 0]), float(x[1, 0]), var_v, float(P[0, 1]),
+                                self.f.models[names[0]].bias_sigma)
 
     def ran(self, distance: float) -> None:
         """The filter's position moved by ``distance`` [m] in a prediction: what the lone source's
@@ -84,7 +107,7 @@ class LoneSource(Component):
         v, var_v = float(self.f.ekf.x[1, 0]), float(self.f.ekf.P[1, 1])
         lo, hi, _, _, _ = views.lone_interval(aux.lone_view, aux.t, stamp, s, var_s, v, var_v,
                                               self.f.models[aux.lone_view.sensor].scale_fault_sigma, self.f.limits.z,
-                                              self.f.cfg.jerk_psd)
+                                              self.f.cfg.jerk_psd, self.f.cfg.slip_reference_timeout)
         aux.lone_view = None
         half = self.f.limits.z * math.sqrt(var_s)
         if lo > hi or (lo >= s - half and hi <= s + half):
@@ -101,13 +124,21 @@ class LoneSource(Component):
         before: the speed's variance then holds its scale fault, (``scale_fault_sigma`` x v)^2,
         for the fixes to narrow (``views.motion_view_fixed``)."""
         view = views.model_view(stamp, self.f.ekf.x, self.f.ekf.P)
+        widening = self.lone_speed_widening(stamp, lone)
+        if not widening:
+            return view
+        p00, p01, p02, p11, p12, p22 = view.cov
+        return view._replace(cov=(p00, p01, p02, p11 + widening, p12, p22))
+
+    def lone_speed_widening(self, stamp: float, lone: str) -> float:
+        """What [m^2/s^2] the filter's speed variance lacks as the start of a hypothesis without
+        ``lone``: 0 where another speed source checked it just before (accepted within twice
+        ``slip_reference_timeout``), else its scale fault, (``scale_fault_sigma`` x v)^2."""
         checked = max((self.f.aux.last_accepted.get(c, -math.inf) for c in self.f.layout.relative if c != lone),
                       default=-math.inf)
         if checked >= stamp - 2.0 * self.f.cfg.slip_reference_timeout:
-            return view
-        p00, p01, p02, p11, p12, p22 = view.cov
-        p11 += (self.f.models[lone].scale_fault_sigma * view.v) ** 2
-        return view._replace(cov=(p00, p01, p02, p11, p12, p22))
+            return 0.0
+        return (self.f.models[lone].scale_fault_sigma * float(self.f.ekf.x[1, 0])) ** 2
 
     def take_fix(self, m, z: float, R: float) -> None:
         """The lone source's fault hypothesis after a fix the filter accepted (z, R from
@@ -118,8 +149,13 @@ class LoneSource(Component):
         view = held.view
         s_f, P00 = float(self.f.ekf.x[0, 0]), float(self.f.ekf.P[0, 0])
         s_m, var_m = views.motion_view(view, m.stamp, s_f, P00, self.f.cfg.jerk_psd)
-        if (z - s_m) ** 2 > self.f.limits.gates[m.sensor] * (R + var_m):
+        gate = self.f.limits.gates[m.sensor]
+        dead = held.inertial
+        if dead is not None:
+            dead, nis = inertial.fixed(dead, m.stamp, z, R)
+        if (z - s_m) ** 2 > gate * (R + var_m) or (dead is not None and nis > gate):
             view = self.lone_model_view(m.stamp, held.sensor)
+            dead = dead and self.inertial_start(m.stamp, held.sensor)
             counts.event(aux, "lone_source_solution_refuted")
         else:
             view = views.motion_view_fixed(view, m.stamp, z, R, s_f, P00, self.f.process, self.f.cfg.jerk_psd)
@@ -127,4 +163,4 @@ class LoneSource(Component):
         # own error; the update took its gain's share of it (a DGPS fix little, a tag nearly all)
         gain, nu = self.f.last_update
         before = min(held.bound, abs(nu) + self.f.limits.z * math.sqrt(R))
-        aux.lone_view = LoneView(view, held.sensor, (1.0 - min(max(float(gain[0]), 0.0), 1.0)) * before)
+        aux.lone_view = LoneView(view, held.sensor, (1.0 - min(max(float(gain[0]), 0.0), 1.0)) * before, dead)

@@ -212,6 +212,8 @@ def accept(f, r: Reading) -> Verdict:
     aux, cls, m = f.aux, r.cls, r.m
     if r.is_fix:
         f.fixes.fix_accepted(m, r.nis, (r.z - r.hx) / math.sqrt(r.S), r.S)
+    elif cls in f.layout.accelerometers:
+        f.lone.take_acceleration(m)
     elif cls in f.layout.relative:
         if cls not in aux.speed_sources:
             aux.speed_sources = aux.speed_sources | {cls}

@@ -10,6 +10,7 @@ import numpy as np
 
 from ..sensors import faults as fault_modes
 from .bookkeeping import LoneView, ModelView, MovedView, View, WindowEntry
+from . import inertial
 from .models import kinematic_covariance, kinematic_mean, kinematics
 from .separation import SPEED_GAP
 
@@ -204,17 +205,24 @@ def raised(P: np.ndarray, faulty, layout, models: dict, speed: float) -> np.ndar
 
 
 def lone_interval(lone: LoneView, t_state: float, t: float, s: float, var_s: float, v: float, var_v: float,
-                  scale_fault_sigma: float, z: float, jerk_psd: float) -> tuple:
+                  scale_fault_sigma: float, z: float, jerk_psd: float, inertial_timeout: float = 0.0) -> tuple:
     """(lo, hi [m], speed half-width [m/s], its position and variance) of the lone source's
     fault hypothesis at t (the filter, of time t_state [s], at s [m], var_s [m^2], v [m/s],
     var_v [m^2/s^2] at t): the motion model's interval, within what the sensor's scale fault
     (``scale_fault_sigma``) can have put into the filter's position (the lone view's bound:
     z x ``scale_fault_sigma`` x the distance run, less what the accepted fixes corrected, for
-    a fault that began at any time since; both hold under the hypothesis); empty (lo > hi)
-    where they do not meet."""
+    a fault that began at any time since), and within the accelerometer's dead reckoning where
+    it read within ``inertial_timeout`` s (the accelerometer is sound under this hypothesis:
+    one fault at a time); all hold under the hypothesis: empty (lo > hi) where they do not meet."""
     bound = lone.bound + z * scale_fault_sigma * abs(v) * max(t - t_state, 0.0)
     view = lone.view
     s_m, v_m, _, var_m, var_vm = kinematics(view.s, view.v, view.a, view.cov, max(t - view.stamp, 0.0), jerk_psd)
     half, cap = z * math.sqrt(var_m), math.sqrt(z * z * var_s + bound * bound)
     half_v = min(abs(v_m - v) + z * math.sqrt(var_vm), z * math.sqrt(var_v + (scale_fault_sigma * v) ** 2))
-    return max(s_m - half, s - cap), min(s_m + half, s + cap), half_v, s_m, var_m
+    lo, hi = max(s_m - half, s - cap), min(s_m + half, s + cap)
+    if lone.inertial is not None and t - lone.inertial.read <= inertial_timeout:
+        s_i, var_i, v_i, var_vi = inertial.at(lone.inertial, t)
+        half_i = z * math.sqrt(var_i)
+        lo, hi = max(lo, s_i - half_i), min(hi, s_i + half_i)
+        half_v = min(half_v, abs(v_i - v) + z * math.sqrt(var_vi))
+    return lo, hi, half_v, s_m, var_m

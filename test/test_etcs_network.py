@@ -226,18 +226,22 @@ VEHICLE = {"type": "conventional", "length": 120.0, "wheel_diameter": 0.92,
            "axles": [2.5, 5.0, 27.5, 30.0, 90.0, 92.5, 115.0, 117.5]}
 
 
+def _throat_scenario(reported: dict) -> dict:
+    data = yaml.safe_load(open(resolve("config/track_throat.yaml"), encoding="utf-8"))
+    data["etcs"] = {"q_nvlocacc": 12.0, "linking": "auto"}
+    _grouped(data)
+    return {"name": "throat_etcs", "seed": 11, "duration": 36.0, "truth_rate": 100.0, "track": data,
+            "vehicle": VEHICLE, "initial": {"position": 20.0, "speed": 15.0},
+            "route": {"sections": ["T5", "T7"], "reported": reported},
+            "profile": [{"speed": 15.0, "accel": 0.5, "hold": 100.0}],
+            "sensors": {"wheel_sensor": {}, "doppler_radar": {}, "eurobalise_reader": {}, "dgps_receiver": {}}}
+
+
 def test_offline_through_the_throat_the_true_front_lies_within_the_safe_front_ends_over_a_wrongly_reported_switch():
     # track B to track C over W3, which the interlocking reports as B1 (the way to T6 and BG6):
     # wheel, Doppler, Eurobalise reader and DGPS, fused at the campaign's rate, then the location
     # function on the followed path (core/campaign.py run_scenario)
-    data = yaml.safe_load(open(resolve("config/track_throat.yaml"), encoding="utf-8"))
-    data["etcs"] = {"q_nvlocacc": 12.0, "linking": "auto"}
-    _grouped(data)
-    scenario = {"name": "throat_etcs", "seed": 11, "duration": 36.0, "truth_rate": 100.0, "track": data,
-                "vehicle": VEHICLE, "initial": {"position": 20.0, "speed": 15.0},
-                "route": {"sections": ["T5", "T7"], "reported": {"W3": "B1"}},
-                "profile": [{"speed": 15.0, "accel": 0.5, "hold": 100.0}],
-                "sensors": {"wheel_sensor": {}, "doppler_radar": {}, "eurobalise_reader": {}, "dgps_receiver": {}}}
+    scenario = _throat_scenario({"W3": "B1"})
     out = run_scenario(scenario)
     etcs, network = out["etcs"], out["network"]
     assert etcs["claimed"] >= 7000 and etcs["inside_share"] >= 0.999
@@ -245,3 +249,65 @@ def test_offline_through_the_throat_the_true_front_lies_within_the_safe_front_en
     assert etcs["events"]["not_linked"] == etcs["events"]["outside_window"] == etcs["events"]["unknown_group"] == 0
     assert etcs["tracker"]["off_network_path"] == 0 and etcs["tracker"]["path_changes"] >= 1
     assert network["nominal_wrong_track"] == 0 and network["switch_ways_resolved"] == 1
+
+
+def test_the_node_follows_the_path_on_a_network_and_refuses_what_is_not_of_it(ros_context, start_node, tmp_path):
+    """etcs_location on a network scenario: states with their path fields past BG5 on T5 and its two
+    reads give reports on the network with the LRBG's section and the followed path along the
+    reported way; a switch report naming no switch of the network and a read on no section of it
+    are refused and counted."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from train_localization_msgs.msg import EtcsLocation, PositionFix as FixMsg, SwitchPositions, TrainState
+    from train_localization.nodes.common import LATCHED_QOS, STREAM_QOS
+    from conftest import spin_until
+
+    path = tmp_path / "scenario.yaml"
+    path.write_text(yaml.safe_dump(_throat_scenario({"W3": "B1"})))
+    proc = start_node("etcs_location", "--ros-args", "-r", "__ns:=/train", "-p", f"scenario:={path}")
+    node = ros_context.create_node("probe_etcs_network", namespace="/train")
+    state_pub = node.create_publisher(TrainState, "localization/state", STREAM_QOS)
+    fix_pub = node.create_publisher(FixMsg, "sensors/eurobalise/position", STREAM_QOS)
+    switch_pub = node.create_publisher(SwitchPositions, "interlocking/switches", LATCHED_QOS)
+    reports, diags = [], []
+    node.create_subscription(EtcsLocation, "localization/etcs", reports.append, STREAM_QOS)
+    node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+
+    def stamped(m, t):
+        m.header.stamp.sec, m.header.stamp.nanosec = int(t), int(round((t % 1) * 1e9))
+        return m
+
+    def own():
+        found = [{kv.key: kv.value for kv in st.values} for arr in diags for st in arr.status
+                 if "ETCS location" in st.name and ": input " not in st.name]
+        return found[-1] if found else {}
+    try:
+        assert spin_until(node, lambda: state_pub.get_subscription_count() > 0 and fix_pub.get_subscription_count() > 0
+                          and node.count_publishers("/train/localization/etcs") > 0, 30.0), proc.output()
+        switch_pub.publish(SwitchPositions(switch_ids=["W9"], positions=["B1"]))
+        spin_until(node, lambda: False, 0.5)
+        fix_pub.publish(stamped(FixMsg(sensor="eurobalise", unit_id="eurobalise", track_id="T5", reference_id="BG5a",
+                                       position=120.0, position_stddev=0.33), 10.0))
+        fix_pub.publish(stamped(FixMsg(sensor="eurobalise", unit_id="eurobalise", track_id="T5", reference_id="BG5b",
+                                       position=123.0, position_stddev=0.33, direction=1), 10.2))
+        fix_pub.publish(stamped(FixMsg(sensor="eurobalise", unit_id="eurobalise", track_id="elsewhere",
+                                       reference_id="BG5a", position=120.0, position_stddev=0.33), 10.3))
+        spin_until(node, lambda: False, 0.3)
+        for k in range(60):
+            t = 9.9 + 0.01 * k
+            x = 120.0 + SPEED * (t - 10.0)
+            state_pub.publish(stamped(TrainState(track_id="T5", position=x, position_min=x - HALF,
+                                                 position_max=x + HALF, speed=SPEED, speed_stddev=0.05,
+                                                 confidence=0.999, mode=1, path_position=x, path_min=x - HALF,
+                                                 path_max=x + HALF, path_direction=1), t))
+        assert spin_until(node, lambda: len(reports) >= 60, 20.0), proc.output()
+        last = reports[-1]
+        assert (last.track_id, last.nid_lrbg, last.lrbg_track_id) == ("throat", "BG5", "T5")
+        assert last.d_lrbg == pytest.approx(SPEED * 0.49) and last.max_safe_front_end == pytest.approx(
+            120.0 + SPEED * 0.49 + HALF)
+        assert list(last.path) == ["T5", "T6"] and list(last.path_direction) == [1, 1]
+        assert list(last.path_origin) == pytest.approx([0.0, 341.69262482327])
+        assert spin_until(node, lambda: own().get("rejected/interlocking/switches/unknown_id") == "1"
+                          and own().get("rejected/sensors/eurobalise/position/other_track") == "1", 20.0), own()
+        assert proc.interrupt() == 0 and "Traceback" not in proc.output()
+    finally:
+        node.destroy_node()

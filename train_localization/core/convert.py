@@ -230,10 +230,10 @@ def train_state_to_msg(mc: MsgClasses, stamp: float, track_id: str, position: fl
                        route_id: str = "", route_distance: float = math.nan, route_direction: int = 0,
                        path: tuple[float, float, float, int] | None = None):
     """A TrainState message; ``path``: (path_position, path_min, path_max, path_direction) of a
-    fused state on a network (msg_defs TrainState.msg), None elsewhere."""
-    extra = {}
-    if path is not None:
-        extra = dict(zip(("path_position", "path_min", "path_max", "path_direction"), path))
+    fused state on a network (msg_defs TrainState.msg), None elsewhere (direction 0: not set).
+    Every field is given: a typestore message (core/bagio.py) has no defaults."""
+    extra = dict(zip(("path_position", "path_min", "path_max", "path_direction"),
+                     path if path is not None else (0.0, 0.0, 0.0, 0)))
     return mc.TrainState(
         header=mc.header(stamp, "map"), track_id=track_id, position=position, speed=speed,
         acceleration=acceleration, position_stddev=position_stddev, speed_stddev=speed_stddev,

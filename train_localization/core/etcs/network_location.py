@@ -66,8 +66,8 @@ def start_path(scenario) -> TrackPath:
 
 def path_data(data: NetworkEtcsData, path: TrackPath, keep: dict[str, BaliseGroup] | None = None) -> EtcsData:
     """The ETCS data of ``path`` as a single line in its path distance: the groups on its
-    sections (a section passed twice: its first passage) at their path distances, orientation
-    +1 along the path; for each group and direction along the path, the link whose path the
+    sections (a section passed twice: its first passage) at their path distances, their
+    orientation relative to the path's direction; for each group and direction along the path, the link whose path the
     followed one takes (its target on the path, at the linked distance). ``keep``: groups kept
     as they are where the path lacks them (the LRBG after a change of way)."""
     groups: dict[str, BaliseGroup] = {}

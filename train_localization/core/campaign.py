@@ -980,10 +980,12 @@ def run_scenario(data: dict, oracle: bool = False) -> dict:
            "fusion": runner.filter.counters(), "fusion_rejected": dict(runner.rejected), "sensors": per_sensor,
            "devices": devices}
     if sc.network is not None:
-        # track selectivity, switch ways and the network integrity on the true route; no ETCS
-        # location function or stator feeding on a network yet
+        # track selectivity, switch ways and the network integrity on the true route; the ETCS
+        # location function where the network has ETCS data; no stator feeding on a network yet
         out["network"] = network_scores(sc.route, traj.t, traj.position,
                                         [PublishedState.of_estimate(e) for e in estimates])
+        if "eurobalise_reader" in sc.sensors and sc.network.etcs:
+            out["etcs"] = etcs_scores(sc, estimates, delivered, arrivals, traj)
         # the availability oracle (core/oracle.py) is not run on a network: it fuses with a
         # single-line FusionConfig (fusion_config), which a network's route line does not have
         return out
@@ -1002,22 +1004,43 @@ def run_scenario(data: dict, oracle: bool = False) -> dict:
 
 def etcs_scores(sc: Scenario, estimates, delivered, arrivals, traj: Trajectory) -> dict:
     """The ETCS location function (core/etcs) over a run's fused states and delivered balise
-    fixes, scored on its truth (core/etcs/scoring.py). A track without ETCS data is scored
-    without linking, each group's Q_LOCACC the reader's location bound."""
+    fixes (``etcs_run``), scored on its truth (core/etcs/scoring.py); on a network with the
+    LRBGs and the missed linked groups in order."""
     from .etcs import scoring as etcs_scoring
     from .etcs.location import is_balise_fix
-    from .etcs.track_data import EtcsData
-    from .sensors import eurobalise, spec
-    from .sensors.base import sensor_params
-    sigma = sensor_params(spec("eurobalise_reader"), sc.sensors["eurobalise_reader"], sc.vehicle)["location_sigma"]
-    data = EtcsData.from_track(sc.track, national_default=eurobalise.LOCATION_BOUND * sigma)
-    orientation = sc.orientation()
-    run = etcs_scoring.run_location(data, {"orientation": orientation}, estimates, delivered)
+    from .etcs.records import EventKind
+    data, run = etcs_run(sc, estimates, delivered)
     read: dict[str, list[float]] = {}
     for _, m in arrivals:
         if is_balise_fix(m) and m.reference_id in data.group_of_balise:
             read.setdefault(data.group_of_balise[m.reference_id], []).append(m.stamp)
-    return etcs_scoring.location_scores(run, traj.t, traj.position, traj.speed, orientation, read)
+    scores = etcs_scoring.location_scores(run, traj.t, traj.position, traj.speed, sc.orientation(), read)
+    if sc.network is not None:   # which groups, in order: the linking along the path taken
+        scores["lrbgs"] = [e.nid_bg for e in run.events if e.kind == EventKind.LRBG]
+        scores["missed_groups"] = [e.nid_bg for e in run.events if e.kind == EventKind.MISSED_LINKED_GROUP]
+    return scores
+
+
+def etcs_run(sc: Scenario, estimates, delivered):
+    """(the ETCS data, the core/etcs/scoring.py LocationRun) of the location function over a
+    run's fused states and delivered fixes. A track without ETCS data is run without linking,
+    each group's Q_LOCACC the reader's location bound. On a network the function follows the
+    train's path from the fusion's start (core/etcs/network_location.py): its front ends are path
+    distances, as the truth's route distance, and the interlocking's report sets the path ahead."""
+    from .etcs import scoring as etcs_scoring
+    orientation = sc.orientation()
+    if sc.network is None:
+        from .etcs.track_data import EtcsData
+        from .sensors import eurobalise, spec
+        from .sensors.base import sensor_params
+        sigma = sensor_params(spec("eurobalise_reader"), sc.sensors["eurobalise_reader"], sc.vehicle)["location_sigma"]
+        data = EtcsData.from_track(sc.track, national_default=eurobalise.LOCATION_BOUND * sigma)
+        return data, etcs_scoring.run_location(data, {"orientation": orientation}, estimates, delivered)
+    from .etcs.network_data import NetworkEtcsData
+    from .etcs.network_location import NetworkLocationTracker, start_path
+    data = NetworkEtcsData.from_network(sc.network)
+    tracker = NetworkLocationTracker(data, sc.network, start_path(sc), {"orientation": orientation}, sc.interlocking)
+    return data, etcs_scoring.run_tracker(tracker, estimates, delivered)
 
 
 def stator_scores(layout: "stator.Layout", sc: Scenario, fused: StateSeries, traj: Trajectory) -> dict:

@@ -19,7 +19,7 @@ import numpy as np
 
 from .measurements import (Acceleration, DistanceIncrement, PositionFix, SectionOccupancy, SectionState,
                            SpeedMeasurement, YawRate)
-from .etcs.records import EventKind, LocationEvent, LocationReport, QDirLrbg, Reaction
+from .etcs.records import EventKind, LocationEvent, LocationReport, PathSection, QDirLrbg, Reaction
 from .safety.admission import MAX_ITEMS
 from .truth import TruthState
 from .signals import InputRejected, RawBlock, require_short
@@ -227,14 +227,20 @@ def train_state_to_msg(mc: MsgClasses, stamp: float, track_id: str, position: fl
                        acceleration: float, position_stddev: float = 0.0, speed_stddev: float = 0.0,
                        position_min: float | None = None, position_max: float | None = None,
                        confidence: float = 1.0, mode: int = 1, sensors=(), track_probability: float = 1.0,
-                       route_id: str = "", route_distance: float = math.nan, route_direction: int = 0):
+                       route_id: str = "", route_distance: float = math.nan, route_direction: int = 0,
+                       path: tuple[float, float, float, int] | None = None):
+    """A TrainState message; ``path``: (path_position, path_min, path_max, path_direction) of a
+    fused state on a network (msg_defs TrainState.msg), None elsewhere (direction 0: not set).
+    Every field is given: a typestore message (core/bagio.py) has no defaults."""
+    extra = dict(zip(("path_position", "path_min", "path_max", "path_direction"),
+                     path if path is not None else (0.0, 0.0, 0.0, 0)))
     return mc.TrainState(
         header=mc.header(stamp, "map"), track_id=track_id, position=position, speed=speed,
         acceleration=acceleration, position_stddev=position_stddev, speed_stddev=speed_stddev,
         position_min=position if position_min is None else position_min,
         position_max=position if position_max is None else position_max,
         confidence=confidence, mode=mode, sensors=list(sensors), track_probability=track_probability,
-        route_id=route_id, route_distance=route_distance, route_direction=route_direction)
+        route_id=route_id, route_distance=route_distance, route_direction=route_direction, **extra)
 
 
 # ---- networks (core/network) --------------------------------------------------
@@ -274,6 +280,18 @@ def switch_positions_from_msg(msg, max_switches: int = MAX_ITEMS) -> dict[str, s
     return dict(zip(ids, ways))
 
 
+def network_switch_positions(msg, network) -> dict[str, str]:
+    """``switch_positions_from_msg`` for the point switches of ``network`` (core/network Network):
+    InputRejected ``unknown_id`` as well for a switch that is none of them."""
+    switches = {n.node_id for n in network.switches()}
+    positions = switch_positions_from_msg(msg, len(switches))
+    unknown = [k for k in positions if k not in switches]
+    if unknown:
+        raise InputRejected("unknown_id", f"switch {unknown[0][:64]!r} is no point switch of network "
+                                          f"{network.network_id}")
+    return positions
+
+
 # ---- ETCS location (core/etcs) ------------------------------------------------
 
 CLAIMED_MODES = (1, 2)   # TrainState.MODE_NOMINAL, MODE_DEGRADED
@@ -303,7 +321,25 @@ def etcs_report_from_msg(msg, orientation: int = 1) -> LocationReport:
         raise InputRejected("implausible", f"q_dirlrbg {msg.q_dirlrbg} is not one of Q_DIRLRBG_*") from None
     return LocationReport(t, msg.track_id, msg.nid_lrbg, float(msg.d_lrbg), q_dir, float(msg.q_locacc),
                           float(msg.l_doubtover), float(msg.l_doubtunder), est, lo, hi, v, v_ura,
-                          bool(msg.odometer_impaired), tuple(msg.previous_lrbgs), int(msg.mode))
+                          bool(msg.odometer_impaired), tuple(msg.previous_lrbgs), int(msg.mode),
+                          str(getattr(msg, "lrbg_track_id", "")), _report_path(msg))
+
+
+def _report_path(msg) -> tuple[PathSection, ...]:
+    """The followed path of an EtcsLocation on a network (empty on a single line, or from a
+    message without the fields); InputRejected for arrays of unequal or too many items, a
+    direction that is not +-1 or an origin that is not finite."""
+    sections = list(getattr(msg, "path", ()))
+    directions, origins = list(getattr(msg, "path_direction", ())), list(getattr(msg, "path_origin", ()))
+    n = max(len(sections), len(directions), len(origins))
+    if n > MAX_ITEMS:
+        raise InputRejected("too_large", f"a followed path of {n} sections (at most {MAX_ITEMS})")
+    if not len(sections) == len(directions) == len(origins):
+        raise InputRejected("malformed", f"path of {len(sections)} sections, {len(directions)} directions and "
+                                         f"{len(origins)} origins")
+    if any(int(d) not in (1, -1) for d in directions) or not all(math.isfinite(float(o)) for o in origins):
+        raise InputRejected("implausible", "a path direction that is not +1 or -1, or an origin that is not finite")
+    return tuple(PathSection(str(sid), int(d), float(o)) for sid, d, o in zip(sections, directions, origins))
 
 
 def etcs_event_from_msg(msg) -> LocationEvent:

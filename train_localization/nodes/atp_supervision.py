@@ -5,8 +5,9 @@ Topics:
   subscribes localization/etcs         EtcsLocation of etcs_location (reliable, every report)
              localization/etcs_events  EtcsEvent (reliable): linking reactions (train trip,
                                        service brake; none is counted)
-             atp/end_of_authority      std_msgs/Float64, a new end of authority (chainage [m];
-                                       reliable, volatile: the parameter gives the first one)
+             atp/end_of_authority      std_msgs/Float64, a new end of authority (chainage [m]; on a
+                                       network on end_of_authority_section; reliable, volatile:
+                                       the parameter gives the first one)
   publishes  atp/command               AtpCommand (reliable) for every report that changes the
                                        status or the brake and otherwise every ``command_period``
                                        (0.1 s), every event with a reaction and every new
@@ -18,7 +19,9 @@ Topics:
                                        ``report_timeout`` of the start
 
 Parameters (core/etcs/supervision.py PARAMS, read at start): ``end_of_authority`` (chainage
-[m]; NaN: none until one comes on the topic), ``orientation`` (+1/-1: the direction the
+[m]; NaN: none until one comes on the topic), ``end_of_authority_section`` (on a network: its
+section, restated on the followed path of each report; the service brake while that path does
+not reach it; docs/network.md, "ETCS on a network"), ``orientation`` (+1/-1: the direction the
 train's front faces), ``emergency_deceleration`` and ``service_deceleration`` [m/s^2],
 ``brake_build_up_time`` [s], ``traction_acceleration`` [m/s^2], ``warning_time`` and
 ``indication_time`` [s], ``unknown_position_speed`` and ``standstill_speed`` [m/s],
@@ -169,7 +172,8 @@ class AtpSupervisionNode(Node):
             self.diag.reject(AUTHORITY, "nan" if not math.isfinite(msg.data) else "range", str(exc))
             return
         self.diag.accept(AUTHORITY)
-        self.get_logger().info(f"end of authority {msg.data:.2f} m")
+        where = f" on section {self.sup.eoa_section}" if self.sup.eoa_section else ""
+        self.get_logger().info(f"end of authority {msg.data:.2f} m{where}")
         if self.sup.last_report is not None:
             self.publish(decision)
         else:

@@ -424,6 +424,22 @@ def required_scenario(node: Node, params: dict, needed: str):
         raise ConfigurationError(f"parameter 'scenario' is required ({needed})")
     return Scenario.from_yaml(path)
 
+SWITCH_TOPIC = "interlocking/switches"   # SwitchPositions of a train on a network (latched)
+
+
+def switch_positions(diag: "Diagnostics", msg, network) -> dict[str, str] | None:
+    """The interlocking's report (switch -> "B1"/"B2"/"") for the switches of ``network``; None
+    for a report refused (malformed, an unknown switch), counted in ``diag``."""
+    from ..core.convert import network_switch_positions
+    try:
+        positions = network_switch_positions(msg, network)
+    except InputRejected as exc:
+        diag.reject(SWITCH_TOPIC, exc.reason, str(exc))
+        return None
+    diag.accept(SWITCH_TOPIC)
+    return positions
+
+
 def now_sec(node: Node) -> float:
     return node.get_clock().now().nanoseconds * 1e-9
 

@@ -12,6 +12,15 @@ train's orientation) or ``track`` (track YAML) with ``orientation``; the PARAMS 
 core/etcs/location.py (``fix_latency``, ``history``) and of the odometer monitoring
 (core/etcs/odometer.py). A track whose ETCS data are inconsistent stops the node with one line.
 
+On a network (a scenario whose train has a route; docs/network.md, "ETCS on a network") the
+location function follows the train's path (core/etcs/network_location.py, ``path_wait``,
+``path_reach``): it takes the state's path fields, balise fixes on any section of the network,
+and ``interlocking/switches`` (SwitchPositions, latched: the path ahead follows the reported
+ways; a malformed report or an unknown switch is refused and counted). The report's front ends
+are path distances, its ``track_id`` the network's, ``lrbg_track_id`` the LRBG's section and
+``path`` the followed path. A network track without a scenario is refused in one line (the
+route gives the start).
+
 Admission (core/etcs/admission.py, docs/reliability.md): a state or fix stamped more than
 ``future_tolerance`` ahead of the node clock (future), not after the last admitted one
 (stamp_back, duplicate), with a value that is not finite (nan) or beyond any train
@@ -33,21 +42,24 @@ import math
 import sys
 import time
 
+import yaml
+
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 
 from ..core import convert, paths
-from ..core.etcs import admission, location
+from ..core.etcs import admission, location, network_location
 from ..core.etcs.admission import FIX_TOPIC, STATE_TOPIC
+from ..core.etcs.network_data import NetworkEtcsData
 from ..core.etcs.records import EventKind, LocationEvent, LocationReport
 from ..core.etcs.track_data import EtcsData
 from ..core.scenario import Scenario
 from ..core.signals import InputRejected
 from ..core.track import Track
 from ..core.sensors.base import Param
-from .common import (LATCHED_QOS, STREAM_QOS, ConfigurationError, Diagnostics, declare_param, declare_params, now_sec,
-                     rclpy_classes, spin)
+from .common import (LATCHED_QOS, STREAM_QOS, SWITCH_TOPIC, ConfigurationError, Diagnostics, declare_param,
+                     declare_params, now_sec, rclpy_classes, spin, switch_positions)
 
 ALARM_HOLD = 30.0      # [s] of state time a linking or odometer alarm stays in the diagnostics
 REPORT_TOPIC = "localization/etcs"
@@ -65,15 +77,18 @@ PARAMS = {
     "scenario": Param("", "scenario YAML (track with ETCS data, the train)"),
     "track": Param("config/track_etcs.yaml", "track YAML when no scenario is given"),
     "orientation": Param(1, "+1: the front faces increasing chainage, -1: decreasing (without a scenario)", (-1, 1)),
-    **TRACKER_PARAMS, **admission.PARAMS,
+    **TRACKER_PARAMS, **network_location.PARAMS, **admission.PARAMS,
 }
 
 
 def state_from_msg(msg) -> location.FusedState:
-    """The location function's view of a TrainState message (checked by the admission)."""
+    """The location function's view of a TrainState message (checked by the admission), with its
+    path fields on a network."""
     return location.FusedState(convert.stamp_to_sec(msg.header.stamp), float(msg.position), float(msg.position_min),
                                float(msg.position_max), float(msg.speed), float(msg.speed_stddev),
-                               float(msg.confidence), int(msg.mode))
+                               float(msg.confidence), int(msg.mode), msg.track_id,
+                               float(getattr(msg, "path_position", math.nan)), float(getattr(msg, "path_min", math.nan)),
+                               float(getattr(msg, "path_max", math.nan)), int(getattr(msg, "path_direction", 0)))
 
 
 def report_to_msg(report: LocationReport, cls, header):
@@ -82,7 +97,9 @@ def report_to_msg(report: LocationReport, cls, header):
                l_doubtunder=report.l_doubtunder, estimated_front_end=report.estimated_front_end,
                min_safe_front_end=report.min_safe_front_end, max_safe_front_end=report.max_safe_front_end,
                v_est=report.v_est, v_ura=report.v_ura, odometer_impaired=report.odometer_impaired,
-               previous_lrbgs=list(report.previous_lrbgs), mode=report.mode)
+               previous_lrbgs=list(report.previous_lrbgs), mode=report.mode, lrbg_track_id=report.lrbg_track_id,
+               path=[p.section for p in report.path], path_direction=[p.direction for p in report.path],
+               path_origin=[p.origin for p in report.path])
 
 
 def event_to_msg(event: LocationEvent, cls, header, track_id: str):
@@ -96,37 +113,58 @@ class EtcsLocationNode(Node):
         from train_localization_msgs.msg import EtcsEvent, EtcsLocation
         self._report_cls, self._event_cls = EtcsLocation, EtcsEvent
         self.diag = Diagnostics(self, "ETCS location")
-        track, orientation = self._configuration()
-        params = declare_params(self, TRACKER_PARAMS)
+        track, orientation, own = self._configuration()
+        params = {**declare_params(self, TRACKER_PARAMS), "orientation": orientation}
+        on_network = declare_params(self, network_location.PARAMS)
         guard = declare_params(self, admission.PARAMS)
+        self.network = own.network if own is not None else None
         try:
-            data = EtcsData.from_track(track)
+            if self.network is None:
+                self.tracker = location.LocationTracker(EtcsData.from_track(track), params)
+                self.track_id, sections = track.track_id, None
+            else:
+                self.tracker = network_location.NetworkLocationTracker(
+                    NetworkEtcsData.from_network(self.network), self.network, network_location.start_path(own),
+                    {**params, **on_network}, own.interlocking)
+                self.track_id, sections = self.network.network_id, self.network.sections
         except ValueError as exc:
             raise ConfigurationError(str(exc)) from None
-        self.tracker = location.LocationTracker(data, {**params, "orientation": orientation})
-        self.track_id = track.track_id
-        self.inputs = admission.LocationAdmission(guard, self.track_id)
+        self.inputs = admission.LocationAdmission(guard, self.track_id, sections)
         self.mc = rclpy_classes()
         self.report_pub = self.create_publisher(EtcsLocation, REPORT_TOPIC, STREAM_QOS)
         self.event_pub = self.create_publisher(EtcsEvent, EVENT_TOPIC, LATCHED_QOS)
         self.create_subscription(self.mc.TrainState, STATE_TOPIC, self.on_state, STREAM_QOS)
         # raw: a fix beyond max_fix_rate is shed before it is deserialised (a flood costs little)
         self.create_subscription(self.mc.PositionFix, FIX_TOPIC, self.on_fix_bytes, FIX_QOS, raw=True)
+        if self.network is not None:
+            self.create_subscription(self.mc.SwitchPositions, SWITCH_TOPIC, self.on_switches, LATCHED_QOS)
         self._alarm = (0, "", -math.inf)   # (level, what, state time)
         self._report: LocationReport | None = None
         self.diag.set_status(1, "no train state yet")
         self.diag.extra(self._health)
 
-    def _configuration(self) -> tuple[Track, int]:
+    def _configuration(self) -> tuple[Track, int, Scenario | None]:
+        """(track, orientation, the train's scenario or None without one)."""
         scenario_path = declare_param(self, PARAMS, "scenario")
         track_path = declare_param(self, PARAMS, "track")
         orientation = declare_param(self, PARAMS, "orientation")
         if not scenario_path:
             if orientation == 0:
                 raise ConfigurationError("parameter 'orientation' must be +1 or -1")
-            return Track.from_yaml(paths.resolve(track_path)), int(orientation)
+            with open(paths.resolve(track_path), encoding="utf-8") as fh:
+                data = yaml.safe_load(fh)
+            if isinstance(data, dict) and "sections" in data:
+                raise ConfigurationError(f"track {track_path} is a network: give a scenario (the train's route "
+                                         f"gives where the location starts)")
+            return Track.from_dict(data), int(orientation), None
         own = Scenario.from_yaml(scenario_path).for_namespace(self.get_namespace())
-        return own.track, own.orientation()
+        return own.track, own.orientation(), own
+
+    def on_switches(self, msg) -> None:
+        """The interlocking's switch positions (a network): the followed path ahead follows them."""
+        positions = switch_positions(self.diag, msg, self.network)
+        if positions is not None:
+            self.tracker.set_switches(positions)
 
     def on_fix_bytes(self, data: bytes) -> None:
         if self.inputs.shed(FIX_TOPIC, time.monotonic()):
@@ -151,7 +189,9 @@ class EtcsLocationNode(Node):
         if self.inputs.shed(STATE_TOPIC, time.monotonic()):
             return
         state = state_from_msg(msg)
-        refusal = self.inputs.state(state, now_sec(self))
+        # on a network the stream is checked in path distances (a section's chainage restarts at a node)
+        seen = network_location.path_view(state) if self.network is not None else state
+        refusal = self.inputs.state(seen, now_sec(self))
         if refusal is not None:
             self.diag.reject(STATE_TOPIC, refusal.reason, refusal.message)
             return

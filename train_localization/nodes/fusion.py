@@ -70,8 +70,8 @@ from ..core.network.config import NetworkConfig, network_fusion_config
 from ..core.network.hypotheses import HypothesisSet
 from ..core.network.model import is_network
 from ..core.sensors.base import Param
-from .common import (LATCHED_QOS, STATE_QOS, STREAM_QOS, ConfigurationError, ManagedNode, declare, declare_param,
-                     now_sec, rclpy_classes, spin)
+from .common import (LATCHED_QOS, STATE_QOS, STREAM_QOS, SWITCH_TOPIC, ConfigurationError, ManagedNode, declare,
+                     declare_param, now_sec, rclpy_classes, spin, switch_positions)
 
 # every sensor class, in the registry's order (core/sensors/__init__.py)
 ALL_SENSORS = list(dict.fromkeys(sensor_classes().values()))
@@ -359,7 +359,7 @@ class FusionNode(ManagedNode):
         if self.odom_frame and self.tf_pub is not None:
             self._subs.append(self.create_subscription(self._tf_cls, "/tf", self.on_tf, 100))
         if self.network is not None:
-            self._subs.append(self.create_subscription(self.mc.SwitchPositions, "interlocking/switches",
+            self._subs.append(self.create_subscription(self.mc.SwitchPositions, SWITCH_TOPIC,
                                                        self.on_switches, LATCHED_QOS))
         self._timer = self.create_timer(self.runner.period, self.on_timer)
         self._last_state_wall = time.monotonic()
@@ -463,19 +463,9 @@ class FusionNode(ManagedNode):
 
     def on_switches(self, msg) -> None:
         """The interlocking's switch positions (a network): priors of the track hypotheses."""
-        topic = "interlocking/switches"
-        try:
-            switches = {n.node_id for n in self.network.switches()}
-            positions = convert.switch_positions_from_msg(msg, len(switches))
-            unknown = [k for k in positions if k not in switches]
-            if unknown:
-                raise InputRejected("unknown_id", f"switch {unknown[0][:64]!r} is no point switch of network "
-                                                  f"{self.network.network_id}")
-        except InputRejected as exc:
-            self.diag.reject(topic, exc.reason, str(exc))
-            return
-        self.filter.set_switches(positions)
-        self.diag.accept(topic)
+        positions = switch_positions(self.diag, msg, self.network)
+        if positions is not None:
+            self.filter.set_switches(positions)
 
     def input_statuses(self) -> list:
         """One status per subscribed sensor (diagnostic_updater's frequency and timestamp

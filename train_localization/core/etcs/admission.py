@@ -48,12 +48,13 @@ def admission_params(overrides: dict | None = None) -> dict:
 
 class LocationAdmission:
     """The etcs_location's inputs: ``state(s, now)`` and ``fix(f, now)`` return None (admitted)
-    or the refusal; ``now``: the node's clock [s] (0/None: none yet); ``host_now``: the clock
+    or the refusal; a fix must name ``track_id`` or, on a network, one of its ``sections``; ``now``: the node's clock [s] (0/None: none yet); ``host_now``: the clock
     shedding counts on (the host's monotonic clock live, the consumer clock offline)."""
 
-    def __init__(self, params: dict | None = None, track_id: str = ""):
+    def __init__(self, params: dict | None = None, track_id: str = "", sections=None):
         p = self.params = admission_params(params)
         self.track_id = track_id
+        self.sections = frozenset(sections) if sections else frozenset((track_id,))   # a fix's track: one of these
         self.states = StateStream(STATE_TOPIC, admission.limits_from(p), MotionGate.from_params(p))
         # fixes arrive up to the reader's latency after their stamp, in any order with a spoofed
         # one stamped now: not ordered (the location function sorts them and refuses a too old one)
@@ -81,9 +82,9 @@ class LocationAdmission:
         return self.states.admit(motion, now, **checks)
 
     def fix(self, f: PositionFix, now: float | None) -> InputRejected | None:
-        if f.track_id != self.track_id:
-            return self.fixes.refuse(InputRejected("other_track", f"fix on track {f.track_id[:64]!r}, this is "
-                                                                  f"{self.track_id!r}"))
+        if f.track_id not in self.sections:
+            where = f"this is {self.track_id!r}" if len(self.sections) == 1 else f"no section of {self.track_id!r}"
+            return self.fixes.refuse(InputRejected("other_track", f"fix on track {f.track_id[:64]!r}, {where}"))
         return self.fixes.admit(f.stamp, now, values={"position": f.position, "position_stddev": f.position_stddev},
                                 ids={"reference_id": f.reference_id, "sensor": f.sensor, "unit_id": f.unit_id},
                                 limits={"position": CHAINAGE})

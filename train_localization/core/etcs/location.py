@@ -88,7 +88,9 @@ def is_balise_fix(m) -> bool:
 
 @dataclass(frozen=True)
 class FusedState:
-    """What the location function takes of a fused state (TrainState / core.fusion Estimate)."""
+    """What the location function takes of a fused state (TrainState / core.fusion Estimate).
+    On a network (``path_direction`` != 0) also the section ``track_id`` of ``position`` and the
+    state as path distances [m] (TrainState path_*; core/etcs/network_location.py)."""
     t: float
     position: float
     position_min: float
@@ -97,11 +99,18 @@ class FusedState:
     speed_stddev: float
     confidence: float
     mode: int
+    track_id: str = ""
+    path_position: float = math.nan
+    path_min: float = math.nan
+    path_max: float = math.nan
+    path_direction: int = 0
 
     @classmethod
     def from_estimate(cls, est) -> "FusedState":
         return cls(est.stamp, est.position, est.position_min, est.position_max, est.speed, est.speed_stddev,
-                   est.confidence, est.mode)
+                   est.confidence, est.mode, getattr(est, "track_id", ""), getattr(est, "path_position", math.nan),
+                   getattr(est, "path_min", math.nan), getattr(est, "path_max", math.nan),
+                   getattr(est, "path_direction", 0))
 
     @property
     def claimed(self) -> bool:
@@ -134,6 +143,9 @@ class LocationTracker:
         self._states: deque[tuple[FusedState, float]] = deque()   # (state, odometer reading [m])
         self._odometer = 0.0
         self._pending: list[PositionFix] = []
+        # while True a linked group whose window closed is not declared missed yet (on a network:
+        # a read waits for the followed path to reach its section, core/etcs/network_location.py)
+        self.hold_missed = False
         self.stats = {"fixes": 0, "lrbg": 0, "outside_window": 0, "missed": 0, "wrong_direction": 0,
                       "not_linked": 0, "unknown_group": 0, "same_group": 0, "too_old": 0, "direction_unknown": 0,
                       "reference_rejected": 0}
@@ -311,6 +323,21 @@ class LocationTracker:
         self.expected = expect(self.data, self.data.groups[self.lrbg.nid_bg], after, direction, so_far,
                                self._front_offset)
 
+    def rebase(self, data: EtcsData) -> None:
+        """New ETCS data on the same axis (a network's followed path regrown or turned onto
+        another way): the LRBG and the history kept, the expectation derived again from the new
+        linking (chained on from a missed group only if the new data still have it); an
+        unchanged expectation keeps its window's closing time."""
+        self.data = data
+        if self.lrbg is None:
+            return
+        if self._missed_chain[0] not in data.groups:
+            self._missed_chain = (self.lrbg.nid_bg, 0.0)
+        before, closed = self.expected, self._closed_at
+        self._expect(self.lrbg.direction)
+        if before is not None and before == self.expected:
+            self._closed_at = closed
+
     def _retarget(self, direction: int) -> None:
         """The train runs towards ``direction`` over the LRBG: the linking that way on from it."""
         self.lrbg.direction = direction
@@ -335,7 +362,7 @@ class LocationTracker:
             return []
         if self._closed_at is None:
             self._closed_at = state.t
-        if state.t < self._closed_at + self.params["fix_latency"]:
+        if state.t < self._closed_at + self.params["fix_latency"] or self.hold_missed:
             return []
         self.stats["missed"] += 1
         event = self._event(self._closed_at, EventKind.MISSED_LINKED_GROUP, exp.nid_bg, exp.reaction,
@@ -373,4 +400,5 @@ class LocationTracker:
             d_lrbg=d_lrbg, q_dirlrbg=qdir, q_locacc=q, l_doubtover=over, l_doubtunder=under,
             estimated_front_end=est, min_safe_front_end=est - o * over, max_safe_front_end=est + o * under,
             v_est=o * state.speed, v_ura=self._v_ura(state), odometer_impaired=self.monitor.impaired,
-            previous_lrbgs=tuple(self.previous), mode=mode)
+            previous_lrbgs=tuple(self.previous), mode=mode,
+            lrbg_track_id=self.data.track_id if lrbg is not None else "")

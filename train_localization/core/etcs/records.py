@@ -35,8 +35,24 @@ class QDirLrbg(IntEnum):
 
 
 @dataclass(frozen=True)
+class PathSection:
+    """One section of the path a report on a network follows (docs/network.md, "ETCS on a
+    network"): chainage c [m] of ``section`` lies at path distance ``origin + direction * c`` [m]
+    (``direction`` +1 where the path runs along the section's chainage)."""
+    section: str
+    direction: int
+    origin: float
+
+    def distance(self, chainage: float) -> float:
+        """Path distance [m] of ``chainage`` [m] on the section."""
+        return self.origin + self.direction * chainage
+
+
+@dataclass(frozen=True)
 class LocationReport:
-    """One ETCS location report (EtcsLocation). Chainages [m]; ``ahead`` is the train's orientation."""
+    """One ETCS location report (EtcsLocation). Chainages [m]; ``ahead`` is the train's orientation.
+    On a network ``track_id`` is the network's, the front ends are path distances along ``path``
+    and ``lrbg_track_id`` the section the LRBG lies on."""
     t: float                       # time of validity [s]
     track_id: str
     nid_lrbg: str                  # "" before the first LRBG
@@ -53,6 +69,14 @@ class LocationReport:
     odometer_impaired: bool
     previous_lrbgs: tuple[str, ...]  # newest first
     mode: int                      # TrainState.MODE_* of the fused state
+    lrbg_track_id: str = ""        # the LRBG's section (on a single line its track); "" without an LRBG
+    path: tuple[PathSection, ...] = ()   # on a network: the followed path (travel order); () on a single line
+
+    def path_distance(self, section: str, chainage: float) -> float | None:
+        """Path distance [m] of ``chainage`` on ``section`` along the report's path (its first
+        passage), None if the path does not contain the section."""
+        step = next((p for p in self.path if p.section == section), None)
+        return None if step is None else step.distance(chainage)
 
     @property
     def has_position(self) -> bool:

@@ -30,14 +30,19 @@ class LocationRun:
     """Reports and events of one run of the location function, and its tracker (counters)."""
     reports: list[LocationReport] = field(default_factory=list)
     events: list[LocationEvent] = field(default_factory=list)
-    tracker: LocationTracker | None = None
+    tracker: LocationTracker | None = None   # or a NetworkLocationTracker (its ``stats`` alike)
 
 
 def run_location(data: EtcsData, params: dict | None, estimates, arrivals) -> LocationRun:
     """Feed a run's fused estimates (core.fusion Estimate, in time order) and its delivered
     (arrival time, measurement) pairs to a LocationTracker: a balise fix is given once the
     fusion has made a state at or after its arrival, as the node gets them."""
-    tracker = LocationTracker(data, params)
+    return run_tracker(LocationTracker(data, params), estimates, arrivals)
+
+
+def run_tracker(tracker, estimates, arrivals) -> LocationRun:
+    """``run_location`` with a tracker of one's own (a LocationTracker, or on a network a
+    core/etcs/network_location.py NetworkLocationTracker)."""
     fixes = [(t, m) for t, m in arrivals if is_balise_fix(m)]
     run = LocationRun(tracker=tracker)
     j = 0

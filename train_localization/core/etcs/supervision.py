@@ -23,6 +23,11 @@ Curves (``curves``), each a distance to the EOA at or below which it is reached:
 curve (the positive root of the quadratic), 0 at and beyond it; it compares with
 ``|v_est| + v_ura``.
 
+On a network (``end_of_authority_section``) the EOA is a chainage on a section, restated on
+the followed path of each report (LocationReport ``path``, core/etcs/network_location.py) as a
+path distance, the report's frame; while that path does not reach the section the EOA cannot be
+supervised: the service brake, with the reason (``intervention_eoa_off_path``).
+
 Train trip: the **min safe front end** beyond the EOA (status TRIP, emergency brake). A trip
 is latched: status TRIP and the emergency brake stay until the train is at a standstill after
 a new (changed) end of authority was given (SUBSET-026 leaves Trip mode on the driver's
@@ -90,6 +95,9 @@ class Brake(IntEnum):
 PARAMS = {
     "end_of_authority": Param(math.nan, "end of authority, a chainage [m]; NaN = none until one comes on "
                                         "atp/end_of_authority (nothing supervised)", CHAINAGE_LIMITS),
+    "end_of_authority_section": Param("", "on a network: the section the end of authority lies on, "
+                                          "end_of_authority its chainage there, restated on the followed path of "
+                                          "each location report; \"\" on a single line"),
     "orientation": Param(1, "the direction the train's front faces: +1 increasing chainage, -1 decreasing",
                          (-1, 1)),
     "emergency_deceleration": Param(0.7, "emergency brake deceleration of the braking model [m/s^2]",
@@ -227,6 +235,7 @@ class Supervision:
             raise ValueError(f"parameter 'orientation' must be +1 or -1, not {p['orientation']}")
         self.orientation = int(p["orientation"])
         self.end_of_authority = float(p["end_of_authority"])
+        self.eoa_section = str(p["end_of_authority_section"])   # "" on a single line
         self.brake = Brake.NONE          # the brake held
         self.brake_reason = ""
         self.trip_reason = ""            # "" unless tripped (latched)
@@ -237,8 +246,8 @@ class Supervision:
         self.last: AtpDecision | None = None
         self.stats = {"reports": 0, "events": 0, "events_without_reaction": 0, "authorities": 0,
                       "interventions": 0, "intervention_ebi": 0, "intervention_sbi": 0, "intervention_link": 0,
-                      "intervention_no_position": 0, "intervention_stale": 0, "trips": 0, "trip_eoa": 0, "trip_link": 0,
-                      "releases": 0, "trips_released": 0}
+                      "intervention_no_position": 0, "intervention_stale": 0, "intervention_eoa_off_path": 0,
+                      "trips": 0, "trip_eoa": 0, "trip_link": 0, "releases": 0, "trips_released": 0}
         if p["start_braked"]:
             self.brake, self.brake_reason = Brake.EMERGENCY, START_REASON
 
@@ -280,17 +289,19 @@ class Supervision:
                                 reason)
         return self.last
 
-    def set_authority(self, end_of_authority: float) -> AtpDecision:
-        """A new end of authority (chainage [m], finite; ValueError otherwise); the decision
-        with the latest report (t NaN before the first)."""
+    def set_authority(self, end_of_authority: float, section: str | None = None) -> AtpDecision:
+        """A new end of authority (chainage [m], finite; ValueError otherwise), on a network on
+        ``section`` (None: the section of the last one); the decision with the latest report (t
+        NaN before the first)."""
         eoa = float(end_of_authority)
         if not (math.isfinite(eoa) and CHAINAGE_LIMITS[0] <= eoa <= CHAINAGE_LIMITS[1]):
             raise ValueError(f"end of authority {eoa!r} is not a chainage in "
                              f"{CHAINAGE_LIMITS[0]:g} .. {CHAINAGE_LIMITS[1]:g} m")
         self.stats["authorities"] += 1
-        if eoa != self.end_of_authority and self.trip_reason:
+        section = self.eoa_section if section is None else str(section)
+        if (eoa, section) != (self.end_of_authority, self.eoa_section) and self.trip_reason:
             self._new_authority = True
-        self.end_of_authority = eoa
+        self.end_of_authority, self.eoa_section = eoa, section
         report = self.last_report
         return self._decide(report.t if report is not None else math.nan, report)
 
@@ -367,6 +378,14 @@ class Supervision:
         eoa, o = self.end_of_authority, self.orientation
         if math.isnan(eoa):
             return "no end of authority: nothing supervised", Status.NORMAL, math.nan, math.nan
+        if self.eoa_section:
+            restated = report.path_distance(self.eoa_section, eoa)
+            if restated is None:
+                reason = (f"end of authority {eoa:.2f} m on section {self.eoa_section} is not on the followed path "
+                          f"({', '.join(p.section for p in report.path) or 'none'}): service brake")
+                self._intervene(Brake.SERVICE, reason, "eoa_off_path")
+                return reason, Status.INTERVENTION, math.nan, math.nan
+            eoa = restated
         distance = o * (eoa - report.max_safe_front_end)
         allowed = permitted_speed(distance, self.params)
         beyond = o * (report.min_safe_front_end - eoa)

@@ -139,12 +139,15 @@ def estimate_to_msg(mc, est: Estimate, track_id: str, sensors, track=None):
     and the interval moves with it: position_min <= position <= position_max still holds, so
     near the seam an end may lie below 0 or beyond the circumference (msg_defs TrainState.msg).
     The filter itself runs on the unwrapped distance. An estimate on a network (a
-    core/network NetworkEstimate) names its own track and that track's probability."""
+    core/network NetworkEstimate) names its own track and that track's probability, and gives
+    its interval as path distances too (``path_min`` / ``path_max``)."""
     track_id = getattr(est, "track_id", None) or track_id
     position, lo, hi = est.position, est.position_min, est.position_max
     if track is not None and track.closed and math.isfinite(position):
         laps = position - float(track.wrap(position))
         position, lo, hi = position - laps, lo - laps, hi - laps
+    direction = getattr(est, "path_direction", 0)
+    path = (est.path_position, est.path_min, est.path_max, direction) if direction else None
     return convert.train_state_to_msg(mc, est.stamp, track_id, position, est.speed, est.acceleration,
                                       est.position_stddev, est.speed_stddev, lo, hi, est.confidence, est.mode,
-                                      sensors, getattr(est, "track_probability", 1.0))
+                                      sensors, getattr(est, "track_probability", 1.0), path=path)

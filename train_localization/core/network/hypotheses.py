@@ -80,6 +80,7 @@ class NetworkEstimate(Estimate):
     path_speed: float = math.nan      # [m/s] along the path (the direction of travel)
     path_min: float = math.nan
     path_max: float = math.nan
+    path_direction: int = 0           # +1: the most probable path runs along track_id's chainage, -1 against
 
 
 @dataclass(frozen=True)
@@ -235,8 +236,10 @@ class HypothesisSet:
         est = top.last
         known = [h.last for h in self.hyps if math.isfinite(h.last.position)]
         if not math.isfinite(est.position) or not known:
-            return NetworkEstimate(**_fields(est), track_id=top.path.steps[-1].section,
-                                   track_probability=probs[order[0]], hypotheses=tuple(states))
+            d = top.path.steps[-1].direction   # speed and acceleration along that section's chainage
+            return NetworkEstimate(**{**_fields(est), "speed": est.speed * d, "acceleration": est.acceleration * d},
+                                   track_id=top.path.steps[-1].section, track_probability=probs[order[0]],
+                                   hypotheses=tuple(states), path_direction=d)
         lo = min(e.position_min for e in known)
         hi = max(e.position_max for e in known)
         modes = [e.mode for e in known]
@@ -251,7 +254,7 @@ class HypothesisSet:
             max(e.position_stddev for e in known), max(e.speed_stddev for e in known), min(a, b), max(a, b),
             min(e.confidence for e in known), Mode(mode), est.scales, est.biases, track_id=step.section,
             track_probability=probs[order[0]], hypotheses=tuple(states), path_position=est.position,
-            path_speed=est.speed, path_min=lo, path_max=hi)
+            path_speed=est.speed, path_min=lo, path_max=hi, path_direction=step.direction)
 
     def counters(self) -> dict[str, dict]:
         out = self.hyps[0].filter.counters()

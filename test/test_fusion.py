@@ -303,12 +303,6 @@ def test_the_benchmark_runs_the_maglev_sensors_in_order_and_shuffled(recorded):
         assert len(est) >= 200 * t_end
 
 
-def _same_bits(a: list, b: list) -> bool:
-    """Two lists of estimates hold the same values in every field, bit for bit."""
-    ca, cb = compare_estimates.columns(a), compare_estimates.columns(b)
-    return ca.keys() == cb.keys() and all(compare_estimates.same_bits(ca[k], cb[k]) < 0 for k in ca)
-
-
 @pytest.mark.parametrize("name", ["scenario_maglev_500", "scenario_conventional_300"])
 def test_a_holding_runner_applies_inputs_late_within_latency_in_order_and_rewinds_nothing(recorded, name):
     """Held for the sensors' declared latency (FusionRunner ``hold``), inputs arriving as the
@@ -327,7 +321,7 @@ def test_a_holding_runner_applies_inputs_late_within_latency_in_order_and_rewind
     assert len(arrivals) <= updates <= 1.01 * len(arrivals)
     for stream in (at_stamp, arrivals, shuffled):
         runner, est, _, _ = bench_fusion.run(cfg, stream, t_end, runner=FusionRunner(cfg, hold=True))
-        assert len(est) == len(plain) and _same_bits(est, plain)
+        assert len(est) == len(plain) and compare_estimates.same_estimates(est, plain)
         assert runner.counters()["rollbacks"] == {"late": 0, "updates": updates, "late_beyond_latency": 0}
     rewound = bench_fusion.run(cfg, shuffled, t_end)[0].counters()["rollbacks"]
     assert rewound["late"] > 0.05 * len(arrivals) and rewound["updates"] > len(arrivals)

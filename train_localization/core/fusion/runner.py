@@ -189,8 +189,8 @@ class FusionRunner:
         return out
 
     def drain(self, t: float) -> list[tuple[Estimate, list[str]]]:
-        """``advance(t)`` at the end of the input: every held input enters the filter and the
-        estimates of every grid time <= t [s] are made, without waiting for ``latency``."""
+        """``advance(t)`` at the end of the input: every held input stamped <= t [s] enters the
+        filter and the estimates of every grid time <= t are made, without waiting for ``latency``."""
         if not self.hold:
             return self.advance(t)
         self._follow_clock(t)

@@ -20,7 +20,8 @@ from train_localization.core.scenario import Vehicle
 from train_localization.core.scenario import Scenario
 from train_localization.core.sensors import doppler, inpo, wheel
 from train_localization.core.signals import InputRejected
-from train_localization.tools import bench_fusion
+from train_localization.core.offline import within_latency
+from train_localization.tools import bench_fusion, compare_estimates
 
 Z999 = norm.ppf(0.9995)   # half-width of the 99.9 % interval in sigmas
 GATE_RADIUS = math.sqrt(chi2.ppf(0.9999, 1))   # the largest fix offset a fix's gate passes, in its 1-sigma
@@ -300,6 +301,69 @@ def test_the_benchmark_runs_the_maglev_sensors_in_order_and_shuffled(recorded):
     for stream in (arrivals, bench_fusion.delayed(arrivals, 0.2, seed=1)):
         _, est, _, _ = bench_fusion.run(cfg, stream, t_end + 0.21)
         assert len(est) >= 200 * t_end
+
+
+@pytest.mark.parametrize("name", ["scenario_maglev_500", "scenario_conventional_300"])
+def test_a_holding_runner_applies_inputs_late_within_latency_in_order_and_rewinds_nothing(recorded, name):
+    """Held for the sensors' declared latency (FusionRunner ``hold``), inputs arriving as the
+    sensors publish them (stamped inside their 50 ms blocks) or shuffled within their latency give
+    the estimates of the same inputs arriving at their stamps without holding, bit for bit, with
+    one filter update per measurement; the runner without holding rewinds for the shuffled ones."""
+    sc, arrivals, t_end = recorded[name]
+    arrivals = [(t, m) for t, m in arrivals if m.stamp <= t_end - 0.1]   # every one in by t_end
+    cfg = fusion_config(sc)
+    at_stamp = sorted(((m.stamp, m) for _, m in arrivals), key=lambda item: fusion.order_key(item[1]))
+    shuffled = within_latency(arrivals, {k: m.latency for k, m in cfg.models.items()}, seed=3)
+    assert sum(a[1] is not b[1] for a, b in zip(arrivals, shuffled)) > 0.3 * len(arrivals)
+    in_order, plain, _, _ = bench_fusion.run(cfg, at_stamp, t_end)
+    # one update per measurement, and those a slip's exclusion after the fact re-applies
+    updates = in_order.counters()["rollbacks"]["updates"]
+    assert len(arrivals) <= updates <= 1.01 * len(arrivals)
+    for stream in (at_stamp, arrivals, shuffled):
+        runner, est, _, _ = bench_fusion.run(cfg, stream, t_end, runner=FusionRunner(cfg, hold=True))
+        assert len(est) == len(plain) and compare_estimates.same_estimates(est, plain)
+        assert runner.counters()["rollbacks"] == {"late": 0, "updates": updates, "late_beyond_latency": 0}
+    rewound = bench_fusion.run(cfg, shuffled, t_end)[0].counters()["rollbacks"]
+    assert rewound["late"] > 0.05 * len(arrivals) and rewound["updates"] > len(arrivals)
+
+
+def test_a_holding_runner_publishes_each_state_the_declared_latency_after_its_time(recorded):
+    """The estimate of grid time T comes from the advance at T + latency (the sensors' largest
+    declared latency: one 50 ms block), not later."""
+    sc, arrivals, t_end = recorded["scenario_maglev_500"]
+    cfg = fusion_config(sc)
+    runner = FusionRunner(cfg, hold=True)
+    assert runner.latency == pytest.approx(0.05)
+    lags, j = [], 0
+    for k in range(int(round(t_end / 0.005)) + 1):
+        now = k * 0.005
+        while j < len(arrivals) and arrivals[j][0] <= now + 1e-12:
+            runner.add(arrivals[j][1])
+            j += 1
+        lags += [now - est.stamp for est, _ in runner.advance(now)]
+    assert len(lags) == int(round((t_end - 0.05) / 0.005)) + 1
+    assert min(lags) == pytest.approx(0.05, abs=1e-9) and max(lags) == pytest.approx(0.05, abs=1e-9)
+
+
+def test_a_holding_runner_counts_inputs_later_than_declared_and_still_takes_them(recorded):
+    """Inputs delayed up to 0.2 s, beyond the 50 ms latency: those stamped before what was
+    already released enter the filter at once (its history rewinds), counted; the final state is
+    the in-order one."""
+    sc, arrivals, t_end = recorded["scenario_maglev_500"]
+    cfg = fusion_config(sc)
+    stream = bench_fusion.delayed(arrivals, 0.2, seed=3)
+    runner, _, _, _ = bench_fusion.run(cfg, stream, t_end + 0.21, runner=FusionRunner(cfg, hold=True))
+    # released before an input is added at tick k: every stamp up to tick k-1 minus the latency
+    released = [math.floor(t / 0.005 - 1e-12) * 0.005 - runner.latency for t, _ in stream]
+    beyond = [m.stamp - r for (_, m), r in zip(stream, released)]
+    counted = runner.counters()["rollbacks"]
+    assert sum(d < -1e-9 for d in beyond) <= counted["late_beyond_latency"] <= sum(d <= 1e-9 for d in beyond)
+    assert counted["late_beyond_latency"] > 0.3 * len(stream) and counted["late"] > 0
+    ordered = TrainFilter(cfg)
+    for _, m in sorted(arrivals, key=lambda item: fusion.order_key(item[1])):
+        ordered.add(m)
+    (xa, Pa, _), (xb, Pb, _) = ordered.state(), runner.filter.state()
+    assert np.max(np.abs(xa - xb)) <= 1e-9 and np.max(np.abs(Pa - Pb)) <= 1e-9
 
 
 def test_estimate_of_a_past_time_ignores_later_measurements():

@@ -8,18 +8,26 @@ accuracy figures of whole scenarios against their ground truth.
 
 Cost: the scenario's sensors are simulated once (not timed); their measurements, each
 with the time at which its block completed (its arrival), are then fed to a
-FusionRunner (the fusion node's logic: filter + 200 Hz publish grid) on one core:
+FusionRunner (the fusion node's logic: filter + 200 Hz publish grid) on one core, in
+three orders, each without and with holding (FusionRunner ``hold``: the inputs wait up
+to the sensors' declared latency and enter the filter in stamp order; the A/B ratio of
+the two is measured in the same process):
 
-  in order   as the sensors publish them (the absolute fixes and the Doppler are
-             stamped inside their 50 ms blocks, so even this order has late arrivals)
-  shuffled   each measurement delayed by a further uniform 0..``delay`` s (transport,
-             wayside links), i.e. out of order by up to ``delay`` s
+  in order        as the sensors publish them (the fixes, speeds and ranges are stamped
+                  inside their 50 ms blocks, so even this order has late arrivals)
+  within latency  each measurement arriving at a uniform time between its arrival and
+                  its stamp plus its sensor's declared latency (core/offline within_latency)
+  shuffled        each measurement delayed by a further uniform 0..``delay`` s (transport,
+                  wayside links): beyond the declared latency
 
 It prints the cost of one filter update and of one estimate, then per run the CPU time
-per measurement (replays included) and per published state, the sustained input rate
-and the real-time headroom (simulated time / CPU time of this process). ``--check``
-makes it exit non-zero when the shuffled run's estimates differ from the in-order ones
-(compared at T once all data stamped up to T + slip_window are in) or the headroom of either run is below 5.
+(process time: the host's load does not enter) per measurement and per published state,
+the filter updates per measurement (the re-applications of a rewind included), the
+rewinds (inputs inserted before a later-stamped one), the inputs later than declared,
+and the real-time headroom (simulated time / CPU time). ``--check`` makes it exit non-zero
+when the shuffled estimates without holding differ from the in-order ones (compared at T
+once all data stamped up to T + slip_window are in), when the held runs in order and within
+latency do not give the same estimates bit for bit, or when the headroom of a run is below 5.
 
 Figures (``--figures``, ``figures(scenario, result)``): simulate_scenario of each
 scenario (of a line: a block per train, then the association of the wayside fixes:
@@ -45,10 +53,11 @@ import numpy as np
 from ..core.fusion import TrainFilter, order_key
 # scenario_measurements, delayed and run (fuse_arrivals) are used by test/test_fusion.py through this module
 from ..core.fusion import FusionRunner, fusion_config
-from ..core.offline import delayed, scenario_measurements
+from ..core.offline import delayed, scenario_measurements, within_latency
 from ..core.offline import fuse_arrivals as run
 from ..core.scenario import Scenario
 from ..core.scoring import ENVELOPE_FIXED, ENVELOPE_RATE, SPEED_KNOWN, distance_since, speed_envelope
+from .compare_estimates import same_estimates
 
 
 def compare_history(config, arrivals_a, arrivals_b, t_end: float, step: float = 0.05, lag: float | None = None) -> float:
@@ -196,8 +205,8 @@ def main(argv=None) -> int:
     ap.add_argument("--scenario", default="config/scenario_maglev_500.yaml")
     ap.add_argument("--duration", type=float, default=30.0, help="simulated seconds [s]")
     ap.add_argument("--delay", type=float, default=0.2, help="largest extra delay when shuffled [s]")
-    ap.add_argument("--seed", type=int, default=1, help="seed of the shuffling")
-    ap.add_argument("--check", action="store_true", help="exit 1 unless exact and >= 5x real time")
+    ap.add_argument("--seed", type=int, default=1, help="seed of the shuffling and of the delays within latency")
+    ap.add_argument("--check", action="store_true", help="exit 1 unless exact and every run >= 5x real time")
     ap.add_argument("--figures", nargs="+", metavar="SCENARIO", help="accuracy figures of these scenarios "
                     "(simulate_scenario) instead of the cost benchmark")
     args = ap.parse_args(argv)
@@ -246,25 +255,35 @@ def main(argv=None) -> int:
         f.estimate(last + t)
     t_estimate = (clock() - c0) / len(grid)
     print(f"filter update {1e6 * t_update:.1f} us (state of {f.n}), estimate {1e6 * t_estimate:.1f} us")
+    latencies = {k: m.latency for k, m in config.models.items()}
+    streams = {"in order": arrivals, "within latency": within_latency(arrivals, latencies, args.seed),
+               f"shuffled 0..{args.delay * 1000:.0f} ms": delayed(arrivals, args.delay, args.seed)}
+    print(f"declared latency {1000 * FusionRunner(config, hold=True).latency:.0f} ms (the largest of "
+          + ", ".join(f"{k} {1000 * v:.0f}" for k, v in sorted(latencies.items())) + " ms)")
+    print(f"{'arrival order':<22} {'hold':<5} {'CPU s':>7} {'x real time':>11} {'us/meas':>8} {'us/state':>8} "
+          f"{'updates/meas':>12} {'rewinds':>8} {'beyond latency':>14}")
     ok = True
-    for label, stream in (("in order", arrivals), (f"shuffled 0..{args.delay * 1000:.0f} ms",
-                                                   delayed(arrivals, args.delay, args.seed))):
-        runner, est, t_add, t_adv = run(config, stream, duration + args.delay + 0.01)
-        total = t_add + t_adv
-        f = runner.filter
-        headroom = duration / total
-        ok &= headroom >= 5.0
-        replays = f.applied / len(stream)
-        rate = (1.0 - 200.0 * t_estimate) / (t_update * replays)
-        print(f"{label}:")
-        print(f"  {total:.3f} s CPU for {len(stream)} measurements and {len(est)} published states "
-              f"-> {headroom:.1f}x real time on one core")
-        print(f"  per measurement {1e6 * total / len(stream):.1f} us all included ({f.rollbacks} arrived after a "
-              f"later-stamped one; {replays:.2f} updates per measurement with the replays), per published "
-              f"state {1e6 * total / len(est):.1f} us")
-        print(f"  sustained input rate ~{rate:.0f} measurements/s at this replay factor while publishing at "
-              f"200 Hz (the scenario has {len(stream) / duration:.0f}/s)")
-    diff = compare_history(config, arrivals, delayed(arrivals, args.delay, args.seed), duration + args.delay)
+    held = {}
+    for label, stream in streams.items():
+        costs = []
+        for hold in (False, True):
+            runner, est, t_add, t_adv = run(config, stream, duration + args.delay + 0.01,
+                                            runner=FusionRunner(config, hold=hold))
+            total = t_add + t_adv
+            costs.append(total)
+            counted = runner.counters()["rollbacks"]
+            ok &= duration / total >= 5.0
+            if hold:
+                held[label] = est
+            print(f"{label:<22} {'yes' if hold else 'no':<5} {total:>7.3f} {duration / total:>11.1f} "
+                  f"{1e6 * total / len(stream):>8.1f} {1e6 * total / len(est):>8.1f} "
+                  f"{counted['updates'] / len(stream):>12.2f} {counted['late']:>8d} "
+                  f"{counted.get('late_beyond_latency', 0):>14d}")
+        print(f"{'':<22} CPU with / without holding {costs[1] / costs[0]:.2f}")
+    same = same_estimates(held["in order"], held["within latency"])
+    ok &= same
+    print(f"held, within latency vs in order: {'the same estimates, bit for bit' if same else 'NOT the same'}")
+    diff = compare_history(config, arrivals, streams[f"shuffled 0..{args.delay * 1000:.0f} ms"], duration + args.delay)
     exact = diff <= 1e-9
     ok &= exact
     print(f"shuffled vs in order, estimate(T) once all data stamped <= T + slip_window are in: max difference "

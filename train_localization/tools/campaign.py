@@ -40,6 +40,7 @@ from pathlib import Path
 
 import yaml
 
+from .workers import run_jobs
 from ..core.campaign import (ALL_FAMILIES, EXCURSION_LIMIT, FAMILIES, INSIDE_TARGET, RUN_TARGET, SELECTIVITY_TARGET,
                              SWITCH_WAY_TARGET, generate, jobs, run_one, summarise)
 
@@ -84,13 +85,9 @@ def one_line(i: int, n: int, r: dict) -> str:
 def execute(todo: list[tuple[str, int]], workers: int | None = None, scheduler: str | None = None,
             max_duration: float | None = None, on_result=None, oracle: bool = False) -> list[dict]:
     """Run (family, seed) pairs with ``core.campaign.run_one`` in parallel; returns the results in
-    completion order and calls ``on_result(result)`` as each arrives.
-
-    ``scheduler``: None = a local process pool of ``workers`` processes; "local" = a dask
-    LocalCluster on 127.0.0.1 with ``workers`` single-threaded worker processes; "tcp://..." =
-    an existing dask.distributed scheduler (its workers must import this package).
-    """
-    workers = workers or os.cpu_count() or 1
+    completion order and calls ``on_result(result)`` as each arrives. ``workers``, ``scheduler``:
+    where they run (tools/workers.py ``run_jobs``: a local process pool, a dask LocalCluster or
+    a running dask.distributed scheduler)."""
     results = []
 
     def take(r: dict) -> None:
@@ -98,41 +95,13 @@ def execute(todo: list[tuple[str, int]], workers: int | None = None, scheduler: 
         if on_result:
             on_result(r)
 
-    def lost(family: str, seed: int, exc: BaseException) -> dict:   # the worker itself died
-        return {"family": family, "seed": seed, "max_duration": max_duration, "cpu_s": 0.0,
-                "error": f"{type(exc).__name__}: {exc}", "traceback": repr(exc)}
+    def lost(job: tuple, exc: BaseException) -> None:   # the worker itself died
+        family, seed = job[0], job[1]
+        take({"family": family, "seed": seed, "max_duration": max_duration, "cpu_s": 0.0,
+              "error": f"{type(exc).__name__}: {exc}", "traceback": repr(exc)})
 
-    if scheduler is None:
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            futures = {pool.submit(run_one, f, s, max_duration, oracle): (f, s) for f, s in todo}
-            for fut in as_completed(futures):
-                try:
-                    take(fut.result())
-                except Exception as exc:
-                    take(lost(*futures[fut], exc))
-        return results
-    from dask.distributed import Client, LocalCluster, as_completed
-    cluster = None
-    if scheduler == "local":
-        cluster = LocalCluster(host="127.0.0.1", n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None)
-        client = Client(cluster)
-    else:
-        client = Client(scheduler)
-    try:
-        futures = client.map(run_one, [f for f, _ in todo], [s for _, s in todo], [max_duration] * len(todo),
-                             [oracle] * len(todo), pure=False)
-        keys = {fut.key: job for fut, job in zip(futures, todo)}
-        for fut in as_completed(futures):
-            try:
-                take(fut.result())
-            except Exception as exc:
-                take(lost(*keys[fut.key], exc))
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+    run_jobs(run_one, [(f, s, max_duration, oracle) for f, s in todo], workers, scheduler,
+             lambda job, r: take(r), lost)
     return results
 
 

@@ -44,6 +44,12 @@ def columns(estimates) -> dict[str, np.ndarray]:
     return {name: np.asarray(v) for name, v in cols.items()}
 
 
+def same_estimates(a: list, b: list) -> bool:
+    """Whether two lists of estimates hold the same values in every field, bit for bit."""
+    ca, cb = columns(a), columns(b)
+    return ca.keys() == cb.keys() and all(same_bits(ca[k], cb[k]) < 0 for k in ca)
+
+
 def bag_runs(bags: Path, only: str = ""):
     """(run name, estimates, counters) of every bag in ``bags``, replayed serially."""
     from ..core.offline import LineResult, replay_bag

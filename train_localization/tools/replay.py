@@ -1,6 +1,7 @@
 """tl_replay: offline replay of a bag through the decoders and the fusion, and its report.
 
   tl_replay BAG [--scenario S] [--out NEW.mcap] [--report DIR] [--recorded] [--serial] [--quiet]
+  tl_replay FOLDER [--scenario S] [--report DIR] [--workers N] [--scheduler tcp://HOST:PORT | local]
 
 Without DDS and as fast as the CPU allows, the bag's raw topics go through the
 same decoders (ingest mode) and the same fusion as the live nodes; the recomputed
@@ -13,11 +14,19 @@ recorded localization/state instead of recomputing it. The sensors (of every
 train, for a line's bag) are decoded in forked worker processes, one per CPU
 besides the one this process fuses on (at least one); --serial does it all in this process, streaming the bag
 (the result is the same).
+
+A FOLDER replays every bag in it (*.mcap, a fleet's recordings re-scored after a change), each
+serially in one job: on ``--workers`` local processes (default: the CPU count; 1: in this
+process), or with ``--scheduler`` on a dask.distributed scheduler (``local``: a LocalCluster on
+127.0.0.1), as tl_campaign runs its runs (tools/workers.py). --report DIR then holds
+DIR/<bag>/report.json per bag (no plots) and DIR/summary.json: one row per bag (per train of a
+line's bag) and the CPU seconds per log second of the whole.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -29,6 +38,7 @@ from ..graph import NAMESPACE
 from ..core.report import evaluate, jsonable, line_report, plot
 from ..core.scenario import Scenario
 from ..core.signals import InputRejected
+from .workers import run_jobs
 
 
 def recorded_run(bag: Path):
@@ -72,6 +82,102 @@ def report_for(bag: Path, scenario: Scenario | None = None, out_bag: Path | None
     report["wall_time_s"] = wall
     report["speed_factor"] = report["duration_s"] / wall if wall > 0 else None
     return jsonable(report), arrays
+
+
+# the report fields that time the replay, not score it: they differ between two replays of a bag
+TIMING_KEYS = ("wall_time_s", "speed_factor", "cpu_s", "cpu_per_log_second")
+
+
+def bag_report(bag: str, scenario_path: str | None = None) -> dict:
+    """The report of one bag recomputed serially (one job of a fleet replay): ``report_for``'s, or
+    a line's bag's core/report.py line_report, with the CPU seconds it took and their ratio to
+    the log's duration. A bag that cannot be scored raises RuntimeError."""
+    c0 = time.process_time()
+    path = Path(bag)
+    scenario = Scenario.from_yaml(scenario_path) if scenario_path else scenario_from_bag(path)
+    if scenario.line:
+        report = jsonable(line_report(replay_line(path, scenario, parallel=False)))
+        report.update(bag=str(path), duration_s=scenario.duration)
+    else:
+        try:
+            report, _ = report_for(path, scenario)
+        except SystemExit as exc:   # report_for's one-line refusal (no ground truth)
+            raise RuntimeError(str(exc)) from None
+    report["cpu_s"] = cpu = time.process_time() - c0
+    report["cpu_per_log_second"] = cpu / report["duration_s"] if report["duration_s"] else None
+    return report
+
+
+def fleet_reports(folder: Path, scenario_path: str | None = None, workers: int | None = None,
+                  scheduler: str | None = None) -> dict[str, dict]:
+    """Bag file name -> ``bag_report`` of every bag in ``folder`` (sorted by name; a bag that
+    failed: {"bag", "error"}), on ``workers`` local processes (1 and no scheduler: in this
+    process) or a dask scheduler (tools/workers.py run_jobs)."""
+    bags = sorted(folder.glob("*.mcap"))
+    reports: dict[str, dict] = {}
+
+    def lost(job: tuple, exc: BaseException) -> None:
+        reports[Path(job[0]).name] = {"bag": job[0], "error": f"{type(exc).__name__}: {exc}"}
+
+    if scheduler is None and workers == 1:
+        for bag in bags:
+            try:
+                reports[bag.name] = bag_report(str(bag), scenario_path)
+            except Exception as exc:
+                lost((str(bag),), exc)
+    else:
+        run_jobs(bag_report, [(str(bag), scenario_path) for bag in bags], workers, scheduler,
+                 lambda job, report: reports.__setitem__(Path(job[0]).name, report), lost)
+    return {bag.name: reports[bag.name] for bag in bags}
+
+
+def fleet_summary(reports: dict[str, dict]) -> dict:
+    """One row per bag (per train of a line's bag): its scores; the bags, the failed ones, and
+    the CPU seconds per log second of the whole."""
+    rows = []
+    for name, report in reports.items():
+        if "error" in report:
+            rows.append({"run": name, "error": report["error"]})
+            continue
+        trains = report["trains"].items() if "trains" in report else [("", report)]
+        for train, rep in trains:
+            pe, integ = rep["position_error_m"], rep["integrity"]
+            rows.append({"run": f"{name}/{train}" if train else name, "states": rep["states"],
+                         "position_rms_m": pe["rms"], "position_max_m": pe["max"],
+                         "inside_fraction": integ["inside_fraction"],
+                         "mean_width_m": integ["mean_interval_width_m"]})
+    done = [r for r in reports.values() if "error" not in r]
+    cpu, log = sum(r["cpu_s"] for r in done), sum(r["duration_s"] for r in done)
+    return {"bags": len(reports), "failed": len(reports) - len(done), "rows": rows, "cpu_s": cpu, "log_s": log,
+            "cpu_per_log_second": cpu / log if log else None}
+
+
+def fleet_main(folder: Path, scenario_path: str | None, report_dir: Path | None, workers: int | None,
+               scheduler: str | None) -> int:
+    """A folder of bags (module doc): the reports, the summary, printed and written; exit 1 if a
+    bag failed."""
+    where = f"dask {scheduler}" if scheduler else f"{workers or os.cpu_count()} local processes"
+    print(f"{folder}: {len(list(folder.glob('*.mcap')))} bags on {where}")
+    reports = fleet_reports(folder, scenario_path, workers, scheduler)
+    summary = fleet_summary(reports)
+    for row in summary["rows"]:
+        if "error" in row:
+            print(f"  {row['run']}: FAILED {row['error']}")
+            continue
+        rms, worst, inside = row["position_rms_m"], row["position_max_m"], row["inside_fraction"]
+        print(f"  {row['run']}: {row['states']} states; position error "
+              + ("-" if rms is None else f"RMS {rms:.4f} m, max {worst:.4f} m")
+              + ("" if inside is None else f"; {100 * inside:.3f} % inside, mean width {row['mean_width_m']:.3f} m"))
+    if summary["cpu_per_log_second"] is not None:
+        print(f"  {summary['log_s']:.1f} s of logs in {summary['cpu_s']:.1f} CPU s "
+              f"({summary['cpu_per_log_second']:.4f} CPU s per log second); {summary['failed']} failed")
+    if report_dir:
+        for name, report in reports.items():
+            (report_dir / Path(name).stem).mkdir(parents=True, exist_ok=True)
+            (report_dir / Path(name).stem / "report.json").write_text(json.dumps(report, indent=2))
+        (report_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+        print(f"  reports: {report_dir}/<bag>/report.json, summary: {report_dir / 'summary.json'}")
+    return 1 if summary["failed"] else 0
 
 
 def line_main(bag: Path, scenario: Scenario, out: Path | None, report_dir: Path | None,
@@ -122,10 +228,19 @@ def main(argv=None) -> int:
     ap.add_argument("--serial", action="store_true",
                     help="decode in this process instead of one worker process per sensor")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    ap.add_argument("--workers", type=int, default=None, help="a folder: local worker processes (default: the CPU "
+                                                               "count; 1: in this process)")
+    ap.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT|local",
+                    help="a folder: replay on a dask.distributed scheduler; 'local' starts a LocalCluster on 127.0.0.1")
     args = ap.parse_args(argv)
     if not args.bag.exists():
         print(f"tl_replay: {args.bag} does not exist", file=sys.stderr)
         return 2
+    if args.bag.is_dir():
+        if args.out or args.recorded:
+            print("tl_replay: --out and --recorded take one bag, not a folder", file=sys.stderr)
+            return 2
+        return fleet_main(args.bag, args.scenario, args.report, args.workers, args.scheduler)
     scenario = Scenario.from_yaml(args.scenario) if args.scenario else None
     if not args.recorded and (scenario or scenario_from_bag(args.bag)).line:
         return line_main(args.bag, scenario or scenario_from_bag(args.bag), args.out, args.report,

@@ -20,7 +20,7 @@ from .feed import FusionFeed, RunResult, fusion_runner
 from .line import LineFusion, LineResult, LineSimulation, simulate_line, wayside_pipelines
 from .parallel import PARALLEL_WINDOW, can_fork, decode_in_parallel
 from .replay import MessageDecoder, replay_bag, replay_line
-from .simulate import delayed, fuse_arrivals, scenario_measurements, simulate_scenario
+from .simulate import delayed, fuse_arrivals, scenario_measurements, simulate_scenario, within_latency
 from .topics import (FUSED_TOPIC, INTERLOCKING_TOPIC, LINE_SCENARIO_TOPIC, SCENARIO_TOPIC, TRACKS_TOPIC, TRUTH_TOPIC,
                      WAYSIDE_NAMESPACE, raw_topic, train_namespace)
 
@@ -29,4 +29,4 @@ __all__ = ["ClosedLoopResult", "FUSED_TOPIC", "FusionFeed", "INTERLOCKING_TOPIC"
            "TRACKS_TOPIC", "TRUTH_TOPIC", "WAYSIDE_NAMESPACE", "can_fork", "closed_loop", "decode_in_parallel", "delayed",
            "fuse_arrivals", "fusion_runner", "raw_topic", "replay_bag", "replay_line", "scenario_from_bag",
            "scenario_measurements", "sensor_pipelines", "simulate_line", "simulate_scenario", "string_message",
-           "train_namespace", "wayside_pipelines", "write_interlocking"]
+           "train_namespace", "wayside_pipelines", "within_latency", "write_interlocking"]

@@ -58,12 +58,25 @@ def delayed(arrivals, delay: float, seed: int = 1):
     return [(t, m) for t, _, m in late]
 
 
+def within_latency(arrivals, latencies: dict[str, float], seed: int = 1):
+    """The same measurements, each arriving at a uniform time between its arrival and its stamp
+    plus its sensor's ``latencies`` [s] (one arriving later already keeps its time), in arrival order."""
+    rng = np.random.default_rng(seed)
+    late = []
+    for i, (t, m) in enumerate(arrivals):
+        last = m.stamp + latencies.get(m.sensor, 0.0)
+        late.append((t + float(rng.uniform(0.0, last - t)) if last > t else t, i, m))
+    late.sort(key=lambda item: (item[0], item[1]))
+    return [(t, m) for t, _, m in late]
+
+
 def fuse_arrivals(config: FusionConfig, arrivals, t_end: float, rate: float = 200.0, tick: float = 0.005,
                   runner: FusionRunner | None = None):
     """Feed (arrival time, measurement) pairs to a FusionRunner, advancing its output grid every ``tick`` s.
 
     Everything that has arrived by a tick is added before the estimates up to that tick
-    are made, as the fusion node does in real time. ``runner``: the FusionRunner to feed (a
+    are made, as the fusion node does in real time; the last tick ends the input
+    (``FusionRunner.drain``: a holding runner makes its last states without waiting). ``runner``: the FusionRunner to feed (a
     train on a network: ``fusion_runner``'s, over its track hypotheses); by default a new one
     of ``config`` at ``rate``. Returns (runner, estimates, CPU seconds in add, CPU seconds in
     advance).
@@ -73,14 +86,15 @@ def fuse_arrivals(config: FusionConfig, arrivals, t_end: float, rate: float = 20
     t_add = t_adv = 0.0
     j, n = 0, len(arrivals)
     clock = time.process_time
-    for k in range(int(round(t_end / tick)) + 1):
+    last = int(round(t_end / tick))
+    for k in range(last + 1):
         now = k * tick
         c0 = clock()
         while j < n and arrivals[j][0] <= now + 1e-12:
             runner.add(arrivals[j][1])
             j += 1
         c1 = clock()
-        estimates.extend(e for e, _ in runner.advance(now))
+        estimates.extend(e for e, _ in (runner.drain(now) if k == last else runner.advance(now)))
         c2 = clock()
         t_add += c1 - c0
         t_adv += c2 - c1

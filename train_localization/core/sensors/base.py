@@ -96,6 +96,11 @@ COMMON_PARAMS = {
 check_declared(COMMON_PARAMS, "COMMON_PARAMS")
 
 
+def samples_per_block(params: dict, rate: float) -> int:
+    """Samples in one raw block at ``rate`` [Hz]: ``block_duration`` of them, at least one."""
+    return max(1, int(round(params.get("block_duration", COMMON_PARAMS["block_duration"].default) * rate)))
+
+
 def resolve_params(declared: dict[str, Param], overrides: dict | None) -> dict[str, Any]:
     """Defaults of ``declared`` (plus the common ones) updated by ``overrides``.
 
@@ -214,13 +219,13 @@ ERROR_MODEL_LIMITS = {
     "fix_white_sigma": (0.0, math.inf), "reported_scale": (0.0, 1.0),
     "reported_bias": (0.0, math.inf), "reported_fix_bias": (0.0, math.inf), "creep_coefficient": (0.0, 1.0),
     "scale_fault_sigma": (0.0, 1.0), "fault_duration_max": (0.0, math.inf), "slip_ratio_max": (0.0, 1.0),
-    "timeout": (0.0, math.inf),
+    "timeout": (0.0, math.inf), "latency": (0.0, math.inf),
     "gate_probability": (0.5, 1.0), "stddev_factor": (1.0e-3, 1.0e3), "min_stddev": (0.0, math.inf),
 }
 
 
 # the fields whose NaN means "as the fusion or another field has it"
-NAN_MEANS_DEFAULT = ("gate_probability", "fix_excess_length", "fix_excess_tau")
+NAN_MEANS_DEFAULT = ("gate_probability", "fix_excess_length", "fix_excess_tau", "latency")
 
 
 @dataclass(frozen=True)
@@ -265,6 +270,10 @@ class ErrorModel:
                                          # wheel-slide protection's limit): what an undetected one can
                                          # put into a dead reckoning that uses the sensor
     timeout: float = math.inf            # longest silence while in use [s]; inf = sparse/event sensor
+    latency: float = math.nan            # longest delay from a measurement's stamp to its delivery [s]: its
+                                         # block's length plus the decoder's delay (SensorSpec.errors); a
+                                         # holding fusion waits this long to apply inputs in stamp order
+                                         # (core/fusion/runner.py); NaN = not declared (never waited for)
     gate_probability: float = math.nan   # chi-square gate of its measurements; NaN = the fusion's global one
     stddev_factor: float = 1.0           # factor on the white part of the reported stddev
     min_stddev: float = 0.0              # smallest 1-sigma an honest measurement of the sensor reports,
@@ -392,7 +401,7 @@ class Simulator(ABC):
         self._orients: list[int | None] | None = None
         self.unit_id = params.get("unit_id") or self.sensor
         self.sample_rate = float(params.get("sample_rate") or self.default_sample_rate)
-        self.samples_per_block = max(1, int(round(params.get("block_duration", 0.05) * self.sample_rate)))
+        self.samples_per_block = samples_per_block(params, self.sample_rate)
         self.seq = 0
         self._next_t0: float | None = None
 
@@ -515,12 +524,20 @@ class SensorSpec:
     outputs: tuple[str, ...] = ("position", "speed", "distance")
     # (resolved params, track, vehicle) -> ErrorModel
     error_model: Callable[[dict, Track, Vehicle], ErrorModel] | None = None
+    # [s] longest a decoder holds a sample beyond the end of its block before the measurement it
+    # makes is out (a read that needs the next block); with ``block_duration`` the sensor's latency
+    decoder_delay: float = 0.0
 
     def __post_init__(self):
         check_declared(self.params, self.node)
 
     def errors(self, params: dict, track: Track, vehicle: Vehicle) -> ErrorModel:
-        """The sensor's error model for its resolved ``params``."""
+        """The sensor's error model for its resolved ``params``; unless the model declares its
+        latency, it is the length of one raw block plus ``decoder_delay`` [s]."""
         if self.error_model is None:
             raise ValueError(f"sensor {self.node} declares no error model")
-        return self.error_model(params, track, vehicle)
+        model = self.error_model(params, track, vehicle)
+        if math.isnan(model.latency):   # a sample waits at most its block, then the decoder
+            rate = float(params.get("sample_rate") or self.simulator.default_sample_rate)
+            model = replace(model, latency=samples_per_block(params, rate) / rate + self.decoder_delay)
+        return model

@@ -515,3 +515,54 @@ def test_a_short_network_run_scores_its_track_selectivity_and_switch_ways(networ
     assert {"network_selectivity", "network_switch_ways", "network_none_nominal_wrong_track"} <= set(s["checks"])
     text = tool.summary_table(s)
     assert "network (1 runs" in text and "track selectivity" in text
+
+
+# --------------------------------------------------------------------------- network with ETCS data
+def test_network_etcs_runs_draw_the_network_runs_with_etcs_data(draws):
+    """The family ``network_etcs``: the network, route, profile and train of the ``network`` run of
+    the same seed, every balise group two balises 3 m apart with one Q_LOCACC of 1-5 m, a group in
+    front of switches, linking ``auto``, the reader's location error bounded by Q_LOCACC; one group
+    passed on the route not read in about a third of the runs."""
+    from train_localization.core.etcs.network_data import NetworkEtcsData
+    runs = draws["network_etcs"]
+    for seed, data in enumerate(runs[:20]):
+        plain = draws["network"][seed]
+        assert all(data[k] == plain[k] for k in ("route", "profile", "vehicle", "initial"))
+        assert [s["alignment"] for s in data["track"]["sections"]] == [s["alignment"] for s in plain["track"]["sections"]]
+        assert data["track"]["etcs"]["linking"] == "auto" and "location_sigma" not in data["sensors"]["eurobalise_reader"]
+        etcs = NetworkEtcsData.from_network(Scenario.from_dict(copy.deepcopy(data)).network)
+        if "tunnel_stop" not in data["campaign"]["conditions"]:   # a tunnel stop takes balises away
+            assert len(etcs.groups) == data["campaign"]["conditions"]["balise_groups"]
+            for located in etcs.groups.values():
+                g = located.group
+                assert len(g.balises) == 2 and g.positions[1] - g.positions[0] == pytest.approx(3.0)
+                assert g.q_locacc in campaign.Q_LOCACC_DRAWN
+    signals = [d["campaign"]["conditions"]["signal_groups"] for d in runs]
+    assert sum(signals) > 0.5 * sum(d["campaign"]["conditions"]["network"]["switches"] for d in runs)
+    with_groups = [d for d in runs if d["campaign"]["conditions"]["groups_passed"]]
+    silent = sum(bool(d["campaign"]["conditions"]["silent_group"]) for d in with_groups)
+    assert 0.2 * len(with_groups) < silent < 0.45 * len(with_groups)
+
+
+@pytest.fixture(scope="module")
+def network_etcs_run():
+    """A short network_etcs run with a group on its route not read."""
+    seed = next(s for s in range(200) if generate("network_etcs", s)["campaign"]["conditions"]["silent_group"])
+    return run_one("network_etcs", seed, max_duration=NETWORK_SHORT)
+
+
+def test_a_short_network_etcs_run_scores_the_etcs_location_on_the_network(network_etcs_run):
+    """The location function runs on the network: the true front within the safe front ends in
+    >= 99.9 % of the reports, an LRBG, the group not read reported missed; the summary and the
+    table carry an ETCS line besides the network one."""
+    r = network_etcs_run
+    assert "error" not in r, r.get("traceback")
+    e, silent = r["etcs"], r["conditions"]["silent_group"]
+    assert e["claimed"] > 0 and (e["claimed"] - e["outside"]) / e["claimed"] >= 0.999
+    assert e["lrbgs"] and silent not in e["lrbgs"] and e["missed_groups"] == [silent]
+    assert r["network"]["claimed"] > 0 and r["network"]["nominal_wrong_track"] == 0
+    s = campaign.summarise([r])
+    assert s["all"]["etcs"]["runs"] == 1 and s["all"]["network"]["runs"] == 1
+    assert {"etcs_safe_front_ends", "network_selectivity"} <= set(s["checks"])
+    text = tool.summary_table(s)
+    assert "network_etcs: ETCS location (1 runs" in text and "network_etcs: network (1 runs" in text

@@ -29,6 +29,9 @@ and, with --families, the later ones (``MORE_FAMILIES``), among them
                     station throat (core/network/draw.py), up to 100 km/h from rest; switches
                     the interlocking reports the wrong way or not at all; scored also for
                     track selectivity and switch ways (core/network/scoring.py)
+  network_etcs      ``network`` on a network with ETCS data: Q_LOCACC per balise group, a group
+                    in front of each switch, linking along the routes, one group not read in a
+                    third of the runs; scored also for the ETCS location function on the network
 """
 from __future__ import annotations
 
@@ -52,7 +55,7 @@ from .sensors import wheel as _wheel
 
 FAMILIES = ("conventional", "urban_maglev", "highspeed_maglev")
 # families of the later sensor kinds (issue 11), run with --families
-MORE_FAMILIES = ("lzb", "utm", "mlx", "hsst", "mbahn", "etcs", "network")
+MORE_FAMILIES = ("lzb", "utm", "mlx", "hsst", "mbahn", "etcs", "network", "network_etcs")
 ALL_FAMILIES = FAMILIES + MORE_FAMILIES
 FUSION_RATE = 200.0   # published states per second (the fusion node's default)
 P_ACCELEROMETER = 0.5  # share of the trains that carry a longitudinal accelerometer (single lines)
@@ -371,21 +374,18 @@ def _etcs(d: Draw) -> tuple[dict, dict]:
                     key=lambda kv: kv[1])
     balises = []
     for n, (_, x) in enumerate(groups):
-        q = (1.0, 1.0, 2.0, 3.0, 5.0)[d.int(0, 4)]
-        balises += [{"id": f"BG{n:03d}a", "position": x, "group": f"BG{n:03d}", "q_locacc": q},
-                    {"id": f"BG{n:03d}b", "position": rounded(x + 3.0, 8), "group": f"BG{n:03d}", "q_locacc": q}]
-    track["equipment"]["eurobalise"] = [b for b in balises if b["position"] <= track["length"]]
-    reaction = ("service_brake", "train_trip", "none")[d.int(0, 2)]
+        balises.append([{"id": f"BG{n:03d}a", "position": x, "group": f"BG{n:03d}"},
+                        {"id": f"BG{n:03d}b", "position": rounded(x + 3.0, 8), "group": f"BG{n:03d}"}])
+    reaction = _etcs_groups(d, balises)
+    track["equipment"]["eurobalise"] = [b for pair in balises for b in pair if b["position"] <= track["length"]]
     track["etcs"] = {"linking": "auto", "link_reaction": reaction}
     reader = scenario["sensors"]["eurobalise_reader"]
     reader.pop("location_sigma")
     front = np.asarray(_coarse(scenario["profile"], scenario["initial"]["speed"], scenario["duration"]).position) \
         + scenario["initial"]["position"]
-    passed = [b for b in track["equipment"]["eurobalise"][::2] if front.min() + 50.0 < b["position"] < front.max() - 50.0]
-    silent = ""
-    if passed and d.chance(1.0 / 3.0):
-        silent = passed[d.int(0, len(passed) - 1)]["group"]
-        reader["silent_balises"] = f"{silent}a,{silent}b"
+    passed = [b["group"] for b in track["equipment"]["eurobalise"][::2]
+              if front.min() + 50.0 < b["position"] < front.max() - 50.0]
+    silent = _silent_group(d, reader, passed)
     conditions.update({"link_reaction": reaction, "silent_group": silent, "groups_passed": len(passed)})
     return scenario, conditions
 
@@ -774,16 +774,25 @@ def _network(d: Draw) -> tuple[dict, dict]:
     return scenario, conditions
 
 
+def _route_line(body: dict) -> tuple[list[dict], float]:
+    """(the balises on a network train's route line, with their group and their position in its
+    chainage; the train front's start there [m])."""
+    from .network import Network, route_path, route_track
+    route = body["route"]
+    path = route_path(Network.from_dict(body["track"]), route["sections"], route.get("direction", 1))
+    balises = [{"id": b["id"], "position": b["position"], "group": b.get("group", b["id"])}
+               for b in route_track(path, "route").items("eurobalise")]
+    return balises, path.steps[0].distance(body["initial"]["position"]) - path.begin
+
+
 def _route_hard_conditions(d: Draw, family: str, body: dict, conditions: dict, coarse: Trajectory) -> dict | None:
     """hard_conditions.draw for a train on a network: it sees the train's route line (its
     chainage, its balises) in place of a track; the balises a tunnel stop takes off the route
     line are taken off their sections."""
-    from .network import Network, route_path, route_track
-    route = body["route"]
-    path = route_path(Network.from_dict(body["track"]), route["sections"], route.get("direction", 1))
-    balises = [{"id": b["id"], "position": b["position"]} for b in route_track(path, "route").items("eurobalise")]
+    on_route, start = _route_line(body)
+    balises = [{"id": b["id"], "position": b["position"]} for b in on_route]
     line = {"duration": body["duration"], "profile": body["profile"], "sensors": body["sensors"],
-            "initial": {**body["initial"], "position": path.steps[0].distance(body["initial"]["position"]) - path.begin},
+            "initial": {**body["initial"], "position": start},
             "track": {"equipment": {"eurobalise": list(balises)}}}
     attack = hard_conditions.draw(d, family, line, conditions, coarse)
     gone = {b["id"] for b in balises} - {b["id"] for b in line["track"]["equipment"]["eurobalise"]}
@@ -792,6 +801,86 @@ def _route_hard_conditions(d: Draw, family: str, body: dict, conditions: dict, c
         if items:
             section["equipment"]["eurobalise"] = [b for b in items if b["id"] not in gone]
     return attack
+
+
+Q_LOCACC_DRAWN = (1.0, 1.0, 2.0, 3.0, 5.0)   # [m] a group's Q_LOCACC, one drawn per group (etcs families)
+LINK_REACTIONS = ("service_brake", "train_trip", "none")
+P_SILENT_GROUP = 1.0 / 3.0                   # runs in which one group the train passes is not read
+Q_NVLOCACC = 12.0                            # [m] the national value (SUBSET-026's default)
+SIGNAL_GROUP_BEFORE = (30.0, 80.0)           # [m] from a switch's point to its signal's group
+GROUP_CLEARANCE = 10.0                       # [m] a signal's group keeps this far from the other balises
+
+
+def _etcs_groups(d: Draw, groups: list[list[dict]]) -> str:
+    """Q_LOCACC per balise group (lists of its balise items, in turn) and a link reaction: the
+    drawn reaction."""
+    for items in groups:
+        q = Q_LOCACC_DRAWN[d.int(0, len(Q_LOCACC_DRAWN) - 1)]
+        for it in items:
+            it["q_locacc"] = q
+    return LINK_REACTIONS[d.int(0, len(LINK_REACTIONS) - 1)]
+
+
+def _silent_group(d: Draw, reader: dict, passed: list[str]) -> str:
+    """In a share P_SILENT_GROUP of the runs one of the ``passed`` groups (ids of groups of two
+    balises ``a``, ``b``) is not read (a linked group missed); returns its id or ''."""
+    if not passed or not d.chance(P_SILENT_GROUP):
+        return ""
+    silent = passed[d.int(0, len(passed) - 1)]
+    reader["silent_balises"] = f"{silent}a,{silent}b"
+    return silent
+
+
+def _signal_groups(d: Draw, network: dict) -> int:
+    """A balise group (two balises 3 m apart) SIGNAL_GROUP_BEFORE m in front of each switch on
+    the section its A port joins (the group of the signal that protects it), where that leaves
+    GROUP_CLEARANCE m to the section's ends and other balises; returns how many were placed."""
+    sections = {s["id"]: s for s in network["sections"]}
+    placed = 0
+    for node in network["nodes"]:
+        sid, end = node["A"].rsplit(".", 1)
+        sec = sections[sid]
+        back = d.u(*SIGNAL_GROUP_BEFORE)
+        x = sec["length"] - back - 3.0 if end == "end" else back
+        items = sec.setdefault("equipment", {}).setdefault("eurobalise", [])
+        if x < GROUP_CLEARANCE or x + 3.0 > sec["length"] - GROUP_CLEARANCE or \
+                any(x - GROUP_CLEARANCE < b["position"] < x + 3.0 + GROUP_CLEARANCE for b in items):
+            if not items:
+                del sec["equipment"]["eurobalise"]
+            continue
+        group = f"G{node['id']}"
+        items += [{"id": f"{group}a", "position": rounded(x, 10), "group": group},
+                  {"id": f"{group}b", "position": rounded(x + 3.0, 10), "group": group}]
+        items.sort(key=lambda b: b["position"])
+        placed += 1
+    return placed
+
+
+def _network_etcs(d: Draw) -> tuple[dict, dict]:
+    """A ``network`` run (``_network``) on a network with ETCS data (core/etcs/network_data.py):
+    its balise groups of two 3 m apart at intervals, and one in front of each switch
+    (``_signal_groups``); Q_LOCACC of 1-5 m per group (the reader's location error bounded by
+    it), an ``etcs`` block with linking along the routes and a drawn Q_LINKREACTION, and in a
+    third of the runs one group the train passes on its route not read (a linked group missed)."""
+    scenario, conditions = _network(d)
+    network = scenario["track"]
+    signals = _signal_groups(d, network)
+    members: dict[str, list[dict]] = {}
+    for sec in network["sections"]:
+        for b in sec.get("equipment", {}).get("eurobalise", []):
+            members.setdefault(b["group"], []).append(b)
+    reaction = _etcs_groups(d, list(members.values()))
+    network["etcs"] = {"q_nvlocacc": Q_NVLOCACC, "linking": "auto", "link_reaction": reaction}
+    reader = scenario["sensors"]["eurobalise_reader"]
+    reader.pop("location_sigma")
+    on_route, start = _route_line(scenario)
+    front = start + _coarse(scenario["profile"], scenario["initial"]["speed"], scenario["duration"]).position
+    passed = sorted({b["group"] for b in on_route if front.min() + 50.0 < b["position"] < front.max() - 50.0})
+    silent = _silent_group(d, reader, passed)
+    conditions.update({"signal_groups": signals, "balise_groups": len(members),
+                       "balises_on_route": len(on_route), "link_reaction": reaction, "silent_group": silent,
+                       "groups_passed": len(passed)})
+    return scenario, conditions
 
 
 # long-stator families: the guideway is fed section by section (seed 000 section 2)
@@ -872,7 +961,7 @@ def _accelerometer(seed: int, body: dict, conditions: dict) -> None:
 
 _GENERATORS = {"conventional": _conventional, "urban_maglev": _urban, "highspeed_maglev": _highspeed_maglev,
                "lzb": _lzb, "utm": _utm, "mlx": _mlx, "hsst": _hsst, "mbahn": _mbahn, "etcs": _etcs,
-               "network": _network}
+               "network": _network, "network_etcs": _network_etcs}
 
 def generate(family: str, seed: int, max_duration: float | None = None) -> dict:
     """The scenario dict of run (family, seed): ``Scenario.from_dict`` loads it.
@@ -902,7 +991,8 @@ def generate(family: str, seed: int, max_duration: float | None = None) -> dict:
     _accelerometer(seed, body, conditions)
     reader = body["sensors"].get("eurobalise_reader", {})
     if reader.get("silent_balises"):   # a hard condition (a tunnel) may have taken the silent group away
-        on_track = {b["id"] for b in body["track"]["equipment"].get("eurobalise", [])}
+        places = body["track"]["sections"] if "route" in body else [body["track"]]
+        on_track = {b["id"] for place in places for b in place.get("equipment", {}).get("eurobalise", [])}
         kept = [b for b in reader["silent_balises"].split(",") if b in on_track]
         reader["silent_balises"] = ",".join(kept)
         conditions["silent_group"] = conditions["silent_group"] if kept else ""

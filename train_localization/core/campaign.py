@@ -812,8 +812,8 @@ GROUP_CLEARANCE = 10.0                       # [m] a signal's group keeps this f
 
 
 def _etcs_groups(d: Draw, groups: list[list[dict]]) -> str:
-    """Q_LOCACC per balise group (lists of its balise items, in turn) and a link reaction: the
-    drawn reaction."""
+    """Draw a Q_LOCACC for each balise group (``groups``: each group's balise items, set in
+    place), then a link reaction; returns the reaction."""
     for items in groups:
         q = Q_LOCACC_DRAWN[d.int(0, len(Q_LOCACC_DRAWN) - 1)]
         for it in items:
@@ -842,16 +842,14 @@ def _signal_groups(d: Draw, network: dict) -> int:
         sec = sections[sid]
         back = d.u(*SIGNAL_GROUP_BEFORE)
         x = sec["length"] - back - 3.0 if end == "end" else back
-        items = sec.setdefault("equipment", {}).setdefault("eurobalise", [])
+        items = sec.get("equipment", {}).get("eurobalise", [])
         if x < GROUP_CLEARANCE or x + 3.0 > sec["length"] - GROUP_CLEARANCE or \
                 any(x - GROUP_CLEARANCE < b["position"] < x + 3.0 + GROUP_CLEARANCE for b in items):
-            if not items:
-                del sec["equipment"]["eurobalise"]
             continue
         group = f"G{node['id']}"
-        items += [{"id": f"{group}a", "position": rounded(x, 10), "group": group},
-                  {"id": f"{group}b", "position": rounded(x + 3.0, 10), "group": group}]
-        items.sort(key=lambda b: b["position"])
+        items = items + [{"id": f"{group}a", "position": rounded(x, 10), "group": group},
+                         {"id": f"{group}b", "position": rounded(x + 3.0, 10), "group": group}]
+        sec.setdefault("equipment", {})["eurobalise"] = sorted(items, key=lambda b: b["position"])
         placed += 1
     return placed
 

@@ -24,9 +24,9 @@ printed at the end. The exit code is 0 (a campaign is a measurement) unless
 any run < 99.5 %, any excursion lasts > 2 s, any run failed, or (the long-stator
 families, core/wayside/stator.py) a stator section switched off under a vehicle, or (runs with
 a Eurobalise reader, core/etcs) the true front is within the ETCS safe front ends in < 99.9 %
-of the location reports, or (the family ``network``, core/network) the track selectivity on
-parallel track is < 99.9 %, < 99.5 % of the facing switches' ways are resolved within their
-clearance, or a state is NOMINAL on a wrong track.
+of the location reports, or (the families ``network`` and ``network_etcs``, core/network) the
+track selectivity on parallel track is < 99.9 %, < 99.5 % of the facing switches' ways are
+resolved within their clearance, or a state is NOMINAL on a wrong track.
 """
 from __future__ import annotations
 

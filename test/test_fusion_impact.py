@@ -307,6 +307,22 @@ def test_a_low_adhesion_stretch_with_a_radar_reading_off_is_covered_as_one_fault
     assert run["scores"]["integrity"]["outside_count"] == 0
 
 
+def test_a_common_cause_that_began_before_the_first_fix_is_covered_beside_an_accelerometer():
+    """The same run with an accelerometer: it checks the members' readings (a step or ramp of
+    their common scale error is an acceleration it does not measure), but this fault began before
+    the first fix, so the readings after it show no change. The group's first row is therefore a
+    fault that may have begun before (``impact.begun_before``: the speed the filter learnt from
+    the members carries it); as a step at the first fix the check took it for excluded and
+    2,268 states were outside (DEGRADED) from 42.2 s to 53.5 s."""
+    from train_localization.core import campaign
+    data = campaign.generate("conventional", 1045080295, max_duration=60.0)
+    data["sensors"]["accelerometer"] = {}
+    data["fusion"] = {**data["fusion"], "common_cause_prior": 0.01}
+    run = campaign.run_scenario(data)
+    assert run["fusion"]["accepted"]["accelerometer"] > 1000
+    assert run["scores"]["integrity"]["outside_count"] == 0
+
+
 def _lone_radar_with_accelerometer(fault_at: float | None, accelerometer: bool, until: float = 79.0,
                                    fault: float = 0.03) -> tuple[TrainFilter, list]:
     """A train at a steady 25 m/s, a lone Doppler radar at 20 Hz, balise fixes every 2 km, and

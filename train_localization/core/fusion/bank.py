@@ -6,6 +6,8 @@ The one writer of ``Bookkeeping.impacts``: the filter, the stages and the polici
 ask it to follow through the filter's ``bank``."""
 from __future__ import annotations
 
+import math
+
 from .component import Component
 from . import impact
 
@@ -25,8 +27,11 @@ class FaultBank(Component):
         bounds = f.limits.persistent_bounds   # the sensors' own and the monitored common-cause groups'
         if bounds and aux.initialised and (
                 aux.impacts is None or t - aux.impacts.last_onset_of(bounds) >= f.cfg.fault_onset_spacing):
+            first = aux.impacts is None or aux.impacts.last_onset_of(bounds) == -math.inf
             aux.impacts = impact.started(aux.impacts, bounds, t, f.n, f.cfg.fault_onsets, f.limits.z,
                                          members=f.limits.group_members)
+            if first and f.limits.group_members:
+                aux.impacts = impact.begun_before(aux.impacts, t, float(f.ekf.x[1, 0]))
 
     def offset_onset(self, cls: str, stamp: float) -> None:
         """A run of offset fixes of ``cls`` may begin at ``stamp`` [s], ``fault_onset_spacing`` s after

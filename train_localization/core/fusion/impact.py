@@ -352,6 +352,22 @@ def speed_set(bank: Bank, speed: float) -> Bank:
     return bank._replace(E=E)
 
 
+@_keeps_none
+def begun_before(bank: Bank, onset: float, speed: float) -> Bank:
+    """The common-cause groups' rows of ``onset`` [s], the first ones (the filter has just located
+    the train), as faults that may have begun before it: the filter learnt its speed (``speed``
+    [m/s]) from the very readings that carry them, so their error per unit fault is the whole
+    speed, as ``speed_set`` has it. As a step at the onset they would be the wrong shape: the
+    readings since show no change, and a check of their acceleration (an accelerometer's) would
+    pass them. A single sensor's fault from before shows against the other speed sources, or, a
+    lone source's, is covered by the lone-source solution (lone.py), whose speed holds it."""
+    rows = (bank.onsets == onset) & bank.active & ~bank.offset & ~bank.transient & bank.grouped()
+    E = bank.E.copy()
+    E[:, 1] = np.where(rows, abs(speed), E[:, 1])
+    E[:, 2] = np.where(rows, 0.0, E[:, 2])
+    return bank._replace(E=E)
+
+
 class Prepared(NamedTuple):
     """What ``cover`` needs of a bank, as plain floats: the published states between two
     measurements share it (the fusion benchmark: numpy's per-call overhead on a few rows was

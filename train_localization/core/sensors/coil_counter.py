@@ -79,11 +79,10 @@ import functools
 import math
 
 import numpy as np
-from scipy.signal import lfilter
 
 from ..signals import InputRejected, RawBlock
 from ..track import Track, TrackError, extent
-from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator, continuous_timeout, gauss_markov
+from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator, continuous_timeout, first_order_filter, gauss_markov
 from .wheel import (QUAD_INDEX, SPEED_STDDEV_FLOOR, CycleCounter, IncrementEstimator, increment_or_reject,
                     restart_after_gap)
 
@@ -236,7 +235,7 @@ class CoilCounterSimulator(Simulator):
         out = np.empty((n, 2))
         for h in range(2):
             raw = self.output(position - self.heads[h], gap) * self.gain[h] + noise[:, h]
-            out[:, h], self._lp_zi[h] = lfilter([1.0 - alpha], [1.0, -alpha], raw, zi=self._lp_zi[h])
+            out[:, h], self._lp_zi[h] = first_order_filter([1.0 - alpha], [1.0, -alpha], raw, self._lp_zi[h])
         return np.clip(out, 0.0, 0.999 * p["saturation"])
 
 

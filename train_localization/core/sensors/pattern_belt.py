@@ -73,11 +73,10 @@ import itertools
 import math
 
 import numpy as np
-from scipy.signal import lfilter
 
 from ..signals import InputRejected, RawBlock
 from ..track import Track, extent
-from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator, continuous_timeout, gauss_markov
+from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator, continuous_timeout, first_order_filter, gauss_markov
 from .wheel import SPEED_STDDEV_FLOOR, CycleCounter, IncrementEstimator, increment_or_reject, restart_after_gap
 
 KIND = "pattern_belt"
@@ -363,7 +362,7 @@ class PatternBeltSimulator(Simulator):
         for k in range(3):
             amp = self._amplitude(position - self.coil_positions[k], gap) * self.gain[k]
             env = np.hypot(amp + noise[0, :, k], noise[1, :, k]) + self.offset[k]
-            env, self._lp_zi[k] = lfilter([1.0 - alpha], [1.0, -alpha], env, zi=self._lp_zi[k])
+            env, self._lp_zi[k] = first_order_filter([1.0 - alpha], [1.0, -alpha], env, self._lp_zi[k])
             out[:, k] = env
         return np.clip(out, 0.0, p["saturation"])
 

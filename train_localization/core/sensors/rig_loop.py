@@ -44,10 +44,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.signal import lfilter
 
 from ..signals import RawBlock
-from .base import ErrorModel, Param, SensorSpec, Simulator, continuous_timeout, gauss_markov
+from .base import ErrorModel, Param, SensorSpec, Simulator, continuous_timeout, first_order_filter, gauss_markov
 from .pattern_belt import (PARAMS as BELT_PARAMS, PatternBeltDecoder, flux_table, geometry, resolvable_speed,
                            table_lookup)
 from .wheel import SPEED_STDDEV_FLOOR
@@ -246,7 +245,7 @@ class RigLoopSimulator(Simulator):
             motional = self._lookup(self._dpsi, x, gap) * speed / self._omega   # eq. 4 term, in carrier units
             amp = np.hypot(transformer, motional) * self.gain[k]
             env = np.hypot(amp + noise[0, :, k], noise[1, :, k]) + self.offset[k]
-            env, self._lp_zi[k] = lfilter([1.0 - alpha], [1.0, -alpha], env, zi=self._lp_zi[k])
+            env, self._lp_zi[k] = first_order_filter([1.0 - alpha], [1.0, -alpha], env, self._lp_zi[k])
             out[:, k] = env
         return np.clip(out, 0.0, p["saturation"])
 

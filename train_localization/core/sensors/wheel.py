@@ -57,11 +57,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import lfilter
 
 from ..measurements import MAX_SPEED, DistanceIncrement
 from ..signals import InputRejected, RawBlock
-from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator, continuous_timeout
+from .base import Decoder, ErrorModel, Param, SensorSpec, Simulator, continuous_timeout, first_order_filter
 
 PARAMS = {
     "pulses_per_revolution": Param(
@@ -707,7 +706,7 @@ class WheelSimulator(Simulator):
         # AR(1) vibration, exact discretisation, state kept between blocks
         phi = math.exp(-dt / p["vibration_tau"])
         w = self.rng.normal(0.0, p["vibration"] * math.sqrt(1.0 - phi * phi), n)
-        vib, self._vib_zi = lfilter([1.0], [1.0, -phi], w, zi=self._vib_zi)
+        vib, self._vib_zi = first_order_filter([1.0], [1.0, -phi], w, self._vib_zi)
         circ = (position - self._s_ref) + extra + vib          # wheel circumferential travel [m]
         phase = circ / (math.pi * self.diameter) * self.ppr + self._angle0  # pulse periods
         a = (np.mod(phase, 1.0) < self.duty[0]).astype(np.float64)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import signal
 import subprocess
 import time
 
@@ -31,18 +32,64 @@ NODE_ARGS = {
 }
 
 
-@pytest.mark.parametrize("exe", sorted(NODE_ARGS))
-def test_node_starts_with_sim_time_and_stops_on_sigint(exe, ros_context, start_node, tmp_path):
-    extra = ["-p", f"output:={tmp_path / 'r.mcap'}"] if exe == "recorder" else []
-    proc = start_node(exe, "--ros-args", *NS, *SIM_TIME, *NODE_ARGS[exe], *extra)
-    node = ros_context.create_node(f"probe_{exe}")
+# nodes started at once (each import costs about a second of CPU; the rest of a start and
+# a stop is DDS discovery and shutdown, which a batch overlaps)
+START_BATCH = 6
+# what drives the others (the simulator's /clock, the controller's speed commands): started alone
+DRIVING = ("simulator", "speed_controller")
+
+
+@pytest.fixture(scope="module")
+def started_and_stopped(ros_context, tmp_path_factory):
+    """{exe: (up and running, exit code on SIGINT, output)} of every node of NODE_ARGS started
+    with sim time, each in a namespace of its own, in batches: all of a batch are interrupted
+    once each is up (or has died)."""
+    from conftest import NodeProcess
+    tmp = tmp_path_factory.mktemp("start_stop")
+    names = sorted(NODE_ARGS)
+    others = [exe for exe in names if exe not in DRIVING]
+    batches = [[exe] for exe in DRIVING] + [others[k:k + START_BATCH] for k in range(0, len(others), START_BATCH)]
+    outcome = {}
+    node = ros_context.create_node("probe_start_stop")
     try:
-        up = spin_until(node, lambda: exe in node.get_node_names() or proc.proc.poll() is not None, 30.0)
-        assert up and proc.proc.poll() is None, proc.output()
-        assert proc.interrupt() == 0, proc.output()
-        assert "Traceback" not in proc.output(), proc.output()
+        for batch in batches:
+            procs = {}
+            try:
+                for exe in batch:
+                    extra = ["-p", f"output:={tmp / 'r.mcap'}"] if exe == "recorder" else []
+                    ns = NS if len(batch) == 1 else ["-r", f"__ns:=/train_{exe}"]
+                    procs[exe] = NodeProcess(exe, ["--ros-args", *ns, *SIM_TIME, *NODE_ARGS[exe], *extra],
+                                             tmp / f"{exe}.log")
+                deadline = time.monotonic() + 30.0 * len(batch)
+                up = {exe: spin_until(node, lambda: exe in node.get_node_names() or p.proc.poll() is not None,
+                                      max(deadline - time.monotonic(), 1.0)) and p.proc.poll() is None
+                      for exe, p in procs.items()}
+                for p in procs.values():
+                    if p.proc.poll() is None:
+                        p.proc.send_signal(signal.SIGINT)
+                for exe, p in procs.items():
+                    try:
+                        p.proc.wait(timeout=15.0)
+                        outcome[exe] = (up[exe], p.interrupt(), p.output())   # exited: no second SIGINT
+                    except subprocess.TimeoutExpired:
+                        outcome[exe] = (up[exe], None, p.output() + "\n(no exit within 15 s of SIGINT)")
+            finally:
+                for p in procs.values():
+                    if p.proc.poll() is None:
+                        p.proc.kill()
+                        p.proc.wait()
+                    p.interrupt()    # exited by now: closes its log
     finally:
         node.destroy_node()
+    return outcome
+
+
+@pytest.mark.parametrize("exe", sorted(NODE_ARGS))
+def test_node_starts_with_sim_time_and_stops_on_sigint(exe, started_and_stopped):
+    up, code, output = started_and_stopped[exe]
+    assert up, output
+    assert code == 0, output
+    assert "Traceback" not in output, output
 
 
 def _diag_values(msgs, name_part):

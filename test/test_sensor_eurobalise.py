@@ -352,32 +352,39 @@ def test_telegrams_decoded_at_500_kmh():
 
 # ---------------------------------------------------------------- plausibility of a telegram
 
-def _decode_with_wrong_telegrams(sc, corrupt):
-    """Simulate the scenario and decode it with the telegram id of the passages listed in
-    ``corrupt`` ({passage number: balise id}) replaced by another balise's id of the track (a
-    telegram decoded wrong). Returns fixes, the pipeline, the trajectory and the ids read."""
+def _simulated_blocks(sc):
+    """(the scenario's raw blocks of the balise reader, its trajectory), simulated once."""
     from train_localization.core.pipeline import SensorPipeline
     from train_localization.core.sensors import spec
     s = spec(NODE)
-    params = sc.sensors.get(NODE, {})
-    sim = SensorPipeline(s, params, sc.track, sc.vehicle, sc.rng(NODE, s.sensor))
-    dec = SensorPipeline(s, params, sc.track, sc.vehicle, simulate=False)
-    nid = eb.telegram_ids(sc.track.items("eurobalise"))
+    sim = SensorPipeline(s, sc.sensors.get(NODE, {}), sc.track, sc.vehicle, sc.rng(NODE, s.sensor))
     traj = sc.trajectory()
+    return [b for k in range(int(sc.duration * sc.truth_rate) + 1)
+            for b in sim.on_truth(traj.state_at(k / sc.truth_rate))], traj
+
+
+def _decode_with_wrong_telegrams(sc, blocks, corrupt):
+    """Decode the scenario's ``blocks`` with the telegram id of the passages listed in
+    ``corrupt`` ({passage number: balise id}) replaced by another balise's id of the track (a
+    telegram decoded wrong; the blocks themselves are left as they are). Returns fixes and the
+    pipeline."""
+    from train_localization.core.pipeline import SensorPipeline
+    from train_localization.core.sensors import spec
+    dec = SensorPipeline(spec(NODE), sc.sensors.get(NODE, {}), sc.track, sc.vehicle, simulate=False)
+    nid = eb.telegram_ids(sc.track.items("eurobalise"))
     fixes, passage = [], 0
     col = eb.EurobaliseSimulator.channels.index("telegram")
-    for k in range(int(sc.duration * sc.truth_rate) + 1):
-        for b in sim.on_truth(traj.state_at(k / sc.truth_rate)):
-            hits = np.flatnonzero(b.data[:, col] > 0)
-            if hits.size:
-                if passage in corrupt:
-                    data = b.data.copy()
-                    data[hits[0], col] = nid[corrupt[passage]]
-                    b = RawBlock.from_samples(b.sensor, b.unit_id, b.seq, b.t0, b.sample_rate, b.channels,
-                                              b.units, data)
-                passage += 1
-            fixes.extend(dec.on_block(b))
-    return fixes, dec, traj
+    for b in blocks:
+        hits = np.flatnonzero(b.data[:, col] > 0)
+        if hits.size:
+            if passage in corrupt:
+                data = b.data.copy()
+                data[hits[0], col] = nid[corrupt[passage]]
+                b = RawBlock.from_samples(b.sensor, b.unit_id, b.seq, b.t0, b.sample_rate, b.channels,
+                                          b.units, data)
+            passage += 1
+        fixes.extend(dec.on_block(b))
+    return fixes, dec
 
 
 def _wrong(fixes, traj):
@@ -393,7 +400,8 @@ def test_a_telegram_naming_another_balise_gives_no_fix(scenario_file):
     for seed in (1, 2):
         sc = Scenario.from_yaml(scenario_file)
         sc.seed = seed
-        clean, _, _ = _decode_with_wrong_telegrams(sc, {})
+        blocks, traj = _simulated_blocks(sc)    # decoded twice: as simulated, then with wrong telegrams
+        clean, _ = _decode_with_wrong_telegrams(sc, blocks, {})
         items = sc.track.items("eurobalise")
         pos = {str(it["id"]): float(it["position"]) for it in items}
         rng = np.random.default_rng(seed)
@@ -404,7 +412,7 @@ def test_a_telegram_naming_another_balise_gives_no_fix(scenario_file):
                 far = [b for b in pos if abs(pos[b] - pos[reads[k]]) >= 1500.0]
                 corrupt[k] = str(rng.choice(far))
         assert corrupt
-        fixes, pipe, traj = _decode_with_wrong_telegrams(sc, corrupt)
+        fixes, pipe = _decode_with_wrong_telegrams(sc, blocks, corrupt)
         assert not _wrong(clean, traj)                              # without wrong telegrams: as before
         assert not _wrong(fixes, traj), [(f.stamp, f.reference_id) for f in _wrong(fixes, traj)]
         assert pipe.decoder.stats["implausible"] == len(corrupt)    # withheld and counted ...
@@ -417,11 +425,12 @@ def test_a_neighbour_at_speed_is_no_plausible_next_balise(shift):
     # but the train cannot have reversed in between; the last read again (-1) or the one after
     # next (+1) would need a reversal or twice the speed
     sc = scenario(40.0, 10.0, start=1990.0)
-    clean, _, traj = _decode_with_wrong_telegrams(sc, {})
+    blocks, traj = _simulated_blocks(sc)
+    clean, _ = _decode_with_wrong_telegrams(sc, blocks, {})
     ids = [str(it["id"]) for it in sc.track.items("eurobalise")]
     reads = [f.reference_id for f in clean]
     corrupt = {k: ids[ids.index(reads[k]) + shift] for k in (4, 9, 14)}
-    fixes, pipe, traj = _decode_with_wrong_telegrams(sc, corrupt)
+    fixes, pipe = _decode_with_wrong_telegrams(sc, blocks, corrupt)
     assert not _wrong(fixes, traj)
     assert pipe.decoder.stats["implausible"] == 3 and len(fixes) == len(clean) - 3
 

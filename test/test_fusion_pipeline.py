@@ -35,7 +35,7 @@ class FakeEKF:
 
 def fake_filter(**extra):
     """A fake filter: its bookkeeping, EKF, gates and an innovation that counts its calls."""
-    f = SimpleNamespace(aux=Bookkeeping(), ekf=FakeEKF(), calls=[], layout=SimpleNamespace(episode_sensors=(), fix=(), relative=frozenset({"doppler"})),
+    f = SimpleNamespace(aux=Bookkeeping(), ekf=FakeEKF(), calls=[], layout=SimpleNamespace(episode_sensors=(), fix=(), relative=frozenset({"doppler"}), accelerometers=frozenset()),
                         limits=SimpleNamespace(gates={"doppler": 9.0, "eb": 9.0}, bounded=frozenset(), transient_bounds={},
                                                persistent=frozenset()),
                         cfg=SimpleNamespace(slip_min_drive=0.2, jerk_psd=0.1, branch_timeout=120.0))

@@ -94,6 +94,14 @@ def start_node(tmp_path):
             p.proc.wait()
 
 
+def etcs_location_status(diags: list) -> dict:
+    """The newest key/values of the etcs_location node's own status (not its inputs') among the
+    received DiagnosticArray messages ``diags``; {} before the first."""
+    found = [{kv.key: kv.value for kv in st.values} for arr in diags for st in arr.status
+             if "ETCS location" in st.name and ": input " not in st.name]
+    return found[-1] if found else {}
+
+
 def spin_until(node, predicate, timeout: float = 20.0) -> bool:
     """Spin a test node until predicate() is true or the timeout passes."""
     from rclpy.executors import SingleThreadedExecutor

@@ -257,7 +257,7 @@ def test_the_node_reports_the_lrbg_and_publishes_its_events_and_refuses_what_it_
     from diagnostic_msgs.msg import DiagnosticArray
     from train_localization_msgs.msg import EtcsEvent, EtcsLocation, PositionFix as FixMsg, TrainState
     from train_localization.nodes.common import LATCHED_QOS, STREAM_QOS
-    from conftest import spin_until
+    from conftest import etcs_location_status, spin_until
 
     proc = start_node("etcs_location", "--ros-args", "-r", "__ns:=/train")
     node = ros_context.create_node("probe_etcs_location", namespace="/train")
@@ -281,9 +281,7 @@ def test_the_node_reports_the_lrbg_and_publishes_its_events_and_refuses_what_it_
         return m
 
     def own():
-        found = [{kv.key: kv.value for kv in st.values} for arr in diags for st in arr.status
-                 if "ETCS location" in st.name and ": input " not in st.name]
-        return found[-1] if found else {}
+        return etcs_location_status(diags)
     try:
         assert spin_until(node, lambda: state_pub.get_subscription_count() > 0 and fix_pub.get_subscription_count() > 0
                           and node.count_publishers("/train/localization/etcs") > 0, 30.0), proc.output()

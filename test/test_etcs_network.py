@@ -259,7 +259,7 @@ def test_the_node_follows_the_path_on_a_network_and_refuses_what_is_not_of_it(ro
     from diagnostic_msgs.msg import DiagnosticArray
     from train_localization_msgs.msg import EtcsLocation, PositionFix as FixMsg, SwitchPositions, TrainState
     from train_localization.nodes.common import LATCHED_QOS, STREAM_QOS
-    from conftest import spin_until
+    from conftest import etcs_location_status, spin_until
 
     path = tmp_path / "scenario.yaml"
     path.write_text(yaml.safe_dump(_throat_scenario({"W3": "B1"})))
@@ -277,9 +277,7 @@ def test_the_node_follows_the_path_on_a_network_and_refuses_what_is_not_of_it(ro
         return m
 
     def own():
-        found = [{kv.key: kv.value for kv in st.values} for arr in diags for st in arr.status
-                 if "ETCS location" in st.name and ": input " not in st.name]
-        return found[-1] if found else {}
+        return etcs_location_status(diags)
     try:
         assert spin_until(node, lambda: state_pub.get_subscription_count() > 0 and fix_pub.get_subscription_count() > 0
                           and node.count_publishers("/train/localization/etcs") > 0, 30.0), proc.output()

@@ -1008,6 +1008,63 @@ def test_one_clock_message_far_ahead_does_not_stop_the_fusions_states(ros_contex
         node.destroy_node()
 
 
+def test_holding_late_inputs_fuses_them_in_stamp_order_and_counts_those_later_than_declared(ros_context,
+                                                                                          start_node):
+    """hold_late_inputs: a fix 30 ms older than the one before it (the declared latency is 50 ms)
+    waits in the runner's buffer and enters in stamp order: no rewind; one that arrives a second
+    late rewinds the history once and is counted as late beyond the latency."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rosgraph_msgs.msg import Clock
+    from train_localization_msgs.msg import PositionFix
+    from train_localization.nodes.common import CLOCK_QOS, STREAM_QOS
+
+    proc = start_node("fusion", "--ros-args", *NS, "-p", "use_sim_time:=true", "-p", "sensors:=[eurobalise]",
+                      "-p", "hold_late_inputs:=true")
+    node = ros_context.create_node("probe_hold", namespace="/train")
+    clock_pub = node.create_publisher(Clock, "/clock", CLOCK_QOS)
+    pub = node.create_publisher(PositionFix, "sensors/eurobalise/position", STREAM_QOS)
+    diags = []
+    node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+
+    def stamp(msg, t):
+        msg.sec, msg.nanosec = int(t), int(round((t % 1) * 1e9))
+
+    def tick(t):
+        msg = Clock()
+        stamp(msg.clock, t)
+        clock_pub.publish(msg)
+        spin_until(node, lambda: False, 0.1)
+
+    def fix(t, pos):   # EB000 at 500 m
+        m = PositionFix(sensor="eurobalise", unit_id="btm", track_id="conventional_line", reference_id="EB000",
+                        position=pos, position_stddev=1.0)
+        stamp(m.header.stamp, t)
+        pub.publish(m)
+        spin_until(node, lambda: False, 0.1)
+    try:
+        assert spin_until(node, lambda: clock_pub.get_subscription_count() > 0 and pub.get_subscription_count() > 0,
+                          30.0), proc.output()
+        for _ in range(10):   # until the node's clock has surely taken /clock
+            tick(12.0)
+        fix(11.99, 502.0)
+        fix(11.96, 502.0)   # 30 ms older than the one before, within the 50 ms latency: held and sorted
+        for t in (12.2, 12.4, 12.6, 12.8, 13.0):
+            tick(t)
+        fix(11.975, 502.0)  # between the two taken, released long ago: beyond the latency, a rewind
+        for k in range(30):
+            tick(13.1 + 0.1 * k)
+            values = _diag_values(diags, "fusion")
+            if values.get("filter/rollbacks/late_beyond_latency") == "1":
+                break
+        values = _diag_values(diags, "fusion")
+        assert values.get("filter/rollbacks/late_beyond_latency") == "1", (values, proc.output())
+        assert values["filter/rollbacks/late"] == "1", values
+        assert values["accepted/sensors/eurobalise/position"] == "3"
+        assert proc.interrupt() == 0
+    finally:
+        node.destroy_node()
+
+
 def test_numeric_parameters_carry_their_range_and_a_value_beyond_it_stops_the_node(ros_context, start_node):
     """A sensor node's limited parameters have the range in their descriptor (what ``ros2
     param describe`` shows); a value beyond it, given as a double or as an integer, stops the

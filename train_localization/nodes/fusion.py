@@ -89,6 +89,10 @@ NODE_PARAMS = {
                             "node publishes map -> odom (as robot_localization does); empty: map -> base_frame"),
     "max_input_rate": Param(1000.0, "messages per second per input topic beyond which the excess is shed before "
                                     "any work (counted: shed/<topic>); the fastest device sends 200/s", (1.0, 1.0e6)),
+    "hold_late_inputs": Param(False, "hold every input for the largest latency its sensor declares (the error "
+                                     "models' latency) and fuse in stamp order: an input no later than that "
+                                     "rewinds nothing; the states are published that latency late "
+                                     "(core/fusion/runner.py)"),
 }
 
 
@@ -321,7 +325,8 @@ class FusionNode(ManagedNode):
             hypotheses = HypothesisSet(cfg, net, self.network)
             self.tracks_pub = self.create_lifecycle_publisher(self.mc.TrackHypotheses, "localization/tracks",
                                                               STATE_QOS)
-        self.runner = FusionRunner(cfg, float(self.get_parameter("publish_rate").value), hypotheses)
+        hold = bool(declare_param(self, NODE_PARAMS, "hold_late_inputs"))
+        self.runner = FusionRunner(cfg, float(self.get_parameter("publish_rate").value), hypotheses, hold=hold)
         self.filter = self.runner.filter
         self.sensors = sensors
         self._inputs: dict[str, list] = {}   # sensor -> [accepted since the last report, wall time, age]

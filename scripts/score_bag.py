@@ -24,6 +24,19 @@ states that claim a position (mode not INITIALISING) within the truth's time spa
 * **NOMINAL on a wrong track**: a NOMINAL state whose track_id is not the truth's section and
   whose most probable hypothesis does not reach it either;
 * **on the truth's track**: the state names the truth's section.
+
+Per train with ETCS location reports (``localization/etcs``), over the reports that claim a
+position (mode NOMINAL or DEGRADED):
+
+* **ETCS inside**: the truth's front lies between the min and max safe front ends. On a network
+  these are path distances: the truth's (track_id, position) is restated on the report's followed
+  path (``path``, ``path_direction``, ``path_origin``), or, where that path does not hold the
+  truth's section (it follows a switch the interlocking reports wrongly), taken as the truth's
+  ``route_distance`` (the same frame: every path starts at the route's start);
+* **overruns**: truth samples whose front lies beyond the train's end of authority (the
+  scenario's ``atp: end_of_authority``, on ``end_of_authority_section`` on a network), and the
+  **EOA margin**: how far short of it the last truth sample stands; the supervision's **trips**
+  and highest status (``atp/command``).
 """
 from __future__ import annotations
 
@@ -39,28 +52,32 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 TRUTH, STATE, TRACKS, SCENARIO = "/ground_truth/state", "/localization/state", "/localization/tracks", "/scenario"
-INITIALISING, NOMINAL = 0, 1
+ETCS, ATP = "/localization/etcs", "/atp/command"
+INITIALISING, NOMINAL, DEGRADED = 0, 1, 2
+STATUS_TRIP = 4
 
 
 def stamp(msg) -> float:
     return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
 
 
-def read(path: str) -> tuple[dict, dict, dict, dict]:
-    """truth, states, tracks (namespace -> [(stamp, msg)]) and scenarios (namespace or "" -> dict)."""
-    truth, states, tracks, scenarios = defaultdict(list), defaultdict(list), defaultdict(list), {}
+def read(path: str) -> tuple[dict, dict, dict, dict, dict, dict]:
+    """truth, states, tracks, ETCS reports, ATP commands (namespace -> [(stamp, msg)]) and
+    scenarios (namespace or "" -> dict)."""
+    streams = {suffix: defaultdict(list) for suffix in (TRUTH, STATE, TRACKS, ETCS, ATP)}
+    scenarios = {}
     with open(path, "rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
         wanted = [c.topic for c in reader.get_summary().channels.values()
-                  if c.topic.endswith((TRUTH, STATE, TRACKS, SCENARIO))]
+                  if c.topic.endswith((*streams, SCENARIO))]
         for _, channel, _, msg in reader.iter_decoded_messages(topics=wanted):
             topic = channel.topic
-            for suffix, rows in ((TRUTH, truth), (STATE, states), (TRACKS, tracks)):
+            for suffix, rows in streams.items():
                 if topic.endswith(suffix):
                     rows[topic[: -len(suffix)]].append((stamp(msg), msg))
             if topic.endswith(SCENARIO):
                 scenarios[topic[: -len(SCENARIO)]] = yaml.safe_load(msg.data)
-    return truth, states, tracks, scenarios
+    return (*streams.values(), scenarios)
 
 
 def circumference(scenario: dict | None) -> float | None:
@@ -79,12 +96,23 @@ class Truth:
         self.t = [t for t, _ in rows]
         self.msgs = [m for _, m in rows]
 
-    def at(self, t: float) -> tuple[str, float]:
+    def nearest(self, t: float):
+        """(the truth sample nearest t, t minus its stamp [s])."""
         i = bisect.bisect_left(self.t, t)
         if i == len(self.t) or (i > 0 and t - self.t[i - 1] < self.t[i] - t):
             i -= 1
-        m, dt = self.msgs[i], t - self.t[i]
+        return self.msgs[i], t - self.t[i]
+
+    def at(self, t: float) -> tuple[str, float]:
+        m, dt = self.nearest(t)
         return m.track_id, m.position + m.speed * dt + 0.5 * m.acceleration * dt * dt
+
+    def route_at(self, t: float) -> float:
+        """The front's distance along its route [m] at t (NaN without a route, or in a bag
+        recorded before the truth carried one)."""
+        m, dt = self.nearest(t)
+        moved = m.speed * dt + 0.5 * m.acceleration * dt * dt
+        return getattr(m, "route_distance", math.nan) + getattr(m, "route_direction", 0) * moved
 
 
 def within(x: float, lo: float, hi: float, ring: float | None) -> bool:
@@ -124,14 +152,77 @@ def score_train(truth_rows, state_rows, track_rows, ring: float | None) -> dict:
             "on_truth_track": on_track / n if n else math.nan}
 
 
+def train_entry(scenario: dict | None, ns: str) -> dict:
+    """The scenario's entry of the train in namespace ``ns`` (a line's ``trains`` item, or the
+    one-train scenario itself)."""
+    scenario = scenario or {}
+    for entry in scenario.get("trains") or ():
+        if entry.get("name") == ns.strip("/"):
+            return entry
+    return scenario
+
+
+def report_frame(report, truth: Truth, t: float) -> float:
+    """The truth's front at t in the frame of a location report's front ends: on a network
+    restated on the report's followed path (its route distance where that path lacks the
+    section), on a single line its chainage."""
+    section, chainage = truth.at(t)
+    if not getattr(report, "path", ()):
+        return chainage
+    for sec, direction, origin in zip(report.path, report.path_direction, report.path_origin):
+        if sec == section:
+            return origin + direction * chainage
+    return truth.route_at(t)
+
+
+def beyond_eoa(m, atp: dict, route: list, orientation: int) -> float:
+    """How far [m] a truth sample's front lies beyond the end of authority (<= 0: short of it;
+    NaN on a section of the route other than the EOA's, before it)."""
+    eoa, section = float(atp["end_of_authority"]), str(atp.get("end_of_authority_section") or "")
+    if not section:
+        return orientation * (m.position - eoa)
+    if m.track_id == section:
+        return m.route_direction * (m.position - eoa)
+    past = route.index(m.track_id) > route.index(section) if m.track_id in route and section in route else False
+    return math.inf if past else math.nan
+
+
+def score_etcs(truth_rows, report_rows, command_rows, entry: dict) -> dict:
+    """The ETCS location reports and the supervision of one train against its truth."""
+    truth = Truth(truth_rows)
+    n = inside = 0
+    for t, r in report_rows:
+        if r.mode not in (NOMINAL, DEGRADED) or not truth.t[0] <= t <= truth.t[-1]:
+            continue
+        front = report_frame(r, truth, t)
+        lo, hi = sorted((r.min_safe_front_end, r.max_safe_front_end))
+        n += 1
+        inside += lo <= front <= hi
+    out = {"reports": n, "etcs_inside": inside / n if n else math.nan, "etcs_outside": n - inside,
+           "trips": sum(c.status == STATUS_TRIP for _, c in command_rows),
+           "max_status": max((c.status for _, c in command_rows), default=None)}
+    atp = entry.get("atp") or {}
+    if atp.get("end_of_authority") is not None:
+        moving = [m.speed for m in truth.msgs if abs(m.speed) > 0.1]
+        orientation = 1 if not moving or moving[0] > 0 else -1
+        route = [str(s) for s in (entry.get("route") or {}).get("sections", ())]
+        beyond = [beyond_eoa(m, atp, route, orientation) for m in truth.msgs]
+        out["overruns"] = sum(b > 0.0 for b in beyond if not math.isnan(b))
+        out["eoa_margin"] = -beyond[-1] if beyond else math.nan
+    return out
+
+
 def score_bag(path: str) -> dict:
-    """namespace -> scores of every train in the bag."""
-    truth, states, tracks, scenarios = read(path)
+    """namespace -> scores of every train in the bag (with its ETCS scores where it has location
+    reports)."""
+    truth, states, tracks, reports, commands, scenarios = read(path)
     out = {}
     for ns in sorted(truth):
         if ns in states:
-            ring = circumference(scenarios.get(ns, scenarios.get("")))
-            out[ns] = score_train(truth[ns], states[ns], tracks.get(ns, ()), ring)
+            scenario = scenarios.get(ns, scenarios.get(""))
+            out[ns] = score_train(truth[ns], states[ns], tracks.get(ns, ()), circumference(scenario))
+            if ns in reports:
+                out[ns]["etcs"] = score_etcs(truth[ns], reports[ns], commands.get(ns, ()), train_entry(scenario, ns))
     return out
 
 
@@ -149,6 +240,12 @@ def main(argv=None) -> int:
             print(f"{bag} {ns}: {s['states']} states, inside {100 * s['inside']:.3f} % ({s['outside']} outside, "
                   f"{s['nominal_outside']} NOMINAL), NOMINAL on a wrong track {s['nominal_wrong_track']}, "
                   f"on the truth's track {100 * s['on_truth_track']:.2f} %")
+            e = s.get("etcs")
+            if e:
+                print(f"  ETCS: {e['reports']} reports, the truth within the safe front ends in "
+                      f"{100 * e['etcs_inside']:.3f} % ({e['etcs_outside']} outside); trips {e['trips']}, highest "
+                      f"status {e['max_status']}" + (f"; overruns {e['overruns']}, {e['eoa_margin']:.2f} m short of "
+                                                     f"the EOA at the end" if "overruns" in e else ""))
     return 0
 
 

@@ -153,3 +153,12 @@ def claimed_states(result, traj):
     truth = np.interp(np.array([e.stamp for e in est]), traj.t, traj.position)
     inside = np.mean([(e.position_min <= x <= e.position_max) for e, x in zip(est, truth)])
     return est, inside, np.array([e.position for e in est]) - truth
+
+
+def outside_scorer():
+    """scripts/score_bag.py, the scorer that reads a bag with the mcap library alone, as a module."""
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("score_bag", ROOT / "scripts" / "score_bag.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

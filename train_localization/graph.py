@@ -26,8 +26,9 @@ def graph_options(sc) -> dict:
     ``atp`` (its parameters, the train's orientation)."""
     from .core.wayside.stator import KIND as STATOR_KIND
     atp = {**{"orientation": sc.orientation()}, **sc.atp} if sc.atp else None
+    etcs = sc.network.etcs if sc.network is not None else sc.track.etcs   # a network's block, or the track's
     return {"controller": bool(sc.control), "stator": bool(sc.track.items(STATOR_KIND)),
-            "etcs": bool(sc.track.etcs) or atp is not None, "atp": atp}
+            "etcs": bool(etcs) or atp is not None, "atp": atp}
 
 
 def demo_graph(scenario: str, sensors: list[str], bag: str, rate: float = 1.0,
@@ -146,7 +147,8 @@ def line_graph(scenario: str, bag: str, rate: float = 1.0, record: bool = True,
     parameters): recorder (if ``record``) in /, per train its sensor nodes (ingest) and its
     fusion in /<train>, the wayside sensor nodes (ingest) and the association of their fixes
     with the trains in /wayside (with a changeover section also its combined detection and
-    controller: ``wayside_occupancy``, ``neutral_section_controller``), and the simulator in
+    controller: ``wayside_occupancy``, ``neutral_section_controller``), per train with ETCS data or
+    ``atp`` its ``etcs_location`` and ``atp_supervision`` (graph_options), and the simulator in
     /, which publishes every train's truth and the raw blocks of every device (the wayside
     ones see all trains; nodes/simulator.py). The sensor and fusion nodes take their train's
     part of the scenario from their namespace (Scenario.for_namespace). ``fusion_rate``: the
@@ -168,6 +170,13 @@ def line_graph(scenario: str, bag: str, rate: float = 1.0, record: bool = True,
         if fusion_rate is not None:
             fusion["publish_rate"] = float(fusion_rate)
         nodes.append((f"/{name}", "fusion", "fusion", fusion))
+        # a train with ETCS data on its track or network, or supervised (``atp``): its location
+        # function and its supervision, as in demo_graph (the speed controller is not run on a line)
+        options = graph_options(train)
+        if options["etcs"]:
+            nodes.append((f"/{name}", "etcs_location", "etcs_location", {"scenario": scenario, "use_sim_time": True}))
+        if options["atp"] is not None:
+            nodes.append((f"/{name}", "atp_supervision", "atp_supervision", {**options["atp"], "use_sim_time": True}))
     nodes += [(f"/{WAYSIDE}", node, node, dict(ingest)) for node in line.wayside]
     site = line.changeover_site()
     if site is not None:

@@ -183,6 +183,7 @@ FUSION_EXAMPLE = """\
     map_frame: map
     base_frame: base_link
     odom_frame: ""               # set (e.g. odom) when another source publishes odom -> base_link
+    hold_late_inputs: false      # true: inputs wait for their sensors' declared latency (states that late)
     confidence: 0.999            # probability of [position_min, position_max]; 0.5 .. 1 - 1e-9
     lost_stddev: 100.0           # [m] position 1-sigma above which the mode is LOST; 0.01 .. 1e6
     history: 2.0                 # [s] how late a measurement may be; 0.01 .. 60

@@ -56,20 +56,19 @@ class Trajectory:
 
     @classmethod
     def from_legs(cls, legs, s0, v0, duration, dt):
+        """The legs driven from chainage ``s0`` [m] at speed ``v0`` [m/s] for ``duration`` [s],
+        sampled every ``dt`` [s]. The loop runs on plain floats and fills the arrays at the end
+        (numpy scalars per step cost 4x: every scenario and campaign draw builds one)."""
         n = int(round(duration / dt)) + 1
-        t = np.arange(n) * dt
-        s = np.empty(n)
-        v = np.empty(n)
-        a = np.empty(n)
-        s[0], v[0], a[0] = s0, v0, 0.0
+        s_k, v_k, acc = float(s0), float(v0), 0.0
+        s, v, a = [s_k], [v_k], [acc]
         leg_idx, hold_left, reached = 0, None, False
-        for k in range(1, n):
-            acc = a[k - 1]
+        for _ in range(1, n):
             if leg_idx < len(legs):
                 leg = legs[leg_idx]
-                err = leg.speed - v[k - 1]
+                err = leg.speed - v_k
                 if not reached:
-                    speeding_up = (err > 0) == (v[k - 1] >= 0) and abs(v[k - 1]) > 1e-9 or abs(v[k - 1]) <= 1e-9
+                    speeding_up = (err > 0) == (v_k >= 0) and abs(v_k) > 1e-9 or abs(v_k) <= 1e-9
                     limit = leg.accel if speeding_up else leg.decel
                     # accelerate with limited jerk; start easing off early enough
                     # that the acceleration is back to ~0 when the target is reached
@@ -81,16 +80,19 @@ class Trajectory:
                     if abs(err) < 1e-3 or (abs(err) < abs(acc) * dt * 2 and a_target == 0.0):
                         reached, hold_left, acc = True, leg.hold, 0.0
                 if reached:
-                    acc = _clamp((leg.speed - v[k - 1]) / dt, leg.jerk * dt)
+                    acc = _clamp((leg.speed - v_k) / dt, leg.jerk * dt)
                     hold_left -= dt
                     if hold_left <= 0:
                         leg_idx, reached = leg_idx + 1, False
             else:
                 acc = _clamp(-acc, 0.5 * dt) + acc
-            a[k] = acc
-            v[k] = v[k - 1] + acc * dt
-            s[k] = s[k - 1] + 0.5 * (v[k - 1] + v[k]) * dt
-        return cls(t, s, v, a)
+            v_next = v_k + acc * dt
+            s_k = s_k + 0.5 * (v_k + v_next) * dt
+            v_k = v_next
+            s.append(s_k)
+            v.append(v_k)
+            a.append(acc)
+        return cls(np.arange(n) * dt, np.array(s), np.array(v), np.array(a))
 
     def state_at(self, stamp: float) -> TruthState:
         position = float(np.interp(stamp, self.t, self.position))

@@ -45,7 +45,6 @@ the fused speed's sign where |v| > v_ura. The last ``PREVIOUS_LRBGS`` LRBGs are 
 from __future__ import annotations
 
 import math
-from bisect import bisect_left
 from collections import deque
 from dataclasses import dataclass
 
@@ -54,6 +53,7 @@ from ..safety.plausibility import PARAMS as MOTION_PARAMS
 from ..safety.plausibility import speed_bound
 from ..sensors.base import Param, check_declared, resolve_params
 from . import odometer
+from .state_history import StateHistory
 from .linking import Expectation, expect
 from .records import EventKind, LocationEvent, LocationReport, QDirLrbg, Reaction
 from .track_data import EtcsData
@@ -140,7 +140,7 @@ class LocationTracker:
         self._missed_chain: tuple[str, float] = ("", 0.0)   # (group the links chain on from, distance to it)
         self._front_offset = 0.0
         self._closed_at: float | None = None
-        self._states: deque[tuple[FusedState, float]] = deque()   # (state, odometer reading [m])
+        self._states = StateHistory()   # the fused states with the odometer reading [m] at each
         self._odometer = 0.0
         self._pending: list[PositionFix] = []
         # while True a linked group whose window closed is not declared missed yet (on a network:
@@ -159,11 +159,10 @@ class LocationTracker:
     def on_state(self, state: FusedState) -> tuple[LocationReport, list[LocationEvent]]:
         """The report of one fused state (states in time order) and the events due by then."""
         if self._states:
-            last, reading = self._states[-1]
+            last, reading = self._states.last()
             self._odometer = reading + 0.5 * (last.speed + state.speed) * (state.t - last.t)
-        self._states.append((state, self._odometer))
-        while self._states and self._states[0][0].t < state.t - self.params["history"]:
-            self._states.popleft()
+        self._states.append(state, self._odometer)
+        self._states.forget_before(state.t - self.params["history"])
         events: list[LocationEvent] = []
         due = sorted((f for f in self._pending if f.stamp <= state.t), key=lambda f: f.stamp)
         self._pending = [f for f in self._pending if f.stamp > state.t]
@@ -181,13 +180,9 @@ class LocationTracker:
     # ----------------------------------------------------------------------- reads
     def _at(self, t: float) -> tuple[FusedState, float, float, float] | None:
         """(state nearest t, odometer at t [m], interval lo, hi around t) from the history, None if too old."""
-        times = [s.t for s, _ in self._states]
-        if not times or t < times[0] - 1e-9:
+        if not self._states or t < self._states.first_time() - 1e-9:
             return None
-        k = bisect_left(times, t)
-        after = self._states[min(k, len(times) - 1)]
-        before = self._states[max(k - 1, 0)] if times[min(k, len(times) - 1)] > t else after
-        (s0, o0), (s1, o1) = before, after
+        (s0, o0), (s1, o1) = self._states.around(t)
         f = 0.0 if s1.t == s0.t else (t - s0.t) / (s1.t - s0.t)
         nearest = s1 if f >= 0.5 else s0
         lo, hi = min(s0.position_min, s1.position_min), max(s0.position_max, s1.position_max)
@@ -279,11 +274,11 @@ class LocationTracker:
     def _claimed_interval(self, t: float) -> tuple[float, float] | None:
         """The front's interval [m] at ``t`` [s]: the claimed states around it, or the first
         claimed one after it widened by the reach back to ``t``; None if none claims yet."""
-        around = [s for s, _ in self._states if abs(s.t - t) <= 0.5]
+        around = list(self._states.within(t, 0.5))
         claimed = [s for s in around if s.claimed]
         if claimed and len(claimed) == len(around):
             return min(s.position_min for s in claimed), max(s.position_max for s in claimed)
-        later = next((s for s, _ in self._states if s.t >= t and s.claimed), None)
+        later = self._states.first_claimed_from(t)
         if later is None:
             return None
         dt = later.t - t

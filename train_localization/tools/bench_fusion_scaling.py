@@ -1,6 +1,7 @@
 """The fusion's cost as a run grows: against the run's length and against the number of trains
 on one line (``bench_fusion --lengths``, ``bench_fusion --trains``). CPU seconds of this process
-(time.process_time: the host's load does not enter), the simulation of the sensors not timed.
+(time.process_time, not wall time; a loaded host still spreads it by 10-20 %), the simulation of
+the sensors not timed.
 
   run length   one train's measurements simulated once for the longest run (the scenario's track
                repeated end to end, ``tiled_track``, its last speed held), then fused in order for

@@ -5,6 +5,12 @@ accuracy figures of whole scenarios against their ground truth.
       [--duration 30] [--delay 0.2] [--seed 1] [--check]
   python -m train_localization.tools.bench_fusion --figures config/scenario_conventional_300.yaml \
       config/scenario_maglev_500.yaml config/scenario_demo.yaml
+  python -m train_localization.tools.bench_fusion --lengths 60 300 1200 [--scenario ...] [--accelerometer]
+  python -m train_localization.tools.bench_fusion --trains 1 2 4 [--line config/scenario_line_highspeed.yaml]
+      [--duration 120]
+
+``--accelerometer`` adds a longitudinal accelerometer to the scenario's sensors. ``--lengths`` and
+``--trains``: the cost as the run grows (tools/bench_fusion_scaling.py).
 
 Cost: the scenario's sensors are simulated once (not timed); their measurements, each
 with the time at which its block completed (its arrival), are then fed to a
@@ -200,6 +206,14 @@ def print_association(result) -> None:
     print(f"  by sensor {a['by_sensor']}; used per train {a['delivered']}")
 
 
+def with_accelerometer(scenario: Scenario) -> Scenario:
+    """One-train ``scenario`` with a longitudinal accelerometer (its defaults) beside its sensors."""
+    data = dict(scenario.description)
+    data["sensors"] = {**(data.get("sensors") or {}), "accelerometer": {}}
+    data["name"] = f"{scenario.name}+accelerometer"
+    return Scenario.from_dict(data, source=scenario.source)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenario", default="config/scenario_maglev_500.yaml")
@@ -209,6 +223,13 @@ def main(argv=None) -> int:
     ap.add_argument("--check", action="store_true", help="exit 1 unless exact and every run >= 5x real time")
     ap.add_argument("--figures", nargs="+", metavar="SCENARIO", help="accuracy figures of these scenarios "
                     "(simulate_scenario) instead of the cost benchmark")
+    ap.add_argument("--accelerometer", action="store_true", help="the scenario's sensors and an accelerometer")
+    ap.add_argument("--lengths", nargs="+", type=float, metavar="S", help="CPU per simulated second against the "
+                    "run's length [s] (e.g. 60 300 1200), in order, instead of the arrival orders")
+    ap.add_argument("--trains", nargs="+", type=int, metavar="N", help="CPU of the line's fusion with the first N "
+                    "trains of --line (e.g. 1 2 4) over --duration s, instead of the arrival orders")
+    ap.add_argument("--line", default="config/scenario_line_highspeed.yaml", help="line scenario of --trains")
+    ap.add_argument("--repeat", type=int, default=1, help="--lengths, --trains: the least CPU of this many runs")
     args = ap.parse_args(argv)
     if args.figures:
         from ..core.offline import simulate_scenario
@@ -228,7 +249,21 @@ def main(argv=None) -> int:
                 print_changeover(changeover_check(result), "the offline controller's ABB commands")
             print(f"  (simulate_scenario {time.perf_counter() - t0:.1f} s)")
         return 0
+    if args.trains:
+        from . import bench_fusion_scaling as scaling
+        line = Scenario.from_yaml(args.line)
+        duration = min(args.duration, line.duration)
+        print(f"{line.name}: the line's fusion (every train's and the wayside fixes' association), {duration:.0f} s")
+        scaling.print_costs(scaling.train_count_costs(line, args.trains, duration, args.repeat), per=args.trains)
+        return 0
     scenario = Scenario.from_yaml(args.scenario)
+    if args.accelerometer:
+        scenario = with_accelerometer(scenario)
+    if args.lengths:
+        from . import bench_fusion_scaling as scaling
+        costs = scaling.run_length_costs(scenario, args.lengths, args.repeat)
+        scaling.print_costs(costs)
+        return 0
     duration = min(args.duration, scenario.duration)
     t0 = time.perf_counter()
     arrivals = scenario_measurements(scenario, duration)

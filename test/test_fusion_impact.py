@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from train_localization.core.fusion import FusionConfig, TrainFilter, impact, sensor_models
+from train_localization.core.fusion import MODE_NOMINAL, FusionConfig, TrainFilter, impact, sensor_models
 from train_localization.core.measurements import Acceleration, PositionFix, SpeedMeasurement
 from train_localization.core.scenario import Vehicle
 
@@ -378,3 +378,69 @@ def test_a_radar_scale_step_between_fixes_stays_covered_with_the_accelerometer_c
                if math.isfinite(est.position) and not est.position_min <= s <= est.position_max]
     assert not outside
     assert max(abs(est.position - s) for t, est, s in states if 30.0 < t < 80.0) > 5.0   # the fault did move it
+
+
+def test_the_cover_leaves_out_the_scale_faults_another_cover_holds():
+    """``impact.cover`` with ``left_to`` (sensor, since): that sensor's own scale-fault rows that
+    began after ``since`` are left out; its earlier rows, and other sensors' rows, stay."""
+    n, z = 4, 3.0
+    bank = impact.started(None, {"doppler": 0.1, "wheel": 0.1}, 1.0, n, 8, z)
+    bank = impact.started(bank, {"doppler": 0.1}, 5.0, n, 8, z)
+    # what each row's fault put into the position per unit fault
+    bank = bank._replace(E=np.array([[10.0, 0, 0, 0], [20.0, 0, 0, 0], [40.0, 0, 0, 0]]))
+    assert [(row.sensor, row.onset) for row in bank] == [("doppler", 1.0), ("wheel", 1.0), ("doppler", 5.0)]
+    untested = 0.1 / z   # the fault's 1-sigma while nothing has tested it: bound / z
+
+    def half(left_to=None):
+        return impact.cover(bank, 0.0, z, 0.0, 0.0, left_to)[0]
+    assert half() == pytest.approx(z * 40.0 * untested)
+    assert half(impact.LeftTo("doppler", 2.0)) == pytest.approx(z * 20.0 * untested)   # the wheel's row
+    assert half(impact.LeftTo("doppler", 0.5)) == pytest.approx(z * 20.0 * untested)
+    assert half(impact.LeftTo("wheel", 0.5)) == pytest.approx(z * 40.0 * untested)
+    assert half(impact.LeftTo("doppler", 5.0)) == pytest.approx(z * 40.0 * untested)   # began at, not after
+
+
+def _fast_lone_radar(fault: float, until: float = 40.0) -> tuple[TrainFilter, list]:
+    """A maglev at a steady 100 m/s, a lone Doppler radar at 20 Hz, a position fix (1-sigma
+    0.1 m) every 100 m but none from 2,000 m to 3,000 m (10 s); from 21 s the radar reads
+    ``fault`` high (a scale fault's step after the last fix before the gap). Returns the
+    filter at ``until`` [s] and the (t, estimate, true position) of every 0.2 s."""
+    f = TrainFilter(FusionConfig(sensors=sensor_models(["doppler_radar", "eurobalise_reader"], None, Vehicle()),
+                                 fault_onset_spacing=5.0))
+    f.reset(position=0.0, position_stddev=0.5, speed=100.0, speed_stddev=0.1, stamp=0.0)
+    rng, states = np.random.default_rng(7), []
+    for k in range(1, int(until * 20) + 1):
+        t, s = k / 20.0, 100.0 * k / 20.0
+        scale = 1.0 + (fault if t >= 21.0 else 0.0)
+        f.add(SpeedMeasurement(t, "doppler", "d", 100.0 * scale + float(rng.normal(0, 0.05)), 0.3))
+        if k % 20 == 0 and not 2000.0 < s < 3000.0:
+            f.add(PositionFix(t, "eurobalise", "b", "T", f"EB{int(s)}", s + float(rng.normal(0, 0.1)), 0.1))
+        if k % 4 == 0:
+            states.append((t, f.estimate(t), s))
+    return f, states
+    return f, states
+
+
+def test_a_lone_radars_faults_since_its_solution_began_are_held_by_that_solution_alone():
+    """A lone radar through a 10 s gap between fixes at 100 m/s: a scale fault that began after
+    the solution without the radar did (the motion model, conditioned on the fixes, lone.py) is
+    one that solution holds, so the bank's rows of such onsets are left to it. 8 s into the gap
+    the interval is that solution's, 58 m half-wide, not the 100 m those rows need (z x the
+    fault's untested 1-sigma x the distance since their onset; the earlier rows, tested by the
+    fixes, need 10 m). A 2 % or 5 % scale step at 21 s, just after the last fix before the gap,
+    stays inside in every state."""
+    t = 28.0
+    f, states = _fast_lone_radar(0.0, until=t)
+    x, P, aux = f.state()
+    z = f.limits.z
+    assert aux.lone_view is not None and aux.lone_view.sensor == "doppler" and aux.lone_view.since < 1.0
+    full = impact.cover(aux.impacts, t - aux.t, z, P[0, 0], P[1, 1])[0]
+    left = impact.cover(aux.impacts, t - aux.t, z, P[0, 0], P[1, 1], impact.LeftTo("doppler", aux.lone_view.since))[0]
+    _, est, s = states[-1]
+    half = 0.5 * (est.position_max - est.position_min)
+    assert est.stamp == pytest.approx(t) and est.mode == MODE_NOMINAL
+    assert left < 0.2 * full and left < half < 0.7 * full
+    for fault in (0.02, -0.05):
+        _, states = _fast_lone_radar(fault)
+        assert all(e.position_min <= s <= e.position_max for _, e, s in states)
+        assert max(abs(e.position - s) for _, e, s in states) > 15.0   # the fault did move it

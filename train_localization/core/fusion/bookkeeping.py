@@ -79,6 +79,8 @@ class LoneView(NamedTuple):
     sensor: str         # the lone sensor
     bound: float        # the position error [m] its scale fault can have put into the filter
     inertial: InertialView | None = None  # the accelerometer's dead reckoning since (inertial.py), if one reads
+    since: float = -math.inf  # [s] the time it started from the filter's state: a fault of its sensor that
+                              # began later is in it, not in its start
 
 
 class NisSum(NamedTuple):

@@ -425,27 +425,45 @@ class Prepared(NamedTuple):
     3x the rest of a published state)."""
 
     rows: tuple   # ((e0, e1, e2, fault mean, fault 1-sigma, an offset: bounded, not spread), ...)
+    scales: tuple = ()  # per row: (sensor, onset [s]) of one sensor's own scale fault, else None
+
+
+class LeftTo(NamedTuple):
+    """The scale-fault hypotheses of one sensor that another cover holds: those of ``sensor`` that
+    began after ``since`` [s] (the lone-source solution, lone.py: the motion model without that
+    sensor from its state at ``since``, which holds under any fault of it since)."""
+
+    sensor: str
+    since: float
 
 
 @_keeps_none
 def prepared(bank: Bank, z: float) -> Prepared:
     """The bank's rows for ``cover`` (None: no hypothesis yet)."""
     mean, sigma = _within_bound(*_fault(bank.info, bank.score, bank.bounds, z), bank.bounds, z, bank.offset)
+    scales = tuple((name, float(onset)) if not (offset or transient) and group == {name} else None
+                   for name, onset, offset, transient, group in zip(bank.sensors, bank.onsets, bank.offset,
+                                                                    bank.transient, bank.groups))
     return Prepared(tuple(zip(bank.E[:, 0].tolist(), bank.E[:, 1].tolist(), bank.E[:, 2].tolist(),
-                              mean.tolist(), sigma.tolist(), bank.offset.tolist())))
+                              mean.tolist(), sigma.tolist(), bank.offset.tolist())), scales)
 
 
-def cover(bank: Bank | Prepared, dt: float, z: float, var_s: float, var_v: float) -> tuple[float, float]:
+def cover(bank: Bank | Prepared, dt: float, z: float, var_s: float, var_v: float,
+          left_to: LeftTo | None = None) -> tuple[float, float]:
     """(position [m], speed [m/s]) half-widths of the interval that covers every hypothesis at dt
     [s] after the filter's state, whose own variances there are var_s [m^2], var_v [m^2/s^2]:
     per hypothesis the fault's mean effect plus z x (the filter's noise and the fault's spread,
     root-sum-squared), the largest over the hypotheses and the fault-free z sigma. An offset is a
     bounded bias, not a spread: its largest effect within mean +- z sigma (``_within_bound``) is
-    added to the filter's z sigma (ARAIM's bias + K sigma)."""
-    rows = (bank if isinstance(bank, Prepared) else prepared(bank, z)).rows
+    added to the filter's z sigma (ARAIM's bias + K sigma). ``left_to``: the scale faults of one
+    sensor that another published cover holds (``LeftTo``), left out: under such a fault the truth
+    is in that cover too, so this one's width adds no integrity."""
+    prep = bank if isinstance(bank, Prepared) else prepared(bank, z)
     sd_s, sd_v = math.sqrt(var_s), math.sqrt(var_v)
     half_s, half_v = z * sd_s, z * sd_v
-    for e0, e1, e2, mean, sigma, offset in rows:
+    for k, (e0, e1, e2, mean, sigma, offset) in enumerate(prep.rows):
+        if left_to is not None and _left(prep.scales[k], left_to):
+            continue
         p, v = e0 + e1 * dt + 0.5 * e2 * dt * dt, e1 + e2 * dt
         if offset:
             half_s = max(half_s, abs(p) * (abs(mean) + z * sigma) + z * sd_s)
@@ -454,3 +472,8 @@ def cover(bank: Bank | Prepared, dt: float, z: float, var_s: float, var_v: float
             half_s = max(half_s, abs(p * mean) + z * math.sqrt(var_s + (p * sigma) ** 2))
             half_v = max(half_v, abs(v * mean) + z * math.sqrt(var_v + (v * sigma) ** 2))
     return half_s, half_v
+
+
+def _left(scale: tuple | None, left_to: LeftTo) -> bool:
+    """Whether a row (its ``Prepared.scales`` entry) is one that ``left_to`` holds."""
+    return scale is not None and scale[0] == left_to.sensor and scale[1] > left_to.since

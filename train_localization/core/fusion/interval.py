@@ -40,7 +40,8 @@ class Interval(Component):
         ``confidence`` interval widened to cover every pending hypothesis, in this order: the
         unexplained fix, the excluded sensors' views, their speeds, the motion-model hypotheses,
         the lone-source solution, the persistent-fault cover (impact.py; ``bank``: aux.impacts, or
-        the same prepared by ``impact.prepared``) and the sensors' own solutions (``odometer``: the
+        the same prepared by ``impact.prepared``; less the lone source's scale faults that began
+        after its solution did, which that solution holds wherever it is not empty) and the sensors' own solutions (``odometer``: the
         filter's odometer at t, Bookkeeping.odometer)."""
         lo, hi = float(s) - self.f.limits.z * sd_s, float(s) + self.f.limits.z * sd_s
         alt = aux.alternative
@@ -68,6 +69,7 @@ class Interval(Component):
             half = self.f.limits.z * math.sqrt(var_m)
             if s_m - half < lo or s_m + half > hi:
                 lo, hi, sd_s, mode = self.widen(aux, t, lo, hi, sd_s, mode, s_m - half, s_m + half)
+        left_to = None   # the lone source's scale faults since its solution began: that solution holds them
         if aux.lone_view is not None:   # the solution without a lone speed source (its fault)
             l_lo, l_hi, half_v, s_m, var_m = views.lone_interval(
                 aux.lone_view, aux.t, t, float(s), var_s, float(v), var_v,
@@ -79,8 +81,11 @@ class Interval(Component):
                     mode = Mode.DEGRADED
             if half_v > self.f.limits.z * sd_v:
                 sd_v = half_v / self.f.limits.z
+            if l_lo <= l_hi:
+                left_to = impact.LeftTo(aux.lone_view.sensor, aux.lone_view.since)
         if aux.impacts is not None:   # the persistent faults of the relative sensors the data has not excluded
-            half_s, half_v = impact.cover(bank, t - aux.t, self.f.limits.z, max(var_s, 0.0), max(var_v, 0.0))
+            half_s, half_v = impact.cover(bank, t - aux.t, self.f.limits.z, max(var_s, 0.0), max(var_v, 0.0),
+                                          left_to)
             if float(s) - half_s < lo or float(s) + half_s > hi:
                 lo, hi, sd_s, mode = self.widen(aux, t, lo, hi, sd_s, mode, float(s) - half_s, float(s) + half_s)
             if half_v > self.f.limits.z * sd_v:

@@ -50,7 +50,8 @@ class LoneSource(Component):
             if aux.lone_view is not None and in_use:
                 return self.accompanied(stamp)
         elif aux.lone_view is None or aux.lone_view.sensor != lone:
-            aux.lone_view = LoneView(self.lone_model_view(stamp, lone), lone, 0.0, self.inertial_start(stamp, lone))
+            aux.lone_view = LoneView(self.lone_model_view(stamp, lone), lone, 0.0, self.inertial_start(stamp, lone),
+                                     since=stamp)
         return ()
 
     def take_acceleration(self, m) -> None:
@@ -153,8 +154,9 @@ class LoneSource(Component):
         dead = held.inertial
         if dead is not None:
             dead, nis = inertial.fixed(dead, m.stamp, z, R)
+        since = held.since
         if (z - s_m) ** 2 > gate * (R + var_m) or (dead is not None and nis > gate):
-            view = self.lone_model_view(m.stamp, held.sensor)
+            view, since = self.lone_model_view(m.stamp, held.sensor), m.stamp
             dead = dead and self.inertial_start(m.stamp, held.sensor)
             counts.event(aux, "lone_source_solution_refuted")
         else:
@@ -163,4 +165,4 @@ class LoneSource(Component):
         # own error; the update took its gain's share of it (a DGPS fix little, a tag nearly all)
         gain, nu = self.f.last_update
         before = min(held.bound, abs(nu) + self.f.limits.z * math.sqrt(R))
-        aux.lone_view = LoneView(view, held.sensor, (1.0 - min(max(float(gain[0]), 0.0), 1.0)) * before, dead)
+        aux.lone_view = LoneView(view, held.sensor, (1.0 - min(max(float(gain[0]), 0.0), 1.0)) * before, dead, since)

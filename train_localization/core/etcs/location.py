@@ -54,6 +54,7 @@ from ..safety.plausibility import PARAMS as MOTION_PARAMS
 from ..safety.plausibility import speed_bound
 from ..sensors.base import Param, check_declared, resolve_params
 from . import odometer
+from .carried import CarriedInterval, CarriedStep
 from .linking import Expectation, expect
 from .records import EventKind, LocationEvent, LocationReport, QDirLrbg, Reaction
 from .track_data import EtcsData
@@ -143,6 +144,7 @@ class LocationTracker:
         self._states: deque[tuple[FusedState, float]] = deque()   # (state, odometer reading [m])
         self._odometer = 0.0
         self._pending: list[PositionFix] = []
+        self.carried = CarriedInterval()
         # while True a linked group whose window closed is not declared missed yet (on a network:
         # a read waits for the followed path to reach its section, core/etcs/network_location.py)
         self.hold_missed = False
@@ -176,7 +178,9 @@ class LocationTracker:
                 events += taken
         self._pending += waiting
         events += self._check_window(state)
-        return self._report(state), events
+        lo, hi = self.carried.advance(CarriedStep(state.t, state.position_min, state.position_max, state.speed,
+                                                  self._v_ura(state)))
+        return self._report(state, lo, hi), events
 
     # ----------------------------------------------------------------------- reads
     def _at(self, t: float) -> tuple[FusedState, float, float, float] | None:
@@ -307,6 +311,7 @@ class LocationTracker:
         if self.lrbg is not None:
             self.previous.appendleft(self.lrbg.nid_bg)
         self.lrbg = _Lrbg(nid, fix.stamp, direction, reading)
+        self.carried.restart()
         self._front_offset = fix.position - self._balise_chainage(fix.reference_id)
         self.stats["lrbg"] += 1
         self._missed_chain = (nid, 0.0)
@@ -377,11 +382,13 @@ class LocationTracker:
     def _v_ura(state: FusedState) -> float:
         return speed_bound(state.confidence, state.speed_stddev)
 
-    def _report(self, state: FusedState) -> LocationReport:
+    def _report(self, state: FusedState, lo: float, hi: float) -> LocationReport:
+        """The report of ``state`` with [``lo``, ``hi``] [m] its carried interval (core/etcs/carried.py)."""
         o = self.orientation
         est = state.position
-        ahead_min, ahead_max = (state.position_min, state.position_max) if o > 0 else \
-            (state.position_max, state.position_min)
+        if math.isfinite(est):   # the safe front ends never exclude the estimate
+            lo, hi = min(lo, est), max(hi, est)
+        ahead_min, ahead_max = (lo, hi) if o > 0 else (hi, lo)
         over, under = abs(est - ahead_min), abs(ahead_max - est)
         lrbg = self.data.groups[self.lrbg.nid_bg] if self.lrbg is not None else None
         d_lrbg = (est - lrbg.reference) * lrbg.orientation if lrbg is not None else math.nan

@@ -4,8 +4,11 @@ section 3.6; docs/etcs.md): the functional core of the ``etcs_location`` node.
 Safe front ends. The fused state's interval [position_min, position_max] is the protection
 level of the integrity work: it contains the true front at the state's confidence, balise
 location errors included (the Eurobalise reader's error model has each balise's Q_LOCACC as
-the bound of its location error, core/sensors/eurobalise.py). So the min and max safe front
-ends are its ends, taken along the train's orientation, and
+the bound of its location error, core/sensors/eurobalise.py); its speed interval v_est +-
+v_ura contains the true speed at the same confidence. So each state's interval since the LRBG,
+moved on by the speed interval since, still holds the front: the min and max safe front ends
+are the ends of the intersection of these with the state's own interval (core/etcs/carried.py,
+restarted at each LRBG, never excluding the estimate), taken along the train's orientation, and
 
     L_DOUBTOVER  = estimated - min safe front end     (the odometer may have over-read)
     L_DOUBTUNDER = max safe front end - estimated     (it may have under-read)

@@ -9,10 +9,12 @@ import numpy as np
 import pytest
 
 from train_localization.core import campaign
+from train_localization.core.etcs.carried import CarriedInterval, CarriedStep
 from train_localization.core.etcs.location import PREVIOUS_LRBGS, FusedState, LocationTracker
 from train_localization.core.etcs.records import EventKind, QDirLrbg, Reaction
 from train_localization.core.etcs.track_data import EtcsData
 from train_localization.core.measurements import PositionFix
+from train_localization.core.safety.plausibility import speed_bound
 from train_localization.core.sensors import eurobalise
 from train_localization.core.track import Track, TrackError
 
@@ -43,12 +45,12 @@ def _track_dict(linking="auto", q=1.0, national=None, groups=12, spacing=1000.0,
 
 
 class Run:
-    """A train at SPEED from chainage 0 whose fused interval is +-HALF about the truth (+ bias),
-    states every STEP, and a balise fix for each balise it passes (unless silenced)."""
+    """A train at SPEED from chainage 0 whose fused interval is +-half(t) (HALF) about the truth
+    (+ bias), states every STEP, and a balise fix for each balise it passes (unless silenced)."""
 
     def __init__(self, track: Track, speed: float = SPEED, bias=lambda t: 0.0, odometer_scale: float = 1.0,
-                 silent=(), moved=None, directions: bool = True, orientation: int = 1):
-        self.track, self.speed, self.bias = track, speed, bias
+                 silent=(), moved=None, directions: bool = True, orientation: int = 1, half=lambda t: HALF):
+        self.track, self.speed, self.bias, self.half = track, speed, bias, half
         self.tracker = LocationTracker(EtcsData.from_track(track), {"orientation": orientation})
         self.scale = odometer_scale
         self.fixes = []
@@ -69,8 +71,8 @@ class Run:
             while j < len(fixes) and fixes[j].stamp <= t:
                 self.tracker.on_fix(fixes[j])
                 j += 1
-            x = self.speed * t + self.bias(t)
-            report, events = self.tracker.on_state(FusedState(float(t), x, x - HALF, x + HALF, self.speed * self.scale,
+            x, h = self.speed * t + self.bias(t), self.half(t)
+            report, events = self.tracker.on_state(FusedState(float(t), x, x - h, x + h, self.speed * self.scale,
                                                               0.05, CONF, 1))
             self.reports.append(report)
             self.events += events
@@ -198,6 +200,55 @@ def test_a_linked_group_passed_against_its_link_trips_the_train():
     run.run(80.0)
     wrong = run.kinds(EventKind.WRONG_DIRECTION)
     assert [(e.nid_bg, e.reaction) for e in wrong] == [("BG003", Reaction.TRAIN_TRIP)]
+
+
+V_URA = speed_bound(CONF, 0.05)   # the Run's v_ura [m/s] (4.89 x its speed_stddev 0.05)
+
+
+def test_a_fused_interval_widening_after_the_lrbg_is_held_to_the_interval_the_speed_interval_carries():
+    """The fused interval +-1 m until 15 s, then +-30 m (a hypothesis the fusion covers): the
+    safe front ends are the +-1 m of 14.99 s grown by v_ura each way since, the truth inside; the
+    next LRBG (BG001, 30.04 s) starts the carried interval again from the state's +-30 m."""
+    run = Run(_track(), half=lambda t: HALF if t < 15.0 else 30.0).run(40.0)
+    for t in (15.0, 20.0, 25.0, 29.0):
+        r = run.reports[round(t / STEP)]
+        x = SPEED * r.t
+        grown = HALF + V_URA * (r.t - 14.99)
+        assert r.nid_lrbg == "BG000"
+        assert r.l_doubtover == pytest.approx(grown, abs=1e-6) and r.l_doubtunder == pytest.approx(grown, abs=1e-6)
+        assert r.min_safe_front_end < x < r.max_safe_front_end
+    lrbg = next(e for e in run.kinds(EventKind.LRBG) if e.nid_bg == "BG001")
+    after = [r for r in run.reports if r.t > lrbg.t + 0.1]
+    assert after[0].nid_lrbg == "BG001"
+    assert all(r.l_doubtover == pytest.approx(30.0) and r.l_doubtunder == pytest.approx(30.0) for r in after)
+
+
+def test_an_estimate_outside_the_carried_interval_stays_within_its_safe_front_ends():
+    """The estimate 5 m ahead of the truth from 20 s, its interval +-30 m about it: the carried
+    interval (the truth +-(1 m + v_ura since 14.99 s)) does not reach it, the max safe front
+    end is the estimate (L_DOUBTUNDER 0), the min safe front end the carried one."""
+    run = Run(_track(), half=lambda t: HALF if t < 15.0 else 30.0,
+              bias=lambda t: 5.0 if t >= 20.0 else 0.0).run(25.0)
+    r = run.reports[-1]
+    x = SPEED * r.t
+    grown = HALF + V_URA * (r.t - 14.99)
+    assert r.estimated_front_end == pytest.approx(x + 5.0)
+    assert r.l_doubtunder == 0.0 and r.l_doubtover == pytest.approx(5.0 + grown, abs=1e-6)
+    assert r.min_safe_front_end == pytest.approx(x - grown, abs=1e-6) and r.max_safe_front_end == r.estimated_front_end
+
+
+def test_the_carried_interval_falls_back_to_the_states_own_where_the_claims_contradict_or_a_speed_is_missing():
+    carried = CarriedInterval()
+    assert carried.advance(CarriedStep(0.0, 99.0, 101.0, 10.0, 0.5)) == (99.0, 101.0)
+    # 1 s at 10 +- 0.5 m/s: [108.5, 111.5], the state's [100, 120]
+    assert carried.advance(CarriedStep(1.0, 100.0, 120.0, 10.0, 0.5)) == pytest.approx((108.5, 111.5))
+    # the state's interval beyond what the speed allows: disjoint, the state's own
+    assert carried.advance(CarriedStep(2.0, 150.0, 160.0, 10.0, 0.5)) == (150.0, 160.0)
+    assert carried.advance(CarriedStep(3.0, 140.0, 180.0, math.nan, 0.5)) == (-math.inf, math.inf)
+    # after a state without a speed: started again from the next state's interval
+    assert carried.advance(CarriedStep(4.0, 170.0, 190.0, 10.0, 0.5)) == (170.0, 190.0)
+    carried.restart()
+    assert carried.advance(CarriedStep(5.0, 175.0, 205.0, 10.0, 0.5)) == (175.0, 205.0)
 
 
 def test_an_over_reading_odometer_is_impaired_and_the_doubts_fall_back_to_subset041():

@@ -4,8 +4,11 @@ section 3.6; docs/etcs.md): the functional core of the ``etcs_location`` node.
 Safe front ends. The fused state's interval [position_min, position_max] is the protection
 level of the integrity work: it contains the true front at the state's confidence, balise
 location errors included (the Eurobalise reader's error model has each balise's Q_LOCACC as
-the bound of its location error, core/sensors/eurobalise.py). So the min and max safe front
-ends are its ends, taken along the train's orientation, and
+the bound of its location error, core/sensors/eurobalise.py); its speed interval v_est +-
+v_ura contains the true speed at the same confidence. So each state's interval since the LRBG,
+moved on by the speed interval since, still holds the front: the min and max safe front ends
+are the ends of the intersection of these with the state's own interval (core/etcs/carried.py,
+restarted at each LRBG, never excluding the estimate), taken along the train's orientation, and
 
     L_DOUBTOVER  = estimated - min safe front end     (the odometer may have over-read)
     L_DOUBTUNDER = max safe front end - estimated     (it may have under-read)
@@ -53,6 +56,7 @@ from ..safety.plausibility import PARAMS as MOTION_PARAMS
 from ..safety.plausibility import speed_bound
 from ..sensors.base import Param, check_declared, resolve_params
 from . import odometer
+from .carried import CarriedInterval, CarriedStep
 from .state_history import StateHistory
 from .linking import Expectation, expect
 from .records import EventKind, LocationEvent, LocationReport, QDirLrbg, Reaction
@@ -143,6 +147,7 @@ class LocationTracker:
         self._states = StateHistory()   # the fused states with the odometer reading [m] at each
         self._odometer = 0.0
         self._pending: list[PositionFix] = []
+        self.carried = CarriedInterval()
         # while True a linked group whose window closed is not declared missed yet (on a network:
         # a read waits for the followed path to reach its section, core/etcs/network_location.py)
         self.hold_missed = False
@@ -175,7 +180,9 @@ class LocationTracker:
                 events += taken
         self._pending += waiting
         events += self._check_window(state)
-        return self._report(state), events
+        lo, hi = self.carried.advance(CarriedStep(state.t, state.position_min, state.position_max, state.speed,
+                                                  self._v_ura(state)))
+        return self._report(state, lo, hi), events
 
     # ----------------------------------------------------------------------- reads
     def _at(self, t: float) -> tuple[FusedState, float, float, float] | None:
@@ -302,6 +309,7 @@ class LocationTracker:
         if self.lrbg is not None:
             self.previous.appendleft(self.lrbg.nid_bg)
         self.lrbg = _Lrbg(nid, fix.stamp, direction, reading)
+        self.carried.restart()
         self._front_offset = fix.position - self._balise_chainage(fix.reference_id)
         self.stats["lrbg"] += 1
         self._missed_chain = (nid, 0.0)
@@ -372,11 +380,13 @@ class LocationTracker:
     def _v_ura(state: FusedState) -> float:
         return speed_bound(state.confidence, state.speed_stddev)
 
-    def _report(self, state: FusedState) -> LocationReport:
+    def _report(self, state: FusedState, lo: float, hi: float) -> LocationReport:
+        """The report of ``state`` with [``lo``, ``hi``] [m] its carried interval (core/etcs/carried.py)."""
         o = self.orientation
         est = state.position
-        ahead_min, ahead_max = (state.position_min, state.position_max) if o > 0 else \
-            (state.position_max, state.position_min)
+        if math.isfinite(est):   # the safe front ends never exclude the estimate
+            lo, hi = min(lo, est), max(hi, est)
+        ahead_min, ahead_max = (lo, hi) if o > 0 else (hi, lo)
         over, under = abs(est - ahead_min), abs(ahead_max - est)
         lrbg = self.data.groups[self.lrbg.nid_bg] if self.lrbg is not None else None
         d_lrbg = (est - lrbg.reference) * lrbg.orientation if lrbg is not None else math.nan

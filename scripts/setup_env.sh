@@ -30,7 +30,8 @@ _tl_patch_wheel_cmake() {
   local py_inc np_inc
   py_inc="$("$_tl_venv/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["include"])')"
   np_inc="$("$_tl_venv/bin/python" -c 'import numpy; print(numpy.get_include())')"
-  grep -rl --include='*.cmake' '/opt/python/cp311-cp311' "$_tl_venv/share" 2>/dev/null | while read -r f; do
+  # none left to patch (an environment rebuilt in place) is not an error, under pipefail too
+  { grep -rl --include='*.cmake' '/opt/python/cp311-cp311' "$_tl_venv/share" 2>/dev/null || true; } | while read -r f; do
     sed -i \
       -e "s#/opt/python/cp311-cp311/lib/python3.11/site-packages/numpy/_core/include#${np_inc}#g" \
       -e "s#/opt/python/cp311-cp311/include/python3.11#${py_inc}#g" "$f"

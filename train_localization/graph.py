@@ -31,6 +31,17 @@ def graph_options(sc) -> dict:
             "etcs": bool(etcs) or atp is not None, "atp": atp}
 
 
+def etcs_nodes(scenario: str, etcs: bool, atp: dict | None) -> list[tuple[str, str, dict]]:
+    """(executable, name, parameters) of one train's ETCS location function (if ``etcs``) and
+    its ATP supervision (if ``atp``: its parameters), on the simulation's clock."""
+    nodes = []
+    if etcs:
+        nodes.append(("etcs_location", "etcs_location", {"scenario": scenario, "use_sim_time": True}))
+    if atp is not None:
+        nodes.append(("atp_supervision", "atp_supervision", {**atp, "use_sim_time": True}))
+    return nodes
+
+
 def demo_graph(scenario: str, sensors: list[str], bag: str, rate: float = 1.0,
                exclude: list[str] | None = None, record: bool = True,
                controller: bool = False, stator: bool = False, etcs: bool = False,
@@ -65,10 +76,7 @@ def demo_graph(scenario: str, sensors: list[str], bag: str, rate: float = 1.0,
     if stator:
         nodes.append(("stator_section_controller", "stator_section_controller",
                       {"scenario": scenario, "use_sim_time": True}))
-    if etcs:
-        nodes.append(("etcs_location", "etcs_location", {"scenario": scenario, "use_sim_time": True}))
-    if atp is not None:
-        nodes.append(("atp_supervision", "atp_supervision", {**atp, "use_sim_time": True}))
+    nodes += etcs_nodes(scenario, etcs, atp)
     # the simulator starts once the recorder and every sensor node listen to the truth and the
     # fusion publishes (a fusion still starting would miss the first seconds of fused states)
     nodes.append(("simulator", "simulator", {"scenario": scenario, "rate": rate, "start_delay": 1.0,
@@ -173,10 +181,7 @@ def line_graph(scenario: str, bag: str, rate: float = 1.0, record: bool = True,
         # a train with ETCS data on its track or network, or supervised (``atp``): its location
         # function and its supervision, as in demo_graph (the speed controller is not run on a line)
         options = graph_options(train)
-        if options["etcs"]:
-            nodes.append((f"/{name}", "etcs_location", "etcs_location", {"scenario": scenario, "use_sim_time": True}))
-        if options["atp"] is not None:
-            nodes.append((f"/{name}", "atp_supervision", "atp_supervision", {**options["atp"], "use_sim_time": True}))
+        nodes += [(f"/{name}", *node) for node in etcs_nodes(scenario, options["etcs"], options["atp"])]
     nodes += [(f"/{WAYSIDE}", node, node, dict(ingest)) for node in line.wayside]
     site = line.changeover_site()
     if site is not None:

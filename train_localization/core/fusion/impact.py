@@ -171,6 +171,16 @@ class Bank:
             self.memo[key] = _read_only(np.array([not (checkers - g) for g in self.groups], dtype=bool))
         return self.memo[key]
 
+    def own_scales(self) -> tuple:
+        """Per row, (sensor, onset [s]) where it is one sensor's own scale fault (neither an
+        offset, nor transient, nor a common-cause group's), else None (``Prepared.scales``)."""
+        if "own_scales" not in self.memo:
+            self.memo["own_scales"] = tuple(
+                (name, float(onset)) if not (offset or transient) and group == {name} else None
+                for name, onset, offset, transient, group in zip(self.sensors, self.onsets, self.offset,
+                                                                 self.transient, self.groups))
+        return self.memo["own_scales"]
+
     def persistent(self) -> np.ndarray:
         """(k,) bool, read only: the rows of persistent faults (not ``transient``)."""
         if "persistent" not in self.memo:
@@ -441,11 +451,8 @@ class LeftTo(NamedTuple):
 def prepared(bank: Bank, z: float) -> Prepared:
     """The bank's rows for ``cover`` (None: no hypothesis yet)."""
     mean, sigma = _within_bound(*_fault(bank.info, bank.score, bank.bounds, z), bank.bounds, z, bank.offset)
-    scales = tuple((name, float(onset)) if not (offset or transient) and group == {name} else None
-                   for name, onset, offset, transient, group in zip(bank.sensors, bank.onsets, bank.offset,
-                                                                    bank.transient, bank.groups))
     return Prepared(tuple(zip(bank.E[:, 0].tolist(), bank.E[:, 1].tolist(), bank.E[:, 2].tolist(),
-                              mean.tolist(), sigma.tolist(), bank.offset.tolist())), scales)
+                              mean.tolist(), sigma.tolist(), bank.offset.tolist())), bank.own_scales())
 
 
 def cover(bank: Bank | Prepared, dt: float, z: float, var_s: float, var_v: float,
